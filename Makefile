@@ -1,0 +1,125 @@
+# vbrender - plain Makefile. Out-of-tree objects with dependency files.
+#
+#   make deps    install the Debian packages the project needs (idempotent)
+#   make all     bin/vbrender and build/libvbcore.a (the renderer core)
+#   make check   deps, build, all tests, then the same tests under ASan+UBSan
+#   make demo    deps, build, render scenes/cornell-box.json to out/
+#   make bench   deps, build, core benchmark (bench/results/core.json)
+
+BUILD    ?= build
+SAN      ?= 0
+CC       ?= cc
+BIN       = bin
+
+DEB_PACKAGES = build-essential pkg-config libembree-dev libzmq3-dev \
+               libopenexr-dev libcjson-dev check libsubunit-dev libpng-dev
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+
+# Determinism: no -ffast-math, no FMA contraction, no -march=native (the same
+# binary must give the same bits on every host it runs on).
+CFLAGS_COMMON = -std=c11 -Wall -Wextra -Werror -pthread -ffp-contract=off \
+                -fno-math-errno -D_DEFAULT_SOURCE -MMD -MP -g \
+                -Icommon -I/usr/include/OpenEXR -I/usr/include/cjson
+ifeq ($(SAN),1)
+  OPT      = -O1 -fsanitize=address,undefined -fno-sanitize-recover=undefined \
+             -fno-omit-frame-pointer
+  LDSAN    = -fsanitize=address,undefined
+  BUILD    = build-asan
+  BIN      = build-asan/bin
+else
+  OPT      = -O2
+  LDSAN    =
+endif
+CFLAGS   ?=
+CFLAGS   += $(CFLAGS_COMMON) $(OPT)
+LDLIBS_CORE = -lembree3 -lOpenEXRCore -lpng16 -lcjson -lm -lpthread
+LDLIBS_CHECK = -lcheck -lsubunit -lrt -lm -lpthread
+
+CORE_SRC  = $(wildcard common/*.c)
+CORE_OBJ  = $(CORE_SRC:%.c=$(BUILD)/%.o)
+CORE_LIB  = $(BUILD)/libvbcore.a
+
+CLIENT_SRC = $(wildcard client/*.c)
+CLIENT_OBJ = $(CLIENT_SRC:%.c=$(BUILD)/%.o)
+
+TEST_SRC  = $(wildcard tests/test_*.c)
+TEST_BIN  = $(TEST_SRC:tests/%.c=$(BUILD)/tests/%)
+TEST_HELPER_SRC = tests/testutil.c
+TEST_HELPER_OBJ = $(TEST_HELPER_SRC:%.c=$(BUILD)/%.o)
+FUZZ_SRC  = $(wildcard tests/fuzz_*.c)
+FUZZ_BIN  = $(FUZZ_SRC:tests/%.c=$(BUILD)/tests/%)
+
+BENCH_SRC = $(wildcard bench/*.c)
+BENCH_BIN = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
+
+.PHONY: all deps check test test-asan demo bench clean fuzz
+all: $(BIN)/vbrender $(CORE_LIB)
+
+deps:
+	@missing=""; for p in $(DEB_PACKAGES); do \
+	  dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q '^install ok installed' || missing="$$missing $$p"; \
+	done; \
+	if [ -n "$$missing" ]; then \
+	  echo "make deps: installing$$missing"; \
+	  $(SUDO) apt-get update -qq && \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends $$missing; \
+	else echo "make deps: all packages present"; fi
+
+$(BUILD)/%.o: %.c
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -c $< -o $@
+
+$(CORE_LIB): $(CORE_OBJ)
+	@mkdir -p $(dir $@)
+	rm -f $@ && ar rcs $@ $^
+
+$(BIN)/vbrender: $(CLIENT_OBJ) $(CORE_LIB)
+	@mkdir -p $(dir $@)
+	$(CC) $(LDSAN) -pthread -o $@ $(CLIENT_OBJ) $(CORE_LIB) $(LDLIBS_CORE)
+
+$(BUILD)/tests/test_%: $(BUILD)/tests/test_%.o $(TEST_HELPER_OBJ) $(CORE_LIB)
+	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_CHECK) $(LDLIBS_CORE)
+
+$(BUILD)/tests/fuzz_%: $(BUILD)/tests/fuzz_%.o $(CORE_LIB)
+	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_CORE)
+
+$(BUILD)/bench/%: $(BUILD)/bench/%.o $(CORE_LIB)
+	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_CORE)
+
+# Tests find the binary under test and the shared data through these.
+TEST_ENV = VB_BIN=$(abspath $(BIN)/vbrender) VB_ROOT=$(CURDIR) \
+           VB_SHARED=$(abspath ../shared)
+
+test: $(BIN)/vbrender $(TEST_BIN) $(FUZZ_BIN)
+	@mkdir -p $(BUILD)/test-out
+	@set -e; fail=0; for t in $(TEST_BIN); do \
+	  echo "== $$t"; \
+	  $(TEST_ENV) VB_TMP=$(abspath $(BUILD)/test-out) $$t || fail=1; \
+	done; \
+	for f in $(FUZZ_BIN); do \
+	  echo "== $$f (corpus + 20000 mutations)"; \
+	  $$f tests/data/fuzz 20000 || fail=1; \
+	done; \
+	exit $$fail
+
+test-asan:
+	$(MAKE) SAN=1 test
+
+check: deps
+	$(MAKE) all
+	$(MAKE) test
+	$(MAKE) test-asan
+
+demo: deps
+	$(MAKE) all
+	@mkdir -p out
+	$(BIN)/vbrender render scenes/cornell-box.json -o out/cornell-box.exr
+
+bench: deps
+	$(MAKE) all $(BENCH_BIN)
+	bench/run-core.sh
+
+clean:
+	rm -rf build build-asan bin
+
+-include $(CORE_OBJ:.o=.d) $(CLIENT_OBJ:.o=.d) $(TEST_BIN:=.d) $(TEST_HELPER_OBJ:.o=.d)

@@ -1,0 +1,57 @@
+/* film.h - per-pixel accumulation of tracer results.
+ *
+ * Each pixel keeps its sample count, RGB sums (double, Neumaier-compensated
+ * so a million samples keep the mean exact to 1e-12), luminance M2 merged
+ * with Chan's formula, the last eq. 4.1 statistic and its NaN/Inf count.
+ * Merging is per pixel, so a render is deterministic as long as each pixel
+ * receives its tasks' results in layer order, whatever the thread or worker
+ * that produced them.
+ */
+#ifndef VB_FILM_H
+#define VB_FILM_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "image.h"
+#include "tracer.h"
+
+typedef struct film_pixel {
+    uint64_t count;     /* finite samples */
+    uint64_t nonfinite; /* NaN/Inf samples left out */
+    double sum[3];
+    double comp[3];     /* Neumaier compensation of sum */
+    double lum_m2;      /* sum of squared deviations of luminance from the mean */
+    double pvar;        /* eq. 4.1 of the last merged layer */
+    uint32_t layers;    /* tasks merged */
+} film_pixel_t;
+
+typedef struct film {
+    int width, height;
+    film_pixel_t *pixels;
+} film_t;
+
+film_t *film_new(int width, int height);
+void film_destroy(film_t **f);
+
+/* Merges one result into its pixel (the caller keeps layer order per
+ * pixel). Returns -1 if the pixel is outside the film. */
+int film_merge(film_t *f, const tracer_result_t *r);
+
+/* Fills a task's "so far" fields (prior_count, prior_sum) for a pixel. */
+void film_prior(const film_t *f, tracer_task_t *task);
+
+/* Per-pixel mean RGB, and the variance of the mean of luminance
+ * (M2 / (n (n-1)); 0 below two samples). */
+void film_mean(const film_t *f, uint32_t pixel, double rgb[3]);
+double film_variance_of_mean(const film_t *f, uint32_t pixel);
+
+/* Totals over the image. */
+uint64_t film_total_samples(const film_t *f);
+uint64_t film_total_nonfinite(const film_t *f);
+
+/* An image with channels R, G, B (mean), samples and variance. NULL when
+ * out of memory. */
+image_t *film_to_image(const film_t *f);
+
+#endif

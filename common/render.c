@@ -1,0 +1,212 @@
+/* render.c - see render.h. */
+#include "render.h"
+
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+typedef struct job {
+    const tracer_t *tracer;
+    film_t *film;
+    const render_settings_t *s;
+    uint32_t layers;
+    size_t npix;
+    size_t batch_pixels;
+    size_t batch_count;
+    pthread_barrier_t barrier;
+    atomic_size_t next_batch;     /* of the current layer */
+    atomic_uint_fast64_t samples; /* progress, read by the monitor */
+    atomic_uint_fast64_t rays;
+    atomic_int running;           /* worker threads not finished */
+    atomic_int failed;
+    pthread_mutex_t gate_lock;    /* workers wait here until the barrier */
+    pthread_cond_t gate;          /* is sized to the threads that started */
+    int gate_open;
+    char err[256];                /* written once by the first failing thread */
+    pthread_mutex_t err_lock;
+} job_t;
+
+typedef struct worker_arg {
+    job_t *job;
+    int index;
+} worker_arg_t;
+
+static double now_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+const char *render_si(double v, char *buf, size_t len)
+{
+    if (v >= 1e9)
+        snprintf(buf, len, "%.2fG", v / 1e9);
+    else if (v >= 1e6)
+        snprintf(buf, len, "%.2fM", v / 1e6);
+    else if (v >= 1e3)
+        snprintf(buf, len, "%.1fk", v / 1e3);
+    else
+        snprintf(buf, len, "%.0f", v);
+    return buf;
+}
+
+static void *worker_main(void *argp)
+{
+    worker_arg_t *arg = argp;
+    job_t *job = arg->job;
+    const render_settings_t *s = job->s;
+    tracer_task_t *tasks = malloc(job->batch_pixels * sizeof *tasks);
+    tracer_result_t *results = malloc(job->batch_pixels * sizeof *results);
+    if (!tasks || !results)
+        atomic_store(&job->failed, 1);
+    pthread_mutex_lock(&job->gate_lock);
+    while (!job->gate_open)
+        pthread_cond_wait(&job->gate, &job->gate_lock);
+    pthread_mutex_unlock(&job->gate_lock);
+    for (uint32_t layer = 0; layer < job->layers; layer++) {
+        uint64_t first = (uint64_t)layer * s->granularity;
+        uint32_t take = (uint32_t)((uint64_t)s->spp - first < s->granularity ? (uint64_t)s->spp - first
+                                                                               : s->granularity);
+        for (;;) {
+            if (atomic_load(&job->failed))
+                break;
+            size_t b = atomic_fetch_add(&job->next_batch, 1);
+            if (b >= job->batch_count)
+                break;
+            size_t p0 = b * job->batch_pixels;
+            size_t n = job->npix - p0 < job->batch_pixels ? job->npix - p0 : job->batch_pixels;
+            for (size_t i = 0; i < n; i++) {
+                tasks[i].pixel = (uint32_t)(p0 + i);
+                tasks[i].sample_count = take;
+                tasks[i].first_sample = first;
+                film_prior(job->film, &tasks[i]);
+            }
+            tracer_stats_t st = {0, 0};
+            char err[256];
+            if (tracer_trace(job->tracer, &s->tracer, tasks, n, results, &st, err, sizeof err) < 0) {
+                pthread_mutex_lock(&job->err_lock);
+                if (!atomic_load(&job->failed))
+                    snprintf(job->err, sizeof job->err, "%s", err);
+                atomic_store(&job->failed, 1);
+                pthread_mutex_unlock(&job->err_lock);
+                break;
+            }
+            for (size_t i = 0; i < n; i++)
+                film_merge(job->film, &results[i]);
+            atomic_fetch_add(&job->samples, st.samples);
+            atomic_fetch_add(&job->rays, st.rays);
+        }
+        /* The layer is complete when every thread has passed here; one of
+         * them resets the batch counter, and a second wait keeps the others
+         * from taking batches of the next layer before the reset. */
+        if (pthread_barrier_wait(&job->barrier) == PTHREAD_BARRIER_SERIAL_THREAD)
+            atomic_store(&job->next_batch, 0);
+        pthread_barrier_wait(&job->barrier);
+    }
+    free(tasks);
+    free(results);
+    atomic_fetch_sub(&job->running, 1);
+    return NULL;
+}
+
+int render_run(const tracer_t *tracer, film_t *film, const render_settings_t *s,
+               render_summary_t *summary, char *err, size_t errlen)
+{
+    memset(summary, 0, sizeof *summary);
+    if (s->spp == 0) {
+        snprintf(err, errlen, "spp must be at least 1");
+        return -1;
+    }
+    if (s->granularity < 1 || s->granularity > TRACER_MAX_TASK_SAMPLES) {
+        snprintf(err, errlen, "granularity must be 1..%d", TRACER_MAX_TASK_SAMPLES);
+        return -1;
+    }
+    if (s->threads < 1 || s->threads > RENDER_MAX_THREADS) {
+        snprintf(err, errlen, "threads must be 1..%d", RENDER_MAX_THREADS);
+        return -1;
+    }
+    job_t job;
+    memset(&job, 0, sizeof job);
+    job.tracer = tracer;
+    job.film = film;
+    job.s = s;
+    job.layers = (uint32_t)(((uint64_t)s->spp + s->granularity - 1) / s->granularity);
+    job.npix = (size_t)film->width * (size_t)film->height;
+    /* A batch of about 4096 samples: a few milliseconds of work, small
+     * enough that the layer's tail is short, large enough to amortise. */
+    size_t bp = 4096 / (s->granularity < s->spp ? s->granularity : s->spp);
+    job.batch_pixels = bp < 16 ? 16 : bp > 1024 ? 1024 : bp;
+    job.batch_count = (job.npix + job.batch_pixels - 1) / job.batch_pixels;
+    atomic_init(&job.next_batch, 0);
+    atomic_init(&job.samples, 0);
+    atomic_init(&job.rays, 0);
+    atomic_init(&job.running, s->threads);
+    atomic_init(&job.failed, 0);
+    pthread_mutex_init(&job.err_lock, NULL);
+    pthread_mutex_init(&job.gate_lock, NULL);
+    pthread_cond_init(&job.gate, NULL);
+
+    pthread_t threads[RENDER_MAX_THREADS];
+    worker_arg_t args[RENDER_MAX_THREADS];
+    double t0 = now_seconds();
+    int started = 0;
+    for (int i = 0; i < s->threads; i++) {
+        args[i].job = &job;
+        args[i].index = i;
+        if (pthread_create(&threads[i], NULL, worker_main, &args[i]) != 0)
+            break;
+        started++;
+    }
+    /* Fewer threads than asked (resource limits) still render correctly. */
+    atomic_store(&job.running, started);
+    pthread_barrier_init(&job.barrier, NULL, (unsigned)(started ? started : 1));
+    pthread_mutex_lock(&job.gate_lock);
+    job.gate_open = 1;
+    pthread_cond_broadcast(&job.gate);
+    pthread_mutex_unlock(&job.gate_lock);
+    if (started == 0) {
+        atomic_store(&job.failed, 1);
+        snprintf(job.err, sizeof job.err, "cannot start any render thread");
+    }
+
+    const double total = (double)s->spp * (double)job.npix;
+    progress_t *prog = s->progress_out ? progress_new(s->progress_out, s->progress, "render") : NULL;
+    while (atomic_load(&job.running) > 0) {
+        struct timespec ts = {0, 100 * 1000 * 1000};
+        nanosleep(&ts, NULL);
+        double done = (double)atomic_load(&job.samples), el = now_seconds() - t0;
+        char detail[160], a[32], b[32];
+        double rate = el > 0 ? done / el : 0;
+        double eta = rate > 0 ? (total - done) / rate : 0;
+        snprintf(detail, sizeof detail, "%s samples/s, %s rays/s, ETA %.0fs",
+                 render_si(rate, a, sizeof a), render_si((double)atomic_load(&job.rays) / (el > 0 ? el : 1), b, sizeof b),
+                 eta);
+        progress_update(prog, done / total, detail);
+    }
+    for (int i = 0; i < started; i++)
+        pthread_join(threads[i], NULL);
+    double elapsed = now_seconds() - t0;
+    pthread_barrier_destroy(&job.barrier);
+    pthread_mutex_destroy(&job.err_lock);
+    pthread_mutex_destroy(&job.gate_lock);
+    pthread_cond_destroy(&job.gate);
+
+    summary->seconds = elapsed;
+    summary->samples = atomic_load(&job.samples);
+    summary->rays = atomic_load(&job.rays);
+    summary->nonfinite = film_total_nonfinite(film);
+    summary->layers = job.layers;
+    if (atomic_load(&job.failed)) {
+        progress_destroy(&prog);
+        snprintf(err, errlen, "%s", job.err[0] ? job.err : "out of memory");
+        return -1;
+    }
+    char detail[64];
+    snprintf(detail, sizeof detail, "%.2fs", elapsed);
+    progress_finish(prog, detail);
+    progress_destroy(&prog);
+    return 0;
+}

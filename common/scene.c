@@ -1,0 +1,937 @@
+/* scene.c - the JSON scene loader (see scene.h and scenes/README.md).
+ *
+ * cJSON parses; this file checks every field and flattens shapes into one
+ * world-space triangle list. Errors carry "FILE: json.path: message", built
+ * where the decision is made; the loader owns everything it allocates until
+ * it hands the finished scene over.
+ */
+#include "scene.h"
+
+#include <cJSON.h>
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "mesh.h"
+
+/* JSON paths in messages are cut at PATH_LEN; a cut path still locates the
+ * error, so truncation is intended here. */
+#pragma GCC diagnostic ignored "-Wformat-truncation"
+
+#define MAX_SCENE_FILE_BYTES (256u << 20)
+#define MAX_VERTICES 0xfffffff0u
+#define MAX_SPHERE_SUBDIVISIONS 7
+#define PATH_LEN 160
+
+typedef struct xform {
+    double m[3][3];
+    double t[3];
+    double nm[3][3]; /* inverse transpose, for normals */
+    int flips;       /* negative determinant: winding is reversed */
+} xform_t;
+
+typedef struct loader {
+    const char *name;
+    const char *base_dir;
+    char *err;
+    size_t errlen;
+    scene_t *s;
+    float *pos, *nrm;
+    size_t nv, cap_v;
+    uint32_t *idx, *mat;
+    size_t nt, cap_t;
+} loader_t;
+
+static int fail(loader_t *L, const char *path, const char *fmt, ...)
+{
+    char msg[512];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    if (path && *path)
+        snprintf(L->err, L->errlen, "%s: %s: %s", L->name, path, msg);
+    else
+        snprintf(L->err, L->errlen, "%s: %s", L->name, msg);
+    return -1;
+}
+
+static void warn(scene_t *s, const char *fmt, ...)
+{
+    if (s->warning_count >= SCENE_MAX_WARNINGS)
+        return;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(s->warnings[s->warning_count++], SCENE_WARNING_LEN, fmt, ap);
+    va_end(ap);
+}
+
+/* Warns about keys a reader would not expect, so a typo ("albdo") is seen
+ * rather than silently defaulted. */
+static void check_keys(loader_t *L, const cJSON *obj, const char *path, const char *const *allowed)
+{
+    for (const cJSON *it = obj->child; it; it = it->next) {
+        int ok = it->string == NULL;
+        for (int i = 0; !ok && allowed[i]; i++)
+            ok = strcmp(it->string, allowed[i]) == 0;
+        if (!ok && strcmp(it->string, "comment") != 0 && strcmp(it->string, "name") != 0)
+            warn(L->s, "%s: %s%s%s: unknown field ignored", L->name, path, *path ? "." : "",
+                 it->string);
+    }
+}
+
+static int get_number(loader_t *L, const cJSON *obj, const char *key, const char *path,
+                      int required, double lo, double hi, double *out)
+{
+    const cJSON *it = cJSON_GetObjectItemCaseSensitive(obj, key);
+    char p[PATH_LEN];
+    snprintf(p, sizeof p, "%s%s%s", path, *path ? "." : "", key);
+    if (!it) {
+        if (required)
+            return fail(L, p, "missing (expected a number)");
+        return 0;
+    }
+    if (!cJSON_IsNumber(it))
+        return fail(L, p, "expected a number");
+    double v = it->valuedouble;
+    if (!isfinite(v))
+        return fail(L, p, "not a finite number");
+    if (v < lo || v > hi)
+        return fail(L, p, "%g is out of range [%g, %g]", v, lo, hi);
+    *out = v;
+    return 0;
+}
+
+static int get_integer(loader_t *L, const cJSON *obj, const char *key, const char *path,
+                       int required, double lo, double hi, double *out)
+{
+    double v = *out;
+    if (get_number(L, obj, key, path, required, lo, hi, &v) < 0)
+        return -1;
+    if (v != floor(v)) {
+        char p[PATH_LEN];
+        snprintf(p, sizeof p, "%s%s%s", path, *path ? "." : "", key);
+        return fail(L, p, "expected an integer (got %g)", v);
+    }
+    *out = v;
+    return 0;
+}
+
+static int parse_vec3_item(loader_t *L, const cJSON *it, const char *p, double out[3])
+{
+    if (!cJSON_IsArray(it) || cJSON_GetArraySize(it) != 3)
+        return fail(L, p, "expected an array of 3 numbers");
+    int i = 0;
+    for (const cJSON *e = it->child; e; e = e->next, i++) {
+        if (!cJSON_IsNumber(e))
+            return fail(L, p, "element %d is not a number", i);
+        if (!isfinite(e->valuedouble))
+            return fail(L, p, "element %d is not finite (NaN or Inf)", i);
+        out[i] = e->valuedouble;
+    }
+    return 0;
+}
+
+static int get_vec3(loader_t *L, const cJSON *obj, const char *key, const char *path,
+                    int required, double out[3])
+{
+    const cJSON *it = cJSON_GetObjectItemCaseSensitive(obj, key);
+    char p[PATH_LEN];
+    snprintf(p, sizeof p, "%s%s%s", path, *path ? "." : "", key);
+    if (!it)
+        return required ? fail(L, p, "missing (expected an array of 3 numbers)") : 0;
+    return parse_vec3_item(L, it, p, out);
+}
+
+static vec3_t to_vec3(const double d[3])
+{
+    return vec3_make((float)d[0], (float)d[1], (float)d[2]);
+}
+
+/* ---- camera and render defaults ---------------------------------------- */
+
+static int parse_camera(loader_t *L, const cJSON *root)
+{
+    const cJSON *cam = cJSON_GetObjectItemCaseSensitive(root, "camera");
+    if (!cam)
+        return fail(L, "camera", "missing");
+    if (!cJSON_IsObject(cam))
+        return fail(L, "camera", "expected an object");
+    static const char *const keys[] = {"position", "look_at", "up", "fov", "width", "height", NULL};
+    check_keys(L, cam, "camera", keys);
+    double pos[3], at[3], up[3] = {0, 1, 0}, fov = 0, w = 0, h = 0;
+    if (get_vec3(L, cam, "position", "camera", 1, pos) < 0 ||
+        get_vec3(L, cam, "look_at", "camera", 1, at) < 0 ||
+        get_vec3(L, cam, "up", "camera", 0, up) < 0 ||
+        get_number(L, cam, "fov", "camera", 1, -INFINITY, INFINITY, &fov) < 0 ||
+        get_integer(L, cam, "width", "camera", 1, -INFINITY, INFINITY, &w) < 0 ||
+        get_integer(L, cam, "height", "camera", 1, -INFINITY, INFINITY, &h) < 0)
+        return -1;
+    if (w < 1 || h < 1 || w > SCENE_MAX_SIDE || h > SCENE_MAX_SIDE || w * h > SCENE_MAX_PIXELS)
+        return fail(L, "camera", "absurd resolution %gx%g (each side 1..%d, at most %u pixels)", w,
+                    h, SCENE_MAX_SIDE, SCENE_MAX_PIXELS);
+    char msg[256];
+    if (camera_init(&L->s->camera, to_vec3(pos), to_vec3(at), to_vec3(up), fov, (int)w, (int)h,
+                    msg, sizeof msg) < 0)
+        return fail(L, "camera", "%s", msg);
+    return 0;
+}
+
+static int parse_render(loader_t *L, const cJSON *root)
+{
+    scene_t *s = L->s;
+    s->spp = 64;
+    s->seed = 1;
+    s->integrator = SCENE_INTEGRATOR_PATH;
+    s->max_depth = 0;
+    const cJSON *r = cJSON_GetObjectItemCaseSensitive(root, "render");
+    if (!r)
+        return 0;
+    if (!cJSON_IsObject(r))
+        return fail(L, "render", "expected an object");
+    static const char *const keys[] = {"spp", "seed", "integrator", "max_depth", NULL};
+    check_keys(L, r, "render", keys);
+    double spp = s->spp, seed = (double)s->seed, depth = 0;
+    if (get_integer(L, r, "spp", "render", 0, 1, 4294967295.0, &spp) < 0 ||
+        get_integer(L, r, "seed", "render", 0, 0, 9007199254740992.0, &seed) < 0 ||
+        get_integer(L, r, "max_depth", "render", 0, 0, 1e6, &depth) < 0)
+        return -1;
+    s->spp = (uint32_t)spp;
+    s->seed = (uint64_t)seed;
+    s->max_depth = (uint32_t)depth;
+    const cJSON *in = cJSON_GetObjectItemCaseSensitive(r, "integrator");
+    if (in) {
+        int v = cJSON_IsString(in) ? scene_integrator_from_name(in->valuestring) : -1;
+        if (v < 0)
+            return fail(L, "render.integrator", "expected \"path\" or \"naive\"");
+        s->integrator = (scene_integrator_t)v;
+    }
+    return 0;
+}
+
+/* ---- materials ---------------------------------------------------------- */
+
+static int parse_materials(loader_t *L, const cJSON *root)
+{
+    const cJSON *mats = cJSON_GetObjectItemCaseSensitive(root, "materials");
+    if (!mats)
+        return fail(L, "materials", "missing");
+    if (!cJSON_IsObject(mats))
+        return fail(L, "materials", "expected an object of name: material");
+    int n = cJSON_GetArraySize(mats);
+    if (n == 0)
+        return fail(L, "materials", "no materials defined");
+    L->s->materials = calloc((size_t)n, sizeof(material_t));
+    if (!L->s->materials)
+        return fail(L, "materials", "out of memory");
+    for (const cJSON *it = mats->child; it; it = it->next) {
+        char p[PATH_LEN];
+        snprintf(p, sizeof p, "materials.%s", it->string);
+        if (strlen(it->string) == 0 || strlen(it->string) >= MATERIAL_NAME_LEN)
+            return fail(L, p, "material name must be 1 to %d characters", MATERIAL_NAME_LEN - 1);
+        for (size_t j = 0; j < L->s->material_count; j++)
+            if (strcmp(L->s->materials[j].name, it->string) == 0)
+                return fail(L, p, "material defined twice");
+        if (!cJSON_IsObject(it))
+            return fail(L, p, "expected an object with a \"type\"");
+        const cJSON *type = cJSON_GetObjectItemCaseSensitive(it, "type");
+        if (!cJSON_IsString(type))
+            return fail(L, p, "missing \"type\" (diffuse, emitter, mirror or dielectric)");
+        int t = material_type_from_name(type->valuestring);
+        if (t < 0)
+            return fail(L, p, "unknown material type \"%s\" (expected diffuse, emitter, mirror or dielectric)",
+                        type->valuestring);
+        material_t *m = &L->s->materials[L->s->material_count];
+        memcpy(m->name, it->string, strlen(it->string) + 1);
+        m->type = (material_type_t)t;
+        double v[3] = {1, 1, 1};
+        switch (m->type) {
+        case MATERIAL_DIFFUSE: {
+            static const char *const keys[] = {"type", "albedo", NULL};
+            check_keys(L, it, p, keys);
+            if (get_vec3(L, it, "albedo", p, 1, v) < 0)
+                return -1;
+            break;
+        }
+        case MATERIAL_MIRROR: {
+            static const char *const keys[] = {"type", "reflectance", NULL};
+            check_keys(L, it, p, keys);
+            if (get_vec3(L, it, "reflectance", p, 0, v) < 0)
+                return -1;
+            break;
+        }
+        case MATERIAL_EMITTER: {
+            static const char *const keys[] = {"type", "radiance", NULL};
+            check_keys(L, it, p, keys);
+            double rad[3];
+            if (get_vec3(L, it, "radiance", p, 1, rad) < 0)
+                return -1;
+            for (int k = 0; k < 3; k++)
+                if (rad[k] < 0 || rad[k] > 1e30)
+                    return fail(L, p, "radiance must be between 0 and 1e30");
+            m->radiance = to_vec3(rad);
+            v[0] = v[1] = v[2] = 0;
+            break;
+        }
+        case MATERIAL_DIELECTRIC: {
+            static const char *const keys[] = {"type", "ior", NULL};
+            check_keys(L, it, p, keys);
+            double ior = 1.5;
+            if (get_number(L, it, "ior", p, 0, 1.0 / 8, 8.0, &ior) < 0)
+                return -1;
+            m->ior = (float)ior;
+            break;
+        }
+        }
+        if (m->type == MATERIAL_DIFFUSE || m->type == MATERIAL_MIRROR)
+            for (int k = 0; k < 3; k++)
+                if (v[k] < 0 || v[k] > 1)
+                    return fail(L, p, "%s components must be in [0, 1] (got %g): more would create energy",
+                                m->type == MATERIAL_DIFFUSE ? "albedo" : "reflectance", v[k]);
+        m->albedo = to_vec3(v);
+        L->s->material_count++;
+    }
+    return 0;
+}
+
+static int find_material(loader_t *L, const cJSON *shape, const char *path, uint32_t *out)
+{
+    const cJSON *m = cJSON_GetObjectItemCaseSensitive(shape, "material");
+    char p[PATH_LEN];
+    snprintf(p, sizeof p, "%s.material", path);
+    if (!cJSON_IsString(m))
+        return fail(L, p, "missing (expected a material name)");
+    for (size_t i = 0; i < L->s->material_count; i++)
+        if (strcmp(L->s->materials[i].name, m->valuestring) == 0) {
+            *out = (uint32_t)i;
+            return 0;
+        }
+    return fail(L, p, "unknown material \"%s\"", m->valuestring);
+}
+
+/* ---- transforms --------------------------------------------------------- */
+
+static void mat_mul(double a[3][3], double b[3][3], double out[3][3])
+{
+    double r[3][3];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            r[i][j] = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
+    memcpy(out, r, sizeof r);
+}
+
+static void rotation(int axis, double deg, double r[3][3])
+{
+    double a = deg * 3.14159265358979323846 / 180.0, c = cos(a), s = sin(a);
+    memset(r, 0, 9 * sizeof(double));
+    int i = (axis + 1) % 3, j = (axis + 2) % 3;
+    r[axis][axis] = 1;
+    r[i][i] = c;
+    r[i][j] = -s;
+    r[j][i] = s;
+    r[j][j] = c;
+}
+
+/* transform: {"scale": s | [sx,sy,sz], "rotate": [x,y,z] degrees (applied X,
+ * then Y, then Z), "translate": [x,y,z]}; scale first, translate last. */
+static int parse_transform(loader_t *L, const cJSON *shape, const char *path, xform_t *x)
+{
+    memset(x, 0, sizeof *x);
+    for (int i = 0; i < 3; i++)
+        x->m[i][i] = x->nm[i][i] = 1;
+    const cJSON *t = cJSON_GetObjectItemCaseSensitive(shape, "transform");
+    if (!t)
+        return 0;
+    char p[PATH_LEN];
+    snprintf(p, sizeof p, "%s.transform", path);
+    if (!cJSON_IsObject(t))
+        return fail(L, p, "expected an object");
+    static const char *const keys[] = {"scale", "rotate", "translate", NULL};
+    check_keys(L, t, p, keys);
+    double sc[3] = {1, 1, 1}, rot[3] = {0, 0, 0};
+    const cJSON *s = cJSON_GetObjectItemCaseSensitive(t, "scale");
+    if (cJSON_IsNumber(s)) {
+        sc[0] = sc[1] = sc[2] = s->valuedouble;
+    } else if (s) {
+        char q[PATH_LEN];
+        snprintf(q, sizeof q, "%s.scale", p);
+        if (parse_vec3_item(L, s, q, sc) < 0)
+            return -1;
+    }
+    for (int i = 0; i < 3; i++)
+        if (!isfinite(sc[i]) || sc[i] == 0)
+            return fail(L, p, "scale must be finite and non-zero");
+    if (get_vec3(L, t, "rotate", p, 0, rot) < 0 || get_vec3(L, t, "translate", p, 0, x->t) < 0)
+        return -1;
+    double S[3][3] = {{sc[0], 0, 0}, {0, sc[1], 0}, {0, 0, sc[2]}}, R[3][3];
+    double M[3][3];
+    memcpy(M, S, sizeof M);
+    for (int axis = 0; axis < 3; axis++) {
+        rotation(axis, rot[axis], R);
+        mat_mul(R, M, M);
+    }
+    memcpy(x->m, M, sizeof M);
+    /* normals: R * S^-1 */
+    double Si[3][3] = {{1 / sc[0], 0, 0}, {0, 1 / sc[1], 0}, {0, 0, 1 / sc[2]}};
+    memcpy(M, Si, sizeof M);
+    for (int axis = 0; axis < 3; axis++) {
+        rotation(axis, rot[axis], R);
+        mat_mul(R, M, M);
+    }
+    memcpy(x->nm, M, sizeof M);
+    x->flips = sc[0] * sc[1] * sc[2] < 0;
+    return 0;
+}
+
+/* ---- geometry accumulation --------------------------------------------- */
+
+static int reserve(loader_t *L, size_t add_v, size_t add_t, int with_normals)
+{
+    if (add_v > MAX_VERTICES - L->nv)
+        return fail(L, NULL, "too many vertices (more than %u)", MAX_VERTICES);
+    if (L->nv + add_v > L->cap_v) {
+        size_t cap = L->cap_v ? L->cap_v : 1024;
+        while (cap < L->nv + add_v)
+            cap *= 2;
+        float *p = realloc(L->pos, cap * 3 * sizeof(float));
+        if (!p)
+            return fail(L, NULL, "out of memory for %zu vertices", cap);
+        L->pos = p;
+        if (L->nrm) {
+            float *n = realloc(L->nrm, cap * 3 * sizeof(float));
+            if (!n)
+                return fail(L, NULL, "out of memory for %zu vertices", cap);
+            L->nrm = n;
+        }
+        L->cap_v = cap;
+    }
+    if (with_normals && !L->nrm) {
+        L->nrm = calloc(L->cap_v * 3, sizeof(float));
+        if (!L->nrm)
+            return fail(L, NULL, "out of memory for normals");
+    }
+    if (L->nt + add_t > L->cap_t) {
+        size_t cap = L->cap_t ? L->cap_t : 1024;
+        while (cap < L->nt + add_t)
+            cap *= 2;
+        uint32_t *i = realloc(L->idx, cap * 3 * sizeof(uint32_t));
+        if (!i)
+            return fail(L, NULL, "out of memory for %zu triangles", cap);
+        L->idx = i;
+        uint32_t *m = realloc(L->mat, cap * sizeof(uint32_t));
+        if (!m)
+            return fail(L, NULL, "out of memory for %zu triangles", cap);
+        L->mat = m;
+        L->cap_t = cap;
+    }
+    return 0;
+}
+
+/* Appends a transformed vertex (capacity reserved by the caller). */
+static void push_vertex(loader_t *L, const xform_t *x, const double p[3], const double *n)
+{
+    float *d = L->pos + 3 * L->nv;
+    for (int i = 0; i < 3; i++)
+        d[i] = (float)(x->m[i][0] * p[0] + x->m[i][1] * p[1] + x->m[i][2] * p[2] + x->t[i]);
+    if (L->nrm) {
+        float *dn = L->nrm + 3 * L->nv;
+        dn[0] = dn[1] = dn[2] = 0;
+        if (n) {
+            double w[3], len = 0;
+            for (int i = 0; i < 3; i++) {
+                w[i] = x->nm[i][0] * n[0] + x->nm[i][1] * n[1] + x->nm[i][2] * n[2];
+                len += w[i] * w[i];
+            }
+            len = sqrt(len);
+            if (len > 0 && isfinite(len))
+                for (int i = 0; i < 3; i++)
+                    dn[i] = (float)(w[i] / len);
+        }
+    }
+    L->nv++;
+}
+
+static int check_coords(loader_t *L, const char *path, size_t first)
+{
+    for (size_t v = first; v < L->nv; v++)
+        for (int i = 0; i < 3; i++)
+            if (!isfinite(L->pos[3 * v + i]))
+                return fail(L, path, "vertex %zu is not finite after the transform (overflow)", v - first);
+    return 0;
+}
+
+static void push_triangle(loader_t *L, const xform_t *x, uint32_t a, uint32_t b, uint32_t c, uint32_t mat)
+{
+    uint32_t *d = L->idx + 3 * L->nt;
+    d[0] = a;
+    d[1] = x->flips ? c : b;
+    d[2] = x->flips ? b : c;
+    L->mat[L->nt++] = mat;
+}
+
+static int parse_points(loader_t *L, const cJSON *arr, const char *path, size_t want, double (*out)[3])
+{
+    if (!cJSON_IsArray(arr))
+        return fail(L, path, "missing or not an array of points");
+    if (want && (size_t)cJSON_GetArraySize(arr) != want)
+        return fail(L, path, "expected %zu points, got %d", want, cJSON_GetArraySize(arr));
+    size_t i = 0;
+    for (const cJSON *e = arr->child; e; e = e->next, i++) {
+        char p[PATH_LEN];
+        snprintf(p, sizeof p, "%s[%zu]", path, i);
+        if (parse_vec3_item(L, e, p, out[i]) < 0)
+            return -1;
+    }
+    return 0;
+}
+
+static int shape_quad(loader_t *L, const cJSON *sh, const char *path, const xform_t *x, uint32_t mat)
+{
+    static const char *const keys[] = {"type", "material", "vertices", "transform", NULL};
+    check_keys(L, sh, path, keys);
+    double v[4][3];
+    char p[PATH_LEN];
+    snprintf(p, sizeof p, "%s.vertices", path);
+    if (parse_points(L, cJSON_GetObjectItemCaseSensitive(sh, "vertices"), p, 4, v) < 0)
+        return -1;
+    if (reserve(L, 4, 2, 0) < 0)
+        return -1;
+    uint32_t base = (uint32_t)L->nv;
+    for (int i = 0; i < 4; i++)
+        push_vertex(L, x, v[i], NULL);
+    push_triangle(L, x, base, base + 1, base + 2, mat);
+    push_triangle(L, x, base, base + 2, base + 3, mat);
+    return check_coords(L, path, base);
+}
+
+static int shape_triangles(loader_t *L, const cJSON *sh, const char *path, const xform_t *x, uint32_t mat)
+{
+    static const char *const keys[] = {"type", "material", "vertices", "indices", "transform", NULL};
+    check_keys(L, sh, path, keys);
+    const cJSON *va = cJSON_GetObjectItemCaseSensitive(sh, "vertices");
+    const cJSON *ia = cJSON_GetObjectItemCaseSensitive(sh, "indices");
+    char p[PATH_LEN];
+    snprintf(p, sizeof p, "%s.vertices", path);
+    if (!cJSON_IsArray(va) || cJSON_GetArraySize(va) < 3)
+        return fail(L, p, "expected an array of at least 3 points");
+    size_t nv = (size_t)cJSON_GetArraySize(va);
+    snprintf(p, sizeof p, "%s.indices", path);
+    if (!cJSON_IsArray(ia) || cJSON_GetArraySize(ia) < 1)
+        return fail(L, p, "expected an array of [a, b, c] index triples");
+    size_t nt = (size_t)cJSON_GetArraySize(ia);
+    if (reserve(L, nv, nt, 0) < 0)
+        return -1;
+    uint32_t base = (uint32_t)L->nv;
+    size_t i = 0;
+    for (const cJSON *e = va->child; e; e = e->next, i++) {
+        double v[3];
+        snprintf(p, sizeof p, "%s.vertices[%zu]", path, i);
+        if (parse_vec3_item(L, e, p, v) < 0)
+            return -1;
+        push_vertex(L, x, v, NULL);
+    }
+    i = 0;
+    for (const cJSON *e = ia->child; e; e = e->next, i++) {
+        snprintf(p, sizeof p, "%s.indices[%zu]", path, i);
+        if (!cJSON_IsArray(e) || cJSON_GetArraySize(e) != 3)
+            return fail(L, p, "expected [a, b, c]");
+        uint32_t t[3];
+        int k = 0;
+        for (const cJSON *c = e->child; c; c = c->next, k++) {
+            double d = cJSON_IsNumber(c) ? c->valuedouble : -1;
+            if (!cJSON_IsNumber(c) || d != floor(d))
+                return fail(L, p, "index %d is not an integer", k);
+            if (d < 0 || d >= (double)nv)
+                return fail(L, p, "index %g out of range (the shape has %zu vertices)", d, nv);
+            t[k] = base + (uint32_t)d;
+        }
+        push_triangle(L, x, t[0], t[1], t[2], mat);
+    }
+    return check_coords(L, path, base);
+}
+
+static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xform_t *x, uint32_t mat)
+{
+    static const char *const keys[] = {"type", "material", "file", "transform", NULL};
+    check_keys(L, sh, path, keys);
+    const cJSON *f = cJSON_GetObjectItemCaseSensitive(sh, "file");
+    char p[PATH_LEN];
+    snprintf(p, sizeof p, "%s.file", path);
+    if (!cJSON_IsString(f) || !*f->valuestring)
+        return fail(L, p, "missing (expected a mesh path relative to the scene file)");
+    char full[4096];
+    if (f->valuestring[0] == '/' || !L->base_dir || !*L->base_dir)
+        snprintf(full, sizeof full, "%s", f->valuestring);
+    else
+        snprintf(full, sizeof full, "%s/%s", L->base_dir, f->valuestring);
+    mesh_t *m = NULL;
+    char merr[512];
+    if (mesh_load(full, &m, merr, sizeof merr) < 0)
+        return fail(L, p, "%s", merr);
+    int rc = reserve(L, m->vertex_count, m->triangle_count, m->normals != NULL);
+    if (rc == 0) {
+        uint32_t base = (uint32_t)L->nv;
+        for (size_t v = 0; v < m->vertex_count; v++) {
+            double pd[3] = {m->positions[3 * v], m->positions[3 * v + 1], m->positions[3 * v + 2]};
+            double nd[3];
+            if (m->normals)
+                for (int i = 0; i < 3; i++)
+                    nd[i] = m->normals[3 * v + i];
+            push_vertex(L, x, pd, m->normals ? nd : NULL);
+        }
+        for (size_t t = 0; t < m->triangle_count; t++)
+            push_triangle(L, x, base + m->indices[3 * t], base + m->indices[3 * t + 1],
+                          base + m->indices[3 * t + 2], mat);
+        rc = check_coords(L, path, base);
+    }
+    mesh_destroy(&m);
+    return rc;
+}
+
+/* An icosphere: the icosahedron subdivided n times, vertices pushed onto the
+ * sphere, with exact normals (p - c) / r for smooth shading. Vertices are not
+ * shared between faces; they are computed identically on both sides of an
+ * edge (commutative midpoints), so the surface is watertight. */
+static int shape_sphere(loader_t *L, const cJSON *sh, const char *path, const xform_t *x, uint32_t mat)
+{
+    static const char *const keys[] = {"type", "material", "center", "radius", "subdivisions",
+                                       "transform", NULL};
+    check_keys(L, sh, path, keys);
+    double c[3], r = 0, sub = 4;
+    if (get_vec3(L, sh, "center", path, 1, c) < 0 ||
+        get_number(L, sh, "radius", path, 1, 1e-30, 1e30, &r) < 0 ||
+        get_integer(L, sh, "subdivisions", path, 0, 0, MAX_SPHERE_SUBDIVISIONS, &sub) < 0)
+        return -1;
+    const double g = (1.0 + sqrt(5.0)) / 2.0;
+    static const int faces[20][3] = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
+                                     {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
+                                     {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
+                                     {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
+    double ico[12][3] = {{-1, g, 0}, {1, g, 0}, {-1, -g, 0}, {1, -g, 0}, {0, -1, g}, {0, 1, g},
+                         {0, -1, -g}, {0, 1, -g}, {g, 0, -1}, {g, 0, 1}, {-g, 0, -1}, {-g, 0, 1}};
+    size_t n = (size_t)sub, per_face = (size_t)1 << (2 * n), ntri = 20 * per_face;
+    if (reserve(L, 3 * ntri, ntri, 1) < 0)
+        return -1;
+    uint32_t first = (uint32_t)L->nv;
+    /* Each face is split into a (2^n)^2 grid of sub-triangles by barycentric
+     * steps; each corner is projected onto the unit sphere. */
+    size_t k = (size_t)1 << n;
+    for (int f = 0; f < 20; f++) {
+        const double *A = ico[faces[f][0]], *B = ico[faces[f][1]], *C = ico[faces[f][2]];
+        for (size_t i = 0; i < k; i++)
+            for (size_t j = 0; j + i < k; j++)
+                for (int up = 0; up < 2; up++) {
+                    if (up && i + j + 1 >= k)
+                        continue;
+                    size_t bi[3][2] = {{i, j}, {i + 1, j}, {i, j + 1}};
+                    if (up) {
+                        size_t alt[3][2] = {{i + 1, j}, {i + 1, j + 1}, {i, j + 1}};
+                        memcpy(bi, alt, sizeof bi);
+                    }
+                    uint32_t vid[3];
+                    for (int q = 0; q < 3; q++) {
+                        double a = (double)bi[q][0] / (double)k, b = (double)bi[q][1] / (double)k;
+                        double nrm[3], len = 0;
+                        for (int d = 0; d < 3; d++) {
+                            nrm[d] = A[d] * (1 - a - b) + B[d] * a + C[d] * b;
+                            len += nrm[d] * nrm[d];
+                        }
+                        len = sqrt(len);
+                        double pnt[3];
+                        for (int d = 0; d < 3; d++) {
+                            nrm[d] /= len;
+                            pnt[d] = c[d] + r * nrm[d];
+                        }
+                        vid[q] = (uint32_t)L->nv;
+                        push_vertex(L, x, pnt, nrm);
+                    }
+                    push_triangle(L, x, vid[0], vid[1], vid[2], mat);
+                }
+    }
+    return check_coords(L, path, first);
+}
+
+static int parse_shapes(loader_t *L, const cJSON *root)
+{
+    const cJSON *shapes = cJSON_GetObjectItemCaseSensitive(root, "shapes");
+    if (!shapes)
+        return fail(L, "shapes", "missing");
+    if (!cJSON_IsArray(shapes))
+        return fail(L, "shapes", "expected an array");
+    size_t i = 0;
+    for (const cJSON *sh = shapes->child; sh; sh = sh->next, i++) {
+        char p[PATH_LEN];
+        snprintf(p, sizeof p, "shapes[%zu]", i);
+        if (!cJSON_IsObject(sh))
+            return fail(L, p, "expected an object");
+        const cJSON *type = cJSON_GetObjectItemCaseSensitive(sh, "type");
+        if (!cJSON_IsString(type))
+            return fail(L, p, "missing \"type\" (quad, triangles, mesh or sphere)");
+        uint32_t mat = 0;
+        xform_t x;
+        if (find_material(L, sh, p, &mat) < 0 || parse_transform(L, sh, p, &x) < 0)
+            return -1;
+        int rc;
+        if (strcmp(type->valuestring, "quad") == 0)
+            rc = shape_quad(L, sh, p, &x, mat);
+        else if (strcmp(type->valuestring, "triangles") == 0)
+            rc = shape_triangles(L, sh, p, &x, mat);
+        else if (strcmp(type->valuestring, "mesh") == 0)
+            rc = shape_mesh(L, sh, p, &x, mat);
+        else if (strcmp(type->valuestring, "sphere") == 0)
+            rc = shape_sphere(L, sh, p, &x, mat);
+        else
+            rc = fail(L, p, "unknown shape type \"%s\" (expected quad, triangles, mesh or sphere)",
+                      type->valuestring);
+        if (rc < 0)
+            return -1;
+    }
+    return 0;
+}
+
+/* ---- finishing: normals, degenerate triangles, lights ------------------ */
+
+static int finish(loader_t *L)
+{
+    scene_t *s = L->s;
+    /* Hand the arrays over first, so scene_destroy frees them on any error. */
+    s->positions = L->pos;
+    s->normals = L->nrm;
+    s->vertex_count = L->nv;
+    s->indices = L->idx;
+    s->tri_material = L->mat;
+    L->pos = L->nrm = NULL;
+    L->idx = L->mat = NULL;
+    size_t nt = L->nt;
+    if (nt == 0)
+        return fail(L, "shapes", "no triangles: the scene is empty");
+    s->tri_normal = malloc(nt * sizeof(vec3_t));
+    s->tri_smooth = calloc(nt, 1);
+    s->tri_light_pdf = calloc(nt, sizeof(float));
+    double *power = calloc(nt, sizeof(double));
+    if (!s->tri_normal || !s->tri_smooth || !s->tri_light_pdf || !power) {
+        free(power);
+        return fail(L, NULL, "out of memory for %zu triangles", nt);
+    }
+    /* Normals from the float positions the tracer will see, in double; a
+     * triangle with no area there is dropped (it could only produce NaNs). */
+    size_t kept = 0, lights = 0;
+    double total_power = 0;
+    for (size_t t = 0; t < nt; t++) {
+        const uint32_t *v = s->indices + 3 * t;
+        double p[3][3];
+        for (int k = 0; k < 3; k++)
+            for (int d = 0; d < 3; d++)
+                p[k][d] = s->positions[3 * v[k] + d];
+        double e1[3], e2[3], n[3];
+        for (int d = 0; d < 3; d++) {
+            e1[d] = p[1][d] - p[0][d];
+            e2[d] = p[2][d] - p[0][d];
+        }
+        n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+        n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+        n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+        double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        if (!(len > 0) || !isfinite(len) || !isfinite((float)(n[0] / len))) {
+            s->dropped_degenerate++;
+            continue;
+        }
+        if (kept != t) {
+            memmove(s->indices + 3 * kept, v, 3 * sizeof(uint32_t));
+            s->tri_material[kept] = s->tri_material[t];
+        }
+        s->tri_normal[kept] = vec3_make((float)(n[0] / len), (float)(n[1] / len), (float)(n[2] / len));
+        int smooth = s->normals != NULL;
+        for (int k = 0; smooth && k < 3; k++) {
+            const float *vn = s->normals + 3 * s->indices[3 * kept + k];
+            smooth = !(vn[0] == 0 && vn[1] == 0 && vn[2] == 0);
+        }
+        s->tri_smooth[kept] = (uint8_t)smooth;
+        const material_t *m = &s->materials[s->tri_material[kept]];
+        if (m->type == MATERIAL_EMITTER) {
+            double lum = vmath_luminance(m->radiance.x, m->radiance.y, m->radiance.z);
+            if (lum > 0) {
+                power[kept] = 0.5 * len * lum;
+                total_power += power[kept];
+                lights++;
+            }
+        }
+        kept++;
+    }
+    if (s->dropped_degenerate)
+        warn(s, "%s: dropped %zu degenerate (zero-area) triangle%s", L->name, s->dropped_degenerate,
+             s->dropped_degenerate == 1 ? "" : "s");
+    s->triangle_count = kept;
+    if (kept == 0) {
+        free(power);
+        return fail(L, "shapes", "no triangles left: all %zu are degenerate", nt);
+    }
+    if (lights == 0 || !(total_power > 0) || !isfinite(total_power)) {
+        free(power);
+        if (lights && !isfinite(total_power))
+            return fail(L, "materials", "total light power overflows");
+        warn(s, "%s: the scene has no light (no emitter with radiance > 0): the image will be black",
+             L->name);
+        return 0;
+    }
+    s->light_tris = malloc(lights * sizeof(uint32_t));
+    s->light_cdf = malloc(lights * sizeof(double));
+    if (!s->light_tris || !s->light_cdf) {
+        free(power);
+        return fail(L, NULL, "out of memory for lights");
+    }
+    double acc = 0;
+    for (size_t t = 0; t < kept; t++) {
+        if (power[t] <= 0)
+            continue;
+        acc += power[t];
+        s->light_tris[s->light_count] = (uint32_t)t;
+        s->light_cdf[s->light_count++] = acc / total_power;
+        /* pdf per unit area of picking a point on t: (power / total) / area */
+        const material_t *m = &s->materials[s->tri_material[t]];
+        s->tri_light_pdf[t] =
+            (float)(vmath_luminance(m->radiance.x, m->radiance.y, m->radiance.z) / total_power);
+    }
+    s->light_cdf[s->light_count - 1] = 1.0;
+    free(power);
+    return 0;
+}
+
+/* Line and column of a byte offset, for malformed-JSON messages. */
+static void line_col(const char *text, size_t off, int *line, int *col)
+{
+    *line = 1;
+    *col = 1;
+    for (size_t i = 0; i < off && text[i]; i++) {
+        if (text[i] == '\n') {
+            (*line)++;
+            *col = 1;
+        } else {
+            (*col)++;
+        }
+    }
+}
+
+int scene_load_string(const char *json, size_t len, const char *name, const char *base_dir,
+                      scene_t **out, char *err, size_t errlen)
+{
+    *out = NULL;
+    loader_t L = {.name = name ? name : "<scene>", .base_dir = base_dir, .err = err, .errlen = errlen};
+    L.s = calloc(1, sizeof(scene_t));
+    if (!L.s)
+        return fail(&L, NULL, "out of memory");
+    const char *end = NULL;
+    cJSON *root = cJSON_ParseWithLengthOpts(json, len, &end, 0);
+    int rc = 0;
+    if (!root) {
+        int line, col;
+        size_t off = end && end >= json ? (size_t)(end - json) : 0;
+        line_col(json, off, &line, &col);
+        snprintf(err, errlen, "%s:%d:%d: malformed JSON", L.name, line, col);
+        rc = -1;
+    } else if (!cJSON_IsObject(root)) {
+        rc = fail(&L, NULL, "expected a JSON object at the top level");
+    } else {
+        static const char *const keys[] = {"camera", "render", "materials", "shapes", NULL};
+        check_keys(&L, root, "", keys);
+        rc = parse_camera(&L, root);
+        if (rc == 0)
+            rc = parse_render(&L, root);
+        if (rc == 0)
+            rc = parse_materials(&L, root);
+        if (rc == 0)
+            rc = parse_shapes(&L, root);
+        if (rc == 0)
+            rc = finish(&L);
+    }
+    cJSON_Delete(root);
+    free(L.pos);
+    free(L.nrm);
+    free(L.idx);
+    free(L.mat);
+    if (rc < 0) {
+        scene_destroy(&L.s);
+        return -1;
+    }
+    *out = L.s;
+    return 0;
+}
+
+int scene_load(const char *path, scene_t **out, char *err, size_t errlen)
+{
+    *out = NULL;
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        snprintf(err, errlen, "%s: cannot open: %s", path, strerror(errno));
+        return -1;
+    }
+    char *buf = NULL;
+    long size = -1;
+    if (fseek(f, 0, SEEK_END) == 0)
+        size = ftell(f);
+    if (size < 0 || fseek(f, 0, SEEK_SET) != 0) {
+        fclose(f);
+        snprintf(err, errlen, "%s: cannot read (not a regular file?)", path);
+        return -1;
+    }
+    if ((unsigned long)size > MAX_SCENE_FILE_BYTES) {
+        fclose(f);
+        snprintf(err, errlen, "%s: scene file too large (%ld bytes; meshes belong in mesh files)", path, size);
+        return -1;
+    }
+    buf = malloc((size_t)size + 1);
+    if (!buf || fread(buf, 1, (size_t)size, f) != (size_t)size) {
+        free(buf);
+        fclose(f);
+        snprintf(err, errlen, "%s: cannot read: %s", path, strerror(errno));
+        return -1;
+    }
+    fclose(f);
+    buf[size] = '\0';
+    char dir[4096];
+    snprintf(dir, sizeof dir, "%s", path);
+    char *slash = strrchr(dir, '/');
+    if (slash)
+        *slash = '\0';
+    else
+        snprintf(dir, sizeof dir, ".");
+    int rc = scene_load_string(buf, (size_t)size, path, dir, out, err, errlen);
+    free(buf);
+    return rc;
+}
+
+void scene_destroy(scene_t **sp)
+{
+    if (!sp || !*sp)
+        return;
+    scene_t *s = *sp;
+    free(s->materials);
+    free(s->positions);
+    free(s->normals);
+    free(s->indices);
+    free(s->tri_material);
+    free(s->tri_normal);
+    free(s->tri_smooth);
+    free(s->tri_light_pdf);
+    free(s->light_tris);
+    free(s->light_cdf);
+    free(s);
+    *sp = NULL;
+}
+
+const char *scene_integrator_name(scene_integrator_t integrator)
+{
+    return integrator == SCENE_INTEGRATOR_NAIVE ? "naive" : "path";
+}
+
+int scene_integrator_from_name(const char *name)
+{
+    if (strcmp(name, "path") == 0)
+        return SCENE_INTEGRATOR_PATH;
+    if (strcmp(name, "naive") == 0)
+        return SCENE_INTEGRATOR_NAIVE;
+    return -1;
+}

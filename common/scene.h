@@ -1,0 +1,79 @@
+/* scene.h - a scene loaded from its JSON file (format: scenes/README.md):
+ * camera, materials, triangles, the emissive triangles that are its lights,
+ * and the render defaults.
+ *
+ * Loading flattens every shape (quads, inline triangles, mesh files, spheres)
+ * into one triangle list in world space with a material per triangle. The
+ * result is immutable: the tracer and any number of threads read it. Every
+ * problem in the file is reported with the file name, the JSON path (or the
+ * line for malformed JSON) and what is wrong; nothing in a scene file can
+ * crash the loader.
+ */
+#ifndef VB_SCENE_H
+#define VB_SCENE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "camera.h"
+#include "material.h"
+#include "vmath.h"
+
+#define SCENE_MAX_WARNINGS 8
+#define SCENE_WARNING_LEN 256
+/* Resolution bounds: anything outside is refused as absurd. */
+#define SCENE_MAX_SIDE 16384
+#define SCENE_MAX_PIXELS (1u << 26)
+
+typedef enum { SCENE_INTEGRATOR_PATH = 0, SCENE_INTEGRATOR_NAIVE = 1 } scene_integrator_t;
+
+typedef struct scene {
+    camera_t camera;
+
+    /* Render defaults from the "render" object (command-line flags win). */
+    uint32_t spp;
+    uint64_t seed;
+    scene_integrator_t integrator;
+    uint32_t max_depth; /* 0: unlimited (Russian roulette ends paths) */
+
+    material_t *materials;
+    size_t material_count;
+
+    float *positions;      /* 3 per vertex, world space */
+    float *normals;        /* 3 per vertex, or NULL; zero vector = none */
+    size_t vertex_count;
+    uint32_t *indices;     /* 3 per triangle */
+    uint32_t *tri_material;/* per triangle */
+    vec3_t *tri_normal;    /* per triangle: unit geometric normal, from winding */
+    uint8_t *tri_smooth;   /* per triangle: 1 when all three vertex normals exist */
+    float *tri_light_pdf;  /* per triangle: area pdf of light sampling (0: not a light) */
+    size_t triangle_count;
+
+    /* Lights: emissive triangles, chosen proportionally to power. */
+    uint32_t *light_tris;
+    double *light_cdf;     /* light_count entries, last is 1 */
+    size_t light_count;
+
+    size_t dropped_degenerate; /* zero-area triangles left out */
+    int warning_count;
+    char warnings[SCENE_MAX_WARNINGS][SCENE_WARNING_LEN];
+} scene_t;
+
+/* Loads a scene file; mesh paths are relative to its folder. Returns 0 and
+ * a new scene in *out (free with scene_destroy), or -1 with *out NULL and a
+ * message in err ("FILE: json.path: what is wrong"). */
+int scene_load(const char *path, scene_t **out, char *err, size_t errlen);
+
+/* The same from JSON text; name is used in messages, base_dir resolves
+ * mesh paths. */
+int scene_load_string(const char *json, size_t len, const char *name, const char *base_dir,
+                      scene_t **out, char *err, size_t errlen);
+
+/* Frees the scene and sets *s to NULL; accepts NULL. */
+void scene_destroy(scene_t **s);
+
+const char *scene_integrator_name(scene_integrator_t integrator);
+/* "path" or "naive"; -1 for anything else. */
+int scene_integrator_from_name(const char *name);
+
+#endif

@@ -1,0 +1,86 @@
+/* tracer.h - the rendering core: "trace these samples for these pixels".
+ *
+ * A tracer holds one Embree device and the scene's BVH, built once and then
+ * only read, so any number of threads may call tracer_trace at once. A call
+ * takes a list of pixel tasks (the thesis's message, table 4.3: pixel,
+ * samples to take, first sample index, samples and RGB sums so far) and
+ * fills one result per task with exactly what a worker sends back: RGB
+ * sums, samples taken, the eq. 4.1 statistic, the luminance sum of squared
+ * deviations, and the count of NaN/Inf samples left out. It allocates
+ * nothing; every random number comes from (seed, pixel, sample index,
+ * dimension), so the answer does not depend on which thread, worker or
+ * attempt computes it.
+ */
+#ifndef VB_TRACER_H
+#define VB_TRACER_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "scene.h"
+
+/* The most samples one pixel task may take: the eq. 4.1 statistic keeps each
+ * running estimate of the task on the stack. A layer is G samples, G <= this. */
+#define TRACER_MAX_TASK_SAMPLES 4096
+/* Russian roulette starts after this many bounces (as Mitsuba 3's default
+ * rr_depth, so samples/s compare like with like). */
+#define TRACER_RR_DEPTH 5
+
+typedef struct tracer tracer_t;
+
+/* Per-job settings of a trace call. */
+typedef struct tracer_settings {
+    uint64_t seed;
+    scene_integrator_t integrator;
+    uint32_t max_depth; /* 0: unlimited; else the most path segments */
+} tracer_settings_t;
+
+/* One pixel of a task (the thesis's master -> slave message). */
+typedef struct tracer_task {
+    uint32_t pixel;        /* y * width + x */
+    uint32_t sample_count; /* samples to take, 1..TRACER_MAX_TASK_SAMPLES */
+    uint64_t first_sample; /* index of the first sample (layer * G) */
+    uint64_t prior_count;  /* finite samples merged so far */
+    double prior_sum[3];   /* their RGB sums, for eq. 4.1's running estimates */
+} tracer_task_t;
+
+/* One pixel's answer (slave -> master). */
+typedef struct tracer_result {
+    uint32_t pixel;
+    uint32_t samples;   /* finite samples in the sums */
+    uint32_t nonfinite; /* NaN/Inf samples counted and left out */
+    uint32_t pad_;
+    double sum[3];      /* RGB sums of this task's finite samples */
+    double lum_m2;      /* sum of squared deviations of luminance from this task's mean */
+    double pvar;        /* eq. 4.1: sum over i < G of (P_i - P_G)^2 */
+} tracer_result_t;
+
+typedef struct tracer_stats {
+    uint64_t rays;    /* camera, extension and shadow rays traced */
+    uint64_t samples; /* samples taken, finite or not */
+} tracer_stats_t;
+
+/* Builds the BVH for a scene. The scene is borrowed and must outlive the
+ * tracer. The Embree ISA is pinned (see tracer_isa) so that every process
+ * running this binary on a host with that ISA traces the same bits.
+ * Returns 0, or -1 with a message (e.g. Embree refused the device). */
+int tracer_new(const scene_t *scene, tracer_t **out, char *err, size_t errlen);
+void tracer_destroy(tracer_t **t);
+
+/* The Embree ISA this tracer runs ("avx2" or "sse4.2"). */
+const char *tracer_isa(const tracer_t *t);
+
+/* Traces count tasks into results[0..count). Thread-safe; no allocation.
+ * stats, if not NULL, is added to (not reset). Returns 0, or -1 with a
+ * message when a task is out of range (pixel outside the image, sample
+ * count 0 or too large); then no result is valid. */
+int tracer_trace(const tracer_t *t, const tracer_settings_t *settings, const tracer_task_t *tasks,
+                 size_t count, tracer_result_t *results, tracer_stats_t *stats, char *err,
+                 size_t errlen);
+
+/* Radiance of one sample (no statistics); for tests and tools. Returns the
+ * number of rays traced. */
+uint32_t tracer_sample(const tracer_t *t, const tracer_settings_t *settings, uint32_t pixel,
+                       uint64_t sample_index, float rgb[3]);
+
+#endif

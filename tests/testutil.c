@@ -1,0 +1,76 @@
+/* testutil.c - see testutil.h. */
+#include "testutil.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+
+static const char *env_or(const char *name, const char *fallback)
+{
+    const char *v = getenv(name);
+    return (v && *v) ? v : fallback;
+}
+
+const char *tu_root_path(char *buf, size_t len, const char *rel)
+{
+    snprintf(buf, len, "%s/%s", env_or("VB_ROOT", "."), rel);
+    return buf;
+}
+
+const char *tu_shared_path(char *buf, size_t len, const char *rel)
+{
+    snprintf(buf, len, "%s/%s", env_or("VB_SHARED", "../shared"), rel);
+    return buf;
+}
+
+const char *tu_tmp_path(char *buf, size_t len, const char *name)
+{
+    const char *dir = env_or("VB_TMP", "/tmp");
+    mkdir(dir, 0777);
+    snprintf(buf, len, "%s/%s", dir, name);
+    return buf;
+}
+
+const char *tu_bin(void)
+{
+    return env_or("VB_BIN", "bin/vbrender");
+}
+
+const char *tu_write_tmp(char *buf, size_t len, const char *name, const char *text)
+{
+    tu_tmp_path(buf, len, name);
+    FILE *f = fopen(buf, "wb");
+    if (!f)
+        return NULL;
+    fputs(text, f);
+    fclose(f);
+    return buf;
+}
+
+int tu_run(const char *cmd, char *out, size_t outlen)
+{
+    char full[8192];
+    snprintf(full, sizeof full, "%s 2>&1", cmd);
+    FILE *p = popen(full, "r");
+    if (!p)
+        return -1;
+    size_t n = 0;
+    if (out && outlen)
+        out[0] = '\0';
+    char chunk[4096];
+    size_t got;
+    while ((got = fread(chunk, 1, sizeof chunk, p)) > 0) {
+        if (out && n + 1 < outlen) {
+            size_t take = got < outlen - 1 - n ? got : outlen - 1 - n;
+            memcpy(out + n, chunk, take);
+            n += take;
+            out[n] = '\0';
+        }
+    }
+    int st = pclose(p);
+    if (st == -1)
+        return -1;
+    return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+}
