@@ -65,12 +65,19 @@ int image_write_exr(const image_t *img, const char *path, char *err, size_t errl
 /* Reads an EXR file (scanline or tiled, any compression the library reads;
  * half, float or uint channels become float). Standard attributes are
  * skipped; string, int, float and double attributes are kept (float as
- * double). Returns 0 with *out set, or -1 with a message in err. */
+ * double). Returns 0 with *out set, or -1 with a message in err.
+ * Details: only the first part of a multi-part file and the full-resolution
+ * level of a tiled one are read; deep and subsampled channels are refused;
+ * the data window's origin is dropped (pixel (0,0) is its top-left corner);
+ * the structural attributes tiles/name/type/version/chunkCount count as
+ * standard; attributes whose name or value does not fit image_attr_t, or
+ * beyond IMAGE_MAX_ATTRS, are skipped rather than failing the read. */
 int image_read_exr(const char *path, image_t **out, char *err, size_t errlen);
 
 /* Writes an 8-bit sRGB PNG of channels R, G, B (clamped to [0, 1] after the
  * sRGB transfer curve, scaled by exposure first). -1 with a message when the
- * image lacks R, G or B, or on I/O failure. */
+ * image lacks R, G or B, or on I/O failure. Like the EXR writer, both PNG
+ * writers replace path atomically (temporary name, then rename). */
 int image_write_png(const image_t *img, const char *path, float exposure,
                     char *err, size_t errlen);
 

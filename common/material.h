@@ -1,7 +1,8 @@
 /* material.h - the four materials a scene may use, and their BSDFs.
  *
  * diffuse (Lambertian albedo), emitter (one-sided RGB radiance on the side
- * of the triangle's geometric normal; absorbs everything), mirror (perfect
+ * of the triangle's geometric normal, over an optional diffuse albedo that
+ * is black unless given), mirror (perfect
  * specular reflection, RGB reflectance) and dielectric (smooth glass with
  * exact Fresnel, index of refraction). Nothing more until a scene needs it.
  * Directions are in world space; n is the shading normal. */
@@ -22,7 +23,7 @@ typedef enum {
 typedef struct material {
     char name[MATERIAL_NAME_LEN];
     material_type_t type;
-    vec3_t albedo;   /* diffuse albedo, or mirror reflectance */
+    vec3_t albedo;   /* diffuse albedo (emitters too), or mirror reflectance */
     vec3_t radiance; /* emitter only */
     float ior;       /* dielectric only: inside over outside */
 } material_t;

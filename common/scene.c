@@ -264,7 +264,7 @@ static int parse_materials(loader_t *L, const cJSON *root)
             break;
         }
         case MATERIAL_EMITTER: {
-            static const char *const keys[] = {"type", "radiance", NULL};
+            static const char *const keys[] = {"type", "radiance", "albedo", NULL};
             check_keys(L, it, p, keys);
             double rad[3];
             if (get_vec3(L, it, "radiance", p, 1, rad) < 0)
@@ -273,7 +273,10 @@ static int parse_materials(loader_t *L, const cJSON *root)
                 if (rad[k] < 0 || rad[k] > 1e30)
                     return fail(L, p, "radiance must be between 0 and 1e30");
             m->radiance = to_vec3(rad);
+            /* a light's own surface may also reflect diffusely (default: black) */
             v[0] = v[1] = v[2] = 0;
+            if (get_vec3(L, it, "albedo", p, 0, v) < 0)
+                return -1;
             break;
         }
         case MATERIAL_DIELECTRIC: {
@@ -286,11 +289,11 @@ static int parse_materials(loader_t *L, const cJSON *root)
             break;
         }
         }
-        if (m->type == MATERIAL_DIFFUSE || m->type == MATERIAL_MIRROR)
+        if (m->type != MATERIAL_DIELECTRIC)
             for (int k = 0; k < 3; k++)
                 if (v[k] < 0 || v[k] > 1)
                     return fail(L, p, "%s components must be in [0, 1] (got %g): more would create energy",
-                                m->type == MATERIAL_DIFFUSE ? "albedo" : "reflectance", v[k]);
+                                m->type == MATERIAL_MIRROR ? "reflectance" : "albedo", v[k]);
         m->albedo = to_vec3(v);
         L->s->material_count++;
     }

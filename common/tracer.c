@@ -250,7 +250,8 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
                 }
                 L = vec3_add(L, vec3_mul(beta, vec3_scale(m->radiance, w)));
             }
-            break; /* emitters absorb */
+            if (vec3_is_zero(m->albedo))
+                break; /* a black emitter absorbs everything */
         }
         /* segments so far: depth + 1; a bounce or a light sample adds one */
         if (max_depth && depth + 2 > max_depth)
@@ -270,7 +271,7 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
                 ns = n;
         }
         vec3_t wi;
-        if (m->type == MATERIAL_DIFFUSE) {
+        if (m->type == MATERIAL_DIFFUSE || m->type == MATERIAL_EMITTER) {
             if (nee) {
                 double ul = rng_next_double(&rng);
                 float u1 = rng_next_float(&rng), u2 = rng_next_float(&rng);
