@@ -1,0 +1,742 @@
+/* test_tracer.c - the renderer against answers known in advance.
+ *
+ * Every statistical assertion uses the variance the renderer itself reports:
+ * the mean luminance of a region is compared with its expected value within
+ * 5 standard deviations of that mean (pixels are independent, so the
+ * region's variance is the sum of its pixels' variances over n^2). A bug
+ * that biases the estimate by more than the noise fails; an unlucky seed
+ * essentially never does (5 sigma: 6e-7 per comparison).
+ */
+#include <check.h>
+#include <cJSON.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "film.h"
+#include "render.h"
+#include "scene.h"
+#include "testutil.h"
+#include "tracer.h"
+
+#define NSIGMA 5.0
+
+/* ---- fixtures -------------------------------------------------------- */
+
+static scene_t *load_text(const char *json)
+{
+    scene_t *s = NULL;
+    char err[1024];
+    int rc = scene_load_string(json, strlen(json), "test-scene", ".", &s, err, sizeof err);
+    ck_assert_msg(rc == 0, "scene failed to load: %s", err);
+    return s;
+}
+
+static char *read_file(const char *path)
+{
+    FILE *f = fopen(path, "rb");
+    ck_assert_msg(f != NULL, "cannot open %s", path);
+    fseek(f, 0, SEEK_END);
+    long n = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    char *buf = malloc((size_t)n + 1);
+    ck_assert(buf != NULL);
+    ck_assert(fread(buf, 1, (size_t)n, f) == (size_t)n);
+    buf[n] = '\0';
+    fclose(f);
+    return buf;
+}
+
+/* The Cornell box from scenes/, at a smaller square resolution (the camera's
+ * field of view depends only on the aspect ratio, which stays 1). */
+static cJSON *cornell_json(int size)
+{
+    char path[1024];
+    char *text = read_file(tu_root_path(path, sizeof path, "scenes/cornell-box.json"));
+    cJSON *root = cJSON_Parse(text);
+    free(text);
+    ck_assert(root != NULL);
+    cJSON *cam = cJSON_GetObjectItem(root, "camera");
+    cJSON_ReplaceItemInObject(cam, "width", cJSON_CreateNumber(size));
+    cJSON_ReplaceItemInObject(cam, "height", cJSON_CreateNumber(size));
+    return root;
+}
+
+static scene_t *load_json(cJSON *root)
+{
+    char *text = cJSON_PrintUnformatted(root);
+    scene_t *s = load_text(text);
+    cJSON_free(text);
+    return s;
+}
+
+static film_t *render(const scene_t *s, uint64_t seed, scene_integrator_t integ, uint32_t spp,
+                      int threads, uint32_t granularity)
+{
+    tracer_t *t = NULL;
+    char err[512];
+    ck_assert_msg(tracer_new(s, &t, err, sizeof err) == 0, "%s", err);
+    film_t *f = film_new(s->camera.width, s->camera.height);
+    ck_assert(f != NULL);
+    render_settings_t rs;
+    memset(&rs, 0, sizeof rs);
+    rs.tracer.seed = seed;
+    rs.tracer.integrator = integ;
+    rs.spp = spp;
+    rs.granularity = granularity;
+    rs.threads = threads;
+    rs.progress = PROGRESS_NONE;
+    rs.progress_out = NULL;
+    render_summary_t sum;
+    ck_assert_msg(render_run(t, f, &rs, &sum, err, sizeof err) == 0, "%s", err);
+    ck_assert_uint_eq(sum.samples, (uint64_t)spp * (uint64_t)f->width * (uint64_t)f->height);
+    tracer_destroy(&t);
+    return f;
+}
+
+typedef struct region_stat {
+    double mean; /* mean over pixels of the pixel mean luminance */
+    double var;  /* variance of that mean */
+} region_stat_t;
+
+static region_stat_t region(const film_t *f, int x0, int y0, int x1, int y1)
+{
+    region_stat_t r = {0, 0};
+    int n = 0;
+    for (int y = y0; y < y1; y++)
+        for (int x = x0; x < x1; x++) {
+            uint32_t p = (uint32_t)(y * f->width + x);
+            double rgb[3];
+            film_mean(f, p, rgb);
+            r.mean += vmath_luminance(rgb[0], rgb[1], rgb[2]);
+            r.var += film_variance_of_mean(f, p);
+            n++;
+        }
+    r.mean /= n;
+    r.var /= (double)n * n;
+    return r;
+}
+
+static void assert_all_finite(const film_t *f)
+{
+    for (int i = 0; i < f->width * f->height; i++) {
+        double rgb[3];
+        film_mean(f, (uint32_t)i, rgb);
+        ck_assert_msg(isfinite(rgb[0]) && isfinite(rgb[1]) && isfinite(rgb[2]),
+                      "pixel %d is not finite", i);
+        ck_assert(isfinite(film_variance_of_mean(f, (uint32_t)i)));
+    }
+}
+
+/* Blocks of two films agree within NSIGMA combined sigma (+ rel_tol). */
+static void assert_films_agree(const film_t *a, const film_t *b, int blocks, double rel_tol,
+                               const char *what)
+{
+    ck_assert_int_eq(a->width, b->width);
+    int bw = a->width / blocks, bh = a->height / blocks;
+    for (int by = 0; by < blocks; by++)
+        for (int bx = 0; bx < blocks; bx++) {
+            region_stat_t ra = region(a, bx * bw, by * bh, (bx + 1) * bw, (by + 1) * bh);
+            region_stat_t rb = region(b, bx * bw, by * bh, (bx + 1) * bw, (by + 1) * bh);
+            double bound = NSIGMA * sqrt(ra.var + rb.var) + rel_tol * fabs(ra.mean) + 1e-12;
+            ck_assert_msg(fabs(ra.mean - rb.mean) <= bound,
+                          "%s: block (%d,%d): %.6g vs %.6g differ by %.3g > bound %.3g", what, bx,
+                          by, ra.mean, rb.mean, fabs(ra.mean - rb.mean), bound);
+        }
+}
+
+/* A closed cube [-1,1]^3 with inward-facing quads of one material. */
+static void furnace_box(char *buf, size_t len, const char *material_json, const char *extra_shapes,
+                        const char *camera_json)
+{
+    snprintf(buf, len,
+             "{\"camera\": %s,"
+             "\"materials\": {\"f\": %s, \"glass\": {\"type\": \"dielectric\", \"ior\": 1.5},"
+             "  \"mirror\": {\"type\": \"mirror\"}},"
+             "\"shapes\": ["
+             "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,-1,-1],[-1,-1,1],[1,-1,1],[1,-1,-1]]},"
+             "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,1,-1],[1,1,-1],[1,1,1],[-1,1,1]]},"
+             "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,-1,-1],[-1,1,-1],[-1,1,1],[-1,-1,1]]},"
+             "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[1,-1,-1],[1,-1,1],[1,1,1],[1,1,-1]]},"
+             "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,-1,-1],[1,-1,-1],[1,1,-1],[-1,1,-1]]},"
+             "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,-1,1],[-1,1,1],[1,1,1],[1,-1,1]]}"
+             "%s]}",
+             camera_json, material_json, extra_shapes);
+}
+
+static const char *const inside_camera =
+    "{\"position\":[0,0,0],\"look_at\":[0,0,1],\"up\":[0,1,0],\"fov\":90,\"width\":16,\"height\":16}";
+
+/* ---- furnaces --------------------------------------------------------- */
+
+/* Every surface emits Le and reflects diffusely with albedo a: radiance is
+ * Le / (1 - a) everywhere, at any depth of the sum. */
+static void furnace_case(scene_integrator_t integ, double a, uint32_t spp)
+{
+    char mat[256], json[4096];
+    snprintf(mat, sizeof mat, "{\"type\":\"emitter\",\"radiance\":[1,0.5,0.25],\"albedo\":[%g,%g,%g]}", a, a, a);
+    furnace_box(json, sizeof json, mat, "", inside_camera);
+    scene_t *s = load_text(json);
+    ck_assert_uint_eq(s->light_count, 12);
+    film_t *f = render(s, 7, integ, spp, 2, 32);
+    assert_all_finite(f);
+    region_stat_t r = region(f, 0, 0, 16, 16);
+    double expect = vmath_luminance(1, 0.5, 0.25) / (1.0 - a);
+    ck_assert_msg(r.var > 0, "no variance reported");
+    ck_assert_msg(fabs(r.mean - expect) <= NSIGMA * sqrt(r.var),
+                  "furnace a=%g (%s): mean %.6f, expected %.6f, sigma %.3g", a,
+                  scene_integrator_name(integ), r.mean, expect, sqrt(r.var));
+    /* colour ratios survive every bounce */
+    double rgb[3] = {0, 0, 0};
+    for (int i = 0; i < 256; i++) {
+        double px[3];
+        film_mean(f, (uint32_t)i, px);
+        for (int c = 0; c < 3; c++)
+            rgb[c] += px[c];
+    }
+    ck_assert_msg(fabs(rgb[1] / rgb[0] - 0.5) < 1e-6 && fabs(rgb[2] / rgb[0] - 0.25) < 1e-6,
+                  "colour ratios drifted: %g %g", rgb[1] / rgb[0], rgb[2] / rgb[0]);
+    film_destroy(&f);
+    scene_destroy(&s);
+}
+
+START_TEST(test_furnace_path) { furnace_case(SCENE_INTEGRATOR_PATH, 0.5, 64); }
+END_TEST
+
+START_TEST(test_furnace_path_bright) { furnace_case(SCENE_INTEGRATOR_PATH, 0.9, 64); }
+END_TEST
+
+START_TEST(test_furnace_naive) { furnace_case(SCENE_INTEGRATOR_NAIVE, 0.5, 64); }
+END_TEST
+
+/* A black-body box of radiance Le around a lossless glass or mirror sphere:
+ * whatever the path does inside the sphere it ends on a wall, so every pixel
+ * is Le (with glass this also checks the 1/eta^2 radiance scaling cancels). */
+static void specular_furnace(const char *material)
+{
+    char extra[256], json[4096];
+    snprintf(extra, sizeof extra,
+             ",{\"type\":\"sphere\",\"material\":\"%s\",\"center\":[0,0,0.2],\"radius\":0.5,\"subdivisions\":4}",
+             material);
+    furnace_box(json, sizeof json, "{\"type\":\"emitter\",\"radiance\":[0.75,0.75,0.75]}", extra,
+                "{\"position\":[0,0,-0.9],\"look_at\":[0,0,0.2],\"up\":[0,1,0],\"fov\":50,\"width\":16,\"height\":16}");
+    scene_t *s = load_text(json);
+    for (int integ = 0; integ < 2; integ++) {
+        film_t *f = render(s, 3, (scene_integrator_t)integ, 32, 2, 32);
+        assert_all_finite(f);
+        region_stat_t r = region(f, 0, 0, 16, 16);
+        ck_assert_msg(fabs(r.mean - 0.75) <= NSIGMA * sqrt(r.var) + 1e-6,
+                      "%s furnace (%s): mean %.7f, sigma %.3g", material,
+                      scene_integrator_name((scene_integrator_t)integ), r.mean, sqrt(r.var));
+        film_destroy(&f);
+    }
+    scene_destroy(&s);
+}
+
+START_TEST(test_glass_furnace) { specular_furnace("glass"); }
+END_TEST
+
+START_TEST(test_mirror_furnace) { specular_furnace("mirror"); }
+END_TEST
+
+/* ---- analytic direct lighting ---------------------------------------- */
+
+/* Form factor from a differential area to a parallel square of half side s
+ * centred at height h above it (four corner rectangles of the standard
+ * closed form). */
+static double square_form_factor(double s, double h)
+{
+    double A = s / h, q = A / sqrt(1.0 + A * A);
+    return 4.0 / M_PI * q * atan(q);
+}
+
+START_TEST(test_form_factor_formula)
+{
+    /* the closed form against a midpoint-rule integral of cos cos / (pi r^2) */
+    double s = 0.5, h = 1.0, sum = 0;
+    int n = 1000;
+    double dx = 2 * s / n;
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) {
+            double x = -s + (i + 0.5) * dx, y = -s + (j + 0.5) * dx;
+            double r2 = x * x + y * y + h * h;
+            sum += h * h / (M_PI * r2 * r2) * dx * dx;
+        }
+    ck_assert_msg(fabs(sum - square_form_factor(s, h)) < 1e-6, "%.9f vs %.9f", sum,
+                  square_form_factor(s, h));
+}
+END_TEST
+
+/* A diffuse floor (albedo rho) under a black square emitter of radiance Le:
+ * the floor point under its centre has radiance rho * Le * F exactly (no
+ * indirect light: the emitter absorbs and a plane cannot see itself). */
+static void direct_case(scene_integrator_t integ, uint32_t spp)
+{
+    const double rho = 0.5, Le = 1.0, s = 0.5, h = 1.0;
+    const char *json =
+        "{\"camera\":{\"position\":[0,0.5,0],\"look_at\":[0,0,0],\"up\":[0,0,1],\"fov\":0.5,"
+        "\"width\":8,\"height\":8},"
+        "\"materials\":{\"floor\":{\"type\":\"diffuse\",\"albedo\":[0.5,0.5,0.5]},"
+        "\"light\":{\"type\":\"emitter\",\"radiance\":[1,1,1]}},"
+        "\"shapes\":["
+        "{\"type\":\"quad\",\"material\":\"floor\",\"vertices\":[[-50,0,-50],[-50,0,50],[50,0,50],[50,0,-50]]},"
+        "{\"type\":\"quad\",\"material\":\"light\",\"vertices\":[[-0.5,1,-0.5],[0.5,1,-0.5],[0.5,1,0.5],[-0.5,1,0.5]]}]}";
+    scene_t *s_ = load_text(json);
+    film_t *f = render(s_, 11, integ, spp, 2, 32);
+    assert_all_finite(f);
+    region_stat_t r = region(f, 0, 0, 8, 8);
+    /* The pixels see a spot of radius 0.5 tan(0.25 deg) = 0.002 where the
+     * irradiance varies by less than 1e-5 relative. */
+    double expect = rho * Le * square_form_factor(s, h);
+    ck_assert_msg(fabs(r.mean - expect) <= NSIGMA * sqrt(r.var) + 1e-5 * expect,
+                  "direct light (%s): %.7f vs exact %.7f (sigma %.3g)", scene_integrator_name(integ),
+                  r.mean, expect, sqrt(r.var));
+    film_destroy(&f);
+    scene_destroy(&s_);
+}
+
+START_TEST(test_direct_light_path) { direct_case(SCENE_INTEGRATOR_PATH, 256); }
+END_TEST
+
+START_TEST(test_direct_light_naive) { direct_case(SCENE_INTEGRATOR_NAIVE, 1024); }
+END_TEST
+
+/* ---- the Cornell box -------------------------------------------------- */
+
+START_TEST(test_path_and_naive_agree_cornell)
+{
+    cJSON *root = cornell_json(32);
+    scene_t *s = load_json(root);
+    cJSON_Delete(root);
+    film_t *p = render(s, 1, SCENE_INTEGRATOR_PATH, 64, 2, 32);
+    film_t *n = render(s, 2, SCENE_INTEGRATOR_NAIVE, 256, 2, 32);
+    assert_films_agree(p, n, 4, 0.0, "path vs naive");
+    /* and the whole image, tighter */
+    region_stat_t rp = region(p, 0, 0, 32, 32), rn = region(n, 0, 0, 32, 32);
+    ck_assert_msg(fabs(rp.mean - rn.mean) <= NSIGMA * sqrt(rp.var + rn.var), "%.6f vs %.6f", rp.mean,
+                  rn.mean);
+    /* MIS must be worth something: the path integrator's variance is lower */
+    ck_assert_msg(rp.var * 64 < rn.var * 256, "path variance per sample is not below naive's");
+    film_destroy(&p);
+    film_destroy(&n);
+    scene_destroy(&s);
+}
+END_TEST
+
+START_TEST(test_cornell_red_wall_on_left)
+{
+    cJSON *root = cornell_json(16);
+    scene_t *s = load_json(root);
+    cJSON_Delete(root);
+    film_t *f = render(s, 1, SCENE_INTEGRATOR_PATH, 16, 2, 16);
+    double left[3] = {0}, right[3] = {0};
+    for (int y = 4; y < 12; y++)
+        for (int x = 0; x < 3; x++) {
+            double a[3], b[3];
+            film_mean(f, (uint32_t)(y * 16 + x + 1), a);
+            film_mean(f, (uint32_t)(y * 16 + 14 - x), b);
+            for (int c = 0; c < 3; c++) {
+                left[c] += a[c];
+                right[c] += b[c];
+            }
+        }
+    /* a mirrored camera would swap them: red dominates the left, green the right */
+    ck_assert_msg(left[0] > 2 * left[1] && right[1] > 1.3 * right[0] && left[0] > 2 * right[0],
+                  "left (%g %g %g) should be red, right (%g %g %g) green", left[0], left[1], left[2],
+                  right[0], right[1], right[2]);
+    film_destroy(&f);
+    scene_destroy(&s);
+}
+END_TEST
+
+/* ---- determinism ------------------------------------------------------ */
+
+START_TEST(test_deterministic_across_threads)
+{
+    cJSON *root = cornell_json(24);
+    scene_t *s = load_json(root);
+    cJSON_Delete(root);
+    film_t *a = render(s, 42, SCENE_INTEGRATOR_PATH, 48, 1, 16);
+    film_t *b = render(s, 42, SCENE_INTEGRATOR_PATH, 48, 2, 16);
+    film_t *c = render(s, 42, SCENE_INTEGRATOR_PATH, 48, 2, 16);
+    film_t *d = render(s, 42, SCENE_INTEGRATOR_PATH, 48, 3, 16);
+    film_t *e = render(s, 43, SCENE_INTEGRATOR_PATH, 48, 2, 16);
+    size_t bytes = (size_t)a->width * (size_t)a->height * sizeof(film_pixel_t);
+    ck_assert_msg(memcmp(a->pixels, b->pixels, bytes) == 0, "1 vs 2 threads differ");
+    ck_assert_msg(memcmp(b->pixels, c->pixels, bytes) == 0, "two 2-thread runs differ");
+    ck_assert_msg(memcmp(a->pixels, d->pixels, bytes) == 0, "1 vs 3 threads differ");
+    ck_assert_msg(memcmp(a->pixels, e->pixels, bytes) != 0, "another seed gave the same image");
+    film_destroy(&a);
+    film_destroy(&b);
+    film_destroy(&c);
+    film_destroy(&d);
+    film_destroy(&e);
+    scene_destroy(&s);
+}
+END_TEST
+
+/* The core API directly: the same task gives the same result whether it is
+ * traced alone or in a batch, in any order. */
+START_TEST(test_tasks_independent_of_batching)
+{
+    cJSON *root = cornell_json(16);
+    scene_t *s = load_json(root);
+    cJSON_Delete(root);
+    tracer_t *t = NULL;
+    char err[256];
+    ck_assert(tracer_new(s, &t, err, sizeof err) == 0);
+    tracer_settings_t st = {5, SCENE_INTEGRATOR_PATH, 0};
+    tracer_task_t tasks[8];
+    for (int i = 0; i < 8; i++) {
+        memset(&tasks[i], 0, sizeof tasks[i]);
+        tasks[i].pixel = (uint32_t)(i * 29 + 3);
+        tasks[i].sample_count = 32;
+        tasks[i].first_sample = 64;
+        tasks[i].prior_count = 64;
+        tasks[i].prior_sum[0] = 3.0 + i;
+        tasks[i].prior_sum[1] = 2.0;
+        tasks[i].prior_sum[2] = 1.0;
+    }
+    tracer_result_t batch[8], single;
+    tracer_stats_t stats = {0, 0};
+    ck_assert(tracer_trace(t, &st, tasks, 8, batch, &stats, err, sizeof err) == 0);
+    ck_assert_uint_eq(stats.samples, 8 * 32);
+    ck_assert(stats.rays >= stats.samples);
+    for (int i = 7; i >= 0; i--) {
+        ck_assert(tracer_trace(t, &st, &tasks[i], 1, &single, NULL, err, sizeof err) == 0);
+        ck_assert_msg(memcmp(&single, &batch[i], sizeof single) == 0, "task %d differs", i);
+        ck_assert_uint_eq(single.samples + single.nonfinite, 32);
+        ck_assert(single.pvar >= 0);
+    }
+    /* bad tasks are refused, not traced */
+    tasks[0].pixel = 16 * 16;
+    ck_assert(tracer_trace(t, &st, tasks, 1, batch, NULL, err, sizeof err) == -1);
+    ck_assert_msg(strstr(err, "outside") != NULL, "%s", err);
+    tasks[0].pixel = 0;
+    tasks[0].sample_count = TRACER_MAX_TASK_SAMPLES + 1;
+    ck_assert(tracer_trace(t, &st, tasks, 1, batch, NULL, err, sizeof err) == -1);
+    tracer_destroy(&t);
+    scene_destroy(&s);
+}
+END_TEST
+
+/* eq. 4.1 by hand: the statistic from the samples tracer_sample gives. */
+START_TEST(test_pvar_matches_definition)
+{
+    cJSON *root = cornell_json(16);
+    scene_t *s = load_json(root);
+    cJSON_Delete(root);
+    tracer_t *t = NULL;
+    char err[256];
+    ck_assert(tracer_new(s, &t, err, sizeof err) == 0);
+    tracer_settings_t st = {9, SCENE_INTEGRATOR_PATH, 0};
+    tracer_task_t task = {.pixel = 120, .sample_count = 32, .first_sample = 32, .prior_count = 32,
+                          .prior_sum = {4.0, 3.0, 2.0}};
+    tracer_result_t r;
+    ck_assert(tracer_trace(t, &st, &task, 1, &r, NULL, err, sizeof err) == 0);
+    double lum_prior = vmath_luminance(4.0, 3.0, 2.0), run = lum_prior, P[32];
+    double sum[3] = {0, 0, 0};
+    for (int i = 0; i < 32; i++) {
+        float rgb[3];
+        tracer_sample(t, &st, 120, 32 + (uint64_t)i, rgb);
+        for (int c = 0; c < 3; c++)
+            sum[c] += rgb[c];
+        run += vmath_luminance(rgb[0], rgb[1], rgb[2]);
+        P[i] = run / (32.0 + i + 1);
+    }
+    double pvar = 0;
+    for (int i = 0; i < 31; i++)
+        pvar += (P[i] - P[31]) * (P[i] - P[31]);
+    ck_assert_msg(fabs(r.pvar - pvar) <= 1e-9 * (pvar + 1e-30), "pvar %.12g vs %.12g", r.pvar, pvar);
+    for (int c = 0; c < 3; c++)
+        ck_assert(fabs(r.sum[c] - sum[c]) <= 1e-12 * (fabs(sum[c]) + 1));
+    tracer_destroy(&t);
+    scene_destroy(&s);
+}
+END_TEST
+
+/* ---- hard cases for numerical stability ------------------------------- */
+
+static void transform_points(cJSON *arr, double k, double t)
+{
+    cJSON *p;
+    cJSON_ArrayForEach(p, arr)
+    {
+        cJSON *c;
+        cJSON_ArrayForEach(c, p) cJSON_SetNumberValue(c, c->valuedouble * k + t);
+    }
+}
+
+static film_t *cornell_transformed(double k, double t, int size, uint32_t spp)
+{
+    cJSON *root = cornell_json(size);
+    cJSON *cam = cJSON_GetObjectItem(root, "camera");
+    cJSON *c;
+    cJSON_ArrayForEach(c, cJSON_GetObjectItem(cam, "position")) cJSON_SetNumberValue(c, c->valuedouble * k + t);
+    cJSON_ArrayForEach(c, cJSON_GetObjectItem(cam, "look_at")) cJSON_SetNumberValue(c, c->valuedouble * k + t);
+    cJSON *sh;
+    cJSON_ArrayForEach(sh, cJSON_GetObjectItem(root, "shapes")) transform_points(cJSON_GetObjectItem(sh, "vertices"), k, t);
+    scene_t *s = load_json(root);
+    cJSON_Delete(root);
+    film_t *f = render(s, 1, SCENE_INTEGRATOR_PATH, spp, 2, 32);
+    scene_destroy(&s);
+    assert_all_finite(f);
+    return f;
+}
+
+START_TEST(test_cornell_any_scale)
+{
+    film_t *ref = cornell_transformed(1.0, 0.0, 32, 64);
+    const double cases[][2] = {{1e-3, 0.0}, {1e5, 0.0}, {1.0, 1e6}};
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        film_t *f = cornell_transformed(cases[i][0], cases[i][1], 32, 64);
+        char what[64];
+        snprintf(what, sizeof what, "scale %g translate %g", cases[i][0], cases[i][1]);
+        /* 4x4 blocks: light leaks or acne would shift a block by far more */
+        assert_films_agree(ref, f, 4, 1e-3, what);
+        film_destroy(&f);
+    }
+    film_destroy(&ref);
+}
+END_TEST
+
+/* A camera 1 cm above an infinite-looking floor, looking 0.3 to 0.7 degrees
+ * below the horizon, under a huge black emitter: the exact answer is
+ * rho * Le * F with F = 1 - 3e-8; acne would darken it. */
+START_TEST(test_grazing_camera)
+{
+    const char *json =
+        "{\"camera\":{\"position\":[0,0.01,0],\"look_at\":[0,-0.00872654,1],\"up\":[0,1,0],\"fov\":0.4,"
+        "\"width\":16,\"height\":16},"
+        "\"materials\":{\"floor\":{\"type\":\"diffuse\",\"albedo\":[0.5,0.5,0.5]},"
+        "\"sky\":{\"type\":\"emitter\",\"radiance\":[1,1,1]}},"
+        "\"shapes\":["
+        "{\"type\":\"quad\",\"material\":\"floor\",\"vertices\":[[-5000,0,-5000],[-5000,0,5000],[5000,0,5000],[5000,0,-5000]]},"
+        "{\"type\":\"quad\",\"material\":\"sky\",\"vertices\":[[-5000,1,-5000],[5000,1,-5000],[5000,1,5000],[-5000,1,5000]]}]}";
+    scene_t *s = load_text(json);
+    for (int integ = 0; integ < 2; integ++) {
+        film_t *f = render(s, 5, (scene_integrator_t)integ, 64, 2, 32);
+        assert_all_finite(f);
+        region_stat_t r = region(f, 0, 0, 16, 16);
+        double expect = 0.5 * square_form_factor(5000, 1);
+        ck_assert_msg(fabs(r.mean - expect) <= NSIGMA * sqrt(r.var) + 1e-6,
+                      "grazing (%s): %.7f vs %.7f, sigma %.3g", scene_integrator_name((scene_integrator_t)integ),
+                      r.mean, expect, sqrt(r.var));
+        for (int i = 0; i < 256; i++) {
+            double rgb[3];
+            film_mean(f, (uint32_t)i, rgb);
+            ck_assert_msg(rgb[1] > 0.25, "pixel %d dark (%.4f): self-shadowing", i, rgb[1]);
+        }
+        film_destroy(&f);
+    }
+    scene_destroy(&s);
+}
+END_TEST
+
+/* The Cornell floor cut into 2 x 3000 slivers (aspect ratio about 3000) plus
+ * degenerate triangles: the degenerate ones are dropped and counted, and the
+ * image matches the plain box (light leaking between slivers would not). */
+START_TEST(test_slivers_and_degenerates)
+{
+    cJSON *root = cornell_json(32);
+    cJSON *shapes = cJSON_GetObjectItem(root, "shapes");
+    cJSON_DeleteItemFromArray(shapes, 0); /* the floor quad */
+    const int n = 3000, degenerate = 5;
+    const double v0[3] = {552.8, 0, 0}, v1[3] = {0, 0, 0}, v2[3] = {0, 0, 559.2}, v3[3] = {549.6, 0, 559.2};
+    cJSON *sh = cJSON_CreateObject();
+    cJSON_AddStringToObject(sh, "type", "triangles");
+    cJSON_AddStringToObject(sh, "material", "white");
+    cJSON *verts = cJSON_AddArrayToObject(sh, "vertices");
+    cJSON *idx = cJSON_AddArrayToObject(sh, "indices");
+    double pt[3];
+    for (int d = 0; d < 3; d++)
+        pt[d] = v0[d];
+    cJSON_AddItemToArray(verts, cJSON_CreateDoubleArray(pt, 3));
+    int count = 1;
+    for (int edge = 0; edge < 2; edge++) {
+        const double *a = edge ? v2 : v1, *b = edge ? v3 : v2;
+        for (int i = 0; i <= n; i++) {
+            for (int d = 0; d < 3; d++)
+                pt[d] = a[d] + (b[d] - a[d]) * i / n;
+            cJSON_AddItemToArray(verts, cJSON_CreateDoubleArray(pt, 3));
+            if (i > 0) {
+                int tri[3] = {0, count - 1, count};
+                cJSON_AddItemToArray(idx, cJSON_CreateIntArray(tri, 3));
+            }
+            count++;
+        }
+    }
+    /* zero-area triangles: a repeated vertex, and three collinear points */
+    for (int i = 0; i < degenerate; i++) {
+        int tri[3] = {1 + i, 1 + i, 2 + i};
+        int col[3] = {1, 2 + i, 3 + i}; /* on the edge v1 -> v2: collinear */
+        cJSON_AddItemToArray(idx, cJSON_CreateIntArray(i % 2 ? col : tri, 3));
+    }
+    cJSON_AddItemToArray(shapes, sh);
+    scene_t *s = load_json(root);
+    cJSON_Delete(root);
+    ck_assert_uint_eq(s->dropped_degenerate, (size_t)degenerate);
+    ck_assert_uint_eq(s->triangle_count, 30 + 2 * (size_t)n);
+    int warned = 0;
+    for (int i = 0; i < s->warning_count; i++)
+        warned |= strstr(s->warnings[i], "degenerate") != NULL;
+    ck_assert(warned);
+    film_t *f = render(s, 1, SCENE_INTEGRATOR_PATH, 64, 2, 32);
+    film_t *ref = cornell_transformed(1.0, 0.0, 32, 64);
+    assert_all_finite(f);
+    assert_films_agree(ref, f, 4, 1e-3, "sliver floor");
+    film_destroy(&f);
+    film_destroy(&ref);
+    scene_destroy(&s);
+}
+END_TEST
+
+/* The Cornell light shrunk 1000x per side and made 1e6x brighter (same
+ * power): fireflies, but no NaN/Inf, and independent renders agree with
+ * each other and, away from the light's own pixels, with the normal box. */
+START_TEST(test_tiny_bright_light)
+{
+    cJSON *root = cornell_json(32);
+    cJSON *mats = cJSON_GetObjectItem(root, "materials");
+    cJSON *light = cJSON_GetObjectItem(mats, "light");
+    double rad[3] = {17e6, 12e6, 4e6};
+    cJSON_ReplaceItemInObject(light, "radiance", cJSON_CreateDoubleArray(rad, 3));
+    cJSON *shapes = cJSON_GetObjectItem(root, "shapes");
+    cJSON *lq = cJSON_GetArrayItem(shapes, cJSON_GetArraySize(shapes) - 1);
+    double cx = 278, cz = 279.5, hw = 0.065, hd = 0.0525;
+    double q[4][3] = {{cx + hw, 548.7, cz - hd}, {cx + hw, 548.7, cz + hd}, {cx - hw, 548.7, cz + hd},
+                      {cx - hw, 548.7, cz - hd}};
+    cJSON *verts = cJSON_CreateArray();
+    for (int i = 0; i < 4; i++)
+        cJSON_AddItemToArray(verts, cJSON_CreateDoubleArray(q[i], 3));
+    cJSON_ReplaceItemInObject(lq, "vertices", verts);
+    scene_t *s = load_json(root);
+    cJSON_Delete(root);
+    film_t *a = render(s, 1, SCENE_INTEGRATOR_PATH, 64, 2, 32);
+    film_t *b = render(s, 2, SCENE_INTEGRATOR_PATH, 64, 2, 32);
+    ck_assert_uint_eq(film_total_nonfinite(a) + film_total_nonfinite(b), 0);
+    assert_all_finite(a);
+    assert_all_finite(b);
+    /* below the light's row: the ceiling pixels may see the light itself */
+    region_stat_t ra = region(a, 0, 8, 32, 32), rb = region(b, 0, 8, 32, 32);
+    ck_assert_msg(fabs(ra.mean - rb.mean) <= NSIGMA * sqrt(ra.var + rb.var), "%.6g vs %.6g", ra.mean, rb.mean);
+    film_t *ref = cornell_transformed(1.0, 0.0, 32, 64);
+    region_stat_t rr = region(ref, 0, 8, 32, 32);
+    /* a point light and a 13 cm one light the box almost alike: within 3 % */
+    ck_assert_msg(fabs(ra.mean - rr.mean) <= NSIGMA * sqrt(ra.var + rr.var) + 0.03 * rr.mean,
+                  "tiny light %.6g vs normal %.6g", ra.mean, rr.mean);
+    film_destroy(&a);
+    film_destroy(&b);
+    film_destroy(&ref);
+    scene_destroy(&s);
+}
+END_TEST
+
+/* A glass ball over a diffuse floor under a small light: the caustic is
+ * reached only through specular chains, which the two integrators sample in
+ * different ways (light hit after a specular bounce vs BSDF sampling); they
+ * must agree. */
+START_TEST(test_glass_caustic)
+{
+    const char *json =
+        "{\"camera\":{\"position\":[0,3,-5],\"look_at\":[0,0.6,0],\"up\":[0,1,0],\"fov\":35,\"width\":16,\"height\":16},"
+        "\"materials\":{\"floor\":{\"type\":\"diffuse\",\"albedo\":[0.7,0.7,0.7]},"
+        "\"glass\":{\"type\":\"dielectric\",\"ior\":1.5},"
+        "\"light\":{\"type\":\"emitter\",\"radiance\":[20,20,20]}},"
+        "\"shapes\":["
+        "{\"type\":\"quad\",\"material\":\"floor\",\"vertices\":[[-4,0,-4],[-4,0,4],[4,0,4],[4,0,-4]]},"
+        "{\"type\":\"sphere\",\"material\":\"glass\",\"center\":[0,1.2,0],\"radius\":0.7,\"subdivisions\":4},"
+        "{\"type\":\"quad\",\"material\":\"light\",\"vertices\":[[-0.5,5,-0.5],[0.5,5,-0.5],[0.5,5,0.5],[-0.5,5,0.5]]}]}";
+    scene_t *s = load_text(json);
+    film_t *p = render(s, 1, SCENE_INTEGRATOR_PATH, 256, 2, 32);
+    film_t *n = render(s, 2, SCENE_INTEGRATOR_NAIVE, 1024, 2, 32);
+    assert_all_finite(p);
+    assert_all_finite(n);
+    ck_assert_uint_eq(film_total_nonfinite(p), 0);
+    assert_films_agree(p, n, 2, 0.0, "caustic path vs naive");
+    film_destroy(&p);
+    film_destroy(&n);
+    scene_destroy(&s);
+}
+END_TEST
+
+/* A pixel whose every sample is the same: a million samples through tasks
+ * and the film keep the mean exact to 1e-12 and the variance at 0. */
+START_TEST(test_million_constant_samples)
+{
+    char json[4096];
+    furnace_box(json, sizeof json, "{\"type\":\"emitter\",\"radiance\":[0.1,0.7,3.3]}", "",
+                "{\"position\":[0,0,0],\"look_at\":[0,0,1],\"up\":[0,1,0],\"fov\":60,\"width\":1,\"height\":1}");
+    scene_t *s = load_text(json);
+    tracer_t *t = NULL;
+    char err[256];
+    ck_assert(tracer_new(s, &t, err, sizeof err) == 0);
+    film_t *f = film_new(1, 1);
+    tracer_settings_t st = {1, SCENE_INTEGRATOR_PATH, 0};
+    const uint32_t per = TRACER_MAX_TASK_SAMPLES;
+    const uint64_t total = 1000000;
+    for (uint64_t first = 0; first < total; first += per) {
+        tracer_task_t task = {.pixel = 0, .first_sample = first,
+                              .sample_count = (uint32_t)(total - first < per ? total - first : per)};
+        film_prior(f, &task);
+        tracer_result_t r;
+        ck_assert(tracer_trace(t, &st, &task, 1, &r, NULL, err, sizeof err) == 0);
+        ck_assert(film_merge(f, &r) == 0);
+    }
+    ck_assert_uint_eq(f->pixels[0].count, total);
+    double rgb[3];
+    film_mean(f, 0, rgb);
+    const double expect[3] = {(float)0.1, (float)0.7, (float)3.3};
+    for (int c = 0; c < 3; c++)
+        ck_assert_msg(fabs(rgb[c] - expect[c]) <= 1e-12 * expect[c], "channel %d: %.17g vs %.17g", c,
+                      rgb[c], expect[c]);
+    ck_assert(film_variance_of_mean(f, 0) <= 1e-24);
+    film_destroy(&f);
+    tracer_destroy(&t);
+    scene_destroy(&s);
+}
+END_TEST
+
+static Suite *tracer_suite(void)
+{
+    Suite *s = suite_create("tracer");
+    TCase *tc = tcase_create("physics");
+    tcase_set_timeout(tc, 600);
+    tcase_add_test(tc, test_furnace_path);
+    tcase_add_test(tc, test_furnace_path_bright);
+    tcase_add_test(tc, test_furnace_naive);
+    tcase_add_test(tc, test_glass_furnace);
+    tcase_add_test(tc, test_mirror_furnace);
+    tcase_add_test(tc, test_form_factor_formula);
+    tcase_add_test(tc, test_direct_light_path);
+    tcase_add_test(tc, test_direct_light_naive);
+    tcase_add_test(tc, test_path_and_naive_agree_cornell);
+    tcase_add_test(tc, test_cornell_red_wall_on_left);
+    suite_add_tcase(s, tc);
+    TCase *det = tcase_create("determinism");
+    tcase_set_timeout(det, 600);
+    tcase_add_test(det, test_deterministic_across_threads);
+    tcase_add_test(det, test_tasks_independent_of_batching);
+    tcase_add_test(det, test_pvar_matches_definition);
+    suite_add_tcase(s, det);
+    TCase *hard = tcase_create("hard cases");
+    tcase_set_timeout(hard, 600);
+    tcase_add_test(hard, test_cornell_any_scale);
+    tcase_add_test(hard, test_grazing_camera);
+    tcase_add_test(hard, test_slivers_and_degenerates);
+    tcase_add_test(hard, test_tiny_bright_light);
+    tcase_add_test(hard, test_glass_caustic);
+    tcase_add_test(hard, test_million_constant_samples);
+    suite_add_tcase(s, hard);
+    return s;
+}
+
+int main(void)
+{
+    SRunner *sr = srunner_create(tracer_suite());
+    srunner_run_all(sr, CK_NORMAL);
+    int failed = srunner_ntests_failed(sr);
+    srunner_free(sr);
+    return failed ? 1 : 0;
+}
