@@ -1,0 +1,155 @@
+/* test_film.c - merging results: Chan's M2 equals a one-pass variance of
+ * all samples, whatever the batch boundaries; sums stay exact; the image
+ * channels say what the film holds. */
+#include <check.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "film.h"
+#include "rng.h"
+#include "vmath.h"
+
+/* A result built from a batch of samples the test knows. */
+static tracer_result_t batch_result(uint32_t pixel, const double (*x)[3], uint32_t n)
+{
+    tracer_result_t r;
+    memset(&r, 0, sizeof r);
+    r.pixel = pixel;
+    r.samples = n;
+    double mean = 0, m2 = 0;
+    for (uint32_t i = 0; i < n; i++) {
+        for (int c = 0; c < 3; c++)
+            r.sum[c] += x[i][c];
+        double l = vmath_luminance(x[i][0], x[i][1], x[i][2]);
+        double d = l - mean;
+        mean += d / (i + 1);
+        m2 += d * (l - mean);
+    }
+    r.lum_m2 = m2;
+    return r;
+}
+
+START_TEST(test_chan_merge_matches_two_pass)
+{
+    enum { N = 1000 };
+    static double x[N][3];
+    rng_stream_t s = rng_stream(1, 0, 0);
+    for (int i = 0; i < N; i++)
+        for (int c = 0; c < 3; c++)
+            x[i][c] = 1e3 + rng_next_double(&s) * (c + 1); /* large offset: naive sums of squares would cancel */
+    /* exact two-pass reference */
+    double mean = 0;
+    for (int i = 0; i < N; i++)
+        mean += vmath_luminance(x[i][0], x[i][1], x[i][2]);
+    mean /= N;
+    double m2 = 0;
+    for (int i = 0; i < N; i++) {
+        double d = vmath_luminance(x[i][0], x[i][1], x[i][2]) - mean;
+        m2 += d * d;
+    }
+    /* batch boundaries: uneven, including batches of 1 */
+    const uint32_t cuts[] = {1, 31, 32, 1, 200, 7, 500, 228};
+    film_t *f = film_new(2, 1);
+    uint32_t at = 0;
+    for (size_t k = 0; k < sizeof cuts / sizeof cuts[0]; k++) {
+        tracer_result_t r = batch_result(1, x + at, cuts[k]);
+        ck_assert(film_merge(f, &r) == 0);
+        at += cuts[k];
+    }
+    ck_assert_uint_eq(at, N);
+    ck_assert_uint_eq(f->pixels[1].count, N);
+    ck_assert_uint_eq(f->pixels[1].layers, 8);
+    ck_assert_msg(fabs(f->pixels[1].lum_m2 - m2) <= 1e-9 * m2, "M2 %.15g vs %.15g", f->pixels[1].lum_m2, m2);
+    double expect_var = m2 / ((double)N * (N - 1));
+    ck_assert(fabs(film_variance_of_mean(f, 1) - expect_var) <= 1e-9 * expect_var);
+    /* untouched pixel stays empty */
+    ck_assert_uint_eq(f->pixels[0].count, 0);
+    ck_assert(film_variance_of_mean(f, 0) == 0.0);
+    /* a result for a pixel outside the film is refused */
+    tracer_result_t bad = batch_result(2, x, 1);
+    ck_assert(film_merge(f, &bad) == -1);
+    film_destroy(&f);
+    ck_assert(f == NULL);
+    film_destroy(&f); /* NULL is fine */
+}
+END_TEST
+
+START_TEST(test_prior_and_nonfinite)
+{
+    film_t *f = film_new(1, 1);
+    double x[2][3] = {{1, 2, 3}, {3, 2, 1}};
+    tracer_result_t r = batch_result(0, (const double (*)[3])x, 2);
+    r.nonfinite = 3;
+    film_merge(f, &r);
+    tracer_task_t t = {.pixel = 0};
+    film_prior(f, &t);
+    ck_assert_uint_eq(t.prior_count, 2);
+    ck_assert(t.prior_sum[0] == 4 && t.prior_sum[1] == 4 && t.prior_sum[2] == 4);
+    ck_assert_uint_eq(film_total_nonfinite(f), 3);
+    ck_assert_uint_eq(film_total_samples(f), 5);
+    double rgb[3];
+    film_mean(f, 0, rgb);
+    ck_assert(rgb[0] == 2 && rgb[1] == 2 && rgb[2] == 2);
+    film_destroy(&f);
+}
+END_TEST
+
+START_TEST(test_compensated_sum)
+{
+    /* 1e6 results of 0.1 (not representable): plain double summation drifts
+     * by about 1e-11 relative; the compensated sum stays within 1e-15. */
+    film_t *f = film_new(1, 1);
+    tracer_result_t r;
+    memset(&r, 0, sizeof r);
+    r.samples = 1;
+    r.sum[0] = r.sum[1] = r.sum[2] = 0.1;
+    double plain = 0;
+    for (int i = 0; i < 1000000; i++) {
+        film_merge(f, &r);
+        plain += 0.1;
+    }
+    double rgb[3];
+    film_mean(f, 0, rgb);
+    ck_assert_msg(fabs(rgb[0] - 0.1) <= 1e-15, "compensated mean off by %g", fabs(rgb[0] - 0.1));
+    ck_assert_msg(fabs(plain / 1e6 - 0.1) > 1e-13, "plain summation should drift (%g)", fabs(plain / 1e6 - 0.1));
+    film_destroy(&f);
+}
+END_TEST
+
+START_TEST(test_to_image)
+{
+    film_t *f = film_new(3, 2);
+    double x[4][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {1, 1, 1}};
+    tracer_result_t r = batch_result(4, (const double (*)[3])x, 4);
+    film_merge(f, &r);
+    image_t *img = film_to_image(f);
+    ck_assert(img != NULL);
+    const char *names[] = {"R", "G", "B", "samples", "variance"};
+    for (int i = 0; i < 5; i++)
+        ck_assert_msg(image_channel(img, names[i]) != NULL, "missing %s", names[i]);
+    ck_assert(image_channel(img, "R")[4] == 0.5f);
+    ck_assert(image_channel(img, "samples")[4] == 4.0f);
+    ck_assert(image_channel(img, "samples")[0] == 0.0f);
+    ck_assert(image_channel(img, "variance")[4] == (float)film_variance_of_mean(f, 4));
+    ck_assert(image_channel(img, "variance")[4] > 0);
+    image_destroy(&img);
+    film_destroy(&f);
+}
+END_TEST
+
+int main(void)
+{
+    Suite *s = suite_create("film");
+    TCase *tc = tcase_create("merge");
+    tcase_add_test(tc, test_chan_merge_matches_two_pass);
+    tcase_add_test(tc, test_prior_and_nonfinite);
+    tcase_add_test(tc, test_compensated_sum);
+    tcase_add_test(tc, test_to_image);
+    suite_add_tcase(s, tc);
+    SRunner *sr = srunner_create(s);
+    srunner_run_all(sr, CK_NORMAL);
+    int failed = srunner_ntests_failed(sr);
+    srunner_free(sr);
+    return failed ? 1 : 0;
+}
