@@ -89,6 +89,11 @@ $(BUILD)/bench/%: $(BUILD)/bench/%.o $(CORE_LIB)
 # Tests find the binary under test and the shared data through these.
 TEST_ENV = VB_BIN=$(abspath $(BIN)/vbrender) VB_ROOT=$(CURDIR) \
            VB_SHARED=$(abspath ../shared)
+# Under the sanitizers each suite runs in one process (no fork per test), so
+# LeakSanitizer checks the whole run at exit.
+ifeq ($(SAN),1)
+  TEST_ENV += CK_FORK=no
+endif
 
 test: $(BIN)/vbrender $(TEST_BIN) $(FUZZ_BIN)
 	@mkdir -p $(BUILD)/test-out

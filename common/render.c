@@ -24,6 +24,7 @@ typedef struct job {
     pthread_mutex_t gate_lock;    /* workers wait here until the barrier */
     pthread_cond_t gate;          /* is sized to the threads that started */
     int gate_open;
+    pthread_cond_t finished;      /* the last worker wakes the monitor */
     char err[256];                /* written once by the first failing thread */
     pthread_mutex_t err_lock;
 } job_t;
@@ -108,7 +109,10 @@ static void *worker_main(void *argp)
     }
     free(tasks);
     free(results);
-    atomic_fetch_sub(&job->running, 1);
+    pthread_mutex_lock(&job->gate_lock);
+    if (atomic_fetch_sub(&job->running, 1) == 1)
+        pthread_cond_signal(&job->finished);
+    pthread_mutex_unlock(&job->gate_lock);
     return NULL;
 }
 
@@ -148,6 +152,7 @@ int render_run(const tracer_t *tracer, film_t *film, const render_settings_t *s,
     pthread_mutex_init(&job.err_lock, NULL);
     pthread_mutex_init(&job.gate_lock, NULL);
     pthread_cond_init(&job.gate, NULL);
+    pthread_cond_init(&job.finished, NULL);
 
     pthread_t threads[RENDER_MAX_THREADS];
     worker_arg_t args[RENDER_MAX_THREADS];
@@ -174,9 +179,22 @@ int render_run(const tracer_t *tracer, film_t *film, const render_settings_t *s,
 
     const double total = (double)s->spp * (double)job.npix;
     progress_t *prog = s->progress_out ? progress_new(s->progress_out, s->progress, "render") : NULL;
-    while (atomic_load(&job.running) > 0) {
-        struct timespec ts = {0, 100 * 1000 * 1000};
-        nanosleep(&ts, NULL);
+    for (;;) {
+        /* Wake every 100 ms for progress, or at once when the last worker ends. */
+        struct timespec until;
+        clock_gettime(CLOCK_REALTIME, &until);
+        until.tv_nsec += 100 * 1000 * 1000;
+        if (until.tv_nsec >= 1000000000L) {
+            until.tv_sec++;
+            until.tv_nsec -= 1000000000L;
+        }
+        pthread_mutex_lock(&job.gate_lock);
+        if (atomic_load(&job.running) > 0)
+            pthread_cond_timedwait(&job.finished, &job.gate_lock, &until);
+        int left = atomic_load(&job.running);
+        pthread_mutex_unlock(&job.gate_lock);
+        if (left == 0)
+            break;
         double done = (double)atomic_load(&job.samples), el = now_seconds() - t0;
         char detail[160], a[32], b[32];
         double rate = el > 0 ? done / el : 0;
@@ -193,6 +211,7 @@ int render_run(const tracer_t *tracer, film_t *film, const render_settings_t *s,
     pthread_mutex_destroy(&job.err_lock);
     pthread_mutex_destroy(&job.gate_lock);
     pthread_cond_destroy(&job.gate);
+    pthread_cond_destroy(&job.finished);
 
     summary->seconds = elapsed;
     summary->samples = atomic_load(&job.samples);
