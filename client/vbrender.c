@@ -91,7 +91,7 @@ static int parse_render_args(int argc, char **argv, render_args_t *a)
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
         int takes = 1;
         if (strcmp(o, "-o") == 0 || strcmp(o, "--output") == 0) {
-            if (!v)
+            if (!v || v[0] == '-')
                 return usage_error("%s needs a file name", o);
             a->output = v;
         } else if (strcmp(o, "--spp") == 0) {
@@ -157,6 +157,19 @@ static int cmd_render(int argc, char **argv)
         replace_extension(base ? base + 1 : a.scene, ".exr", out_exr, sizeof out_exr);
     }
     replace_extension(out_exr, ".png", out_png, sizeof out_png);
+
+    /* Refuse an output we could not write before rendering, not after. */
+    char dir[4096];
+    snprintf(dir, sizeof dir, "%s", out_exr);
+    char *slash = strrchr(dir, '/');
+    if (slash)
+        *(slash == dir ? slash + 1 : slash) = '\0';
+    else
+        snprintf(dir, sizeof dir, ".");
+    if (access(dir, W_OK) != 0) {
+        fprintf(stderr, "vbrender: cannot write %s: folder %s: %s\n", out_exr, dir, strerror(errno));
+        return 1;
+    }
 
     scene_t *scene = NULL;
     if (scene_load(a.scene, &scene, err, sizeof err) < 0) {

@@ -14,6 +14,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include "mesh.h"
 
@@ -795,8 +796,17 @@ static int finish(loader_t *L)
         s->light_cdf[s->light_count++] = acc / total_power;
         /* pdf per unit area of picking a point on t: (power / total) / area */
         const material_t *m = &s->materials[s->tri_material[t]];
-        s->tri_light_pdf[t] =
-            (float)(vmath_luminance(m->radiance.x, m->radiance.y, m->radiance.z) / total_power);
+        double pdf = vmath_luminance(m->radiance.x, m->radiance.y, m->radiance.z) / total_power;
+        s->tri_light_pdf[t] = (float)pdf;
+        /* The tracer divides by this in single precision: lights whose
+         * sizes differ by ~1e19 (or a light of area ~1e-38) cannot be
+         * sampled there, and a wrong pdf would poison the image. */
+        if (!(s->tri_light_pdf[t] > 0.0f) || !isfinite(s->tri_light_pdf[t]) ||
+            !(s->light_cdf[s->light_count - 1] > (s->light_count > 1 ? s->light_cdf[s->light_count - 2] : 0.0))) {
+            free(power);
+            return fail(L, "shapes", "light sizes out of single-precision range (light triangle %zu "
+                        "has area pdf %g): rescale the scene", t, pdf);
+        }
     }
     s->light_cdf[s->light_count - 1] = 1.0;
     free(power);
@@ -869,6 +879,12 @@ int scene_load(const char *path, scene_t **out, char *err, size_t errlen)
     FILE *f = fopen(path, "rb");
     if (!f) {
         snprintf(err, errlen, "%s: cannot open: %s", path, strerror(errno));
+        return -1;
+    }
+    struct stat st;
+    if (fstat(fileno(f), &st) != 0 || !S_ISREG(st.st_mode)) {
+        fclose(f);
+        snprintf(err, errlen, "%s: not a regular file (a directory?)", path);
         return -1;
     }
     char *buf = NULL;
