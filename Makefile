@@ -52,6 +52,9 @@ FUZZ_BIN  = $(FUZZ_SRC:tests/%.c=$(BUILD)/tests/%)
 BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BIN = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 
+# Keep intermediate objects: deleting them only forces rebuilds.
+.SECONDARY:
+
 .PHONY: all deps check test test-asan demo bench clean fuzz
 all: $(BIN)/vbrender $(CORE_LIB)
 
@@ -97,15 +100,7 @@ endif
 
 test: $(BIN)/vbrender $(TEST_BIN) $(FUZZ_BIN)
 	@mkdir -p $(BUILD)/test-out
-	@set -e; fail=0; for t in $(TEST_BIN); do \
-	  echo "== $$t"; \
-	  $(TEST_ENV) VB_TMP=$(abspath $(BUILD)/test-out) $$t || fail=1; \
-	done; \
-	for f in $(FUZZ_BIN); do \
-	  echo "== $$f (corpus + 20000 mutations)"; \
-	  $$f tests/data/fuzz 20000 || fail=1; \
-	done; \
-	exit $$fail
+	@$(TEST_ENV) VB_TMP=$(abspath $(BUILD)/test-out) tests/run-suites.sh $(TEST_BIN) -- $(FUZZ_BIN)
 
 test-asan:
 	$(MAKE) SAN=1 test

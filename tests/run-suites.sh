@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Runs every Check suite and fuzz target given on the command line, then
+# prints one closing line adding up the Check counts: "tests: N passed, M failed".
+# Usage: tests/run-suites.sh SUITE... [-- FUZZ...]; the environment (VB_*)
+# comes from the Makefile. Exits non-zero if anything failed.
+set -u
+passed=0
+failed=0
+status=0
+fuzz=0
+for t in "$@"; do
+    if [ "$t" = "--" ]; then fuzz=1; continue; fi
+    if [ $fuzz = 1 ]; then
+        echo "== $t (corpus + 20000 mutations)"
+        if "$t" tests/data/fuzz 20000; then passed=$((passed + 1)); else failed=$((failed + 1)); status=1; fi
+        continue
+    fi
+    echo "== $t"
+    out=$("$t" 2>&1); rc=$?
+    printf '%s\n' "$out"
+    line=$(printf '%s\n' "$out" | grep -E 'Checks: [0-9]+, Failures: [0-9]+, Errors: [0-9]+' | tail -n 1)
+    if [ -n "$line" ]; then
+        n=$(echo "$line" | sed -E 's/.*Checks: ([0-9]+).*/\1/')
+        f=$(echo "$line" | sed -E 's/.*Failures: ([0-9]+).*/\1/')
+        e=$(echo "$line" | sed -E 's/.*Errors: ([0-9]+).*/\1/')
+        passed=$((passed + n - f - e))
+        failed=$((failed + f + e))
+    else
+        echo "$t: no Check summary (crashed?)"
+        failed=$((failed + 1))
+    fi
+    [ $rc = 0 ] || status=1
+done
+echo "tests: $passed passed, $failed failed"
+[ $failed = 0 ] || status=1
+exit $status
