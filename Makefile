@@ -1,7 +1,9 @@
 # vbrender - plain Makefile. Out-of-tree objects with dependency files.
 #
 #   make deps    install the Debian packages the project needs (idempotent)
-#   make all     bin/vbrender and build/libvbcore.a (the renderer core)
+#   make all     bin/vbrender, bin/vbrender-master, bin/vbrender-worker and
+#                the libraries: build/libvbcore.a (renderer core, no
+#                networking) and build/libvbnet.a (protocol, master, worker)
 #   make check   deps, build, all tests, then the same tests under ASan+UBSan
 #   make demo    deps, build, render scenes/cornell-box.json to out/
 #   make bench   deps, build, core benchmark (bench/results/core.json)
@@ -12,14 +14,15 @@ CC       ?= cc
 BIN       = bin
 
 DEB_PACKAGES = build-essential pkg-config libembree-dev libzmq3-dev \
-               libopenexr-dev libcjson-dev check libsubunit-dev libpng-dev
+               libopenexr-dev libcjson-dev check libsubunit-dev libpng-dev \
+               libsodium-dev
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 # Determinism: no -ffast-math, no FMA contraction, no -march=native (the same
 # binary must give the same bits on every host it runs on).
 CFLAGS_COMMON = -std=c11 -Wall -Wextra -Werror -pthread -ffp-contract=off \
                 -fno-math-errno -D_DEFAULT_SOURCE -MMD -MP -g \
-                -Icommon -I/usr/include/OpenEXR -I/usr/include/cjson
+                -Icommon -Iproto -Imaster -Iworker -I/usr/include/OpenEXR -I/usr/include/cjson
 ifeq ($(SAN),1)
   OPT      = -O1 -fsanitize=address,undefined -fno-sanitize-recover=undefined \
              -fno-omit-frame-pointer
@@ -33,11 +36,19 @@ endif
 CFLAGS   ?=
 CFLAGS   += $(CFLAGS_COMMON) $(OPT)
 LDLIBS_CORE = -lembree3 -lOpenEXRCore -lpng16 -lcjson -lm -lpthread
+LDLIBS_NET  = -lzmq -lsodium
 LDLIBS_CHECK = -lcheck -lsubunit -lrt -lm -lpthread
 
 CORE_SRC  = $(wildcard common/*.c)
 CORE_OBJ  = $(CORE_SRC:%.c=$(BUILD)/%.o)
 CORE_LIB  = $(BUILD)/libvbcore.a
+
+NET_SRC   = $(wildcard proto/*.c) $(filter-out master/main.c,$(wildcard master/*.c)) \
+            $(filter-out worker/main.c,$(wildcard worker/*.c))
+NET_OBJ   = $(NET_SRC:%.c=$(BUILD)/%.o)
+NET_LIB   = $(BUILD)/libvbnet.a
+DAEMONS   = $(if $(wildcard master/main.c),$(BIN)/vbrender-master) \
+            $(if $(wildcard worker/main.c),$(BIN)/vbrender-worker)
 
 CLIENT_SRC = $(wildcard client/*.c)
 CLIENT_OBJ = $(CLIENT_SRC:%.c=$(BUILD)/%.o)
@@ -56,7 +67,7 @@ BENCH_BIN = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 .SECONDARY:
 
 .PHONY: all deps check test test-asan demo bench clean fuzz
-all: $(BIN)/vbrender $(CORE_LIB)
+all: $(BIN)/vbrender $(DAEMONS) $(CORE_LIB) $(NET_LIB)
 
 deps:
 	@missing=""; for p in $(DEB_PACKAGES); do \
@@ -76,21 +87,33 @@ $(CORE_LIB): $(CORE_OBJ)
 	@mkdir -p $(dir $@)
 	rm -f $@ && ar rcs $@ $^
 
-$(BIN)/vbrender: $(CLIENT_OBJ) $(CORE_LIB)
+$(NET_LIB): $(NET_OBJ)
 	@mkdir -p $(dir $@)
-	$(CC) $(LDSAN) -pthread -o $@ $(CLIENT_OBJ) $(CORE_LIB) $(LDLIBS_CORE)
+	rm -f $@ && ar rcs $@ $^
 
-$(BUILD)/tests/test_%: $(BUILD)/tests/test_%.o $(TEST_HELPER_OBJ) $(CORE_LIB)
-	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_CHECK) $(LDLIBS_CORE)
+# Link order: the network library uses the core.
+LIBS_ALL = $(NET_LIB) $(CORE_LIB)
+LDLIBS_ALL = $(LDLIBS_NET) $(LDLIBS_CORE)
 
-$(BUILD)/tests/fuzz_%: $(BUILD)/tests/fuzz_%.o $(CORE_LIB)
-	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_CORE)
+$(BIN)/vbrender: $(CLIENT_OBJ) $(LIBS_ALL)
+	@mkdir -p $(dir $@)
+	$(CC) $(LDSAN) -pthread -o $@ $(CLIENT_OBJ) $(LIBS_ALL) $(LDLIBS_ALL)
 
-$(BUILD)/bench/%: $(BUILD)/bench/%.o $(CORE_LIB)
-	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_CORE)
+$(BIN)/vbrender-%: $(BUILD)/%/main.o $(LIBS_ALL)
+	@mkdir -p $(dir $@)
+	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_ALL)
+
+$(BUILD)/tests/test_%: $(BUILD)/tests/test_%.o $(TEST_HELPER_OBJ) $(LIBS_ALL)
+	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_CHECK) $(LDLIBS_ALL)
+
+$(BUILD)/tests/fuzz_%: $(BUILD)/tests/fuzz_%.o $(LIBS_ALL)
+	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_ALL)
+
+$(BUILD)/bench/%: $(BUILD)/bench/%.o $(LIBS_ALL)
+	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_ALL)
 
 # Tests find the binary under test and the shared data through these.
-TEST_ENV = VB_BIN=$(abspath $(BIN)/vbrender) VB_ROOT=$(CURDIR) \
+TEST_ENV = VB_BIN=$(abspath $(BIN)/vbrender) VB_BINDIR=$(abspath $(BIN)) VB_ROOT=$(CURDIR) \
            VB_SHARED=$(abspath ../shared)
 # Under the sanitizers each suite runs in one process (no fork per test), so
 # LeakSanitizer checks the whole run at exit.
@@ -98,7 +121,7 @@ ifeq ($(SAN),1)
   TEST_ENV += CK_FORK=no
 endif
 
-test: $(BIN)/vbrender $(TEST_BIN) $(FUZZ_BIN)
+test: $(BIN)/vbrender $(DAEMONS) $(TEST_BIN) $(FUZZ_BIN)
 	@mkdir -p $(BUILD)/test-out
 	@$(TEST_ENV) VB_TMP=$(abspath $(BUILD)/test-out) tests/run-suites.sh $(TEST_BIN) -- $(FUZZ_BIN)
 
@@ -122,4 +145,4 @@ bench: deps
 clean:
 	rm -rf build build-asan bin
 
--include $(CORE_OBJ:.o=.d) $(CLIENT_OBJ:.o=.d) $(TEST_BIN:=.d) $(TEST_HELPER_OBJ:.o=.d)
+-include $(CORE_OBJ:.o=.d) $(NET_OBJ:.o=.d) $(CLIENT_OBJ:.o=.d) $(TEST_BIN:=.d) $(TEST_HELPER_OBJ:.o=.d)

@@ -1,0 +1,245 @@
+/* test_sched.c - the scheduler as a pure module: a hand-worked example of
+ * Procedure 2, task dependencies, and the same film whatever order results
+ * arrive in (with requeues). Results are synthetic but depend on the task's
+ * "so far" sums, so a scheduler that handed out stale priors would differ. */
+#include <check.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "rng.h"
+#include "sched.h"
+
+/* Synthetic tracer: deterministic in (pixel, first sample, prior sums). */
+static void fake_results(const sched_task_t *t, tracer_result_t *r, const double *pvar_by_pixel)
+{
+    for (uint32_t i = 0; i < t->count; i++) {
+        const tracer_task_t *k = &t->records[i];
+        memset(&r[i], 0, sizeof r[i]);
+        r[i].pixel = k->pixel;
+        r[i].samples = k->sample_count;
+        for (int c = 0; c < 3; c++)
+            r[i].sum[c] = 0.25 * k->sample_count * (c + 1) + 1e-3 * k->prior_sum[c] +
+                          1e-6 * (double)k->prior_count + 1e-4 * k->pixel + 1e-5 * (double)k->first_sample;
+        r[i].lum_m2 = 0.01 * k->sample_count;
+        r[i].pvar = pvar_by_pixel ? pvar_by_pixel[k->pixel]
+                                  : (double)((k->pixel * 7 + k->first_sample * 3) % 11);
+    }
+}
+
+static sched_t *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t g, sched_adaptive_t a,
+                     uint32_t uniform, uint32_t range)
+{
+    sched_config_t c = {w, h, spp, g, a, uniform, range};
+    char err[256];
+    sched_t *s = sched_new(&c, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    return s;
+}
+
+/* Completes every ready task of one layer in order, with given pvars. */
+static void run_layer(sched_t *s, uint32_t layer, const double *pvar)
+{
+    sched_task_t t;
+    tracer_result_t r[16];
+    char err[256];
+    int rc;
+    sched_task_t held[16];
+    int n = 0;
+    while ((rc = sched_next(s, &t)) == 1) {
+        ck_assert_uint_eq(t.layer, layer);
+        held[n++] = t;
+    }
+    for (int i = 0; i < n; i++) {
+        fake_results(&held[i], r, pvar);
+        ck_assert_msg(sched_complete(s, held[i].id, r, held[i].count, err, sizeof err) == 0, "%s", err);
+    }
+}
+
+/* The thesis's Procedure 2 by hand: 4 pixels, G = 2, spp 10 (5 layers), two
+ * uniform layers, 2 pixels per range.
+ *   layer 0 pvar [1 4 2 9]: layer 2 uses threshold 4 -> pixels {1, 3}
+ *   layer 1 pvar [3 1 5 0]: layer 3 uses threshold 2.25 -> pixels {0, 2}
+ *   layer 2 pvar [- .5 - 7]: snapshot [3 .5 5 7], threshold 3.875 -> layer 4 {2, 3}
+ * Final samples: 6, 6, 8, 8. */
+START_TEST(test_procedure2_by_hand)
+{
+    sched_t *s = make(4, 1, 10, 2, SCHED_ADAPTIVE_THESIS, 2, 2);
+    ck_assert_uint_eq(sched_layer_count(s), 5);
+    ck_assert_uint_eq(sched_range_count(s), 2);
+    const double l0[4] = {1, 4, 2, 9}, l1[4] = {3, 1, 5, 0}, l2[4] = {-1, 0.5, -1, 7};
+    const double l3[4] = {0, 0, 0, 0}, l4[4] = {0, 0, 0, 0};
+    /* layer 0's tasks are ready; layer 1's wait for them */
+    run_layer(s, 0, l0);
+    /* now layer 1 ready and layer 2 decided from layer 0 only */
+    ck_assert(fabs(sched_threshold(s, 2) - 4.0) < 1e-15);
+    const int want2[4] = {0, 1, 0, 1};
+    for (uint32_t p = 0; p < 4; p++)
+        ck_assert_int_eq(sched_pixel_in_layer(s, 2, p), want2[p]);
+    ck_assert_int_eq(sched_pixel_in_layer(s, 3, 0), -1); /* not decided yet */
+    run_layer(s, 1, l1);
+    ck_assert(fabs(sched_threshold(s, 3) - 2.25) < 1e-15);
+    const int want3[4] = {1, 0, 1, 0};
+    for (uint32_t p = 0; p < 4; p++)
+        ck_assert_int_eq(sched_pixel_in_layer(s, 3, p), want3[p]);
+    run_layer(s, 2, l2);
+    ck_assert(fabs(sched_threshold(s, 4) - 3.875) < 1e-15);
+    const int want4[4] = {0, 0, 1, 1};
+    for (uint32_t p = 0; p < 4; p++)
+        ck_assert_int_eq(sched_pixel_in_layer(s, 4, p), want4[p]);
+    run_layer(s, 3, l3);
+    run_layer(s, 4, l4);
+    ck_assert(sched_done(s));
+    sched_task_t t;
+    ck_assert_int_eq(sched_next(s, &t), -1);
+    const film_t *f = sched_film(s);
+    const uint64_t want_samples[4] = {6, 6, 8, 8};
+    for (int p = 0; p < 4; p++)
+        ck_assert_uint_eq(f->pixels[p].count, want_samples[p]);
+    ck_assert_uint_eq(sched_samples_done(s), 28);
+    ck_assert_uint_eq(sched_pixel_layers(s), 14);
+    ck_assert_uint_eq(sched_pixel_layers_skipped(s), 6);
+    sched_destroy(&s);
+}
+END_TEST
+
+/* A layer's task waits for the same range's previous layer; tasks carry
+ * exactly the pixel's previous layers as their "so far" sums. */
+START_TEST(test_dependencies_and_priors)
+{
+    sched_t *s = make(8, 1, 6, 2, SCHED_ADAPTIVE_NONE, UINT32_MAX, 4);
+    sched_task_t a, b, c;
+    ck_assert_int_eq(sched_next(s, &a), 1);
+    ck_assert_int_eq(sched_next(s, &b), 1);
+    ck_assert_uint_eq(a.layer, 0);
+    ck_assert_uint_eq(b.layer, 0);
+    ck_assert_int_eq(sched_next(s, &c), 0); /* layer 1 waits */
+    tracer_result_t r[4];
+    char err[256];
+    fake_results(&b, r, NULL);
+    ck_assert(sched_complete(s, b.id, r, b.count, err, sizeof err) == 0);
+    ck_assert_int_eq(sched_next(s, &c), 1); /* (1, range of b) only */
+    ck_assert_uint_eq(c.layer, 1);
+    ck_assert_uint_eq(c.range, b.range);
+    ck_assert_uint_eq(c.records[0].first_sample, 2);
+    ck_assert_uint_eq(c.records[0].prior_count, 2);
+    ck_assert(c.records[0].prior_sum[0] == r[0].sum[0]);
+    ck_assert_int_eq(sched_next(s, &c), 0);
+    /* duplicate and unknown completions are refused, nothing merged */
+    ck_assert_int_eq(sched_complete(s, b.id, r, b.count, err, sizeof err), -2);
+    ck_assert_int_eq(sched_complete(s, 999, r, 1, err, sizeof err), -2);
+    /* a result with the wrong pixel or count is refused, and the task stays out */
+    fake_results(&a, r, NULL);
+    r[2].pixel = 7;
+    ck_assert_int_eq(sched_complete(s, a.id, r, a.count, err, sizeof err), -1);
+    ck_assert_msg(strstr(err, "pixel") != NULL, "%s", err);
+    ck_assert_int_eq(sched_complete(s, a.id, r, a.count - 1, err, sizeof err), -1);
+    fake_results(&a, r, NULL);
+    r[1].samples = 1;
+    ck_assert_int_eq(sched_complete(s, a.id, r, a.count, err, sizeof err), -1);
+    ck_assert_uint_eq(sched_film(s)->pixels[a.records[0].pixel].count, 0);
+    /* requeue gives the same task back first */
+    ck_assert_int_eq(sched_requeue(s, a.id), 0);
+    sched_task_t again;
+    ck_assert_int_eq(sched_next(s, &again), 1);
+    ck_assert_uint_eq(again.id, a.id);
+    ck_assert_int_eq(sched_requeue(s, 12345), -1);
+    sched_destroy(&s);
+}
+END_TEST
+
+/* Runs a whole job handing tasks out to `workers` simulated workers that
+ * finish in a pseudo-random order, sometimes losing a task (requeue). */
+static film_t *simulate(sched_adaptive_t a, uint64_t order_seed, int workers, uint64_t *skipped)
+{
+    sched_t *s = make(37, 23, 64, 8, a, 3, 50);
+    sched_task_t inflight[64];
+    int n = 0;
+    tracer_result_t *r = malloc(64 * sizeof *r);
+    char err[256];
+    uint64_t step = 0;
+    for (;;) {
+        sched_task_t t;
+        int rc;
+        while (n < workers && (rc = sched_next(s, &t)) == 1)
+            inflight[n++] = t;
+        if (n == 0) {
+            ck_assert(sched_done(s));
+            break;
+        }
+        rng_stream_t st = rng_stream(order_seed, 0, step++);
+        int pick = (int)(rng_next_float(&st) * n);
+        if (rng_next_float(&st) < 0.1f) {
+            ck_assert(sched_requeue(s, inflight[pick].id) == 0);
+        } else {
+            fake_results(&inflight[pick], r, NULL);
+            ck_assert_msg(sched_complete(s, inflight[pick].id, r, inflight[pick].count, err, sizeof err) == 0, "%s", err);
+        }
+        inflight[pick] = inflight[--n];
+    }
+    free(r);
+    film_t *f = film_new(37, 23);
+    memcpy(f->pixels, sched_film(s)->pixels, 37 * 23 * sizeof(film_pixel_t));
+    *skipped = sched_pixel_layers_skipped(s);
+    sched_destroy(&s);
+    return f;
+}
+
+START_TEST(test_order_does_not_matter)
+{
+    for (int a = 0; a < 2; a++) {
+        uint64_t sk0, sk;
+        film_t *ref = simulate((sched_adaptive_t)a, 1, 1, &sk0);
+        if (a == 1)
+            ck_assert_msg(sk0 > 0, "adaptive run skipped nothing");
+        else
+            ck_assert_uint_eq(sk0, 0);
+        for (int trial = 0; trial < 4; trial++) {
+            film_t *f = simulate((sched_adaptive_t)a, 100 + (uint64_t)trial, 2 + trial * 3, &sk);
+            ck_assert_msg(memcmp(ref->pixels, f->pixels, 37 * 23 * sizeof(film_pixel_t)) == 0,
+                          "adaptive=%d trial %d: film differs", a, trial);
+            ck_assert_uint_eq(sk, sk0);
+            film_destroy(&f);
+        }
+        film_destroy(&ref);
+    }
+}
+END_TEST
+
+START_TEST(test_bad_configs)
+{
+    char err[256];
+    sched_config_t c = {0, 4, 8, 2, SCHED_ADAPTIVE_NONE, UINT32_MAX, 0};
+    ck_assert(sched_new(&c, err, sizeof err) == NULL);
+    c.width = 4;
+    c.granularity = 0;
+    ck_assert(sched_new(&c, err, sizeof err) == NULL);
+    c.granularity = 1;
+    c.adaptive = SCHED_ADAPTIVE_THESIS;
+    ck_assert(sched_new(&c, err, sizeof err) == NULL);
+    ck_assert_msg(strstr(err, "granularity") != NULL, "%s", err);
+    c.granularity = 32;
+    c.spp = 100; /* last layer is partial: 4 layers, 32+32+32+4 */
+    sched_t *s = sched_new(&c, err, sizeof err);
+    ck_assert(s != NULL);
+    ck_assert_uint_eq(sched_layer_count(s), 4);
+    ck_assert_uint_eq(sched_uniform_layers(s), 2);
+    sched_destroy(&s);
+}
+END_TEST
+
+int main(void)
+{
+    Suite *s = suite_create("sched");
+    TCase *tc = tcase_create("procedure2");
+    tcase_add_test(tc, test_procedure2_by_hand);
+    tcase_add_test(tc, test_dependencies_and_priors);
+    tcase_add_test(tc, test_order_does_not_matter);
+    tcase_add_test(tc, test_bad_configs);
+    suite_add_tcase(s, tc);
+    SRunner *sr = srunner_create(s);
+    srunner_run_all(sr, CK_NORMAL);
+    int failed = srunner_ntests_failed(sr);
+    srunner_free(sr);
+    return failed ? 1 : 0;
+}
