@@ -37,6 +37,8 @@ typedef struct xform {
 typedef struct loader {
     const char *name;
     const char *base_dir;
+    const scene_blob_t *blobs; /* in-memory mesh files, or NULL: the file system */
+    size_t blob_count;
     char *err;
     size_t errlen;
     scene_t *s;
@@ -566,15 +568,26 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
     snprintf(p, sizeof p, "%s.file", path);
     if (!cJSON_IsString(f) || !*f->valuestring)
         return fail(L, p, "missing (expected a mesh path relative to the scene file)");
-    char full[4096];
-    if (f->valuestring[0] == '/' || !L->base_dir || !*L->base_dir)
-        snprintf(full, sizeof full, "%s", f->valuestring);
-    else
-        snprintf(full, sizeof full, "%s/%s", L->base_dir, f->valuestring);
     mesh_t *m = NULL;
     char merr[512];
-    if (mesh_load(full, &m, merr, sizeof merr) < 0)
-        return fail(L, p, "%s", merr);
+    if (L->blobs) {
+        const scene_blob_t *b = NULL;
+        for (size_t i = 0; i < L->blob_count && !b; i++)
+            if (strcmp(L->blobs[i].name, f->valuestring) == 0)
+                b = &L->blobs[i];
+        if (!b)
+            return fail(L, p, "mesh \"%s\" is not in the scene bundle", f->valuestring);
+        if (mesh_load_buffer(b->name, b->data, b->size, &m, merr, sizeof merr) < 0)
+            return fail(L, p, "%s", merr);
+    } else {
+        char full[4096];
+        if (f->valuestring[0] == '/' || !L->base_dir || !*L->base_dir)
+            snprintf(full, sizeof full, "%s", f->valuestring);
+        else
+            snprintf(full, sizeof full, "%s/%s", L->base_dir, f->valuestring);
+        if (mesh_load(full, &m, merr, sizeof merr) < 0)
+            return fail(L, p, "%s", merr);
+    }
     int rc = reserve(L, m->vertex_count, m->triangle_count, m->normals != NULL);
     if (rc == 0) {
         uint32_t base = (uint32_t)L->nv;
@@ -828,11 +841,12 @@ static void line_col(const char *text, size_t off, int *line, int *col)
     }
 }
 
-int scene_load_string(const char *json, size_t len, const char *name, const char *base_dir,
-                      scene_t **out, char *err, size_t errlen)
+static int load(const char *json, size_t len, const char *name, const char *base_dir,
+                const scene_blob_t *blobs, size_t blob_count, scene_t **out, char *err, size_t errlen)
 {
     *out = NULL;
-    loader_t L = {.name = name ? name : "<scene>", .base_dir = base_dir, .err = err, .errlen = errlen};
+    loader_t L = {.name = name ? name : "<scene>", .base_dir = base_dir, .err = err, .errlen = errlen,
+                  .blobs = blobs, .blob_count = blob_count};
     L.s = calloc(1, sizeof(scene_t));
     if (!L.s)
         return fail(&L, NULL, "out of memory");
@@ -871,6 +885,20 @@ int scene_load_string(const char *json, size_t len, const char *name, const char
     }
     *out = L.s;
     return 0;
+}
+
+int scene_load_string(const char *json, size_t len, const char *name, const char *base_dir,
+                      scene_t **out, char *err, size_t errlen)
+{
+    return load(json, len, name, base_dir, NULL, 0, out, err, errlen);
+}
+
+int scene_load_bundle(const char *json, size_t len, const char *name, const scene_blob_t *blobs,
+                      size_t blob_count, scene_t **out, char *err, size_t errlen)
+{
+    /* an empty bundle still resolves against blobs, never the file system */
+    static const scene_blob_t none = {"", NULL, 0};
+    return load(json, len, name, NULL, blob_count ? blobs : &none, blob_count, out, err, errlen);
 }
 
 int scene_load(const char *path, scene_t **out, char *err, size_t errlen)

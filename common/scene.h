@@ -69,6 +69,19 @@ int scene_load(const char *path, scene_t **out, char *err, size_t errlen);
 int scene_load_string(const char *json, size_t len, const char *name, const char *base_dir,
                       scene_t **out, char *err, size_t errlen);
 
+/* A mesh file held in memory, named as the scene's "file" fields name it. */
+typedef struct scene_blob {
+    const char *name;
+    const unsigned char *data;
+    size_t size;
+} scene_blob_t;
+
+/* The same, resolving every mesh "file" against blobs (by exact name)
+ * instead of the file system: how a worker loads a scene bundle shipped by
+ * the master. A name not among the blobs is an error. */
+int scene_load_bundle(const char *json, size_t len, const char *name, const scene_blob_t *blobs,
+                      size_t blob_count, scene_t **out, char *err, size_t errlen);
+
 /* Frees the scene and sets *s to NULL; accepts NULL. */
 void scene_destroy(scene_t **s);
 

@@ -1,0 +1,100 @@
+/* main.c - the vbrender-master daemon.
+ *
+ *   vbrender-master [--workers ENDPOINT] [--control ENDPOINT]  (default tcp ports 7070, 7071)
+ *                   [--heartbeat-ms N] [--lease-ms N]
+ *
+ * Logs to stderr with timestamps; SIGTERM or SIGINT stops it cleanly. */
+#include <errno.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <zmq.h>
+
+#include "master.h"
+
+/* The one global: a signal handler can reach nothing else. */
+static volatile sig_atomic_t stop_requested;
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    stop_requested = 1;
+}
+
+static const char usage[] =
+    "usage: vbrender-master [--workers ENDPOINT] [--control ENDPOINT]\n"
+    "                       [--heartbeat-ms N] [--lease-ms N]\n"
+    "  --workers ENDPOINT   where workers connect (default tcp://*:7070)\n"
+    "  --control ENDPOINT   where clients connect (default tcp://*:7071)\n"
+    "  --heartbeat-ms N     heartbeat interval (default 1000)\n"
+    "  --lease-ms N         a task unanswered this long is issued again (default 60000)\n";
+
+static int parse_ms(const char *s, uint32_t *out)
+{
+    if (!s || !*s)
+        return -1;
+    char *end;
+    errno = 0;
+    unsigned long v = strtoul(s, &end, 10);
+    if (errno || *end || v < 10 || v > 3600000 || s[0] == '-')
+        return -1;
+    *out = (uint32_t)v;
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    master_config_t cfg;
+    memset(&cfg, 0, sizeof cfg);
+    cfg.worker_endpoint = "tcp://*:7070";
+    cfg.control_endpoint = "tcp://*:7071";
+    cfg.log = stderr;
+    for (int i = 1; i < argc; i++) {
+        const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (strcmp(argv[i], "-h") == 0 || strcmp(argv[i], "--help") == 0) {
+            fputs(usage, stdout);
+            return 0;
+        } else if (strcmp(argv[i], "--workers") == 0 && v) {
+            cfg.worker_endpoint = v;
+            i++;
+        } else if (strcmp(argv[i], "--control") == 0 && v) {
+            cfg.control_endpoint = v;
+            i++;
+        } else if (strcmp(argv[i], "--heartbeat-ms") == 0) {
+            if (parse_ms(v, &cfg.heartbeat_ms) < 0) {
+                fprintf(stderr, "vbrender-master: --heartbeat-ms needs 10..3600000 (got '%s')\n", v ? v : "");
+                return 2;
+            }
+            i++;
+        } else if (strcmp(argv[i], "--lease-ms") == 0) {
+            if (parse_ms(v, &cfg.lease_ms) < 0) {
+                fprintf(stderr, "vbrender-master: --lease-ms needs 10..3600000 (got '%s')\n", v ? v : "");
+                return 2;
+            }
+            i++;
+        } else {
+            fprintf(stderr, "vbrender-master: unknown or incomplete option '%s'\n%s", argv[i], usage);
+            return 2;
+        }
+    }
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigaction(SIGTERM, &sa, NULL);
+    sigaction(SIGINT, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);
+    void *ctx = zmq_ctx_new();
+    cfg.zmq_ctx = ctx;
+    char err[512];
+    master_t *m = master_new(&cfg, err, sizeof err);
+    if (!m) {
+        fprintf(stderr, "vbrender-master: %s\n", err);
+        zmq_ctx_term(ctx);
+        return 1;
+    }
+    master_run(m, &stop_requested);
+    master_destroy(&m);
+    zmq_ctx_term(ctx);
+    return 0;
+}

@@ -1,0 +1,39 @@
+/* master.h - the master: queues jobs, hands layer tasks to workers, merges
+ * their results, answers clients.
+ *
+ * One thread, one event loop over two ROUTER sockets: workers (the binary
+ * protocol of proto/) and control (JSON requests, proto/PROTOCOL.md). No
+ * state outside the master_t, so a test or the embedded `vbrender render`
+ * can run a master in a thread of its own over ZeroMQ's inproc transport.
+ */
+#ifndef VB_MASTER_H
+#define VB_MASTER_H
+
+#include <signal.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+
+typedef struct master master_t;
+
+typedef struct master_config {
+    void *zmq_ctx;                /* the ZeroMQ context to use (not owned) */
+    const char *worker_endpoint;  /* e.g. tcp port 7070 on every interface, or inproc */
+    const char *control_endpoint; /* e.g. tcp port 7071, or inproc */
+    uint32_t heartbeat_ms;        /* 0: 1000 */
+    uint32_t lease_ms;            /* 0: 60000; a task unanswered this long is issued again */
+    uint32_t worker_timeout_ms;   /* 0: 5 heartbeats; a silent worker is dropped */
+    int allow_shutdown;           /* accept the "shutdown" control command */
+    FILE *log;                    /* NULL: silent */
+} master_config_t;
+
+/* Binds both sockets. NULL with a message (e.g. address in use). */
+master_t *master_new(const master_config_t *cfg, char *err, size_t errlen);
+
+/* Runs the event loop until *stop becomes non-zero or a shutdown command
+ * arrives. Returns 0. */
+int master_run(master_t *m, const volatile sig_atomic_t *stop);
+
+void master_destroy(master_t **m);
+
+#endif

@@ -1,0 +1,91 @@
+/* main.c - the vbrender-worker daemon.
+ *
+ *   vbrender-worker --master tcp://HOST:7070 [--threads N] [--name NAME]
+ *
+ * SIGTERM or SIGINT: returns or releases its tasks, says BYE, exits 0.
+ * Exit 1 when the master refuses it (protocol or build mismatch). */
+#include <errno.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+#include <zmq.h>
+
+#include "worker.h"
+
+/* The one global: a signal handler can reach nothing else. */
+static volatile sig_atomic_t stop_requested;
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    stop_requested = 1;
+}
+
+static const char usage[] =
+    "usage: vbrender-worker --master tcp://HOST:7070 [--threads N] [--name NAME]\n"
+    "  --master ENDPOINT   the master's worker endpoint\n"
+    "  --threads N         render threads (default: all cores)\n"
+    "  --name NAME         name in log lines (default: worker-PID)\n";
+
+int main(int argc, char **argv)
+{
+    worker_config_t cfg;
+    memset(&cfg, 0, sizeof cfg);
+    long cores = sysconf(_SC_NPROCESSORS_ONLN);
+    cfg.threads = cores > 0 ? (int)cores : 1;
+    cfg.log = stderr;
+    char name[64];
+    snprintf(name, sizeof name, "worker-%ld", (long)getpid());
+    cfg.name = name;
+    for (int i = 1; i < argc; i++) {
+        const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (strcmp(argv[i], "-h") == 0 || strcmp(argv[i], "--help") == 0) {
+            fputs(usage, stdout);
+            return 0;
+        } else if (strcmp(argv[i], "--master") == 0 && v) {
+            cfg.master_endpoint = v;
+            i++;
+        } else if (strcmp(argv[i], "--name") == 0 && v) {
+            cfg.name = v;
+            i++;
+        } else if (strcmp(argv[i], "--threads") == 0) {
+            char *end;
+            errno = 0;
+            long t = v ? strtol(v, &end, 10) : 0;
+            if (!v || errno || *end || t < 1 || t > 4096) {
+                fprintf(stderr, "vbrender-worker: --threads needs 1..4096 (got '%s')\n", v ? v : "");
+                return 2;
+            }
+            cfg.threads = (int)t;
+            i++;
+        } else {
+            fprintf(stderr, "vbrender-worker: unknown or incomplete option '%s'\n%s", argv[i], usage);
+            return 2;
+        }
+    }
+    if (!cfg.master_endpoint) {
+        fprintf(stderr, "vbrender-worker: --master ENDPOINT is required\n%s", usage);
+        return 2;
+    }
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigaction(SIGTERM, &sa, NULL);
+    sigaction(SIGINT, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);
+    void *ctx = zmq_ctx_new();
+    cfg.zmq_ctx = ctx;
+    char err[512];
+    worker_t *w = worker_new(&cfg, err, sizeof err);
+    if (!w) {
+        fprintf(stderr, "vbrender-worker: %s\n", err);
+        zmq_ctx_term(ctx);
+        return 1;
+    }
+    int rc = worker_run(w, &stop_requested);
+    worker_destroy(&w);
+    zmq_ctx_term(ctx);
+    return rc;
+}

@@ -1,0 +1,719 @@
+/* worker.c - see worker.h.
+ *
+ * The main thread owns the socket to the master and the scene cache; render
+ * threads take tasks from a queue, trace them with the core and hand the
+ * results back, waking the main thread through an inproc socket each (ZeroMQ
+ * sockets are not shared between threads). Tasks from an earlier connection
+ * are traced but not reported: the master has already issued them again.
+ */
+#include "worker.h"
+
+#include <errno.h>
+#include <inttypes.h>
+#include <pthread.h>
+#include <sodium.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <zmq.h>
+
+#include "proto.h"
+#include "scene.h"
+#include "tracer.h"
+
+typedef struct scene_entry {
+    uint8_t hash[PROTO_HASH_SIZE];
+    scene_t *scene;
+    tracer_t *tracer;
+    int requested; /* bundle asked for, not yet here */
+    int refs;      /* tasks queued or being traced */
+    double last_used;
+    struct scene_entry *next;
+} scene_entry_t;
+
+typedef struct wtask {
+    uint64_t job, task;
+    uint32_t attempt;
+    uint32_t generation; /* connection it came on */
+    tracer_settings_t settings;
+    uint32_t count;
+    tracer_task_t *records;
+    tracer_result_t *results;
+    scene_entry_t *scene;
+    uint64_t rays, busy_us;
+    int failed;
+    char error[512];
+    struct wtask *next;
+} wtask_t;
+
+typedef struct wthread {
+    worker_t *w;
+    pthread_t thread;
+    int started;
+} wthread_t;
+
+struct worker {
+    worker_config_t cfg;
+    char name[64];
+    void *sock;
+    void *wake;            /* PULL: render threads say "done" */
+    char wake_endpoint[64];
+    wthread_t *threads;
+    pthread_mutex_t lock;
+    pthread_cond_t cond;
+    wtask_t *todo, *todo_tail; /* ready to trace */
+    wtask_t *done, *done_tail; /* traced, to report */
+    wtask_t *waiting;          /* waiting for their scene bundle */
+    int busy;                  /* tasks being traced */
+    int quit;
+    scene_entry_t *cache;
+    uint32_t generation;
+    int welcomed;
+    uint32_t heartbeat_ms;
+    double last_from_master, last_sent, last_hello, hello_backoff;
+    char build[PROTO_BUILD_SIZE + 1];
+    uint8_t *payload;
+    size_t payload_cap;
+    tracer_task_t *decode_records;
+    int refused;
+};
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static void logf_(worker_t *w, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void logf_(worker_t *w, const char *fmt, ...)
+{
+    if (!w->cfg.log)
+        return;
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    struct tm tm;
+    gmtime_r(&ts.tv_sec, &tm);
+    char stamp[32];
+    strftime(stamp, sizeof stamp, "%Y-%m-%dT%H:%M:%S", &tm);
+    char msg[1024];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    fprintf(w->cfg.log, "%s.%03ldZ %s: %s\n", stamp, ts.tv_nsec / 1000000, w->name, msg);
+    fflush(w->cfg.log);
+}
+
+static void task_free(wtask_t *t)
+{
+    if (!t)
+        return;
+    free(t->records);
+    free(t->results);
+    free(t);
+}
+
+/* ---- render threads --------------------------------------------------------- */
+
+static void *render_main(void *arg)
+{
+    wthread_t *self = arg;
+    worker_t *w = self->w;
+    void *push = zmq_socket(w->cfg.zmq_ctx, ZMQ_PUSH);
+    int zero = 0;
+    zmq_setsockopt(push, ZMQ_LINGER, &zero, sizeof zero);
+    zmq_connect(push, w->wake_endpoint);
+    for (;;) {
+        pthread_mutex_lock(&w->lock);
+        while (!w->quit && !w->todo)
+            pthread_cond_wait(&w->cond, &w->lock);
+        if (!w->todo) {
+            pthread_mutex_unlock(&w->lock);
+            break;
+        }
+        wtask_t *t = w->todo;
+        w->todo = t->next;
+        if (!w->todo)
+            w->todo_tail = NULL;
+        w->busy++;
+        pthread_mutex_unlock(&w->lock);
+
+        double t0 = now_s();
+        tracer_stats_t st = {0, 0};
+        if (tracer_trace(t->scene->tracer, &t->settings, t->records, t->count, t->results, &st, t->error,
+                         sizeof t->error) < 0)
+            t->failed = 1;
+        t->rays = st.rays;
+        t->busy_us = (uint64_t)((now_s() - t0) * 1e6);
+
+        pthread_mutex_lock(&w->lock);
+        t->next = NULL;
+        if (w->done_tail)
+            w->done_tail->next = t;
+        else
+            w->done = t;
+        w->done_tail = t;
+        w->busy--;
+        pthread_mutex_unlock(&w->lock);
+        zmq_send(push, "", 0, ZMQ_DONTWAIT);
+    }
+    zmq_close(push);
+    return NULL;
+}
+
+/* ---- sending ------------------------------------------------------------------- */
+
+static int send_msg(worker_t *w, proto_msg_t *msg)
+{
+    size_t need = proto_payload_size(msg);
+    if (need > w->payload_cap) {
+        uint8_t *p = realloc(w->payload, need);
+        if (!p)
+            return -1;
+        w->payload = p;
+        w->payload_cap = need;
+    }
+    uint8_t header[PROTO_HEADER_SIZE];
+    char err[256];
+    long n = proto_encode(msg, header, w->payload, w->payload_cap, err, sizeof err);
+    if (n < 0) {
+        logf_(w, "cannot encode %s: %s", proto_type_name(msg->h.type), err);
+        return -1;
+    }
+    if (zmq_send(w->sock, header, PROTO_HEADER_SIZE, ZMQ_SNDMORE | ZMQ_DONTWAIT) < 0)
+        return -1;
+    if (zmq_send(w->sock, w->payload ? w->payload : (uint8_t *)"", (size_t)n, ZMQ_DONTWAIT) < 0)
+        return -1;
+    w->last_sent = now_s();
+    return 0;
+}
+
+static void send_simple(worker_t *w, proto_type_t type, const char *text)
+{
+    proto_msg_t msg;
+    memset(&msg, 0, sizeof msg);
+    msg.h.type = (uint16_t)type;
+    if (text)
+        snprintf(msg.u.text.text, sizeof msg.u.text.text, "%s", text);
+    send_msg(w, &msg);
+}
+
+static void send_hello(worker_t *w)
+{
+    proto_msg_t msg;
+    memset(&msg, 0, sizeof msg);
+    msg.h.type = PROTO_HELLO;
+    msg.u.hello.threads = (uint32_t)w->cfg.threads;
+    memcpy(msg.u.hello.build, w->build, sizeof msg.u.hello.build);
+    send_msg(w, &msg);
+    w->last_hello = now_s();
+}
+
+static void report(worker_t *w, wtask_t *t)
+{
+    if (t->generation != w->generation || !w->welcomed)
+        return; /* from an earlier connection: the master has moved on */
+    proto_msg_t *msg = calloc(1, sizeof *msg);
+    if (!msg)
+        return;
+    msg->h.job = t->job;
+    msg->h.task = t->task;
+    msg->h.attempt = t->attempt;
+    if (t->failed) {
+        msg->h.type = PROTO_TASK_FAILED;
+        snprintf(msg->u.text.text, sizeof msg->u.text.text, "%s: %s", w->name, t->error);
+    } else {
+        msg->h.type = PROTO_RESULT;
+        msg->u.result.rays = t->rays;
+        msg->u.result.busy_us = t->busy_us;
+        msg->u.result.count = t->count;
+        msg->u.result.records = t->results;
+    }
+    send_msg(w, msg);
+    free(msg);
+}
+
+static void drain_done(worker_t *w)
+{
+    pthread_mutex_lock(&w->lock);
+    wtask_t *list = w->done;
+    w->done = w->done_tail = NULL;
+    pthread_mutex_unlock(&w->lock);
+    while (list) {
+        wtask_t *next = list->next;
+        report(w, list);
+        list->scene->refs--;
+        list->scene->last_used = now_s();
+        task_free(list);
+        list = next;
+    }
+}
+
+/* ---- scenes --------------------------------------------------------------------- */
+
+static scene_entry_t *find_scene(worker_t *w, const uint8_t *hash)
+{
+    for (scene_entry_t *e = w->cache; e; e = e->next)
+        if (memcmp(e->hash, hash, PROTO_HASH_SIZE) == 0)
+            return e;
+    return NULL;
+}
+
+static void evict(worker_t *w)
+{
+    int limit = w->cfg.cache_scenes > 0 ? w->cfg.cache_scenes : 4;
+    for (;;) {
+        int n = 0;
+        scene_entry_t *oldest = NULL, **oldest_link = NULL;
+        for (scene_entry_t **link = &w->cache; *link; link = &(*link)->next) {
+            scene_entry_t *e = *link;
+            if (!e->scene)
+                continue;
+            n++;
+            if (e->refs == 0 && (!oldest || e->last_used < oldest->last_used)) {
+                oldest = e;
+                oldest_link = link;
+            }
+        }
+        if (n <= limit || !oldest)
+            return;
+        logf_(w, "dropping a cached scene (%d loaded, limit %d)", n, limit);
+        *oldest_link = oldest->next;
+        tracer_destroy(&oldest->tracer);
+        scene_destroy(&oldest->scene);
+        free(oldest);
+    }
+}
+
+static void enqueue(worker_t *w, wtask_t *t)
+{
+    pthread_mutex_lock(&w->lock);
+    t->next = NULL;
+    if (w->todo_tail)
+        w->todo_tail->next = t;
+    else
+        w->todo = t;
+    w->todo_tail = t;
+    pthread_cond_signal(&w->cond);
+    pthread_mutex_unlock(&w->lock);
+}
+
+/* The content hash exactly as the master computes it. */
+static void bundle_hash(const proto_bundle_t *b, uint8_t out[PROTO_HASH_SIZE])
+{
+    crypto_generichash_state hs;
+    crypto_generichash_init(&hs, NULL, 0, PROTO_HASH_SIZE);
+    crypto_generichash_update(&hs, (const unsigned char *)b->json, b->json_size);
+    for (uint32_t k = 0; k < b->mesh_count; k++) {
+        const proto_mesh_file_t *mf = &b->meshes[k];
+        crypto_generichash_update(&hs, (const unsigned char *)mf->name, strlen(mf->name) + 1);
+        uint8_t len[4] = {(uint8_t)mf->size, (uint8_t)(mf->size >> 8), (uint8_t)(mf->size >> 16),
+                          (uint8_t)(mf->size >> 24)};
+        crypto_generichash_update(&hs, len, 4);
+        crypto_generichash_update(&hs, mf->data, mf->size);
+    }
+    crypto_generichash_final(&hs, out, PROTO_HASH_SIZE);
+}
+
+static void on_bundle(worker_t *w, proto_msg_t *msg)
+{
+    const proto_bundle_t *b = &msg->u.bundle;
+    scene_entry_t *e = find_scene(w, b->hash);
+    if (!e || e->scene)
+        return; /* not asked for, or already here */
+    char err[1024] = "";
+    uint8_t check[PROTO_HASH_SIZE];
+    bundle_hash(b, check);
+    int ok = memcmp(check, b->hash, PROTO_HASH_SIZE) == 0;
+    if (!ok)
+        snprintf(err, sizeof err, "scene bundle does not match its hash");
+    scene_blob_t blobs[PROTO_MAX_MESHES];
+    for (uint32_t i = 0; ok && i < b->mesh_count; i++) {
+        blobs[i].name = b->meshes[i].name;
+        blobs[i].data = b->meshes[i].data;
+        blobs[i].size = b->meshes[i].size;
+    }
+    double t0 = now_s();
+    if (ok && scene_load_bundle(b->json, b->json_size, "scene", blobs, b->mesh_count, &e->scene, err, sizeof err) < 0)
+        ok = 0;
+    if (ok && tracer_new(e->scene, &e->tracer, err, sizeof err) < 0) {
+        scene_destroy(&e->scene);
+        ok = 0;
+    }
+    e->requested = 0;
+    if (ok)
+        logf_(w, "scene loaded in %.2f s: %zu triangles (%s)", now_s() - t0, e->scene->triangle_count,
+              tracer_isa(e->tracer));
+    else
+        logf_(w, "scene failed to load: %s", err);
+    /* release the tasks that waited for it */
+    wtask_t **link = &w->waiting;
+    while (*link) {
+        wtask_t *t = *link;
+        if (t->scene != e) {
+            link = &t->next;
+            continue;
+        }
+        *link = t->next;
+        if (ok) {
+            enqueue(w, t);
+        } else {
+            t->failed = 1;
+            snprintf(t->error, sizeof t->error, "%s", err);
+            report(w, t);
+            e->refs--;
+            task_free(t);
+        }
+    }
+    if (!ok) {
+        /* forget it: a later task may ask again */
+        for (scene_entry_t **l = &w->cache; *l; l = &(*l)->next)
+            if (*l == e && e->refs == 0) {
+                *l = e->next;
+                free(e);
+                break;
+            }
+    }
+    evict(w);
+}
+
+static void on_task(worker_t *w, proto_msg_t *msg)
+{
+    wtask_t *t = calloc(1, sizeof *t);
+    uint32_t n = msg->u.task.count;
+    if (t) {
+        t->records = malloc(n * sizeof *t->records);
+        t->results = malloc(n * sizeof *t->results);
+    }
+    if (!t || !t->records || !t->results) {
+        if (t) {
+            task_free(t);
+        }
+        proto_msg_t f;
+        memset(&f, 0, sizeof f);
+        f.h = msg->h;
+        f.h.type = PROTO_TASK_FAILED;
+        snprintf(f.u.text.text, sizeof f.u.text.text, "%s: out of memory", w->name);
+        send_msg(w, &f);
+        return;
+    }
+    memcpy(t->records, msg->u.task.records, n * sizeof *t->records);
+    t->job = msg->h.job;
+    t->task = msg->h.task;
+    t->attempt = msg->h.attempt;
+    t->generation = w->generation;
+    t->settings = msg->u.task.settings;
+    t->count = n;
+    scene_entry_t *e = find_scene(w, msg->u.task.scene_hash);
+    if (!e) {
+        e = calloc(1, sizeof *e);
+        if (!e) {
+            task_free(t);
+            return;
+        }
+        memcpy(e->hash, msg->u.task.scene_hash, PROTO_HASH_SIZE);
+        e->next = w->cache;
+        w->cache = e;
+    }
+    t->scene = e;
+    e->refs++;
+    e->last_used = now_s();
+    if (e->scene) {
+        enqueue(w, t);
+        return;
+    }
+    t->next = w->waiting;
+    w->waiting = t;
+    if (!e->requested) {
+        proto_msg_t req;
+        memset(&req, 0, sizeof req);
+        req.h.type = PROTO_SCENE_REQUEST;
+        req.h.job = msg->h.job;
+        memcpy(req.u.scene_hash, e->hash, PROTO_HASH_SIZE);
+        send_msg(w, &req);
+        e->requested = 1;
+        logf_(w, "fetching the scene of job %" PRIu64, msg->h.job);
+    }
+}
+
+/* Drops queued and waiting tasks: the master issues them again. */
+static void release_queued(worker_t *w)
+{
+    pthread_mutex_lock(&w->lock);
+    wtask_t *list = w->todo;
+    w->todo = w->todo_tail = NULL;
+    pthread_mutex_unlock(&w->lock);
+    while (list) {
+        wtask_t *next = list->next;
+        list->scene->refs--;
+        task_free(list);
+        list = next;
+    }
+    while (w->waiting) {
+        wtask_t *next = w->waiting->next;
+        w->waiting->scene->refs--;
+        task_free(w->waiting);
+        w->waiting = next;
+    }
+    for (scene_entry_t *e = w->cache; e; e = e->next)
+        e->requested = 0;
+}
+
+static void start_over(worker_t *w, const char *why)
+{
+    logf_(w, "starting over with the master: %s", why);
+    release_queued(w);
+    w->generation++;
+    w->welcomed = 0;
+    w->hello_backoff = 0.1;
+    send_hello(w);
+}
+
+static void handle_message(worker_t *w)
+{
+    zmq_msg_t f[2];
+    int n = 0, more = 1;
+    while (more) {
+        zmq_msg_t x;
+        zmq_msg_init(&x);
+        if (zmq_msg_recv(&x, w->sock, ZMQ_DONTWAIT) < 0) {
+            zmq_msg_close(&x);
+            break;
+        }
+        more = zmq_msg_more(&x);
+        if (n < 2)
+            f[n++] = x;
+        else {
+            zmq_msg_close(&x);
+            n = 3;
+        }
+    }
+    if (n != 2) {
+        logf_(w, "dropped a malformed message from the master");
+        for (int i = 0; i < (n < 2 ? n : 2); i++)
+            zmq_msg_close(&f[i]);
+        return;
+    }
+    proto_msg_t *msg = calloc(1, sizeof *msg);
+    if (!msg)
+        goto out;
+    msg->capacity = PROTO_MAX_TASK_PIXELS;
+    msg->u.task.records = w->decode_records;
+    char err[256];
+    int rc = proto_decode(zmq_msg_data(&f[0]), zmq_msg_size(&f[0]), zmq_msg_data(&f[1]), zmq_msg_size(&f[1]),
+                          msg, err, sizeof err);
+    if (rc == -2) {
+        logf_(w, "the master speaks another protocol: %s", err);
+        send_simple(w, PROTO_REFUSE, err);
+        w->refused = 1;
+        goto out;
+    }
+    if (rc < 0) {
+        logf_(w, "dropped a malformed message from the master: %s", err);
+        goto out;
+    }
+    w->last_from_master = now_s();
+    switch (msg->h.type) {
+    case PROTO_WELCOME:
+        if (!w->welcomed) {
+            w->welcomed = 1;
+            w->heartbeat_ms = msg->u.welcome.heartbeat_ms;
+            proto_msg_t c;
+            memset(&c, 0, sizeof c);
+            c.h.type = PROTO_CREDIT;
+            c.u.credit = (uint32_t)(2 * w->cfg.threads) > PROTO_MAX_CREDIT ? PROTO_MAX_CREDIT
+                                                                              : (uint32_t)(2 * w->cfg.threads);
+            send_msg(w, &c);
+            logf_(w, "connected to %s with %d threads", w->cfg.master_endpoint, w->cfg.threads);
+        }
+        break;
+    case PROTO_REFUSE:
+        logf_(w, "refused by the master: %s", msg->u.text.text);
+        w->refused = 1;
+        break;
+    case PROTO_TASK:
+        if (w->welcomed)
+            on_task(w, msg);
+        break;
+    case PROTO_SCENE_BUNDLE:
+        on_bundle(w, msg);
+        break;
+    case PROTO_HEARTBEAT:
+        break;
+    case PROTO_BYE:
+        start_over(w, msg->u.text.text);
+        break;
+    default:
+        logf_(w, "dropped an out-of-protocol %s from the master", proto_type_name(msg->h.type));
+        break;
+    }
+out:
+    free(msg);
+    for (int i = 0; i < 2; i++)
+        zmq_msg_close(&f[i]);
+}
+
+/* ---- lifecycle -------------------------------------------------------------------- */
+
+worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
+{
+    if (cfg->threads < 1 || cfg->threads > PROTO_MAX_THREADS) {
+        snprintf(err, errlen, "threads must be 1..%d", PROTO_MAX_THREADS);
+        return NULL;
+    }
+    if (sodium_init() < 0) {
+        snprintf(err, errlen, "libsodium failed to initialise");
+        return NULL;
+    }
+    worker_t *w = calloc(1, sizeof *w);
+    if (!w) {
+        snprintf(err, errlen, "out of memory");
+        return NULL;
+    }
+    w->cfg = *cfg;
+    snprintf(w->name, sizeof w->name, "%s", cfg->name ? cfg->name : "worker");
+    pthread_mutex_init(&w->lock, NULL);
+    pthread_cond_init(&w->cond, NULL);
+    w->decode_records = malloc(PROTO_MAX_TASK_PIXELS * sizeof *w->decode_records);
+    w->threads = calloc((size_t)cfg->threads, sizeof *w->threads);
+    if (!w->decode_records || !w->threads) {
+        snprintf(err, errlen, "out of memory");
+        worker_destroy(&w);
+        return NULL;
+    }
+    __builtin_cpu_init();
+    proto_build_id(__builtin_cpu_supports("avx2") ? "avx2" : "sse4.2", w->build);
+    snprintf(w->wake_endpoint, sizeof w->wake_endpoint, "inproc://vb-worker-wake-%p", (void *)w);
+    w->wake = zmq_socket(cfg->zmq_ctx, ZMQ_PULL);
+    w->sock = zmq_socket(cfg->zmq_ctx, ZMQ_DEALER);
+    if (!w->wake || !w->sock || zmq_bind(w->wake, w->wake_endpoint) < 0) {
+        snprintf(err, errlen, "cannot create sockets: %s", zmq_strerror(errno));
+        worker_destroy(&w);
+        return NULL;
+    }
+    int zero = 0, one = 1, ivl = 100, ivl_max = 5000;
+    int64_t max_msg = (int64_t)PROTO_MAX_BUNDLE + PROTO_HEADER_SIZE + 4096;
+    zmq_setsockopt(w->sock, ZMQ_LINGER, &zero, sizeof zero);
+    zmq_setsockopt(w->wake, ZMQ_LINGER, &zero, sizeof zero);
+    /* queue nothing for a master that is not there: HELLO is resent instead */
+    zmq_setsockopt(w->sock, ZMQ_IMMEDIATE, &one, sizeof one);
+    zmq_setsockopt(w->sock, ZMQ_RECONNECT_IVL, &ivl, sizeof ivl);
+    zmq_setsockopt(w->sock, ZMQ_RECONNECT_IVL_MAX, &ivl_max, sizeof ivl_max);
+    zmq_setsockopt(w->sock, ZMQ_MAXMSGSIZE, &max_msg, sizeof max_msg);
+    if (zmq_connect(w->sock, cfg->master_endpoint) < 0) {
+        snprintf(err, errlen, "cannot connect to %s: %s", cfg->master_endpoint, zmq_strerror(errno));
+        worker_destroy(&w);
+        return NULL;
+    }
+    for (int i = 0; i < cfg->threads; i++) {
+        w->threads[i].w = w;
+        if (pthread_create(&w->threads[i].thread, NULL, render_main, &w->threads[i]) != 0) {
+            snprintf(err, errlen, "cannot start render thread %d", i);
+            worker_destroy(&w);
+            return NULL;
+        }
+        w->threads[i].started = 1;
+    }
+    return w;
+}
+
+int worker_run(worker_t *w, const volatile sig_atomic_t *stop)
+{
+    zmq_pollitem_t items[2] = {{w->sock, 0, ZMQ_POLLIN, 0}, {w->wake, 0, ZMQ_POLLIN, 0}};
+    w->hello_backoff = 0.1;
+    w->last_from_master = now_s();
+    send_hello(w);
+    while (!(stop && *stop) && !w->refused) {
+        if (zmq_poll(items, 2, 50) < 0 && errno != EINTR)
+            break;
+        if (items[1].revents & ZMQ_POLLIN) {
+            char b;
+            while (zmq_recv(w->wake, &b, 1, ZMQ_DONTWAIT) >= 0)
+                ;
+            drain_done(w);
+        }
+        for (int k = 0; k < 256 && (items[0].revents & ZMQ_POLLIN); k++) {
+            handle_message(w);
+            int ev = 0;
+            size_t sz = sizeof ev;
+            zmq_getsockopt(w->sock, ZMQ_EVENTS, &ev, &sz);
+            if (!(ev & ZMQ_POLLIN))
+                break;
+        }
+        double now = now_s();
+        if (!w->welcomed) {
+            /* HELLO again with backoff until the master answers */
+            if (now - w->last_hello >= w->hello_backoff) {
+                send_hello(w);
+                w->hello_backoff = w->hello_backoff * 2 > 5.0 ? 5.0 : w->hello_backoff * 2;
+            }
+        } else {
+            double hb = w->heartbeat_ms / 1000.0;
+            if (now - w->last_from_master > 5 * hb)
+                start_over(w, "the master is silent");
+            else if (now - w->last_sent >= hb)
+                send_simple(w, PROTO_HEARTBEAT, NULL);
+        }
+    }
+    /* Leaving: release what has not started, return what is being traced. */
+    release_queued(w);
+    for (;;) {
+        pthread_mutex_lock(&w->lock);
+        int busy = w->busy;
+        pthread_mutex_unlock(&w->lock);
+        drain_done(w);
+        if (!busy)
+            break;
+        zmq_poll(items + 1, 1, 20);
+        char b;
+        while (zmq_recv(w->wake, &b, 1, ZMQ_DONTWAIT) >= 0)
+            ;
+    }
+    drain_done(w);
+    if (w->welcomed && !w->refused)
+        send_simple(w, PROTO_BYE, "worker stopping");
+    logf_(w, "stopped");
+    return w->refused ? 1 : 0;
+}
+
+void worker_destroy(worker_t **wp)
+{
+    if (!wp || !*wp)
+        return;
+    worker_t *w = *wp;
+    pthread_mutex_lock(&w->lock);
+    w->quit = 1;
+    pthread_cond_broadcast(&w->cond);
+    pthread_mutex_unlock(&w->lock);
+    if (w->threads)
+        for (int i = 0; i < w->cfg.threads; i++)
+            if (w->threads[i].started)
+                pthread_join(w->threads[i].thread, NULL);
+    release_queued(w);
+    while (w->done) {
+        wtask_t *next = w->done->next;
+        task_free(w->done);
+        w->done = next;
+    }
+    while (w->cache) {
+        scene_entry_t *next = w->cache->next;
+        tracer_destroy(&w->cache->tracer);
+        scene_destroy(&w->cache->scene);
+        free(w->cache);
+        w->cache = next;
+    }
+    if (w->sock)
+        zmq_close(w->sock);
+    if (w->wake)
+        zmq_close(w->wake);
+    pthread_mutex_destroy(&w->lock);
+    pthread_cond_destroy(&w->cond);
+    free(w->threads);
+    free(w->decode_records);
+    free(w->payload);
+    free(w);
+    *wp = NULL;
+}

@@ -1,0 +1,38 @@
+/* worker.h - a worker: connects to a master, fetches scenes by content hash
+ * (and caches them, so workers need no shared file system), traces the
+ * tasks it is given on its threads with the core, and returns the results.
+ *
+ * A worker is stateless as far as the image goes: everything a task needs
+ * comes in the task (pixels, sample indices, "so far" sums) and the scene
+ * bundle. It heartbeats, reconnects with backoff when the master goes away,
+ * and on stop releases what it has not started, returns what it has, and
+ * says BYE. All state is in the worker_t: several run in one process in the
+ * embedded `vbrender render`.
+ */
+#ifndef VB_WORKER_H
+#define VB_WORKER_H
+
+#include <signal.h>
+#include <stddef.h>
+#include <stdio.h>
+
+typedef struct worker worker_t;
+
+typedef struct worker_config {
+    void *zmq_ctx;               /* not owned */
+    const char *master_endpoint; /* e.g. tcp://host:7070 or inproc://workers */
+    int threads;                 /* render threads, >= 1 */
+    int cache_scenes;            /* scenes kept loaded; 0: 4 */
+    FILE *log;                   /* NULL: silent */
+    const char *name;            /* for log lines */
+} worker_config_t;
+
+worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen);
+
+/* Runs until *stop becomes non-zero (then leaves cleanly) or the master
+ * refuses this worker (version or build mismatch: returns 1). 0 otherwise. */
+int worker_run(worker_t *w, const volatile sig_atomic_t *stop);
+
+void worker_destroy(worker_t **w);
+
+#endif
