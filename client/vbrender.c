@@ -1,40 +1,66 @@
-/* vbrender.c - the command-line front end.
+/* vbrender.c - the command-line client.
  *
- *   vbrender render SCENE.json [-o OUT.exr] [--spp N] [--seed S]
- *                  [--threads T] [--integrator path|naive] [--granularity G]
- *                  [--max-depth D] [--progress auto|bar|lines|none]
+ *   vbrender render SCENE.json [-o OUT.exr] [job settings] [--workers N] [--threads T]
+ *   vbrender submit SCENE.json [job settings] [--master EP]   (prints the job id last)
+ *   vbrender status [JOB] | wait JOB | fetch JOB -o OUT.exr | cancel JOB | jobs | workers
  *
- * Exit status: 0 done, 1 the work failed (bad scene, I/O), 2 bad usage.
+ * `render` is the embedded default: it runs the same master and worker code
+ * in this process over ZeroMQ's inproc transport, so its pixels equal those
+ * of a distributed run with the same settings.
+ *
+ * Exit status: 0 done, 1 the work failed (bad scene, job failed or
+ * cancelled, I/O, no master), 2 bad usage.
  */
 #include <errno.h>
 #include <inttypes.h>
+#include <math.h>
+#include <pthread.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include <unistd.h>
+#include <zmq.h>
 
-#include "film.h"
+#include "control.h"
 #include "image.h"
+#include "master.h"
+#include "progress.h"
 #include "render.h"
-#include "scene.h"
-#include "tracer.h"
+#include "worker.h"
+
+#define DEFAULT_MASTER "tcp://localhost:7071"
 
 static const char usage_text[] =
-    "usage: vbrender render SCENE.json [options]\n"
+    "usage: vbrender COMMAND ...\n"
     "\n"
-    "Renders a scene on this machine and writes OUT.exr (channels R, G, B,\n"
-    "samples, variance) and a PNG preview beside it (OUT.png).\n"
+    "  render SCENE.json [-o OUT.exr] [settings] [--workers N] [--threads T]\n"
+    "        render on this machine (a master and N local workers in this process)\n"
+    "  submit SCENE.json [settings] [--master EP]   queue a job; prints its id last\n"
+    "  status [JOB]      a job's state (all jobs without JOB)\n"
+    "  wait JOB          progress until the job ends; exit 1 if it failed or was cancelled\n"
+    "  fetch JOB -o OUT.exr   the image (also OUT.png and OUT-samples.png, a heat map)\n"
+    "  cancel JOB        stop a job (its image so far can still be fetched)\n"
+    "  jobs              all jobs\n"
+    "  workers           connected workers: host, threads, rays/s, tasks done\n"
     "\n"
-    "options:\n"
-    "  -o, --output FILE.exr     output image (default: SCENE name + .exr)\n"
-    "  --spp N                   samples per pixel (default: the scene's)\n"
-    "  --seed S                  random seed (default: the scene's)\n"
-    "  --threads T               render threads (default: all cores)\n"
-    "  --integrator path|naive   path: NEE + MIS; naive: light only when hit\n"
-    "  --granularity G           samples per pixel per layer (default 32)\n"
-    "  --max-depth D             most path segments (default 0: unlimited)\n"
-    "  --progress MODE           auto, bar, lines or none (default auto)\n"
-    "  -h, --help                this text\n";
+    "settings (render and submit):\n"
+    "  --spp N                 most samples per pixel (default: the scene's)\n"
+    "  --granularity G         samples per pixel per layer (default 32)\n"
+    "  --adaptive thesis|none  variance-balanced (the thesis, default) or uniform\n"
+    "  --uniform-layers K      layers before the skip rule applies (default: half)\n"
+    "  --seed S                random seed (default: the scene's)\n"
+    "  --time-limit SECONDS    stop issuing work after this long\n"
+    "  --integrator path|naive path: NEE + MIS (default); naive: light only when hit\n"
+    "  --max-depth D           most path segments (default 0: unlimited)\n"
+    "\n"
+    "other options:\n"
+    "  --master EP             control endpoint (default " DEFAULT_MASTER ")\n"
+    "  --workers N             render: local workers (default 1)\n"
+    "  --threads T             render: threads in all (default: all cores)\n"
+    "  --progress MODE         auto, bar, lines or none (default auto)\n"
+    "  -h, --help              this text\n";
 
 static int usage_error(const char *fmt, const char *arg)
 {
@@ -44,7 +70,6 @@ static int usage_error(const char *fmt, const char *arg)
     return 2;
 }
 
-/* Parses a whole decimal unsigned integer in [lo, hi]. */
 static int parse_u64(const char *s, uint64_t lo, uint64_t hi, uint64_t *out)
 {
     if (!s || !*s || *s == '-' || *s == '+')
@@ -68,55 +93,39 @@ static void replace_extension(const char *path, const char *ext, char *out, size
     snprintf(out + n, len - n, "%s", ext);
 }
 
-typedef struct render_args {
-    const char *scene;
-    const char *output;
-    int have_spp, have_seed, have_integrator, have_depth;
-    uint64_t spp, seed, threads, granularity, max_depth;
-    int integrator;
-    progress_mode_t progress;
-} render_args_t;
+/* ---- arguments ------------------------------------------------------------------ */
 
-static int parse_render_args(int argc, char **argv, render_args_t *a)
+typedef struct args {
+    const char *positional;
+    const char *output;
+    const char *master;
+    cJSON *settings; /* submit fields */
+    uint64_t workers, threads;
+    progress_mode_t progress;
+    int have_workers, have_threads;
+} args_t;
+
+static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int allow_output)
 {
-    memset(a, 0, sizeof *a);
+    a->settings = cJSON_CreateObject();
+    a->master = DEFAULT_MASTER;
+    a->workers = 1;
     long cores = sysconf(_SC_NPROCESSORS_ONLN);
     a->threads = cores > 0 ? (uint64_t)cores : 1;
-    if (a->threads > RENDER_MAX_THREADS)
-        a->threads = RENDER_MAX_THREADS;
-    a->granularity = RENDER_DEFAULT_GRANULARITY;
     a->progress = PROGRESS_AUTO;
     for (int i = 0; i < argc; i++) {
         const char *o = argv[i];
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+        uint64_t n;
         int takes = 1;
-        if (strcmp(o, "-o") == 0 || strcmp(o, "--output") == 0) {
+        if (allow_output && (strcmp(o, "-o") == 0 || strcmp(o, "--output") == 0)) {
             if (!v || v[0] == '-')
                 return usage_error("%s needs a file name", o);
             a->output = v;
-        } else if (strcmp(o, "--spp") == 0) {
-            if (parse_u64(v, 1, UINT32_MAX, &a->spp) < 0)
-                return usage_error("--spp needs an integer from 1 to 4294967295 (got '%s')", v ? v : "");
-            a->have_spp = 1;
-        } else if (strcmp(o, "--seed") == 0) {
-            if (parse_u64(v, 0, UINT64_MAX, &a->seed) < 0)
-                return usage_error("--seed needs a non-negative integer (got '%s')", v ? v : "");
-            a->have_seed = 1;
-        } else if (strcmp(o, "--threads") == 0) {
-            if (parse_u64(v, 1, RENDER_MAX_THREADS, &a->threads) < 0)
-                return usage_error("--threads needs an integer from 1 to 256 (got '%s')", v ? v : "");
-        } else if (strcmp(o, "--granularity") == 0) {
-            if (parse_u64(v, 1, TRACER_MAX_TASK_SAMPLES, &a->granularity) < 0)
-                return usage_error("--granularity needs an integer from 1 to 4096 (got '%s')", v ? v : "");
-        } else if (strcmp(o, "--max-depth") == 0) {
-            if (parse_u64(v, 0, 1000000, &a->max_depth) < 0)
-                return usage_error("--max-depth needs an integer from 0 to 1000000 (got '%s')", v ? v : "");
-            a->have_depth = 1;
-        } else if (strcmp(o, "--integrator") == 0) {
-            a->integrator = v ? scene_integrator_from_name(v) : -1;
-            if (a->integrator < 0)
-                return usage_error("--integrator must be path or naive (got '%s')", v ? v : "");
-            a->have_integrator = 1;
+        } else if (strcmp(o, "--master") == 0) {
+            if (!v || !*v)
+                return usage_error("%s needs an endpoint such as tcp://host:7071", o);
+            a->master = v;
         } else if (strcmp(o, "--progress") == 0) {
             if (v && strcmp(v, "auto") == 0)
                 a->progress = PROGRESS_AUTO;
@@ -128,37 +137,176 @@ static int parse_render_args(int argc, char **argv, render_args_t *a)
                 a->progress = PROGRESS_NONE;
             else
                 return usage_error("--progress must be auto, bar, lines or none (got '%s')", v ? v : "");
+        } else if (allow_settings && strcmp(o, "--workers") == 0) {
+            if (parse_u64(v, 1, 64, &a->workers) < 0)
+                return usage_error("--workers needs an integer from 1 to 64 (got '%s')", v ? v : "");
+            a->have_workers = 1;
+        } else if (allow_settings && strcmp(o, "--threads") == 0) {
+            if (parse_u64(v, 1, RENDER_MAX_THREADS, &a->threads) < 0)
+                return usage_error("--threads needs an integer from 1 to 256 (got '%s')", v ? v : "");
+            a->have_threads = 1;
+        } else if (allow_settings && strcmp(o, "--spp") == 0) {
+            if (parse_u64(v, 1, UINT32_MAX, &n) < 0)
+                return usage_error("--spp needs an integer from 1 to 4294967295 (got '%s')", v ? v : "");
+            cJSON_AddNumberToObject(a->settings, "spp", (double)n);
+        } else if (allow_settings && strcmp(o, "--granularity") == 0) {
+            if (parse_u64(v, 1, TRACER_MAX_TASK_SAMPLES, &n) < 0)
+                return usage_error("--granularity needs an integer from 1 to 4096 (got '%s')", v ? v : "");
+            cJSON_AddNumberToObject(a->settings, "granularity", (double)n);
+        } else if (allow_settings && strcmp(o, "--uniform-layers") == 0) {
+            if (parse_u64(v, 0, 1000000, &n) < 0)
+                return usage_error("--uniform-layers needs an integer from 0 to 1000000 (got '%s')", v ? v : "");
+            cJSON_AddNumberToObject(a->settings, "uniform_layers", (double)n);
+        } else if (allow_settings && strcmp(o, "--seed") == 0) {
+            if (parse_u64(v, 0, 9007199254740992ULL, &n) < 0)
+                return usage_error("--seed needs an integer from 0 to 2^53 (got '%s')", v ? v : "");
+            cJSON_AddNumberToObject(a->settings, "seed", (double)n);
+        } else if (allow_settings && strcmp(o, "--max-depth") == 0) {
+            if (parse_u64(v, 0, 1000000, &n) < 0)
+                return usage_error("--max-depth needs an integer from 0 to 1000000 (got '%s')", v ? v : "");
+            cJSON_AddNumberToObject(a->settings, "max_depth", (double)n);
+        } else if (allow_settings && strcmp(o, "--time-limit") == 0) {
+            char *end;
+            errno = 0;
+            double t = v ? strtod(v, &end) : -1;
+            if (!v || errno || *end || !(t > 0) || !isfinite(t))
+                return usage_error("--time-limit needs a number of seconds > 0 (got '%s')", v ? v : "");
+            cJSON_AddNumberToObject(a->settings, "time_limit", t);
+        } else if (allow_settings && strcmp(o, "--adaptive") == 0) {
+            if (!v || (strcmp(v, "thesis") != 0 && strcmp(v, "none") != 0))
+                return usage_error("--adaptive must be thesis or none (got '%s')", v ? v : "");
+            cJSON_AddStringToObject(a->settings, "adaptive", v);
+        } else if (allow_settings && strcmp(o, "--integrator") == 0) {
+            if (!v || scene_integrator_from_name(v) < 0)
+                return usage_error("--integrator must be path or naive (got '%s')", v ? v : "");
+            cJSON_AddStringToObject(a->settings, "integrator", v);
         } else if (o[0] == '-' && o[1] != '\0') {
             return usage_error("unknown option '%s'", o);
         } else {
             takes = 0;
-            if (a->scene)
-                return usage_error("unexpected argument '%s' (one scene file per render)", o);
-            a->scene = o;
+            if (a->positional)
+                return usage_error("unexpected argument '%s'", o);
+            a->positional = o;
         }
         i += takes;
     }
-    if (!a->scene)
-        return usage_error("%s", "render needs a scene file: vbrender render SCENE.json");
     return 0;
 }
 
-static int cmd_render(int argc, char **argv)
+static int parse_job_id(const char *s, unsigned long long *out)
 {
-    render_args_t a;
-    int rc = parse_render_args(argc, argv, &a);
-    if (rc)
-        return rc;
-    char err[1024], out_exr[4096], out_png[4096];
-    if (a.output) {
-        snprintf(out_exr, sizeof out_exr, "%s", a.output);
-    } else {
-        const char *base = strrchr(a.scene, '/');
-        replace_extension(base ? base + 1 : a.scene, ".exr", out_exr, sizeof out_exr);
-    }
-    replace_extension(out_exr, ".png", out_png, sizeof out_png);
+    uint64_t v;
+    if (parse_u64(s, 1, UINT64_MAX, &v) < 0)
+        return -1;
+    *out = v;
+    return 0;
+}
 
-    /* Refuse an output we could not write before rendering, not after. */
+/* ---- shared output ------------------------------------------------------------- */
+
+static const char *jstr(const cJSON *o, const char *k)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
+    return cJSON_IsString(v) ? v->valuestring : "";
+}
+
+static double jnum(const cJSON *o, const char *k)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
+    return cJSON_IsNumber(v) ? v->valuedouble : 0.0;
+}
+
+static int job_ended(const cJSON *job)
+{
+    const char *s = jstr(job, "state");
+    return strcmp(s, "done") == 0 || strcmp(s, "failed") == 0 || strcmp(s, "cancelled") == 0;
+}
+
+static double job_fraction(const cJSON *job)
+{
+    double layers = jnum(job, "layers"), done = jnum(job, "layers_done");
+    double s = jnum(job, "samples"), max = jnum(job, "max_samples");
+    double f1 = layers > 0 ? done / layers : 0, f2 = max > 0 ? s / max : 0;
+    return f1 > f2 ? f1 : f2;
+}
+
+static void progress_detail(const cJSON *job, char *buf, size_t len)
+{
+    char a[32], b[32];
+    double frac = job_fraction(job), el = jnum(job, "seconds");
+    double eta = frac > 0 ? el / frac - el : 0;
+    snprintf(buf, len, "layer %.0f/%.0f, %s samples, %s rays/s, ETA %.0fs", jnum(job, "layers_done"),
+             jnum(job, "layers"), render_si(jnum(job, "samples"), a, sizeof a),
+             render_si(jnum(job, "rays_per_second"), b, sizeof b), eta);
+}
+
+/* Polls status until the job ends; returns the final status (or NULL). */
+static cJSON *wait_job(control_t *c, unsigned long long job, progress_mode_t mode, char *err, size_t errlen)
+{
+    char label[32];
+    snprintf(label, sizeof label, "job %llu", job);
+    progress_t *prog = progress_new(stderr, mode, label);
+    cJSON *req = cJSON_CreateObject();
+    cJSON_AddStringToObject(req, "cmd", "status");
+    cJSON_AddNumberToObject(req, "job", (double)job);
+    cJSON *st = NULL;
+    for (;;) {
+        cJSON *reply = control_request(c, req, NULL, NULL, 0, err, errlen);
+        if (!reply)
+            break;
+        if (!cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(reply, "ok"))) {
+            snprintf(err, errlen, "%s", jstr(reply, "error"));
+            cJSON_Delete(reply);
+            break;
+        }
+        cJSON_Delete(st);
+        st = cJSON_DetachItemFromObject(reply, "job");
+        cJSON_Delete(reply);
+        char detail[160];
+        progress_detail(st, detail, sizeof detail);
+        if (job_ended(st)) {
+            char end[64];
+            snprintf(end, sizeof end, "%s in %.2fs", jstr(st, "state"), jnum(st, "seconds"));
+            progress_finish(prog, end);
+            break;
+        }
+        progress_update(prog, job_fraction(st), detail);
+        struct timespec ts = {0, 100 * 1000 * 1000};
+        nanosleep(&ts, NULL);
+    }
+    progress_destroy(&prog);
+    cJSON_Delete(req);
+    if (st && !job_ended(st)) {
+        cJSON_Delete(st);
+        st = NULL;
+    }
+    return st;
+}
+
+/* Writes OUT.exr, OUT.png and OUT-samples.png from a fetched image. */
+static int write_outputs(image_t *img, const cJSON *job, const char *out_exr, char *err, size_t errlen)
+{
+    image_set_string(img, "vb.seed", jstr(job, "seed"));
+    image_set_string(img, "vb.integrator", jstr(job, "integrator"));
+    image_set_string(img, "vb.adaptive", jstr(job, "adaptive"));
+    image_set_string(img, "vb.scene", jstr(job, "scene"));
+    image_set_double(img, "vb.total_samples", jnum(job, "samples"));
+    image_set_double(img, "vb.render_seconds", jnum(job, "seconds"));
+    image_set_int(img, "vb.spp", (int32_t)fmin(jnum(job, "spp"), 2147483647.0));
+    image_set_int(img, "vb.granularity", (int32_t)jnum(job, "granularity"));
+    image_set_double(img, "vb.nonfinite_samples", jnum(job, "nonfinite"));
+    char png[4096], heat[4096];
+    replace_extension(out_exr, ".png", png, sizeof png);
+    replace_extension(out_exr, "-samples.png", heat, sizeof heat);
+    if (image_write_exr(img, out_exr, err, errlen) < 0 || image_write_png(img, png, 1.0f, err, errlen) < 0 ||
+        image_write_heatmap_png(img, "samples", 0.0f, (float)jnum(job, "spp"), heat, err, errlen) < 0)
+        return -1;
+    printf("%s\n%s\n%s\n", out_exr, png, heat);
+    return 0;
+}
+
+static int check_writable(const char *out_exr)
+{
     char dir[4096];
     snprintf(dir, sizeof dir, "%s", out_exr);
     char *slash = strrchr(dir, '/');
@@ -168,90 +316,298 @@ static int cmd_render(int argc, char **argv)
         snprintf(dir, sizeof dir, ".");
     if (access(dir, W_OK) != 0) {
         fprintf(stderr, "vbrender: cannot write %s: folder %s: %s\n", out_exr, dir, strerror(errno));
+        return -1;
+    }
+    return 0;
+}
+
+static void print_summary(const cJSON *job, int workers, int threads)
+{
+    char a1[32], a2[32], a3[32], a4[32];
+    double secs = jnum(job, "seconds") > 0 ? jnum(job, "seconds") : 1e-9;
+    fprintf(stderr,
+            "vbrender: %.0fx%.0f, %.0f spp max, %s, adaptive %s, seed %s, %d worker%s, %d threads: "
+            "%.2f s, %s samples (%s samples/s), %s rays (%s rays/s), %.0f NaN/Inf samples left out\n",
+            jnum(job, "width"), jnum(job, "height"), jnum(job, "spp"), jstr(job, "integrator"),
+            jstr(job, "adaptive"), jstr(job, "seed"), workers, workers == 1 ? "" : "s", threads,
+            jnum(job, "seconds"), render_si(jnum(job, "samples"), a1, sizeof a1),
+            render_si(jnum(job, "samples") / secs, a2, sizeof a2), render_si(jnum(job, "rays"), a3, sizeof a3),
+            render_si(jnum(job, "rays") / secs, a4, sizeof a4), jnum(job, "nonfinite"));
+}
+
+/* ---- render: the embedded master and workers ------------------------------------ */
+
+typedef struct embedded_master {
+    master_t *m;
+    volatile sig_atomic_t stop;
+    pthread_t thread;
+} embedded_master_t;
+
+typedef struct embedded_worker {
+    worker_t *w;
+    volatile sig_atomic_t stop;
+    pthread_t thread;
+    int started;
+} embedded_worker_t;
+
+static void *master_thread(void *arg)
+{
+    embedded_master_t *em = arg;
+    master_run(em->m, &em->stop);
+    return NULL;
+}
+
+static void *worker_thread(void *arg)
+{
+    embedded_worker_t *ew = arg;
+    worker_run(ew->w, &ew->stop);
+    return NULL;
+}
+
+static int cmd_render(int argc, char **argv)
+{
+    args_t a;
+    memset(&a, 0, sizeof a);
+    int rc = parse_args(argc, argv, &a, 1, 1);
+    if (rc || !a.positional) {
+        cJSON_Delete(a.settings);
+        return rc ? rc : usage_error("%s", "render needs a scene file: vbrender render SCENE.json");
+    }
+    char out_exr[4096];
+    if (a.output) {
+        snprintf(out_exr, sizeof out_exr, "%s", a.output);
+    } else {
+        const char *base = strrchr(a.positional, '/');
+        replace_extension(base ? base + 1 : a.positional, ".exr", out_exr, sizeof out_exr);
+    }
+    if (check_writable(out_exr) < 0) {
+        cJSON_Delete(a.settings);
         return 1;
     }
-
+    if (a.workers > a.threads)
+        a.threads = a.workers;
+    /* scene warnings are the client's to show: load it once here */
+    char err[2048];
     scene_t *scene = NULL;
-    if (scene_load(a.scene, &scene, err, sizeof err) < 0) {
+    if (scene_load(a.positional, &scene, err, sizeof err) < 0) {
         fprintf(stderr, "vbrender: %s\n", err);
+        cJSON_Delete(a.settings);
         return 1;
     }
     for (int i = 0; i < scene->warning_count; i++)
         fprintf(stderr, "vbrender: warning: %s\n", scene->warnings[i]);
-
-    render_settings_t s;
-    memset(&s, 0, sizeof s);
-    s.spp = a.have_spp ? (uint32_t)a.spp : scene->spp;
-    s.tracer.seed = a.have_seed ? a.seed : scene->seed;
-    s.tracer.integrator = a.have_integrator ? (scene_integrator_t)a.integrator : scene->integrator;
-    s.tracer.max_depth = a.have_depth ? (uint32_t)a.max_depth : scene->max_depth;
-    s.granularity = (uint32_t)a.granularity;
-    s.threads = (int)a.threads;
-    s.progress = a.progress;
-    s.progress_out = stderr;
-
-    tracer_t *tracer = NULL;
-    film_t *film = NULL;
-    image_t *img = NULL;
-    rc = 1;
-    if (tracer_new(scene, &tracer, err, sizeof err) < 0) {
-        fprintf(stderr, "vbrender: %s\n", err);
-        goto done;
-    }
-    film = film_new(scene->camera.width, scene->camera.height);
-    if (!film) {
-        fprintf(stderr, "vbrender: out of memory for a %dx%d film\n", scene->camera.width,
-                scene->camera.height);
-        goto done;
-    }
-    render_summary_t sum;
-    if (render_run(tracer, film, &s, &sum, err, sizeof err) < 0) {
-        fprintf(stderr, "vbrender: render failed: %s\n", err);
-        goto done;
-    }
-    img = film_to_image(film);
-    if (!img) {
-        fprintf(stderr, "vbrender: out of memory for the image\n");
-        goto done;
-    }
-    char seed[32];
-    snprintf(seed, sizeof seed, "%" PRIu64, s.tracer.seed);
-    image_set_string(img, "vb.seed", seed);
-    image_set_string(img, "vb.integrator", scene_integrator_name(s.tracer.integrator));
-    image_set_double(img, "vb.total_samples", (double)sum.samples);
-    image_set_double(img, "vb.render_seconds", sum.seconds);
-    image_set_int(img, "vb.spp", (int32_t)(s.spp > INT32_MAX ? INT32_MAX : s.spp));
-    image_set_int(img, "vb.granularity", (int32_t)s.granularity);
-    image_set_int(img, "vb.max_depth", (int32_t)s.tracer.max_depth);
-    image_set_double(img, "vb.nonfinite_samples", (double)sum.nonfinite);
-    if (image_write_exr(img, out_exr, err, sizeof err) < 0 ||
-        image_write_png(img, out_png, 1.0f, err, sizeof err) < 0) {
-        fprintf(stderr, "vbrender: %s\n", err);
-        goto done;
-    }
-    char a1[32], a2[32], a3[32], a4[32];
-    double secs = sum.seconds > 0 ? sum.seconds : 1e-9;
-    fprintf(stderr,
-            "vbrender: %dx%d, %u spp, %s, seed %s, %d threads (%s): %.2f s, %s samples "
-            "(%s samples/s), %s rays (%s rays/s), %" PRIu64 " NaN/Inf samples left out\n",
-            scene->camera.width, scene->camera.height, s.spp,
-            scene_integrator_name(s.tracer.integrator), seed, s.threads, tracer_isa(tracer),
-            sum.seconds, render_si((double)sum.samples, a1, sizeof a1),
-            render_si((double)sum.samples / secs, a2, sizeof a2),
-            render_si((double)sum.rays, a3, sizeof a3), render_si((double)sum.rays / secs, a4, sizeof a4),
-            sum.nonfinite);
-    printf("%s\n%s\n", out_exr, out_png);
-    rc = 0;
-done:
-    image_destroy(&img);
-    film_destroy(&film);
-    tracer_destroy(&tracer);
     scene_destroy(&scene);
+
+    void *ctx = zmq_ctx_new();
+    char wep[64], cep[64];
+    snprintf(wep, sizeof wep, "inproc://vbrender-workers");
+    snprintf(cep, sizeof cep, "inproc://vbrender-control");
+    master_config_t mc;
+    memset(&mc, 0, sizeof mc);
+    mc.zmq_ctx = ctx;
+    mc.worker_endpoint = wep;
+    mc.control_endpoint = cep;
+    mc.allow_shutdown = 1;
+    mc.log = getenv("VB_LOG") ? stderr : NULL;
+    embedded_master_t em;
+    memset(&em, 0, sizeof em);
+    embedded_worker_t *ew = calloc(a.workers, sizeof *ew);
+    control_t *c = NULL;
+    image_t *img = NULL;
+    cJSON *job = NULL;
+    rc = 1;
+    em.m = master_new(&mc, err, sizeof err);
+    if (!em.m || !ew) {
+        fprintf(stderr, "vbrender: %s\n", em.m ? "out of memory" : err);
+        goto done;
+    }
+    pthread_create(&em.thread, NULL, master_thread, &em);
+    int per = (int)(a.threads / a.workers), extra = (int)(a.threads % a.workers);
+    for (uint64_t i = 0; i < a.workers; i++) {
+        char name[32];
+        snprintf(name, sizeof name, "worker-%llu", (unsigned long long)i + 1);
+        worker_config_t wc = {ctx, wep, per + ((int)i < extra ? 1 : 0), 0, mc.log, name};
+        ew[i].w = worker_new(&wc, err, sizeof err);
+        if (!ew[i].w) {
+            fprintf(stderr, "vbrender: %s\n", err);
+            goto done;
+        }
+        pthread_create(&ew[i].thread, NULL, worker_thread, &ew[i]);
+        ew[i].started = 1;
+    }
+    c = control_new(ctx, cep, 600000, err, sizeof err);
+    unsigned long long id = c ? control_submit(c, a.positional, a.settings, err, sizeof err) : 0;
+    if (!id) {
+        fprintf(stderr, "vbrender: %s\n", err);
+        goto done;
+    }
+    job = wait_job(c, id, a.progress, err, sizeof err);
+    if (!job) {
+        fprintf(stderr, "vbrender: %s\n", err);
+        goto done;
+    }
+    cJSON *st = NULL;
+    img = control_fetch(c, id, &st, err, sizeof err);
+    if (!img) {
+        fprintf(stderr, "vbrender: %s\n", err);
+        goto done;
+    }
+    cJSON_Delete(job);
+    job = st;
+    if (write_outputs(img, job, out_exr, err, sizeof err) < 0) {
+        fprintf(stderr, "vbrender: %s\n", err);
+        goto done;
+    }
+    print_summary(job, (int)a.workers, (int)a.threads);
+    rc = strcmp(jstr(job, "state"), "done") == 0 ? 0 : 1;
+    if (rc)
+        fprintf(stderr, "vbrender: job %s: %s\n", jstr(job, "state"), jstr(job, "error"));
+done:
+    for (uint64_t i = 0; ew && i < a.workers; i++)
+        if (ew[i].started) {
+            ew[i].stop = 1;
+            pthread_join(ew[i].thread, NULL);
+        }
+    for (uint64_t i = 0; ew && i < a.workers; i++)
+        worker_destroy(&ew[i].w);
+    if (em.m) {
+        em.stop = 1;
+        pthread_join(em.thread, NULL);
+        master_destroy(&em.m);
+    }
+    control_destroy(&c);
+    free(ew);
+    image_destroy(&img);
+    cJSON_Delete(job);
+    cJSON_Delete(a.settings);
+    zmq_ctx_term(ctx);
+    return rc;
+}
+
+/* ---- commands for a running master ----------------------------------------------- */
+
+static int simple_command(const char *cmd, int argc, char **argv)
+{
+    args_t a;
+    memset(&a, 0, sizeof a);
+    int is_fetch = strcmp(cmd, "fetch") == 0;
+    int is_submit = strcmp(cmd, "submit") == 0;
+    int rc = parse_args(argc, argv, &a, is_submit, is_fetch);
+    if (rc) {
+        cJSON_Delete(a.settings);
+        return rc;
+    }
+    unsigned long long job = 0;
+    int needs_job = strcmp(cmd, "wait") == 0 || is_fetch || strcmp(cmd, "cancel") == 0;
+    if (is_submit && !a.positional)
+        rc = usage_error("%s", "submit needs a scene file: vbrender submit SCENE.json");
+    else if ((needs_job || (strcmp(cmd, "status") == 0 && a.positional)) && (!a.positional || parse_job_id(a.positional, &job) < 0))
+        rc = usage_error("%s needs a job id (a positive integer)", cmd);
+    else if (!needs_job && !is_submit && strcmp(cmd, "status") != 0 && a.positional)
+        rc = usage_error("unexpected argument '%s'", a.positional);
+    else if (is_fetch && !a.output)
+        rc = usage_error("%s", "fetch needs -o OUT.exr");
+    if (rc) {
+        cJSON_Delete(a.settings);
+        return rc;
+    }
+    if (is_fetch && check_writable(a.output) < 0) {
+        cJSON_Delete(a.settings);
+        return 1;
+    }
+    void *ctx = zmq_ctx_new();
+    char err[2048];
+    control_t *c = control_new(ctx, a.master, 10000, err, sizeof err);
+    rc = 1;
+    if (!c) {
+        fprintf(stderr, "vbrender: %s\n", err);
+        goto done;
+    }
+    if (is_submit) {
+        unsigned long long id = control_submit(c, a.positional, a.settings, err, sizeof err);
+        if (!id) {
+            fprintf(stderr, "vbrender: %s\n", err);
+            goto done;
+        }
+        printf("%llu\n", id);
+        rc = 0;
+    } else if (strcmp(cmd, "wait") == 0) {
+        cJSON *st = wait_job(c, job, a.progress, err, sizeof err);
+        if (!st) {
+            fprintf(stderr, "vbrender: %s\n", err);
+            goto done;
+        }
+        print_summary(st, 0, 0);
+        rc = strcmp(jstr(st, "state"), "done") == 0 ? 0 : 1;
+        if (rc)
+            fprintf(stderr, "vbrender: job %llu %s: %s\n", job, jstr(st, "state"), jstr(st, "error"));
+        cJSON_Delete(st);
+    } else if (is_fetch) {
+        cJSON *st = NULL;
+        image_t *img = control_fetch(c, job, &st, err, sizeof err);
+        if (!img || write_outputs(img, st, a.output, err, sizeof err) < 0)
+            fprintf(stderr, "vbrender: %s\n", err);
+        else
+            rc = 0;
+        image_destroy(&img);
+        cJSON_Delete(st);
+    } else {
+        cJSON *req = cJSON_CreateObject();
+        cJSON_AddStringToObject(req, "cmd", strcmp(cmd, "status") == 0 && !job ? "jobs" : cmd);
+        if (job)
+            cJSON_AddNumberToObject(req, "job", (double)job);
+        cJSON *reply = control_request(c, req, NULL, NULL, 0, err, sizeof err);
+        cJSON_Delete(req);
+        if (!reply) {
+            fprintf(stderr, "vbrender: %s\n", err);
+            goto done;
+        }
+        if (!cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(reply, "ok"))) {
+            fprintf(stderr, "vbrender: %s\n", jstr(reply, "error"));
+            cJSON_Delete(reply);
+            goto done;
+        }
+        const cJSON *list = cJSON_GetObjectItemCaseSensitive(reply, strcmp(cmd, "workers") == 0 ? "workers" : "jobs");
+        if (strcmp(cmd, "workers") == 0) {
+            printf("%-24s %7s %12s %12s %10s\n", "host", "threads", "rays/s", "tasks done", "busy s");
+            const cJSON *w;
+            cJSON_ArrayForEach(w, list)
+            {
+                char r[32];
+                printf("%-24s %7.0f %12s %12.0f %10.1f\n", jstr(w, "host"), jnum(w, "threads"),
+                       render_si(jnum(w, "rays_per_second"), r, sizeof r), jnum(w, "tasks_done"),
+                       jnum(w, "busy_seconds"));
+            }
+        } else if (list) {
+            printf("%6s %-10s %-24s %9s %8s %12s %9s\n", "job", "state", "scene", "size", "layers", "samples", "seconds");
+            const cJSON *j;
+            cJSON_ArrayForEach(j, list)
+            {
+                char size[32], layers[32], s[32];
+                snprintf(size, sizeof size, "%.0fx%.0f", jnum(j, "width"), jnum(j, "height"));
+                snprintf(layers, sizeof layers, "%.0f/%.0f", jnum(j, "layers_done"), jnum(j, "layers"));
+                printf("%6.0f %-10s %-24s %9s %8s %12s %9.2f\n", jnum(j, "id"), jstr(j, "state"), jstr(j, "scene"),
+                       size, layers, render_si(jnum(j, "samples"), s, sizeof s), jnum(j, "seconds"));
+            }
+        } else {
+            /* one job: its status as JSON, for people and scripts */
+            char *text = cJSON_Print(cJSON_GetObjectItemCaseSensitive(reply, "job"));
+            printf("%s\n", text ? text : "{}");
+            cJSON_free(text);
+        }
+        cJSON_Delete(reply);
+        rc = 0;
+    }
+done:
+    control_destroy(&c);
+    cJSON_Delete(a.settings);
+    zmq_ctx_term(ctx);
     return rc;
 }
 
 int main(int argc, char **argv)
 {
+    signal(SIGPIPE, SIG_IGN);
     if (argc < 2) {
         fputs(usage_text, stderr);
         return 2;
@@ -260,14 +616,17 @@ int main(int argc, char **argv)
         fputs(usage_text, stdout);
         return 0;
     }
-    if (strcmp(argv[1], "render") == 0) {
-        for (int i = 2; i < argc; i++)
-            if (strcmp(argv[i], "-h") == 0 || strcmp(argv[i], "--help") == 0) {
-                fputs(usage_text, stdout);
-                return 0;
-            }
+    for (int i = 2; i < argc; i++)
+        if (strcmp(argv[i], "-h") == 0 || strcmp(argv[i], "--help") == 0) {
+            fputs(usage_text, stdout);
+            return 0;
+        }
+    if (strcmp(argv[1], "render") == 0)
         return cmd_render(argc - 2, argv + 2);
-    }
+    static const char *const commands[] = {"submit", "status", "wait", "fetch", "cancel", "jobs", "workers"};
+    for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
+        if (strcmp(argv[1], commands[i]) == 0)
+            return simple_command(argv[1], argc - 2, argv + 2);
     fprintf(stderr, "vbrender: unknown command '%s' (run 'vbrender --help')\n", argv[1]);
     return 2;
 }

@@ -1,0 +1,304 @@
+/* control.c - see control.h. */
+#include "control.h"
+
+#include <ctype.h>
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <zmq.h>
+
+#include "proto.h"
+
+struct control {
+    void *ctx;
+    void *sock;
+    char endpoint[256];
+    int timeout_ms;
+    zmq_msg_t extra[16];
+    int nextra;
+};
+
+static void drop_extra(control_t *c)
+{
+    for (int i = 0; i < c->nextra; i++)
+        zmq_msg_close(&c->extra[i]);
+    c->nextra = 0;
+}
+
+static int open_socket(control_t *c, char *err, size_t errlen)
+{
+    c->sock = zmq_socket(c->ctx, ZMQ_REQ);
+    if (!c->sock) {
+        snprintf(err, errlen, "cannot create a socket: %s", zmq_strerror(errno));
+        return -1;
+    }
+    int zero = 0;
+    zmq_setsockopt(c->sock, ZMQ_LINGER, &zero, sizeof zero);
+    zmq_setsockopt(c->sock, ZMQ_RCVTIMEO, &c->timeout_ms, sizeof c->timeout_ms);
+    if (zmq_connect(c->sock, c->endpoint) < 0) {
+        snprintf(err, errlen, "cannot connect to %s: %s", c->endpoint, zmq_strerror(errno));
+        zmq_close(c->sock);
+        c->sock = NULL;
+        return -1;
+    }
+    return 0;
+}
+
+control_t *control_new(void *zmq_ctx, const char *endpoint, int timeout_ms, char *err, size_t errlen)
+{
+    control_t *c = calloc(1, sizeof *c);
+    if (!c) {
+        snprintf(err, errlen, "out of memory");
+        return NULL;
+    }
+    c->ctx = zmq_ctx;
+    c->timeout_ms = timeout_ms > 0 ? timeout_ms : 10000;
+    snprintf(c->endpoint, sizeof c->endpoint, "%s", endpoint);
+    if (open_socket(c, err, errlen) < 0) {
+        free(c);
+        return NULL;
+    }
+    return c;
+}
+
+void control_destroy(control_t **cp)
+{
+    if (!cp || !*cp)
+        return;
+    drop_extra(*cp);
+    if ((*cp)->sock)
+        zmq_close((*cp)->sock);
+    free(*cp);
+    *cp = NULL;
+}
+
+cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames, const size_t *sizes,
+                       int nframes, char *err, size_t errlen)
+{
+    drop_extra(c);
+    char *text = cJSON_PrintUnformatted(req);
+    if (!text) {
+        snprintf(err, errlen, "out of memory");
+        return NULL;
+    }
+    int rc = zmq_send(c->sock, text, strlen(text), nframes > 0 ? ZMQ_SNDMORE : 0);
+    cJSON_free(text);
+    for (int i = 0; rc >= 0 && i < nframes; i++)
+        rc = zmq_send(c->sock, frames[i], sizes[i], i + 1 < nframes ? ZMQ_SNDMORE : 0);
+    if (rc < 0) {
+        snprintf(err, errlen, "cannot send to %s: %s", c->endpoint, zmq_strerror(errno));
+        return NULL;
+    }
+    zmq_msg_t reply;
+    zmq_msg_init(&reply);
+    if (zmq_msg_recv(&reply, c->sock, 0) < 0) {
+        snprintf(err, errlen, "no answer from the master at %s within %.1f s (is it running?)", c->endpoint,
+                 c->timeout_ms / 1000.0);
+        zmq_msg_close(&reply);
+        /* a REQ socket that missed its reply is stuck: open a new one */
+        zmq_close(c->sock);
+        char e2[64];
+        open_socket(c, e2, sizeof e2);
+        return NULL;
+    }
+    int more = zmq_msg_more(&reply);
+    cJSON *body = cJSON_ParseWithLength(zmq_msg_data(&reply), zmq_msg_size(&reply));
+    zmq_msg_close(&reply);
+    while (more) {
+        zmq_msg_t f;
+        zmq_msg_init(&f);
+        if (zmq_msg_recv(&f, c->sock, 0) < 0) {
+            zmq_msg_close(&f);
+            break;
+        }
+        more = zmq_msg_more(&f);
+        if (c->nextra < (int)(sizeof c->extra / sizeof c->extra[0]))
+            c->extra[c->nextra++] = f;
+        else
+            zmq_msg_close(&f);
+    }
+    if (!body)
+        snprintf(err, errlen, "the master's reply is not JSON");
+    return body;
+}
+
+/* ---- bundles ------------------------------------------------------------------- */
+
+static unsigned char *read_all(const char *path, size_t *size, char *err, size_t errlen)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        snprintf(err, errlen, "%s: cannot open: %s", path, strerror(errno));
+        return NULL;
+    }
+    unsigned char *buf = NULL;
+    long n = -1;
+    if (fseek(f, 0, SEEK_END) == 0)
+        n = ftell(f);
+    if (n < 0 || fseek(f, 0, SEEK_SET) != 0 || (unsigned long)n > PROTO_MAX_MESH_BYTES) {
+        snprintf(err, errlen, "%s: cannot read it (not a regular file, or over %u bytes)", path, PROTO_MAX_MESH_BYTES);
+        fclose(f);
+        return NULL;
+    }
+    buf = malloc((size_t)n + 1);
+    if (!buf || fread(buf, 1, (size_t)n, f) != (size_t)n) {
+        snprintf(err, errlen, "%s: cannot read: %s", path, strerror(errno));
+        free(buf);
+        fclose(f);
+        return NULL;
+    }
+    buf[n] = '\0';
+    fclose(f);
+    *size = (size_t)n;
+    return buf;
+}
+
+unsigned long long control_submit(control_t *c, const char *scene_path, const cJSON *settings, char *err,
+                                  size_t errlen)
+{
+    size_t size = 0;
+    unsigned char *text = read_all(scene_path, &size, err, errlen);
+    if (!text)
+        return 0;
+    cJSON *scene = cJSON_ParseWithLength((const char *)text, size);
+    free(text);
+    if (!scene) {
+        /* the master would say the same with a line number: let it */
+        scene = NULL;
+    }
+    char dir[4096];
+    snprintf(dir, sizeof dir, "%s", scene_path);
+    char *slash = strrchr(dir, '/');
+    if (slash)
+        *slash = '\0';
+    else
+        snprintf(dir, sizeof dir, ".");
+    const char *base = strrchr(scene_path, '/');
+    base = base ? base + 1 : scene_path;
+
+    void *frames[PROTO_MAX_MESHES + 1];
+    size_t sizes[PROTO_MAX_MESHES + 1];
+    int nframes = 1;
+    unsigned long long job = 0;
+    cJSON *req = cJSON_CreateObject();
+    cJSON_AddStringToObject(req, "cmd", "submit");
+    cJSON_AddStringToObject(req, "name", base);
+    cJSON *names = cJSON_AddArrayToObject(req, "meshes");
+    for (const cJSON *it = settings ? settings->child : NULL; it; it = it->next)
+        cJSON_AddItemToObject(req, it->string, cJSON_Duplicate(it, 1));
+    char *json_text = NULL;
+    const cJSON *shapes = scene ? cJSON_GetObjectItemCaseSensitive(scene, "shapes") : NULL;
+    if (!cJSON_IsArray(shapes))
+        shapes = NULL;
+    const cJSON *sh;
+    int mesh = 0;
+    cJSON_ArrayForEach(sh, shapes)
+    {
+        cJSON *file = cJSON_GetObjectItemCaseSensitive(sh, "file");
+        const cJSON *type = cJSON_GetObjectItemCaseSensitive(sh, "type");
+        if (!cJSON_IsString(type) || strcmp(type->valuestring, "mesh") != 0 || !cJSON_IsString(file))
+            continue;
+        if (mesh == PROTO_MAX_MESHES) {
+            snprintf(err, errlen, "%s: more than %d mesh files", scene_path, PROTO_MAX_MESHES);
+            goto done;
+        }
+        char path[8192];
+        if (file->valuestring[0] == '/')
+            snprintf(path, sizeof path, "%s", file->valuestring);
+        else
+            snprintf(path, sizeof path, "%s/%s", dir, file->valuestring);
+        char merr[1024];
+        unsigned char *data = read_all(path, &sizes[nframes], merr, sizeof merr);
+        if (!data) {
+            snprintf(err, errlen, "%s: mesh of shapes: %s", scene_path, merr);
+            goto done;
+        }
+        frames[nframes++] = data;
+        /* keep the extension: it tells OBJ from PLY */
+        const char *ext = strrchr(file->valuestring, '.');
+        char bundle_name[64], lower[16] = "";
+        for (int k = 0; ext && ext[k] && k < 15; k++)
+            lower[k] = (char)tolower((unsigned char)ext[k]), lower[k + 1] = '\0';
+        snprintf(bundle_name, sizeof bundle_name, "mesh%d%s", mesh++, lower);
+        cJSON_SetValuestring(file, bundle_name);
+        cJSON_AddItemToArray(names, cJSON_CreateString(bundle_name));
+    }
+    if (scene) {
+        json_text = cJSON_PrintUnformatted(scene);
+        frames[0] = json_text;
+        sizes[0] = json_text ? strlen(json_text) : 0;
+    } else {
+        /* send the text as it is, for the master's own parse error */
+        frames[0] = read_all(scene_path, &sizes[0], err, errlen);
+        if (!frames[0])
+            goto done;
+        json_text = frames[0];
+    }
+    cJSON *reply = control_request(c, req, (const void *const *)frames, sizes, nframes, err, errlen);
+    if (reply) {
+        const cJSON *ok = cJSON_GetObjectItemCaseSensitive(reply, "ok");
+        const cJSON *id = cJSON_GetObjectItemCaseSensitive(reply, "job");
+        const cJSON *e = cJSON_GetObjectItemCaseSensitive(reply, "error");
+        if (cJSON_IsTrue(ok) && cJSON_IsNumber(id))
+            job = (unsigned long long)id->valuedouble;
+        else
+            snprintf(err, errlen, "%s", cJSON_IsString(e) ? e->valuestring : "the master refused the job");
+        cJSON_Delete(reply);
+    }
+done:
+    for (int i = 1; i < nframes; i++)
+        free(frames[i]);
+    if (scene)
+        cJSON_free(json_text);
+    else
+        free(json_text);
+    cJSON_Delete(scene);
+    cJSON_Delete(req);
+    return job;
+}
+
+image_t *control_fetch(control_t *c, unsigned long long job, cJSON **job_status, char *err, size_t errlen)
+{
+    *job_status = NULL;
+    cJSON *req = cJSON_CreateObject();
+    cJSON_AddStringToObject(req, "cmd", "fetch");
+    cJSON_AddNumberToObject(req, "job", (double)job);
+    cJSON *reply = control_request(c, req, NULL, NULL, 0, err, errlen);
+    cJSON_Delete(req);
+    if (!reply)
+        return NULL;
+    image_t *img = NULL;
+    const cJSON *ok = cJSON_GetObjectItemCaseSensitive(reply, "ok");
+    const cJSON *st = cJSON_GetObjectItemCaseSensitive(reply, "job");
+    const cJSON *ch = cJSON_GetObjectItemCaseSensitive(reply, "channels");
+    if (!cJSON_IsTrue(ok)) {
+        const cJSON *e = cJSON_GetObjectItemCaseSensitive(reply, "error");
+        snprintf(err, errlen, "%s", cJSON_IsString(e) ? e->valuestring : "fetch refused");
+        goto done;
+    }
+    const cJSON *w = cJSON_GetObjectItemCaseSensitive(st, "width"), *h = cJSON_GetObjectItemCaseSensitive(st, "height");
+    int n = cJSON_GetArraySize(ch);
+    if (!cJSON_IsNumber(w) || !cJSON_IsNumber(h) || n != c->nextra) {
+        snprintf(err, errlen, "the master's image reply is malformed");
+        goto done;
+    }
+    img = image_new((int)w->valuedouble, (int)h->valuedouble);
+    size_t plane = img ? (size_t)img->width * img->height * sizeof(float) : 0;
+    for (int i = 0; img && i < n; i++) {
+        const cJSON *name = cJSON_GetArrayItem(ch, i);
+        float *dst = cJSON_IsString(name) ? image_add_channel(img, name->valuestring) : NULL;
+        if (!dst || zmq_msg_size(&c->extra[i]) != plane) {
+            snprintf(err, errlen, "the master's image reply is malformed (channel %d)", i);
+            image_destroy(&img);
+            break;
+        }
+        memcpy(dst, zmq_msg_data(&c->extra[i]), plane);
+    }
+    if (img)
+        *job_status = cJSON_Duplicate(st, 1);
+done:
+    drop_extra(c);
+    cJSON_Delete(reply);
+    return img;
+}
