@@ -107,7 +107,15 @@ typedef struct proto_result {
 } proto_result_t;
 
 /* A decoded message. For TASK and RESULT, set records (and capacity) before
- * decoding: the decoder fills at most `capacity` records and refuses more. */
+ * decoding: the decoder fills at most `capacity` records and refuses more.
+ * Clarification (proto.c): u.task.records and u.result.records are two
+ * union members at different offsets, and a decode may overwrite the union.
+ * So before EVERY decode: zero the message, set capacity, then set the
+ * records pointer of each record type this side accepts (the two pointers
+ * do not overlap each other, so both may be set). A TASK or RESULT whose
+ * pointer is NULL is refused ("no record buffer"); a pointer left over from
+ * another message type would be trusted. The encoder ignores capacity, and
+ * sends a result's pad_ as 0. */
 typedef struct proto_msg {
     proto_header_t h;
     uint32_t capacity;
@@ -136,7 +144,9 @@ long proto_encode(const proto_msg_t *msg, uint8_t header[PROTO_HEADER_SIZE], uin
 /* Decodes the two frames. Checks magic, version (a peer with another version
  * gets -2 so the caller can send a REFUSE saying so), type, the payload size
  * against the header and the type's layout, every count against its limit,
- * every enum and every string. Returns 0, -1 (malformed) or -2 (version). */
+ * every enum and every string. Returns 0, -1 (malformed) or -2 (version).
+ * On failure *out and the records may be partly written. A bundle's json
+ * and data point into payload: valid only while payload is. */
 int proto_decode(const uint8_t *header, size_t header_size, const uint8_t *payload,
                  size_t payload_size, proto_msg_t *out, char *err, size_t errlen);
 
