@@ -1000,7 +1000,8 @@ static void timers(master_t *m)
                 logf_(m, "job %" PRIu64 " task %zu: lease ran out on %s; issuing it again", j->id, c + 1, w->host);
                 if (w->outstanding)
                     w->outstanding--;
-                w->credit++; /* the worker is alive but slow; its late result will be ignored */
+                /* No credit back here: the slow worker still holds the task,
+                 * and its late result (ignored) returns the credit then. */
                 j->holder[c] = -1;
                 j->outstanding--;
                 j->reissued++;
