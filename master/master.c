@@ -939,17 +939,21 @@ static job_t *job_from_request(master_t *m, const cJSON *req, zmq_msg_t *frames,
     for (size_t c = 0; c < cells; c++)
         j->holder[c] = -1;
     /* content hash of the bundle: what workers cache scenes by */
-    crypto_generichash_state hs;
-    crypto_generichash_init(&hs, NULL, 0, PROTO_HASH_SIZE);
-    crypto_generichash_update(&hs, (const unsigned char *)j->json, j->json_size);
-    for (uint32_t k = 0; k < j->mesh_count; k++) {
-        crypto_generichash_update(&hs, (const unsigned char *)j->mesh_names[k], strlen(j->mesh_names[k]) + 1);
-        uint8_t len[4] = {(uint8_t)j->mesh_sizes[k], (uint8_t)(j->mesh_sizes[k] >> 8),
-                          (uint8_t)(j->mesh_sizes[k] >> 16), (uint8_t)(j->mesh_sizes[k] >> 24)};
-        crypto_generichash_update(&hs, len, 4);
-        crypto_generichash_update(&hs, j->mesh_data[k], j->mesh_sizes[k]);
+    proto_bundle_t *view = calloc(1, sizeof *view);
+    if (!view) {
+        snprintf(err, errlen, "out of memory");
+        goto fail;
     }
-    crypto_generichash_final(&hs, j->hash, PROTO_HASH_SIZE);
+    view->json = j->json;
+    view->json_size = (uint32_t)j->json_size;
+    view->mesh_count = j->mesh_count;
+    for (uint32_t k = 0; k < j->mesh_count; k++) {
+        memcpy(view->meshes[k].name, j->mesh_names[k], sizeof view->meshes[k].name);
+        view->meshes[k].data = j->mesh_data[k];
+        view->meshes[k].size = j->mesh_sizes[k];
+    }
+    proto_bundle_hash(view, j->hash);
+    free(view);
     j->state = JOB_QUEUED;
     return j;
 fail:

@@ -12,6 +12,8 @@
  */
 #include "proto.h"
 
+#include <sodium.h>
+
 #include <inttypes.h>
 #include <math.h>
 #include <stdarg.h>
@@ -830,4 +832,28 @@ void proto_build_id(const char *isa, char out[PROTO_BUILD_SIZE + 1])
     for (char *c = out; *c; c++)
         if (!printable((unsigned char)*c))
             *c = '?';
+}
+
+static void hash_u32(crypto_generichash_state *hs, uint32_t v)
+{
+    uint8_t b[4] = {(uint8_t)v, (uint8_t)(v >> 8), (uint8_t)(v >> 16), (uint8_t)(v >> 24)};
+    crypto_generichash_update(hs, b, 4);
+}
+
+void proto_bundle_hash(const proto_bundle_t *b, uint8_t out[PROTO_HASH_SIZE])
+{
+    crypto_generichash_state hs;
+    crypto_generichash_init(&hs, NULL, 0, PROTO_HASH_SIZE);
+    hash_u32(&hs, b->json_size);
+    hash_u32(&hs, b->mesh_count);
+    crypto_generichash_update(&hs, (const unsigned char *)b->json, b->json_size);
+    for (uint32_t k = 0; k < b->mesh_count; k++) {
+        const proto_mesh_file_t *m = &b->meshes[k];
+        uint32_t len = (uint32_t)strlen(m->name);
+        hash_u32(&hs, len);
+        crypto_generichash_update(&hs, (const unsigned char *)m->name, len);
+        hash_u32(&hs, m->size);
+        crypto_generichash_update(&hs, m->data, m->size);
+    }
+    crypto_generichash_final(&hs, out, PROTO_HASH_SIZE);
 }

@@ -153,6 +153,13 @@ int proto_decode(const uint8_t *header, size_t header_size, const uint8_t *paylo
 /* "TASK", "RESULT", ... ("?" for unknown values). */
 const char *proto_type_name(uint16_t type);
 
+/* The content hash of a bundle (BLAKE2b-256, libsodium): over json_size
+ * and mesh_count (u32 little-endian), the JSON, then for each mesh its name
+ * length (u32), name, size (u32) and bytes. Every field is framed by its
+ * length, so two different bundles cannot be read as the same bytes.
+ * sodium_init() must have been called. */
+void proto_bundle_hash(const proto_bundle_t *bundle, uint8_t out[PROTO_HASH_SIZE]);
+
 /* This build's id: "vbrender-<proto version>-<ISA>-<compiler>", so peers
  * that could trace different bits refuse each other. isa from tracer_isa. */
 void proto_build_id(const char *isa, char out[PROTO_BUILD_SIZE + 1]);

@@ -301,23 +301,6 @@ static void enqueue(worker_t *w, wtask_t *t)
     pthread_mutex_unlock(&w->lock);
 }
 
-/* The content hash exactly as the master computes it. */
-static void bundle_hash(const proto_bundle_t *b, uint8_t out[PROTO_HASH_SIZE])
-{
-    crypto_generichash_state hs;
-    crypto_generichash_init(&hs, NULL, 0, PROTO_HASH_SIZE);
-    crypto_generichash_update(&hs, (const unsigned char *)b->json, b->json_size);
-    for (uint32_t k = 0; k < b->mesh_count; k++) {
-        const proto_mesh_file_t *mf = &b->meshes[k];
-        crypto_generichash_update(&hs, (const unsigned char *)mf->name, strlen(mf->name) + 1);
-        uint8_t len[4] = {(uint8_t)mf->size, (uint8_t)(mf->size >> 8), (uint8_t)(mf->size >> 16),
-                          (uint8_t)(mf->size >> 24)};
-        crypto_generichash_update(&hs, len, 4);
-        crypto_generichash_update(&hs, mf->data, mf->size);
-    }
-    crypto_generichash_final(&hs, out, PROTO_HASH_SIZE);
-}
-
 static void on_bundle(worker_t *w, proto_msg_t *msg)
 {
     const proto_bundle_t *b = &msg->u.bundle;
@@ -326,7 +309,7 @@ static void on_bundle(worker_t *w, proto_msg_t *msg)
         return; /* not asked for, or already here */
     char err[1024] = "";
     uint8_t check[PROTO_HASH_SIZE];
-    bundle_hash(b, check);
+    proto_bundle_hash(b, check);
     int ok = memcmp(check, b->hash, PROTO_HASH_SIZE) == 0;
     if (!ok)
         snprintf(err, sizeof err, "scene bundle does not match its hash");
@@ -362,7 +345,7 @@ static void on_bundle(worker_t *w, proto_msg_t *msg)
             enqueue(w, t);
         } else {
             t->failed = 1;
-            snprintf(t->error, sizeof t->error, "%s", err);
+            snprintf(t->error, sizeof t->error, "%.480s", err);
             report(w, t);
             e->refs--;
             task_free(t);
