@@ -323,13 +323,15 @@ static int check_writable(const char *out_exr)
 
 static void print_summary(const cJSON *job, int workers, int threads)
 {
-    char a1[32], a2[32], a3[32], a4[32];
+    char a1[32], a2[32], a3[32], a4[32], where[64] = "";
     double secs = jnum(job, "seconds") > 0 ? jnum(job, "seconds") : 1e-9;
+    if (workers > 0) /* embedded: say what ran it; a remote job's workers are the master's */
+        snprintf(where, sizeof where, ", %d worker%s, %d threads", workers, workers == 1 ? "" : "s", threads);
     fprintf(stderr,
-            "vbrender: %.0fx%.0f, %.0f spp max, %s, adaptive %s, seed %s, %d worker%s, %d threads: "
+            "vbrender: %.0fx%.0f, %.0f spp max, %s, adaptive %s, seed %s%s: "
             "%.2f s, %s samples (%s samples/s), %s rays (%s rays/s), %.0f NaN/Inf samples left out\n",
             jnum(job, "width"), jnum(job, "height"), jnum(job, "spp"), jstr(job, "integrator"),
-            jstr(job, "adaptive"), jstr(job, "seed"), workers, workers == 1 ? "" : "s", threads,
+            jstr(job, "adaptive"), jstr(job, "seed"), where,
             jnum(job, "seconds"), render_si(jnum(job, "samples"), a1, sizeof a1),
             render_si(jnum(job, "samples") / secs, a2, sizeof a2), render_si(jnum(job, "rays"), a3, sizeof a3),
             render_si(jnum(job, "rays") / secs, a4, sizeof a4), jnum(job, "nonfinite"));
