@@ -50,6 +50,8 @@ static const char usage_text[] =
     "  --granularity G         samples per pixel per layer (default 32)\n"
     "  --adaptive thesis|none  variance-balanced (the thesis, default) or uniform\n"
     "  --uniform-layers K      layers before the skip rule applies (default: half)\n"
+    "  --flags 0011...         the thesis's flag sequence: 1 where a layer applies the\n"
+    "                          skip rule, one per layer (overrides --uniform-layers)\n"
     "  --seed S                random seed (default: the scene's)\n"
     "  --time-limit SECONDS    stop issuing work after this long\n"
     "  --integrator path|naive path: NEE + MIS (default); naive: light only when hit\n"
@@ -157,6 +159,10 @@ static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int 
             if (parse_u64(v, 0, 1000000, &n) < 0)
                 return usage_error("--uniform-layers needs an integer from 0 to 1000000 (got '%s')", v ? v : "");
             cJSON_AddNumberToObject(a->settings, "uniform_layers", (double)n);
+        } else if (allow_settings && strcmp(o, "--flags") == 0) {
+            if (!v || !*v || strspn(v, "01") != strlen(v))
+                return usage_error("--flags needs a sequence of 0 and 1, one per layer (got '%s')", v ? v : "");
+            cJSON_AddStringToObject(a->settings, "flags", v);
         } else if (allow_settings && strcmp(o, "--seed") == 0) {
             if (parse_u64(v, 0, 9007199254740992ULL, &n) < 0)
                 return usage_error("--seed needs an integer from 0 to 2^53 (got '%s')", v ? v : "");

@@ -921,7 +921,15 @@ static job_t *job_from_request(master_t *m, const cJSON *req, zmq_msg_t *frames,
         }
         j->tracer.integrator = (scene_integrator_t)in;
     }
-    sched_config_t sc = {j->width, j->height, j->spp, j->granularity, j->adaptive, uniform, 0};
+    const char *flags = NULL;
+    if ((it = cJSON_GetObjectItemCaseSensitive(req, "flags")) != NULL) {
+        if (!cJSON_IsString(it)) {
+            snprintf(err, errlen, "flags must be a string of 0 and 1, one per layer");
+            goto fail;
+        }
+        flags = it->valuestring;
+    }
+    sched_config_t sc = {j->width, j->height, j->spp, j->granularity, j->adaptive, uniform, 0, flags};
     char schederr[256];
     j->sched = sched_new(&sc, schederr, sizeof schederr);
     if (!j->sched) {

@@ -16,6 +16,7 @@ enum { ST_WAITING = 0, ST_READY, ST_OUT, ST_DONE };
 
 struct sched {
     sched_config_t cfg;
+    char *flags;            /* copy of cfg.flags, or NULL */
     uint32_t npix, layers, ranges, range_pixels, uniform;
     film_t *film;
     uint8_t *member;        /* layers x npix bits: pixel takes part in layer */
@@ -95,6 +96,30 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
     s->uniform = cfg->adaptive == SCHED_ADAPTIVE_NONE ? s->layers
                  : cfg->uniform_layers == UINT32_MAX ? s->layers / 2
                                                      : cfg->uniform_layers;
+    if (cfg->flags) {
+        size_t n = strlen(cfg->flags);
+        if (n != s->layers || strspn(cfg->flags, "01") != n) {
+            snprintf(err, errlen, "flag sequence must be %u characters of 0 and 1 (one per layer), got %zu",
+                     s->layers, n);
+            free(s);
+            return NULL;
+        }
+        if (cfg->adaptive == SCHED_ADAPTIVE_NONE) {
+            snprintf(err, errlen, "a flag sequence needs adaptive sampling");
+            free(s);
+            return NULL;
+        }
+        s->flags = malloc(n + 1);
+        if (!s->flags) {
+            snprintf(err, errlen, "out of memory");
+            free(s);
+            return NULL;
+        }
+        memcpy(s->flags, cfg->flags, n + 1);
+        s->cfg.flags = s->flags;
+        /* uniform_layers reports the leading run of zeros */
+        s->uniform = (uint32_t)strspn(cfg->flags, "0");
+    }
     size_t cells = (size_t)s->layers * s->ranges;
     size_t member_bytes = ((size_t)s->layers * s->npix + 7) / 8;
     if (member_bytes > ((size_t)1 << 30) || cells > ((size_t)1 << 26)) {
@@ -136,6 +161,7 @@ void sched_destroy(sched_t **sp)
         for (size_t i = 0; i < (size_t)s->layers * s->ranges; i++)
             free(s->out[i]);
     film_destroy(&s->film);
+    free(s->flags);
     free(s->member);
     free(s->decided);
     free(s->threshold);
@@ -198,7 +224,8 @@ static void decide_layer(sched_t *s, uint32_t layer)
 {
     if (layer >= s->layers || s->decided[layer])
         return;
-    int skip_rule = layer >= s->uniform && layer >= 2;
+    int flag = s->flags ? s->flags[layer] == '1' : layer >= s->uniform;
+    int skip_rule = flag && layer >= 2;
     double threshold = 0;
     if (skip_rule) {
         for (uint32_t p = 0; p < s->npix; p++)

@@ -15,6 +15,7 @@
  *     at a layer boundary.
  *  3. A layer takes part in the skip rule only when its flag is set (the
  *     flag sequence): by default the first half of the layers are uniform.
+ *     Layers 0 and 1 never skip: nothing is known yet when they are chosen.
  *
  * Skip rule (adaptive thesis): pixel p skips layer l if flag[l] and
  * variance[p] < threshold, where variance[p] is the eq. 4.1 statistic of
@@ -40,6 +41,9 @@ typedef struct sched_config {
     uint32_t uniform_layers; /* flag sequence: layers below this never skip;
                                 UINT32_MAX: the default, half of the layers */
     uint32_t range_pixels;   /* pixels per task range; 0: chosen from G */
+    const char *flags;       /* the thesis's flag sequence, one '0' or '1' per
+                                layer ('1': the skip rule applies), or NULL:
+                                uniform_layers decides. Copied by sched_new. */
 } sched_config_t;
 
 typedef struct sched sched_t;

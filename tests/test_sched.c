@@ -30,7 +30,7 @@ static void fake_results(const sched_task_t *t, tracer_result_t *r, const double
 static sched_t *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t g, sched_adaptive_t a,
                      uint32_t uniform, uint32_t range)
 {
-    sched_config_t c = {w, h, spp, g, a, uniform, range};
+    sched_config_t c = {w, h, spp, g, a, uniform, range, NULL};
     char err[256];
     sched_t *s = sched_new(&c, err, sizeof err);
     ck_assert_msg(s != NULL, "%s", err);
@@ -206,10 +206,41 @@ START_TEST(test_order_does_not_matter)
 }
 END_TEST
 
+/* An explicit flag sequence: only flagged layers apply the skip rule, and a
+ * malformed sequence is refused. */
+START_TEST(test_flag_sequence)
+{
+    char err[256];
+    /* 6 layers; the rule applies at layers 2 and 4 only */
+    sched_config_t c = {4, 1, 12, 2, SCHED_ADAPTIVE_THESIS, UINT32_MAX, 2, "001010"};
+    sched_t *s = sched_new(&c, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    ck_assert_uint_eq(sched_uniform_layers(s), 2);
+    const double pv[4] = {1, 4, 2, 9};
+    for (uint32_t l = 0; l < 6; l++)
+        run_layer(s, l, pv);
+    ck_assert(sched_done(s));
+    /* layers 2 and 4 keep pixels 1 and 3 (at or above the mean 4), 3 and 5 keep all */
+    const uint64_t want[4] = {8, 12, 8, 12};
+    for (int p = 0; p < 4; p++)
+        ck_assert_uint_eq(sched_film(s)->pixels[p].count, want[p]);
+    sched_destroy(&s);
+    const char *bad[] = {"00101", "0010100", "00102x", NULL};
+    for (int i = 0; bad[i]; i++) {
+        c.flags = bad[i];
+        ck_assert(sched_new(&c, err, sizeof err) == NULL);
+        ck_assert_msg(strstr(err, "flag sequence") != NULL, "%s", err);
+    }
+    c.flags = "001010";
+    c.adaptive = SCHED_ADAPTIVE_NONE;
+    ck_assert(sched_new(&c, err, sizeof err) == NULL);
+}
+END_TEST
+
 START_TEST(test_bad_configs)
 {
     char err[256];
-    sched_config_t c = {0, 4, 8, 2, SCHED_ADAPTIVE_NONE, UINT32_MAX, 0};
+    sched_config_t c = {0, 4, 8, 2, SCHED_ADAPTIVE_NONE, UINT32_MAX, 0, NULL};
     ck_assert(sched_new(&c, err, sizeof err) == NULL);
     c.width = 4;
     c.granularity = 0;
@@ -235,6 +266,7 @@ int main(void)
     tcase_add_test(tc, test_procedure2_by_hand);
     tcase_add_test(tc, test_dependencies_and_priors);
     tcase_add_test(tc, test_order_does_not_matter);
+    tcase_add_test(tc, test_flag_sequence);
     tcase_add_test(tc, test_bad_configs);
     suite_add_tcase(s, tc);
     SRunner *sr = srunner_create(s);
