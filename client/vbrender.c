@@ -23,6 +23,7 @@
 #include <unistd.h>
 #include <zmq.h>
 
+#include "compare.h"
 #include "control.h"
 #include "image.h"
 #include "master.h"
@@ -44,6 +45,9 @@ static const char usage_text[] =
     "  cancel JOB        stop a job (its image so far can still be fetched)\n"
     "  jobs              all jobs\n"
     "  workers           connected workers: host, threads, rays/s, tasks done\n"
+    "  compare A.exr REF.exr [--threshold E] [--error-map OUT.png]\n"
+    "        error of A against REF: relMSE, RMSE, mean abs. relative error, max,\n"
+    "        share of pixels with relative error above E (default 0.05)\n"
     "\n"
     "settings (render and submit):\n"
     "  --spp N                 most samples per pixel (default: the scene's)\n"
@@ -613,6 +617,68 @@ done:
     return rc;
 }
 
+/* ---- compare ---------------------------------------------------------------------- */
+
+static int cmd_compare(int argc, char **argv)
+{
+    const char *files[2] = {NULL, NULL}, *map = NULL;
+    double threshold = 0.05;
+    int nfiles = 0;
+    for (int i = 0; i < argc; i++) {
+        const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (strcmp(argv[i], "--threshold") == 0) {
+            char *end;
+            errno = 0;
+            threshold = v ? strtod(v, &end) : -1;
+            if (!v || errno || *end || !(threshold >= 0) || !isfinite(threshold))
+                return usage_error("--threshold needs a relative error >= 0 (got '%s')", v ? v : "");
+            i++;
+        } else if (strcmp(argv[i], "--error-map") == 0) {
+            if (!v || v[0] == '-')
+                return usage_error("%s", "--error-map needs a PNG file name");
+            map = v;
+            i++;
+        } else if (argv[i][0] == '-' && argv[i][1]) {
+            return usage_error("unknown option '%s'", argv[i]);
+        } else if (nfiles < 2) {
+            files[nfiles++] = argv[i];
+        } else {
+            return usage_error("unexpected argument '%s'", argv[i]);
+        }
+    }
+    if (nfiles != 2)
+        return usage_error("%s", "compare needs two images: vbrender compare A.exr REF.exr");
+    image_t *a = NULL, *r = NULL;
+    char err[1024];
+    int rc = 1;
+    if (image_read_exr(files[0], &a, err, sizeof err) < 0 || image_read_exr(files[1], &r, err, sizeof err) < 0) {
+        fprintf(stderr, "vbrender: %s\n", err);
+        goto done;
+    }
+    compare_result_t res;
+    if (compare_images(a, r, threshold, &res, err, sizeof err) < 0) {
+        fprintf(stderr, "vbrender: cannot compare %s with %s: %s\n", files[0], files[1], err);
+        goto done;
+    }
+    printf("relMSE %.9g\nRMSE %.9g\nMARE %.9g\nmax %.9g\nabove %.9g %.9g\n", res.relmse, res.rmse, res.mare,
+           res.max_abs, threshold, res.above);
+    if (map) {
+        image_t *e = compare_error_image(a, r);
+        if (!e || image_write_heatmap_png(e, "error", 0.0f, (float)(threshold > 0 ? 4 * threshold : 1.0), map,
+                                          err, sizeof err) < 0) {
+            fprintf(stderr, "vbrender: %s\n", e ? err : "out of memory");
+            image_destroy(&e);
+            goto done;
+        }
+        image_destroy(&e);
+    }
+    rc = 0;
+done:
+    image_destroy(&a);
+    image_destroy(&r);
+    return rc;
+}
+
 int main(int argc, char **argv)
 {
     signal(SIGPIPE, SIG_IGN);
@@ -631,6 +697,8 @@ int main(int argc, char **argv)
         }
     if (strcmp(argv[1], "render") == 0)
         return cmd_render(argc - 2, argv + 2);
+    if (strcmp(argv[1], "compare") == 0)
+        return cmd_compare(argc - 2, argv + 2);
     static const char *const commands[] = {"submit", "status", "wait", "fetch", "cancel", "jobs", "workers"};
     for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
         if (strcmp(argv[1], commands[i]) == 0)
