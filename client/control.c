@@ -154,8 +154,8 @@ static unsigned char *read_all(const char *path, size_t *size, char *err, size_t
     return buf;
 }
 
-unsigned long long control_submit(control_t *c, const char *scene_path, const cJSON *settings, char *err,
-                                  size_t errlen)
+unsigned long long control_submit(control_t *c, const char *scene_path, const cJSON *settings,
+                                  const image_t *reference, char *err, size_t errlen)
 {
     size_t size = 0;
     unsigned char *text = read_all(scene_path, &size, err, errlen);
@@ -177,9 +177,9 @@ unsigned long long control_submit(control_t *c, const char *scene_path, const cJ
     const char *base = strrchr(scene_path, '/');
     base = base ? base + 1 : scene_path;
 
-    void *frames[PROTO_MAX_MESHES + 1];
-    size_t sizes[PROTO_MAX_MESHES + 1];
-    int nframes = 1;
+    void *frames[PROTO_MAX_MESHES + 4];
+    size_t sizes[PROTO_MAX_MESHES + 4];
+    int nframes = 1, mesh_frames = 1;
     unsigned long long job = 0;
     cJSON *req = cJSON_CreateObject();
     cJSON_AddStringToObject(req, "cmd", "submit");
@@ -235,6 +235,22 @@ unsigned long long control_submit(control_t *c, const char *scene_path, const cJ
             goto done;
         json_text = frames[0];
     }
+    mesh_frames = nframes;
+    if (reference) {
+        const char *names[3] = {"R", "G", "B"};
+        cJSON *r = cJSON_AddObjectToObject(req, "reference");
+        cJSON_AddNumberToObject(r, "width", reference->width);
+        cJSON_AddNumberToObject(r, "height", reference->height);
+        for (int k = 0; k < 3; k++) {
+            float *plane = image_channel(reference, names[k]);
+            if (!plane) {
+                snprintf(err, errlen, "the reference has no channel %s", names[k]);
+                goto done;
+            }
+            frames[nframes] = plane;
+            sizes[nframes++] = (size_t)reference->width * reference->height * sizeof(float);
+        }
+    }
     cJSON *reply = control_request(c, req, (const void *const *)frames, sizes, nframes, err, errlen);
     if (reply) {
         const cJSON *ok = cJSON_GetObjectItemCaseSensitive(reply, "ok");
@@ -247,7 +263,7 @@ unsigned long long control_submit(control_t *c, const char *scene_path, const cJ
         cJSON_Delete(reply);
     }
 done:
-    for (int i = 1; i < nframes; i++)
+    for (int i = 1; i < (reference ? mesh_frames : nframes); i++)
         free(frames[i]);
     if (scene)
         cJSON_free(json_text);

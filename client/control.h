@@ -25,10 +25,11 @@ cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames
 
 /* Reads a scene file and the mesh files it names, renames the meshes to
  * bundle names (mesh0.ply, ...), and submits it with the given settings
- * (a JSON object of submit fields; may be NULL). Returns the job id, or 0
- * with a message. */
-unsigned long long control_submit(control_t *c, const char *scene_path, const cJSON *settings, char *err,
-                                  size_t errlen);
+ * (a JSON object of submit fields; may be NULL) and, if not NULL, a
+ * reference image (channels R, G, B) the master measures the error
+ * against. Returns the job id, or 0 with a message. */
+unsigned long long control_submit(control_t *c, const char *scene_path, const cJSON *settings,
+                                  const image_t *reference, char *err, size_t errlen);
 
 /* Fetches a job's image (channels R, G, B, samples, variance) with the
  * job's status in *job (free with cJSON_Delete). NULL with a message. */

@@ -29,6 +29,7 @@
 #include "master.h"
 #include "progress.h"
 #include "render.h"
+#include "sched.h"
 #include "worker.h"
 
 #define DEFAULT_MASTER "tcp://localhost:7071"
@@ -52,7 +53,15 @@ static const char usage_text[] =
     "settings (render and submit):\n"
     "  --spp N                 most samples per pixel (default: the scene's)\n"
     "  --granularity G         samples per pixel per layer (default 32)\n"
-    "  --adaptive thesis|none  variance-balanced (the thesis, default) or uniform\n"
+    "  --adaptive MODE         thesis (eq. 4.1, default), variance (of the pixel mean),\n"
+    "                          relerr (t-bound of layer means over mean) or none (uniform)\n"
+    "  --random-selection      pixels below the threshold still run with probability m/T\n"
+    "  --dilate                also sample the neighbours of selected pixels\n"
+    "  --target-error E        stop a pixel when its confidence half-width <= E x mean,\n"
+    "  --confidence C          at confidence C (default 0.95); the job stops when\n"
+    "  --target-share S        a share S of the pixels have (default 1)\n"
+    "  --reference REF.exr     track the error against REF over time and samples\n"
+    "                          (OUT.error.json beside the image)\n"
     "  --uniform-layers K      layers before the skip rule applies (default: half)\n"
     "  --flags 0011...         the thesis's flag sequence: 1 where a layer applies the\n"
     "                          skip rule, one per layer (overrides --uniform-layers)\n"
@@ -104,6 +113,7 @@ static void replace_extension(const char *path, const char *ext, char *out, size
 typedef struct args {
     const char *positional;
     const char *output;
+    const char *reference; /* --reference REF.exr */
     const char *master;
     cJSON *settings; /* submit fields */
     uint64_t workers, threads;
@@ -183,9 +193,31 @@ static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int 
                 return usage_error("--time-limit needs a number of seconds > 0 (got '%s')", v ? v : "");
             cJSON_AddNumberToObject(a->settings, "time_limit", t);
         } else if (allow_settings && strcmp(o, "--adaptive") == 0) {
-            if (!v || (strcmp(v, "thesis") != 0 && strcmp(v, "none") != 0))
-                return usage_error("--adaptive must be thesis or none (got '%s')", v ? v : "");
+            if (!v || sched_adaptive_from_name(v) < 0)
+                return usage_error("--adaptive must be thesis, variance, relerr or none (got '%s')", v ? v : "");
             cJSON_AddStringToObject(a->settings, "adaptive", v);
+        } else if (allow_settings && (strcmp(o, "--target-error") == 0 || strcmp(o, "--confidence") == 0 ||
+                                      strcmp(o, "--target-share") == 0)) {
+            char *end;
+            errno = 0;
+            double t = v ? strtod(v, &end) : -1;
+            int conf = strcmp(o, "--confidence") == 0;
+            if (!v || errno || *end || !(t > 0) || !isfinite(t) || (conf && !(t < 1)) ||
+                (strcmp(o, "--target-share") == 0 && t > 1))
+                return usage_error(conf ? "--confidence needs a probability in (0, 1) (got '%s')"
+                                        : "%s needs a positive number (a share: at most 1)",
+                                   conf ? (v ? v : "") : o);
+            cJSON_AddNumberToObject(a->settings, conf ? "confidence" : o[9] == 'e' ? "target_error" : "target_share", t);
+        } else if (allow_settings && strcmp(o, "--random-selection") == 0) {
+            cJSON_AddTrueToObject(a->settings, "random_selection");
+            takes = 0;
+        } else if (allow_settings && strcmp(o, "--dilate") == 0) {
+            cJSON_AddTrueToObject(a->settings, "dilate");
+            takes = 0;
+        } else if (allow_settings && strcmp(o, "--reference") == 0) {
+            if (!v || v[0] == '-')
+                return usage_error("%s", "--reference needs an EXR file");
+            a->reference = v;
         } else if (allow_settings && strcmp(o, "--integrator") == 0) {
             if (!v || scene_integrator_from_name(v) < 0)
                 return usage_error("--integrator must be path or naive (got '%s')", v ? v : "");
@@ -245,9 +277,11 @@ static void progress_detail(const cJSON *job, char *buf, size_t len)
     char a[32], b[32];
     double frac = job_fraction(job), el = jnum(job, "seconds");
     double eta = frac > 0 ? el / frac - el : 0;
-    snprintf(buf, len, "layer %.0f/%.0f, %s samples, %s rays/s, ETA %.0fs", jnum(job, "layers_done"),
-             jnum(job, "layers"), render_si(jnum(job, "samples"), a, sizeof a),
-             render_si(jnum(job, "rays_per_second"), b, sizeof b), eta);
+    int n = snprintf(buf, len, "layer %.0f/%.0f, %s samples, %s rays/s, ETA %.0fs", jnum(job, "layers_done"),
+                     jnum(job, "layers"), render_si(jnum(job, "samples"), a, sizeof a),
+                     render_si(jnum(job, "rays_per_second"), b, sizeof b), eta);
+    if (cJSON_GetObjectItemCaseSensitive(job, "relmse") && n > 0 && (size_t)n < len)
+        snprintf(buf + n, len - (size_t)n, ", relMSE %.3g", jnum(job, "relmse"));
 }
 
 /* Polls status until the job ends; returns the final status (or NULL). */
@@ -312,6 +346,30 @@ static int write_outputs(image_t *img, const cJSON *job, const char *out_exr, ch
         image_write_heatmap_png(img, "samples", 0.0f, (float)jnum(job, "spp"), heat, err, errlen) < 0)
         return -1;
     printf("%s\n%s\n%s\n", out_exr, png, heat);
+    const cJSON *series = cJSON_GetObjectItemCaseSensitive(job, "error_series");
+    if (series) {
+        /* error against the reference over wall time and samples */
+        char path[4096];
+        replace_extension(out_exr, ".error.json", path, sizeof path);
+        cJSON *doc = cJSON_CreateObject();
+        cJSON_AddStringToObject(doc, "columns", "seconds samples relmse rmse");
+        cJSON_AddItemToObject(doc, "series", cJSON_Duplicate(series, 1));
+        cJSON_AddItemToObject(doc, "job", cJSON_Duplicate(job, 1));
+        cJSON_DeleteItemFromObject(cJSON_GetObjectItemCaseSensitive(doc, "job"), "error_series");
+        char *text = cJSON_Print(doc);
+        cJSON_Delete(doc);
+        FILE *f = fopen(path, "w");
+        if (!f || !text || fputs(text, f) < 0) {
+            snprintf(err, errlen, "%.1500s: cannot write: %s", path, strerror(errno));
+            if (f)
+                fclose(f);
+            cJSON_free(text);
+            return -1;
+        }
+        fclose(f);
+        cJSON_free(text);
+        printf("%s\n", path);
+    }
     return 0;
 }
 
@@ -447,8 +505,14 @@ static int cmd_render(int argc, char **argv)
         pthread_create(&ew[i].thread, NULL, worker_thread, &ew[i]);
         ew[i].started = 1;
     }
+    image_t *ref = NULL;
+    if (a.reference && image_read_exr(a.reference, &ref, err, sizeof err) < 0) {
+        fprintf(stderr, "vbrender: %s\n", err);
+        goto done;
+    }
     c = control_new(ctx, cep, 600000, err, sizeof err);
-    unsigned long long id = c ? control_submit(c, a.positional, a.settings, err, sizeof err) : 0;
+    unsigned long long id = c ? control_submit(c, a.positional, a.settings, ref, err, sizeof err) : 0;
+    image_destroy(&ref);
     if (!id) {
         fprintf(stderr, "vbrender: %s\n", err);
         goto done;
@@ -536,7 +600,13 @@ static int simple_command(const char *cmd, int argc, char **argv)
         goto done;
     }
     if (is_submit) {
-        unsigned long long id = control_submit(c, a.positional, a.settings, err, sizeof err);
+        image_t *ref = NULL;
+        if (a.reference && image_read_exr(a.reference, &ref, err, sizeof err) < 0) {
+            fprintf(stderr, "vbrender: %s\n", err);
+            goto done;
+        }
+        unsigned long long id = control_submit(c, a.positional, a.settings, ref, err, sizeof err);
+        image_destroy(&ref);
         if (!id) {
             fprintf(stderr, "vbrender: %s\n", err);
             goto done;

@@ -21,6 +21,7 @@
 #include <time.h>
 #include <zmq.h>
 
+#include "compare.h"
 #include "film.h"
 #include "proto.h"
 #include "scene.h"
@@ -64,7 +65,7 @@ typedef struct job {
     uint32_t width, height, spp, granularity;
     sched_adaptive_t adaptive;
     tracer_settings_t tracer;
-    double time_limit;
+    double time_limit, target_error;
     /* progress */
     sched_t *sched;
     uint32_t *attempt;  /* per task id - 1 */
@@ -74,6 +75,12 @@ typedef struct job {
     double submitted, started, finished;
     uint64_t rays, busy_us, late_results;
     int stopped_issuing; /* time limit reached: no new tasks */
+    /* error against a reference (--reference), over time and samples */
+    float *ref[3], *cur[3];
+    double *series; /* 4 per point: seconds, samples, relMSE, RMSE */
+    size_t series_n, series_cap;
+    double last_eval;
+    uint32_t last_eval_layers;
     struct job *next;
 } job_t;
 
@@ -139,7 +146,44 @@ static void job_free(job_t *j)
     free(j->attempt);
     free(j->holder);
     free(j->deadline);
+    for (int c = 0; c < 3; c++) {
+        free(j->ref[c]);
+        free(j->cur[c]);
+    }
+    free(j->series);
     free(j);
+}
+
+/* Appends the current error against the reference to the job's series. */
+static void job_eval_error(job_t *j, double now)
+{
+    if (!j->ref[0] || !j->started)
+        return;
+    const film_t *f = sched_film(j->sched);
+    size_t n = (size_t)j->width * j->height;
+    for (size_t i = 0; i < n; i++) {
+        double rgb[3];
+        film_mean(f, (uint32_t)i, rgb);
+        for (int c = 0; c < 3; c++)
+            j->cur[c][i] = (float)rgb[c];
+    }
+    compare_result_t r;
+    compare_planes((const float *const *)j->cur, (const float *const *)j->ref, n, NULL, 0.05, &r);
+    if (j->series_n == j->series_cap) {
+        size_t cap = j->series_cap ? 2 * j->series_cap : 64;
+        double *ns = realloc(j->series, cap * 4 * sizeof(double));
+        if (!ns)
+            return;
+        j->series = ns;
+        j->series_cap = cap;
+    }
+    double *pt = j->series + 4 * j->series_n++;
+    pt[0] = (j->finished ? j->finished : now) - j->started;
+    pt[1] = (double)sched_samples_done(j->sched);
+    pt[2] = r.relmse;
+    pt[3] = r.rmse;
+    j->last_eval = now;
+    j->last_eval_layers = sched_layers_complete(j->sched);
 }
 
 static job_t *find_job(master_t *m, uint64_t id)
@@ -182,6 +226,7 @@ static void job_finish(master_t *m, job_t *j, job_state_t st, const char *why)
     job_release_all(m, j);
     j->state = st;
     j->finished = now_s();
+    job_eval_error(j, j->finished);
     if (why)
         snprintf(j->error, sizeof j->error, "%s", why);
     logf_(m, "job %" PRIu64 " %s after %.2f s: %" PRIu64 " samples, %" PRIu64 " rays%s%s",
@@ -385,7 +430,7 @@ static void on_result(master_t *m, remote_t *w, proto_msg_t *msg)
     for (uint32_t i = 0; i < msg->u.result.count; i++)
         w->samples += msg->u.result.records[i].samples + msg->u.result.records[i].nonfinite;
     if (sched_done(j->sched))
-        job_finish(m, j, JOB_DONE, NULL);
+        job_finish(m, j, JOB_DONE, sched_stopped_on_target(j->sched) ? "target error reached" : NULL);
 }
 
 static void on_hello(master_t *m, const uint8_t *id, size_t id_len, const char *host, proto_msg_t *msg)
@@ -584,7 +629,7 @@ static cJSON *error_body(const char *fmt, ...)
     return b;
 }
 
-static cJSON *job_json(master_t *m, job_t *j)
+static cJSON *job_json(master_t *m, job_t *j, int with_series)
 {
     cJSON *o = cJSON_CreateObject();
     double now = now_s();
@@ -598,7 +643,7 @@ static cJSON *job_json(master_t *m, job_t *j)
     cJSON_AddNumberToObject(o, "height", j->height);
     cJSON_AddNumberToObject(o, "spp", j->spp);
     cJSON_AddNumberToObject(o, "granularity", j->granularity);
-    cJSON_AddStringToObject(o, "adaptive", j->adaptive == SCHED_ADAPTIVE_THESIS ? "thesis" : "none");
+    cJSON_AddStringToObject(o, "adaptive", sched_adaptive_name(j->adaptive));
     char seed[32];
     snprintf(seed, sizeof seed, "%" PRIu64, j->tracer.seed);
     cJSON_AddStringToObject(o, "seed", seed);
@@ -618,6 +663,21 @@ static cJSON *job_json(master_t *m, job_t *j)
     cJSON_AddNumberToObject(o, "late_results", (double)j->late_results);
     cJSON_AddNumberToObject(o, "nonfinite", (double)film_total_nonfinite(sched_film(j->sched)));
     cJSON_AddNumberToObject(o, "time_limit", j->time_limit);
+    if (j->target_error > 0) {
+        cJSON_AddNumberToObject(o, "target_error", j->target_error);
+        cJSON_AddNumberToObject(o, "converged_pixels", (double)sched_converged(j->sched));
+        cJSON_AddBoolToObject(o, "stopped_on_target", sched_stopped_on_target(j->sched));
+    }
+    if (j->series_n > 0) {
+        const double *last = j->series + 4 * (j->series_n - 1);
+        cJSON_AddNumberToObject(o, "relmse", last[2]);
+        cJSON_AddNumberToObject(o, "rmse", last[3]);
+    }
+    if (with_series && j->series_n > 0) {
+        cJSON *arr = cJSON_AddArrayToObject(o, "error_series");
+        for (size_t i = 0; i < j->series_n; i++)
+            cJSON_AddItemToArray(arr, cJSON_CreateDoubleArray(j->series + 4 * i, 4));
+    }
     if (j->error[0])
         cJSON_AddStringToObject(o, "error", j->error);
     (void)m;
@@ -664,7 +724,7 @@ static void control_fetch(master_t *m, zmq_msg_t *id, job_t *j)
     }
     cJSON *b = cJSON_CreateObject();
     cJSON_AddBoolToObject(b, "ok", 1);
-    cJSON_AddItemToObject(b, "job", job_json(m, j));
+    cJSON_AddItemToObject(b, "job", job_json(m, j, 1));
     cJSON *ch = cJSON_AddArrayToObject(b, "channels");
     for (int c = 0; c < img->channel_count; c++)
         cJSON_AddItemToArray(ch, cJSON_CreateString(img->channel_names[c]));
@@ -722,7 +782,7 @@ static void handle_control_message(master_t *m)
         cJSON_AddBoolToObject(b, "ok", 1);
         cJSON *arr = cJSON_AddArrayToObject(b, "jobs");
         for (job_t *j = m->jobs; j; j = j->next)
-            cJSON_AddItemToArray(arr, job_json(m, j));
+            cJSON_AddItemToArray(arr, job_json(m, j, 0));
     } else if (strcmp(cmd->valuestring, "workers") == 0) {
         b = cJSON_CreateObject();
         cJSON_AddBoolToObject(b, "ok", 1);
@@ -766,13 +826,13 @@ static void handle_control_message(master_t *m)
         } else if (strcmp(cmd->valuestring, "status") == 0) {
             b = cJSON_CreateObject();
             cJSON_AddBoolToObject(b, "ok", 1);
-            cJSON_AddItemToObject(b, "job", job_json(m, j));
+            cJSON_AddItemToObject(b, "job", job_json(m, j, 0));
         } else if (strcmp(cmd->valuestring, "cancel") == 0) {
             if (j->state == JOB_QUEUED || j->state == JOB_RUNNING)
                 job_finish(m, j, JOB_CANCELLED, "cancelled by a client");
             b = cJSON_CreateObject();
             cJSON_AddBoolToObject(b, "ok", 1);
-            cJSON_AddItemToObject(b, "job", job_json(m, j));
+            cJSON_AddItemToObject(b, "job", job_json(m, j, 0));
         } else {
             control_fetch(m, id, j);
         }
@@ -803,8 +863,11 @@ static job_t *job_from_request(master_t *m, const cJSON *req, zmq_msg_t *frames,
         snprintf(err, errlen, "\"meshes\" must be an array of names");
         return NULL;
     }
-    if (mesh_count != nframes - 1 || mesh_count > PROTO_MAX_MESHES) {
-        snprintf(err, errlen, "%d mesh names but %d mesh frames", mesh_count, nframes - 1);
+    const cJSON *refspec = cJSON_GetObjectItemCaseSensitive(req, "reference");
+    int ref_frames = refspec ? 3 : 0;
+    if (mesh_count != nframes - 1 - ref_frames || mesh_count > PROTO_MAX_MESHES) {
+        snprintf(err, errlen, "%d mesh names%s but %d frames after the scene", mesh_count,
+                 ref_frames ? " and a reference (3 frames)" : "", nframes - 1);
         return NULL;
     }
     job_t *j = calloc(1, sizeof *j);
@@ -880,6 +943,8 @@ static job_t *job_from_request(master_t *m, const cJSON *req, zmq_msg_t *frames,
     j->granularity = 32;
     j->adaptive = SCHED_ADAPTIVE_THESIS;
     uint32_t uniform = UINT32_MAX;
+    double confidence = 0.95, share = 1.0;
+    int random_selection = 0, dilate = 0;
 #define NUM_FIELD(key, lo, hi, dst)                                                               \
     if ((it = cJSON_GetObjectItemCaseSensitive(req, key)) != NULL) {                               \
         v = cJSON_IsNumber(it) ? it->valuedouble : NAN;                                            \
@@ -904,15 +969,31 @@ static job_t *job_from_request(master_t *m, const cJSON *req, zmq_msg_t *frames,
         j->time_limit = it->valuedouble;
     }
     if ((it = cJSON_GetObjectItemCaseSensitive(req, "adaptive")) != NULL) {
-        if (cJSON_IsString(it) && strcmp(it->valuestring, "thesis") == 0)
-            j->adaptive = SCHED_ADAPTIVE_THESIS;
-        else if (cJSON_IsString(it) && strcmp(it->valuestring, "none") == 0)
-            j->adaptive = SCHED_ADAPTIVE_NONE;
-        else {
-            snprintf(err, errlen, "adaptive must be \"thesis\" or \"none\"");
+        int a = cJSON_IsString(it) ? sched_adaptive_from_name(it->valuestring) : -1;
+        if (a < 0) {
+            snprintf(err, errlen, "adaptive must be \"thesis\", \"variance\", \"relerr\" or \"none\"");
             goto fail;
         }
+        j->adaptive = (sched_adaptive_t)a;
     }
+#define RANGE_FIELD(key, lo, hi, lo_open, dst)                                                       \
+    if ((it = cJSON_GetObjectItemCaseSensitive(req, key)) != NULL) {                                \
+        v = cJSON_IsNumber(it) ? it->valuedouble : NAN;                                             \
+        if (!(v >= (lo) && v <= (hi)) || ((lo_open) && v == (lo))) {                                \
+            snprintf(err, errlen, "%s must be in %s%g, %g]", key, (lo_open) ? "(" : "[", (double)(lo), \
+                     (double)(hi));                                                                 \
+            goto fail;                                                                              \
+        }                                                                                           \
+        dst = v;                                                                                    \
+    }
+    RANGE_FIELD("target_error", 0, 1e6, 1, j->target_error)
+    RANGE_FIELD("confidence", 0, 0.999999, 1, confidence)
+    RANGE_FIELD("target_share", 0, 1, 1, share)
+#undef RANGE_FIELD
+    if ((it = cJSON_GetObjectItemCaseSensitive(req, "random_selection")) != NULL)
+        random_selection = cJSON_IsTrue(it);
+    if ((it = cJSON_GetObjectItemCaseSensitive(req, "dilate")) != NULL)
+        dilate = cJSON_IsTrue(it);
     if ((it = cJSON_GetObjectItemCaseSensitive(req, "integrator")) != NULL) {
         int in = cJSON_IsString(it) ? scene_integrator_from_name(it->valuestring) : -1;
         if (in < 0) {
@@ -929,7 +1010,10 @@ static job_t *job_from_request(master_t *m, const cJSON *req, zmq_msg_t *frames,
         }
         flags = it->valuestring;
     }
-    sched_config_t sc = {j->width, j->height, j->spp, j->granularity, j->adaptive, uniform, 0, flags};
+    sched_config_t sc = {.width = j->width, .height = j->height, .spp = j->spp, .granularity = j->granularity,
+                         .adaptive = j->adaptive, .uniform_layers = uniform, .flags = flags,
+                         .random_selection = random_selection, .dilate = dilate, .seed = j->tracer.seed,
+                         .target_error = j->target_error, .confidence = confidence, .target_share = share};
     char schederr[256];
     j->sched = sched_new(&sc, schederr, sizeof schederr);
     if (!j->sched) {
@@ -946,6 +1030,25 @@ static job_t *job_from_request(master_t *m, const cJSON *req, zmq_msg_t *frames,
     }
     for (size_t c = 0; c < cells; c++)
         j->holder[c] = -1;
+    if (refspec) {
+        /* the reference: three float32 planes R, G, B of the image's size */
+        size_t plane = (size_t)j->width * j->height * sizeof(float);
+        for (int c = 0; c < 3; c++) {
+            zmq_msg_t *f = &frames[1 + mesh_count + c];
+            if (zmq_msg_size(f) != plane) {
+                snprintf(err, errlen, "reference: channel %d has %zu bytes, a %ux%u image needs %zu (another size?)",
+                         c, zmq_msg_size(f), j->width, j->height, plane);
+                goto fail;
+            }
+            j->ref[c] = malloc(plane);
+            j->cur[c] = malloc(plane);
+            if (!j->ref[c] || !j->cur[c]) {
+                snprintf(err, errlen, "out of memory");
+                goto fail;
+            }
+            memcpy(j->ref[c], zmq_msg_data(f), plane);
+        }
+    }
     /* content hash of the bundle: what workers cache scenes by */
     proto_bundle_t *view = calloc(1, sizeof *view);
     if (!view) {
@@ -1003,6 +1106,8 @@ static void timers(master_t *m)
             job_finish(m, j, JOB_DONE, "time limit reached");
             continue;
         }
+        if (j->ref[0] && (now - j->last_eval >= 0.25 || sched_layers_complete(j->sched) != j->last_eval_layers))
+            job_eval_error(j, now);
         if (j->outstanding == 0)
             continue;
         size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);

@@ -8,9 +8,14 @@
  */
 #include "sched.h"
 
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include "rng.h"
+#include "stats.h"
+#include "vmath.h"
 
 enum { ST_WAITING = 0, ST_READY, ST_OUT, ST_DONE };
 
@@ -25,8 +30,17 @@ struct sched {
     uint8_t *state;         /* layers x ranges */
     uint32_t *range_done;   /* per layer: ranges complete */
     uint32_t complete;      /* layers fully complete (the next incomplete layer) */
-    double *var_snapshot;   /* per pixel: eq. 4.1 as of layer complete-1 */
-    double *pvar_flight[2]; /* per pixel: eq. 4.1 of a layer in flight, by parity */
+    double *var_snapshot;   /* per pixel: the metric as of layer complete-1 */
+    double *pvar_flight[2]; /* per pixel: the metric after a layer in flight, by parity */
+    uint8_t *conv_snapshot; /* per pixel: met the target error, as of layer complete-1 */
+    uint8_t *conv_flight[2];
+    uint32_t *batches;      /* per pixel: layers merged (batch means) */
+    double *bmean, *bm2;    /* per pixel: Welford over the layers' luminance means */
+    double *t_table;        /* t factors by batches - 1, for relerr (0.95) and the target */
+    double *t_target;
+    uint64_t converged;
+    int stopped_on_target;
+    uint8_t *scratch;       /* npix: dilation */
     tracer_task_t **out;    /* layers x ranges: records of outstanding tasks */
     uint32_t *out_count;
     uint64_t *queue;        /* ready task ids, FIFO */
@@ -71,6 +85,11 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
     }
     if (cfg->granularity == 0 || cfg->granularity > TRACER_MAX_TASK_SAMPLES) {
         snprintf(err, errlen, "granularity must be 1..%d", TRACER_MAX_TASK_SAMPLES);
+        return NULL;
+    }
+    if (cfg->target_error < 0 || !isfinite(cfg->target_error) || cfg->confidence < 0 || cfg->confidence >= 1 ||
+        cfg->target_share < 0 || cfg->target_share > 1) {
+        snprintf(err, errlen, "target error must be >= 0, confidence in (0, 1), target share in (0, 1]");
         return NULL;
     }
     if (cfg->adaptive == SCHED_ADAPTIVE_THESIS && cfg->granularity < 2) {
@@ -136,6 +155,24 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
     s->var_snapshot = calloc(s->npix, sizeof(double));
     s->pvar_flight[0] = calloc(s->npix, sizeof(double));
     s->pvar_flight[1] = calloc(s->npix, sizeof(double));
+    s->conv_snapshot = calloc(s->npix, 1);
+    s->conv_flight[0] = calloc(s->npix, 1);
+    s->conv_flight[1] = calloc(s->npix, 1);
+    s->batches = calloc(s->npix, sizeof(uint32_t));
+    s->bmean = calloc(s->npix, sizeof(double));
+    s->bm2 = calloc(s->npix, sizeof(double));
+    s->scratch = calloc(s->npix, 1);
+    s->t_table = calloc((size_t)s->layers + 1, sizeof(double));
+    s->t_target = calloc((size_t)s->layers + 1, sizeof(double));
+    if (s->cfg.confidence <= 0)
+        s->cfg.confidence = 0.95;
+    if (s->cfg.target_share <= 0)
+        s->cfg.target_share = 1.0;
+    /* t factors once per job, by degrees of freedom */
+    for (uint32_t k = 1; s->t_table && s->t_target && k <= s->layers; k++) {
+        s->t_table[k] = stats_t_two_sided(0.95, k);
+        s->t_target[k] = stats_t_two_sided(s->cfg.confidence, k);
+    }
     s->out = calloc(cells, sizeof(tracer_task_t *));
     s->out_count = calloc(cells, sizeof(uint32_t));
     s->q_cap = cells + 1;
@@ -144,6 +181,8 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
     s->requeued = malloc(s->rq_cap * sizeof(uint64_t));
     if (!s->film || !s->member || !s->decided || !s->threshold || !s->state || !s->range_done ||
         !s->var_snapshot || !s->pvar_flight[0] || !s->pvar_flight[1] || !s->out || !s->out_count ||
+        !s->conv_snapshot || !s->conv_flight[0] || !s->conv_flight[1] || !s->batches || !s->bmean ||
+        !s->bm2 || !s->scratch || !s->t_table || !s->t_target ||
         !s->queue || !s->requeued) {
         snprintf(err, errlen, "out of memory");
         sched_destroy(&s);
@@ -170,6 +209,15 @@ void sched_destroy(sched_t **sp)
     free(s->var_snapshot);
     free(s->pvar_flight[0]);
     free(s->pvar_flight[1]);
+    free(s->conv_snapshot);
+    free(s->conv_flight[0]);
+    free(s->conv_flight[1]);
+    free(s->batches);
+    free(s->bmean);
+    free(s->bm2);
+    free(s->scratch);
+    free(s->t_table);
+    free(s->t_target);
     free(s->out);
     free(s->out_count);
     free(s->queue);
@@ -187,6 +235,23 @@ uint64_t sched_pixel_layers(const sched_t *s) { return s->pixel_layers; }
 uint64_t sched_pixel_layers_skipped(const sched_t *s) { return s->skipped; }
 const film_t *sched_film(const sched_t *s) { return s->film; }
 int sched_done(const sched_t *s) { return s->complete == s->layers; }
+uint64_t sched_converged(const sched_t *s) { return s->converged; }
+int sched_stopped_on_target(const sched_t *s) { return s->stopped_on_target; }
+
+static const char *const adaptive_names[] = {"none", "thesis", "variance", "relerr"};
+
+int sched_adaptive_from_name(const char *name)
+{
+    for (int i = 0; i < 4; i++)
+        if (strcmp(name, adaptive_names[i]) == 0)
+            return i;
+    return -1;
+}
+
+const char *sched_adaptive_name(sched_adaptive_t a)
+{
+    return (unsigned)a < 4 ? adaptive_names[a] : "?";
+}
 
 int sched_pixel_in_layer(const sched_t *s, uint32_t layer, uint32_t pixel)
 {
@@ -225,16 +290,63 @@ static void decide_layer(sched_t *s, uint32_t layer)
     if (layer >= s->layers || s->decided[layer])
         return;
     int flag = s->flags ? s->flags[layer] == '1' : layer >= s->uniform;
-    int skip_rule = flag && layer >= 2;
+    int skip_rule = flag && layer >= 2 && s->cfg.adaptive != SCHED_ADAPTIVE_NONE;
     double threshold = 0;
     if (skip_rule) {
+        /* the mean over pixels (eq. 4.3); pixels without a value yet (inf)
+         * are sampled anyway and left out of the mean */
+        size_t n = 0;
         for (uint32_t p = 0; p < s->npix; p++)
-            threshold += s->var_snapshot[p];
-        threshold /= s->npix;
+            if (isfinite(s->var_snapshot[p])) {
+                threshold += s->var_snapshot[p];
+                n++;
+            }
+        threshold = n ? threshold / (double)n : 0.0;
     }
     s->threshold[layer] = threshold;
+    uint64_t conv = 0;
+    if (s->cfg.target_error > 0)
+        for (uint32_t p = 0; p < s->npix; p++)
+            conv += s->conv_snapshot[p];
+    s->converged = conv;
+    int stop_all = s->cfg.target_error > 0 && (double)conv >= s->cfg.target_share * s->npix;
+    if (stop_all && !s->stopped_on_target)
+        s->stopped_on_target = 1;
+    uint8_t *sel = s->scratch;
     for (uint32_t p = 0; p < s->npix; p++) {
-        if (!skip_rule || !(s->var_snapshot[p] < threshold)) {
+        double m = s->var_snapshot[p];
+        int in = !skip_rule || !(m < threshold);
+        if (!in && s->cfg.random_selection && threshold > 0) {
+            /* near the threshold a pixel is likely kept, far below rarely:
+             * avoids trapping pixels in a "local solution" (thesis 6) */
+            rng_stream_t r = rng_stream(s->cfg.seed ^ 0x5eed5e1ec7ULL, p, layer);
+            in = rng_next_double(&r) < m / threshold;
+        }
+        sel[p] = (uint8_t)in;
+    }
+    if (skip_rule && s->cfg.dilate) {
+        /* grow the selection by one pixel: noise is seen across pixels, and a
+         * lone skipped pixel or a hard edge of skipped ones shows as a seam */
+        uint32_t w = s->cfg.width, h = s->cfg.height;
+        for (uint32_t y = 0; y < h; y++)
+            for (uint32_t x = 0; x < w; x++) {
+                uint32_t p = y * w + x;
+                if (sel[p] & 1)
+                    continue;
+                int near = 0;
+                for (int dy = -1; dy <= 1 && !near; dy++)
+                    for (int dx = -1; dx <= 1 && !near; dx++) {
+                        int yy = (int)y + dy, xx = (int)x + dx;
+                        if (yy >= 0 && yy < (int)h && xx >= 0 && xx < (int)w)
+                            near = sel[(uint32_t)yy * w + (uint32_t)xx] & 1;
+                    }
+                if (near)
+                    sel[p] |= 2;
+            }
+    }
+    for (uint32_t p = 0; p < s->npix; p++) {
+        int in = sel[p] != 0 && !stop_all && !(s->cfg.target_error > 0 && s->conv_snapshot[p]);
+        if (in) {
             set_member(s, layer, p);
             s->pixel_layers++;
         } else {
@@ -257,9 +369,12 @@ static void complete_range(sched_t *s, uint32_t layer, uint32_t range)
         if (++s->range_done[layer] == s->ranges) {
             /* Layers complete in order (rule 1), so this is s->complete. */
             double *pv = s->pvar_flight[layer & 1];
+            uint8_t *cv = s->conv_flight[layer & 1];
             for (uint32_t p = 0; p < s->npix; p++)
-                if (is_member(s, layer, p))
+                if (is_member(s, layer, p)) {
                     s->var_snapshot[p] = pv[p];
+                    s->conv_snapshot[p] = cv[p];
+                }
             s->complete = layer + 1;
             decide_layer(s, layer + 2);
         }
@@ -389,10 +504,34 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
     }
     uint32_t layer = (uint32_t)((task_id - 1) / s->ranges), range = (uint32_t)((task_id - 1) % s->ranges);
     double *pv = s->pvar_flight[layer & 1];
+    uint8_t *cv = s->conv_flight[layer & 1];
     for (uint32_t i = 0; i < count; i++) {
+        uint32_t p = results[i].pixel;
         film_merge(s->film, &results[i]);
-        pv[results[i].pixel] = results[i].pvar;
         s->samples_done += rec[i].sample_count;
+        /* the layer's mean is one batch; Welford over batches */
+        if (results[i].samples > 0) {
+            double bm = vmath_luminance(results[i].sum[0], results[i].sum[1], results[i].sum[2]) / results[i].samples;
+            uint32_t nb = ++s->batches[p];
+            double d = bm - s->bmean[p];
+            s->bmean[p] += d / nb;
+            s->bm2[p] += d * (bm - s->bmean[p]);
+        }
+        uint32_t nb = s->batches[p];
+        double se = nb >= 2 ? sqrt(s->bm2[p] / ((double)(nb - 1) * nb)) : INFINITY;
+        switch (s->cfg.adaptive) {
+        case SCHED_ADAPTIVE_VARIANCE:
+            pv[p] = s->film->pixels[p].count >= 2 ? film_variance_of_mean(s->film, p) : INFINITY;
+            break;
+        case SCHED_ADAPTIVE_RELERR:
+            pv[p] = nb >= 2 ? s->t_table[nb - 1] * se / (fabs(s->bmean[p]) + SCHED_RELERR_EPS) : INFINITY;
+            break;
+        default:
+            pv[p] = results[i].pvar;
+            break;
+        }
+        cv[p] = (uint8_t)(s->cfg.target_error > 0 && nb >= SCHED_TARGET_MIN_LAYERS &&
+                          s->t_target[nb - 1] * se <= s->cfg.target_error * (fabs(s->bmean[p]) + SCHED_TARGET_EPS));
     }
     free(s->out[cell]);
     s->out[cell] = NULL;

@@ -31,7 +31,31 @@
 #include "film.h"
 #include "tracer.h"
 
-typedef enum { SCHED_ADAPTIVE_NONE = 0, SCHED_ADAPTIVE_THESIS = 1 } sched_adaptive_t;
+/* What the skip rule compares with its threshold (the mean over pixels):
+ *  thesis:   eq. 4.1, exactly as published;
+ *  variance: the sample variance of the pixel mean (luminance, Welford/Chan);
+ *  relerr:   a Student-t half-width (confidence 0.95) of the mean of the
+ *            layers' means, each layer an independent batch, divided by
+ *            (mean + SCHED_RELERR_EPS). Pixels with fewer than two layers
+ *            have no bound yet and are always sampled. */
+typedef enum {
+    SCHED_ADAPTIVE_NONE = 0,
+    SCHED_ADAPTIVE_THESIS = 1,
+    SCHED_ADAPTIVE_VARIANCE = 2,
+    SCHED_ADAPTIVE_RELERR = 3
+} sched_adaptive_t;
+
+/* relerr's epsilon: the same scale as relMSE's (r^2 + 1e-2), so the metric
+ * the sampler balances is the one the error is measured in. */
+#define SCHED_RELERR_EPS 0.1
+/* The target-error rule's epsilon (half-width <= E (mean + eps)), and the
+ * fewest layers before a pixel may count as converged. */
+#define SCHED_TARGET_EPS 1e-3
+#define SCHED_TARGET_MIN_LAYERS 4
+
+/* "thesis", "variance", "relerr", "none"; -1 for anything else. */
+int sched_adaptive_from_name(const char *name);
+const char *sched_adaptive_name(sched_adaptive_t a);
 
 typedef struct sched_config {
     uint32_t width, height;
@@ -44,6 +68,17 @@ typedef struct sched_config {
     const char *flags;       /* the thesis's flag sequence, one '0' or '1' per
                                 layer ('1': the skip rule applies), or NULL:
                                 uniform_layers decides. Copied by sched_new. */
+    /* Options the thesis left open. */
+    int random_selection;    /* a pixel below the threshold still takes part
+                                with probability metric / threshold */
+    int dilate;              /* grow each layer's pixels by one (3 x 3) */
+    uint64_t seed;           /* for random selection */
+    /* Stopping on a confidence bound: a pixel stops once the t half-width
+     * of its layers' means at `confidence` is <= target_error (mean + eps);
+     * the job stops when target_share of the pixels have. 0: off. */
+    double target_error;
+    double confidence;       /* 0: 0.95 */
+    double target_share;     /* 0: 1.0 */
 } sched_config_t;
 
 typedef struct sched sched_t;
@@ -89,6 +124,11 @@ uint64_t sched_samples_done(const sched_t *s);
 /* Pixel-layers scheduled so far (issued or decided), and skipped. */
 uint64_t sched_pixel_layers(const sched_t *s);
 uint64_t sched_pixel_layers_skipped(const sched_t *s);
+
+/* Pixels that met the target error (as of the last decided layer), and
+ * whether the job stopped on the target rather than at spp. */
+uint64_t sched_converged(const sched_t *s);
+int sched_stopped_on_target(const sched_t *s);
 
 /* The film: per-pixel sums merged so far. */
 const film_t *sched_film(const sched_t *s);

@@ -30,7 +30,8 @@ static void fake_results(const sched_task_t *t, tracer_result_t *r, const double
 static sched_t *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t g, sched_adaptive_t a,
                      uint32_t uniform, uint32_t range)
 {
-    sched_config_t c = {w, h, spp, g, a, uniform, range, NULL};
+    sched_config_t c = {.width = w, .height = h, .spp = spp, .granularity = g, .adaptive = a,
+                        .uniform_layers = uniform, .range_pixels = range};
     char err[256];
     sched_t *s = sched_new(&c, err, sizeof err);
     ck_assert_msg(s != NULL, "%s", err);
@@ -212,7 +213,8 @@ START_TEST(test_flag_sequence)
 {
     char err[256];
     /* 6 layers; the rule applies at layers 2 and 4 only */
-    sched_config_t c = {4, 1, 12, 2, SCHED_ADAPTIVE_THESIS, UINT32_MAX, 2, "001010"};
+    sched_config_t c = {.width = 4, .height = 1, .spp = 12, .granularity = 2, .adaptive = SCHED_ADAPTIVE_THESIS,
+                        .uniform_layers = UINT32_MAX, .range_pixels = 2, .flags = "001010"};
     sched_t *s = sched_new(&c, err, sizeof err);
     ck_assert_msg(s != NULL, "%s", err);
     ck_assert_uint_eq(sched_uniform_layers(s), 2);
@@ -240,7 +242,8 @@ END_TEST
 START_TEST(test_bad_configs)
 {
     char err[256];
-    sched_config_t c = {0, 4, 8, 2, SCHED_ADAPTIVE_NONE, UINT32_MAX, 0, NULL};
+    sched_config_t c = {.width = 0, .height = 4, .spp = 8, .granularity = 2, .adaptive = SCHED_ADAPTIVE_NONE,
+                        .uniform_layers = UINT32_MAX};
     ck_assert(sched_new(&c, err, sizeof err) == NULL);
     c.width = 4;
     c.granularity = 0;
