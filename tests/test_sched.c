@@ -239,6 +239,153 @@ START_TEST(test_flag_sequence)
 }
 END_TEST
 
+/* Results whose layer means are given per pixel by lum(pixel, layer). */
+typedef double (*lum_fn)(uint32_t pixel, uint32_t layer);
+
+static void run_all(sched_t *s, lum_fn f, uint32_t g)
+{
+    sched_task_t t;
+    tracer_result_t r[64];
+    char err[256];
+    int rc;
+    while ((rc = sched_next(s, &t)) != -1) {
+        ck_assert_int_eq(rc, 1); /* one at a time: always something ready */
+        for (uint32_t i = 0; i < t.count; i++) {
+            memset(&r[i], 0, sizeof r[i]);
+            r[i].pixel = t.records[i].pixel;
+            r[i].samples = t.records[i].sample_count;
+            double l = f(r[i].pixel, t.layer) * r[i].samples;
+            r[i].sum[0] = r[i].sum[1] = r[i].sum[2] = l; /* luminance of (l,l,l) is l */
+            r[i].lum_m2 = 0.01 * g;
+            r[i].pvar = f(r[i].pixel, t.layer);
+        }
+        ck_assert_msg(sched_complete(s, t.id, r, t.count, err, sizeof err) == 0, "%s", err);
+    }
+}
+
+/* pixels 0-7 steady, pixels 8-15 jump between layers */
+static double steady_or_noisy(uint32_t p, uint32_t layer)
+{
+    return p < 8 ? 0.5 : (layer % 2 ? 0.2 : 0.8);
+}
+
+START_TEST(test_target_error_stops)
+{
+    char err[256];
+    sched_config_t c = {.width = 16, .height = 1, .spp = 64, .granularity = 4, .adaptive = SCHED_ADAPTIVE_NONE,
+                        .uniform_layers = UINT32_MAX, .range_pixels = 4, .target_error = 0.05,
+                        .confidence = 0.95, .target_share = 1.0};
+    sched_t *s = sched_new(&c, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    run_all(s, steady_or_noisy, 4);
+    ck_assert(sched_done(s));
+    const film_t *f = sched_film(s);
+    /* steady pixels converge after SCHED_TARGET_MIN_LAYERS layers (decided two
+     * layers later: they stop within 2 more); noisy ones never do */
+    for (uint32_t p = 0; p < 16; p++) {
+        if (p < 8)
+            ck_assert_msg(f->pixels[p].count <= 4u * (SCHED_TARGET_MIN_LAYERS + 2) &&
+                              f->pixels[p].count >= 4u * SCHED_TARGET_MIN_LAYERS,
+                          "steady pixel %u took %llu samples", p, (unsigned long long)f->pixels[p].count);
+        else
+            ck_assert_uint_eq(f->pixels[p].count, 64);
+    }
+    ck_assert_uint_eq(sched_converged(s), 8);
+    ck_assert(!sched_stopped_on_target(s)); /* only half converged */
+    sched_destroy(&s);
+    /* a share of one half: the job itself stops early */
+    c.target_share = 0.5;
+    s = sched_new(&c, err, sizeof err);
+    run_all(s, steady_or_noisy, 4);
+    ck_assert(sched_done(s));
+    ck_assert(sched_stopped_on_target(s));
+    ck_assert(sched_film(s)->pixels[15].count < 64);
+    sched_destroy(&s);
+}
+END_TEST
+
+/* relerr and variance keep the noisy pixels and skip the steady ones. */
+START_TEST(test_relerr_and_variance_modes)
+{
+    char err[256];
+    for (int mode = SCHED_ADAPTIVE_VARIANCE; mode <= SCHED_ADAPTIVE_RELERR; mode++) {
+        sched_config_t c = {.width = 16, .height = 1, .spp = 64, .granularity = 4, .adaptive = (sched_adaptive_t)mode,
+                            .uniform_layers = 4, .range_pixels = 4};
+        sched_t *s = sched_new(&c, err, sizeof err);
+        ck_assert_msg(s != NULL, "%s", err);
+        run_all(s, steady_or_noisy, 4);
+        const film_t *f = sched_film(s);
+        for (uint32_t p = 0; p < 16; p++) {
+            if (p < 8)
+                ck_assert_msg(f->pixels[p].count < 64, "%s: steady pixel %u never skipped",
+                              sched_adaptive_name((sched_adaptive_t)mode), p);
+            else
+                ck_assert_uint_eq(f->pixels[p].count, 64);
+        }
+        sched_destroy(&s);
+    }
+    ck_assert_int_eq(sched_adaptive_from_name("relerr"), SCHED_ADAPTIVE_RELERR);
+    ck_assert_int_eq(sched_adaptive_from_name("bogus"), -1);
+}
+END_TEST
+
+/* one noisy pixel in the middle of a 5x5 image */
+static double one_hot(uint32_t p, uint32_t layer)
+{
+    return p == 12 ? (layer % 2 ? 0.0 : 10.0) : 0.5 + 0.001 * p;
+}
+
+START_TEST(test_dilation)
+{
+    char err[256];
+    for (int dil = 0; dil < 2; dil++) {
+        sched_config_t c = {.width = 5, .height = 5, .spp = 16, .granularity = 4, .adaptive = SCHED_ADAPTIVE_VARIANCE,
+                            .uniform_layers = 2, .range_pixels = 25, .dilate = dil};
+        sched_t *s = sched_new(&c, err, sizeof err);
+        ck_assert_msg(s != NULL, "%s", err);
+        run_all(s, one_hot, 4);
+        int in_layer3 = 0;
+        for (uint32_t p = 0; p < 25; p++)
+            in_layer3 += sched_pixel_in_layer(s, 3, p);
+        /* without dilation only the noisy pixel and those at or over the mean;
+         * with it, at least its 3x3 neighbourhood */
+        ck_assert_int_eq(sched_pixel_in_layer(s, 3, 12), 1);
+        if (dil)
+            for (int dy = -1; dy <= 1; dy++)
+                for (int dx = -1; dx <= 1; dx++)
+                    ck_assert_int_eq(sched_pixel_in_layer(s, 3, (uint32_t)(12 + dy * 5 + dx)), 1);
+        else
+            ck_assert_int_lt(in_layer3, 9);
+        sched_destroy(&s);
+    }
+}
+END_TEST
+
+/* Random selection: the same seed gives the same layers; below-threshold
+ * pixels sometimes run. */
+START_TEST(test_random_selection)
+{
+    char err[256];
+    uint64_t counts[2][64];
+    for (int run = 0; run < 2; run++) {
+        sched_config_t c = {.width = 64, .height = 1, .spp = 64, .granularity = 4, .adaptive = SCHED_ADAPTIVE_THESIS,
+                            .uniform_layers = 2, .range_pixels = 16, .random_selection = 1, .seed = 77};
+        sched_t *s = sched_new(&c, err, sizeof err);
+        run_all(s, steady_or_noisy, 4);
+        for (uint32_t p = 0; p < 64; p++)
+            counts[run][p] = sched_film(s)->pixels[p].count;
+        sched_destroy(&s);
+    }
+    ck_assert(memcmp(counts[0], counts[1], sizeof counts[0]) == 0);
+    /* pvar = 0.5 for pixels 0-7 is below the mean (about 0.5 ... 0.8): without
+     * randomness they would all get exactly the same count; with it they differ */
+    int differ = 0;
+    for (uint32_t p = 1; p < 8; p++)
+        differ |= counts[0][p] != counts[0][0];
+    ck_assert(differ);
+}
+END_TEST
+
 START_TEST(test_bad_configs)
 {
     char err[256];
@@ -270,6 +417,10 @@ int main(void)
     tcase_add_test(tc, test_dependencies_and_priors);
     tcase_add_test(tc, test_order_does_not_matter);
     tcase_add_test(tc, test_flag_sequence);
+    tcase_add_test(tc, test_target_error_stops);
+    tcase_add_test(tc, test_relerr_and_variance_modes);
+    tcase_add_test(tc, test_dilation);
+    tcase_add_test(tc, test_random_selection);
     tcase_add_test(tc, test_bad_configs);
     suite_add_tcase(s, tc);
     SRunner *sr = srunner_create(s);
