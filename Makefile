@@ -6,7 +6,8 @@
 #                networking) and build/libvbnet.a (protocol, master, worker)
 #   make check   deps, build, all tests, then the same tests under ASan+UBSan
 #   make demo    deps, build, render scenes/cornell-box.json to out/
-#   make bench   deps, build, core benchmark (bench/results/core.json)
+#   make bench   deps, build, core and distributed benchmarks (bench/results/)
+#   make bench-error   the error study: adaptive modes against uniform and Mitsuba 3
 
 BUILD    ?= build
 SAN      ?= 0
@@ -66,7 +67,7 @@ BENCH_BIN = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 # Keep intermediate objects: deleting them only forces rebuilds.
 .SECONDARY:
 
-.PHONY: all deps check test test-asan demo bench clean fuzz
+.PHONY: all deps check test test-asan demo bench bench-error clean fuzz
 all: $(BIN)/vbrender $(DAEMONS) $(CORE_LIB) $(NET_LIB)
 
 deps:
@@ -141,6 +142,11 @@ demo: deps
 bench: deps
 	$(MAKE) all $(BENCH_BIN)
 	bench/run-core.sh
+	if [ -x bench/run-distributed.sh ]; then bench/run-distributed.sh; fi
+
+bench-error: deps
+	$(MAKE) all
+	bash bench/error/run.sh
 
 clean:
 	rm -rf build build-asan bin
