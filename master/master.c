@@ -431,6 +431,8 @@ static void on_result(master_t *m, remote_t *w, proto_msg_t *msg)
         w->samples += msg->u.result.records[i].samples + msg->u.result.records[i].nonfinite;
     if (sched_done(j->sched))
         job_finish(m, j, JOB_DONE, sched_stopped_on_target(j->sched) ? "target error reached" : NULL);
+    else if (j->ref[0] && sched_layers_complete(j->sched) != j->last_eval_layers)
+        job_eval_error(j, now_s()); /* a point per finished layer, however fast */
 }
 
 static void on_hello(master_t *m, const uint8_t *id, size_t id_len, const char *host, proto_msg_t *msg)

@@ -1,0 +1,185 @@
+/* test_adaptive.c - speed against error, end to end through the binary:
+ * error tracking against a reference, stopping on a target error, and the
+ * adaptive modes and options staying deterministic across worker counts. */
+#include <check.h>
+#include <cJSON.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "image.h"
+#include "testutil.h"
+
+#define OUTLEN 16384
+
+/* The Cornell box at 24x24 in the scratch folder. */
+static const char *small_cornell(char *path, size_t len)
+{
+    char src[1024];
+    FILE *f = fopen(tu_root_path(src, sizeof src, "scenes/cornell-box.json"), "rb");
+    ck_assert(f != NULL);
+    static char text[65536];
+    size_t n = fread(text, 1, sizeof text - 1, f);
+    fclose(f);
+    text[n] = '\0';
+    char *at = strstr(text, "\"width\": 256, \"height\": 256");
+    ck_assert(at != NULL);
+    memcpy(at, "\"width\":  24, \"height\":  24", strlen("\"width\": 256, \"height\": 256"));
+    return tu_write_tmp(path, len, "adaptive-cornell.json", text);
+}
+
+static void render(const char *args, char *out)
+{
+    char cmd[4096];
+    snprintf(cmd, sizeof cmd, "'%s' render %s --progress none", tu_bin(), args);
+    int rc = tu_run(cmd, out, OUTLEN);
+    ck_assert_msg(rc == 0, "exit %d: %s\n%s", rc, cmd, out);
+}
+
+static cJSON *read_json(const char *path)
+{
+    FILE *f = fopen(path, "rb");
+    ck_assert_msg(f != NULL, "no %s", path);
+    static char buf[1 << 20];
+    size_t n = fread(buf, 1, sizeof buf - 1, f);
+    fclose(f);
+    buf[n] = '\0';
+    cJSON *j = cJSON_Parse(buf);
+    ck_assert(j != NULL);
+    return j;
+}
+
+START_TEST(test_reference_series)
+{
+    char scene[1024], ref[1024], img[1024], ejson[1024], out[OUTLEN], args[4096];
+    small_cornell(scene, sizeof scene);
+    tu_tmp_path(ref, sizeof ref, "adaptive-ref.exr");
+    tu_tmp_path(img, sizeof img, "adaptive-img.exr");
+    tu_tmp_path(ejson, sizeof ejson, "adaptive-img.error.json");
+    unlink(ejson);
+    snprintf(args, sizeof args, "'%s' -o '%s' --spp 1024 --adaptive none --seed 99", scene, ref);
+    render(args, out);
+    snprintf(args, sizeof args, "'%s' -o '%s' --spp 128 --granularity 8 --adaptive relerr --reference '%s'", scene,
+             img, ref);
+    render(args, out);
+    cJSON *doc = read_json(ejson);
+    const cJSON *series = cJSON_GetObjectItem(doc, "series");
+    int n = cJSON_GetArraySize(series);
+    ck_assert_msg(n >= 2, "series has %d points", n);
+    const cJSON *first = cJSON_GetArrayItem(series, 0), *last = cJSON_GetArrayItem(series, n - 1);
+    double rel0 = cJSON_GetArrayItem(first, 2)->valuedouble, rel1 = cJSON_GetArrayItem(last, 2)->valuedouble;
+    ck_assert_msg(rel1 < rel0, "relMSE did not fall: %g -> %g", rel0, rel1);
+    /* samples and seconds never go backwards */
+    for (int i = 1; i < n; i++) {
+        const cJSON *a = cJSON_GetArrayItem(series, i - 1), *b = cJSON_GetArrayItem(series, i);
+        ck_assert(cJSON_GetArrayItem(b, 0)->valuedouble >= cJSON_GetArrayItem(a, 0)->valuedouble);
+        ck_assert(cJSON_GetArrayItem(b, 1)->valuedouble >= cJSON_GetArrayItem(a, 1)->valuedouble);
+    }
+    /* the last point is the final image's error, as `compare` measures it */
+    char cmd[4096];
+    snprintf(cmd, sizeof cmd, "'%s' compare '%s' '%s'", tu_bin(), img, ref);
+    ck_assert_int_eq(tu_run(cmd, out, OUTLEN), 0);
+    double relmse = -1;
+    const char *p = strstr(out, "relMSE ");
+    ck_assert(p && sscanf(p, "relMSE %lf", &relmse) == 1);
+    ck_assert_msg(fabs(relmse - rel1) <= 1e-6 * rel1, "compare says %g, the series %g", relmse, rel1);
+    cJSON_Delete(doc);
+    /* a reference of another size is refused by the master, with a reason */
+    char other[1024];
+    tu_tmp_path(other, sizeof other, "adaptive-other.exr");
+    image_t *o = image_new(8, 8);
+    image_add_channel(o, "R");
+    image_add_channel(o, "G");
+    image_add_channel(o, "B");
+    char err[256];
+    ck_assert(image_write_exr(o, other, err, sizeof err) == 0);
+    image_destroy(&o);
+    snprintf(cmd, sizeof cmd, "'%s' render '%s' -o '%s' --spp 8 --reference '%s' --progress none", tu_bin(), scene,
+             img, other);
+    ck_assert_int_eq(tu_run(cmd, out, OUTLEN), 1);
+    ck_assert_msg(strstr(out, "reference") != NULL, "%s", out);
+}
+END_TEST
+
+START_TEST(test_target_error_stops_early)
+{
+    char scene[1024], img[1024], out[OUTLEN], args[4096];
+    small_cornell(scene, sizeof scene);
+    tu_tmp_path(img, sizeof img, "adaptive-target.exr");
+    snprintf(args, sizeof args,
+             "'%s' -o '%s' --spp 4096 --granularity 16 --adaptive none --target-error 0.3 --confidence 0.9", scene, img);
+    render(args, out);
+    image_t *im = NULL;
+    char err[256];
+    ck_assert(image_read_exr(img, &im, err, sizeof err) == 0);
+    const float *n = image_channel(im, "samples");
+    double total = 0, lo = 1e30, hi = 0;
+    for (int i = 0; i < 24 * 24; i++) {
+        total += n[i];
+        lo = n[i] < lo ? n[i] : lo;
+        hi = n[i] > hi ? n[i] : hi;
+    }
+    /* stopped well before 4096 spp everywhere, and not uniformly */
+    ck_assert_msg(total < 0.5 * 4096 * 24 * 24, "took %g samples", total);
+    ck_assert_msg(lo >= 64, "a pixel stopped after %g samples (before 4 layers)", lo);
+    ck_assert_msg(hi > lo, "every pixel took %g samples", lo);
+    image_destroy(&im);
+}
+END_TEST
+
+static image_t *render_read(const char *scene, const char *name, const char *extra)
+{
+    char img[1024], out[OUTLEN], args[4096], err[256];
+    tu_tmp_path(img, sizeof img, name);
+    snprintf(args, sizeof args, "'%s' -o '%s' --spp 96 --granularity 8 --uniform-layers 3 %s", scene, img, extra);
+    render(args, out);
+    image_t *im = NULL;
+    ck_assert_msg(image_read_exr(img, &im, err, sizeof err) == 0, "%s", err);
+    return im;
+}
+
+START_TEST(test_modes_deterministic)
+{
+    char scene[1024];
+    small_cornell(scene, sizeof scene);
+    const char *modes[] = {"--adaptive variance", "--adaptive relerr --dilate",
+                           "--adaptive thesis --random-selection --seed 5"};
+    for (size_t m = 0; m < sizeof modes / sizeof modes[0]; m++) {
+        char extra[256];
+        snprintf(extra, sizeof extra, "%s --workers 1 --threads 1", modes[m]);
+        image_t *a = render_read(scene, "adaptive-det-a.exr", extra);
+        snprintf(extra, sizeof extra, "%s --workers 3 --threads 3", modes[m]);
+        image_t *b = render_read(scene, "adaptive-det-b.exr", extra);
+        for (int c = 0; c < a->channel_count; c++)
+            ck_assert_msg(memcmp(image_channel(a, a->channel_names[c]), image_channel(b, a->channel_names[c]),
+                                 24 * 24 * sizeof(float)) == 0,
+                          "%s: channel %s differs between 1 and 3 workers", modes[m], a->channel_names[c]);
+        /* and the mode really adapted: sample counts vary */
+        const float *n = image_channel(a, "samples");
+        int varies = 0;
+        for (int i = 1; i < 24 * 24; i++)
+            varies |= n[i] != n[0];
+        ck_assert_msg(varies, "%s: every pixel got the same samples", modes[m]);
+        image_destroy(&a);
+        image_destroy(&b);
+    }
+}
+END_TEST
+
+int main(void)
+{
+    Suite *s = suite_create("adaptive");
+    TCase *tc = tcase_create("end to end");
+    tcase_set_timeout(tc, 300);
+    tcase_add_test(tc, test_reference_series);
+    tcase_add_test(tc, test_target_error_stops_early);
+    tcase_add_test(tc, test_modes_deterministic);
+    suite_add_tcase(s, tc);
+    SRunner *sr = srunner_create(s);
+    srunner_run_all(sr, CK_NORMAL);
+    int failed = srunner_ntests_failed(sr);
+    srunner_free(sr);
+    return failed ? 1 : 0;
+}
