@@ -107,7 +107,7 @@ $(BIN)/vbrender-%: $(BUILD)/%/main.o $(LIBS_ALL)
 $(BUILD)/tests/test_%: $(BUILD)/tests/test_%.o $(TEST_HELPER_OBJ) $(LIBS_ALL)
 	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_CHECK) $(LDLIBS_ALL)
 
-$(BUILD)/tests/fuzz_%: $(BUILD)/tests/fuzz_%.o $(LIBS_ALL)
+$(BUILD)/tests/fuzz_%: $(BUILD)/tests/fuzz_%.o $(BUILD)/tests/fuzzdriver.o $(LIBS_ALL)
 	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_ALL)
 
 $(BUILD)/bench/%: $(BUILD)/bench/%.o $(LIBS_ALL)
@@ -151,4 +151,5 @@ bench-error: deps
 clean:
 	rm -rf build build-asan bin
 
--include $(CORE_OBJ:.o=.d) $(NET_OBJ:.o=.d) $(CLIENT_OBJ:.o=.d) $(TEST_BIN:=.d) $(TEST_HELPER_OBJ:.o=.d)
+-include $(CORE_OBJ:.o=.d) $(NET_OBJ:.o=.d) $(CLIENT_OBJ:.o=.d) $(TEST_BIN:=.d) $(TEST_HELPER_OBJ:.o=.d) \
+         $(FUZZ_BIN:=.d) $(BUILD)/tests/fuzzdriver.d

@@ -24,6 +24,7 @@
 #include "compare.h"
 #include "film.h"
 #include "proto.h"
+#include "vblog.h"
 #include "scene.h"
 #include "sched.h"
 
@@ -112,21 +113,10 @@ static double now_s(void)
 static void logf_(master_t *m, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 static void logf_(master_t *m, const char *fmt, ...)
 {
-    if (!m->cfg.log)
-        return;
-    struct timespec ts;
-    clock_gettime(CLOCK_REALTIME, &ts);
-    struct tm tm;
-    gmtime_r(&ts.tv_sec, &tm);
-    char stamp[32];
-    strftime(stamp, sizeof stamp, "%Y-%m-%dT%H:%M:%S", &tm);
-    char msg[1024];
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
+    vblog_write(m->cfg.log, "master", fmt, ap);
     va_end(ap);
-    fprintf(m->cfg.log, "%s.%03ldZ master: %s\n", stamp, ts.tv_nsec / 1000000, msg);
-    fflush(m->cfg.log);
 }
 
 /* ---- jobs ---------------------------------------------------------------- */

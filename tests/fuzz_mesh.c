@@ -78,156 +78,14 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 
 #ifndef VB_LIBFUZZER
 
-#include <dirent.h>
-
-#define FUZZ_MAX_INPUT (256 * 1024)
-
-typedef struct input {
-    char *name;
-    unsigned char *data;
-    size_t size;
-} input;
-
-typedef struct corpus {
-    input *v;
-    size_t n, cap;
-} corpus;
-
-static void corpus_free(corpus *c)
-{
-    for (size_t i = 0; i < c->n; i++) {
-        free(c->v[i].name);
-        free(c->v[i].data);
-    }
-    free(c->v);
-}
-
-static int cmp_input(const void *a, const void *b)
-{
-    return strcmp(((const input *)a)->name, ((const input *)b)->name);
-}
-
-static int read_file(const char *path, unsigned char **data, size_t *size)
-{
-    FILE *f = fopen(path, "rb");
-    if (!f)
-        return -1;
-    size_t cap = 4096, n = 0;
-    unsigned char *buf = malloc(cap);
-    while (buf) {
-        if (n == cap) {
-            unsigned char *nb = cap < FUZZ_MAX_INPUT ? realloc(buf, cap * 2) : NULL;
-            if (!nb) {
-                free(buf);
-                buf = NULL;
-                break;
-            }
-            buf = nb;
-            cap *= 2;
-        }
-        size_t got = fread(buf + n, 1, cap - n, f);
-        n += got;
-        if (got == 0)
-            break;
-    }
-    int bad = !buf || ferror(f);
-    fclose(f);
-    if (bad) {
-        free(buf);
-        return -1;
-    }
-    *data = buf;
-    *size = n;
-    return 0;
-}
-
-/* Sorted by name, so the mutation sequence does not depend on readdir order. */
-static int load_corpus(const char *dir, corpus *c)
-{
-    DIR *d = opendir(dir);
-    if (!d)
-        return -1;
-    struct dirent *e;
-    int rc = 0;
-    while ((e = readdir(d)) != NULL) {
-        if (e->d_name[0] == '.')
-            continue;
-        char path[4096];
-        if (snprintf(path, sizeof path, "%s/%s", dir, e->d_name) >= (int)sizeof path)
-            continue;
-        input in = { NULL, NULL, 0 };
-        if (read_file(path, &in.data, &in.size) != 0)
-            continue; /* a subfolder or unreadable: not an input */
-        size_t len = strlen(e->d_name) + 1;
-        in.name = malloc(len);
-        if (c->n == c->cap) {
-            size_t ncap = c->cap ? 2 * c->cap : 16;
-            input *nv = realloc(c->v, ncap * sizeof *nv);
-            if (nv) {
-                c->v = nv;
-                c->cap = ncap;
-            }
-        }
-        if (!in.name || c->n == c->cap) {
-            free(in.name);
-            free(in.data);
-            rc = -1;
-            break;
-        }
-        memcpy(in.name, e->d_name, len);
-        c->v[c->n++] = in;
-    }
-    closedir(d);
-    if (rc == 0 && c->n > 0)
-        qsort(c->v, c->n, sizeof *c->v, cmp_input);
-    return rc;
-}
-
-/* xorshift64*: small, fast and the same on every host. */
-static uint64_t rnd(uint64_t *s)
-{
-    *s ^= *s >> 12;
-    *s ^= *s << 25;
-    *s ^= *s >> 27;
-    return *s * UINT64_C(2685821657736338717);
-}
-
-static size_t rnd_below(uint64_t *s, size_t n)
-{
-    return n ? (size_t)(rnd(s) % n) : 0;
-}
-
-/* Working buffer for one mutated input. */
-typedef struct buf {
-    unsigned char d[FUZZ_MAX_INPUT];
-    size_t n;
-} buf;
-
-static void insert_bytes(buf *b, size_t at, const void *p, size_t n)
-{
-    if (at > b->n || n > FUZZ_MAX_INPUT - b->n)
-        return;
-    memmove(b->d + at + n, b->d + at, b->n - at);
-    memcpy(b->d + at, p, n);
-    b->n += n;
-}
-
-static void erase_bytes(buf *b, size_t at, size_t n)
-{
-    if (at > b->n)
-        return;
-    if (n > b->n - at)
-        n = b->n - at;
-    memmove(b->d + at, b->d + at + n, b->n - at - n);
-    b->n -= n;
-}
+#include "fuzzdriver.h"
 
 static int is_num_char(unsigned char ch)
 {
     return (ch >= '0' && ch <= '9') || ch == '.' || ch == '-' || ch == '+' || ch == 'e';
 }
 
-static void mutate(buf *b, uint64_t *s)
+static void mutate(fuzz_buf_t *b, uint64_t *s)
 {
     static const char *const numbers[] = {
         "nan", "-nan", "inf", "-inf", "-1", "0", "1", "2", "3", "-2147483648", "2147483647",
@@ -244,50 +102,50 @@ static void mutate(buf *b, uint64_t *s)
         "property float nx\n", "element face 3\n", "end_header\n", "comment c\n", "3 0 1 2\n",
     };
     size_t n = b->n;
-    switch (rnd(s) % 9) {
+    switch (fuzz_rnd(s) % 9) {
     case 0: /* flip a bit */
         if (n)
-            b->d[rnd_below(s, n)] ^= (unsigned char)(1u << (rnd(s) % 8));
+            b->d[fuzz_rnd_below(s, n)] ^= (unsigned char)(1u << (fuzz_rnd(s) % 8));
         break;
     case 1: /* random byte */
         if (n)
-            b->d[rnd_below(s, n)] = (unsigned char)rnd(s);
+            b->d[fuzz_rnd_below(s, n)] = (unsigned char)fuzz_rnd(s);
         break;
     case 2: /* truncate */
-        b->n = rnd_below(s, n + 1);
+        b->n = fuzz_rnd_below(s, n + 1);
         break;
     case 3: { /* insert a few random bytes or a token */
         unsigned char r[8];
-        size_t at = rnd_below(s, n + 1);
-        if (rnd(s) & 1) {
-            const char *t = tokens[rnd_below(s, sizeof tokens / sizeof tokens[0])];
-            insert_bytes(b, at, t, strlen(t));
+        size_t at = fuzz_rnd_below(s, n + 1);
+        if (fuzz_rnd(s) & 1) {
+            const char *t = tokens[fuzz_rnd_below(s, sizeof tokens / sizeof tokens[0])];
+            fuzz_insert(b, at, t, strlen(t));
         } else {
-            size_t k = 1 + rnd_below(s, sizeof r);
+            size_t k = 1 + fuzz_rnd_below(s, sizeof r);
             for (size_t i = 0; i < k; i++)
-                r[i] = (unsigned char)rnd(s);
-            insert_bytes(b, at, r, k);
+                r[i] = (unsigned char)fuzz_rnd(s);
+            fuzz_insert(b, at, r, k);
         }
         break;
     }
     case 4: { /* duplicate a chunk somewhere else */
         if (!n)
             break;
-        size_t from = rnd_below(s, n), len = 1 + rnd_below(s, n - from < 256 ? n - from : 256);
+        size_t from = fuzz_rnd_below(s, n), len = 1 + fuzz_rnd_below(s, n - from < 256 ? n - from : 256);
         unsigned char tmp[256];
         memcpy(tmp, b->d + from, len);
-        insert_bytes(b, rnd_below(s, n + 1), tmp, len);
+        fuzz_insert(b, fuzz_rnd_below(s, n + 1), tmp, len);
         break;
     }
     case 5: /* delete a chunk */
         if (n)
-            erase_bytes(b, rnd_below(s, n), 1 + rnd_below(s, 64));
+            fuzz_erase(b, fuzz_rnd_below(s, n), 1 + fuzz_rnd_below(s, 64));
         break;
     case 6:
     case 7: { /* replace a number (text) by an awkward one */
         if (!n)
             break;
-        size_t at = rnd_below(s, n), tries = 0;
+        size_t at = fuzz_rnd_below(s, n), tries = 0;
         while (at < n && !(b->d[at] >= '0' && b->d[at] <= '9') && tries++ < 256)
             at++;
         if (at >= n || !(b->d[at] >= '0' && b->d[at] <= '9'))
@@ -297,17 +155,17 @@ static void mutate(buf *b, uint64_t *s)
         size_t end = at;
         while (end < n && is_num_char(b->d[end]))
             end++;
-        const char *t = numbers[rnd_below(s, sizeof numbers / sizeof numbers[0])];
-        erase_bytes(b, at, end - at);
-        insert_bytes(b, at, t, strlen(t));
+        const char *t = numbers[fuzz_rnd_below(s, sizeof numbers / sizeof numbers[0])];
+        fuzz_erase(b, at, end - at);
+        fuzz_insert(b, at, t, strlen(t));
         break;
     }
     default: { /* overwrite a binary word, either byte order */
         if (n < 4)
             break;
-        uint32_t w = words[rnd_below(s, sizeof words / sizeof words[0])];
-        size_t at = rnd_below(s, n - 3);
-        int big = (int)(rnd(s) & 1);
+        uint32_t w = words[fuzz_rnd_below(s, sizeof words / sizeof words[0])];
+        size_t at = fuzz_rnd_below(s, n - 3);
+        int big = (int)(fuzz_rnd(s) & 1);
         for (int i = 0; i < 4; i++)
             b->d[at + (size_t)(big ? 3 - i : i)] = (unsigned char)(w >> (8 * i));
         break;
@@ -317,65 +175,8 @@ static void mutate(buf *b, uint64_t *s)
 
 int main(int argc, char **argv)
 {
-    if (argc != 3) {
-        fprintf(stderr, "usage: %s CORPUS_DIR N\n", argv[0]);
-        return 2;
-    }
-    char *endp = NULL;
-    long long iters = strtoll(argv[2], &endp, 10);
-    if (!endp || *endp != '\0' || iters < 0) {
-        fprintf(stderr, "fuzz_mesh: N must be a non-negative integer\n");
-        return 2;
-    }
-    corpus c = { NULL, 0, 0 };
-    if (load_corpus(argv[1], &c) != 0 || c.n == 0) {
-        fprintf(stderr, "fuzz_mesh: no corpus files in %s\n", argv[1]);
-        corpus_free(&c);
-        return 2;
-    }
-    buf *b = malloc(sizeof *b);
-    if (!b) {
-        corpus_free(&c);
-        return 2;
-    }
-
-    long long loaded_ply = 0, loaded_obj = 0;
-    for (size_t i = 0; i < c.n; i++) {
-        /* An exact-size copy: no slack after the end for a bad read to hit. */
-        unsigned char *copy = malloc(c.v[i].size ? c.v[i].size : 1);
-        if (!copy)
-            abort();
-        memcpy(copy, c.v[i].data, c.v[i].size);
-        int r = run_one(copy, c.v[i].size);
-        free(copy);
-        printf("  %-28s %s\n", c.v[i].name, r & 1 ? "loads (as .ply)" : r & 2 ? "loads (as .obj)"
-                                                                      : "rejected");
-    }
-
-    uint64_t seed = UINT64_C(0x9E3779B97F4A7C15);
-    for (long long it = 0; it < iters; it++) {
-        const input *src = &c.v[rnd_below(&seed, c.n)];
-        b->n = src->size < FUZZ_MAX_INPUT ? src->size : FUZZ_MAX_INPUT;
-        memcpy(b->d, src->data, b->n);
-        /* Mostly one mutation, sometimes a few: single changes keep most
-         * of the structure and so reach deeper into the parser. */
-        do
-            mutate(b, &seed);
-        while (rnd(&seed) % 3 == 0);
-        unsigned char *in = malloc(b->n ? b->n : 1);
-        if (!in)
-            abort();
-        memcpy(in, b->d, b->n);
-        int r = run_one(in, b->n);
-        free(in);
-        loaded_ply += r & 1;
-        loaded_obj += (r >> 1) & 1;
-    }
-    printf("fuzz_mesh: %zu corpus files, %lld mutations (%lld loaded as .ply, %lld as .obj), "
-           "no crash\n", c.n, iters, loaded_ply, loaded_obj);
-    free(b);
-    corpus_free(&c);
-    return 0;
+    static const fuzz_target_t target = {"fuzz_mesh", run_one, mutate, NULL, {"as .ply", "as .obj"}, NULL};
+    return fuzz_main(argc, argv, &target);
 }
 
 #endif /* VB_LIBFUZZER */

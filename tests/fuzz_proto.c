@@ -118,162 +118,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 
 #ifndef VB_LIBFUZZER
 
-#include <dirent.h>
-
-#define FUZZ_MAX_INPUT (64 * 1024)
-
-typedef struct input {
-    char *name;
-    unsigned char *data;
-    size_t size;
-} input;
-
-typedef struct corpus {
-    input *v;
-    size_t n, cap;
-} corpus;
-
-static void corpus_free(corpus *c)
-{
-    for (size_t i = 0; i < c->n; i++) {
-        free(c->v[i].name);
-        free(c->v[i].data);
-    }
-    free(c->v);
-}
-
-static int cmp_input(const void *a, const void *b)
-{
-    return strcmp(((const input *)a)->name, ((const input *)b)->name);
-}
-
-static int read_file(const char *path, unsigned char **data, size_t *size)
-{
-    FILE *f = fopen(path, "rb");
-    if (!f)
-        return -1;
-    size_t cap = 4096, n = 0;
-    unsigned char *buf = malloc(cap);
-    while (buf) {
-        if (n == cap) {
-            unsigned char *nb = cap < FUZZ_MAX_INPUT ? realloc(buf, cap * 2) : NULL;
-            if (!nb) {
-                free(buf);
-                buf = NULL;
-                break;
-            }
-            buf = nb;
-            cap *= 2;
-        }
-        size_t got = fread(buf + n, 1, cap - n, f);
-        n += got;
-        if (got == 0)
-            break;
-    }
-    int bad = !buf || ferror(f);
-    fclose(f);
-    if (bad) {
-        free(buf);
-        return -1;
-    }
-    *data = buf;
-    *size = n;
-    return 0;
-}
-
-/* Sorted by name, so the mutation sequence does not depend on readdir order. */
-static int load_corpus(const char *dir, corpus *c)
-{
-    DIR *d = opendir(dir);
-    if (!d)
-        return -1;
-    struct dirent *e;
-    int rc = 0;
-    while ((e = readdir(d)) != NULL) {
-        if (e->d_name[0] == '.')
-            continue;
-        char path[4096];
-        if (snprintf(path, sizeof path, "%s/%s", dir, e->d_name) >= (int)sizeof path)
-            continue;
-        input in = { NULL, NULL, 0 };
-        if (read_file(path, &in.data, &in.size) != 0)
-            continue; /* a subfolder or unreadable: not an input */
-        size_t len = strlen(e->d_name) + 1;
-        in.name = malloc(len);
-        if (c->n == c->cap) {
-            size_t ncap = c->cap ? 2 * c->cap : 16;
-            input *nv = realloc(c->v, ncap * sizeof *nv);
-            if (nv) {
-                c->v = nv;
-                c->cap = ncap;
-            }
-        }
-        if (!in.name || c->n == c->cap) {
-            free(in.name);
-            free(in.data);
-            rc = -1;
-            break;
-        }
-        memcpy(in.name, e->d_name, len);
-        c->v[c->n++] = in;
-    }
-    closedir(d);
-    if (rc == 0 && c->n > 0)
-        qsort(c->v, c->n, sizeof *c->v, cmp_input);
-    return rc;
-}
-
-/* `make test` runs every fuzz target on tests/data/fuzz; this target's
- * corpus is tests/data/fuzz-proto, so ".../fuzz" (with or without a
- * trailing slash) is taken to mean ".../fuzz-proto". Any other folder is
- * used as given. */
-static void corpus_dir(const char *arg, char *out, size_t len)
-{
-    size_t n = strlen(arg);
-    while (n > 1 && arg[n - 1] == '/')
-        n--;
-    int is_fuzz = n >= 4 && memcmp(arg + n - 4, "fuzz", 4) == 0 && (n == 4 || arg[n - 5] == '/');
-    snprintf(out, len, "%.*s%s", (int)n, arg, is_fuzz ? "-proto" : "");
-}
-
-/* xorshift64*: small, fast and the same on every host. */
-static uint64_t rnd(uint64_t *s)
-{
-    *s ^= *s >> 12;
-    *s ^= *s << 25;
-    *s ^= *s >> 27;
-    return *s * UINT64_C(2685821657736338717);
-}
-
-static size_t rnd_below(uint64_t *s, size_t n)
-{
-    return n ? (size_t)(rnd(s) % n) : 0;
-}
-
-/* Working buffer for one mutated input. */
-typedef struct buf {
-    unsigned char d[FUZZ_MAX_INPUT];
-    size_t n;
-} buf;
-
-static void insert_bytes(buf *b, size_t at, const void *p, size_t n)
-{
-    if (at > b->n || n > FUZZ_MAX_INPUT - b->n)
-        return;
-    memmove(b->d + at + n, b->d + at, b->n - at);
-    memcpy(b->d + at, p, n);
-    b->n += n;
-}
-
-static void erase_bytes(buf *b, size_t at, size_t n)
-{
-    if (at > b->n)
-        return;
-    if (n > b->n - at)
-        n = b->n - at;
-    memmove(b->d + at, b->d + at + n, b->n - at - n);
-    b->n -= n;
-}
+#include "fuzzdriver.h"
 
 static void put_le(unsigned char *p, uint64_t v, int bytes)
 {
@@ -284,14 +129,17 @@ static void put_le(unsigned char *p, uint64_t v, int bytes)
 /* Makes the header's payload_size agree with the payload again, so that a
  * change to the payload reaches the payload's decoder instead of dying at
  * the header's size check. */
-static void fix_payload_size(buf *b)
+static void fix_payload_size(fuzz_buf_t *b, uint64_t *s)
 {
+    /* three in four: a payload change reaches the payload decoder */
+    if (fuzz_rnd(s) % 4 == 0)
+        return;
     if (b->n < 1 + PROTO_HEADER_SIZE || b->d[0] != PROTO_HEADER_SIZE)
         return;
     put_le(b->d + 1 + 28, b->n - 1 - PROTO_HEADER_SIZE, 4);
 }
 
-static void mutate(buf *b, uint64_t *s)
+static void mutate(fuzz_buf_t *b, uint64_t *s)
 {
     static const uint32_t words[] = {
         0u, 1u, 2u, 3u, 0x7Fu, 0x80u, 0xFFu, 0x100u, 0xFFFFu, 0x10000u, 0x10001u,
@@ -313,72 +161,72 @@ static void mutate(buf *b, uint64_t *s)
     };
     static const char *const tokens[] = { "/", "\\", "..", ".", "\x7f", "a.obj", "\xc3\xa9" };
     size_t n = b->n;
-    switch (rnd(s) % 11) {
+    switch (fuzz_rnd(s) % 11) {
     case 0: /* flip a bit */
         if (n)
-            b->d[rnd_below(s, n)] ^= (unsigned char)(1u << (rnd(s) % 8));
+            b->d[fuzz_rnd_below(s, n)] ^= (unsigned char)(1u << (fuzz_rnd(s) % 8));
         break;
     case 1: /* random byte */
         if (n)
-            b->d[rnd_below(s, n)] = (unsigned char)rnd(s);
+            b->d[fuzz_rnd_below(s, n)] = (unsigned char)fuzz_rnd(s);
         break;
     case 2: /* truncate */
-        b->n = rnd_below(s, n + 1);
+        b->n = fuzz_rnd_below(s, n + 1);
         break;
     case 3: { /* insert a few random bytes or a token */
         unsigned char r[8];
-        size_t at = rnd_below(s, n + 1);
-        if (rnd(s) & 1) {
-            const char *t = tokens[rnd_below(s, sizeof tokens / sizeof tokens[0])];
-            insert_bytes(b, at, t, strlen(t));
+        size_t at = fuzz_rnd_below(s, n + 1);
+        if (fuzz_rnd(s) & 1) {
+            const char *t = tokens[fuzz_rnd_below(s, sizeof tokens / sizeof tokens[0])];
+            fuzz_insert(b, at, t, strlen(t));
         } else {
-            size_t k = 1 + rnd_below(s, sizeof r);
+            size_t k = 1 + fuzz_rnd_below(s, sizeof r);
             for (size_t i = 0; i < k; i++)
-                r[i] = (unsigned char)rnd(s);
-            insert_bytes(b, at, r, k);
+                r[i] = (unsigned char)fuzz_rnd(s);
+            fuzz_insert(b, at, r, k);
         }
         break;
     }
     case 4: { /* duplicate a chunk somewhere else (records, meshes) */
         if (!n)
             break;
-        size_t from = rnd_below(s, n), len = 1 + rnd_below(s, n - from < 256 ? n - from : 256);
+        size_t from = fuzz_rnd_below(s, n), len = 1 + fuzz_rnd_below(s, n - from < 256 ? n - from : 256);
         unsigned char tmp[256];
         memcpy(tmp, b->d + from, len);
-        insert_bytes(b, rnd_below(s, n + 1), tmp, len);
+        fuzz_insert(b, fuzz_rnd_below(s, n + 1), tmp, len);
         break;
     }
     case 5: /* delete a chunk */
         if (n)
-            erase_bytes(b, rnd_below(s, n), 1 + rnd_below(s, 64));
+            fuzz_erase(b, fuzz_rnd_below(s, n), 1 + fuzz_rnd_below(s, 64));
         break;
     case 6: /* another header length now and then */
         if (n)
-            b->d[0] = (unsigned char)(rnd(s) % 4 ? PROTO_HEADER_SIZE + rnd_below(s, 3) - 1
-                                                 : rnd(s));
+            b->d[0] = (unsigned char)(fuzz_rnd(s) % 4 ? PROTO_HEADER_SIZE + fuzz_rnd_below(s, 3) - 1
+                                                 : fuzz_rnd(s));
         break;
     case 7:
     case 8: { /* an awkward u32 at a 4-byte-aligned field of either frame */
         if (n < 5)
             break;
-        size_t at = 1 + 4 * rnd_below(s, (n - 1) / 4);
+        size_t at = 1 + 4 * fuzz_rnd_below(s, (n - 1) / 4);
         if (at + 4 <= n)
-            put_le(b->d + at, words[rnd_below(s, sizeof words / sizeof words[0])], 4);
+            put_le(b->d + at, words[fuzz_rnd_below(s, sizeof words / sizeof words[0])], 4);
         break;
     }
     case 9: { /* an awkward f64 or u64 anywhere */
         if (n < 9)
             break;
-        size_t at = 1 + rnd_below(s, n - 8);
-        put_le(b->d + at, dwords[rnd_below(s, sizeof dwords / sizeof dwords[0])], 8);
+        size_t at = 1 + fuzz_rnd_below(s, n - 8);
+        put_le(b->d + at, dwords[fuzz_rnd_below(s, sizeof dwords / sizeof dwords[0])], 8);
         break;
     }
     default: { /* a u16 (version, type, name_len) */
         if (n < 3)
             break;
-        size_t at = 1 + rnd_below(s, n - 2);
+        size_t at = 1 + fuzz_rnd_below(s, n - 2);
         static const uint16_t shorts[] = { 0, 1, 2, 11, 12, 128, 129, 0xFFFF };
-        put_le(b->d + at, shorts[rnd_below(s, sizeof shorts / sizeof shorts[0])], 2);
+        put_le(b->d + at, shorts[fuzz_rnd_below(s, sizeof shorts / sizeof shorts[0])], 2);
         break;
     }
     }
@@ -386,66 +234,8 @@ static void mutate(buf *b, uint64_t *s)
 
 int main(int argc, char **argv)
 {
-    if (argc != 3) {
-        fprintf(stderr, "usage: %s CORPUS_DIR N\n", argv[0]);
-        return 2;
-    }
-    char *endp = NULL;
-    long long iters = strtoll(argv[2], &endp, 10);
-    if (!endp || *endp != '\0' || iters < 0) {
-        fprintf(stderr, "fuzz_proto: N must be a non-negative integer\n");
-        return 2;
-    }
-    char dir[4096];
-    corpus_dir(argv[1], dir, sizeof dir);
-    corpus c = { NULL, 0, 0 };
-    if (load_corpus(dir, &c) != 0 || c.n == 0) {
-        fprintf(stderr, "fuzz_proto: no corpus files in %s\n", dir);
-        corpus_free(&c);
-        return 2;
-    }
-    buf *b = malloc(sizeof *b);
-    if (!b) {
-        corpus_free(&c);
-        return 2;
-    }
-
-    for (size_t i = 0; i < c.n; i++) {
-        /* An exact-size copy: no slack after the end for a bad read to hit. */
-        unsigned char *copy = malloc(c.v[i].size ? c.v[i].size : 1);
-        if (!copy)
-            abort();
-        memcpy(copy, c.v[i].data, c.v[i].size);
-        int r = run_one(copy, c.v[i].size);
-        free(copy);
-        printf("  %-28s %s\n", c.v[i].name, r ? "decodes" : "refused");
-    }
-
-    long long accepted = 0;
-    uint64_t seed = UINT64_C(0x9E3779B97F4A7C15);
-    for (long long it = 0; it < iters; it++) {
-        const input *src = &c.v[rnd_below(&seed, c.n)];
-        b->n = src->size < FUZZ_MAX_INPUT ? src->size : FUZZ_MAX_INPUT;
-        memcpy(b->d, src->data, b->n);
-        /* Mostly one mutation, sometimes a few: single changes keep most
-         * of the structure and so reach deeper into the decoder. */
-        do
-            mutate(b, &seed);
-        while (rnd(&seed) % 3 == 0);
-        if (rnd(&seed) % 4 != 0)
-            fix_payload_size(b);
-        unsigned char *in = malloc(b->n ? b->n : 1);
-        if (!in)
-            abort();
-        memcpy(in, b->d, b->n);
-        accepted += run_one(in, b->n);
-        free(in);
-    }
-    printf("fuzz_proto: %zu corpus files in %s, %lld mutations (%lld decoded), no crash\n", c.n,
-           dir, iters, accepted);
-    free(b);
-    corpus_free(&c);
-    return 0;
+    static const fuzz_target_t target = {"fuzz_proto", run_one, mutate, fix_payload_size, {"decoded", NULL}, "-proto"};
+    return fuzz_main(argc, argv, &target);
 }
 
 #endif /* VB_LIBFUZZER */

@@ -20,6 +20,7 @@
 #include <zmq.h>
 
 #include "proto.h"
+#include "vblog.h"
 #include "scene.h"
 #include "tracer.h"
 
@@ -90,21 +91,10 @@ static double now_s(void)
 static void logf_(worker_t *w, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 static void logf_(worker_t *w, const char *fmt, ...)
 {
-    if (!w->cfg.log)
-        return;
-    struct timespec ts;
-    clock_gettime(CLOCK_REALTIME, &ts);
-    struct tm tm;
-    gmtime_r(&ts.tv_sec, &tm);
-    char stamp[32];
-    strftime(stamp, sizeof stamp, "%Y-%m-%dT%H:%M:%S", &tm);
-    char msg[1024];
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
+    vblog_write(w->cfg.log, w->name, fmt, ap);
     va_end(ap);
-    fprintf(w->cfg.log, "%s.%03ldZ %s: %s\n", stamp, ts.tv_nsec / 1000000, w->name, msg);
-    fflush(w->cfg.log);
 }
 
 static void task_free(wtask_t *t)
