@@ -305,63 +305,73 @@ static void remote_lost(master_t *m, remote_t *w, const char *why)
 
 /* ---- dispatch --------------------------------------------------------------- */
 
+/* The oldest running job's next ready task, starting queued jobs as it goes. */
+static job_t *next_task(master_t *m, sched_task_t *t, double now)
+{
+    for (job_t *j = m->jobs; j; j = j->next) {
+        if (j->state == JOB_QUEUED) {
+            j->state = JOB_RUNNING;
+            j->started = now;
+            logf_(m, "job %" PRIu64 " started: %s %ux%u, %u spp, G %u, adaptive %s", j->id, j->name, j->width,
+                  j->height, j->spp, j->granularity, sched_adaptive_name(j->adaptive));
+        }
+        if (j->state != JOB_RUNNING || j->stopped_issuing)
+            continue;
+        if (sched_next(j->sched, t) == 1)
+            return j;
+    }
+    return NULL;
+}
+
+/* Hands ready tasks to workers with credit, one task per worker in turn
+ * (round robin from the worker after the last one served), so a trickle of
+ * ready tasks spreads over all workers instead of filling the first. */
 static void dispatch(master_t *m)
 {
     double now = now_s();
-    for (uint32_t k = 0; k < m->worker_count; k++) {
-        uint32_t i = (m->rr + k) % m->worker_count;
-        remote_t *w = &m->workers[i];
-        while (w->alive && w->credit > 0) {
-            job_t *j;
-            sched_task_t t;
-            int got = 0;
-            for (j = m->jobs; j; j = j->next) {
-                if (j->state == JOB_QUEUED) {
-                    j->state = JOB_RUNNING;
-                    j->started = now;
-                    logf_(m, "job %" PRIu64 " started: %s %ux%u, %u spp, G %u, %s", j->id, j->name,
-                          j->width, j->height, j->spp, j->granularity,
-                          j->adaptive == SCHED_ADAPTIVE_THESIS ? "adaptive thesis" : "uniform");
-                }
-                if (j->state != JOB_RUNNING || j->stopped_issuing)
-                    continue;
-                if (sched_next(j->sched, &t) == 1) {
-                    got = 1;
-                    break;
-                }
-            }
-            if (!got)
-                return;
-            size_t c = (size_t)(t.id - 1);
-            proto_msg_t *msg = calloc(1, sizeof *msg);
-            if (!msg) {
-                sched_requeue(j->sched, t.id);
-                return;
-            }
-            msg->h.type = PROTO_TASK;
-            msg->h.job = j->id;
-            msg->h.task = t.id;
-            msg->h.attempt = ++j->attempt[c];
-            memcpy(msg->u.task.scene_hash, j->hash, PROTO_HASH_SIZE);
-            msg->u.task.settings = j->tracer;
-            msg->u.task.layer = t.layer;
-            msg->u.task.count = t.count;
-            msg->u.task.records = (tracer_task_t *)t.records;
-            int rc = send_to_worker(m, w, msg);
-            free(msg);
-            if (rc < 0) {
-                sched_requeue(j->sched, t.id);
-                remote_lost(m, w, "unreachable");
-                break;
-            }
-            j->holder[c] = (int32_t)i;
-            j->deadline[c] = now + m->cfg.lease_ms / 1000.0;
-            j->outstanding++;
-            w->outstanding++;
-            w->credit--;
+    for (;;) {
+        remote_t *w = NULL;
+        uint32_t i = 0;
+        for (uint32_t k = 0; k < m->worker_count && !w; k++) {
+            i = (m->rr + k) % m->worker_count;
+            if (m->workers[i].alive && m->workers[i].credit > 0)
+                w = &m->workers[i];
         }
+        if (!w)
+            return;
+        sched_task_t t;
+        job_t *j = next_task(m, &t, now);
+        if (!j)
+            return;
+        size_t c = (size_t)(t.id - 1);
+        proto_msg_t *msg = calloc(1, sizeof *msg);
+        if (!msg) {
+            sched_requeue(j->sched, t.id);
+            return;
+        }
+        msg->h.type = PROTO_TASK;
+        msg->h.job = j->id;
+        msg->h.task = t.id;
+        msg->h.attempt = ++j->attempt[c];
+        memcpy(msg->u.task.scene_hash, j->hash, PROTO_HASH_SIZE);
+        msg->u.task.settings = j->tracer;
+        msg->u.task.layer = t.layer;
+        msg->u.task.count = t.count;
+        msg->u.task.records = (tracer_task_t *)t.records;
+        int rc = send_to_worker(m, w, msg);
+        free(msg);
+        m->rr = i + 1;
+        if (rc < 0) {
+            sched_requeue(j->sched, t.id);
+            remote_lost(m, w, "unreachable");
+            continue;
+        }
+        j->holder[c] = (int32_t)i;
+        j->deadline[c] = now + m->cfg.lease_ms / 1000.0;
+        j->outstanding++;
+        w->outstanding++;
+        w->credit--;
     }
-    m->rr++;
 }
 
 /* ---- worker messages --------------------------------------------------------- */

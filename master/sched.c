@@ -108,8 +108,16 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
     s->cfg = *cfg;
     s->npix = cfg->width * cfg->height;
     s->layers = (uint32_t)(((uint64_t)cfg->spp + cfg->granularity - 1) / cfg->granularity);
-    /* About 32k samples a task: tens of milliseconds on one core. */
-    uint32_t rp = cfg->range_pixels ? cfg->range_pixels : 32768 / cfg->granularity;
+    /* About 32k samples a task: tens of milliseconds on one core; but at
+     * least 64 ranges, so a small image still spreads over many workers.
+     * The partition does not change a pixel's result: each pixel merges its
+     * layers in order whatever range it sits in. */
+    uint32_t rp = cfg->range_pixels;
+    if (!rp) {
+        rp = 32768 / cfg->granularity;
+        uint32_t spread = (s->npix + 63) / 64;
+        rp = rp < spread ? rp : spread;
+    }
     s->range_pixels = rp < 1 ? 1 : rp;
     s->ranges = (s->npix + s->range_pixels - 1) / s->range_pixels;
     s->uniform = cfg->adaptive == SCHED_ADAPTIVE_NONE ? s->layers
