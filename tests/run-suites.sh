@@ -1,11 +1,13 @@
 #!/usr/bin/env bash
 # Runs every Check suite and fuzz target given on the command line, then
-# prints one closing line adding up the Check counts: "tests: N passed, M failed".
+# prints one closing line adding up the Check counts: "tests: N passed, M failed"
+# (then ", K skipped" when K > 0 tests printed a line starting with "SKIPPED:").
 # Usage: tests/run-suites.sh SUITE... [-- FUZZ...]; the environment (VB_*)
 # comes from the Makefile. Exits non-zero if anything failed.
 set -u
 passed=0
 failed=0
+skipped=0
 status=0
 fuzz=0
 for t in "$@"; do
@@ -18,6 +20,8 @@ for t in "$@"; do
     echo "== $t"
     out=$("$t" 2>&1); rc=$?
     printf '%s\n' "$out"
+    k=$(printf '%s\n' "$out" | grep -c '^SKIPPED:')
+    skipped=$((skipped + k))
     line=$(printf '%s\n' "$out" | grep -E 'Checks: [0-9]+, Failures: [0-9]+, Errors: [0-9]+' | tail -n 1)
     if [ -n "$line" ]; then
         n=$(echo "$line" | sed -E 's/.*Checks: ([0-9]+).*/\1/')
@@ -31,6 +35,10 @@ for t in "$@"; do
     fi
     [ $rc = 0 ] || status=1
 done
-echo "tests: $passed passed, $failed failed"
+if [ $skipped -gt 0 ]; then
+    echo "tests: $passed passed, $failed failed, $skipped skipped"
+else
+    echo "tests: $passed passed, $failed failed"
+fi
 [ $failed = 0 ] || status=1
 exit $status

@@ -1,0 +1,1376 @@
+/* test_cluster.c - Check suite for the distributed system as it runs: real
+ * vbrender-master and vbrender-worker processes on loopback (and, when the
+ * machine allows it, in network namespaces joined by veth pairs), driven by
+ * the vbrender client.
+ *
+ * What it pins down: a distributed image equals the embedded one bit for bit
+ * whatever the worker count (uniform and adaptive); a worker killed, stopped
+ * or joining mid-job changes nothing in the pixels; queued jobs, cancel and
+ * bad scenes leave the master serving; garbage on the worker port and a
+ * peer of another protocol version are refused on both sides; every daemon
+ * exits 0 on SIGTERM (in the sanitizer build a leak makes that fail).
+ *
+ * Each daemon writes its stderr to a log under VB_TMP; a failing assertion
+ * prints the tail of every log of the test. Every process a test starts is
+ * killed in the teardown, and also dies with the test process (parent-death
+ * signal), so a failed or timed-out test leaves nothing running.
+ */
+#include <cJSON.h>
+#include <check.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/prctl.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+#include <zmq.h>
+
+#include "image.h"
+#include "proto.h"
+#include "testutil.h"
+
+#define PATHLEN 1024
+#define OUTLEN 16384
+#define CMDLEN 4096
+#define MAX_DAEMONS 16
+#define STOP_MS 5000      /* a daemon must exit this soon after SIGTERM */
+#define JOB_TIMEOUT_MS 60000
+
+/* Settings shared by a distributed run and its embedded reference. */
+#define SMALL "--spp 64 --granularity 16"
+#define LONG "--spp 256 --granularity 16 --adaptive none --seed 11"
+
+/* ---- processes ---------------------------------------------------------- */
+
+typedef struct daemon_proc {
+    pid_t pid; /* 0: reaped */
+    char name[64];
+    char log[PATHLEN];
+} daemon_t;
+
+static daemon_t daemons[MAX_DAEMONS];
+static int daemon_count;
+
+/* Scratch files of the running test: removed when it passes, kept (with
+ * the logs) for a look when it fails. */
+static char scratch[64][PATHLEN];
+static int scratch_count;
+
+static const char *keep_scratch(const char *path)
+{
+    if (scratch_count < (int)(sizeof scratch / sizeof scratch[0]))
+        snprintf(scratch[scratch_count++], PATHLEN, "%s", path);
+    return path;
+}
+
+/* The network namespaces of the netns test, deleted in the teardown too. */
+static char netns[3][32];
+static int netns_count;
+
+static void sleep_ms(int ms)
+{
+    struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
+    while (nanosleep(&ts, &ts) < 0 && errno == EINTR)
+        ;
+}
+
+static double now_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}
+
+static const char *bindir(void)
+{
+    const char *v = getenv("VB_BINDIR");
+    return (v && *v) ? v : "bin";
+}
+
+/* The last bytes of every log of this test, for failure messages. Check
+ * formats messages into 8 KiB, so the tails share about 5 KiB. */
+static const char *logs_tail(void)
+{
+    static char buf[6144];
+    size_t n = 0;
+    buf[0] = '\0';
+    size_t each = daemon_count ? 5000 / (size_t)daemon_count : 0;
+    for (int i = 0; i < daemon_count && n + 1 < sizeof buf; i++) {
+        n += (size_t)snprintf(buf + n, sizeof buf - n, "\n--- %s (%s) ---\n", daemons[i].name, daemons[i].log);
+        if (n >= sizeof buf)
+            break;
+        FILE *f = fopen(daemons[i].log, "rb");
+        if (!f)
+            continue;
+        fseek(f, 0, SEEK_END);
+        long size = ftell(f);
+        if (size > (long)each)
+            fseek(f, size - (long)each, SEEK_SET);
+        else
+            fseek(f, 0, SEEK_SET);
+        size_t room = sizeof buf - n - 1;
+        size_t got = fread(buf + n, 1, room < each ? room : each, f);
+        n += got;
+        buf[n] = '\0';
+        fclose(f);
+    }
+    return buf;
+}
+
+/* The whole log of d, for asserting on its messages. */
+static const char *read_log(const daemon_t *d, char *buf, size_t len)
+{
+    buf[0] = '\0';
+    FILE *f = fopen(d->log, "rb");
+    if (!f)
+        return buf;
+    size_t n = fread(buf, 1, len - 1, f);
+    buf[n] = '\0';
+    fclose(f);
+    return buf;
+}
+
+/* Starts argv (NULL-terminated; inside network namespace ns unless NULL)
+ * with stdout and stderr to a log named after it. */
+static daemon_t *spawn(const char *name, const char *ns, const char *const *args)
+{
+    ck_assert_int_lt(daemon_count, MAX_DAEMONS);
+    daemon_t *d = &daemons[daemon_count];
+    memset(d, 0, sizeof *d);
+    snprintf(d->name, sizeof d->name, "%s", name);
+    char file[128];
+    snprintf(file, sizeof file, "cluster-%ld-%s.log", (long)getpid(), name);
+    keep_scratch(tu_tmp_path(d->log, sizeof d->log, file));
+    const char *argv[32];
+    int argc = 0;
+    if (ns) {
+        argv[argc++] = "ip";
+        argv[argc++] = "netns";
+        argv[argc++] = "exec";
+        argv[argc++] = ns;
+    }
+    for (int i = 0; args[i]; i++) {
+        ck_assert_int_lt(argc, 31);
+        argv[argc++] = args[i];
+    }
+    argv[argc] = NULL;
+    /* opened here: between fork and exec only async-signal-safe calls */
+    int fd = open(d->log, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    ck_assert_msg(fd >= 0, "cannot create %s: %s", d->log, strerror(errno));
+    int devnull = open("/dev/null", O_RDONLY | O_CLOEXEC);
+    pid_t parent = getpid();
+    pid_t pid = fork();
+    ck_assert_msg(pid >= 0, "fork: %s", strerror(errno));
+    if (pid == 0) {
+        /* dies with the test process, even when a timeout kills it */
+        prctl(PR_SET_PDEATHSIG, SIGKILL);
+        if (getppid() != parent)
+            _exit(127);
+        sigset_t none;
+        sigemptyset(&none);
+        sigprocmask(SIG_SETMASK, &none, NULL);
+        dup2(devnull, 0);
+        dup2(fd, 1);
+        dup2(fd, 2);
+        execvp(argv[0], (char *const *)argv);
+        _exit(127);
+    }
+    close(fd);
+    close(devnull);
+    d->pid = pid;
+    daemon_count++;
+    return d;
+}
+
+/* Waits up to timeout_ms for d to exit: 1 with *status set, 0 if it runs on. */
+static int reap(daemon_t *d, int timeout_ms, int *status)
+{
+    double end = now_ms() + timeout_ms;
+    for (;;) {
+        pid_t r = waitpid(d->pid, status, WNOHANG);
+        if (r == d->pid || (r < 0 && errno != EINTR)) {
+            if (r < 0)
+                *status = -1;
+            d->pid = 0;
+            return 1;
+        }
+        if (now_ms() >= end)
+            return 0;
+        sleep_ms(10);
+    }
+}
+
+static const char *describe_status(int st, char *buf, size_t len)
+{
+    if (st == -1)
+        snprintf(buf, len, "lost (waitpid failed)");
+    else if (WIFEXITED(st))
+        snprintf(buf, len, "exit status %d", WEXITSTATUS(st));
+    else if (WIFSIGNALED(st))
+        snprintf(buf, len, "killed by signal %d", WTERMSIG(st));
+    else
+        snprintf(buf, len, "status 0x%x", (unsigned)st);
+    return buf;
+}
+
+/* Sends sig and waits up to timeout_ms; a process that outlives it is
+ * killed and the test fails. Returns the wait status. */
+static int stop_process(daemon_t *d, int sig, int timeout_ms)
+{
+    ck_assert_msg(d->pid > 0, "%s already exited\n%s", d->name, logs_tail());
+    pid_t pid = d->pid;
+    kill(pid, sig);
+    int st = 0;
+    if (!reap(d, timeout_ms, &st)) {
+        kill(pid, SIGKILL);
+        waitpid(pid, &st, 0);
+        d->pid = 0;
+        ck_abort_msg("%s (pid %ld) still running %d ms after signal %d\n%s", d->name, (long)pid, timeout_ms, sig,
+                     logs_tail());
+    }
+    return st;
+}
+
+/* SIGTERM must end a daemon with status 0 within STOP_MS (under the
+ * sanitizers a leak or an error report makes the status non-zero). */
+static void stop_clean(daemon_t *d)
+{
+    char why[64];
+    int st = stop_process(d, SIGTERM, STOP_MS);
+    ck_assert_msg(st != -1 && WIFEXITED(st) && WEXITSTATUS(st) == 0, "%s: %s after SIGTERM\n%s", d->name,
+                  describe_status(st, why, sizeof why), logs_tail());
+}
+
+/* Stops every daemon still running, the last started first (workers before
+ * their master), each with stop_clean. */
+static void stop_all_clean(void)
+{
+    for (int i = daemon_count - 1; i >= 0; i--)
+        if (daemons[i].pid > 0)
+            stop_clean(&daemons[i]);
+}
+
+static void assert_alive(daemon_t *d)
+{
+    int st = 0;
+    char why[64];
+    if (d->pid > 0 && reap(d, 0, &st))
+        ck_abort_msg("%s died: %s\n%s", d->name, describe_status(st, why, sizeof why), logs_tail());
+    ck_assert_msg(d->pid > 0, "%s is not running\n%s", d->name, logs_tail());
+}
+
+static void netns_delete_all(void)
+{
+    char cmd[256], out[1024];
+    for (int i = 0; i < netns_count; i++) {
+        snprintf(cmd, sizeof cmd, "ip netns del '%s'", netns[i]);
+        tu_run(cmd, out, sizeof out);
+    }
+    netns_count = 0;
+}
+
+static void setup(void)
+{
+    daemon_count = 0;
+    netns_count = 0;
+    scratch_count = 0;
+}
+
+/* The last statement of a test that passed; an EXR's PNGs go with it. */
+static void remove_scratch(void)
+{
+    for (int i = 0; i < scratch_count; i++) {
+        unlink(scratch[i]);
+        size_t n = strlen(scratch[i]);
+        if (n > 4 && strcmp(scratch[i] + n - 4, ".exr") == 0) {
+            char sib[PATHLEN + 16];
+            scratch[i][n - 4] = '\0';
+            snprintf(sib, sizeof sib, "%s.png", scratch[i]);
+            unlink(sib);
+            snprintf(sib, sizeof sib, "%s-samples.png", scratch[i]);
+            unlink(sib);
+        }
+    }
+    scratch_count = 0;
+}
+
+/* Whatever happened in the test: nothing it started survives it. */
+static void teardown(void)
+{
+    for (int i = 0; i < daemon_count; i++)
+        if (daemons[i].pid > 0) {
+            kill(daemons[i].pid, SIGKILL);
+            waitpid(daemons[i].pid, NULL, 0);
+            daemons[i].pid = 0;
+        }
+    daemon_count = 0;
+    netns_delete_all();
+}
+
+/* ---- ports and daemons -------------------------------------------------- */
+
+/* Two consecutive ports (workers, control) per slot, from a base that
+ * depends on the pid so that suites running side by side do not collide,
+ * below Linux's ephemeral range (32768 and up), where the source port of
+ * any connection on the machine could take them. */
+static int slot_port(int slot)
+{
+    return 20000 + (int)(getpid() % 200) * 20 + 2 * slot;
+}
+
+/* Runs the client ("BIN ARGS", inside ns unless NULL), bounded by a
+ * generous timeout so a hang fails instead of blocking the suite. */
+static int client_in(const char *ns, char *out, size_t outlen, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+static int client_in(const char *ns, char *out, size_t outlen, const char *fmt, ...)
+{
+    char args[CMDLEN], cmd[CMDLEN + PATHLEN];
+    va_list ap;
+    va_start(ap, fmt);
+    int n = vsnprintf(args, sizeof args, fmt, ap);
+    va_end(ap);
+    ck_assert_int_gt(n, -1);
+    ck_assert_uint_lt((size_t)n, sizeof args);
+    char prefix[64] = "";
+    if (ns)
+        snprintf(prefix, sizeof prefix, "ip netns exec '%s' ", ns);
+    n = snprintf(cmd, sizeof cmd, "timeout 90 %s'%s' %s", prefix, tu_bin(), args);
+    ck_assert_uint_lt((size_t)n, sizeof cmd);
+    int rc = tu_run(cmd, out, outlen);
+    ck_assert_msg(rc >= 0, "could not run %s", cmd);
+    return rc;
+}
+
+#define client(...) client_in(NULL, __VA_ARGS__)
+
+/* Starts a master on 127.0.0.1 (workers at *port, control at *port + 1)
+ * with 200 ms heartbeats (a silent worker is dropped after 1 s), and waits
+ * until its control socket answers. A port somebody else holds moves it to
+ * another pair. */
+static daemon_t *start_master(int *port, const char *name)
+{
+    char out[OUTLEN];
+    for (int attempt = 0; attempt < 3; attempt++, *port += 4000) {
+        char bin[PATHLEN], wep[64], cep[64];
+        snprintf(bin, sizeof bin, "%s/vbrender-master", bindir());
+        snprintf(wep, sizeof wep, "tcp://127.0.0.1:%d", *port);
+        snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", *port + 1);
+        const char *args[] = {bin, "--workers", wep, "--control", cep, "--heartbeat-ms", "200", NULL};
+        daemon_t *m = spawn(name, NULL, args);
+        /* its log says whether it bound both sockets: asking the control
+         * port before would wait out the client's 10 s timeout if not */
+        char log[4096];
+        int st = 0, exited = 0;
+        double end = now_ms() + 10000;
+        while (!strstr(read_log(m, log, sizeof log), "listening") && !(exited = reap(m, 0, &st)) && now_ms() < end)
+            sleep_ms(10);
+        if (exited) {
+            read_log(m, log, sizeof log);
+            ck_assert_msg(strstr(log, "cannot bind") != NULL, "the master exited at start:\n%s", logs_tail());
+            continue; /* port taken: next pair */
+        }
+        for (int tries = 0; tries < 50; tries++) {
+            if (client(out, sizeof out, "jobs --master %s", cep) == 0)
+                return m;
+            assert_alive(m);
+            sleep_ms(100);
+        }
+        if (m->pid > 0)
+            ck_abort_msg("the master's control socket %s does not answer:\n%s\n%s", cep, out, logs_tail());
+    }
+    ck_abort_msg("no free port pair for the master\n%s", logs_tail());
+    return NULL;
+}
+
+/* Starts a worker with `threads` threads; with src (a loopback address such
+ * as 127.0.0.2) its connection comes from there, so the master lists it
+ * under that host and a test can tell workers apart. */
+static daemon_t *start_worker(int port, int threads, const char *name, const char *src)
+{
+    char bin[PATHLEN], ep[128], th[16];
+    snprintf(bin, sizeof bin, "%s/vbrender-worker", bindir());
+    if (src)
+        snprintf(ep, sizeof ep, "tcp://%s:0;127.0.0.1:%d", src, port);
+    else
+        snprintf(ep, sizeof ep, "tcp://127.0.0.1:%d", port);
+    snprintf(th, sizeof th, "%d", threads);
+    const char *args[] = {bin, "--master", ep, "--threads", th, "--name", name, NULL};
+    return spawn(name, NULL, args);
+}
+
+/* ---- control requests straight from the test ---------------------------- */
+
+/* One JSON request to the control socket at 127.0.0.1:cport (faster and
+ * more exact than parsing the client's tables while polling). NULL when
+ * the master does not answer within 5 s. */
+static cJSON *ctl(int cport, const char *cmd, unsigned long long job)
+{
+    void *ctx = zmq_ctx_new();
+    void *s = zmq_socket(ctx, ZMQ_REQ);
+    int zero = 0, timeout = 5000;
+    zmq_setsockopt(s, ZMQ_LINGER, &zero, sizeof zero);
+    zmq_setsockopt(s, ZMQ_RCVTIMEO, &timeout, sizeof timeout);
+    zmq_setsockopt(s, ZMQ_SNDTIMEO, &timeout, sizeof timeout);
+    char ep[64];
+    snprintf(ep, sizeof ep, "tcp://127.0.0.1:%d", cport);
+    cJSON *reply = NULL;
+    cJSON *req = cJSON_CreateObject();
+    cJSON_AddStringToObject(req, "cmd", cmd);
+    if (job)
+        cJSON_AddNumberToObject(req, "job", (double)job);
+    char *text = cJSON_PrintUnformatted(req);
+    if (zmq_connect(s, ep) == 0 && text && zmq_send(s, text, strlen(text), 0) >= 0) {
+        zmq_msg_t msg;
+        zmq_msg_init(&msg);
+        if (zmq_msg_recv(&msg, s, 0) >= 0)
+            reply = cJSON_ParseWithLength(zmq_msg_data(&msg), zmq_msg_size(&msg));
+        zmq_msg_close(&msg);
+    }
+    cJSON_free(text);
+    cJSON_Delete(req);
+    zmq_close(s);
+    zmq_ctx_term(ctx);
+    return reply;
+}
+
+static double jnum(const cJSON *o, const char *k)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
+    return cJSON_IsNumber(v) ? v->valuedouble : -1.0;
+}
+
+static const char *jstr(const cJSON *o, const char *k)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
+    return cJSON_IsString(v) ? v->valuestring : "";
+}
+
+/* The job's status object (the caller frees it). */
+static cJSON *job_status(int cport, unsigned long long job)
+{
+    cJSON *r = ctl(cport, "status", job);
+    ck_assert_msg(r != NULL, "no answer to status %llu\n%s", job, logs_tail());
+    cJSON *j = cJSON_DetachItemFromObject(r, "job");
+    cJSON_Delete(r);
+    ck_assert_msg(j != NULL, "status %llu has no job\n%s", job, logs_tail());
+    return j;
+}
+
+static int state_is(const cJSON *job, const char *state)
+{
+    return strcmp(jstr(job, "state"), state) == 0;
+}
+
+static int job_ended(const cJSON *job)
+{
+    return state_is(job, "done") || state_is(job, "failed") || state_is(job, "cancelled");
+}
+
+/* Waits until the job has min_layers layers complete (or has ended);
+ * returns its status then. */
+static cJSON *wait_layers(int cport, unsigned long long job, int min_layers)
+{
+    double end = now_ms() + JOB_TIMEOUT_MS;
+    for (;;) {
+        cJSON *st = job_status(cport, job);
+        if (jnum(st, "layers_done") >= min_layers || job_ended(st))
+            return st;
+        cJSON_Delete(st);
+        ck_assert_msg(now_ms() < end, "job %llu: no layer complete after %d ms\n%s", job, JOB_TIMEOUT_MS,
+                      logs_tail());
+        sleep_ms(10);
+    }
+}
+
+/* Waits for the job to end; returns its final status. */
+static cJSON *wait_end(int cport, unsigned long long job)
+{
+    double end = now_ms() + JOB_TIMEOUT_MS;
+    for (;;) {
+        cJSON *st = job_status(cport, job);
+        if (job_ended(st))
+            return st;
+        cJSON_Delete(st);
+        ck_assert_msg(now_ms() < end, "job %llu still running after %d ms\n%s", job, JOB_TIMEOUT_MS, logs_tail());
+        sleep_ms(20);
+    }
+}
+
+/* The connected workers' list (the caller frees it). */
+static cJSON *workers_list(int cport)
+{
+    cJSON *r = ctl(cport, "workers", 0);
+    ck_assert_msg(r != NULL, "no answer to workers\n%s", logs_tail());
+    cJSON *w = cJSON_DetachItemFromObject(r, "workers");
+    cJSON_Delete(r);
+    ck_assert_msg(cJSON_IsArray(w), "workers reply has no list\n%s", logs_tail());
+    return w;
+}
+
+static void wait_workers(int cport, int n)
+{
+    double end = now_ms() + 20000;
+    for (;;) {
+        cJSON *w = workers_list(cport);
+        int have = cJSON_GetArraySize(w);
+        cJSON_Delete(w);
+        if (have == n)
+            return;
+        ck_assert_msg(now_ms() < end, "%d workers connected, want %d\n%s", have, n, logs_tail());
+        sleep_ms(20);
+    }
+}
+
+/* Tasks the master has out to the worker at host, -1 if it is not listed. */
+static int outstanding_at(int cport, const char *host)
+{
+    cJSON *list = workers_list(cport);
+    int n = -1;
+    const cJSON *w;
+    cJSON_ArrayForEach(w, list)
+    {
+        if (strcmp(jstr(w, "host"), host) == 0)
+            n = (int)jnum(w, "tasks_outstanding");
+    }
+    cJSON_Delete(list);
+    return n;
+}
+
+/* Delivers sig to one of two workers (d[k] connected from host[k]) at a
+ * moment when the master has tasks out to it and the job is still running:
+ * both are frozen (SIGSTOP) while the master is asked, so the answer still
+ * holds when the signal lands; otherwise they are thawed and it is asked
+ * again. Either worker will do: which one the master feeds is its business.
+ * Returns the index of the worker hit. */
+static int signal_holding_worker(int cport, unsigned long long job, daemon_t *d[2], const char *const host[2], int sig)
+{
+    for (int tries = 0; tries < 300; tries++) {
+        for (int k = 0; k < 2; k++)
+            ck_assert_int_eq(kill(d[k]->pid, SIGSTOP), 0);
+        sleep_ms(30); /* lets their last messages reach the master */
+        int held[2] = {outstanding_at(cport, host[0]), outstanding_at(cport, host[1])};
+        cJSON *st = job_status(cport, job);
+        int running = state_is(st, "running");
+        cJSON_Delete(st);
+        int hit = held[0] > 0 ? 0 : held[1] > 0 ? 1 : -1;
+        if (running && hit >= 0)
+            kill(d[hit]->pid, sig);
+        for (int k = 0; k < 2; k++)
+            if (k != hit || sig != SIGKILL)
+                kill(d[k]->pid, SIGCONT);
+        ck_assert_msg(running, "job %llu ended before a worker could be hit mid-job (make the job longer)\n%s", job,
+                      logs_tail());
+        if (hit >= 0)
+            return hit;
+        sleep_ms(10 + tries % 20);
+    }
+    ck_abort_msg("no worker ever held a task\n%s", logs_tail());
+    return -1;
+}
+
+/* ---- client runs -------------------------------------------------------- */
+
+/* Submits through the client; returns the job id it printed. */
+static unsigned long long submit_in(const char *ns, int cport, const char *scene, const char *settings)
+{
+    char out[OUTLEN];
+    int rc = client_in(ns, out, sizeof out, "submit '%s' %s --master tcp://127.0.0.1:%d", scene, settings, cport);
+    ck_assert_msg(rc == 0, "submit: exit %d:\n%s\n%s", rc, out, logs_tail());
+    size_t n = strlen(out);
+    while (n > 0 && (out[n - 1] == '\n' || out[n - 1] == ' '))
+        out[--n] = '\0';
+    const char *last = strrchr(out, '\n');
+    last = last ? last + 1 : out;
+    char *end;
+    errno = 0;
+    unsigned long long id = strtoull(last, &end, 10);
+    ck_assert_msg(errno == 0 && *end == '\0' && id > 0, "submit printed no job id:\n%s", out);
+    return id;
+}
+
+static unsigned long long submit(int cport, const char *scene, const char *settings)
+{
+    return submit_in(NULL, cport, scene, settings);
+}
+
+/* Waits for the job to be done (the client's wait must say so too) and
+ * fetches its image to out_exr. */
+static void finish_and_fetch_in(const char *ns, int cport, unsigned long long job, const char *out_exr)
+{
+    char out[OUTLEN];
+    if (!ns) {
+        cJSON *st = wait_end(cport, job);
+        ck_assert_msg(state_is(st, "done"), "job %llu %s: %s\n%s", job, jstr(st, "state"), jstr(st, "error"),
+                      logs_tail());
+        cJSON_Delete(st);
+    }
+    int rc = client_in(ns, out, sizeof out, "wait %llu --progress none --master tcp://127.0.0.1:%d", job, cport);
+    ck_assert_msg(rc == 0, "wait %llu: exit %d:\n%s\n%s", job, rc, out, logs_tail());
+    unlink(out_exr);
+    rc = client_in(ns, out, sizeof out, "fetch %llu -o '%s' --master tcp://127.0.0.1:%d", job, out_exr, cport);
+    ck_assert_msg(rc == 0, "fetch %llu: exit %d:\n%s\n%s", job, rc, out, logs_tail());
+}
+
+static void finish_and_fetch(int cport, unsigned long long job, const char *out_exr)
+{
+    finish_and_fetch_in(NULL, cport, job, out_exr);
+}
+
+/* The embedded render (master and workers in the client's process). */
+static void render_embedded(const char *scene, const char *settings, int workers, const char *out_exr)
+{
+    char out[OUTLEN];
+    unlink(out_exr);
+    int rc = client(out, sizeof out, "render '%s' -o '%s' %s --workers %d --threads %d --progress none", scene,
+                    out_exr, settings, workers, workers);
+    ck_assert_msg(rc == 0, "embedded render: exit %d:\n%s", rc, out);
+}
+
+/* ---- images and scenes -------------------------------------------------- */
+
+static const char *tmp(char *buf, size_t len, const char *name)
+{
+    char file[256];
+    snprintf(file, sizeof file, "cluster-%ld-%s", (long)getpid(), name);
+    return keep_scratch(tu_tmp_path(buf, len, file));
+}
+
+/* Every channel of a and b identical bit for bit (and the same channels). */
+static void compare_exr(const char *a, const char *b)
+{
+    image_t *ia = NULL, *ib = NULL;
+    char err[1024];
+    ck_assert_msg(image_read_exr(a, &ia, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(image_read_exr(b, &ib, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(ia->width == ib->width && ia->height == ib->height, "%s is %dx%d, %s is %dx%d", a, ia->width,
+                  ia->height, b, ib->width, ib->height);
+    ck_assert_msg(ia->channel_count == ib->channel_count, "%s has %d channels, %s %d", a, ia->channel_count, b,
+                  ib->channel_count);
+    static const char *const want[] = {"R", "G", "B", "samples", "variance"};
+    for (size_t i = 0; i < sizeof want / sizeof want[0]; i++)
+        ck_assert_msg(image_channel(ia, want[i]) != NULL, "%s lacks channel %s", a, want[i]);
+    size_t npix = (size_t)ia->width * (size_t)ia->height;
+    for (int c = 0; c < ia->channel_count; c++) {
+        const float *pa = ia->channels[c];
+        const float *pb = image_channel(ib, ia->channel_names[c]);
+        ck_assert_msg(pb != NULL, "%s lacks channel %s", b, ia->channel_names[c]);
+        if (memcmp(pa, pb, npix * sizeof(float)) != 0) {
+            size_t k = 0;
+            while (k < npix && memcmp(&pa[k], &pb[k], sizeof(float)) == 0)
+                k++;
+            ck_abort_msg("channel %s differs at pixel (%zu, %zu): %.9g in %s, %.9g in %s", ia->channel_names[c],
+                         k % (size_t)ia->width, k / (size_t)ia->width, (double)pa[k], a, (double)pb[k], b);
+        }
+    }
+    image_destroy(&ia);
+    image_destroy(&ib);
+}
+
+/* Replaces the first `from` in text (of capacity cap) with `to`. */
+static void replace_once(char *text, size_t cap, const char *from, const char *to)
+{
+    char *at = strstr(text, from);
+    ck_assert_msg(at != NULL, "\"%s\" not found", from);
+    size_t fl = strlen(from), tl = strlen(to), rest = strlen(at + fl);
+    ck_assert_uint_lt((size_t)(at - text) + tl + rest, cap);
+    memmove(at + tl, at + fl, rest + 1);
+    memcpy(at, to, tl);
+}
+
+/* The Cornell box at size x size in a scratch file; with `from` given, its
+ * first occurrence is replaced by `to` as well. */
+static const char *scene_file(char *path, size_t len, int size, const char *from, const char *to)
+{
+    char src[PATHLEN], name[64], dims[64];
+    FILE *f = fopen(tu_root_path(src, sizeof src, "scenes/cornell-box.json"), "rb");
+    ck_assert_msg(f != NULL, "cannot open %s", src);
+    static char text[65536];
+    size_t n = fread(text, 1, sizeof text / 2, f);
+    fclose(f);
+    text[n] = '\0';
+    snprintf(dims, sizeof dims, "\"width\": %d, \"height\": %d", size, size);
+    replace_once(text, sizeof text, "\"width\": 256, \"height\": 256", dims);
+    if (from)
+        replace_once(text, sizeof text, from, to);
+    snprintf(name, sizeof name, "cluster-%ld-%d%s.json", (long)getpid(), size, from ? "-edited" : "");
+    ck_assert_ptr_nonnull(tu_write_tmp(path, len, name, text));
+    return keep_scratch(path);
+}
+
+/* ---- a. identical pixels ------------------------------------------------ */
+
+/* Each layer is cut into many ranges (tasks), so the tasks of one layer
+ * are traced by different workers at once and merged in whatever order
+ * they return. */
+START_TEST(identical_pixels)
+{
+    static const char *const modes[2] = {
+        "--spp 128 --granularity 16 --adaptive none --seed 3",
+        "--spp 128 --granularity 16 --adaptive thesis --uniform-layers 2 --seed 3",
+    };
+    char scene[PATHLEN], ref[2][PATHLEN], other[PATHLEN], err[1024], name[64];
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    for (int m = 0; m < 2; m++) {
+        snprintf(name, sizeof name, "ref-%d.exr", m);
+        render_embedded(scene, modes[m], 1, tmp(ref[m], sizeof ref[m], name));
+        render_embedded(scene, modes[m], 2, tmp(other, sizeof other, "emb2.exr"));
+        compare_exr(ref[m], other);
+    }
+    /* uniform: every pixel has spp samples; adaptive: really skips */
+    for (int m = 0; m < 2; m++) {
+        image_t *img = NULL;
+        ck_assert_msg(image_read_exr(ref[m], &img, err, sizeof err) == 0, "%s", err);
+        const float *s = image_channel(img, "samples");
+        ck_assert_ptr_nonnull(s);
+        float lo = s[0], hi = s[0];
+        for (int i = 1; i < img->width * img->height; i++) {
+            lo = s[i] < lo ? s[i] : lo;
+            hi = s[i] > hi ? s[i] : hi;
+        }
+        ck_assert_float_eq(hi, 128.0f);
+        if (m == 0)
+            ck_assert_float_eq(lo, 128.0f);
+        else
+            ck_assert_msg(lo < hi && lo >= 32.0f, "adaptive samples from %g to %g: expected skips after 2 "
+                          "uniform layers", (double)lo, (double)hi);
+        image_destroy(&img);
+    }
+
+    int port = slot_port(0);
+    start_master(&port, "a-master");
+    static const char *const hosts[4] = {"127.0.0.2", "127.0.0.3", "127.0.0.4", "127.0.0.5"};
+    int started = 0;
+    static const int counts[3] = {1, 2, 4};
+    for (int k = 0; k < 3; k++) {
+        while (started < counts[k]) {
+            snprintf(name, sizeof name, "a-worker%d", started + 1);
+            start_worker(port, 1, name, hosts[started]);
+            started++;
+        }
+        wait_workers(port + 1, counts[k]);
+        for (int m = 0; m < 2; m++) {
+            unsigned long long job = submit(port + 1, scene, modes[m]);
+            finish_and_fetch(port + 1, job, tmp(other, sizeof other, "dist.exr"));
+            compare_exr(ref[m], other);
+        }
+    }
+    /* the work was shared (a dispatch that always served the first worker
+     * with credit would leave the others idle: see worker_joins) */
+    cJSON *list = workers_list(port + 1);
+    int busy = 0;
+    const cJSON *w;
+    cJSON_ArrayForEach(w, list)
+    {
+        busy += jnum(w, "tasks_done") > 0;
+    }
+    cJSON_Delete(list);
+    ck_assert_msg(busy >= 2, "only %d worker(s) did any task\n%s", busy, logs_tail());
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* ---- b. kill -9 of a worker mid-job ------------------------------------- */
+
+START_TEST(worker_killed)
+{
+    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN];
+    scene_file(scene, sizeof scene, 64, NULL, NULL);
+    int port = slot_port(1);
+    start_master(&port, "b-master");
+    static const char *const hosts[2] = {"127.0.0.2", "127.0.0.3"};
+    daemon_t *w[2] = {start_worker(port, 1, "b-worker1", hosts[0]), start_worker(port, 1, "b-worker2", hosts[1])};
+    wait_workers(port + 1, 2);
+    unsigned long long job = submit(port + 1, scene, LONG);
+    cJSON_Delete(wait_layers(port + 1, job, 1));
+    daemon_t *victim = w[signal_holding_worker(port + 1, job, w, hosts, SIGKILL)];
+    int st = 0;
+    ck_assert_msg(reap(victim, STOP_MS, &st) && WIFSIGNALED(st) && WTERMSIG(st) == SIGKILL, "the victim lived on");
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "killed.exr"));
+    cJSON *s = job_status(port + 1, job);
+    ck_assert_msg(jnum(s, "tasks_reissued") >= 1, "tasks_reissued %g after a kill -9\n%s", jnum(s, "tasks_reissued"),
+                  logs_tail());
+    cJSON_Delete(s);
+    wait_workers(port + 1, 1);
+    render_embedded(scene, LONG, 2, tmp(ref, sizeof ref, "killed-ref.exr"));
+    compare_exr(ref, got);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* ---- c. a worker joining mid-job ---------------------------------------- */
+
+START_TEST(worker_joins)
+{
+    static const char *const settings = "--spp 512 --granularity 16 --adaptive none --seed 12";
+    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], out[OUTLEN];
+    scene_file(scene, sizeof scene, 64, NULL, NULL);
+    int port = slot_port(2);
+    start_master(&port, "c-master");
+    start_worker(port, 1, "c-first", "127.0.0.2");
+    wait_workers(port + 1, 1);
+    unsigned long long job = submit(port + 1, scene, settings);
+    cJSON *st = wait_layers(port + 1, job, 1);
+    ck_assert_msg(state_is(st, "running"), "job %llu already %s: make it longer", job, jstr(st, "state"));
+    cJSON_Delete(st);
+    start_worker(port, 1, "c-late", "127.0.0.3");
+    wait_workers(port + 1, 2);
+    st = job_status(port + 1, job);
+    ck_assert_msg(state_is(st, "running"), "job %llu %s before the second worker joined: make it longer", job,
+                  jstr(st, "state"));
+    cJSON_Delete(st);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "joined.exr"));
+    render_embedded(scene, settings, 2, tmp(ref, sizeof ref, "joined-ref.exr"));
+    compare_exr(ref, got);
+    int rc = client(out, sizeof out, "workers --master tcp://127.0.0.1:%d", port + 1);
+    ck_assert_msg(rc == 0, "workers: exit %d:\n%s", rc, out);
+    /* The late worker must have been given work: a dispatch that stopped
+     * advancing its round-robin start once the ready tasks ran out (as the
+     * first cut did) fed the first worker every task its credit allowed and
+     * starved one that joined mid-job. */
+    /* the table: a header, then host, threads, rays/s, tasks done, busy s */
+    int rows = 0, first_done = 0, late_done = 0;
+    for (char *line = strchr(out, '\n'); line && line[1]; line = strchr(line + 1, '\n')) {
+        char host[64], rays[32];
+        double threads, tasks, busy;
+        if (sscanf(line + 1, "%63s %lf %31s %lf %lf", host, &threads, rays, &tasks, &busy) != 5)
+            continue;
+        rows++;
+        if (strcmp(host, "127.0.0.2") == 0)
+            first_done = tasks > 0;
+        if (strcmp(host, "127.0.0.3") == 0)
+            late_done = tasks > 0;
+    }
+    ck_assert_msg(rows == 2 && first_done && late_done, "want 2 workers with tasks done each:\n%s\n%s", out,
+                  logs_tail());
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* ---- d. two queued jobs ------------------------------------------------- */
+
+START_TEST(queued_jobs)
+{
+    static const char *const settings[2] = {SMALL " --seed 5", SMALL " --seed 6"};
+    char scene[PATHLEN], got[2][PATHLEN], ref[PATHLEN], err[1024];
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    int port = slot_port(3);
+    start_master(&port, "d-master");
+    start_worker(port, 1, "d-worker1", NULL);
+    start_worker(port, 1, "d-worker2", NULL);
+    unsigned long long jobs[2];
+    for (int i = 0; i < 2; i++)
+        jobs[i] = submit(port + 1, scene, settings[i]);
+    ck_assert_msg(jobs[1] != jobs[0], "both submissions got job %llu", jobs[0]);
+    for (int i = 0; i < 2; i++) {
+        char name[32];
+        snprintf(name, sizeof name, "queued-%d.exr", i);
+        finish_and_fetch(port + 1, jobs[i], tmp(got[i], sizeof got[i], name));
+        render_embedded(scene, settings[i], 1, tmp(ref, sizeof ref, "queued-ref.exr"));
+        compare_exr(ref, got[i]);
+    }
+    image_t *a = NULL, *b = NULL;
+    ck_assert_msg(image_read_exr(got[0], &a, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(image_read_exr(got[1], &b, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(memcmp(image_channel(a, "R"), image_channel(b, "R"), (size_t)a->width * a->height * sizeof(float)) != 0,
+                  "seeds 5 and 6 gave the same image");
+    image_destroy(&a);
+    image_destroy(&b);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* ---- e. cancel ------------------------------------------------------------ */
+
+START_TEST(cancel_job)
+{
+    char scene[PATHLEN], small[PATHLEN], got[PATHLEN], ref[PATHLEN], out[OUTLEN], err[1024];
+    scene_file(scene, sizeof scene, 64, NULL, NULL);
+    scene_file(small, sizeof small, 32, NULL, NULL);
+    int port = slot_port(4);
+    start_master(&port, "e-master");
+    start_worker(port, 1, "e-worker", NULL);
+    /* about a minute of work: it can only end by the cancel */
+    unsigned long long job = submit(port + 1, scene, "--spp 16384 --granularity 16 --adaptive none");
+    cJSON_Delete(wait_layers(port + 1, job, 1));
+    int rc = client(out, sizeof out, "cancel %llu --master tcp://127.0.0.1:%d", job, port + 1);
+    ck_assert_msg(rc == 0, "cancel: exit %d:\n%s", rc, out);
+    rc = client(out, sizeof out, "wait %llu --progress none --master tcp://127.0.0.1:%d", job, port + 1);
+    ck_assert_msg(rc == 1 && strstr(out, "cancelled") != NULL, "wait on a cancelled job: exit %d:\n%s", rc, out);
+    rc = client(out, sizeof out, "status %llu --master tcp://127.0.0.1:%d", job, port + 1);
+    ck_assert_msg(rc == 0 && strstr(out, "\"cancelled\"") != NULL, "status: exit %d:\n%s", rc, out);
+    /* the master goes on: a small job completes, equal to its embedded twin */
+    unsigned long long next = submit(port + 1, small, SMALL);
+    finish_and_fetch(port + 1, next, tmp(got, sizeof got, "after-cancel.exr"));
+    render_embedded(small, SMALL, 1, tmp(ref, sizeof ref, "after-cancel-ref.exr"));
+    compare_exr(ref, got);
+    /* the cancelled job's partial image can still be fetched */
+    unlink(got);
+    rc = client(out, sizeof out, "fetch %llu -o '%s' --master tcp://127.0.0.1:%d", job, got, port + 1);
+    ck_assert_msg(rc == 0, "fetch of a cancelled job: exit %d:\n%s", rc, out);
+    image_t *img = NULL;
+    ck_assert_msg(image_read_exr(got, &img, err, sizeof err) == 0, "%s", err);
+    ck_assert_int_eq(img->width, 64);
+    const float *s = image_channel(img, "samples");
+    ck_assert_ptr_nonnull(s);
+    double total = 0, hi = 0;
+    for (int i = 0; i < img->width * img->height; i++) {
+        total += s[i];
+        hi = s[i] > hi ? s[i] : hi;
+    }
+    image_destroy(&img);
+    ck_assert_msg(total > 0 && hi < 16384, "cancelled image: %g samples, at most %g per pixel", total, hi);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* ---- f. bad scenes ---------------------------------------------------------- */
+
+START_TEST(bad_scenes)
+{
+    char bad[PATHLEN], unknown[PATHLEN], good[PATHLEN], got[PATHLEN], ref[PATHLEN], out[OUTLEN], want[256];
+    char file[128];
+    snprintf(file, sizeof file, "cluster-%ld-malformed.json", (long)getpid());
+    ck_assert_ptr_nonnull(keep_scratch(tu_write_tmp(bad, sizeof bad, file, "{\n  \"camera\": ,\n}\n")));
+    scene_file(unknown, sizeof unknown, 32, "\"material\": \"red\"", "\"material\": \"nosuch\"");
+    scene_file(good, sizeof good, 32, NULL, NULL);
+    int port = slot_port(5);
+    daemon_t *m = start_master(&port, "f-master");
+    start_worker(port, 1, "f-worker", NULL);
+
+    int rc = client(out, sizeof out, "submit '%s' --master tcp://127.0.0.1:%d", bad, port + 1);
+    ck_assert_msg(rc == 1, "malformed JSON: exit %d:\n%s", rc, out);
+    /* the master names the file as submitted (its base name), line and column */
+    snprintf(want, sizeof want, "%s:2:", file);
+    const char *at = strstr(out, want);
+    ck_assert_msg(at != NULL, "output lacks %s:\n%s", want, out);
+    int line = 0, col = 0;
+    ck_assert_int_eq(sscanf(at + strlen(file), ":%d:%d", &line, &col), 2);
+    ck_assert_int_eq(line, 2);
+    ck_assert_int_gt(col, 0);
+
+    rc = client(out, sizeof out, "submit '%s' --master tcp://127.0.0.1:%d", unknown, port + 1);
+    ck_assert_msg(rc == 1 && strstr(out, "nosuch") != NULL, "unknown material: exit %d:\n%s", rc, out);
+
+    assert_alive(m);
+    cJSON *r = ctl(port + 1, "jobs", 0);
+    ck_assert_ptr_nonnull(r);
+    ck_assert_msg(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(r, "jobs")) == 0, "a refused job was queued");
+    cJSON_Delete(r);
+    unsigned long long job = submit(port + 1, good, SMALL);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "after-bad.exr"));
+    render_embedded(good, SMALL, 1, tmp(ref, sizeof ref, "after-bad-ref.exr"));
+    compare_exr(ref, got);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* ---- g. garbage and other protocol versions ------------------------------- */
+
+/* A message's two frames: the header of an encoded msg (its version byte
+ * replaced when version >= 0, its magic spoilt when bad_magic) and the
+ * payload. */
+static void send_proto(void *sock, proto_msg_t *msg, int version, int bad_magic)
+{
+    uint8_t header[PROTO_HEADER_SIZE], payload[2048];
+    char err[256];
+    long n = proto_encode(msg, header, payload, sizeof payload, err, sizeof err);
+    ck_assert_msg(n >= 0, "encode: %s", err);
+    if (version >= 0) {
+        header[4] = (uint8_t)version;
+        header[5] = (uint8_t)(version >> 8);
+    }
+    if (bad_magic)
+        header[0] ^= 0xff;
+    ck_assert_int_ge(zmq_send(sock, header, sizeof header, ZMQ_SNDMORE), 0);
+    ck_assert_int_ge(zmq_send(sock, payload, (size_t)n, 0), 0);
+}
+
+/* Receives a VBRP message within the socket's receive timeout and decodes
+ * it; 0 on success. From a ROUTER (id given) the routing identity comes
+ * first and is copied to id (*id_len bytes, at most 256). */
+static int recv_proto(void *sock, uint8_t *id, size_t *id_len, proto_msg_t *msg, char *err, size_t errlen)
+{
+    int skip = id ? 1 : 0;
+    zmq_msg_t f[3];
+    int n = 0, more = 1;
+    for (int i = 0; i < 3; i++)
+        zmq_msg_init(&f[i]);
+    snprintf(err, errlen, "?");
+    while (more && n < 3) {
+        if (zmq_msg_recv(&f[n], sock, 0) < 0) {
+            snprintf(err, errlen, "nothing received: %s", zmq_strerror(errno));
+            break;
+        }
+        more = zmq_msg_more(&f[n]);
+        n++;
+    }
+    int rc = -1;
+    memset(msg, 0, sizeof *msg);
+    if (n == skip + 2 && !more) {
+        if (id) {
+            *id_len = zmq_msg_size(&f[0]) < 256 ? zmq_msg_size(&f[0]) : 256;
+            memcpy(id, zmq_msg_data(&f[0]), *id_len);
+        }
+        rc = proto_decode(zmq_msg_data(&f[skip]), zmq_msg_size(&f[skip]), zmq_msg_data(&f[skip + 1]),
+                          zmq_msg_size(&f[skip + 1]), msg, err, errlen);
+    } else if (n > 0) {
+        snprintf(err, errlen, "%d frames%s", n, more ? " and more" : "");
+    }
+    for (int i = 0; i < 3; i++)
+        zmq_msg_close(&f[i]);
+    return rc;
+}
+
+START_TEST(master_garbage)
+{
+    char scene[PATHLEN], got[PATHLEN], ref[PATHLEN], err[256], log[65536];
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    int port = slot_port(6);
+    daemon_t *m = start_master(&port, "g-master");
+    start_worker(port, 1, "g-worker", NULL);
+    wait_workers(port + 1, 1);
+
+    void *ctx = zmq_ctx_new();
+    void *s = zmq_socket(ctx, ZMQ_DEALER);
+    int zero = 0, timeout = 5000;
+    zmq_setsockopt(s, ZMQ_LINGER, &zero, sizeof zero);
+    zmq_setsockopt(s, ZMQ_RCVTIMEO, &timeout, sizeof timeout);
+    char ep[64];
+    snprintf(ep, sizeof ep, "tcp://127.0.0.1:%d", port);
+    ck_assert_int_eq(zmq_connect(s, ep), 0);
+
+    /* random frames: 1 to 3 of them, 0 to 300 bytes, from a fixed LCG */
+    uint32_t x = 12345;
+    uint8_t junk[300];
+    for (int i = 0; i < 200; i++) {
+        int frames = 1 + i % 3;
+        for (int k = 0; k < frames; k++) {
+            size_t len = (x = x * 1664525u + 1013904223u) % sizeof junk;
+            for (size_t b = 0; b < len; b++)
+                junk[b] = (uint8_t)((x = x * 1664525u + 1013904223u) >> 24);
+            /* a 32-byte first frame looks like a header: keep its magic wrong */
+            if (k == 0 && len >= 4)
+                junk[0] = 0;
+            ck_assert_int_ge(zmq_send(s, junk, len, k + 1 < frames ? ZMQ_SNDMORE : 0), 0);
+        }
+    }
+    /* a valid header with a wrong magic */
+    proto_msg_t msg;
+    memset(&msg, 0, sizeof msg);
+    msg.h.type = PROTO_HEARTBEAT;
+    send_proto(s, &msg, -1, 1);
+    /* a HELLO of another protocol version: refused, naming the version */
+    memset(&msg, 0, sizeof msg);
+    msg.h.type = PROTO_HELLO;
+    msg.u.hello.threads = 1;
+    snprintf(msg.u.hello.build, sizeof msg.u.hello.build, "vbrender-p2-avx2-gcc99");
+    send_proto(s, &msg, 2, 0);
+    proto_msg_t reply;
+    int rc = recv_proto(s, NULL, NULL, &reply, err, sizeof err);
+    ck_assert_msg(rc == 0, "no readable reply to a version-2 HELLO: %s\n%s", err, logs_tail());
+    ck_assert_msg(reply.h.type == PROTO_REFUSE && strstr(reply.u.text.text, "version 2") != NULL,
+                  "reply to a version-2 HELLO: %s \"%s\"", proto_type_name(reply.h.type), reply.u.text.text);
+    /* this version, another build: refused too */
+    memset(&msg, 0, sizeof msg);
+    msg.h.type = PROTO_HELLO;
+    msg.u.hello.threads = 1;
+    snprintf(msg.u.hello.build, sizeof msg.u.hello.build, "vbrender-p1-other-cc1");
+    send_proto(s, &msg, -1, 0);
+    rc = recv_proto(s, NULL, NULL, &reply, err, sizeof err);
+    ck_assert_msg(rc == 0 && reply.h.type == PROTO_REFUSE && strstr(reply.u.text.text, "build") != NULL,
+                  "reply to a HELLO of another build: rc %d %s \"%s\" %s", rc, proto_type_name(reply.h.type),
+                  reply.u.text.text, err);
+    /* a stranger's heartbeat: told to say HELLO first */
+    memset(&msg, 0, sizeof msg);
+    msg.h.type = PROTO_HEARTBEAT;
+    send_proto(s, &msg, -1, 0);
+    rc = recv_proto(s, NULL, NULL, &reply, err, sizeof err);
+    ck_assert_msg(rc == 0 && reply.h.type == PROTO_BYE, "reply to a stranger's heartbeat: rc %d %s %s", rc,
+                  proto_type_name(reply.h.type), err);
+    /* an oversized frame: over the master's message size limit */
+    size_t big = 8u << 20;
+    uint8_t *huge = calloc(1, big);
+    ck_assert_ptr_nonnull(huge);
+    memset(&msg, 0, sizeof msg);
+    msg.h.type = PROTO_HEARTBEAT;
+    uint8_t header[PROTO_HEADER_SIZE], payload[16];
+    ck_assert_int_ge(proto_encode(&msg, header, payload, sizeof payload, err, sizeof err), 0);
+    ck_assert_int_ge(zmq_send(s, header, sizeof header, ZMQ_SNDMORE), 0);
+    ck_assert_int_ge(zmq_send(s, huge, big, 0), 0);
+    free(huge);
+    sleep_ms(300);
+    zmq_close(s);
+    zmq_ctx_term(ctx);
+
+    assert_alive(m);
+    read_log(m, log, sizeof log);
+    ck_assert_msg(strstr(log, "magic") != NULL && strstr(log, "version 2") != NULL,
+                  "the master did not log the bad magic and the version:\n%s", logs_tail());
+    /* and it still works, with the worker it had */
+    wait_workers(port + 1, 1);
+    unsigned long long job = submit(port + 1, scene, SMALL);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "after-garbage.exr"));
+    render_embedded(scene, SMALL, 1, tmp(ref, sizeof ref, "after-garbage-ref.exr"));
+    compare_exr(ref, got);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* A fake master (a ROUTER in the test) answers the worker's HELLO with a
+ * header of version 99: the worker must refuse it, say so in its log and
+ * exit with status 1. */
+START_TEST(worker_refuses_version)
+{
+    char err[256], log[16384], why[64], ep[64], bin[PATHLEN];
+    void *ctx = zmq_ctx_new();
+    void *r = zmq_socket(ctx, ZMQ_ROUTER);
+    int zero = 0, timeout = 10000;
+    zmq_setsockopt(r, ZMQ_LINGER, &zero, sizeof zero);
+    zmq_setsockopt(r, ZMQ_RCVTIMEO, &timeout, sizeof timeout);
+    int port = slot_port(7), bound = -1;
+    for (int attempt = 0; attempt < 3 && bound < 0; attempt++) {
+        if (attempt)
+            port += 4000;
+        snprintf(ep, sizeof ep, "tcp://127.0.0.1:%d", port);
+        bound = zmq_bind(r, ep);
+    }
+    ck_assert_msg(bound == 0, "cannot bind a fake master: %s", zmq_strerror(errno));
+    snprintf(bin, sizeof bin, "%s/vbrender-worker", bindir());
+    const char *args[] = {bin, "--master", ep, "--threads", "1", "--name", "g-worker-v99", NULL};
+    daemon_t *w = spawn("g-worker-v99", NULL, args);
+
+    uint8_t id[256];
+    size_t id_len = 0;
+    proto_msg_t msg;
+    int rc = recv_proto(r, id, &id_len, &msg, err, sizeof err);
+    ck_assert_msg(rc == 0 && msg.h.type == PROTO_HELLO, "the worker's first message: rc %d %s %s\n%s", rc,
+                  proto_type_name(msg.h.type), err, logs_tail());
+    /* the answer, to the identity the HELLO came from: a WELCOME of version 99 */
+    ck_assert_int_ge(zmq_send(r, id, id_len, ZMQ_SNDMORE), 0);
+    memset(&msg, 0, sizeof msg);
+    msg.h.type = PROTO_WELCOME;
+    msg.u.welcome.heartbeat_ms = 1000;
+    msg.u.welcome.lease_ms = 60000;
+    send_proto(r, &msg, 99, 0);
+
+    int st = 0;
+    ck_assert_msg(reap(w, STOP_MS, &st), "the worker runs on after a version-99 answer\n%s", logs_tail());
+    ck_assert_msg(st != -1 && WIFEXITED(st) && WEXITSTATUS(st) == 1, "the worker ended with %s, want exit status 1\n%s",
+                  describe_status(st, why, sizeof why), logs_tail());
+    read_log(w, log, sizeof log);
+    ck_assert_msg(strstr(log, "99") != NULL, "the worker's log does not name version 99:\n%s", log);
+    /* it told the fake master why, before leaving (whatever else it sent
+     * before that, a HELLO again for instance, is skipped) */
+    int refused = 0;
+    for (int i = 0; i < 20 && !refused; i++) {
+        if (recv_proto(r, id, &id_len, &msg, err, sizeof err) != 0)
+            break;
+        refused = msg.h.type == PROTO_REFUSE && strstr(msg.u.text.text, "99") != NULL;
+    }
+    ck_assert_msg(refused, "no REFUSE naming version 99 from the worker (%s)\n%s", err, logs_tail());
+    zmq_close(r);
+    zmq_ctx_term(ctx);
+    remove_scratch();
+}
+END_TEST
+
+/* ---- h. SIGTERM ------------------------------------------------------------- */
+
+/* A worker told to stop mid-job returns or releases its tasks and leaves;
+ * the job completes on the other one with the same pixels; then the
+ * master stops too, its worker still connected. */
+START_TEST(sigterm)
+{
+    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN];
+    scene_file(scene, sizeof scene, 64, NULL, NULL);
+    int port = slot_port(8);
+    daemon_t *m = start_master(&port, "h-master");
+    static const char *const hosts[2] = {"127.0.0.2", "127.0.0.3"};
+    daemon_t *w[2] = {start_worker(port, 1, "h-worker1", hosts[0]), start_worker(port, 1, "h-worker2", hosts[1])};
+    wait_workers(port + 1, 2);
+    unsigned long long job = submit(port + 1, scene, LONG);
+    cJSON_Delete(wait_layers(port + 1, job, 1));
+    int hit = signal_holding_worker(port + 1, job, w, hosts, SIGTERM);
+    daemon_t *leaver = w[hit], *stayer = w[1 - hit];
+    int st = 0;
+    char why[64];
+    ck_assert_msg(reap(leaver, STOP_MS, &st), "the worker runs on %d ms after SIGTERM\n%s", STOP_MS, logs_tail());
+    ck_assert_msg(st != -1 && WIFEXITED(st) && WEXITSTATUS(st) == 0, "worker after SIGTERM: %s\n%s",
+                  describe_status(st, why, sizeof why), logs_tail());
+    /* it said BYE: the master drops it at once, not after a heartbeat timeout */
+    wait_workers(port + 1, 1);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "sigterm.exr"));
+    render_embedded(scene, LONG, 2, tmp(ref, sizeof ref, "sigterm-ref.exr"));
+    compare_exr(ref, got);
+    stop_clean(m);
+    assert_alive(stayer);
+    stop_clean(stayer);
+    remove_scratch();
+}
+END_TEST
+
+/* ---- i. several hosts ------------------------------------------------------------ */
+
+/* Runs a shell command; 0 or the first line of its output in why. */
+static int sh(char *why, size_t len, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+static int sh(char *why, size_t len, const char *fmt, ...)
+{
+    char cmd[CMDLEN], out[OUTLEN];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(cmd, sizeof cmd, fmt, ap);
+    va_end(ap);
+    int rc = tu_run(cmd, out, sizeof out);
+    if (rc != 0) {
+        char *nl = strchr(out, '\n');
+        if (nl)
+            *nl = '\0';
+        snprintf(why, len, "'%.300s' failed (%d): %.300s", cmd, rc, out);
+    }
+    return rc;
+}
+
+/* The master in one network namespace, a worker in each of two others,
+ * joined to it by veth pairs (10.200.1.0/24 and 10.200.2.0/24, which exist
+ * only inside these namespaces). Skipped, with a SKIPPED line, where
+ * namespaces cannot be made. */
+START_TEST(several_hosts)
+{
+    char why[1024] = "", out[OUTLEN], scene[PATHLEN], ref[PATHLEN], got[PATHLEN];
+    long pid = (long)getpid();
+    const char *ns_m = netns[0], *ns_a = netns[1], *ns_b = netns[2];
+    snprintf(netns[0], sizeof netns[0], "vbc-m-%ld", pid);
+    snprintf(netns[1], sizeof netns[1], "vbc-a-%ld", pid);
+    snprintf(netns[2], sizeof netns[2], "vbc-b-%ld", pid);
+    /* interface names: at most 15 characters */
+    char if_ma[16], if_a[16], if_mb[16], if_b[16];
+    snprintf(if_ma, sizeof if_ma, "vb%ldma", pid % 10000000);
+    snprintf(if_a, sizeof if_a, "vb%lda", pid % 10000000);
+    snprintf(if_mb, sizeof if_mb, "vb%ldmb", pid % 10000000);
+    snprintf(if_b, sizeof if_b, "vb%ldb", pid % 10000000);
+    if (geteuid() != 0)
+        snprintf(why, sizeof why, "not root");
+    else if (tu_run("ip -V", out, sizeof out) != 0)
+        snprintf(why, sizeof why, "no ip command");
+    if (!why[0]) {
+        /* leftovers of an earlier run that died with this pid */
+        netns_count = 3;
+        netns_delete_all();
+        for (int i = 0; i < 3 && !why[0]; i++)
+            if (sh(why, sizeof why, "ip netns add '%s'", netns[i]) == 0)
+                netns_count = i + 1;
+    }
+    /* no veth pairs here (a failure leaves its reason in why): skip too */
+    if (!why[0] && sh(why, sizeof why, "ip -n '%s' link add %s type veth peer name %s netns '%s'", ns_m, if_ma,
+                      if_a, ns_a) == 0)
+        sh(why, sizeof why, "ip -n '%s' link add %s type veth peer name %s netns '%s'", ns_m, if_mb, if_b, ns_b);
+    if (why[0]) {
+        netns_delete_all();
+        printf("SKIPPED: netns: %s\n", why);
+        fflush(stdout);
+        return;
+    }
+    /* from here on a failure is a failure */
+    ck_assert_msg(sh(why, sizeof why, "ip -n '%s' addr add 10.200.1.1/24 dev %s && ip -n '%s' addr add 10.200.2.1/24 dev %s"
+                     " && ip -n '%s' link set lo up && ip -n '%s' link set %s up && ip -n '%s' link set %s up",
+                     ns_m, if_ma, ns_m, if_mb, ns_m, ns_m, if_ma, ns_m, if_mb) == 0, "%s", why);
+    ck_assert_msg(sh(why, sizeof why, "ip -n '%s' addr add 10.200.1.2/24 dev %s && ip -n '%s' link set lo up"
+                     " && ip -n '%s' link set %s up", ns_a, if_a, ns_a, ns_a, if_a) == 0, "%s", why);
+    ck_assert_msg(sh(why, sizeof why, "ip -n '%s' addr add 10.200.2.2/24 dev %s && ip -n '%s' link set lo up"
+                     " && ip -n '%s' link set %s up", ns_b, if_b, ns_b, ns_b, if_b) == 0, "%s", why);
+
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    const int port = 7070; /* each namespace has its own ports */
+    char bin[PATHLEN], wep[64], cep[64];
+    snprintf(bin, sizeof bin, "%s/vbrender-master", bindir());
+    snprintf(wep, sizeof wep, "tcp://*:%d", port);
+    snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
+    const char *margs[] = {bin, "--workers", wep, "--control", cep, "--heartbeat-ms", "200", NULL};
+    daemon_t *m = spawn("i-master", ns_m, margs);
+    int ready = 0;
+    for (int tries = 0; tries < 50 && !ready; tries++) {
+        assert_alive(m);
+        ready = client_in(ns_m, out, sizeof out, "jobs --master %s", cep) == 0;
+        if (!ready)
+            sleep_ms(100);
+    }
+    ck_assert_msg(ready, "the master in %s does not answer:\n%s\n%s", ns_m, out, logs_tail());
+    char wbin[PATHLEN], ep_a[64], ep_b[64];
+    snprintf(wbin, sizeof wbin, "%s/vbrender-worker", bindir());
+    snprintf(ep_a, sizeof ep_a, "tcp://10.200.1.1:%d", port);
+    snprintf(ep_b, sizeof ep_b, "tcp://10.200.2.1:%d", port);
+    const char *aargs[] = {wbin, "--master", ep_a, "--threads", "1", "--name", "i-worker-a", NULL};
+    const char *bargs[] = {wbin, "--master", ep_b, "--threads", "1", "--name", "i-worker-b", NULL};
+    spawn("i-worker-a", ns_a, aargs);
+    spawn("i-worker-b", ns_b, bargs);
+    /* both connected: the table lists both addresses */
+    int both = 0;
+    for (int tries = 0; tries < 100 && !both; tries++) {
+        int rc = client_in(ns_m, out, sizeof out, "workers --master %s", cep);
+        ck_assert_msg(rc == 0, "workers: exit %d:\n%s", rc, out);
+        both = strstr(out, "10.200.1.2") != NULL && strstr(out, "10.200.2.2") != NULL;
+        if (!both)
+            sleep_ms(100);
+    }
+    ck_assert_msg(both, "want workers at 10.200.1.2 and 10.200.2.2:\n%s\n%s", out, logs_tail());
+    static const char *const settings = "--spp 128 --granularity 16 --adaptive thesis --uniform-layers 2 --seed 21";
+    unsigned long long job = submit_in(ns_m, port + 1, scene, settings);
+    finish_and_fetch_in(ns_m, port + 1, job, tmp(got, sizeof got, "hosts.exr"));
+    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "hosts-ref.exr"));
+    compare_exr(ref, got);
+    int rc = client_in(ns_m, out, sizeof out, "workers --master %s", cep);
+    ck_assert_msg(rc == 0 && strstr(out, "10.200.1.2") && strstr(out, "10.200.2.2"), "workers: exit %d:\n%s", rc, out);
+    stop_all_clean();
+    netns_delete_all();
+    remove_scratch();
+}
+END_TEST
+
+/* ---- suite ------------------------------------------------------------------------ */
+
+static Suite *cluster_suite(void)
+{
+    Suite *su = suite_create("cluster");
+    struct {
+        const char *name;
+        const TTest *test;
+    } cases[] = {
+        {"identical_pixels", identical_pixels}, {"worker_killed", worker_killed},
+        {"worker_joins", worker_joins},         {"queued_jobs", queued_jobs},
+        {"cancel", cancel_job},                 {"bad_scenes", bad_scenes},
+        {"garbage", master_garbage},            {"version", worker_refuses_version},
+        {"sigterm", sigterm},                   {"several_hosts", several_hosts},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        TCase *tc = tcase_create(cases[i].name);
+        tcase_set_timeout(tc, 120);
+        tcase_add_checked_fixture(tc, setup, teardown);
+        tcase_add_test(tc, cases[i].test);
+        suite_add_tcase(su, tc);
+    }
+    return su;
+}
+
+int main(void)
+{
+    /* a client or daemon that goes away must not kill the suite */
+    signal(SIGPIPE, SIG_IGN);
+    SRunner *sr = srunner_create(cluster_suite());
+    srunner_run_all(sr, CK_NORMAL);
+    int failed = srunner_ntests_failed(sr);
+    srunner_free(sr);
+    return failed == 0 ? EXIT_SUCCESS : EXIT_FAILURE;
+}
