@@ -663,7 +663,7 @@ static cJSON *job_json(master_t *m, job_t *j, int with_series)
     cJSON_AddNumberToObject(o, "busy_seconds", j->busy_us / 1e6);
     cJSON_AddNumberToObject(o, "tasks_reissued", j->reissued);
     cJSON_AddNumberToObject(o, "late_results", (double)j->late_results);
-    cJSON_AddNumberToObject(o, "nonfinite", (double)film_total_nonfinite(sched_film(j->sched)));
+    cJSON_AddNumberToObject(o, "nonfinite", (double)sched_nonfinite(j->sched));
     cJSON_AddNumberToObject(o, "time_limit", j->time_limit);
     if (j->target_error > 0) {
         cJSON_AddNumberToObject(o, "target_error", j->target_error);

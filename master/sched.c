@@ -47,7 +47,7 @@ struct sched {
     size_t q_head, q_tail, q_cap;
     uint64_t *requeued;     /* handed back, issued first (LIFO) */
     size_t rq_len, rq_cap;
-    uint64_t samples_done, pixel_layers, skipped;
+    uint64_t samples_done, pixel_layers, skipped, nonfinite;
 };
 
 static inline uint64_t task_id(const sched_t *s, uint32_t layer, uint32_t range)
@@ -239,6 +239,7 @@ uint32_t sched_uniform_layers(const sched_t *s) { return s->uniform; }
 uint32_t sched_range_count(const sched_t *s) { return s->ranges; }
 uint32_t sched_layers_complete(const sched_t *s) { return s->complete; }
 uint64_t sched_samples_done(const sched_t *s) { return s->samples_done; }
+uint64_t sched_nonfinite(const sched_t *s) { return s->nonfinite; }
 uint64_t sched_pixel_layers(const sched_t *s) { return s->pixel_layers; }
 uint64_t sched_pixel_layers_skipped(const sched_t *s) { return s->skipped; }
 const film_t *sched_film(const sched_t *s) { return s->film; }
@@ -517,6 +518,7 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
         uint32_t p = results[i].pixel;
         film_merge(s->film, &results[i]);
         s->samples_done += rec[i].sample_count;
+        s->nonfinite += results[i].nonfinite;
         /* the layer's mean is one batch; Welford over batches */
         if (results[i].samples > 0) {
             double bm = vmath_luminance(results[i].sum[0], results[i].sum[1], results[i].sum[2]) / results[i].samples;

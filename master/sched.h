@@ -121,6 +121,8 @@ int sched_done(const sched_t *s);
 /* Progress: layers fully complete, tasks outstanding, samples merged. */
 uint32_t sched_layers_complete(const sched_t *s);
 uint64_t sched_samples_done(const sched_t *s);
+/* NaN/Inf samples left out so far (a running count: status is cheap). */
+uint64_t sched_nonfinite(const sched_t *s);
 /* Pixel-layers scheduled so far (issued or decided), and skipped. */
 uint64_t sched_pixel_layers(const sched_t *s);
 uint64_t sched_pixel_layers_skipped(const sched_t *s);

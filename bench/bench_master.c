@@ -1,0 +1,630 @@
+/* bench_master.c - master capacity ("Distributed system", section 6): how
+ * many pixel-layer results per second one master merges.
+ *
+ * Runs a real master_t (master_new / master_run, in a thread of this
+ * process) and K synthetic workers (threads, one DEALER socket each) that
+ * speak the wire protocol through proto_encode / proto_decode exactly as a
+ * worker does: HELLO with this build's id, CREDIT, and for every TASK an
+ * immediate RESULT whose records match the task's pixels (samples = the
+ * record's sample_count, constant sums, a pvar that varies with pixel and
+ * layer so the adaptive skip rule drops about half the pixels of its
+ * layers). Nothing is traced. A job is submitted over the control socket
+ * (REQ, JSON) on a synthetic one-quad scene of --size x --size pixels, and
+ * status is polled until it is done.
+ *
+ * Reported (JSON): pixel-layer results merged (status samples / G), job
+ * seconds, results/s, and the CPU time of the master's thread (its
+ * pthread CPU clock, read from outside: master.c is not instrumented), of
+ * the synthetic workers' threads and of the whole process (the rest is
+ * ZeroMQ's I/O thread for tcp, and this thread's status polls). Results
+ * per master-thread CPU second is the rate one master core sustains when
+ * it is the bottleneck; the master's CPU utilization says whether it was.
+ *
+ * usage: bench_master [--workers K] [--transport inproc|tcp] [--port P]
+ *                     [--size N] [--spp S] [--granularity G]
+ *                     [--adaptive none|thesis] [--uniform-layers U]
+ *                     [--credit C] [--max-seconds T] [--json OUT.json]
+ */
+#include <cJSON.h>
+#include <errno.h>
+#include <inttypes.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/prctl.h>
+#include <time.h>
+#include <zmq.h>
+
+#include "master.h"
+#include "proto.h"
+
+#define MAX_SYNTH 64
+
+static const char usage_text[] =
+    "usage: bench_master [options]\n"
+    "  --workers K            synthetic workers, threads of this process (default 1, at most 64)\n"
+    "  --transport T          inproc or tcp (loopback; default inproc)\n"
+    "  --port P               tcp: workers on P, control on P+1 (default 17570)\n"
+    "  --size N               image N x N (default 1024)\n"
+    "  --spp S                samples per pixel (default 1024)\n"
+    "  --granularity G        samples per pixel per layer (default 32)\n"
+    "  --adaptive MODE        none or thesis (default none)\n"
+    "  --uniform-layers U     layers before the skip rule applies (default: the master's, half)\n"
+    "  --credit C             tasks each synthetic worker asks for at once (default 8)\n"
+    "  --max-seconds T        cancel the job after T s and report what was merged (default 60)\n"
+    "  --json FILE            write the result as JSON (default: stdout only)\n";
+
+typedef struct args {
+    uint64_t workers, port, size, spp, granularity, credit, uniform_layers, max_seconds;
+    int have_uniform, tcp;
+    const char *adaptive;
+    const char *json;
+} args_t;
+
+typedef struct synth {
+    void *ctx;
+    const char *endpoint;
+    uint32_t credit;
+    const volatile sig_atomic_t *stop;
+    pthread_t thread;
+    int started;
+    clockid_t clock;
+    volatile int ready; /* clock is valid */
+    /* counters, written by the thread only */
+    uint64_t tasks, records;
+    uint64_t bytes_in, bytes_out;
+    int failed;
+    char error[256];
+} synth_t;
+
+typedef struct master_thread {
+    master_t *m;
+    volatile sig_atomic_t stop;
+    pthread_t thread;
+} master_thread_t;
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static double clock_s(clockid_t c)
+{
+    struct timespec ts;
+    if (clock_gettime(c, &ts) < 0)
+        return 0.0;
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static int parse_u64(const char *s, uint64_t lo, uint64_t hi, uint64_t *out)
+{
+    if (!s || !*s || *s == '-' || *s == '+')
+        return -1;
+    errno = 0;
+    char *end;
+    unsigned long long v = strtoull(s, &end, 10);
+    if (errno || *end || v < lo || v > hi)
+        return -1;
+    *out = v;
+    return 0;
+}
+
+/* A hash of (pixel, layer) to [0, 1): the synthetic eq. 4.1 statistic. */
+static double synth_pvar(uint32_t pixel, uint32_t layer)
+{
+    uint64_t z = ((uint64_t)layer << 32 | pixel) + 0x9e3779b97f4a7c15ull;
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    z ^= z >> 31;
+    return (double)(z >> 11) * (1.0 / 9007199254740992.0);
+}
+
+/* ---- synthetic worker ------------------------------------------------------ */
+
+static int synth_send(synth_t *s, void *sock, const proto_msg_t *msg, uint8_t *payload, size_t cap)
+{
+    uint8_t header[PROTO_HEADER_SIZE];
+    long n = proto_encode(msg, header, payload, cap, s->error, sizeof s->error);
+    if (n < 0)
+        return -1;
+    if (zmq_send(sock, header, PROTO_HEADER_SIZE, ZMQ_SNDMORE) < 0 || zmq_send(sock, payload, (size_t)n, 0) < 0) {
+        snprintf(s->error, sizeof s->error, "send: %s", zmq_strerror(errno));
+        return -1;
+    }
+    s->bytes_out += PROTO_HEADER_SIZE + (uint64_t)n;
+    return 0;
+}
+
+static void *synth_main(void *arg)
+{
+    synth_t *s = arg;
+    prctl(PR_SET_NAME, "vb-synth", 0, 0, 0);
+    pthread_getcpuclockid(pthread_self(), &s->clock);
+    s->ready = 1;
+    size_t task_cap = 64 + (size_t)PROTO_TASK_RECORD_SIZE * PROTO_MAX_TASK_PIXELS;
+    size_t result_cap = 64 + (size_t)PROTO_RESULT_RECORD_SIZE * PROTO_MAX_TASK_PIXELS;
+    tracer_task_t *task_rec = malloc(PROTO_MAX_TASK_PIXELS * sizeof *task_rec);
+    tracer_result_t *res_rec = malloc(PROTO_MAX_TASK_PIXELS * sizeof *res_rec);
+    uint8_t *payload = malloc(result_cap > task_cap ? result_cap : task_cap);
+    proto_msg_t *in = malloc(sizeof *in), *out = malloc(sizeof *out);
+    void *sock = zmq_socket(s->ctx, ZMQ_DEALER);
+    if (!task_rec || !res_rec || !payload || !in || !out || !sock) {
+        snprintf(s->error, sizeof s->error, "out of memory or no socket");
+        s->failed = 1;
+        goto done;
+    }
+    int zero = 0;
+    zmq_setsockopt(sock, ZMQ_LINGER, &zero, sizeof zero);
+    if (zmq_connect(sock, s->endpoint) < 0) {
+        snprintf(s->error, sizeof s->error, "connect %s: %s", s->endpoint, zmq_strerror(errno));
+        s->failed = 1;
+        goto done;
+    }
+    memset(out, 0, sizeof *out);
+    out->h.type = PROTO_HELLO;
+    out->u.hello.threads = 1;
+    __builtin_cpu_init();
+    proto_build_id(__builtin_cpu_supports("avx2") ? "avx2" : "sse4.2", out->u.hello.build);
+    if (synth_send(s, sock, out, payload, result_cap) < 0) {
+        s->failed = 1;
+        goto done;
+    }
+    double last_sent = now_s();
+    int welcomed = 0;
+    while (!*s->stop && !s->failed) {
+        zmq_pollitem_t it = {sock, 0, ZMQ_POLLIN, 0};
+        int rc = zmq_poll(&it, 1, 100);
+        if (rc < 0) {
+            if (errno == EINTR)
+                continue;
+            break;
+        }
+        if (rc == 0) {
+            if (welcomed && now_s() - last_sent > 0.3) {
+                memset(out, 0, sizeof *out);
+                out->h.type = PROTO_HEARTBEAT;
+                if (synth_send(s, sock, out, payload, result_cap) < 0)
+                    s->failed = 1;
+                last_sent = now_s();
+            }
+            continue;
+        }
+        for (;;) {
+            zmq_msg_t hf, pf;
+            zmq_msg_init(&hf);
+            if (zmq_msg_recv(&hf, sock, ZMQ_DONTWAIT) < 0) {
+                zmq_msg_close(&hf);
+                break;
+            }
+            zmq_msg_init(&pf);
+            int two = zmq_msg_more(&hf) && zmq_msg_recv(&pf, sock, 0) >= 0 && !zmq_msg_more(&pf);
+            if (!two) {
+                snprintf(s->error, sizeof s->error, "master sent a message that is not two frames");
+                s->failed = 1;
+                zmq_msg_close(&hf);
+                zmq_msg_close(&pf);
+                break;
+            }
+            s->bytes_in += zmq_msg_size(&hf) + zmq_msg_size(&pf);
+            memset(in, 0, sizeof *in);
+            in->capacity = PROTO_MAX_TASK_PIXELS;
+            in->u.task.records = task_rec;
+            int drc = proto_decode(zmq_msg_data(&hf), zmq_msg_size(&hf), zmq_msg_data(&pf), zmq_msg_size(&pf), in,
+                                   s->error, sizeof s->error);
+            zmq_msg_close(&hf);
+            zmq_msg_close(&pf);
+            if (drc < 0) {
+                s->failed = 1;
+                break;
+            }
+            if (in->h.type == PROTO_WELCOME) {
+                welcomed = 1;
+                memset(out, 0, sizeof *out);
+                out->h.type = PROTO_CREDIT;
+                out->u.credit = s->credit;
+                if (synth_send(s, sock, out, payload, result_cap) < 0)
+                    s->failed = 1;
+            } else if (in->h.type == PROTO_TASK) {
+                const proto_task_t *t = &in->u.task;
+                for (uint32_t i = 0; i < t->count; i++) {
+                    const tracer_task_t *r = &t->records[i];
+                    double n = (double)r->sample_count;
+                    res_rec[i] = (tracer_result_t){.pixel = r->pixel,
+                                                   .samples = r->sample_count,
+                                                   .nonfinite = 0,
+                                                   .pad_ = 0,
+                                                   .sum = {0.5 * n, 0.4 * n, 0.3 * n},
+                                                   .lum_m2 = 0.01 * n,
+                                                   .pvar = synth_pvar(r->pixel, t->layer)};
+                }
+                memset(out, 0, sizeof *out);
+                out->h.type = PROTO_RESULT;
+                out->h.job = in->h.job;
+                out->h.task = in->h.task;
+                out->h.attempt = in->h.attempt;
+                out->u.result.rays = (uint64_t)t->count * (t->count ? t->records[0].sample_count : 0) * 6;
+                out->u.result.busy_us = 1;
+                out->u.result.count = t->count;
+                out->u.result.records = res_rec;
+                if (synth_send(s, sock, out, payload, result_cap) < 0) {
+                    s->failed = 1;
+                    break;
+                }
+                s->tasks++;
+                s->records += t->count;
+            } else if (in->h.type == PROTO_REFUSE || in->h.type == PROTO_BYE) {
+                if (!*s->stop) {
+                    snprintf(s->error, sizeof s->error, "master said %s: %.200s", proto_type_name(in->h.type),
+                             in->u.text.text);
+                    s->failed = 1;
+                }
+                break;
+            }
+            last_sent = now_s();
+        }
+    }
+    if (!s->failed) {
+        memset(out, 0, sizeof *out);
+        out->h.type = PROTO_BYE;
+        snprintf(out->u.text.text, sizeof out->u.text.text, "benchmark over");
+        synth_send(s, sock, out, payload, result_cap);
+    }
+done:
+    if (sock)
+        zmq_close(sock);
+    free(task_rec);
+    free(res_rec);
+    free(payload);
+    free(in);
+    free(out);
+    return NULL;
+}
+
+/* ---- master and control ------------------------------------------------------ */
+
+static void *master_main(void *arg)
+{
+    master_thread_t *mt = arg;
+    prctl(PR_SET_NAME, "vb-master", 0, 0, 0); /* for perf report --comm */
+    master_run(mt->m, &mt->stop);
+    return NULL;
+}
+
+/* One REQ round trip: [json][extra frame] -> parsed reply. */
+static cJSON *request(void *req_sock, const cJSON *body, const char *frame, size_t frame_len, char *err,
+                      size_t errlen)
+{
+    char *text = cJSON_PrintUnformatted(body);
+    if (!text) {
+        snprintf(err, errlen, "out of memory");
+        return NULL;
+    }
+    int rc = zmq_send(req_sock, text, strlen(text), frame ? ZMQ_SNDMORE : 0);
+    cJSON_free(text);
+    if (rc >= 0 && frame)
+        rc = zmq_send(req_sock, frame, frame_len, 0);
+    if (rc < 0) {
+        snprintf(err, errlen, "control send: %s", zmq_strerror(errno));
+        return NULL;
+    }
+    zmq_msg_t m;
+    zmq_msg_init(&m);
+    if (zmq_msg_recv(&m, req_sock, 0) < 0) {
+        snprintf(err, errlen, "control: no reply (%s)", zmq_strerror(errno));
+        zmq_msg_close(&m);
+        return NULL;
+    }
+    cJSON *reply = cJSON_ParseWithLength(zmq_msg_data(&m), zmq_msg_size(&m));
+    int more = zmq_msg_more(&m);
+    zmq_msg_close(&m);
+    while (more) { /* fetch frames: not used here */
+        zmq_msg_init(&m);
+        if (zmq_msg_recv(&m, req_sock, 0) < 0)
+            more = 0;
+        else
+            more = zmq_msg_more(&m);
+        zmq_msg_close(&m);
+    }
+    if (!reply)
+        snprintf(err, errlen, "control: reply is not JSON");
+    else if (!cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(reply, "ok"))) {
+        const cJSON *e = cJSON_GetObjectItemCaseSensitive(reply, "error");
+        snprintf(err, errlen, "master: %s", cJSON_IsString(e) ? e->valuestring : "error");
+        cJSON_Delete(reply);
+        reply = NULL;
+    }
+    return reply;
+}
+
+static double jnum(const cJSON *o, const char *k)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
+    return cJSON_IsNumber(v) ? v->valuedouble : 0.0;
+}
+
+static const char *jstr(const cJSON *o, const char *k)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
+    return cJSON_IsString(v) ? v->valuestring : "";
+}
+
+static int parse_args(int argc, char **argv, args_t *a)
+{
+    *a = (args_t){.workers = 1, .port = 17570, .size = 1024, .spp = 1024, .granularity = 32, .credit = 8,
+                  .max_seconds = 60, .adaptive = "none"};
+    for (int i = 1; i < argc; i++) {
+        const char *o = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+        int bad = 0;
+        if (strcmp(o, "-h") == 0 || strcmp(o, "--help") == 0) {
+            fputs(usage_text, stdout);
+            exit(0);
+        } else if (strcmp(o, "--workers") == 0)
+            bad = parse_u64(v, 1, MAX_SYNTH, &a->workers);
+        else if (strcmp(o, "--port") == 0)
+            bad = parse_u64(v, 1024, 65534, &a->port);
+        else if (strcmp(o, "--size") == 0)
+            bad = parse_u64(v, 1, 8192, &a->size);
+        else if (strcmp(o, "--spp") == 0)
+            bad = parse_u64(v, 1, 1u << 20, &a->spp);
+        else if (strcmp(o, "--granularity") == 0)
+            bad = parse_u64(v, 1, TRACER_MAX_TASK_SAMPLES, &a->granularity);
+        else if (strcmp(o, "--credit") == 0)
+            bad = parse_u64(v, 1, PROTO_MAX_CREDIT, &a->credit);
+        else if (strcmp(o, "--max-seconds") == 0)
+            bad = parse_u64(v, 1, 3600, &a->max_seconds);
+        else if (strcmp(o, "--uniform-layers") == 0) {
+            bad = parse_u64(v, 0, 1000000, &a->uniform_layers);
+            a->have_uniform = 1;
+        } else if (strcmp(o, "--transport") == 0) {
+            bad = !v || (strcmp(v, "inproc") != 0 && strcmp(v, "tcp") != 0);
+            a->tcp = v && strcmp(v, "tcp") == 0;
+        } else if (strcmp(o, "--adaptive") == 0) {
+            bad = !v || (strcmp(v, "none") != 0 && strcmp(v, "thesis") != 0);
+            a->adaptive = v;
+        } else if (strcmp(o, "--json") == 0) {
+            bad = !v;
+            a->json = v;
+        } else {
+            fprintf(stderr, "bench_master: unknown option '%s'\n%s", o, usage_text);
+            return 2;
+        }
+        if (bad) {
+            fprintf(stderr, "bench_master: bad value for %s: '%s'\n%s", o, v ? v : "", usage_text);
+            return 2;
+        }
+        i++;
+    }
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    signal(SIGPIPE, SIG_IGN);
+    args_t a;
+    int rc = parse_args(argc, argv, &a);
+    if (rc)
+        return rc;
+    char wep[64], cep[64], wep_connect[64], err[1024];
+    if (a.tcp) {
+        snprintf(wep, sizeof wep, "tcp://127.0.0.1:%" PRIu64, a.port);
+        snprintf(cep, sizeof cep, "tcp://127.0.0.1:%" PRIu64, a.port + 1);
+    } else {
+        snprintf(wep, sizeof wep, "inproc://bench-workers");
+        snprintf(cep, sizeof cep, "inproc://bench-control");
+    }
+    snprintf(wep_connect, sizeof wep_connect, "%s", wep);
+
+    void *ctx = zmq_ctx_new();
+    master_config_t mc;
+    memset(&mc, 0, sizeof mc);
+    mc.zmq_ctx = ctx;
+    mc.worker_endpoint = wep;
+    mc.control_endpoint = cep;
+    mc.log = getenv("VB_LOG") ? stderr : NULL;
+    master_thread_t mt;
+    memset(&mt, 0, sizeof mt);
+    synth_t synth[MAX_SYNTH];
+    memset(synth, 0, sizeof synth);
+    volatile sig_atomic_t synth_stop = 0;
+    void *req = NULL;
+    cJSON *status = NULL, *out = NULL, *q = NULL;
+    rc = 1;
+    mt.m = master_new(&mc, err, sizeof err);
+    if (!mt.m) {
+        fprintf(stderr, "bench_master: %s\n", err);
+        zmq_ctx_term(ctx);
+        return 1;
+    }
+    pthread_create(&mt.thread, NULL, master_main, &mt);
+    clockid_t master_clock;
+    pthread_getcpuclockid(mt.thread, &master_clock);
+    for (uint64_t i = 0; i < a.workers; i++) {
+        synth[i] = (synth_t){.ctx = ctx, .endpoint = wep_connect, .credit = (uint32_t)a.credit, .stop = &synth_stop};
+        pthread_create(&synth[i].thread, NULL, synth_main, &synth[i]);
+        synth[i].started = 1;
+    }
+    req = zmq_socket(ctx, ZMQ_REQ);
+    int zero = 0, timeout = 30000;
+    zmq_setsockopt(req, ZMQ_LINGER, &zero, sizeof zero);
+    zmq_setsockopt(req, ZMQ_RCVTIMEO, &timeout, sizeof timeout);
+    if (zmq_connect(req, cep) < 0) {
+        fprintf(stderr, "bench_master: connect %s: %s\n", cep, zmq_strerror(errno));
+        goto done;
+    }
+    /* wait until every synthetic worker has joined */
+    q = cJSON_CreateObject();
+    cJSON_AddStringToObject(q, "cmd", "workers");
+    for (double t0 = now_s();;) {
+        cJSON *r = request(req, q, NULL, 0, err, sizeof err);
+        if (!r) {
+            fprintf(stderr, "bench_master: %s\n", err);
+            goto done;
+        }
+        int n = cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(r, "workers"));
+        cJSON_Delete(r);
+        if (n == (int)a.workers)
+            break;
+        if (now_s() - t0 > 10) {
+            fprintf(stderr, "bench_master: only %d of %" PRIu64 " synthetic workers joined\n", n, a.workers);
+            goto done;
+        }
+        struct timespec ts = {0, 10 * 1000 * 1000};
+        nanosleep(&ts, NULL);
+    }
+    cJSON_Delete(q);
+    q = NULL;
+    for (uint64_t i = 0; i < a.workers; i++)
+        while (!synth[i].ready) {
+            struct timespec ts = {0, 1000 * 1000};
+            nanosleep(&ts, NULL);
+        }
+
+    /* the job: one emitting quad, nothing is traced anyway */
+    char scene[1024];
+    int scene_len = snprintf(scene, sizeof scene,
+                             "{\"camera\": {\"position\": [0, 2, -3], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], "
+                             "\"fov\": 40, \"width\": %" PRIu64 ", \"height\": %" PRIu64 "},"
+                             " \"render\": {\"spp\": 1, \"seed\": 1, \"integrator\": \"path\"},"
+                             " \"materials\": {\"light\": {\"type\": \"emitter\", \"radiance\": [1, 1, 1]}},"
+                             " \"shapes\": [{\"type\": \"quad\", \"material\": \"light\", \"vertices\": "
+                             "[[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]]}]}",
+                             a.size, a.size);
+    q = cJSON_CreateObject();
+    cJSON_AddStringToObject(q, "cmd", "submit");
+    cJSON_AddStringToObject(q, "name", "synthetic.json");
+    cJSON_AddNumberToObject(q, "spp", (double)a.spp);
+    cJSON_AddNumberToObject(q, "granularity", (double)a.granularity);
+    cJSON_AddStringToObject(q, "adaptive", a.adaptive);
+    if (a.have_uniform)
+        cJSON_AddNumberToObject(q, "uniform_layers", (double)a.uniform_layers);
+    double synth_cpu0[MAX_SYNTH];
+    double wall0 = now_s(), master_cpu0 = clock_s(master_clock), proc_cpu0 = clock_s(CLOCK_PROCESS_CPUTIME_ID);
+    for (uint64_t i = 0; i < a.workers; i++)
+        synth_cpu0[i] = clock_s(synth[i].clock);
+    cJSON *r = request(req, q, scene, (size_t)scene_len, err, sizeof err);
+    cJSON_Delete(q);
+    q = NULL;
+    if (!r) {
+        fprintf(stderr, "bench_master: submit: %s\n", err);
+        goto done;
+    }
+    double job = jnum(r, "job");
+    cJSON_Delete(r);
+    q = cJSON_CreateObject();
+    cJSON_AddStringToObject(q, "cmd", "status");
+    cJSON_AddNumberToObject(q, "job", job);
+    int cancelled = 0;
+    for (;;) {
+        struct timespec ts = {0, 100 * 1000 * 1000}; /* as often as `vbrender wait` */
+        nanosleep(&ts, NULL);
+        r = request(req, q, NULL, 0, err, sizeof err);
+        if (!r) {
+            fprintf(stderr, "bench_master: status: %s\n", err);
+            goto done;
+        }
+        cJSON_Delete(status);
+        status = cJSON_DetachItemFromObject(r, "job");
+        cJSON_Delete(r);
+        const char *st = jstr(status, "state");
+        if (strcmp(st, "done") == 0 || strcmp(st, "failed") == 0 || strcmp(st, "cancelled") == 0)
+            break;
+        for (uint64_t i = 0; i < a.workers; i++)
+            if (synth[i].failed) {
+                fprintf(stderr, "bench_master: synthetic worker %" PRIu64 ": %s\n", i + 1, synth[i].error);
+                goto done;
+            }
+        if (!cancelled && now_s() - wall0 > (double)a.max_seconds) {
+            cJSON *c = cJSON_CreateObject();
+            cJSON_AddStringToObject(c, "cmd", "cancel");
+            cJSON_AddNumberToObject(c, "job", job);
+            cJSON *cr = request(req, c, NULL, 0, err, sizeof err);
+            cJSON_Delete(c);
+            cJSON_Delete(cr);
+            cancelled = 1;
+        }
+    }
+    double wall1 = now_s(), master_cpu1 = clock_s(master_clock), proc_cpu1 = clock_s(CLOCK_PROCESS_CPUTIME_ID);
+    double synth_cpu = 0;
+    uint64_t tasks = 0, records = 0, bytes_in = 0, bytes_out = 0;
+    for (uint64_t i = 0; i < a.workers; i++) {
+        synth_cpu += clock_s(synth[i].clock) - synth_cpu0[i];
+        tasks += synth[i].tasks;
+        records += synth[i].records;
+        bytes_in += synth[i].bytes_in;
+        bytes_out += synth[i].bytes_out;
+    }
+    double seconds = jnum(status, "seconds"), samples = jnum(status, "samples");
+    double results = samples / (double)a.granularity;
+    double master_cpu = master_cpu1 - master_cpu0, proc_cpu = proc_cpu1 - proc_cpu0, wall = wall1 - wall0;
+
+    out = cJSON_CreateObject();
+    cJSON_AddStringToObject(out, "benchmark", "master");
+    cJSON_AddStringToObject(out, "transport", a.tcp ? "tcp" : "inproc");
+    cJSON_AddNumberToObject(out, "workers", (double)a.workers);
+    cJSON_AddNumberToObject(out, "credit", (double)a.credit);
+    cJSON_AddNumberToObject(out, "width", (double)a.size);
+    cJSON_AddNumberToObject(out, "height", (double)a.size);
+    cJSON_AddNumberToObject(out, "spp", (double)a.spp);
+    cJSON_AddNumberToObject(out, "granularity", (double)a.granularity);
+    cJSON_AddStringToObject(out, "adaptive", a.adaptive);
+    cJSON_AddStringToObject(out, "state", jstr(status, "state"));
+    cJSON_AddNumberToObject(out, "layers", jnum(status, "layers"));
+    cJSON_AddNumberToObject(out, "layers_done", jnum(status, "layers_done"));
+    cJSON_AddNumberToObject(out, "pixel_layers_skipped", jnum(status, "pixel_layers_skipped"));
+    cJSON_AddNumberToObject(out, "samples", samples);
+    cJSON_AddNumberToObject(out, "results", results);
+    cJSON_AddNumberToObject(out, "results_sent_by_workers", (double)records);
+    cJSON_AddNumberToObject(out, "tasks", (double)tasks);
+    cJSON_AddNumberToObject(out, "task_pixels", tasks ? (double)records / (double)tasks : 0);
+    cJSON_AddNumberToObject(out, "seconds", seconds);
+    cJSON_AddNumberToObject(out, "results_per_second", seconds > 0 ? results / seconds : 0);
+    cJSON_AddNumberToObject(out, "tasks_per_second", seconds > 0 ? (double)tasks / seconds : 0);
+    cJSON_AddNumberToObject(out, "wire_megabytes_per_second",
+                            seconds > 0 ? (double)(bytes_in + bytes_out) / seconds / 1e6 : 0);
+    cJSON_AddNumberToObject(out, "wall_seconds", wall);
+    cJSON_AddNumberToObject(out, "master_cpu_seconds", master_cpu);
+    cJSON_AddNumberToObject(out, "master_cpu_utilization", wall > 0 ? master_cpu / wall : 0);
+    cJSON_AddNumberToObject(out, "results_per_master_cpu_second", master_cpu > 0 ? results / master_cpu : 0);
+    cJSON_AddNumberToObject(out, "workers_cpu_seconds", synth_cpu);
+    cJSON_AddNumberToObject(out, "other_cpu_seconds", proc_cpu - master_cpu - synth_cpu);
+    cJSON_AddNumberToObject(out, "process_cpu_seconds", proc_cpu);
+    char *text = cJSON_Print(out);
+    if (text) {
+        printf("%s\n", text);
+        if (a.json) {
+            FILE *f = fopen(a.json, "w");
+            if (!f || fprintf(f, "%s\n", text) < 0 || fclose(f) != 0) {
+                fprintf(stderr, "bench_master: cannot write %s: %s\n", a.json, strerror(errno));
+                cJSON_free(text);
+                goto done;
+            }
+        }
+        cJSON_free(text);
+    }
+    fprintf(stderr,
+            "bench_master: %s, %" PRIu64 " worker(s), %s, G %" PRIu64 ": %.3g results in %.2f s = %.3g results/s; "
+            "master thread %.2f CPU s (%.0f%%) = %.3g results per master CPU s\n",
+            a.tcp ? "tcp" : "inproc", a.workers, a.adaptive, a.granularity, results, seconds,
+            seconds > 0 ? results / seconds : 0, master_cpu, wall > 0 ? 100 * master_cpu / wall : 0,
+            master_cpu > 0 ? results / master_cpu : 0);
+    rc = strcmp(jstr(status, "state"), "done") == 0 || cancelled ? 0 : 1;
+done:
+    synth_stop = 1;
+    for (uint64_t i = 0; i < a.workers; i++)
+        if (synth[i].started)
+            pthread_join(synth[i].thread, NULL);
+    mt.stop = 1;
+    pthread_join(mt.thread, NULL);
+    master_destroy(&mt.m);
+    if (req)
+        zmq_close(req);
+    cJSON_Delete(q);
+    cJSON_Delete(status);
+    cJSON_Delete(out);
+    zmq_ctx_term(ctx);
+    return rc;
+}
