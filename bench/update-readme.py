@@ -1,0 +1,134 @@
+#!/usr/bin/env python3
+"""Print the core benchmark table and put it into README.md.
+
+Reads bench/results/*.json, takes the file(s) with "benchmark": "core" (the
+newest by date if there are several), prints a markdown table to stdout and
+rewrites the block between <!-- bench:core:begin --> and
+<!-- bench:core:end --> in README.md. If README.md or the markers are
+missing it says so and leaves every file alone. Standard library only.
+
+    bench/update-readme.py [--results DIR] [--readme FILE]
+"""
+import argparse
+import glob
+import json
+import os
+import sys
+
+BEGIN = "<!-- bench:core:begin -->"
+END = "<!-- bench:core:end -->"
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def mega(x, digits=2):
+    return "-" if x is None else f"{x / 1e6:.{digits}f} M"
+
+
+def ratio(a, b):
+    return "-" if not a or not b else f"{a / b:.2f}"
+
+
+def load_core(results_dir):
+    best = None
+    for path in sorted(glob.glob(os.path.join(results_dir, "*.json"))):
+        try:
+            with open(path) as f:
+                data = json.load(f)
+        except (OSError, ValueError) as e:
+            print(f"update-readme.py: skipping {path}: {e}", file=sys.stderr)
+            continue
+        if isinstance(data, dict) and data.get("benchmark") == "core":
+            if best is None or data.get("date", "") > best.get("date", ""):
+                best = data
+    return best
+
+
+def table(core):
+    peer = core.get("peer") or {}
+    peer_by_threads = {r["threads"]: r for r in peer.get("runs", [])}
+    variant = next(iter(peer_by_threads.values()), {}).get("variant", "")
+    lines = [
+        "| Scene | Threads | Ours samples/s/core | Ours rays/s/core | "
+        "Raw Embree rays/s/core (ext / shadow) | Ours / raw | "
+        f"Mitsuba 3{' ' + variant if variant else ''} samples/s/core | Ours / Mitsuba | Peak memory |",
+        "|---|--:|--:|--:|--:|--:|--:|--:|--:|",
+    ]
+    for r in core["runs"]:
+        t = r["threads"]
+        ours = r["ours"]
+        raw = r["raw_embree"]["path"]
+        m = peer_by_threads.get(t) if r["scene_name"] == "cornell-box" else None
+        m_sps = m["samples_per_second_per_core"] if m else None
+        lines.append(
+            f"| {r['scene_name']} | {t}{'*' if r.get('disturbed') else ''} | {mega(ours['samples_per_second_per_core'])} | "
+            f"{mega(ours['rays_per_second_per_core'])} | "
+            f"{mega(raw['extension']['rays_per_second_per_core'], 1)} / "
+            f"{mega(raw['shadow']['rays_per_second_per_core'], 1)} | "
+            f"{ratio(ours['rays_per_second'], raw['mix_rays_per_second'])} | "
+            f"{mega(m_sps)}{'*' if m and m.get('disturbed') else ''} | {ratio(ours['samples_per_second_per_core'], m_sps)} | "
+            f"{r['peak_rss_kb_render'] / 1024:.0f} MiB |")
+    mach = core.get("machine", {})
+    spp = core.get("settings", {}).get("spp", {})
+    spp_text = ", ".join(f"{k} {v} spp" for k, v in spp.items())
+    notes = [
+        f"256x256, path integrator, {spp_text}, best of {core.get('settings', {}).get('runs')} runs; "
+        f"{mach.get('cpu')}, {mach.get('cores')} cores, Embree {mach.get('embree')} ({mach.get('isa')}); "
+        f"commit {core.get('commit')}, {core.get('date')}; whole benchmark {core.get('bench_seconds', 0):.0f} s.",
+        "Raw Embree: rtcIntersect1 / rtcOccluded1 alone over 2M precomputed rays recorded from diffuse "
+        "random walks from the camera (the rays our tracer traces); \"Ours / raw\" compares our rays/s, "
+        "shading and sampling included, with the raw rate of our own extension/shadow mix "
+        "(1 / sum(fraction / rate)). Peak memory: ru_maxrss of the benchmark process after the renders.",
+    ]
+    fast = [f"{r['scene_name']} {mega(r['raw_embree']['path_not_robust']['mix_rays_per_second_per_core'], 1)}"
+            for r in core["runs"] if r["threads"] == 1 and "path_not_robust" in r["raw_embree"]]
+    if fast:
+        notes.append("The tracer builds its BVH with RTC_SCENE_FLAG_ROBUST; without it the same ray mix "
+                     f"runs at {', '.join(fast)} rays/s (1 thread, reference only).")
+    if any(r.get("disturbed") for r in core["runs"] + list(peer_by_threads.values())):
+        notes.append("\\* another process used the CPU during this measurement, so its figure is low "
+                     "(core.json: cpu_utilization under 0.95 even after extra runs, or other_cpu_cores "
+                     "for the peer).")
+    if core.get("peer") is None:
+        notes.append(f"Mitsuba 3 peer not run: {core.get('peer_error', 'unknown reason')}.")
+    else:
+        notes.append("Mitsuba 3: same Cornell box, spp and threads, `path` integrator, best of its timed "
+                     "renders after a warm-up (bench/peer/).")
+    return "\n".join(lines) + "\n\n" + "\n\n".join(notes)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--results", default=os.path.join(ROOT, "bench", "results"))
+    ap.add_argument("--readme", default=os.path.join(ROOT, "README.md"))
+    a = ap.parse_args()
+
+    core = load_core(a.results)
+    if core is None:
+        print(f"update-readme.py: no core results in {a.results} (run 'make bench')", file=sys.stderr)
+        return 1
+    text = table(core)
+    print(text)
+
+    try:
+        with open(a.readme) as f:
+            readme = f.read()
+    except FileNotFoundError:
+        print(f"update-readme.py: {a.readme} does not exist; README not updated", file=sys.stderr)
+        return 0
+    i, j = readme.find(BEGIN), readme.find(END)
+    if i < 0 or j < 0 or j < i:
+        print(f"update-readme.py: {a.readme} has no {BEGIN} ... {END} block; README not updated",
+              file=sys.stderr)
+        return 0
+    new = readme[:i + len(BEGIN)] + "\n" + text + "\n" + readme[j:]
+    if new != readme:
+        tmp = a.readme + ".tmp"
+        with open(tmp, "w") as f:
+            f.write(new)
+        os.replace(tmp, a.readme)
+        print(f"update-readme.py: updated {a.readme}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
