@@ -151,5 +151,5 @@ bench-error: deps
 clean:
 	rm -rf build build-asan bin
 
--include $(CORE_OBJ:.o=.d) $(NET_OBJ:.o=.d) $(CLIENT_OBJ:.o=.d) $(TEST_BIN:=.d) $(TEST_HELPER_OBJ:.o=.d) \
-         $(FUZZ_BIN:=.d) $(BUILD)/tests/fuzzdriver.d
+-include $(CORE_OBJ:.o=.d) $(NET_OBJ:.o=.d) $(CLIENT_OBJ:.o=.d) $(BUILD)/master/main.d $(BUILD)/worker/main.d $(TEST_BIN:=.d) $(TEST_HELPER_OBJ:.o=.d) \
+         $(FUZZ_BIN:=.d) $(BUILD)/tests/fuzzdriver.d $(BENCH_BIN:=.d)

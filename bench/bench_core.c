@@ -711,8 +711,10 @@ int main(int argc, char **argv)
         return 1;
     }
     tracer_t *tr = NULL;
-    if (tracer_new(s, &tr, err, sizeof err) < 0) {
+    tracer_device_t *dev = NULL;
+    if (tracer_device_new(&dev, err, sizeof err) < 0 || tracer_new(dev, s, &tr, err, sizeof err) < 0) {
         fprintf(stderr, "bench_core: %s\n", err);
+        tracer_device_destroy(&dev);
         scene_destroy(&s);
         return 1;
     }
@@ -900,6 +902,7 @@ int main(int argc, char **argv)
     embree_free(&e);
     embree_free(&efast);
     tracer_destroy(&tr);
+    tracer_device_destroy(&dev);
     scene_destroy(&s);
     return 0;
 }

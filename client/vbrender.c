@@ -481,6 +481,7 @@ static int cmd_render(int argc, char **argv)
     mc.log = getenv("VB_LOG") ? stderr : NULL;
     embedded_master_t em;
     memset(&em, 0, sizeof em);
+    tracer_device_t *device = NULL; /* one Embree device for all the workers */
     embedded_worker_t *ew = calloc(a.workers, sizeof *ew);
     control_t *c = NULL;
     image_t *img = NULL;
@@ -492,11 +493,15 @@ static int cmd_render(int argc, char **argv)
         goto done;
     }
     pthread_create(&em.thread, NULL, master_thread, &em);
+    if (tracer_device_new(&device, err, sizeof err) < 0) {
+        fprintf(stderr, "vbrender: %s\n", err);
+        goto done;
+    }
     int per = (int)(a.threads / a.workers), extra = (int)(a.threads % a.workers);
     for (uint64_t i = 0; i < a.workers; i++) {
         char name[32];
         snprintf(name, sizeof name, "worker-%llu", (unsigned long long)i + 1);
-        worker_config_t wc = {ctx, wep, per + ((int)i < extra ? 1 : 0), 0, mc.log, name};
+        worker_config_t wc = {ctx, wep, per + ((int)i < extra ? 1 : 0), 0, mc.log, name, device};
         ew[i].w = worker_new(&wc, err, sizeof err);
         if (!ew[i].w) {
             fprintf(stderr, "vbrender: %s\n", err);
@@ -546,6 +551,7 @@ done:
         }
     for (uint64_t i = 0; ew && i < a.workers; i++)
         worker_destroy(&ew[i].w);
+    tracer_device_destroy(&device);
     if (em.m) {
         em.stop = 1;
         pthread_join(em.thread, NULL);

@@ -16,27 +16,91 @@
 
 #include <embree3/rtcore.h>
 #include <math.h>
+#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "rng.h"
 
-struct tracer {
+struct tracer_device {
     RTCDevice device;
+    char isa[16];
+    pthread_mutex_t lock; /* guards error: builds may run on several threads */
+    char error[256];      /* last Embree error, written by the callback */
+};
+
+struct tracer {
+    tracer_device_t *dev;
     RTCScene rtc;
     const scene_t *scene;
-    char isa[16];
-    char error[256]; /* last Embree error, written by the device callback */
 };
 
 static void embree_error(void *user, enum RTCError code, const char *str)
 {
-    tracer_t *t = user;
-    snprintf(t->error, sizeof t->error, "Embree error %d: %s", (int)code, str ? str : "");
+    tracer_device_t *d = user;
+    pthread_mutex_lock(&d->lock);
+    snprintf(d->error, sizeof d->error, "Embree error %d: %s", (int)code, str ? str : "");
+    pthread_mutex_unlock(&d->lock);
 }
 
-int tracer_new(const scene_t *scene, tracer_t **out, char *err, size_t errlen)
+/* Takes (and clears) the device's last error; 1 if there was one. */
+static int take_error(tracer_device_t *d, char *out, size_t len)
+{
+    pthread_mutex_lock(&d->lock);
+    int had = d->error[0] != '\0';
+    snprintf(out, len, "%s", had ? d->error : "unknown Embree failure");
+    d->error[0] = '\0';
+    pthread_mutex_unlock(&d->lock);
+    return had;
+}
+
+int tracer_device_new(tracer_device_t **out, char *err, size_t errlen)
+{
+    *out = NULL;
+    tracer_device_t *d = calloc(1, sizeof *d);
+    if (!d) {
+        snprintf(err, errlen, "out of memory");
+        return -1;
+    }
+    pthread_mutex_init(&d->lock, NULL);
+    /* Pin the ISA: Embree would otherwise pick the widest the CPU has, and
+     * AVX-512 and AVX2 kernels may round a hit differently. Every x86-64
+     * server since 2013 has AVX2; older hosts use SSE4.2, and the ISA is in
+     * the build id a worker's HELLO carries, so a cluster refuses to mix. */
+    __builtin_cpu_init();
+    snprintf(d->isa, sizeof d->isa, "%s", __builtin_cpu_supports("avx2") ? "avx2" : "sse4.2");
+    char config[64];
+    snprintf(config, sizeof config, "isa=%s,verbose=0", d->isa);
+    d->device = rtcNewDevice(config);
+    if (!d->device) {
+        snprintf(err, errlen, "cannot create the Embree device (%s): error %d", config,
+                 (int)rtcGetDeviceError(NULL));
+        pthread_mutex_destroy(&d->lock);
+        free(d);
+        return -1;
+    }
+    rtcSetDeviceErrorFunction(d->device, embree_error, d);
+    *out = d;
+    return 0;
+}
+
+void tracer_device_destroy(tracer_device_t **dp)
+{
+    if (!dp || !*dp)
+        return;
+    rtcReleaseDevice((*dp)->device);
+    pthread_mutex_destroy(&(*dp)->lock);
+    free(*dp);
+    *dp = NULL;
+}
+
+const char *tracer_device_isa(const tracer_device_t *d)
+{
+    return d->isa;
+}
+
+int tracer_new(tracer_device_t *dev, const scene_t *scene, tracer_t **out, char *err, size_t errlen)
 {
     *out = NULL;
     tracer_t *t = calloc(1, sizeof *t);
@@ -44,33 +108,22 @@ int tracer_new(const scene_t *scene, tracer_t **out, char *err, size_t errlen)
         snprintf(err, errlen, "out of memory");
         return -1;
     }
+    t->dev = dev;
     t->scene = scene;
-    /* Pin the ISA: Embree would otherwise pick the widest the CPU has, and
-     * AVX-512 and AVX2 kernels may round a hit differently. Every x86-64
-     * server since 2013 has AVX2; older hosts use SSE4.2, and the ISA is
-     * reported so a cluster can refuse to mix them. */
-    __builtin_cpu_init();
-    snprintf(t->isa, sizeof t->isa, "%s", __builtin_cpu_supports("avx2") ? "avx2" : "sse4.2");
-    char config[64];
-    snprintf(config, sizeof config, "isa=%s,verbose=0", t->isa);
-    t->device = rtcNewDevice(config);
-    if (!t->device) {
-        snprintf(err, errlen, "cannot create the Embree device (%s): error %d", config,
-                 (int)rtcGetDeviceError(NULL));
-        free(t);
-        return -1;
-    }
-    rtcSetDeviceErrorFunction(t->device, embree_error, t);
-    t->rtc = rtcNewScene(t->device);
+    char old[256];
+    take_error(dev, old, sizeof old); /* start clean */
+    t->rtc = rtcNewScene(dev->device);
     rtcSetSceneFlags(t->rtc, RTC_SCENE_FLAG_ROBUST);
     rtcSetSceneBuildQuality(t->rtc, RTC_BUILD_QUALITY_HIGH);
-    RTCGeometry g = rtcNewGeometry(t->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    RTCGeometry g = rtcNewGeometry(dev->device, RTC_GEOMETRY_TYPE_TRIANGLE);
     float *vb = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
                                         3 * sizeof(float), scene->vertex_count);
     uint32_t *ib = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
                                            3 * sizeof(uint32_t), scene->triangle_count);
     if (!vb || !ib) {
-        snprintf(err, errlen, "cannot allocate Embree buffers: %s", t->error);
+        char e[256];
+        take_error(dev, e, sizeof e);
+        snprintf(err, errlen, "cannot allocate Embree buffers: %s", e);
         rtcReleaseGeometry(g);
         tracer_destroy(&t);
         return -1;
@@ -81,8 +134,9 @@ int tracer_new(const scene_t *scene, tracer_t **out, char *err, size_t errlen)
     rtcAttachGeometry(t->rtc, g);
     rtcReleaseGeometry(g);
     rtcCommitScene(t->rtc);
-    if (t->error[0]) {
-        snprintf(err, errlen, "cannot build the BVH: %s", t->error);
+    char e[256];
+    if (take_error(dev, e, sizeof e)) {
+        snprintf(err, errlen, "cannot build the BVH: %s", e);
         tracer_destroy(&t);
         return -1;
     }
@@ -97,15 +151,13 @@ void tracer_destroy(tracer_t **tp)
     tracer_t *t = *tp;
     if (t->rtc)
         rtcReleaseScene(t->rtc);
-    if (t->device)
-        rtcReleaseDevice(t->device);
     free(t);
     *tp = NULL;
 }
 
 const char *tracer_isa(const tracer_t *t)
 {
-    return t->isa;
+    return t->dev->isa;
 }
 
 /* ---- ray casting -------------------------------------------------------- */

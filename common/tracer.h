@@ -28,6 +28,18 @@
 
 typedef struct tracer tracer_t;
 
+/* The Embree device: one per process, shared by every tracer in it (a
+ * worker's cached scenes, the embedded render's workers). Its ISA is pinned
+ * so that every process running this binary on a host with that ISA traces
+ * the same bits; its error callback reports into the device, not stderr.
+ * Thread-safe once created. */
+typedef struct tracer_device tracer_device_t;
+
+int tracer_device_new(tracer_device_t **out, char *err, size_t errlen);
+void tracer_device_destroy(tracer_device_t **d);
+/* The ISA the device runs ("avx2" or "sse4.2"). */
+const char *tracer_device_isa(const tracer_device_t *d);
+
 /* Per-job settings of a trace call. */
 typedef struct tracer_settings {
     uint64_t seed;
@@ -60,11 +72,10 @@ typedef struct tracer_stats {
     uint64_t samples; /* samples taken, finite or not */
 } tracer_stats_t;
 
-/* Builds the BVH for a scene. The scene is borrowed and must outlive the
- * tracer. The Embree ISA is pinned (see tracer_isa) so that every process
- * running this binary on a host with that ISA traces the same bits.
- * Returns 0, or -1 with a message (e.g. Embree refused the device). */
-int tracer_new(const scene_t *scene, tracer_t **out, char *err, size_t errlen);
+/* Builds the BVH for a scene on a device. Both are borrowed and must
+ * outlive the tracer. Returns 0, or -1 with a message (Embree's own, from
+ * the device's error callback, when it refuses). */
+int tracer_new(tracer_device_t *device, const scene_t *scene, tracer_t **out, char *err, size_t errlen);
 void tracer_destroy(tracer_t **t);
 
 /* The Embree ISA this tracer runs ("avx2" or "sse4.2"). */

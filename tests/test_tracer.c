@@ -75,8 +75,10 @@ static film_t *render(const scene_t *s, uint64_t seed, scene_integrator_t integ,
                       int threads, uint32_t granularity)
 {
     tracer_t *t = NULL;
+    tracer_device_t *dev = NULL;
     char err[512];
-    ck_assert_msg(tracer_new(s, &t, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(tracer_device_new(&dev, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(tracer_new(dev, s, &t, err, sizeof err) == 0, "%s", err);
     film_t *f = film_new(s->camera.width, s->camera.height);
     ck_assert(f != NULL);
     render_settings_t rs;
@@ -92,6 +94,7 @@ static film_t *render(const scene_t *s, uint64_t seed, scene_integrator_t integ,
     ck_assert_msg(render_run(t, f, &rs, &sum, err, sizeof err) == 0, "%s", err);
     ck_assert_uint_eq(sum.samples, (uint64_t)spp * (uint64_t)f->width * (uint64_t)f->height);
     tracer_destroy(&t);
+    tracer_device_destroy(&dev);
     return f;
 }
 
@@ -384,8 +387,10 @@ START_TEST(test_tasks_independent_of_batching)
     scene_t *s = load_json(root);
     cJSON_Delete(root);
     tracer_t *t = NULL;
+    tracer_device_t *dev = NULL;
     char err[256];
-    ck_assert(tracer_new(s, &t, err, sizeof err) == 0);
+    ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
+    ck_assert(tracer_new(dev, s, &t, err, sizeof err) == 0);
     tracer_settings_t st = {5, SCENE_INTEGRATOR_PATH, 0};
     tracer_task_t tasks[8];
     for (int i = 0; i < 8; i++) {
@@ -417,6 +422,7 @@ START_TEST(test_tasks_independent_of_batching)
     tasks[0].sample_count = TRACER_MAX_TASK_SAMPLES + 1;
     ck_assert(tracer_trace(t, &st, tasks, 1, batch, NULL, err, sizeof err) == -1);
     tracer_destroy(&t);
+    tracer_device_destroy(&dev);
     scene_destroy(&s);
 }
 END_TEST
@@ -428,8 +434,10 @@ START_TEST(test_pvar_matches_definition)
     scene_t *s = load_json(root);
     cJSON_Delete(root);
     tracer_t *t = NULL;
+    tracer_device_t *dev = NULL;
     char err[256];
-    ck_assert(tracer_new(s, &t, err, sizeof err) == 0);
+    ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
+    ck_assert(tracer_new(dev, s, &t, err, sizeof err) == 0);
     tracer_settings_t st = {9, SCENE_INTEGRATOR_PATH, 0};
     tracer_task_t task = {.pixel = 120, .sample_count = 32, .first_sample = 32, .prior_count = 32,
                           .prior_sum = {4.0, 3.0, 2.0}};
@@ -452,6 +460,7 @@ START_TEST(test_pvar_matches_definition)
     for (int c = 0; c < 3; c++)
         ck_assert(fabs(r.sum[c] - sum[c]) <= 1e-12 * (fabs(sum[c]) + 1));
     tracer_destroy(&t);
+    tracer_device_destroy(&dev);
     scene_destroy(&s);
 }
 END_TEST
@@ -670,8 +679,10 @@ START_TEST(test_million_constant_samples)
                 "{\"position\":[0,0,0],\"look_at\":[0,0,1],\"up\":[0,1,0],\"fov\":60,\"width\":1,\"height\":1}");
     scene_t *s = load_text(json);
     tracer_t *t = NULL;
+    tracer_device_t *dev = NULL;
     char err[256];
-    ck_assert(tracer_new(s, &t, err, sizeof err) == 0);
+    ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
+    ck_assert(tracer_new(dev, s, &t, err, sizeof err) == 0);
     film_t *f = film_new(1, 1);
     tracer_settings_t st = {1, SCENE_INTEGRATOR_PATH, 0};
     const uint32_t per = TRACER_MAX_TASK_SAMPLES;
@@ -694,6 +705,7 @@ START_TEST(test_million_constant_samples)
     ck_assert(film_variance_of_mean(f, 0) <= 1e-24);
     film_destroy(&f);
     tracer_destroy(&t);
+    tracer_device_destroy(&dev);
     scene_destroy(&s);
 }
 END_TEST

@@ -79,6 +79,8 @@ struct worker {
     size_t payload_cap;
     tracer_task_t *decode_records;
     int refused;
+    tracer_device_t *device;
+    int own_device;
 };
 
 static double now_s(void)
@@ -312,7 +314,7 @@ static void on_bundle(worker_t *w, proto_msg_t *msg)
     double t0 = now_s();
     if (ok && scene_load_bundle(b->json, b->json_size, "scene", blobs, b->mesh_count, &e->scene, err, sizeof err) < 0)
         ok = 0;
-    if (ok && tracer_new(e->scene, &e->tracer, err, sizeof err) < 0) {
+    if (ok && tracer_new(w->device, e->scene, &e->tracer, err, sizeof err) < 0) {
         scene_destroy(&e->scene);
         ok = 0;
     }
@@ -557,8 +559,15 @@ worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
         worker_destroy(&w);
         return NULL;
     }
-    __builtin_cpu_init();
-    proto_build_id(__builtin_cpu_supports("avx2") ? "avx2" : "sse4.2", w->build);
+    w->device = cfg->device;
+    if (!w->device) {
+        if (tracer_device_new(&w->device, err, errlen) < 0) {
+            worker_destroy(&w);
+            return NULL;
+        }
+        w->own_device = 1;
+    }
+    proto_build_id(tracer_device_isa(w->device), w->build);
     snprintf(w->wake_endpoint, sizeof w->wake_endpoint, "inproc://vb-worker-wake-%p", (void *)w);
     w->wake = zmq_socket(cfg->zmq_ctx, ZMQ_PULL);
     w->sock = zmq_socket(cfg->zmq_ctx, ZMQ_DEALER);
@@ -682,6 +691,8 @@ void worker_destroy(worker_t **wp)
         zmq_close(w->sock);
     if (w->wake)
         zmq_close(w->wake);
+    if (w->own_device)
+        tracer_device_destroy(&w->device);
     pthread_mutex_destroy(&w->lock);
     pthread_cond_destroy(&w->cond);
     free(w->threads);

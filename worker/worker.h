@@ -25,6 +25,8 @@ typedef struct worker_config {
     int cache_scenes;            /* scenes kept loaded; 0: 4 */
     FILE *log;                   /* NULL: silent */
     const char *name;            /* for log lines */
+    struct tracer_device *device; /* the process's Embree device, shared; NULL:
+                                     the worker makes (and owns) its own */
 } worker_config_t;
 
 worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen);
