@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# make bench-error: error against wall time and samples for uniform and the
+# adaptive modes, the thesis's section 5.3.2 with error measured, the
+# --target-error check and the Mitsuba 3 peer (see bench/error/README.md).
+#
+# Needs bin/vbrender (make all). Settings come from the environment
+# (VB_STUDY_QUICK=1 for a ~3-minute smoke run; the rest in bench/error/study.py).
+# Writes bench/results/error.json, bench/results/error/*.png and the README
+# section between <!-- bench:error:begin --> and <!-- bench:error:end -->.
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
+cd "$ROOT"
+
+if [ ! -x bin/vbrender ]; then
+    echo "bench/error/run.sh: bin/vbrender is missing; run 'make all' first" >&2
+    exit 1
+fi
+
+bash bench/peer/setup.sh
+# shellcheck disable=SC1091
+source bench/peer/env.sh
+if ! "$MITSUBA_PEER_PYTHON" -c 'import matplotlib' 2>/dev/null; then
+    "$ROOT/bench/venv/bin/pip" install -q --disable-pip-version-check matplotlib
+fi
+
+exec "$MITSUBA_PEER_PYTHON" bench/error/study.py "$@"

@@ -1,0 +1,969 @@
+#!/usr/bin/env python3
+"""make bench-error: rendering error against wall time and samples (issue 4, section 3).
+
+Run through bench/error/run.sh (it sets up bench/venv with Mitsuba 3, numpy and
+matplotlib). Steps:
+
+ 1. References: each scene (a copy resized to VB_STUDY_SIZE under bench/work/error/)
+    rendered uniformly at VB_STUDY_REF_SPP as two independent halves (seeds 1000001
+    and 1000002), averaged, cached in bench/refs/ with a JSON that holds the commands
+    and the reference's own estimated error (from the difference of the halves).
+ 2. Study runs, 2 workers x 1 thread, seed 7, --reference REF: uniform at
+    VB_STUDY_UNIFORM_SPP; every adaptive mode (thesis, variance, relerr) in two
+    settings: "long" (max VB_STUDY_ADAPTIVE_SPP, VB_STUDY_UNIFORM_LAYERS uniform
+    layers) and "5.3.2" (max VB_STUDY_THESIS_SPP, the default half uniform layers,
+    the thesis's section 5.3.2). Each run's OUT.error.json is its error curve.
+ 3. --target-error E --confidence C runs (adaptive none): share of pixels within E.
+ 4. Mitsuba 3 peer on the Cornell box: agreement of high-count renders with our
+    reference, then time to equal relMSE (2 threads each).
+ 5. bench/results/error.json, PNG plots under bench/results/error/, the README
+    section between <!-- bench:error:begin/end -->, tables printed.
+
+Errors are reported "reference-corrected": the relMSE (MSE) against the reference
+minus the reference's own estimated relMSE (MSE). Both are kept in the JSON.
+"""
+import hashlib
+import json
+import math
+import os
+import platform
+import re
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
+os.chdir(ROOT)
+VB = os.path.join(ROOT, "bin", "vbrender")
+T_START = time.time()
+
+
+def env_int(name, default):
+    return int(os.environ.get(name, default))
+
+
+def env_float(name, default):
+    return float(os.environ.get(name, default))
+
+
+QUICK = os.environ.get("VB_STUDY_QUICK", "0") == "1"
+CFG = {
+    "quick": QUICK,
+    "size": env_int("VB_STUDY_SIZE", 64 if QUICK else 128),
+    "ref_spp": env_int("VB_STUDY_REF_SPP", 2048 if QUICK else 16384),
+    "uniform_spp": env_int("VB_STUDY_UNIFORM_SPP", 256 if QUICK else 2048),
+    "adaptive_spp": env_int("VB_STUDY_ADAPTIVE_SPP", 512 if QUICK else 4096),
+    "adaptive_uniform_layers": env_int("VB_STUDY_UNIFORM_LAYERS", 2 if QUICK else 8),
+    "thesis_spp": env_int("VB_STUDY_THESIS_SPP", 256 if QUICK else 1024),
+    "granularity": 32,
+    "workers": 2,
+    "threads": 2,
+    "seed": 7,
+    "ref_seeds": [1000001, 1000002],
+    "target_error": env_float("VB_STUDY_TARGET_E", 0.1),
+    "confidence": env_float("VB_STUDY_TARGET_C", 0.95),
+    "target_cap_spp": env_int("VB_STUDY_TARGET_SPP", 512 if QUICK else 2048),
+    "mitsuba_spps": [int(x) for x in os.environ.get(
+        "VB_STUDY_MITSUBA_SPPS", "16,32,64,128,256" if QUICK else "16,32,64,128,256,512,1024,2048").split(",")],
+    "mitsuba_agree_spp": env_int("VB_STUDY_AGREE_SPP", 256 if QUICK else 2048),
+    "mitsuba_agree_passes": env_int("VB_STUDY_AGREE_PASSES", 4),
+    "mitsuba_seed": 500,
+    "quiet_wait_s": env_float("VB_STUDY_QUIET_WAIT", 30),
+    "quiet_budget_s": env_float("VB_STUDY_QUIET_BUDGET", 240),
+    "target_share": env_float("VB_STUDY_TARGET_SHARE", 1.0),
+    "quiet_cores": 0.3,
+    "busy_retry_cores": 0.25,
+    "scenes": os.environ.get("VB_STUDY_SCENES", "cornell-box,happy-buddha,caustic,dark-bright").split(","),
+}
+MODES = ["thesis", "variance", "relerr"]
+HARD = {"caustic", "dark-bright"}
+EPS = 1e-2          # compare.h COMPARE_EPS
+TARGET_EPS = 1e-3   # sched.h SCHED_TARGET_EPS
+WORK = os.path.join(ROOT, "bench", "work", "error")
+# The quick smoke run writes under bench/work/ (git-ignored), never over the full results.
+RESULTS_JSON = os.path.join(WORK, "quick", "error.json") if QUICK else \
+    os.path.join(ROOT, "bench", "results", "error.json")
+PLOTS = os.path.join(WORK, "quick", "error") if QUICK else os.path.join(ROOT, "bench", "results", "error")
+REFS = os.path.join(ROOT, "bench", "refs")
+UPDATE_README = os.environ.get("VB_STUDY_README", "0" if QUICK else "1") == "1"
+
+
+def log(msg):
+    print(f"[{time.time() - T_START:7.1f} s] {msg}", file=sys.stderr, flush=True)
+
+
+# ---------------------------------------------------------------- EXR I/O
+import mitsuba as mi  # noqa: E402  (scalar variant, for Bitmap only)
+
+mi.set_variant("scalar_rgb")
+
+
+def read_exr(path):
+    b = mi.Bitmap(path)
+    names = [f.name for f in b.struct_()]
+    a = np.array(b, dtype=np.float64)
+    if a.ndim == 2:
+        a = a[:, :, None]
+    return {n: a[:, :, i] for i, n in enumerate(names)}
+
+
+def write_exr(path, chans):
+    names = list(chans)
+    arr = np.stack([chans[n] for n in names], axis=2).astype(np.float32)
+    tmp = path + ".tmp.exr"
+    mi.Bitmap(arr, mi.Bitmap.PixelFormat.MultiChannel, names).write(tmp)
+    os.replace(tmp, path)
+
+
+def rgb(ch):
+    return np.stack([ch["R"], ch["G"], ch["B"]], axis=2)
+
+
+def lum(x):
+    return 0.3 * x[..., 0] + 0.59 * x[..., 1] + 0.11 * x[..., 2]
+
+
+def relmse(a, r):
+    return float(np.mean((a - r) ** 2 / (r * r + EPS)))
+
+
+def mse(a, r):
+    return float(np.mean((a - r) ** 2))
+
+
+# ---------------------------------------------------------------- CPU accounting
+HZ = os.sysconf("SC_CLK_TCK")
+NCPU = os.cpu_count() or 1
+
+
+def cpu_busy():
+    with open("/proc/stat") as f:
+        v = [int(x) for x in f.readline().split()[1:]]
+    busy = v[0] + v[1] + v[2] + v[5] + v[6] + (v[7] if len(v) > 7 else 0)
+    return busy, busy + v[3] + v[4]
+
+
+QUIET_SPENT = [0.0]
+
+
+def wait_quiet():
+    """Waits (at most quiet_wait_s, quiet_budget_s over the whole study) until other
+    processes use < quiet_cores cores."""
+    t0 = time.time()
+    cores = None
+    while True:
+        b0, a0 = cpu_busy()
+        time.sleep(1.0)
+        b1, a1 = cpu_busy()
+        cores = NCPU * (b1 - b0) / max(1, a1 - a0)
+        waited = time.time() - t0
+        if cores < CFG["quiet_cores"] or waited >= CFG["quiet_wait_s"] or \
+                QUIET_SPENT[0] + waited >= CFG["quiet_budget_s"]:
+            QUIET_SPENT[0] += max(0.0, waited - 1.0)
+            return {"waited_s": round(waited, 1), "busy_cores_before": round(cores, 2)}
+
+
+def run_measured(cmd, timed):
+    """Runs cmd; returns (CompletedProcess, stats) with wall, our CPU and other CPU."""
+    quiet = wait_quiet() if timed else None
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    b0, _ = cpu_busy()
+    w0 = time.perf_counter()
+    p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    wall = time.perf_counter() - w0
+    b1, _ = cpu_busy()
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    ours = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    other = max(0.0, (b1 - b0) / HZ - ours)
+    st = {"wall_s": wall, "cpu_s": ours, "other_cpu_cores": other / max(wall, 1e-9), "quiet": quiet}
+    if p.returncode != 0:
+        sys.stderr.write(p.stdout + p.stderr)
+        raise SystemExit(f"command failed ({p.returncode}): {' '.join(cmd)}")
+    return p, st
+
+
+# ---------------------------------------------------------------- scenes and references
+def sha256_file(path):
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        h.update(f.read())
+    return h.hexdigest()
+
+
+def sized_scene(name):
+    src = os.path.join(ROOT, "scenes", f"{name}.json")
+    with open(src) as f:
+        d = json.load(f)
+    d["camera"]["width"] = d["camera"]["height"] = CFG["size"]
+    for sh in d["shapes"]:
+        if "file" in sh and not os.path.isabs(sh["file"]):
+            sh["file"] = os.path.normpath(os.path.join(os.path.dirname(src), sh["file"]))
+    os.makedirs(os.path.join(WORK, "scenes"), exist_ok=True)
+    dst = os.path.join(WORK, "scenes", f"{name}-{CFG['size']}.json")
+    text = json.dumps(d, indent=1)
+    if not os.path.exists(dst) or open(dst).read() != text:
+        with open(dst, "w") as f:
+            f.write(text)
+    return dst
+
+
+def vb_cmd(scene, out, spp, adaptive, seed, workers, threads, extra=(), reference=None):
+    c = [VB, "render", scene, "-o", out, "--spp", str(spp), "--granularity", str(CFG["granularity"]),
+         "--adaptive", adaptive, "--seed", str(seed), "--workers", str(workers),
+         "--threads", str(threads), "--progress", "none"] + list(extra)
+    if reference:
+        c += ["--reference", reference]
+    return c
+
+
+def rel(p):
+    return os.path.relpath(p, ROOT)
+
+
+def make_reference(name, scene):
+    """Two independent uniform halves, averaged; cached under bench/refs/."""
+    spp = CFG["ref_spp"]
+    half = spp // 2
+    base = f"{name}-{CFG['size']}x{CFG['size']}-{spp}spp"
+    exr = os.path.join(REFS, base + ".exr")
+    meta_path = os.path.join(REFS, base + ".json")
+    scene_hash = sha256_file(scene)
+    if os.path.exists(exr) and os.path.exists(meta_path) and os.environ.get("VB_STUDY_REFRESH_REFS") != "1":
+        with open(meta_path) as f:
+            meta = json.load(f)
+        if meta.get("scene_sha256") == scene_hash and meta.get("seeds") == CFG["ref_seeds"]:
+            log(f"reference {rel(exr)}: cached")
+            meta["cached"] = True
+            return exr, meta
+    os.makedirs(REFS, exist_ok=True)
+    halves, cmds, secs = [], [], []
+    for k, seed in enumerate(CFG["ref_seeds"]):
+        out = os.path.join(WORK, "refs", f"{base}-half{k}.exr")
+        os.makedirs(os.path.dirname(out), exist_ok=True)
+        cmd = vb_cmd(scene, out, half, "none", seed, CFG["workers"], CFG["threads"])
+        log(f"reference {name} half {k}: {half} spp, seed {seed}")
+        _, st = run_measured(cmd, timed=False)
+        cmds.append(" ".join(rel(x) if x.startswith(ROOT) else x for x in cmd))
+        secs.append(round(st["wall_s"], 2))
+        halves.append(read_exr(out))
+    h1, h2 = rgb(halves[0]), rgb(halves[1])
+    r = 0.5 * (h1 + h2)
+    var_ref = (h1 - h2) ** 2 / 4.0        # unbiased per pixel and channel, 1 dof
+    lum_var = 0.25 * (halves[0]["variance"] + halves[1]["variance"])
+    write_exr(exr, {"R": r[..., 0], "G": r[..., 1], "B": r[..., 2],
+                    "samples": halves[0]["samples"] + halves[1]["samples"], "variance": lum_var})
+    meta = {
+        "scene": rel(scene), "scene_sha256": scene_hash, "width": CFG["size"], "height": CFG["size"],
+        "spp": 2 * half, "seeds": CFG["ref_seeds"], "commands": cmds, "seconds": secs,
+        "how": "mean of the two halves (each --adaptive none, half the spp, its own seed); "
+               "study runs use seed %d" % CFG["seed"],
+        # E[(h1-h2)^2/4] is the variance of the mean of the halves, per pixel and channel.
+        "relmse_est": float(np.mean(var_ref / (r * r + EPS))),
+        "mse_est": float(np.mean(var_ref)),
+        "relmse_est_lum_variance_channel": float(np.mean(lum_var / (lum(r) ** 2 + EPS))),
+        "half_vs_half_relmse": relmse(h1, h2),
+        "mean_rgb": [float(x) for x in r.reshape(-1, 3).mean(axis=0)],
+        "vbrender_commit": git_commit(),
+        "cached": False,
+    }
+    meta["rmse_est"] = math.sqrt(meta["mse_est"])
+    with open(meta_path, "w") as f:
+        json.dump(meta, f, indent=1)
+    log(f"reference {rel(exr)}: own relMSE ~{meta['relmse_est']:.3g}")
+    return exr, meta
+
+
+def git_commit():
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              cwd=ROOT).stdout.strip()
+    except OSError:
+        return ""
+
+
+# ---------------------------------------------------------------- study runs
+def load_series(errjson, ref_meta):
+    with open(errjson) as f:
+        d = json.load(f)
+    job = d.get("job", {})
+    pts = [p for p in d["series"] if p[1] > 0 and p[0] > 0]
+    if job.get("samples") and (not pts or job["samples"] > pts[-1][1]) and "relmse" in job:
+        pts.append([job["seconds"], job["samples"], job["relmse"], job["rmse"]])
+    pts.sort(key=lambda p: (p[0], p[1]))
+    t = np.array([p[0] for p in pts], dtype=float)
+    n = np.array([p[1] for p in pts], dtype=float)
+    r_raw = np.array([p[2] for p in pts], dtype=float)
+    e_raw = np.array([p[3] for p in pts], dtype=float)
+    r = np.maximum(r_raw - ref_meta["relmse_est"], 1e-12)
+    e = np.sqrt(np.maximum(e_raw ** 2 - ref_meta["mse_est"], 1e-24))
+    return {"t": t, "n": n, "relmse": r, "rmse": e, "relmse_raw": r_raw, "rmse_raw": e_raw, "job": job}
+
+
+def study_run(name, scene, ref, ref_meta, tag, spp, adaptive, workers, threads, extra=()):
+    out = os.path.join(WORK, "runs", f"{name}-{tag}.exr")
+    os.makedirs(os.path.dirname(out), exist_ok=True)
+    cmd = vb_cmd(scene, out, spp, adaptive, CFG["seed"], workers, threads, extra, ref)
+    best = None
+    for attempt in range(2):
+        log(f"{name} {tag}: {adaptive}, max {spp} spp {' '.join(extra)}")
+        p, st = run_measured(cmd, timed=True)
+        st["attempt"] = attempt
+        if best is None or st["other_cpu_cores"] < best[1]["other_cpu_cores"]:
+            best = (p, st, read_series_copy(out, ref_meta))
+        if st["other_cpu_cores"] <= CFG["busy_retry_cores"]:
+            break
+        log(f"  other processes used {st['other_cpu_cores']:.2f} cores; again")
+    p, st, s = best
+    ch = read_exr(out)
+    s.update({"tag": tag, "adaptive": adaptive, "spp": spp, "extra": list(extra), "exr": out,
+              "command": " ".join(rel(x) if x.startswith(ROOT) else x for x in cmd),
+              "summary": p.stderr.strip().splitlines()[-1] if p.stderr.strip() else "",
+              "stats": st, "samples_map": ch["samples"],
+              "final_relmse_exr_raw": relmse(rgb(ch), rgb(read_exr(ref)))})
+    s["cpu_utilization"] = st["cpu_s"] / max(1e-9, st["wall_s"] * threads)
+    heat = out[:-4] + "-samples.png"
+    if os.path.exists(heat) and adaptive != "none" and not tag.startswith("peer"):
+        os.makedirs(os.path.join(PLOTS, "heat"), exist_ok=True)
+        shutil.copy(heat, os.path.join(PLOTS, "heat", f"{name}-{tag}.png"))
+    return s
+
+
+def read_series_copy(out, ref_meta):
+    return load_series(out[:-4] + ".error.json", ref_meta)
+
+
+# ---------------------------------------------------------------- curve arithmetic
+def interp_loglog(x, y, xq):
+    if xq is None or len(x) == 0 or xq < x[0] * (1 - 1e-9) or xq > x[-1] * (1 + 1e-9):
+        return None
+    xq = min(max(xq, x[0]), x[-1])
+    return float(np.exp(np.interp(np.log(xq), np.log(x), np.log(y))))
+
+
+def first_reach(x, y, level):
+    """First x where y falls to level (log-log interpolation), or None."""
+    for i in range(len(y)):
+        if y[i] <= level:
+            if i == 0:
+                return float(x[0])
+            f = (math.log(y[i - 1]) - math.log(level)) / max(1e-300, math.log(y[i - 1]) - math.log(y[i]))
+            return float(math.exp(math.log(x[i - 1]) + f * (math.log(x[i]) - math.log(x[i - 1]))))
+    return None
+
+
+def by_samples(s, key):
+    n, y = s["n"], s[key]
+    keep = np.concatenate([[True], np.diff(n) > 0])
+    return n[keep], y[keep]
+
+
+def compare_curves(u, a, npix):
+    """Adaptive run a against uniform run u (same scene, seed, reference)."""
+    res = {}
+    t_eq = float(min(a["t"][-1], u["t"][-1]))
+    n_eq = float(min(a["n"][-1], u["n"][-1]))
+    for key in ("relmse", "rmse"):
+        ya = interp_loglog(a["t"], a[key], t_eq)
+        yu = interp_loglog(u["t"], u[key], t_eq)
+        res[f"{key}_equal_time"] = {"seconds": t_eq, "adaptive": ya, "uniform": yu,
+                                    "ratio": ya / yu if ya and yu else None}
+        na, ya_n = by_samples(a, key)
+        nu, yu_n = by_samples(u, key)
+        ya = interp_loglog(na, ya_n, n_eq)
+        yu = interp_loglog(nu, yu_n, n_eq)
+        res[f"{key}_equal_samples"] = {"samples": n_eq, "spp": n_eq / npix, "adaptive": ya, "uniform": yu,
+                                       "ratio": ya / yu if ya and yu else None}
+    # worst equal-time ratio once the skip rule is in effect
+    ul = a["job"].get("uniform_layers", 0)
+    n_start = npix * ul * CFG["granularity"]
+    idx = np.nonzero(a["n"] >= n_start)[0]
+    t0 = float(a["t"][idx[0]]) if len(idx) else t_eq
+    worst = None
+    if t0 < t_eq:
+        for tq in np.geomspace(t0, t_eq, 40):
+            ya, yu = interp_loglog(a["t"], a["relmse"], tq), interp_loglog(u["t"], u["relmse"], tq)
+            if ya and yu and (worst is None or ya / yu > worst["ratio"]):
+                worst = {"seconds": float(tq), "ratio": ya / yu}
+    res["relmse_worst_equal_time_after_uniform_layers"] = worst
+    # time and samples to reach uniform's final relMSE
+    u_final = float(u["relmse"][-1])
+    ta = first_reach(a["t"], a["relmse"], u_final)
+    na_s, ya_s = by_samples(a, "relmse")
+    na = first_reach(na_s, ya_s, u_final)
+    res["reach_uniform_final"] = {
+        "uniform_relmse": u_final, "uniform_seconds": float(u["t"][-1]), "uniform_samples": float(u["n"][-1]),
+        "seconds": ta, "time_share": ta / float(u["t"][-1]) if ta else None,
+        "samples": na, "samples_share": na / float(u["n"][-1]) if na else None}
+    # time uniform needs to reach the adaptive run's final relMSE
+    a_final = float(a["relmse"][-1])
+    tu = first_reach(u["t"], u["relmse"], a_final)
+    res["uniform_to_adaptive_final"] = {"adaptive_relmse": a_final, "adaptive_seconds": float(a["t"][-1]),
+                                        "uniform_seconds": tu,
+                                        "speedup": tu / float(a["t"][-1]) if tu else None}
+    # time to equal relMSE at the lowest relMSE both runs reach: adaptive time / uniform time
+    level = max(u_final, a_final)
+    ta = first_reach(a["t"], a["relmse"], level)
+    tu = first_reach(u["t"], u["relmse"], level)
+    res["equal_relmse_time"] = {"relmse": level, "adaptive_seconds": ta, "uniform_seconds": tu,
+                                "time_share": ta / tu if ta and tu else None}
+    return res
+
+
+# ---------------------------------------------------------------- plots
+def plot_scene(name, runs, ref_meta, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    colors = {"none": "k", "thesis": "C0", "variance": "C1", "relerr": "C2"}
+    fig, axs = plt.subplots(2, 2, figsize=(9, 7))
+    for (row, key) in enumerate(("relmse", "rmse")):
+        for (col, xk) in enumerate(("t", "n")):
+            ax = axs[row][col]
+            for tag, s in runs.items():
+                ls = "--" if tag.startswith("t532") else "-"
+                x = s[xk] / (1 if xk == "t" else s["npix"])
+                ax.loglog(x, s[key], ls, color=colors[s["adaptive"]], lw=1.3, label=s["label"])
+            refv = ref_meta["relmse_est"] if key == "relmse" else ref_meta["rmse_est"]
+            ax.axhline(refv, color="0.6", ls=":", lw=1, label="reference's own error")
+            ax.set_xlabel("seconds" if xk == "t" else "samples per pixel (mean)")
+            ax.set_ylabel("relMSE" if key == "relmse" else "RMSE")
+            ax.grid(True, which="both", alpha=0.25)
+    axs[0][0].legend(fontsize=7)
+    fig.suptitle(f"{name}: error vs the reference (its own error subtracted), "
+                 f"{CFG['size']}x{CFG['size']}, {CFG['workers']} workers x 1 thread", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=70)
+    plt.close(fig)
+
+
+def plot_heat(name, runs, ref_rgb, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    tags = [t for t in runs if runs[t]["adaptive"] != "none"]
+    fig, axs = plt.subplots(2, 4, figsize=(10, 5))
+    img = np.clip(ref_rgb / (1 + ref_rgb), 0, 1) ** (1 / 2.2)
+    axs[0][0].imshow(img, interpolation="nearest")
+    axs[0][0].set_title("reference (Reinhard)", fontsize=8)
+    u = [t for t in runs if runs[t]["adaptive"] == "none"]
+    if u:
+        s = runs[u[0]]
+        err = np.sqrt(np.mean((rgb(read_exr(s["exr"])) - ref_rgb) ** 2 / (ref_rgb ** 2 + EPS), axis=2))
+        im = axs[1][0].imshow(err, cmap="magma", vmax=np.percentile(err, 99), interpolation="nearest")
+        axs[1][0].set_title("uniform: per-pixel rel. error", fontsize=8)
+        fig.colorbar(im, ax=axs[1][0], fraction=0.046)
+    for row, prefix in enumerate(("long", "t532")):
+        sel = [t for t in tags if t.startswith(prefix)]
+        vmax = max([runs[t]["samples_map"].max() for t in sel] or [1])
+        for col, t in enumerate(sel[:3]):
+            s = runs[t]
+            ax = axs[row][col + 1]
+            im = ax.imshow(s["samples_map"], cmap="viridis", vmin=0, vmax=vmax, interpolation="nearest")
+            ax.set_title(f"{s['label']}: mean {s['samples_map'].mean():.0f} spp", fontsize=8)
+            fig.colorbar(im, ax=ax, fraction=0.046)
+    for ax in axs.flat:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.suptitle(f"{name}: samples per pixel", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=56)
+    plt.close(fig)
+
+
+def plot_peer(ours, mits, path, ref_meta):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    for s, c in ours:
+        ax.loglog(s["t"], s["relmse"], "-", color=c, label=s["label"])
+    ax.loglog(mits["t"], mits["relmse"], "o-", color="C3", label="Mitsuba 3 llvm_ad_rgb, path")
+    ax.axhline(ref_meta["relmse_est"], color="0.6", ls=":", label="reference's own error")
+    ax.set_xlabel("seconds (2 threads)")
+    ax.set_ylabel("relMSE vs vbrender reference")
+    ax.grid(True, which="both", alpha=0.25)
+    ax.legend(fontsize=7)
+    ax.set_title("cornell-box: time to equal relMSE", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=70)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------- target error
+def target_check(name, scene, ref, ref_ch):
+    E, C, cap = CFG["target_error"], CFG["confidence"], CFG["target_cap_spp"]
+    out = os.path.join(WORK, "runs", f"{name}-target.exr")
+    cmd = vb_cmd(scene, out, cap, "none", CFG["seed"], CFG["workers"], CFG["threads"],
+                 ["--target-error", str(E), "--confidence", str(C), "--target-share", str(CFG["target_share"])],
+                 ref)
+    log(f"{name} target: E {E}, C {C}, cap {cap} spp")
+    p, st = run_measured(cmd, timed=False)
+    ch = read_exr(out)
+    a = lum(rgb(ch))
+    r = lum(rgb(ref_ch))
+    d = np.abs(a - r)
+    tol = E * (np.abs(r) + TARGET_EPS)
+    z = statistics.NormalDist().inv_cdf(0.5 + C / 2)
+    sig_r = np.sqrt(np.maximum(ref_ch["variance"], 0))
+    tol_adj = np.sqrt(tol ** 2 + (z * sig_r) ** 2)
+    conv = ch["samples"] < cap * (1 - 1e-9)
+    with open(out[:-4] + ".error.json") as f:
+        job = json.load(f).get("job", {})
+    res = {
+        "command": " ".join(rel(x) if x.startswith(ROOT) else x for x in cmd),
+        "seconds": st["wall_s"], "summary": p.stderr.strip().splitlines()[-1] if p.stderr.strip() else "",
+        "job": job, "E": E, "C": C, "cap_spp": cap, "mean_spp": float(ch["samples"].mean()),
+        "stopped_early_share": float(conv.mean()),
+        "within_share_raw": float((d <= tol).mean()),
+        "within_share_ref_noise_adjusted": float((d <= tol_adj).mean()),
+        "within_share_raw_stopped_pixels": float((d <= tol)[conv].mean()) if conv.any() else None,
+        "within_share_adjusted_stopped_pixels": float((d <= tol_adj)[conv].mean()) if conv.any() else None,
+        "median_ref_halfwidth_over_tol": float(np.median(z * sig_r / tol)),
+        "metric": "per-pixel luminance 0.3R+0.59G+0.11B: |mean - ref| <= E (ref + 1e-3); "
+                  "adjusted: tolerance widened in quadrature by the reference's own z*sigma "
+                  "(its variance channel), which is what a pixel exactly at the bound would show",
+    }
+    return res
+
+
+# ---------------------------------------------------------------- Mitsuba peer
+def peer(scene, ref, ref_meta, ref_ch, best_mode):
+    py = os.environ.get("MITSUBA_PEER_PYTHON", sys.executable)
+    script = os.path.join(ROOT, "bench", "peer", "mitsuba_cornell.py")
+    size = str(CFG["size"])
+    out = {}
+    r = rgb(ref_ch)
+    # 1. agreement: K passes of N spp, mean and per-channel variance of the mean
+    agree_exr = os.path.join(WORK, "peer", "mitsuba-agree.exr")
+    os.makedirs(os.path.dirname(agree_exr), exist_ok=True)
+    cmd = [py, script, scene, "--mode", "agree", "--spp", str(CFG["mitsuba_agree_spp"]),
+           "--passes", str(CFG["mitsuba_agree_passes"]), "--threads", "2", "--seed", "900",
+           "--width", size, "--height", size, "--out", agree_exr]
+    log(f"mitsuba agree: {CFG['mitsuba_agree_passes']} x {CFG['mitsuba_agree_spp']} spp")
+    p, _ = run_measured(cmd, timed=False)
+    info = json.loads(p.stdout.strip().splitlines()[-1])
+    m = read_exr(agree_exr)
+    mm = rgb(m)
+    var_m = np.stack([m["varR"], m["varG"], m["varB"]], axis=2)
+    h = [read_exr(os.path.join(WORK, "refs", f"cornell-box-{size}x{size}-{CFG['ref_spp']}spp-half{k}.exr"))
+         for k in (0, 1)] if all(os.path.exists(os.path.join(
+             WORK, "refs", f"cornell-box-{size}x{size}-{CFG['ref_spp']}spp-half{k}.exr")) for k in (0, 1)) else None
+    if h:
+        var_r = (rgb(h[0]) - rgb(h[1])) ** 2 / 4
+    else:  # halves gone: spread the estimated reference error evenly
+        var_r = np.full_like(r, ref_meta["mse_est"])
+    noise_rel = float(np.mean((var_m + var_r) / (r * r + EPS)))
+    meas_rel = relmse(mm, r)
+    # block test: 8x8 blocks, z of the mean difference per channel
+    B = 8
+    H, W = r.shape[:2]
+    hb, wb = H // B, W // B
+    d = (mm - r)[:hb * B, :wb * B].reshape(hb, B, wb, B, 3).mean(axis=(1, 3))
+    vd = (var_m + var_r)[:hb * B, :wb * B].reshape(hb, B, wb, B, 3).sum(axis=(1, 3)) / (B * B) ** 2
+    zb = d / np.sqrt(np.maximum(vd, 1e-30))
+    npix = H * W
+    mean_m = mm.reshape(-1, 3).mean(axis=0)
+    mean_r = r.reshape(-1, 3).mean(axis=0)
+    se_mean = np.sqrt((var_m + var_r).reshape(-1, 3).sum(axis=0)) / npix
+    out["agreement"] = {
+        "mitsuba": info, "mitsuba_spp_total": CFG["mitsuba_agree_spp"] * CFG["mitsuba_agree_passes"],
+        "relmse_mitsuba_vs_ref": meas_rel, "relmse_expected_from_noise": noise_rel,
+        "excess_relmse": meas_rel - noise_rel,
+        "block_z_chi2_per_dof": float(np.mean(zb ** 2)), "block_z_max_abs": float(np.abs(zb).max()),
+        "block_count": int(zb.size), "blocks_over_4_sigma": int((np.abs(zb) > 4).sum()),
+        "mean_rgb_mitsuba": [float(x) for x in mean_m], "mean_rgb_ours_ref": [float(x) for x in mean_r],
+        "mean_diff_in_sigma": [float(x) for x in (mean_m - mean_r) / se_mean],
+    }
+    # 2. sweep
+    sweep_dir = os.path.join(WORK, "peer", "sweep")
+    cmd = [py, script, scene, "--mode", "sweep", "--spp-list", ",".join(map(str, CFG["mitsuba_spps"])),
+           "--threads", "2", "--seed", str(CFG["mitsuba_seed"]), "--width", size, "--height", size,
+           "--out-dir", sweep_dir]
+    best = None
+    for attempt in range(2):
+        log(f"mitsuba sweep: spp {CFG['mitsuba_spps']}")
+        p, st = run_measured(cmd, timed=True)
+        st["attempt"] = attempt
+        if best is None or st["other_cpu_cores"] < best[1]["other_cpu_cores"]:
+            best = (p, st)
+        if st["other_cpu_cores"] <= CFG["busy_retry_cores"]:
+            break
+        log(f"  other processes used {st['other_cpu_cores']:.2f} cores; again")
+    p, st = best
+    sw = json.loads(p.stdout.strip().splitlines()[-1])
+    pts = []
+    for run in sw["runs"]:
+        a = rgb(read_exr(run["out"]))
+        rr = relmse(a, r)
+        pts.append({"spp": run["spp"], "seconds": run["seconds"], "relmse_raw": rr,
+                    "relmse": max(rr - ref_meta["relmse_est"], 1e-12),
+                    "samples_per_second": run["samples"] / run["seconds"]})
+    out["mitsuba_sweep"] = {"runs": pts, "stats": st, "variant": sw.get("variant"), "version": sw.get("version")}
+    mits = {"t": np.array([q["seconds"] for q in pts]), "relmse": np.array([q["relmse"] for q in pts])}
+    # 3. ours, one embedded worker with 2 threads
+    ours = []
+    ref_runs = {}
+    for tag, adaptive, spp, extra in (
+            ("peer-uniform", "none", CFG["uniform_spp"], []),
+            (f"peer-{best_mode}", best_mode, CFG["adaptive_spp"],
+             ["--uniform-layers", str(CFG["adaptive_uniform_layers"])])):
+        s = study_run("cornell-box", scene, ref, ref_meta, tag, spp, adaptive, 1, 2, extra)
+        s["label"] = f"vbrender {adaptive if adaptive != 'none' else 'uniform'} (1 worker, 2 threads)"
+        ref_runs[tag] = s
+        ours.append((s, "k" if adaptive == "none" else "C0"))
+    ratios = {}
+    for tag, s in ref_runs.items():
+        lo = max(float(np.min(s["relmse"])), float(np.min(mits["relmse"])))
+        hi = min(float(np.max(s["relmse"])), float(np.max(mits["relmse"])))
+        levels = []
+        if hi > lo:
+            for lev in np.geomspace(hi, lo, 6)[1:-1]:
+                tm = first_reach(mits["t"], mits["relmse"], lev)
+                to = first_reach(s["t"], s["relmse"], lev)
+                if tm and to:
+                    levels.append({"relmse": float(lev), "mitsuba_s": tm, "ours_s": to, "ratio": tm / to})
+        ratios[tag] = {"levels": levels,
+                       "geomean_ratio": float(np.exp(np.mean([np.log(x["ratio"]) for x in levels])))
+                       if levels else None,
+                       "ours_samples_per_second": float(s["n"][-1] / s["t"][-1]),
+                       "ours_stats": s["stats"], "command": s["command"]}
+    out["time_to_equal_relmse"] = ratios
+    u = ref_runs["peer-uniform"]
+    nu, yu = by_samples(u, "relmse")
+    out["relmse_ratio_mitsuba_over_ours_at_equal_spp"] = [
+        {"spp": q["spp"], "mitsuba": q["relmse"], "ours": interp_loglog(nu, yu, q["spp"] * r.shape[0] * r.shape[1]),
+         "ratio": (q["relmse"] / interp_loglog(nu, yu, q["spp"] * r.shape[0] * r.shape[1]))
+         if interp_loglog(nu, yu, q["spp"] * r.shape[0] * r.shape[1]) else None} for q in pts]
+    out["mitsuba_samples_per_second"] = float(np.median([q["samples_per_second"] for q in pts[-3:]]))
+    plot_peer(ours, mits, os.path.join(PLOTS, "peer-cornell-box.png"), ref_meta)
+    return out
+
+
+# ---------------------------------------------------------------- tables
+def fmt(x, nd=3):
+    if x is None:
+        return "-"
+    if isinstance(x, float):
+        if x != 0 and (abs(x) < 1e-2 or abs(x) >= 1e4):
+            return f"{x:.{nd - 1}e}"
+        return f"{x:.{nd}g}"
+    return str(x)
+
+
+def tables(R):
+    L = []
+    c = R["config"]
+    L.append(f"Error against a reference, {c['size']}x{c['size']}, {c['workers']} workers x 1 thread, "
+             f"G = {c['granularity']}, seed {c['seed']}; references {c['ref_spp']} spp (two halves, seeds "
+             f"{c['ref_seeds'][0]}/{c['ref_seeds'][1]}), their own error subtracted. Uniform: "
+             f"{c['uniform_spp']} spp. Adaptive \"long\": max {c['adaptive_spp']} spp, "
+             f"{c['adaptive_uniform_layers']} uniform layers. \"5.3.2\": max {c['thesis_spp']} spp, "
+             f"half the layers uniform (thesis section 5.3.2). Ratios are adaptive / uniform "
+             f"(below 1: adaptive is better). {R['machine']}; commit {R['commit']}; "
+             f"whole study {R['total_seconds']:.0f} s{' (VB_STUDY_QUICK=1)' if c['quick'] else ''}.")
+    L.append("")
+    L.append("| scene | mode | mean spp | time to uniform's final relMSE (share of uniform's time) "
+             "| time to equal relMSE, lowest both reach: adaptive / uniform "
+             "| relMSE ratio, equal time (worst after the uniform layers) | relMSE ratio, equal samples "
+             "| RMSE ratio, equal time |")
+    L.append("|---|---|--:|--:|--:|--:|--:|--:|")
+    for sc, S in R["scenes"].items():
+        u = S["runs"]["uniform"]
+        L.append(f"| {sc} | uniform | {u['mean_spp']:.0f} | {u['seconds']:.2f} s (1) | 1 | 1 | 1 | 1 |")
+        for tag in [f"long-{m}" for m in MODES]:
+            a = S["comparisons"][tag]
+            run = S["runs"][tag]
+            reach = a["reach_uniform_final"]
+            rt = (f"{reach['seconds']:.2f} s ({reach['time_share']:.2f})" if reach["seconds"]
+                  else f"not reached (final {run['relmse']:.3g} vs {reach['uniform_relmse']:.3g})")
+            w = a["relmse_worst_equal_time_after_uniform_layers"]
+            eq = a["equal_relmse_time"]
+            L.append(f"| {sc} | {tag[5:]} | {run['mean_spp']:.0f} | {rt} | "
+                     f"{fmt(eq['time_share'])} @ {eq['relmse']:.3g} | "
+                     f"{fmt(a['relmse_equal_time']['ratio'])} ({fmt(w['ratio']) if w else '-'}) | "
+                     f"{fmt(a['relmse_equal_samples']['ratio'])} | {fmt(a['rmse_equal_time']['ratio'])} |")
+    L.append("")
+    L.append(f"Thesis section 5.3.2 with error measured: max {c['thesis_spp']} spp adaptive against uniform "
+             f"at the same total samples (from the uniform run's curve).")
+    L.append("")
+    L.append("| scene | mode | mean spp | relMSE adaptive | relMSE uniform, same total | ratio | RMSE ratio "
+             "| relMSE ratio, equal time (worst) |")
+    L.append("|---|---|--:|--:|--:|--:|--:|--:|")
+    for sc, S in R["scenes"].items():
+        for m in MODES:
+            a = S["comparisons"][f"t532-{m}"]
+            run = S["runs"][f"t532-{m}"]
+            es = a["relmse_equal_samples"]
+            w = a["relmse_worst_equal_time_after_uniform_layers"]
+            L.append(f"| {sc} | {m} | {run['mean_spp']:.0f} | {fmt(es['adaptive'])} | {fmt(es['uniform'])} | "
+                     f"{fmt(es['ratio'])} | {fmt(a['rmse_equal_samples']['ratio'])} | "
+                     f"{fmt(a['relmse_equal_time']['ratio'])} ({fmt(w['ratio']) if w else '-'}) |")
+    L.append("")
+    L.append(f"`--target-error {c['target_error']} --confidence {c['confidence']} --target-share "
+             f"{c['target_share']}` (adaptive none, cap "
+             f"{c['target_cap_spp']} spp): share of pixels whose luminance is within E (ref + 1e-3) of the "
+             f"reference; \"adjusted\" widens the tolerance in quadrature by the reference's own "
+             f"z sigma. \"Stopped pixels\": those the rule stopped before the cap (the claim under test); "
+             f"the others ran to the cap without meeting E.")
+    L.append("")
+    L.append("| scene | stopped on target | pixels stopped early | mean spp | within E, all pixels (adjusted) "
+             "| within E, stopped pixels (adjusted) | ref. half-width / tol. (median) |")
+    L.append("|---|---|--:|--:|--:|--:|--:|")
+    for sc, S in R["scenes"].items():
+        t = S["target"]
+        L.append(f"| {sc} | {'yes' if t['job'].get('stopped_on_target') else 'no'} | "
+                 f"{t['stopped_early_share']:.3f} | {t['mean_spp']:.0f} | {t['within_share_raw']:.3f} "
+                 f"({t['within_share_ref_noise_adjusted']:.3f}) | {fmt(t['within_share_raw_stopped_pixels'])} "
+                 f"({fmt(t['within_share_adjusted_stopped_pixels'])}) | {t['median_ref_halfwidth_over_tol']:.2f} |")
+    P = R.get("peer")
+    if P:
+        ag = P["agreement"]
+        L.append("")
+        L.append(f"Mitsuba 3 ({P['mitsuba_sweep']['variant']}, path, box filter, 2 threads) on the Cornell box. "
+                 f"Agreement: {ag['mitsuba_spp_total']} spp Mitsuba against our reference: relMSE "
+                 f"{ag['relmse_mitsuba_vs_ref']:.3g}, expected from noise alone {ag['relmse_expected_from_noise']:.3g}; "
+                 f"8x8-block z-test chi2/dof {ag['block_z_chi2_per_dof']:.2f}, max |z| "
+                 f"{ag['block_z_max_abs']:.1f} over {ag['block_count']} blocks x 3 channels; image mean "
+                 f"difference {', '.join(f'{x:+.1f}' for x in ag['mean_diff_in_sigma'])} sigma (R, G, B). "
+                 f"Mitsuba {P['mitsuba_samples_per_second'] / 1e6:.2f} M samples/s. relMSE Mitsuba / ours at "
+                 f"equal spp: "
+                 + ", ".join(f"{q['ratio']:.2f} @ {q['spp']}" for q in P["relmse_ratio_mitsuba_over_ours_at_equal_spp"]
+                             if q["ratio"] and q["spp"] >= 64) + ".")
+        L.append("")
+        L.append("| ours (2 threads, 1 embedded worker) | ours samples/s | Mitsuba time / ours, at relMSE levels | geomean |")
+        L.append("|---|--:|---|--:|")
+        for tag, q in P["time_to_equal_relmse"].items():
+            lv = ", ".join(f"{x['ratio']:.2f} @ {x['relmse']:.2g}" for x in q["levels"])
+            L.append(f"| {tag[5:]} | {q['ours_samples_per_second'] / 1e6:.2f} M | {lv or '-'} | "
+                     f"{fmt(q['geomean_ratio'])} |")
+    busy = R.get("busy_runs", [])
+    if busy:
+        L.append("")
+        L.append(f"Timed runs during which other processes used over {c['busy_retry_cores']} cores "
+                 f"(after one retry): {', '.join(busy)}; their time axes are stretched.")
+    L.append("")
+    L.append("Targets (issue 4, section 4):")
+    L.append("")
+    for t in R["targets"]:
+        L.append(f"- {'met' if t['met'] else 'MISSED'}: {t['text']}")
+    L.append("")
+    L.append("How to read it. thesis and variance compare an absolute variance with its mean over all "
+             "pixels: where a few pixels have very large variance (the light's edge on the Cornell box, "
+             "fireflies in the caustic) they hold the mean up and nearly all other pixels skip every "
+             "adaptive layer (heat maps). That wins in RMSE, and in relMSE where a few fireflies "
+             "dominate it (caustic: the win is largely those pixels being resampled), but loses in "
+             "relMSE where the bright side's larger absolute variance draws the samples away from the "
+             "dark side (dark-bright). relerr (t half-width / (mean + 0.1)) weights pixels as relMSE "
+             "does. Equal-samples ratios flatter modes whose chosen pixels cost more per sample "
+             "(happy-buddha: background pixels are cheap), so time is the fair axis. Mitsuba's "
+             "relMSE per sample equals ours, so the time ratio is the samples/s ratio.")
+    L.append("")
+    L.append("Plots: `bench/results/error/<scene>.png` (error vs time and samples, log-log), "
+             "`<scene>-heat.png` (samples per pixel), `heat/` (vbrender's own heat maps), "
+             "`peer-cornell-box.png`.")
+    return "\n".join(L)
+
+
+def update_readme(md):
+    path = os.path.join(ROOT, "README.md")
+    with open(path) as f:
+        text = f.read()
+    b, e = "<!-- bench:error:begin -->", "<!-- bench:error:end -->"
+    block = f"{b}\n{md}\n{e}"
+    if b in text and e in text:
+        i, j = text.index(b), text.index(e) + len(e)
+        text = text[:i] + block + text[j:]
+    else:
+        anchor = "<!-- bench:distributed:end -->" if "<!-- bench:distributed:end -->" in text \
+            else "<!-- bench:core:end -->"
+        if anchor not in text:
+            log("README: no anchor marker; section not written")
+            return
+        i = text.index(anchor) + len(anchor)
+        text = text[:i] + "\n\n" + block + text[i:]
+    tmp = path + ".bench-error.tmp"
+    with open(tmp, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def targets(R):
+    """Issue 4, section 4: each target met or missed, with its figures."""
+    T = []
+    for sc in [s for s in R["scenes"] if s in HARD]:
+        comps = R["scenes"][sc]["comparisons"]
+        shares = {f"{m} {cfg}": comps[f"{cfg}-{m}"]["equal_relmse_time"]["time_share"]
+                  for cfg in ("long", "t532") for m in MODES}
+        okm = {m: v for m, v in shares.items() if v is not None}
+        bm = min(okm, key=okm.get) if okm else None
+        T.append({"met": bool(bm and okm[bm] <= 0.5),
+                  "text": f"{sc}: best adaptive mode reaches uniform's relMSE in at most half the time "
+                          f"(time to equal relMSE, at the lowest relMSE both reach): "
+                          + (f"{bm} {okm[bm]:.2f} of uniform's time" if bm else "no common level")
+                          + " (" + ", ".join(f"{m} {fmt(v)}" for m, v in shares.items()) + ")"})
+    worst = []
+    for sc, S in R["scenes"].items():
+        for tag, c in S["comparisons"].items():
+            w = c["relmse_worst_equal_time_after_uniform_layers"]
+            e = c["relmse_equal_time"]["ratio"]
+            worst.append((max(w["ratio"] if w else 0, e or 0), sc, tag))
+    worst.sort(reverse=True)
+    losers = [x for x in worst if x[0] > 1.05]
+    T.append({"met": not losers,
+              "text": "adaptive never loses to uniform by more than 5 % in relMSE at equal time "
+                      "(any time after the uniform layers): worst "
+                      + ", ".join(f"{sc} {tag} {r:.2f}" for r, sc, tag in worst[:4])
+                      + (f"; {len(losers)} of {len(worst)} (scene, mode, setting) over 1.05" if losers else "")})
+    tg = [(sc, S["target"]) for sc, S in R["scenes"].items()]
+    T.append({"met": all((t["within_share_adjusted_stopped_pixels"] or 0) >= t["C"] for _, t in tg),
+              "text": f"--target-error {R['config']['target_error']}: share of the pixels it stopped within E >= C = "
+                      f"{R['config']['confidence']}: "
+                      + ", ".join(f"{sc} {fmt(t['within_share_raw_stopped_pixels'])} raw / "
+                                  f"{fmt(t['within_share_adjusted_stopped_pixels'])} adjusted" for sc, t in tg)
+                      + "".join(f"; {sc}: met only with the reference's own noise accounted for, the raw "
+                                f"share misses" for sc, t in tg
+                                if (t["within_share_raw_stopped_pixels"] or 0) < t["C"]
+                                <= (t["within_share_adjusted_stopped_pixels"] or 0))
+                      + " (all pixels, cap included: "
+                      + ", ".join(f"{sc} {t['within_share_raw']:.3f} / {t['within_share_ref_noise_adjusted']:.3f}"
+                                  for sc, t in tg) + ")"})
+    if R.get("peer"):
+        q = R["peer"]["time_to_equal_relmse"]
+        g = {k: v["geomean_ratio"] for k, v in q.items()}
+        T.append({"met": any(v is not None and v >= 2 for v in g.values()),
+                  "text": "Cornell box time to equal relMSE at least 2x better than Mitsuba 3: Mitsuba time / "
+                          "ours " + ", ".join(f"{k[5:]} {fmt(v)}" for k, v in g.items())})
+    R["targets"] = T
+    R["busy_runs"] = [f"{sc}/{tag} ({r['stats']['other_cpu_cores']:.2f})" for sc, S in R["scenes"].items()
+                      for tag, r in S["runs"].items() if r["stats"]["other_cpu_cores"] > R["config"]["busy_retry_cores"]]
+    if R.get("peer"):
+        for tag, q in R["peer"]["time_to_equal_relmse"].items():
+            if q["ours_stats"]["other_cpu_cores"] > R["config"]["busy_retry_cores"]:
+                R["busy_runs"].append(f"{tag} ({q['ours_stats']['other_cpu_cores']:.2f})")
+        st = R["peer"]["mitsuba_sweep"]["stats"]
+        if st["other_cpu_cores"] > R["config"]["busy_retry_cores"]:
+            R["busy_runs"].append(f"mitsuba sweep ({st['other_cpu_cores']:.2f})")
+
+
+# ---------------------------------------------------------------- main
+def write_json(R):
+    text = json.dumps(jsonable(R), indent=1)
+    # number lists (curve rows) on one line each
+    text = re.sub(r"\[\s*([-0-9.eE+]+(?:,\s*[-0-9.eE+]+)*)\s*\]",
+                  lambda m: "[" + re.sub(r",\s*", ", ", m.group(1)) + "]", text)
+    tmp = RESULTS_JSON + ".tmp"
+    with open(tmp, "w") as f:
+        f.write(text + "\n")
+    os.replace(tmp, RESULTS_JSON)
+
+
+def g5(x):
+    return float(f"{float(x):.5g}")
+
+
+def jsonable(x):
+    if isinstance(x, dict):
+        return {k: jsonable(v) for k, v in x.items() if k != "samples_map"}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return [jsonable(v) for v in x.tolist()]
+    if isinstance(x, (np.floating,)):
+        return float(x)
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    return x
+
+
+def main():
+    if "--from-json" in sys.argv:  # tables and README again from bench/results/error.json
+        with open(RESULTS_JSON) as f:
+            R = json.load(f)
+        targets(R)
+        md = tables(R)
+        R["readme_markdown"] = md
+        write_json(R)
+        if UPDATE_README:
+            update_readme(md)
+        print(md)
+        return
+    os.makedirs(PLOTS, exist_ok=True)
+    cpu = ""
+    try:
+        cpu = re.search(r"model name\s*:\s*(.*)", open("/proc/cpuinfo").read()).group(1).strip()
+    except (OSError, AttributeError):
+        pass
+    R = {"config": CFG, "machine": f"{cpu or platform.processor()}, {NCPU} cores", "commit": git_commit(),
+         "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "scenes": {}}
+    npix = CFG["size"] ** 2
+    scenes = {n: sized_scene(n) for n in CFG["scenes"]}
+    refs = {n: make_reference(n, scenes[n]) for n in scenes}
+    R["references"] = {n: dict(refs[n][1], exr=rel(refs[n][0])) for n in refs}
+    for name, scene in scenes.items():
+        ref, meta = refs[name]
+        ref_ch = read_exr(ref)
+        runs = {}
+        s = study_run(name, scene, ref, meta, "uniform", CFG["uniform_spp"], "none", CFG["workers"], CFG["threads"])
+        s["label"] = f"uniform {CFG['uniform_spp']} spp"
+        runs["uniform"] = s
+        for m in MODES:
+            s = study_run(name, scene, ref, meta, f"long-{m}", CFG["adaptive_spp"], m, CFG["workers"],
+                          CFG["threads"], ["--uniform-layers", str(CFG["adaptive_uniform_layers"])])
+            s["label"] = f"{m} long (max {CFG['adaptive_spp']})"
+            runs[f"long-{m}"] = s
+        for m in MODES:
+            s = study_run(name, scene, ref, meta, f"t532-{m}", CFG["thesis_spp"], m, CFG["workers"], CFG["threads"])
+            s["label"] = f"{m} 5.3.2 (max {CFG['thesis_spp']})"
+            runs[f"t532-{m}"] = s
+        for s in runs.values():
+            s["npix"] = npix
+            s["mean_spp"] = float(s["n"][-1] / npix)
+            s["seconds"] = float(s["t"][-1])
+        comps = {tag: compare_curves(runs["uniform"], runs[tag], npix) for tag in runs if tag != "uniform"}
+        plot_scene(name, runs, meta, os.path.join(PLOTS, f"{name}.png"))
+        plot_heat(name, runs, rgb(ref_ch), os.path.join(PLOTS, f"{name}-heat.png"))
+        target = target_check(name, scene, ref, ref_ch)
+        out_runs = {}
+        for tag, s in runs.items():
+            out_runs[tag] = {
+                "command": s["command"], "summary": s["summary"], "stats": s["stats"],
+                "cpu_utilization": s["cpu_utilization"], "job": s["job"],
+                "mean_spp": s["mean_spp"], "seconds": s["seconds"],
+                "relmse": float(s["relmse"][-1]), "rmse": float(s["rmse"][-1]),
+                "relmse_raw": float(s["relmse_raw"][-1]), "rmse_raw": float(s["rmse_raw"][-1]),
+                "series": {"columns": "seconds samples relmse rmse relmse_raw rmse_raw",
+                           "rows": [[round(float(a), 4), int(b), g5(c), g5(d), g5(e), g5(f)]
+                                    for a, b, c, d, e, f in zip(s["t"], s["n"], s["relmse"], s["rmse"],
+                                                                s["relmse_raw"], s["rmse_raw"])]},
+            }
+        floor = min(float(np.min(s["relmse_raw"])) for s in runs.values())
+        R["scenes"][name] = {"runs": out_runs, "comparisons": comps, "target": target,
+                             "reference_error_over_smallest_measured": meta["relmse_est"] / floor}
+        R["_runs_" + name] = runs  # for the peer choice, dropped before writing
+    # peer on the Cornell box with the best adaptive mode there (long setting, equal time)
+    if "cornell-box" in scenes:
+        comps = R["scenes"]["cornell-box"]["comparisons"]
+        best = min(MODES, key=lambda m: comps[f"long-{m}"]["equal_relmse_time"]["time_share"] or 9e9)
+        ref, meta = refs["cornell-box"]
+        R["peer"] = peer(scenes["cornell-box"], ref, meta, read_exr(ref), best)
+        R["peer"]["best_adaptive_mode"] = best
+    for k in [k for k in R if k.startswith("_runs_")]:
+        del R[k]
+    targets(R)
+    R["total_seconds"] = time.time() - T_START
+    md = tables(R)
+    R["readme_markdown"] = md
+    write_json(R)
+    if UPDATE_README:
+        update_readme(md)
+    print(md)
+    log(f"done: {rel(RESULTS_JSON)}, plots in {rel(PLOTS)}/")
+
+
+if __name__ == "__main__":
+    main()
