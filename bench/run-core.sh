@@ -72,8 +72,9 @@ done
 #    average number of cores other processes (and the hypervisor, "steal")
 #    used meanwhile: system busy time from /proc/stat minus the command's own.
 #    "disturbed": the command and the others together kept every core busy
-#    (averaged over the whole command, start-up included, so a short clash
-#    can hide in it).
+#    and the others took over 0.1 core (averaged over the whole command,
+#    start-up included, so a short clash can hide in it; the machine's idle
+#    background is a few hundredths of a core).
 measured() { # TIMEOUT STDOUT STDERR SIDEFILE CMD...
     python3 - "$@" <<'PY'
 import json, os, resource, subprocess, sys, time
@@ -96,7 +97,7 @@ other = max(0.0, (busy() - b0) - (own() - c0)) / wall
 with open(side, "w") as f:
     mine = (own() - c0) / wall
     json.dump({"wall_seconds": wall, "own_cpu_cores": mine, "other_cpu_cores": other,
-               "disturbed": mine + other > (os.cpu_count() or 1) - 0.05 and other > 0.05}, f)
+               "disturbed": mine + other > (os.cpu_count() or 1) - 0.05 and other > 0.1}, f)
 sys.exit(rc)
 PY
 }
