@@ -14,6 +14,10 @@ matplotlib). Steps:
     layers) and "5.3.2" (max VB_STUDY_THESIS_SPP, the default half uniform layers,
     the thesis's section 5.3.2). Each run's OUT.error.json is its error curve.
  3. --target-error E --confidence C runs (adaptive none): share of pixels within E.
+ 3b. Options the thesis left open (issue 4, section 2), modes thesis and relerr at the long
+    setting: --uniform-layers 2, half the layers, --random-selection, --dilate against the long runs
+    ("base", reused) and uniform; blotch share and base-vs-dilate heat maps.
+    `study.py --only options` runs this part alone on top of bench/results/error.json.
  4. Mitsuba 3 peer on the Cornell box: agreement of high-count renders with our
     reference, then time to equal relMSE (2 threads each).
  5. bench/results/error.json, PNG plots under bench/results/error/, the README
@@ -90,6 +94,8 @@ RESULTS_JSON = os.path.join(WORK, "quick", "error.json") if QUICK else \
     os.path.join(ROOT, "bench", "results", "error.json")
 PLOTS = os.path.join(WORK, "quick", "error") if QUICK else os.path.join(ROOT, "bench", "results", "error")
 REFS = os.path.join(ROOT, "bench", "refs")
+# the quick run's images apart from the full run's (the options study reads the long runs' images)
+RUNS = os.path.join(WORK, "quick", "runs") if QUICK else os.path.join(WORK, "runs")
 UPDATE_README = os.environ.get("VB_STUDY_README", "0" if QUICK else "1") == "1"
 
 
@@ -305,7 +311,7 @@ def load_series(errjson, ref_meta):
 
 
 def study_run(name, scene, ref, ref_meta, tag, spp, adaptive, workers, threads, extra=()):
-    out = os.path.join(WORK, "runs", f"{name}-{tag}.exr")
+    out = os.path.join(RUNS, f"{name}-{tag}.exr")
     os.makedirs(os.path.dirname(out), exist_ok=True)
     cmd = vb_cmd(scene, out, spp, adaptive, CFG["seed"], workers, threads, extra, ref)
     best = None
@@ -327,7 +333,7 @@ def study_run(name, scene, ref, ref_meta, tag, spp, adaptive, workers, threads, 
               "final_relmse_exr_raw": relmse(rgb(ch), rgb(read_exr(ref)))})
     s["cpu_utilization"] = st["cpu_s"] / max(1e-9, st["wall_s"] * threads)
     heat = out[:-4] + "-samples.png"
-    if os.path.exists(heat) and adaptive != "none" and not tag.startswith("peer"):
+    if os.path.exists(heat) and adaptive != "none" and not tag.startswith(("peer", "opt-")):
         os.makedirs(os.path.join(PLOTS, "heat"), exist_ok=True)
         shutil.copy(heat, os.path.join(PLOTS, "heat", f"{name}-{tag}.png"))
     return s
@@ -497,7 +503,7 @@ def plot_peer(ours, mits, path, ref_meta):
 # ---------------------------------------------------------------- target error
 def target_check(name, scene, ref, ref_ch):
     E, C, cap = CFG["target_error"], CFG["confidence"], CFG["target_cap_spp"]
-    out = os.path.join(WORK, "runs", f"{name}-target.exr")
+    out = os.path.join(RUNS, f"{name}-target.exr")
     cmd = vb_cmd(scene, out, cap, "none", CFG["seed"], CFG["workers"], CFG["threads"],
                  ["--target-error", str(E), "--confidence", str(C), "--target-share", str(CFG["target_share"])],
                  ref)
@@ -529,6 +535,139 @@ def target_check(name, scene, ref, ref_ch):
                   "(its variance channel), which is what a pixel exactly at the bound would show",
     }
     return res
+
+
+# ---------------------------------------------------------------- options the thesis left open
+OPT_MODES = ["thesis", "relerr"]
+BLOCK = 8          # blotch measure: 8x8-pixel blocks
+BLOTCH_K = 3.0     # a block is a blotch when its relMSE exceeds BLOTCH_K x the image's
+
+
+def opt_variants():
+    layers = CFG["adaptive_spp"] // CFG["granularity"]
+    return [("base", f"base: {CFG['adaptive_uniform_layers']} uniform layers", None),
+            ("ul2", "--uniform-layers 2", ["--uniform-layers", "2"]),
+            ("ulhalf", f"--uniform-layers {layers // 2} (half)", ["--uniform-layers", str(layers // 2)]),
+            ("random", "--random-selection", ["--uniform-layers", str(CFG["adaptive_uniform_layers"]),
+                                              "--random-selection"]),
+            ("dilate", "--dilate", ["--uniform-layers", str(CFG["adaptive_uniform_layers"]), "--dilate"])]
+
+
+def curve_from_rows(run):
+    rows = np.array(run["series"]["rows"], dtype=float)
+    return {"t": rows[:, 0], "n": rows[:, 1], "relmse": rows[:, 2], "rmse": rows[:, 3], "job": run["job"]}
+
+
+def pixel_relerr(img, ref_rgb):
+    """Per-pixel relative squared error, mean over channels (the relMSE's summand)."""
+    return np.mean((img - ref_rgb) ** 2 / (ref_rgb ** 2 + EPS), axis=2)
+
+
+def blotch_share(e):
+    """Share of BLOCKxBLOCK blocks whose mean relative squared error exceeds BLOTCH_K x the image's."""
+    H, W = e.shape
+    hb, wb = H // BLOCK, W // BLOCK
+    b = e[:hb * BLOCK, :wb * BLOCK].reshape(hb, BLOCK, wb, BLOCK).mean(axis=(1, 3))
+    return float((b > BLOTCH_K * e.mean()).mean())
+
+
+def base_image(name, scene, ref, ref_meta, m, saved):
+    """The long run's image: the study's own file when it is that run (size and sample count), else
+    rendered again untimed (same seed and settings) for the image measures only."""
+    out = os.path.join(RUNS, f"{name}-long-{m}.exr")
+    ej = out[:-4] + ".error.json"
+    if os.path.exists(out) and os.path.exists(ej):
+        with open(ej) as f:
+            job = json.load(f).get("job", {})
+        if job.get("width") == CFG["size"] and job.get("samples") == saved["job"]["samples"]:
+            return out, False
+    out = os.path.join(RUNS, "options", f"{name}-base-{m}.exr")
+    os.makedirs(os.path.dirname(out), exist_ok=True)
+    cmd = vb_cmd(scene, out, CFG["adaptive_spp"], m, CFG["seed"], CFG["workers"], CFG["threads"],
+                 ["--uniform-layers", str(CFG["adaptive_uniform_layers"])], ref)
+    log(f"{name} options base-{m}: image again (untimed)")
+    run_measured(cmd, timed=False)
+    return out, True
+
+
+def options_study(R, scenes, refs):
+    """Flag sequence, randomised selection and dilation, each against the long runs and uniform."""
+    npix = CFG["size"] ** 2
+    t0 = time.time()
+    O = {"modes": OPT_MODES, "variants": {k: lbl for k, lbl, _ in opt_variants()},
+         "max_spp": CFG["adaptive_spp"], "blotch": {"block": BLOCK, "k": BLOTCH_K},
+         "scenes": {}}
+    for name, scene in scenes.items():
+        ref, meta = refs[name]
+        ref_rgb = rgb(read_exr(ref))
+        S = R["scenes"][name]
+        u = curve_from_rows(S["runs"]["uniform"])
+        res, maps = {}, {}
+
+        for m in OPT_MODES:
+            res[m] = {}
+            for key, lbl, extra in opt_variants():
+                if extra is None:
+                    saved = S["runs"][f"long-{m}"]
+                    a = curve_from_rows(saved)
+                    exr, again = base_image(name, scene, ref, meta, m, saved)
+                    rec = {"from": f"long-{m}", "command": saved["command"], "stats": saved["stats"],
+                           "image_rendered_again": again}
+                else:
+                    s = study_run(name, scene, ref, meta, f"opt-{key}-{m}", CFG["adaptive_spp"], m,
+                                  CFG["workers"], CFG["threads"], extra)
+                    a, exr = s, s["exr"]
+                    rec = {"command": s["command"], "summary": s["summary"], "stats": s["stats"]}
+                ch = read_exr(exr)
+                rec["image_samples"] = float(ch["samples"].sum())
+                e = pixel_relerr(rgb(ch), ref_rgb)
+                c = compare_curves(u, a, npix)
+                rec.update({
+                    "job": a["job"], "mean_spp": float(a["n"][-1] / npix), "seconds": float(a["t"][-1]),
+                    "relmse": float(a["relmse"][-1]),
+                    "relmse_equal_time": c["relmse_equal_time"], "relmse_equal_samples": c["relmse_equal_samples"],
+                    "relmse_worst_equal_time_after_uniform_layers": c["relmse_worst_equal_time_after_uniform_layers"],
+                    "equal_relmse_time": c["equal_relmse_time"],
+                    "blotch_share": blotch_share(e),
+                })
+                if extra is not None:
+                    rec["series"] = {"columns": "seconds samples relmse rmse",
+                                     "rows": [[round(float(x), 4), int(n), g5(y), g5(z)]
+                                              for x, n, y, z in zip(a["t"], a["n"], a["relmse"], a["rmse"])]}
+                res[m][key] = rec
+                if key in ("base", "dilate"):
+                    maps[(m, key)] = (ch["samples"], np.sqrt(e))
+        O["scenes"][name] = res
+        plot_options_heat(name, maps, os.path.join(PLOTS, f"{name}-dilate.png"))
+    O["seconds"] = time.time() - t0
+    O["commit"] = git_commit()
+    O["date"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    return O
+
+
+def plot_options_heat(name, maps, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axs = plt.subplots(len(OPT_MODES), 4, figsize=(9, 2.3 * len(OPT_MODES)))
+    for row, m in enumerate(OPT_MODES):
+        smax = max(maps[(m, k)][0].max() for k in ("base", "dilate"))
+        emax = max(np.percentile(maps[(m, k)][1], 99) for k in ("base", "dilate"))
+        for col, (k, what) in enumerate([("base", 0), ("dilate", 0), ("base", 1), ("dilate", 1)]):
+            ax = axs[row][col]
+            v = maps[(m, k)][what]
+            im = ax.imshow(v, cmap="viridis" if what == 0 else "magma", vmin=0,
+                           vmax=smax if what == 0 else emax, interpolation="nearest")
+            ax.set_title(f"{m} {k}: " + (f"spp, mean {v.mean():.0f}" if what == 0 else "rel. error"),
+                         fontsize=7)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            fig.colorbar(im, ax=ax, fraction=0.046)
+    fig.suptitle(f"{name}: base ({CFG['adaptive_uniform_layers']} uniform layers) vs --dilate, samples per pixel and per-pixel "
+                 f"relative error", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=50)
+    plt.close(fig)
 
 
 # ---------------------------------------------------------------- Mitsuba peer
@@ -655,6 +794,48 @@ def fmt(x, nd=3):
     return str(x)
 
 
+def options_reading(O):
+    """The reading of the options table; its figures come from O (equal-time relMSE ratios)."""
+    def r(sc, m, k):
+        return fmt(O["scenes"][sc][m][k]["relmse_equal_time"]["ratio"], 2)
+
+    def b(sc, m, k):
+        return f"{100 * O['scenes'][sc][m][k]['blotch_share']:.1f} %"
+    if not all(x in O["scenes"] for x in ("cornell-box", "happy-buddha", "caustic", "dark-bright")):
+        return ""
+    half = O["variants"]["ulhalf"].split()[1]
+    return (
+        "How to read it. *Flag sequence.* The skip rule judges each pixel by the variance it saw in the "
+        "uniform layers. After only 2 layers (64 samples) that estimate is poor where light arrives rarely, "
+        "so such pixels are skipped too early: the run is shorter and wins where a few obvious noisy pixels "
+        f"dominate (caustic: thesis {r('caustic', 'thesis', 'ul2')} vs {r('caustic', 'thesis', 'base')}, "
+        f"relerr {r('caustic', 'relerr', 'ul2')} vs {r('caustic', 'relerr', 'base')}) but loses where dim "
+        f"pixels are the noisy ones (dark-bright: thesis {r('dark-bright', 'thesis', 'ul2')} vs "
+        f"{r('dark-bright', 'thesis', 'base')}, relerr {r('dark-bright', 'relerr', 'ul2')} vs "
+        f"{r('dark-bright', 'relerr', 'base')}). Half the layers uniform ({half} layers: uniform's whole "
+        "budget before any pixel is skipped) makes the run uniform up to the point of comparison, so its "
+        "ratio is about 1 everywhere: no losses (dark-bright "
+        f"{r('dark-bright', 'thesis', 'ulhalf')}), but no gains either (caustic "
+        f"{r('caustic', 'thesis', 'ulhalf')} instead of {r('caustic', 'thesis', 'base')}); 8 layers is the "
+        "useful middle. *Randomised selection* and *dilation* both give samples to pixels the rule would "
+        "skip (mean spp up to several times the base's), which moves the result toward uniform: they help "
+        "where the rule starves pixels (Cornell box thesis "
+        f"{r('cornell-box', 'thesis', 'random')} / {r('cornell-box', 'thesis', 'dilate')} vs "
+        f"{r('cornell-box', 'thesis', 'base')}, happy-buddha thesis {r('happy-buddha', 'thesis', 'random')} / "
+        f"{r('happy-buddha', 'thesis', 'dilate')} vs {r('happy-buddha', 'thesis', 'base')}) and hurt where "
+        f"concentrating samples pays (caustic relerr {r('caustic', 'relerr', 'random')} / "
+        f"{r('caustic', 'relerr', 'dilate')} vs {r('caustic', 'relerr', 'base')}). Neither rescues thesis on "
+        f"dark-bright ({r('dark-bright', 'thesis', 'random')} / {r('dark-bright', 'thesis', 'dilate')}): the "
+        "fault there is the absolute-variance criterion, not how pixels are picked. *Blotches.* The base "
+        "selection is speckled pixel by pixel, which 8x8 blocks average out; dilation fills the selected "
+        "regions solid (heat maps), so the error drops inside them and the blocks outside stand out more "
+        f"(Cornell box relerr {b('cornell-box', 'relerr', 'base')} to {b('cornell-box', 'relerr', 'dilate')}, "
+        f"dark-bright relerr {b('dark-bright', 'relerr', 'base')} to {b('dark-bright', 'relerr', 'dilate')}); "
+        f"only dark-bright thesis improves ({b('dark-bright', 'thesis', 'base')} to "
+        f"{b('dark-bright', 'thesis', 'dilate')}). At this size and G = 32 we see no blotches or seams that "
+        "dilation would remove.")
+
+
 def tables(R):
     L = []
     c = R["config"]
@@ -746,6 +927,47 @@ def tables(R):
         L.append("")
         L.append(f"Timed runs during which other processes used over {c['busy_retry_cores']} cores "
                  f"(after one retry): {', '.join(busy)}; their time axes are stretched.")
+    O = R.get("options")
+    if O:
+        keys = list(O["variants"])
+        L.append("")
+        L.append("Options the thesis left open (issue 4, section 2), modes thesis and relerr, max "
+                 f"{O['max_spp']} spp, same scenes, references, seed and workers as above; \"base\" is the "
+                 "long run above, its curve reused"
+                 + (" (its image rendered again, untimed, for the blotch measure: same sample counts)"
+                    if any(S[m]["base"].get("image_rendered_again") and
+                           S[m]["base"]["image_samples"] == S[m]["base"]["job"]["samples"]
+                           for S in O["scenes"].values() for m in O["modes"]) else "")
+                 + ". Each cell: relMSE / uniform's at equal time, at equal "
+                 "samples, and the mean spp. Blotches: share of "
+                 f"{O['blotch']['block']}x{O['blotch']['block']} blocks whose relMSE (against the reference, "
+                 f"its own noise included) exceeds {O['blotch']['k']:g}x the image's. Options run in "
+                 f"{O['seconds']:.0f} s (commit {O['commit']}).")
+        L.append("")
+        lbl = dict(O["variants"], base=f"base: {c['adaptive_uniform_layers']} uniform layers")
+        L.append("| scene | mode | " + " | ".join(lbl[k] for k in keys)
+                 + " | blotches: base / dilate |")
+        L.append("|---|---|" + "--:|" * len(keys) + "--:|")
+        for sc, S in O["scenes"].items():
+            for m in O["modes"]:
+                cells = []
+                for k in keys:
+                    q = S[m][k]
+                    cells.append(f"{fmt(q['relmse_equal_time']['ratio'], 2)} / "
+                                 f"{fmt(q['relmse_equal_samples']['ratio'], 2)} ({q['mean_spp']:.0f})")
+                L.append(f"| {sc} | {m} | " + " | ".join(cells) + " | "
+                         f"{100 * S[m]['base']['blotch_share']:.1f} % / {100 * S[m]['dilate']['blotch_share']:.1f} % |")
+        busy = [f"{sc}/{m}/{k} ({q['stats']['other_cpu_cores']:.2f})" for sc, S in O["scenes"].items()
+                for m in O["modes"] for k, q in S[m].items()
+                if k != "base" and q["stats"]["other_cpu_cores"] > c["busy_retry_cores"]]
+        if busy:
+            L.append("")
+            L.append(f"Option runs during which other processes used over {c['busy_retry_cores']} cores: "
+                     f"{', '.join(busy)}.")
+        L.append("")
+        L.append(options_reading(O))
+        L.append("")
+        L.append("Heat maps, base vs --dilate: `bench/results/error/<scene>-dilate.png`.")
     L.append("")
     L.append("Targets (issue 4, section 4):")
     L.append("")
@@ -893,6 +1115,28 @@ def main():
         print(md)
         return
     os.makedirs(PLOTS, exist_ok=True)
+    if "--only" in sys.argv:  # one part again on top of bench/results/error.json
+        part = sys.argv[sys.argv.index("--only") + 1] if sys.argv.index("--only") + 1 < len(sys.argv) else ""
+        if part != "options":
+            raise SystemExit("study.py: --only takes 'options'")
+        with open(RESULTS_JSON) as f:
+            R = json.load(f)
+        for k in ("size", "ref_spp", "adaptive_spp", "adaptive_uniform_layers", "granularity", "workers",
+                  "threads", "seed"):
+            if R["config"][k] != CFG[k]:
+                raise SystemExit(f"study.py --only options: {k} {CFG[k]} differs from the saved {R['config'][k]}")
+        scenes = {n: sized_scene(n) for n in R["scenes"]}
+        refs = {n: make_reference(n, scenes[n]) for n in scenes}
+        R["options"] = options_study(R, scenes, refs)
+        targets(R)
+        md = tables(R)
+        R["readme_markdown"] = md
+        write_json(R)
+        if UPDATE_README:
+            update_readme(md)
+        print(md)
+        log(f"options done in {R['options']['seconds']:.0f} s: {rel(RESULTS_JSON)}")
+        return
     cpu = ""
     try:
         cpu = re.search(r"model name\s*:\s*(.*)", open("/proc/cpuinfo").read()).group(1).strip()
@@ -954,6 +1198,7 @@ def main():
         R["peer"]["best_adaptive_mode"] = best
     for k in [k for k in R if k.startswith("_runs_")]:
         del R[k]
+    R["options"] = options_study(R, scenes, refs)
     targets(R)
     R["total_seconds"] = time.time() - T_START
     md = tables(R)
