@@ -514,11 +514,20 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
     uint32_t layer = (uint32_t)((task_id - 1) / s->ranges), range = (uint32_t)((task_id - 1) % s->ranges);
     double *pv = s->pvar_flight[layer & 1];
     uint8_t *cv = s->conv_flight[layer & 1];
+    /* batch statistics only where something reads them: this loop runs for
+     * every pixel-layer result, millions a second on one master core */
+    const int batches = s->cfg.adaptive == SCHED_ADAPTIVE_RELERR || s->cfg.target_error > 0;
     for (uint32_t i = 0; i < count; i++) {
         uint32_t p = results[i].pixel;
         film_merge(s->film, &results[i]);
         s->samples_done += rec[i].sample_count;
         s->nonfinite += results[i].nonfinite;
+        if (!batches) {
+            pv[p] = s->cfg.adaptive == SCHED_ADAPTIVE_VARIANCE
+                        ? (s->film->pixels[p].count >= 2 ? film_variance_of_mean(s->film, p) : INFINITY)
+                        : results[i].pvar;
+            continue;
+        }
         /* the layer's mean is one batch; Welford over batches */
         if (results[i].samples > 0) {
             double bm = vmath_luminance(results[i].sum[0], results[i].sum[1], results[i].sum[2]) / results[i].samples;
