@@ -102,32 +102,14 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
         "property float nx\n", "element face 3\n", "end_header\n", "comment c\n", "3 0 1 2\n",
     };
     size_t n = b->n;
-    switch (fuzz_rnd(s) % 9) {
-    case 0: /* flip a bit */
-        if (n)
-            b->d[fuzz_rnd_below(s, n)] ^= (unsigned char)(1u << (fuzz_rnd(s) % 8));
+    unsigned kind = (unsigned)(fuzz_rnd(s) % 9);
+    switch (kind) {
+    case 0:
+    case 1:
+    case 2:
+    case 3:
+        fuzz_mutate_bytes(b, s, kind, tokens, sizeof tokens / sizeof tokens[0]);
         break;
-    case 1: /* random byte */
-        if (n)
-            b->d[fuzz_rnd_below(s, n)] = (unsigned char)fuzz_rnd(s);
-        break;
-    case 2: /* truncate */
-        b->n = fuzz_rnd_below(s, n + 1);
-        break;
-    case 3: { /* insert a few random bytes or a token */
-        unsigned char r[8];
-        size_t at = fuzz_rnd_below(s, n + 1);
-        if (fuzz_rnd(s) & 1) {
-            const char *t = tokens[fuzz_rnd_below(s, sizeof tokens / sizeof tokens[0])];
-            fuzz_insert(b, at, t, strlen(t));
-        } else {
-            size_t k = 1 + fuzz_rnd_below(s, sizeof r);
-            for (size_t i = 0; i < k; i++)
-                r[i] = (unsigned char)fuzz_rnd(s);
-            fuzz_insert(b, at, r, k);
-        }
-        break;
-    }
     case 4: { /* duplicate a chunk somewhere else */
         if (!n)
             break;

@@ -139,6 +139,39 @@ void fuzz_erase(fuzz_buf_t *b, size_t at, size_t n)
     b->n -= n;
 }
 
+void fuzz_mutate_bytes(fuzz_buf_t *b, uint64_t *s, unsigned kind, const char *const *tokens,
+                       size_t ntokens)
+{
+    size_t n = b->n;
+    switch (kind) {
+    case 0:
+        if (n)
+            b->d[fuzz_rnd_below(s, n)] ^= (unsigned char)(1u << (fuzz_rnd(s) % 8));
+        break;
+    case 1:
+        if (n)
+            b->d[fuzz_rnd_below(s, n)] = (unsigned char)fuzz_rnd(s);
+        break;
+    case 2:
+        b->n = fuzz_rnd_below(s, n + 1);
+        break;
+    default: {
+        unsigned char r[8];
+        size_t at = fuzz_rnd_below(s, n + 1);
+        if (fuzz_rnd(s) & 1) {
+            const char *t = tokens[fuzz_rnd_below(s, ntokens)];
+            fuzz_insert(b, at, t, strlen(t));
+        } else {
+            size_t k = 1 + fuzz_rnd_below(s, sizeof r);
+            for (size_t i = 0; i < k; i++)
+                r[i] = (unsigned char)fuzz_rnd(s);
+            fuzz_insert(b, at, r, k);
+        }
+        break;
+    }
+    }
+}
+
 /* A CORPUS_DIR whose last component is "fuzz" (with or without a trailing
  * slash) gets the target's suffix: `make test` passes every target the same
  * folder. */

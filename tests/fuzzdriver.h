@@ -39,4 +39,9 @@ size_t fuzz_rnd_below(uint64_t *s, size_t n);
 void fuzz_insert(fuzz_buf_t *b, size_t at, const void *p, size_t n);
 void fuzz_erase(fuzz_buf_t *b, size_t at, size_t n);
 
+/* The mutations every target uses, by kind: 0 flip a bit, 1 random byte,
+ * 2 truncate, 3 insert a few random bytes or one of the target's tokens. */
+void fuzz_mutate_bytes(fuzz_buf_t *b, uint64_t *s, unsigned kind, const char *const *tokens,
+                       size_t ntokens);
+
 #endif
