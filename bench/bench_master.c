@@ -30,6 +30,7 @@
 #include <inttypes.h>
 #include <pthread.h>
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -67,7 +68,7 @@ typedef struct synth {
     void *ctx;
     const char *endpoint;
     uint32_t credit;
-    const volatile sig_atomic_t *stop;
+    const atomic_int *stop;
     pthread_t thread;
     int started;
     clockid_t clock;
@@ -81,7 +82,7 @@ typedef struct synth {
 
 typedef struct master_thread {
     master_t *m;
-    volatile sig_atomic_t stop;
+    atomic_int stop;
     pthread_t thread;
 } master_thread_t;
 
@@ -175,7 +176,7 @@ static void *synth_main(void *arg)
     }
     double last_sent = now_s();
     int welcomed = 0;
-    while (!*s->stop && !s->failed) {
+    while (!atomic_load(s->stop) && !s->failed) {
         zmq_pollitem_t it = {sock, 0, ZMQ_POLLIN, 0};
         int rc = zmq_poll(&it, 1, 100);
         if (rc < 0) {
@@ -257,7 +258,7 @@ static void *synth_main(void *arg)
                 s->tasks++;
                 s->records += t->count;
             } else if (in->h.type == PROTO_REFUSE || in->h.type == PROTO_BYE) {
-                if (!*s->stop) {
+                if (!atomic_load(s->stop)) {
                     snprintf(s->error, sizeof s->error, "master said %s: %.200s", proto_type_name(in->h.type),
                              in->u.text.text);
                     s->failed = 1;
@@ -429,7 +430,7 @@ int main(int argc, char **argv)
     memset(&mt, 0, sizeof mt);
     synth_t synth[MAX_SYNTH];
     memset(synth, 0, sizeof synth);
-    volatile sig_atomic_t synth_stop = 0;
+    atomic_int synth_stop = 0;
     void *req = NULL;
     cJSON *status = NULL, *out = NULL, *q = NULL;
     rc = 1;
@@ -613,11 +614,11 @@ int main(int argc, char **argv)
             master_cpu > 0 ? results / master_cpu : 0);
     rc = strcmp(jstr(status, "state"), "done") == 0 || cancelled ? 0 : 1;
 done:
-    synth_stop = 1;
+    atomic_store(&synth_stop, 1);
     for (uint64_t i = 0; i < a.workers; i++)
         if (synth[i].started)
             pthread_join(synth[i].thread, NULL);
-    mt.stop = 1;
+    atomic_store(&mt.stop, 1);
     pthread_join(mt.thread, NULL);
     master_destroy(&mt.m);
     if (req)

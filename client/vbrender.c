@@ -16,6 +16,7 @@
 #include <math.h>
 #include <pthread.h>
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -409,13 +410,13 @@ static void print_summary(const cJSON *job, int workers, int threads)
 
 typedef struct embedded_master {
     master_t *m;
-    volatile sig_atomic_t stop;
+    atomic_int stop; /* read by the master thread */
     pthread_t thread;
 } embedded_master_t;
 
 typedef struct embedded_worker {
     worker_t *w;
-    volatile sig_atomic_t stop;
+    atomic_int stop; /* read by the worker thread */
     pthread_t thread;
     int started;
 } embedded_worker_t;
@@ -546,14 +547,14 @@ static int cmd_render(int argc, char **argv)
 done:
     for (uint64_t i = 0; ew && i < a.workers; i++)
         if (ew[i].started) {
-            ew[i].stop = 1;
+            atomic_store(&ew[i].stop, 1);
             pthread_join(ew[i].thread, NULL);
         }
     for (uint64_t i = 0; ew && i < a.workers; i++)
         worker_destroy(&ew[i].w);
     tracer_device_destroy(&device);
     if (em.m) {
-        em.stop = 1;
+        atomic_store(&em.stop, 1);
         pthread_join(em.thread, NULL);
         master_destroy(&em.m);
     }

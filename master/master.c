@@ -1188,10 +1188,10 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
     return m;
 }
 
-int master_run(master_t *m, const volatile sig_atomic_t *stop)
+int master_run(master_t *m, const atomic_int *stop)
 {
     zmq_pollitem_t items[2] = {{m->workers_sock, 0, ZMQ_POLLIN, 0}, {m->control_sock, 0, ZMQ_POLLIN, 0}};
-    while (!(stop && *stop) && !m->shutdown) {
+    while (!(stop && atomic_load(stop)) && !m->shutdown) {
         int rc = zmq_poll(items, 2, 50);
         if (rc < 0 && errno != EINTR)
             break;

@@ -9,7 +9,7 @@
 #ifndef VB_MASTER_H
 #define VB_MASTER_H
 
-#include <signal.h>
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -32,7 +32,7 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen);
 
 /* Runs the event loop until *stop becomes non-zero or a shutdown command
  * arrives. Returns 0. */
-int master_run(master_t *m, const volatile sig_atomic_t *stop);
+int master_run(master_t *m, const atomic_int *stop);
 
 void master_destroy(master_t **m);
 

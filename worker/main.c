@@ -6,6 +6,7 @@
  * Exit 1 when the master refuses it (protocol or build mismatch). */
 #include <errno.h>
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -14,13 +15,14 @@
 
 #include "worker.h"
 
-/* The one global: a signal handler can reach nothing else. */
-static volatile sig_atomic_t stop_requested;
+/* The one global: a signal handler can reach nothing else. A lock-free
+ * atomic is safe to store from a handler (C11 7.14.1.1). */
+static atomic_int stop_requested;
 
 static void on_signal(int sig)
 {
     (void)sig;
-    stop_requested = 1;
+    atomic_store(&stop_requested, 1);
 }
 
 static const char usage[] =

@@ -602,13 +602,13 @@ worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
     return w;
 }
 
-int worker_run(worker_t *w, const volatile sig_atomic_t *stop)
+int worker_run(worker_t *w, const atomic_int *stop)
 {
     zmq_pollitem_t items[2] = {{w->sock, 0, ZMQ_POLLIN, 0}, {w->wake, 0, ZMQ_POLLIN, 0}};
     w->hello_backoff = 0.1;
     w->last_from_master = now_s();
     send_hello(w);
-    while (!(stop && *stop) && !w->refused) {
+    while (!(stop && atomic_load(stop)) && !w->refused) {
         if (zmq_poll(items, 2, 50) < 0 && errno != EINTR)
             break;
         if (items[1].revents & ZMQ_POLLIN) {

@@ -12,7 +12,7 @@
 #ifndef VB_WORKER_H
 #define VB_WORKER_H
 
-#include <signal.h>
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdio.h>
 
@@ -33,7 +33,7 @@ worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen);
 
 /* Runs until *stop becomes non-zero (then leaves cleanly) or the master
  * refuses this worker (version or build mismatch: returns 1). 0 otherwise. */
-int worker_run(worker_t *w, const volatile sig_atomic_t *stop);
+int worker_run(worker_t *w, const atomic_int *stop);
 
 void worker_destroy(worker_t **w);
 
