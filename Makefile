@@ -110,11 +110,22 @@ $(BUILD)/tests/test_%: $(BUILD)/tests/test_%.o $(TEST_HELPER_OBJ) $(LIBS_ALL)
 $(BUILD)/tests/fuzz_%: $(BUILD)/tests/fuzz_%.o $(BUILD)/tests/fuzzdriver.o $(LIBS_ALL)
 	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_ALL)
 
+# The master with its fault-injection points compiled in (tests only): the
+# same objects, persist.c built with VB_FAULT_INJECTION and linked first, so
+# the library's own persist.o is not pulled in.
+FAULT_MASTER = $(BUILD)/tests/vbrender-master-fault
+$(BUILD)/tests/persist-fault.o: master/persist.c
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -DVB_FAULT_INJECTION -c $< -o $@
+$(FAULT_MASTER): $(BUILD)/master/main.o $(BUILD)/tests/persist-fault.o $(LIBS_ALL)
+	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_ALL)
+
 $(BUILD)/bench/%: $(BUILD)/bench/%.o $(LIBS_ALL)
 	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_ALL)
 
 # Tests find the binary under test and the shared data through these.
 TEST_ENV = VB_BIN=$(abspath $(BIN)/vbrender) VB_BINDIR=$(abspath $(BIN)) VB_ROOT=$(CURDIR) \
+           VB_FAULT_MASTER=$(abspath $(FAULT_MASTER)) \
            VB_SHARED=$(abspath ../shared)
 # Under the sanitizers each suite runs in one process (no fork per test), so
 # LeakSanitizer checks the whole run at exit.
@@ -122,7 +133,7 @@ ifeq ($(SAN),1)
   TEST_ENV += CK_FORK=no
 endif
 
-test: $(BIN)/vbrender $(DAEMONS) $(TEST_BIN) $(FUZZ_BIN)
+test: $(BIN)/vbrender $(DAEMONS) $(TEST_BIN) $(FUZZ_BIN) $(FAULT_MASTER)
 	@mkdir -p $(BUILD)/test-out
 	@$(TEST_ENV) VB_TMP=$(abspath $(BUILD)/test-out) tests/run-suites.sh $(TEST_BIN) -- $(FUZZ_BIN)
 
@@ -152,4 +163,4 @@ clean:
 	rm -rf build build-asan bin
 
 -include $(CORE_OBJ:.o=.d) $(NET_OBJ:.o=.d) $(CLIENT_OBJ:.o=.d) $(BUILD)/master/main.d $(BUILD)/worker/main.d $(TEST_BIN:=.d) $(TEST_HELPER_OBJ:.o=.d) \
-         $(FUZZ_BIN:=.d) $(BUILD)/tests/fuzzdriver.d $(BENCH_BIN:=.d)
+         $(FUZZ_BIN:=.d) $(BUILD)/tests/fuzzdriver.d $(BENCH_BIN:=.d) $(BUILD)/tests/persist-fault.d

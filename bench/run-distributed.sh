@@ -118,7 +118,7 @@ start_master() {
     local log=$1 tries=0
     while :; do
         if port_free "$PORT" && port_free $((PORT + 1)); then
-            "$VBM" --workers "tcp://127.0.0.1:$PORT" --control "tcp://127.0.0.1:$((PORT + 1))" 2>"$log" &
+            "$VBM" --state none --workers "tcp://127.0.0.1:$PORT" --control "tcp://127.0.0.1:$((PORT + 1))" 2>"$log" &
             MPID=$!
             PIDS+=("$MPID")
             WEP="tcp://127.0.0.1:$PORT"

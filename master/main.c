@@ -2,6 +2,7 @@
  *
  *   vbrender-master [--workers ENDPOINT] [--control ENDPOINT]  (default tcp ports 7070, 7071)
  *                   [--heartbeat-ms N] [--lease-ms N]
+ *                   [--state DIR|none] [--checkpoint-s S] [--keep-finished N]
  *
  * Logs to stderr with timestamps; SIGTERM or SIGINT stops it cleanly. */
 #include <errno.h>
@@ -13,6 +14,7 @@
 #include <zmq.h>
 
 #include "master.h"
+#include "proto.h"
 
 /* The one global: a signal handler can reach nothing else. A lock-free
  * atomic is safe to store from a handler (C11 7.14.1.1). */
@@ -27,10 +29,30 @@ static void on_signal(int sig)
 static const char usage[] =
     "usage: vbrender-master [--workers ENDPOINT] [--control ENDPOINT]\n"
     "                       [--heartbeat-ms N] [--lease-ms N]\n"
+    "                       [--state DIR|none] [--checkpoint-s S] [--keep-finished N]\n"
     "  --workers ENDPOINT   where workers connect (default tcp://*:7070)\n"
     "  --control ENDPOINT   where clients connect (default tcp://*:7071)\n"
     "  --heartbeat-ms N     heartbeat interval (default 1000)\n"
-    "  --lease-ms N         a task unanswered this long is issued again (default 60000)\n";
+    "  --lease-ms N         a task unanswered this long is issued again (default 60000)\n"
+    "  --state DIR          jobs, checkpoints and images survive a restart here\n"
+    "                       (default ./vbrender-state); none: keep them in memory only\n"
+    "  --checkpoint-s S     checkpoint running jobs this often (default 10)\n"
+    "  --keep-finished N    ended jobs kept before the oldest are deleted (default 1000)\n"
+    "  --version            print the build id and exit\n"
+    "Signals: TERM or INT checkpoint every running job and stop.\n";
+
+static int parse_count(const char *s, double lo, double hi, double *out)
+{
+    if (!s || !*s)
+        return -1;
+    char *end;
+    errno = 0;
+    double v = strtod(s, &end);
+    if (errno || *end || !(v >= lo && v <= hi))
+        return -1;
+    *out = v;
+    return 0;
+}
 
 static int parse_ms(const char *s, uint32_t *out)
 {
@@ -49,14 +71,40 @@ int main(int argc, char **argv)
 {
     master_config_t cfg;
     memset(&cfg, 0, sizeof cfg);
-    cfg.worker_endpoint = "tcp://*:7070";
-    cfg.control_endpoint = "tcp://*:7071";
+    cfg.worker_endpoint = MASTER_DEFAULT_WORKERS;
+    cfg.control_endpoint = MASTER_DEFAULT_CONTROL;
+    cfg.state_dir = MASTER_DEFAULT_STATE;
     cfg.log = stderr;
+    double v_keep;
     for (int i = 1; i < argc; i++) {
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (strcmp(argv[i], "-h") == 0 || strcmp(argv[i], "--help") == 0) {
             fputs(usage, stdout);
             return 0;
+        } else if (strcmp(argv[i], "--version") == 0) {
+            char build[PROTO_BUILD_SIZE + 1];
+            __builtin_cpu_init();
+            proto_build_id(__builtin_cpu_supports("avx2") ? "avx2" : "sse4.2", build);
+            printf("vbrender-master %s\n", build);
+            return 0;
+        } else if (strcmp(argv[i], "--state") == 0 && v) {
+            cfg.state_dir = strcmp(v, "none") == 0 ? NULL : v;
+            i++;
+        } else if (strcmp(argv[i], "--checkpoint-s") == 0) {
+            if (parse_count(v, 0.05, 86400, &cfg.checkpoint_s) < 0) {
+                fprintf(stderr, "vbrender-master: --checkpoint-s needs seconds from 0.05 to 86400 (got '%s')\n",
+                        v ? v : "");
+                return 2;
+            }
+            i++;
+        } else if (strcmp(argv[i], "--keep-finished") == 0) {
+            if (parse_count(v, 1, 1e7, &v_keep) < 0 || v_keep != (double)(uint32_t)v_keep) {
+                fprintf(stderr, "vbrender-master: --keep-finished needs an integer from 1 to 10000000 (got '%s')\n",
+                        v ? v : "");
+                return 2;
+            }
+            cfg.keep_finished = (uint32_t)v_keep;
+            i++;
         } else if (strcmp(argv[i], "--workers") == 0 && v) {
             cfg.worker_endpoint = v;
             i++;
@@ -89,6 +137,9 @@ int main(int argc, char **argv)
     void *ctx = zmq_ctx_new();
     cfg.zmq_ctx = ctx;
     char err[512];
+    if (!cfg.state_dir)
+        fprintf(stderr, "vbrender-master: warning: --state none: jobs are kept in memory only and a restart "
+                        "loses them\n");
     master_t *m = master_new(&cfg, err, sizeof err);
     if (!m) {
         fprintf(stderr, "vbrender-master: %s\n", err);

@@ -16,6 +16,14 @@
 
 typedef struct master master_t;
 
+#define MASTER_DEFAULT_WORKERS "tcp://*:7070"
+#define MASTER_DEFAULT_CONTROL "tcp://*:7071"
+#define MASTER_DEFAULT_STATE "vbrender-state"
+#define MASTER_DEFAULT_CHECKPOINT_S 10.0
+#define MASTER_DEFAULT_KEEP_FINISHED 1000
+#define MASTER_DEFAULT_HEARTBEAT_MS 1000
+#define MASTER_DEFAULT_LEASE_MS 60000
+
 typedef struct master_config {
     void *zmq_ctx;                /* the ZeroMQ context to use (not owned) */
     const char *worker_endpoint;  /* e.g. tcp port 7070 on every interface, or inproc */
@@ -24,10 +32,14 @@ typedef struct master_config {
     uint32_t lease_ms;            /* 0: 60000; a task unanswered this long is issued again */
     uint32_t worker_timeout_ms;   /* 0: 5 heartbeats; a silent worker is dropped */
     int allow_shutdown;           /* accept the "shutdown" control command */
+    const char *state_dir;        /* durable state (store.h); NULL: in memory only */
+    double checkpoint_s;          /* 0: MASTER_DEFAULT_CHECKPOINT_S */
+    uint32_t keep_finished;       /* ended jobs kept; 0: MASTER_DEFAULT_KEEP_FINISHED */
     FILE *log;                    /* NULL: silent */
 } master_config_t;
 
-/* Binds both sockets. NULL with a message (e.g. address in use). */
+/* Binds both sockets; with a state directory, recovers every job in it.
+ * NULL with a message (e.g. address in use, state directory unusable). */
 master_t *master_new(const master_config_t *cfg, char *err, size_t errlen);
 
 /* Runs the event loop until *stop becomes non-zero or a shutdown command

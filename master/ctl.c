@@ -1,0 +1,303 @@
+/* ctl.c - the control commands (JSON over the control ROUTER socket,
+ * proto/PROTOCOL.md), as a table of name, handler and what they take. */
+#include <inttypes.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "film.h"
+#include "master_priv.h"
+
+/* A request being answered. */
+typedef struct ctl_req {
+    master_t *m;
+    zmq_msg_t *id;         /* the client's identity frame */
+    const cJSON *body;     /* the parsed JSON request */
+    zmq_msg_t *json_frame; /* the request as received (stored with a submission) */
+    zmq_msg_t *extra;      /* binary frames after the JSON */
+    int nextra;
+    job_t *job;            /* for commands on one job */
+} ctl_req_t;
+
+/* A handler returns the reply body (sent and freed by the caller), or NULL
+ * when it sent its reply itself. */
+typedef cJSON *(*ctl_handler_fn)(ctl_req_t *r);
+
+typedef struct ctl_command {
+    const char *name;
+    ctl_handler_fn handler;
+    int takes_frames; /* binary frames after the JSON */
+    int needs_job;    /* a "job": N that names an existing job */
+} ctl_command_t;
+
+static void reply_json(master_t *m, zmq_msg_t *id, cJSON *body, int more)
+{
+    char *text = cJSON_PrintUnformatted(body);
+    /* DONTWAIT: a client that does not read its replies has them dropped at
+     * the high-water mark rather than stalling the master */
+    zmq_send(m->control_sock, zmq_msg_data(id), zmq_msg_size(id), ZMQ_SNDMORE | ZMQ_DONTWAIT);
+    zmq_send(m->control_sock, "", 0, ZMQ_SNDMORE | ZMQ_DONTWAIT);
+    zmq_send(m->control_sock, text ? text : "{}", text ? strlen(text) : 2, (more ? ZMQ_SNDMORE : 0) | ZMQ_DONTWAIT);
+    cJSON_free(text);
+}
+
+static cJSON *error_body(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static cJSON *error_body(const char *fmt, ...)
+{
+    char msg[MASTER_ERR_LEN];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    cJSON *b = cJSON_CreateObject();
+    cJSON_AddBoolToObject(b, "ok", 0);
+    cJSON_AddStringToObject(b, "error", msg);
+    return b;
+}
+
+static cJSON *ok_body(void)
+{
+    cJSON *b = cJSON_CreateObject();
+    cJSON_AddBoolToObject(b, "ok", 1);
+    return b;
+}
+
+static cJSON *ok_with_job(const job_t *j)
+{
+    cJSON *b = ok_body();
+    cJSON_AddItemToObject(b, "job", job_json(j, 0));
+    return b;
+}
+
+static cJSON *ctl_submit(ctl_req_t *r)
+{
+    master_t *m = r->m;
+    char err[MASTER_ERR_LEN];
+    const cJSON *rid = cJSON_GetObjectItemCaseSensitive(r->body, "request_id");
+    job_t *dup = cJSON_IsString(rid) ? job_find_by_request(m, rid->valuestring) : NULL;
+    if (dup) {
+        /* the client retried after a lost reply: the job exists already */
+        cJSON *b = ok_body();
+        cJSON_AddNumberToObject(b, "job", (double)dup->id);
+        cJSON_AddBoolToObject(b, "duplicate", 1);
+        return b;
+    }
+    submit_frame_t frames[PROTO_MAX_MESHES + 4];
+    for (int i = 0; i < r->nextra; i++)
+        frames[i] = (submit_frame_t){zmq_msg_data(&r->extra[i]), zmq_msg_size(&r->extra[i])};
+    job_t *j = submit_parse(r->body, frames, r->nextra, err, sizeof err);
+    if (!j) {
+        master_log_limited(m, "refused-submission", "refused a submission: %s", err);
+        return error_body("%s", err);
+    }
+    if (m->store) {
+        /* durable before the client hears the id */
+        if (persist_submission(m, j, zmq_msg_data(r->json_frame), zmq_msg_size(r->json_frame), frames,
+                               r->nextra, err, sizeof err) < 0) {
+            master_log(m, "refused a submission: cannot store it: %s", err);
+            job_free(j);
+            return error_body("the master cannot store the job: %s", err);
+        }
+    } else {
+        j->id = ++m->next_job;
+    }
+    j->submitted = master_now();
+    job_append(m, j);
+    master_log(m, "job %" PRIu64 " queued: %s", j->id, j->name);
+    cJSON *b = ok_body();
+    cJSON_AddNumberToObject(b, "job", (double)j->id);
+    return b;
+}
+
+static cJSON *ctl_jobs(ctl_req_t *r)
+{
+    cJSON *b = ok_body();
+    cJSON *arr = cJSON_AddArrayToObject(b, "jobs");
+    for (job_t *j = r->m->jobs; j; j = j->next)
+        cJSON_AddItemToArray(arr, job_json(j, 0));
+    return b;
+}
+
+static cJSON *ctl_workers(ctl_req_t *r)
+{
+    master_t *m = r->m;
+    cJSON *b = ok_body();
+    cJSON *arr = cJSON_AddArrayToObject(b, "workers");
+    double now = master_now();
+    for (uint32_t i = 0; i < m->worker_count; i++) {
+        peer_t *w = &m->workers[i];
+        if (!w->alive)
+            continue;
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddStringToObject(o, "host", w->host);
+        cJSON_AddNumberToObject(o, "threads", w->threads);
+        cJSON_AddNumberToObject(o, "tasks_done", (double)w->tasks_done);
+        cJSON_AddNumberToObject(o, "tasks_outstanding", w->outstanding);
+        cJSON_AddNumberToObject(o, "rays", (double)w->rays);
+        cJSON_AddNumberToObject(o, "samples", (double)w->samples);
+        cJSON_AddNumberToObject(o, "busy_seconds", w->busy_us / 1e6);
+        cJSON_AddNumberToObject(o, "seconds", now - w->joined);
+        cJSON_AddNumberToObject(o, "rays_per_second", w->busy_us ? w->rays / (w->busy_us / 1e6) * w->threads : 0);
+        cJSON_AddStringToObject(o, "build", w->build);
+        cJSON_AddItemToArray(arr, o);
+    }
+    return b;
+}
+
+static cJSON *ctl_shutdown(ctl_req_t *r)
+{
+    if (!r->m->cfg.allow_shutdown)
+        return error_body("this master does not take shutdown requests (send it SIGTERM)");
+    r->m->shutdown = 1;
+    return ok_body();
+}
+
+static cJSON *ctl_status(ctl_req_t *r)
+{
+    return ok_with_job(r->job);
+}
+
+static cJSON *ctl_cancel(ctl_req_t *r)
+{
+    if (r->job->state == JOB_QUEUED || r->job->state == JOB_RUNNING)
+        job_finish(r->m, r->job, JOB_CANCELLED, "cancelled by a client");
+    return ok_with_job(r->job);
+}
+
+static cJSON *ctl_delete(ctl_req_t *r)
+{
+    uint64_t id = r->job->id;
+    job_delete(r->m, r->job);
+    r->job = NULL;
+    master_log(r->m, "job %" PRIu64 " deleted by a client", id);
+    cJSON *b = ok_body();
+    cJSON_AddNumberToObject(b, "deleted", (double)id);
+    return b;
+}
+
+static cJSON *ctl_fetch(ctl_req_t *r)
+{
+    master_t *m = r->m;
+    job_t *j = r->job;
+    image_t *img;
+    char err[MASTER_ERR_LEN] = "out of memory";
+    if (j->sched)
+        img = film_to_image(sched_film(j->sched));
+    else
+        img = persist_load_image(m, j, err, sizeof err);
+    if (!img)
+        return error_body("fetch: %s", err);
+    cJSON *b = ok_body();
+    cJSON *st = job_json(j, 1);
+    if (!j->sched && m->store) {
+        /* the error series lives with the final status, on disk */
+        cJSON *series = cJSON_GetObjectItemCaseSensitive(j->summary, "error_series");
+        if (series && st && !cJSON_GetObjectItemCaseSensitive(st, "error_series"))
+            cJSON_AddItemToObject(st, "error_series", cJSON_Duplicate(series, 1));
+    }
+    cJSON_AddItemToObject(b, "job", st);
+    cJSON *ch = cJSON_AddArrayToObject(b, "channels");
+    for (int c = 0; c < img->channel_count; c++)
+        cJSON_AddItemToArray(ch, cJSON_CreateString(img->channel_names[c]));
+    reply_json(m, r->id, b, 1);
+    cJSON_Delete(b);
+    size_t plane = (size_t)img->width * img->height * sizeof(float);
+    for (int c = 0; c < img->channel_count; c++)
+        zmq_send(m->control_sock, img->channels[c], plane,
+                 (c + 1 < img->channel_count ? ZMQ_SNDMORE : 0) | ZMQ_DONTWAIT);
+    image_destroy(&img);
+    return NULL;
+}
+
+static const ctl_command_t ctl_commands[] = {
+    {"submit", ctl_submit, 1, 0},  {"status", ctl_status, 0, 1}, {"jobs", ctl_jobs, 0, 0},
+    {"workers", ctl_workers, 0, 0}, {"cancel", ctl_cancel, 0, 1}, {"fetch", ctl_fetch, 0, 1},
+    {"delete", ctl_delete, 0, 1},   {"shutdown", ctl_shutdown, 0, 0},
+};
+
+static const ctl_command_t *find_command(const char *name)
+{
+    for (size_t i = 0; i < sizeof ctl_commands / sizeof ctl_commands[0]; i++)
+        if (strcmp(ctl_commands[i].name, name) == 0)
+            return &ctl_commands[i];
+    return NULL;
+}
+
+/* "job": N as a job id: a positive integer a double holds exactly. */
+static int job_id_of(const cJSON *req, uint64_t *id)
+{
+    const cJSON *jid = cJSON_GetObjectItemCaseSensitive(req, "job");
+    if (!cJSON_IsNumber(jid))
+        return -1;
+    double v = jid->valuedouble;
+    if (!(v >= 1 && v <= 9007199254740992.0) || v != floor(v))
+        return -1;
+    *id = (uint64_t)v;
+    return 0;
+}
+
+static cJSON *answer(ctl_req_t *r, int overflow)
+{
+    const cJSON *cmd = r->body ? cJSON_GetObjectItemCaseSensitive(r->body, "cmd") : NULL;
+    if (overflow)
+        return error_body("too many frames (at most %d mesh files)", PROTO_MAX_MESHES);
+    if (!r->body || !cJSON_IsObject(r->body))
+        return error_body("request is not a JSON object");
+    if (!cJSON_IsString(cmd))
+        return error_body("request has no \"cmd\"");
+    const ctl_command_t *c = find_command(cmd->valuestring);
+    if (!c)
+        return error_body("unknown command \"%.64s\" (submit, status, jobs, workers, cancel, fetch, delete)",
+                          cmd->valuestring);
+    if (!c->takes_frames && r->nextra > 0)
+        return error_body("%s takes no binary frames", c->name);
+    if (c->needs_job) {
+        uint64_t id;
+        if (job_id_of(r->body, &id) < 0)
+            return error_body("%s: give \"job\": N, a job id", c->name);
+        if (!(r->job = job_find(r->m, id)))
+            return error_body("%s: no such job %" PRIu64, c->name, id);
+    }
+    return c->handler(r);
+}
+
+void ctl_handle_message(master_t *m)
+{
+    zmq_msg_t frames[PROTO_MAX_MESHES + 4];
+    int n = 0, more = 1, overflow = 0;
+    while (more) {
+        zmq_msg_t f;
+        zmq_msg_init(&f);
+        if (zmq_msg_recv(&f, m->control_sock, ZMQ_DONTWAIT) < 0) {
+            zmq_msg_close(&f);
+            break;
+        }
+        more = zmq_msg_more(&f);
+        if (n < (int)(sizeof frames / sizeof frames[0]))
+            frames[n++] = f;
+        else {
+            zmq_msg_close(&f);
+            overflow = 1;
+        }
+    }
+    /* [identity][empty][json][binary...] as a REQ socket sends them */
+    if (n < 3 || zmq_msg_size(&frames[1]) != 0) {
+        m->malformed++;
+        master_log_limited(m, "control-malformed", "dropped a malformed control message");
+        for (int i = 0; i < n; i++)
+            zmq_msg_close(&frames[i]);
+        return;
+    }
+    cJSON *req = cJSON_ParseWithLength(zmq_msg_data(&frames[2]), zmq_msg_size(&frames[2]));
+    ctl_req_t r = {.m = m, .id = &frames[0], .body = req, .json_frame = &frames[2], .extra = frames + 3,
+                   .nextra = n - 3};
+    cJSON *b = answer(&r, overflow);
+    if (b) {
+        reply_json(m, &frames[0], b, 0);
+        cJSON_Delete(b);
+    }
+    cJSON_Delete(req);
+    for (int i = 0; i < n; i++)
+        zmq_msg_close(&frames[i]);
+}

@@ -1,0 +1,207 @@
+/* master_priv.h - the master's inside, shared by the files it is split into,
+ * one concern each:
+ *
+ *   master.c    lifecycle, the event loop and its named periodic tasks
+ *   jobs.c      the job store in memory: lookup, finishing, status JSON,
+ *               retention and deletion
+ *   submit.c    a submit request (or a stored one) turned into a job, step
+ *               by step, every field checked
+ *   peers.c     workers: sending, joining, losing them, their messages, and
+ *               dispatch of ready tasks
+ *   ctl.c       the control commands, as a table
+ *   persist.c   durable state: submissions, checkpoints, final images, and
+ *               recovery at startup (through store.h)
+ *   lease.c     task leases in deadline order (lease.h)
+ *
+ * Work is fenced by (job, task, attempt): a result counts only if its job
+ * is running, its task is outstanding with that worker, and its attempt is
+ * the task's current one; anything else is late or a duplicate and is
+ * dropped. Bad messages are logged, counted and dropped: the master never
+ * exits on input.
+ */
+#ifndef VB_MASTER_PRIV_H
+#define VB_MASTER_PRIV_H
+
+#include <cJSON.h>
+#include <stdint.h>
+#include <zmq.h>
+
+#include "lease.h"
+#include "master.h"
+#include "proto.h"
+#include "sched.h"
+#include "store.h"
+#include "tracer.h"
+#include "vblog.h"
+
+/* One size for every error message buffer in the master. */
+#define MASTER_ERR_LEN 1024
+
+#define MASTER_MAX_WORKERS 4096
+#define MASTER_MAX_IDENTITY 255
+#define MASTER_MAX_TASK_FAILURES 8   /* a job fails after this many TASK_FAILED */
+#define MASTER_POLL_MS 50            /* event loop wake-up when idle */
+#define MASTER_TIMER_S 0.1           /* periodic tasks run this often */
+#define MASTER_WORKER_BATCH 4096     /* worker messages per loop turn */
+#define MASTER_EVAL_S 0.25           /* error against a reference, this often */
+#define MASTER_CONTROL_HWM 4         /* replies queued per client before drops */
+#define MASTER_MAX_REQUEST_ID 64
+#define MASTER_CONTROL_MAX_BYTES ((int64_t)PROTO_MAX_BUNDLE + (1 << 20))
+
+typedef enum { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_FAILED, JOB_CANCELLED } job_state_t;
+extern const char *const job_state_names[];
+
+/* How a send went. */
+typedef enum {
+    SEND_OK = 0,
+    SEND_UNREACHABLE = -1, /* the peer is gone: the worker's fault */
+    SEND_BAD_MESSAGE = -2  /* the message cannot be encoded: its job's fault */
+} send_status_t;
+
+/* A connected worker, as the master sees it. */
+typedef struct peer {
+    uint8_t id[MASTER_MAX_IDENTITY];
+    size_t id_len;
+    char host[64];
+    char build[PROTO_BUILD_SIZE + 1];
+    uint32_t threads;
+    uint32_t credit;
+    uint32_t outstanding;
+    double joined, last_seen, last_sent;
+    uint64_t rays, tasks_done, busy_us, samples;
+    int alive;
+} peer_t;
+
+typedef struct job {
+    uint64_t id;
+    job_state_t state;
+    char error[MASTER_ERR_LEN];
+    char name[128];
+    char request_id[MASTER_MAX_REQUEST_ID + 1];
+    /* the bundle, shipped to workers by hash; freed once the job has ended
+     * and its image is durable */
+    uint8_t hash[PROTO_HASH_SIZE];
+    char *json;
+    size_t json_size;
+    uint32_t mesh_count;
+    char (*mesh_names)[PROTO_MAX_NAME + 1];
+    uint8_t **mesh_data;
+    uint32_t *mesh_sizes;
+    /* settings */
+    uint32_t width, height, spp, granularity;
+    sched_adaptive_t adaptive;
+    tracer_settings_t tracer;
+    double time_limit, target_error;
+    sched_config_t sched_cfg; /* what sched was made with (checkpoints) */
+    char *flags;              /* sched_cfg.flags points here */
+    /* progress */
+    sched_t *sched;
+    uint32_t *attempt; /* per task id - 1 */
+    int32_t *holder;   /* per task id - 1: worker slot, -1 none */
+    uint32_t outstanding, reissued, failures;
+    double submitted, started, finished;
+    double run_before; /* seconds run before the last restart */
+    uint64_t rays, busy_us, late_results;
+    int stopped_issuing; /* time limit reached: no new tasks */
+    /* error against a reference (--reference), over time and samples */
+    float *ref[3], *cur[3];
+    double *series; /* 4 per point: seconds, samples, relMSE, RMSE */
+    size_t series_n, series_cap;
+    double last_eval;
+    uint32_t last_eval_layers;
+    /* durability (a master with --state) */
+    uint64_t ckpt_samples;      /* samples in the last durable checkpoint */
+    uint64_t ckpt_writing;      /* samples in the one being written */
+    double last_ckpt;
+    int in_write;               /* in the background write under way: PERSIST_* */
+    int final_durable;          /* image and final status are on disk */
+    char storage_error[MASTER_ERR_LEN];
+    char recovered[MASTER_ERR_LEN];
+    cJSON *summary;             /* status of an ended job whose film is freed */
+    struct job *next;
+} job_t;
+
+struct master {
+    master_config_t cfg;
+    void *workers_sock, *control_sock;
+    peer_t *workers;
+    uint32_t worker_count;
+    job_t *jobs, *jobs_tail; /* in submission order */
+    uint64_t next_job;       /* without a store */
+    uint32_t rr;             /* round-robin start for dispatch */
+    char build[PROTO_BUILD_SIZE + 1];
+    uint8_t *payload;        /* encode buffer */
+    size_t payload_cap;
+    tracer_result_t *results; /* decode buffer */
+    lease_queue_t *leases;
+    store_t *store;          /* NULL: --state none, or embedded */
+    uint32_t attempt_base;   /* first attempt number of this boot */
+    uint64_t *doomed;        /* job ids to remove from the store */
+    size_t doomed_n, doomed_cap;
+    char storage_error[MASTER_ERR_LEN];
+    uint64_t malformed, dropped_late;
+    vblog_limiter_t limiter; /* lines a peer can provoke at will */
+    double last_timer;
+    int shutdown;
+};
+
+/* master.c */
+double master_now(void);
+void master_log(master_t *m, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+/* A line any peer can provoke (bad input): rate-limited per key (a string
+ * literal naming the kind of line), repeats summarised. */
+void master_log_limited(master_t *m, const char *key, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+
+/* jobs.c */
+job_t *job_find(master_t *m, uint64_t id);
+job_t *job_find_by_hash(master_t *m, const uint8_t *hash);
+job_t *job_find_by_request(master_t *m, const char *request_id);
+void job_append(master_t *m, job_t *j);
+void job_free(job_t *j);
+void job_release_all(master_t *m, job_t *j);
+void job_finish(master_t *m, job_t *j, job_state_t st, const char *why);
+int job_ended(const job_t *j);
+double job_seconds(const job_t *j, double now);
+void job_eval_error(job_t *j, double now);
+cJSON *job_json(const job_t *j, int with_series);
+/* Frees what an ended job no longer needs once its image is durable. */
+void job_shed(job_t *j);
+/* Unlinks and frees a job, and queues its files for removal. */
+void job_delete(master_t *m, job_t *j);
+/* Deletes the oldest ended jobs past --keep-finished. */
+void job_retention(master_t *m);
+/* Takes a task back from its holder and hands it to the scheduler again. */
+void job_reissue(master_t *m, job_t *j, size_t cell);
+
+/* submit.c: a frame of a submit request */
+typedef struct submit_frame {
+    const void *data;
+    size_t size;
+} submit_frame_t;
+/* Builds a queued job (no id yet) from a submit request and its binary
+ * frames: validates the whole scene, loaded from the bundle exactly as a
+ * worker will load it, and every setting. NULL with a message. */
+job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes, char *err, size_t errlen);
+
+/* peers.c */
+void peer_handle_message(master_t *m);
+void peer_lost(master_t *m, peer_t *w, const char *why);
+int peer_send(master_t *m, peer_t *w, proto_msg_t *msg);
+void peer_heartbeats(master_t *m, double now);
+void peer_say_bye_all(master_t *m);
+void dispatch(master_t *m);
+
+/* ctl.c */
+void ctl_handle_message(master_t *m);
+
+/* persist.c */
+enum { PERSIST_CHECKPOINT = 1, PERSIST_FINAL = 2 };
+int persist_submission(master_t *m, job_t *j, const void *req, size_t req_size, const submit_frame_t *frames,
+                       int nframes, char *err, size_t errlen);
+void persist_tick(master_t *m, double now, int force);
+void persist_recover(master_t *m);
+void persist_finish(master_t *m); /* at shutdown: last checkpoints, wait */
+/* An ended job's image from the store; NULL with a message. */
+image_t *persist_load_image(master_t *m, const job_t *j, char *err, size_t errlen);
+
+#endif

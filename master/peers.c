@@ -1,0 +1,477 @@
+/* peers.c - workers as the master sees them (master_priv.h): sending,
+ * joining, losing them, their messages, and dispatch of ready tasks.
+ *
+ * A worker that goes silent, says BYE or cannot be reached loses its tasks,
+ * which go back to the scheduler and out again with the next attempt
+ * number. A message that cannot be encoded is its job's fault, not the
+ * worker's: the job fails and the worker carries on.
+ */
+#include <errno.h>
+#include <inttypes.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "master_priv.h"
+
+/* ---- sending ------------------------------------------------------------------ */
+
+static int ensure_payload(master_t *m, size_t need)
+{
+    if (need <= m->payload_cap)
+        return 0;
+    uint8_t *p = realloc(m->payload, need);
+    if (!p)
+        return -1;
+    m->payload = p;
+    m->payload_cap = need;
+    return 0;
+}
+
+/* Encodes msg into m->payload: its length, or -1 with a message. */
+static long encode(master_t *m, proto_msg_t *msg, uint8_t header[PROTO_HEADER_SIZE], char *err, size_t errlen)
+{
+    size_t need = proto_payload_size(msg);
+    if (ensure_payload(m, need ? need : 1) < 0) {
+        snprintf(err, errlen, "out of memory for a %zu-byte message", need);
+        return -1;
+    }
+    return proto_encode(msg, header, m->payload, m->payload_cap, err, errlen);
+}
+
+static int send_frames(master_t *m, const uint8_t *id, size_t id_len, const uint8_t *header, long n)
+{
+    if (zmq_send(m->workers_sock, id, id_len, ZMQ_SNDMORE | ZMQ_DONTWAIT) < 0 ||
+        zmq_send(m->workers_sock, header, PROTO_HEADER_SIZE, ZMQ_SNDMORE | ZMQ_DONTWAIT) < 0 ||
+        zmq_send(m->workers_sock, m->payload, (size_t)n, ZMQ_DONTWAIT) < 0)
+        return SEND_UNREACHABLE;
+    return SEND_OK;
+}
+
+int peer_send(master_t *m, peer_t *w, proto_msg_t *msg)
+{
+    uint8_t header[PROTO_HEADER_SIZE];
+    char err[MASTER_ERR_LEN];
+    long n = encode(m, msg, header, err, sizeof err);
+    if (n < 0) {
+        master_log(m, "cannot encode %s for job %" PRIu64 ": %s", proto_type_name(msg->h.type), msg->h.job, err);
+        return SEND_BAD_MESSAGE;
+    }
+    int rc = send_frames(m, w->id, w->id_len, header, n);
+    if (rc == SEND_OK)
+        w->last_sent = master_now();
+    return rc;
+}
+
+/* To a peer that is not (or not yet) a worker: best effort. */
+static void send_raw_to(master_t *m, const uint8_t *id, size_t id_len, proto_msg_t *msg)
+{
+    uint8_t header[PROTO_HEADER_SIZE];
+    char err[MASTER_ERR_LEN];
+    long n = encode(m, msg, header, err, sizeof err);
+    if (n >= 0)
+        (void)send_frames(m, id, id_len, header, n); /* a peer that left cannot be told */
+}
+
+static void send_text(master_t *m, const uint8_t *id, size_t id_len, int type, const char *text)
+{
+    proto_msg_t msg;
+    memset(&msg, 0, sizeof msg);
+    msg.h.type = (uint16_t)type;
+    snprintf(msg.u.text.text, sizeof msg.u.text.text, "%s", text);
+    send_raw_to(m, id, id_len, &msg);
+}
+
+/* ---- workers ------------------------------------------------------------------- */
+
+static peer_t *find_peer(master_t *m, const uint8_t *id, size_t len)
+{
+    for (uint32_t i = 0; i < m->worker_count; i++)
+        if (m->workers[i].alive && m->workers[i].id_len == len && memcmp(m->workers[i].id, id, len) == 0)
+            return &m->workers[i];
+    return NULL;
+}
+
+/* Gives back every task the worker holds. */
+void peer_lost(master_t *m, peer_t *w, const char *why)
+{
+    int slot = (int)(w - m->workers);
+    uint32_t back = 0;
+    for (job_t *j = m->jobs; j; j = j->next) {
+        if (j->state != JOB_RUNNING || !j->holder)
+            continue;
+        size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
+        for (size_t c = 0; c < cells && j->outstanding > 0; c++)
+            if (j->holder[c] == slot) {
+                job_reissue(m, j, c);
+                back++;
+            }
+    }
+    master_log(m, "worker %s (%u threads) gone: %s; %u task%s issued again", w->host, w->threads, why, back,
+               back == 1 ? "" : "s");
+    w->alive = 0;
+    w->credit = 0;
+    w->outstanding = 0;
+}
+
+void peer_heartbeats(master_t *m, double now)
+{
+    for (uint32_t i = 0; i < m->worker_count; i++) {
+        peer_t *w = &m->workers[i];
+        if (!w->alive)
+            continue;
+        if (now - w->last_seen > m->cfg.worker_timeout_ms / 1000.0) {
+            peer_lost(m, w, "silent");
+            continue;
+        }
+        if (now - w->last_sent >= m->cfg.heartbeat_ms / 1000.0) {
+            proto_msg_t hb;
+            memset(&hb, 0, sizeof hb);
+            hb.h.type = PROTO_HEARTBEAT;
+            if (peer_send(m, w, &hb) == SEND_UNREACHABLE)
+                peer_lost(m, w, "unreachable");
+        }
+    }
+}
+
+void peer_say_bye_all(master_t *m)
+{
+    /* so workers reconnect rather than wait out a timeout */
+    for (uint32_t i = 0; i < m->worker_count; i++)
+        if (m->workers[i].alive) {
+            proto_msg_t bye;
+            memset(&bye, 0, sizeof bye);
+            bye.h.type = PROTO_BYE;
+            snprintf(bye.u.text.text, sizeof bye.u.text.text, "master stopping");
+            (void)peer_send(m, &m->workers[i], &bye); /* leaving anyway */
+        }
+}
+
+/* ---- dispatch ------------------------------------------------------------------- */
+
+/* The oldest running job's next ready task, starting queued jobs as it goes. */
+static job_t *next_task(master_t *m, sched_task_t *t, double now)
+{
+    for (job_t *j = m->jobs; j; j = j->next) {
+        if (j->state == JOB_QUEUED) {
+            j->state = JOB_RUNNING;
+            j->started = now;
+            master_log(m, "job %" PRIu64 " started: %s %ux%u, %u spp, G %u, adaptive %s", j->id, j->name, j->width,
+                       j->height, j->spp, j->granularity, sched_adaptive_name(j->adaptive));
+        }
+        if (j->state != JOB_RUNNING || j->stopped_issuing)
+            continue;
+        if (sched_next(j->sched, t) == 1)
+            return j;
+    }
+    return NULL;
+}
+
+static peer_t *next_peer_with_credit(master_t *m, uint32_t *slot)
+{
+    for (uint32_t k = 0; k < m->worker_count; k++) {
+        uint32_t i = (m->rr + k) % m->worker_count;
+        if (m->workers[i].alive && m->workers[i].credit > 0) {
+            *slot = i;
+            return &m->workers[i];
+        }
+    }
+    return NULL;
+}
+
+/* Hands ready tasks to workers with credit, one task per worker in turn
+ * (round robin from the worker after the last one served), so a trickle of
+ * ready tasks spreads over all workers instead of filling the first. */
+void dispatch(master_t *m)
+{
+    double now = master_now();
+    proto_msg_t *msg = NULL;
+    for (;;) {
+        uint32_t i = 0;
+        peer_t *w = next_peer_with_credit(m, &i);
+        if (!w)
+            break;
+        sched_task_t t;
+        job_t *j = next_task(m, &t, now);
+        if (!j)
+            break;
+        size_t c = (size_t)(t.id - 1);
+        if (!msg && !(msg = malloc(sizeof *msg))) {
+            (void)sched_requeue(j->sched, t.id); /* just handed out: it takes it back */
+            break;
+        }
+        memset(msg, 0, sizeof *msg);
+        msg->h.type = PROTO_TASK;
+        msg->h.job = j->id;
+        msg->h.task = t.id;
+        msg->h.attempt = j->attempt[c] = j->attempt[c] ? j->attempt[c] + 1 : m->attempt_base + 1;
+        memcpy(msg->u.task.scene_hash, j->hash, PROTO_HASH_SIZE);
+        msg->u.task.settings = j->tracer;
+        msg->u.task.layer = t.layer;
+        msg->u.task.count = t.count;
+        msg->u.task.records = (tracer_task_t *)t.records;
+        int rc = peer_send(m, w, msg);
+        m->rr = i + 1;
+        if (rc == SEND_BAD_MESSAGE) {
+            (void)sched_requeue(j->sched, t.id);
+            job_finish(m, j, JOB_FAILED, "a task of this job cannot be encoded (see the master's log)");
+            continue;
+        }
+        if (rc == SEND_UNREACHABLE) {
+            (void)sched_requeue(j->sched, t.id);
+            peer_lost(m, w, "unreachable");
+            continue;
+        }
+        j->holder[c] = (int32_t)i;
+        lease_t l = {.job = j->id, .task = t.id, .attempt = msg->h.attempt,
+                     .deadline = now + m->cfg.lease_ms / 1000.0};
+        if (lease_push(m->leases, &l) < 0)
+            master_log(m, "job %" PRIu64 " task %" PRIu64 ": out of memory for its lease", j->id, t.id);
+        j->outstanding++;
+        w->outstanding++;
+        w->credit--;
+    }
+    free(msg);
+}
+
+/* ---- worker messages ------------------------------------------------------------- */
+
+static void on_task_failed(master_t *m, peer_t *w, job_t *j, size_t c, const char *text)
+{
+    j->holder[c] = -1;
+    j->outstanding--;
+    w->outstanding--;
+    j->failures++;
+    master_log_limited(m, "task-failed", "job %" PRIu64 " task %zu failed on %s: %s", j->id, c + 1, w->host, text);
+    if (j->failures >= MASTER_MAX_TASK_FAILURES) {
+        char why[MASTER_ERR_LEN];
+        snprintf(why, sizeof why, "workers failed %u tasks; last: %.400s", j->failures, text);
+        job_finish(m, j, JOB_FAILED, why);
+    } else {
+        j->reissued++;
+        (void)sched_requeue(j->sched, (uint64_t)c + 1); /* outstanding until now: taken back */
+    }
+}
+
+static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
+{
+    job_t *j = job_find(m, msg->h.job);
+    w->credit++; /* a result returns the task's credit */
+    if (!j || j->state != JOB_RUNNING) {
+        m->dropped_late++;
+        return;
+    }
+    uint64_t id = msg->h.task;
+    size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
+    int slot = (int)(w - m->workers);
+    if (id == 0 || id > cells || j->holder[id - 1] != slot || j->attempt[id - 1] != msg->h.attempt) {
+        j->late_results++;
+        m->dropped_late++;
+        return;
+    }
+    size_t c = (size_t)(id - 1);
+    if (msg->h.type == PROTO_TASK_FAILED) {
+        on_task_failed(m, w, j, c, msg->u.text.text);
+        return;
+    }
+    char err[MASTER_ERR_LEN];
+    int rc = sched_complete(j->sched, id, msg->u.result.records, msg->u.result.count, err, sizeof err);
+    j->holder[c] = -1;
+    j->outstanding--;
+    w->outstanding--;
+    if (rc < 0) {
+        /* a result that does not fit its task: drop it, issue the task again */
+        m->malformed++;
+        master_log_limited(m, "bad-result", "job %" PRIu64 " task %" PRIu64 ": bad result from %s: %s", j->id, id, w->host, err);
+        j->reissued++;
+        (void)sched_requeue(j->sched, id); /* still outstanding: nothing was merged */
+        return;
+    }
+    j->rays += msg->u.result.rays;
+    j->busy_us += msg->u.result.busy_us;
+    w->rays += msg->u.result.rays;
+    w->busy_us += msg->u.result.busy_us;
+    w->tasks_done++;
+    for (uint32_t i = 0; i < msg->u.result.count; i++)
+        w->samples += msg->u.result.records[i].samples + msg->u.result.records[i].nonfinite;
+    if (sched_done(j->sched))
+        job_finish(m, j, JOB_DONE, sched_stopped_on_target(j->sched) ? "target error reached" : NULL);
+    else if (j->ref[0] && sched_layers_complete(j->sched) != j->last_eval_layers)
+        job_eval_error(j, master_now()); /* a point per finished layer, however fast */
+}
+
+static void on_hello(master_t *m, const uint8_t *id, size_t id_len, const char *host, proto_msg_t *msg)
+{
+    if (strcmp(msg->u.hello.build, m->build) != 0) {
+        char text[512];
+        snprintf(text, sizeof text, "build mismatch: master is %s, worker is %s (they could trace different bits)",
+                 m->build, msg->u.hello.build);
+        master_log_limited(m, "refused", "refused worker %s: %s", host, text);
+        send_text(m, id, id_len, PROTO_REFUSE, text);
+        return;
+    }
+    peer_t *w = find_peer(m, id, id_len);
+    if (w) /* a reconnect with the same identity: forget its old tasks */
+        peer_lost(m, w, "said hello again");
+    uint32_t slot = m->worker_count;
+    for (uint32_t i = 0; i < m->worker_count; i++)
+        if (!m->workers[i].alive && m->workers[i].outstanding == 0) {
+            slot = i;
+            break;
+        }
+    if (slot == m->worker_count) {
+        if (m->worker_count == MASTER_MAX_WORKERS) {
+            char text[64];
+            snprintf(text, sizeof text, "too many workers (%d)", MASTER_MAX_WORKERS);
+            send_text(m, id, id_len, PROTO_REFUSE, text);
+            return;
+        }
+        m->worker_count++;
+    }
+    w = &m->workers[slot];
+    memset(w, 0, sizeof *w);
+    memcpy(w->id, id, id_len);
+    w->id_len = id_len;
+    snprintf(w->host, sizeof w->host, "%s", host);
+    snprintf(w->build, sizeof w->build, "%s", msg->u.hello.build);
+    w->threads = msg->u.hello.threads;
+    w->joined = w->last_seen = master_now();
+    w->alive = 1;
+    proto_msg_t reply;
+    memset(&reply, 0, sizeof reply);
+    reply.h.type = PROTO_WELCOME;
+    reply.u.welcome.heartbeat_ms = m->cfg.heartbeat_ms;
+    reply.u.welcome.lease_ms = m->cfg.lease_ms;
+    master_log(m, "worker %s joined: %u threads, %s", w->host, w->threads, w->build);
+    if (peer_send(m, w, &reply) == SEND_UNREACHABLE)
+        peer_lost(m, w, "unreachable");
+}
+
+static void on_scene_request(master_t *m, peer_t *w, proto_msg_t *msg)
+{
+    job_t *j = job_find_by_hash(m, msg->u.scene_hash);
+    if (!j) {
+        master_log_limited(m, "unknown-scene", "worker %s asked for an unknown scene", w->host);
+        return;
+    }
+    proto_msg_t *b = calloc(1, sizeof *b);
+    if (!b)
+        return;
+    b->h.type = PROTO_SCENE_BUNDLE;
+    b->h.job = j->id;
+    memcpy(b->u.bundle.hash, j->hash, PROTO_HASH_SIZE);
+    b->u.bundle.json = j->json;
+    b->u.bundle.json_size = (uint32_t)j->json_size;
+    b->u.bundle.mesh_count = j->mesh_count;
+    for (uint32_t i = 0; i < j->mesh_count; i++) {
+        memcpy(b->u.bundle.meshes[i].name, j->mesh_names[i], sizeof b->u.bundle.meshes[i].name);
+        b->u.bundle.meshes[i].data = j->mesh_data[i];
+        b->u.bundle.meshes[i].size = j->mesh_sizes[i];
+    }
+    int rc = peer_send(m, w, b);
+    free(b);
+    if (rc == SEND_BAD_MESSAGE)
+        job_finish(m, j, JOB_FAILED, "its scene bundle cannot be encoded for workers (see the master's log)");
+    else if (rc == SEND_UNREACHABLE)
+        peer_lost(m, w, "unreachable");
+}
+
+/* Receives one message of [identity][header][payload]; the frame count in
+ * *n (4 for too many). */
+static void recv_frames(master_t *m, zmq_msg_t frames[3], int *n, char *host, size_t hostlen)
+{
+    int more = 1;
+    *n = 0;
+    while (more) {
+        zmq_msg_t f;
+        zmq_msg_init(&f);
+        if (zmq_msg_recv(&f, m->workers_sock, ZMQ_DONTWAIT) < 0) {
+            zmq_msg_close(&f);
+            break;
+        }
+        more = zmq_msg_more(&f);
+        if (*n < 3) {
+            if (*n == 1) {
+                const char *peer = zmq_msg_gets(&f, "Peer-Address");
+                snprintf(host, hostlen, "%s", peer ? peer : "local");
+            }
+            frames[(*n)++] = f;
+        } else {
+            zmq_msg_close(&f);
+            *n = 4; /* too many frames */
+        }
+    }
+}
+
+static void on_message(master_t *m, const uint8_t *id, size_t id_len, proto_msg_t *msg)
+{
+    peer_t *w = find_peer(m, id, id_len);
+    if (!w) {
+        /* e.g. the master restarted: tell the worker to start over */
+        send_text(m, id, id_len, PROTO_BYE, "unknown worker: say HELLO first");
+        return;
+    }
+    w->last_seen = master_now();
+    switch (msg->h.type) {
+    case PROTO_CREDIT:
+        w->credit = w->credit + msg->u.credit > PROTO_MAX_CREDIT ? PROTO_MAX_CREDIT : w->credit + msg->u.credit;
+        break;
+    case PROTO_SCENE_REQUEST:
+        on_scene_request(m, w, msg);
+        break;
+    case PROTO_RESULT:
+    case PROTO_TASK_FAILED:
+        on_result(m, w, msg);
+        break;
+    case PROTO_HEARTBEAT:
+        break;
+    case PROTO_BYE:
+        peer_lost(m, w, "said bye");
+        break;
+    default:
+        m->malformed++;
+        master_log_limited(m, "out-of-protocol", "dropped an out-of-protocol %s from worker %s", proto_type_name(msg->h.type), w->host);
+        break;
+    }
+}
+
+void peer_handle_message(master_t *m)
+{
+    zmq_msg_t frames[3];
+    int n;
+    char host[64] = "?";
+    recv_frames(m, frames, &n, host, sizeof host);
+    if (n != 3) {
+        m->malformed++;
+        master_log_limited(m, "frames", "dropped a worker message with %s frames", n > 3 ? "too many" : "too few");
+        for (int i = 0; i < (n < 3 ? n : 3); i++)
+            zmq_msg_close(&frames[i]);
+        return;
+    }
+    const uint8_t *id = zmq_msg_data(&frames[0]);
+    size_t id_len = zmq_msg_size(&frames[0]);
+    proto_msg_t *msg = calloc(1, sizeof *msg);
+    if (!msg)
+        goto out;
+    msg->capacity = PROTO_MAX_TASK_PIXELS;
+    msg->u.result.records = m->results;
+    char err[MASTER_ERR_LEN];
+    int rc = proto_decode(zmq_msg_data(&frames[1]), zmq_msg_size(&frames[1]), zmq_msg_data(&frames[2]),
+                          zmq_msg_size(&frames[2]), msg, err, sizeof err);
+    if (rc == -2) { /* another protocol version or magic */
+        char text[MASTER_ERR_LEN + 32];
+        snprintf(text, sizeof text, "master refuses: %s", err);
+        master_log_limited(m, "refused", "refused a peer: %s", err);
+        send_text(m, id, id_len, PROTO_REFUSE, text);
+    } else if (rc < 0) {
+        m->malformed++;
+        master_log_limited(m, "malformed", "dropped a malformed worker message (%" PRIu64 " so far): %s", m->malformed, err);
+    } else if (msg->h.type == PROTO_HELLO) {
+        on_hello(m, id, id_len, host, msg);
+    } else {
+        on_message(m, id, id_len, msg);
+    }
+out:
+    free(msg);
+    for (int i = 0; i < 3; i++)
+        zmq_msg_close(&frames[i]);
+}

@@ -1,0 +1,726 @@
+/* store.c - see store.h. */
+#include "store.h"
+
+#include <assert.h>
+
+#include <dirent.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <inttypes.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+static const char store_magic[8] = {'V', 'B', 'S', 'T', 'A', 'T', 'E', '\n'};
+#define STORE_HEADER_SIZE 16
+#define STORE_TRAILER_SIZE (8 + 32)
+/* A record larger than this is refused on load (a torn length field must
+ * not make us allocate the address space). */
+#define STORE_MAX_RECORD ((uint64_t)8 << 30)
+
+struct store {
+    char dir[2048];
+    uint64_t next_id;
+    uint32_t boots;
+    pid_t bg_pid;
+    int bg_fd;         /* read end of the child's report pipe */
+    char *bg_buf;      /* what the child reported so far */
+    size_t bg_len, bg_cap;
+};
+
+static void set_err(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+static void set_err(char *err, size_t errlen, const char *fmt, ...)
+{
+    if (!err || !errlen)
+        return;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(err, errlen, fmt, ap);
+    va_end(ap);
+}
+
+static void put_u32(uint8_t *p, uint32_t v)
+{
+    for (int i = 0; i < 4; i++)
+        p[i] = (uint8_t)(v >> (8 * i));
+}
+
+static void put_u64(uint8_t *p, uint64_t v)
+{
+    for (int i = 0; i < 8; i++)
+        p[i] = (uint8_t)(v >> (8 * i));
+}
+
+static uint32_t get_u32(const uint8_t *p)
+{
+    uint32_t v = 0;
+    for (int i = 3; i >= 0; i--)
+        v = v << 8 | p[i];
+    return v;
+}
+
+static uint64_t get_u64(const uint8_t *p)
+{
+    uint64_t v = 0;
+    for (int i = 7; i >= 0; i--)
+        v = v << 8 | p[i];
+    return v;
+}
+
+/* ---- crash-safe records ------------------------------------------------------ */
+
+static int write_all(int fd, const void *data, size_t len)
+{
+    const uint8_t *p = data;
+    while (len > 0) {
+        ssize_t n = write(fd, p, len);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n <= 0)
+            return -1;
+        p += n;
+        len -= (size_t)n;
+    }
+    return 0;
+}
+
+static int fsync_dir_of(const char *path)
+{
+    char dir[4096];
+    snprintf(dir, sizeof dir, "%s", path);
+    char *slash = strrchr(dir, '/');
+    if (slash)
+        *slash = '\0';
+    else
+        snprintf(dir, sizeof dir, ".");
+    int fd = open(dir, O_RDONLY | O_DIRECTORY);
+    if (fd < 0)
+        return -1;
+    int rc = fsync(fd);
+    close(fd);
+    /* some file systems cannot fsync a directory; the rename still holds */
+    return rc == 0 || errno == EINVAL || errno == EROFS ? 0 : -1;
+}
+
+static int flush_buf(store_rec_writer_t *w)
+{
+    if (w->buffered == 0 || w->failed)
+        return w->failed ? -1 : 0;
+    if (write_all(w->fd, w->buf, w->buffered) < 0) {
+        snprintf(w->err, sizeof w->err, "%.600s: write failed: %s", w->tmp, strerror(errno));
+        w->failed = 1;
+        return -1;
+    }
+    w->buffered = 0;
+    return 0;
+}
+
+static int raw_write(store_rec_writer_t *w, const void *data, size_t len)
+{
+    const uint8_t *p = data;
+    while (len > 0 && !w->failed) {
+        size_t room = sizeof w->buf - w->buffered;
+        size_t n = len < room ? len : room;
+        memcpy(w->buf + w->buffered, p, n);
+        w->buffered += n;
+        p += n;
+        len -= n;
+        if (w->buffered == sizeof w->buf)
+            flush_buf(w);
+    }
+    return w->failed ? -1 : 0;
+}
+
+int store_rec_begin(store_rec_writer_t *w, const char *path, store_kind_t kind)
+{
+    w->fd = -1;
+    w->failed = 0;
+    w->length = 0;
+    w->buffered = 0;
+    w->err[0] = '\0';
+    snprintf(w->path, sizeof w->path, "%s", path);
+    snprintf(w->tmp, sizeof w->tmp, "%s.tmp.%ld", path, (long)getpid());
+    w->fd = open(w->tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+    if (w->fd < 0) {
+        snprintf(w->err, sizeof w->err, "cannot create %.600s: %s", w->tmp, strerror(errno));
+        w->failed = 1;
+        return -1;
+    }
+    crypto_generichash_init(&w->hash, NULL, 0, 32);
+    uint8_t header[STORE_HEADER_SIZE];
+    memcpy(header, store_magic, 8);
+    put_u32(header + 8, STORE_FORMAT_VERSION);
+    put_u32(header + 12, (uint32_t)kind);
+    crypto_generichash_update(&w->hash, header, sizeof header);
+    return raw_write(w, header, sizeof header);
+}
+
+int store_rec_write(void *wp, const void *data, size_t len)
+{
+    store_rec_writer_t *w = wp;
+    if (w->failed)
+        return -1;
+    crypto_generichash_update(&w->hash, data, len);
+    w->length += len;
+    return raw_write(w, data, len);
+}
+
+int store_rec_write_block(store_rec_writer_t *w, const void *data, size_t len)
+{
+    uint8_t n[8];
+    put_u64(n, len);
+    if (store_rec_write(w, n, 8) < 0)
+        return -1;
+    return len ? store_rec_write(w, data, len) : 0;
+}
+
+void store_rec_abort(store_rec_writer_t *w)
+{
+    if (w->fd >= 0) {
+        close(w->fd);
+        w->fd = -1;
+    }
+    if (w->tmp[0])
+        unlink(w->tmp);
+    w->failed = 1;
+}
+
+int store_rec_finish(store_rec_writer_t *w)
+{
+    if (w->failed) {
+        store_rec_abort(w);
+        return -1;
+    }
+    uint8_t trailer[STORE_TRAILER_SIZE];
+    put_u64(trailer, w->length);
+    crypto_generichash_update(&w->hash, trailer, 8);
+    crypto_generichash_final(&w->hash, trailer + 8, 32);
+    if (raw_write(w, trailer, sizeof trailer) < 0 || flush_buf(w) < 0) {
+        store_rec_abort(w);
+        return -1;
+    }
+    /* fsync before rename: otherwise a crash can leave the new name
+     * pointing at blocks that were never written */
+    if (fsync(w->fd) != 0 && errno != EINVAL && errno != EROFS) {
+        snprintf(w->err, sizeof w->err, "%.600s: fsync failed: %s", w->tmp, strerror(errno));
+        store_rec_abort(w);
+        return -1;
+    }
+    if (close(w->fd) != 0) {
+        w->fd = -1;
+        snprintf(w->err, sizeof w->err, "%.600s: close failed: %s", w->tmp, strerror(errno));
+        store_rec_abort(w);
+        return -1;
+    }
+    w->fd = -1;
+    return 0;
+}
+
+int store_rec_install(store_rec_writer_t *w, int keep_prev)
+{
+    if (keep_prev) {
+        char prev[4096 + 8];
+        snprintf(prev, sizeof prev, "%s.prev", w->path);
+        /* a crash between these two renames leaves only PATH.prev: the
+         * loader falls back to it */
+        if (rename(w->path, prev) != 0 && errno != ENOENT) {
+            snprintf(w->err, sizeof w->err, "cannot rename %.600s: %s", w->path, strerror(errno));
+            store_rec_abort(w);
+            return -1;
+        }
+    }
+    if (rename(w->tmp, w->path) != 0) {
+        snprintf(w->err, sizeof w->err, "cannot rename %.600s into place: %s", w->tmp, strerror(errno));
+        store_rec_abort(w);
+        return -1;
+    }
+    w->tmp[0] = '\0';
+    if (fsync_dir_of(w->path) < 0) {
+        snprintf(w->err, sizeof w->err, "cannot fsync the directory of %.600s: %s", w->path, strerror(errno));
+        return -1;
+    }
+    return 0;
+}
+
+int store_rec_commit(store_rec_writer_t *w, int keep_prev)
+{
+    if (store_rec_finish(w) < 0)
+        return -1;
+    return store_rec_install(w, keep_prev);
+}
+
+/* Checks a whole record in memory; NULL when it is sound, else why not. */
+static const char *check_record(const uint8_t *all, uint64_t size, store_kind_t kind, char *why, size_t whylen)
+{
+    if (size < STORE_HEADER_SIZE + STORE_TRAILER_SIZE || size > STORE_MAX_RECORD)
+        return "torn (too short)";
+    if (memcmp(all, store_magic, 8) != 0)
+        return "not a vbrender state file (bad magic)";
+    if (get_u32(all + 8) != STORE_FORMAT_VERSION) {
+        snprintf(why, whylen, "format version %u, this master reads %d", get_u32(all + 8), STORE_FORMAT_VERSION);
+        return why;
+    }
+    if (get_u32(all + 12) != (uint32_t)kind)
+        return "a record of another kind";
+    if (get_u64(all + size - STORE_TRAILER_SIZE) != size - STORE_HEADER_SIZE - STORE_TRAILER_SIZE)
+        return "torn (length mismatch)";
+    uint8_t hash[32];
+    crypto_generichash(hash, 32, all, (unsigned long long)(size - 32), NULL, 0);
+    if (sodium_memcmp(hash, all + size - 32, 32) != 0)
+        return "corrupt (checksum mismatch)";
+    return NULL;
+}
+
+int store_rec_parse(const uint8_t *data, size_t size, store_kind_t kind, store_rec_t *rec, char *err,
+                    size_t errlen)
+{
+    memset(rec, 0, sizeof *rec);
+    char buf[128];
+    const char *why = check_record(data, size, kind, buf, sizeof buf);
+    if (why) {
+        set_err(err, errlen, "%s", why);
+        return -1;
+    }
+    size_t plen = size - STORE_HEADER_SIZE - STORE_TRAILER_SIZE;
+    rec->data = malloc(plen ? plen : 1);
+    if (!rec->data) {
+        set_err(err, errlen, "out of memory");
+        return -1;
+    }
+    memcpy(rec->data, data + STORE_HEADER_SIZE, plen);
+    rec->size = plen;
+    return 0;
+}
+
+int store_rec_load(const char *path, store_kind_t kind, store_rec_t *rec, char *err, size_t errlen)
+{
+    memset(rec, 0, sizeof *rec);
+    int fd = open(path, O_RDONLY | O_CLOEXEC);
+    if (fd < 0) {
+        set_err(err, errlen, "%.600s: %s", path, errno == ENOENT ? "no such file" : strerror(errno));
+        return -1;
+    }
+    struct stat st;
+    if (fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
+        set_err(err, errlen, "%.600s: not a regular file", path);
+        close(fd);
+        return -1;
+    }
+    uint64_t size = (uint64_t)st.st_size;
+    if (size < STORE_HEADER_SIZE + STORE_TRAILER_SIZE || size > STORE_MAX_RECORD) {
+        set_err(err, errlen, "%.600s: torn (%" PRIu64 " bytes)", path, size);
+        close(fd);
+        return -1;
+    }
+    uint8_t *all = malloc(size);
+    if (!all) {
+        set_err(err, errlen, "%.600s: out of memory (%" PRIu64 " bytes)", path, size);
+        close(fd);
+        return -1;
+    }
+    size_t got = 0;
+    while (got < size) {
+        ssize_t n = read(fd, all + got, size - got);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n <= 0)
+            break;
+        got += (size_t)n;
+    }
+    close(fd);
+    char buf[128];
+    const char *why = got != size ? "short read" : check_record(all, size, kind, buf, sizeof buf);
+    if (why) {
+        set_err(err, errlen, "%.600s: %s", path, why);
+        free(all);
+        return -1;
+    }
+    /* keep the payload only */
+    size_t plen = (size_t)(size - STORE_HEADER_SIZE - STORE_TRAILER_SIZE);
+    memmove(all, all + STORE_HEADER_SIZE, plen);
+    rec->data = all;
+    rec->size = plen;
+    rec->pos = 0;
+    return 0;
+}
+
+int store_rec_read(void *rp, void *data, size_t len)
+{
+    store_rec_t *rec = rp;
+    if (len > rec->size - rec->pos)
+        return -1;
+    memcpy(data, rec->data + rec->pos, len);
+    rec->pos += len;
+    return 0;
+}
+
+int store_rec_read_block(store_rec_t *rec, const uint8_t **data, size_t *len)
+{
+    uint8_t n[8];
+    if (store_rec_read(rec, n, 8) < 0)
+        return -1;
+    uint64_t l = get_u64(n);
+    if (l > rec->size - rec->pos)
+        return -1;
+    *data = rec->data + rec->pos;
+    *len = (size_t)l;
+    rec->pos += (size_t)l;
+    return 0;
+}
+
+void store_rec_free(store_rec_t *rec)
+{
+    free(rec->data);
+    memset(rec, 0, sizeof *rec);
+}
+
+/* ---- the directory ------------------------------------------------------------ */
+
+static int mkdir_p(const char *dir)
+{
+    char tmp[4096];
+    snprintf(tmp, sizeof tmp, "%s", dir);
+    for (char *p = tmp + 1; *p; p++)
+        if (*p == '/') {
+            *p = '\0';
+            if (mkdir(tmp, 0700) != 0 && errno != EEXIST)
+                return -1;
+            *p = '/';
+        }
+    return mkdir(tmp, 0700) != 0 && errno != EEXIST ? -1 : 0;
+}
+
+static int write_meta(store_t *s, char *err, size_t errlen)
+{
+    char path[4096];
+    snprintf(path, sizeof path, "%s/meta", s->dir);
+    static_assert(sizeof(store_rec_writer_t) < (1 << 17), "writer fits the stack");
+    store_rec_writer_t w;
+    uint8_t body[12];
+    put_u64(body, s->next_id);
+    put_u32(body + 8, s->boots);
+    if (store_rec_begin(&w, path, STORE_KIND_META) < 0 || store_rec_write(&w, body, sizeof body) < 0 ||
+        store_rec_commit(&w, 0) < 0) {
+        set_err(err, errlen, "%.600s", w.err);
+        return -1;
+    }
+    return 0;
+}
+
+const char *store_dir(const store_t *s) { return s->dir; }
+uint32_t store_boots(const store_t *s) { return s->boots; }
+
+void store_job_path(const store_t *s, uint64_t id, const char *name, char *out, size_t outlen)
+{
+    snprintf(out, outlen, "%s/jobs/%" PRIu64 "%s%s", s->dir, id, name ? "/" : "", name ? name : "");
+}
+
+int store_job_dir(const store_t *s, uint64_t id, char *err, size_t errlen)
+{
+    char path[4096];
+    store_job_path(s, id, NULL, path, sizeof path);
+    if (mkdir(path, 0700) != 0 && errno != EEXIST) {
+        set_err(err, errlen, "cannot create %.600s: %s", path, strerror(errno));
+        return -1;
+    }
+    return fsync_dir_of(path);
+}
+
+int store_job_remove(const store_t *s, uint64_t id, char *err, size_t errlen)
+{
+    char path[4096];
+    store_job_path(s, id, NULL, path, sizeof path);
+    DIR *d = opendir(path);
+    if (!d)
+        return errno == ENOENT ? 0 : (set_err(err, errlen, "cannot open %.600s: %s", path, strerror(errno)), -1);
+    struct dirent *e;
+    int rc = 0;
+    while ((e = readdir(d)) != NULL) {
+        if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0)
+            continue;
+        char f[4096 + 260];
+        snprintf(f, sizeof f, "%s/%s", path, e->d_name);
+        if (unlink(f) != 0 && errno != ENOENT) {
+            set_err(err, errlen, "cannot remove %.600s: %s", f, strerror(errno));
+            rc = -1;
+        }
+    }
+    closedir(d);
+    if (rc == 0 && rmdir(path) != 0 && errno != ENOENT) {
+        set_err(err, errlen, "cannot remove %.600s: %s", path, strerror(errno));
+        rc = -1;
+    }
+    if (rc == 0)
+        fsync_dir_of(path);
+    return rc;
+}
+
+void store_job_clean(const store_t *s, uint64_t id)
+{
+    char path[4096];
+    store_job_path(s, id, NULL, path, sizeof path);
+    DIR *d = opendir(path);
+    if (!d)
+        return;
+    struct dirent *e;
+    while ((e = readdir(d)) != NULL)
+        if (strstr(e->d_name, ".tmp.")) {
+            char f[4096 + 260];
+            snprintf(f, sizeof f, "%s/%s", path, e->d_name);
+            unlink(f);
+        }
+    closedir(d);
+}
+
+static int cmp_u64(const void *a, const void *b)
+{
+    uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
+    return x < y ? -1 : x > y;
+}
+
+int store_job_ids(const store_t *s, uint64_t **ids, size_t *count, char *err, size_t errlen)
+{
+    char path[4096];
+    snprintf(path, sizeof path, "%s/jobs", s->dir);
+    *ids = NULL;
+    *count = 0;
+    DIR *d = opendir(path);
+    if (!d) {
+        set_err(err, errlen, "cannot open %.600s: %s", path, strerror(errno));
+        return -1;
+    }
+    size_t cap = 0;
+    struct dirent *e;
+    while ((e = readdir(d)) != NULL) {
+        const char *n = e->d_name;
+        if (!*n || strspn(n, "0123456789") != strlen(n) || strlen(n) > 19 || n[0] == '0')
+            continue; /* not ours */
+        if (*count == cap) {
+            cap = cap ? 2 * cap : 64;
+            uint64_t *ni = realloc(*ids, cap * sizeof *ni);
+            if (!ni) {
+                closedir(d);
+                free(*ids);
+                *ids = NULL;
+                set_err(err, errlen, "out of memory");
+                return -1;
+            }
+            *ids = ni;
+        }
+        (*ids)[(*count)++] = strtoull(n, NULL, 10);
+    }
+    closedir(d);
+    if (*count)
+        qsort(*ids, *count, sizeof **ids, cmp_u64);
+    return 0;
+}
+
+store_t *store_open(const char *dir, char *err, size_t errlen)
+{
+    if (sodium_init() < 0) {
+        set_err(err, errlen, "libsodium failed to initialise");
+        return NULL;
+    }
+    store_t *s = calloc(1, sizeof *s);
+    if (!s) {
+        set_err(err, errlen, "out of memory");
+        return NULL;
+    }
+    s->bg_fd = -1;
+    if (strlen(dir) == 0 || strlen(dir) >= sizeof s->dir - 64) {
+        set_err(err, errlen, "--state: a directory path of 1 to %zu characters", sizeof s->dir - 64);
+        free(s);
+        return NULL;
+    }
+    snprintf(s->dir, sizeof s->dir, "%s", dir);
+    char jobs[4096];
+    snprintf(jobs, sizeof jobs, "%s/jobs", s->dir);
+    if (mkdir_p(jobs) != 0) {
+        set_err(err, errlen, "cannot create the state directory %.600s: %s", jobs, strerror(errno));
+        free(s);
+        return NULL;
+    }
+    char path[4096], lerr[512];
+    snprintf(path, sizeof path, "%s/meta", s->dir);
+    store_rec_t rec;
+    s->next_id = 1;
+    if (store_rec_load(path, STORE_KIND_META, &rec, lerr, sizeof lerr) == 0) {
+        if (rec.size >= 12) {
+            s->next_id = get_u64(rec.data);
+            s->boots = get_u32(rec.data + 8);
+        }
+        store_rec_free(&rec);
+    } else if (access(path, F_OK) == 0) {
+        /* the job directories still give the ids in use (below) */
+        fprintf(stderr, "vbrender-master: %s; job ids continue from the job directories\n", lerr);
+    }
+    uint64_t *ids;
+    size_t n;
+    if (store_job_ids(s, &ids, &n, err, errlen) < 0) {
+        free(s);
+        return NULL;
+    }
+    if (n && ids[n - 1] + 1 > s->next_id)
+        s->next_id = ids[n - 1] + 1;
+    free(ids);
+    if (s->next_id == 0)
+        s->next_id = 1;
+    s->boots++;
+    if (write_meta(s, err, errlen) < 0) {
+        free(s);
+        return NULL;
+    }
+    return s;
+}
+
+uint64_t store_take_job_id(store_t *s, char *err, size_t errlen)
+{
+    uint64_t id = s->next_id++;
+    if (write_meta(s, err, errlen) < 0) {
+        s->next_id--;
+        return 0;
+    }
+    return id;
+}
+
+void store_close(store_t **sp)
+{
+    if (!sp || !*sp)
+        return;
+    store_t *s = *sp;
+    store_bg_wait(s, NULL, NULL);
+    free(s->bg_buf);
+    free(s);
+    *sp = NULL;
+}
+
+/* ---- background writer ---------------------------------------------------------- */
+
+int store_bg_running(const store_t *s) { return s->bg_pid > 0; }
+
+int store_bg_start(store_t *s, store_bg_fn fn, void *ctx, char *err, size_t errlen)
+{
+    if (s->bg_pid > 0) {
+        set_err(err, errlen, "a background write is still running");
+        return -1;
+    }
+    int p[2];
+    if (pipe(p) != 0) {
+        set_err(err, errlen, "pipe: %.600s", strerror(errno));
+        return -1;
+    }
+    fcntl(p[0], F_SETFD, FD_CLOEXEC);
+    fflush(NULL); /* nothing buffered is written twice */
+    pid_t pid = fork();
+    if (pid < 0) {
+        set_err(err, errlen, "fork: %.600s", strerror(errno));
+        close(p[0]);
+        close(p[1]);
+        return -1;
+    }
+    if (pid == 0) {
+        close(p[0]);
+        /* the child must not take the master's signals as its own stop */
+        signal(SIGTERM, SIG_DFL);
+        signal(SIGINT, SIG_IGN);
+        int rc = fn(ctx, p[1]);
+        close(p[1]);
+        _exit(rc);
+    }
+    close(p[1]);
+    fcntl(p[0], F_SETFL, fcntl(p[0], F_GETFL) | O_NONBLOCK);
+    s->bg_pid = pid;
+    s->bg_fd = p[0];
+    s->bg_len = 0;
+    return 0;
+}
+
+void store_bg_report(int fd, uint64_t id, const char *error)
+{
+    char line[1024];
+    int n = error ? snprintf(line, sizeof line, "%" PRIu64 " error %s", id, error)
+                  : snprintf(line, sizeof line, "%" PRIu64 " ok", id);
+    if (n < 0)
+        return;
+    if ((size_t)n >= sizeof line - 1)
+        n = (int)sizeof line - 2;
+    for (int i = 0; i < n; i++)
+        if (line[i] == '\n')
+            line[i] = ' ';
+    line[n++] = '\n';
+    (void)write_all(fd, line, (size_t)n);
+}
+
+static void drain(store_t *s)
+{
+    for (;;) {
+        if (s->bg_cap - s->bg_len < 4096) {
+            size_t cap = s->bg_cap ? 2 * s->bg_cap : 8192;
+            char *nb = realloc(s->bg_buf, cap);
+            if (!nb)
+                return;
+            s->bg_buf = nb;
+            s->bg_cap = cap;
+        }
+        ssize_t n = read(s->bg_fd, s->bg_buf + s->bg_len, s->bg_cap - s->bg_len - 1);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n <= 0)
+            return;
+        s->bg_len += (size_t)n;
+    }
+}
+
+static void deliver(store_t *s, store_bg_report_fn on_report, void *ctx)
+{
+    s->bg_buf[s->bg_len] = '\0';
+    char *line = s->bg_buf;
+    while (on_report && line && *line) {
+        char *nl = strchr(line, '\n');
+        if (!nl)
+            break; /* a torn last line: that job counts as not written */
+        *nl = '\0';
+        char *end;
+        uint64_t id = strtoull(line, &end, 10);
+        if (strncmp(end, " ok", 3) == 0)
+            on_report(ctx, id, NULL);
+        else if (strncmp(end, " error ", 7) == 0)
+            on_report(ctx, id, end + 7);
+        line = nl + 1;
+    }
+    s->bg_len = 0;
+}
+
+int store_bg_poll(store_t *s, store_bg_report_fn on_report, void *ctx, int *exit_status)
+{
+    if (s->bg_pid <= 0)
+        return 0;
+    if (s->bg_buf || s->bg_cap == 0)
+        drain(s);
+    int status;
+    pid_t r = waitpid(s->bg_pid, &status, WNOHANG);
+    if (r == 0)
+        return 0;
+    drain(s);
+    close(s->bg_fd);
+    s->bg_fd = -1;
+    s->bg_pid = 0;
+    if (exit_status)
+        *exit_status = r > 0 && WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    if (s->bg_buf)
+        deliver(s, on_report, ctx);
+    return 1;
+}
+
+void store_bg_wait(store_t *s, store_bg_report_fn on_report, void *ctx)
+{
+    while (s->bg_pid > 0) {
+        if (store_bg_poll(s, on_report, ctx, NULL))
+            break;
+        usleep(2000);
+    }
+}

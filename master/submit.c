@@ -1,0 +1,297 @@
+/* submit.c - a submit request turned into a job (master_priv.h), in steps:
+ * the bundle, the scene, the settings, the scheduler, the reference, the
+ * hash. A bad submission fails here, at the client, and never reaches a
+ * worker. A stored submission (persist.c) goes through the same steps, so a
+ * recovered job is exactly the job that was submitted. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "master_priv.h"
+#include "scene.h"
+
+/* The mesh files: names checked, data copied. */
+static int submit_bundle(job_t *j, const cJSON *meshes, const submit_frame_t *frames, int mesh_count,
+                         scene_blob_t *blobs, char *err, size_t errlen)
+{
+    j->mesh_count = (uint32_t)mesh_count;
+    j->mesh_names = calloc((size_t)mesh_count + 1, sizeof *j->mesh_names);
+    j->mesh_data = calloc((size_t)mesh_count + 1, sizeof *j->mesh_data);
+    j->mesh_sizes = calloc((size_t)mesh_count + 1, sizeof *j->mesh_sizes);
+    if (!j->mesh_names || !j->mesh_data || !j->mesh_sizes) {
+        snprintf(err, errlen, "out of memory");
+        return -1;
+    }
+    int i = 0;
+    for (const cJSON *it = meshes ? meshes->child : NULL; it; it = it->next, i++) {
+        if (!cJSON_IsString(it) || strlen(it->valuestring) == 0 || strlen(it->valuestring) > PROTO_MAX_NAME ||
+            strchr(it->valuestring, '/') || strchr(it->valuestring, '\\')) {
+            snprintf(err, errlen, "meshes[%d]: a name of 1 to %d characters without '/'", i, PROTO_MAX_NAME);
+            return -1;
+        }
+        size_t sz = frames[i].size;
+        if (sz > PROTO_MAX_MESH_BYTES) {
+            snprintf(err, errlen, "meshes[%d]: %zu bytes is over the limit", i, sz);
+            return -1;
+        }
+        snprintf(j->mesh_names[i], sizeof j->mesh_names[i], "%s", it->valuestring);
+        for (int k = 0; k < i; k++)
+            if (strcmp(j->mesh_names[k], j->mesh_names[i]) == 0) {
+                snprintf(err, errlen, "meshes[%d]: \"%s\" given twice", i, j->mesh_names[i]);
+                return -1;
+            }
+        j->mesh_data[i] = malloc(sz ? sz : 1);
+        if (!j->mesh_data[i]) {
+            snprintf(err, errlen, "out of memory");
+            return -1;
+        }
+        memcpy(j->mesh_data[i], frames[i].data, sz);
+        j->mesh_sizes[i] = (uint32_t)sz;
+        blobs[i].name = j->mesh_names[i];
+        blobs[i].data = j->mesh_data[i];
+        blobs[i].size = sz;
+    }
+    return 0;
+}
+
+/* The scene, loaded from the bundle as a worker will load it: its size and
+ * render defaults. */
+static int submit_scene(job_t *j, const submit_frame_t *json, const scene_blob_t *blobs, char *err, size_t errlen)
+{
+    j->json_size = json->size;
+    if (j->json_size > PROTO_MAX_SCENE_JSON) {
+        snprintf(err, errlen, "scene JSON too large (%zu bytes)", j->json_size);
+        return -1;
+    }
+    j->json = malloc(j->json_size + 1);
+    if (!j->json) {
+        snprintf(err, errlen, "out of memory");
+        return -1;
+    }
+    memcpy(j->json, json->data, j->json_size);
+    j->json[j->json_size] = '\0';
+    scene_t *scene = NULL;
+    char serr[MASTER_ERR_LEN - 16];
+    if (scene_load_bundle(j->json, j->json_size, j->name, blobs, j->mesh_count, &scene, serr, sizeof serr) < 0) {
+        snprintf(err, errlen, "bad scene: %s", serr);
+        return -1;
+    }
+    j->width = (uint32_t)scene->camera.width;
+    j->height = (uint32_t)scene->camera.height;
+    j->spp = scene->spp;
+    j->tracer.seed = scene->seed;
+    j->tracer.integrator = scene->integrator;
+    j->tracer.max_depth = scene->max_depth;
+    scene_destroy(&scene);
+    return 0;
+}
+
+/* An optional integer field in [lo, hi]: 0 (absent or set), -1 with a message. */
+static int int_field(const cJSON *req, const char *key, double lo, double hi, double *out, char *err, size_t errlen)
+{
+    const cJSON *it = cJSON_GetObjectItemCaseSensitive(req, key);
+    if (!it)
+        return 0;
+    double v = cJSON_IsNumber(it) ? it->valuedouble : NAN;
+    if (!(v >= lo && v <= hi) || v != floor(v)) {
+        snprintf(err, errlen, "%s must be an integer from %.0f to %.0f", key, lo, hi);
+        return -1;
+    }
+    *out = v;
+    return 0;
+}
+
+/* An optional number in [lo, hi], or (lo, hi] when lo_open. */
+static int range_field(const cJSON *req, const char *key, double lo, double hi, int lo_open, double *out,
+                       char *err, size_t errlen)
+{
+    const cJSON *it = cJSON_GetObjectItemCaseSensitive(req, key);
+    if (!it)
+        return 0;
+    double v = cJSON_IsNumber(it) ? it->valuedouble : NAN;
+    if (!(v >= lo && v <= hi) || (lo_open && v == lo)) {
+        snprintf(err, errlen, "%s must be in %s%g, %g]", key, lo_open ? "(" : "[", lo, hi);
+        return -1;
+    }
+    *out = v;
+    return 0;
+}
+
+/* The job's settings over the scene's defaults, and the scheduler. */
+static int submit_settings(job_t *j, const cJSON *req, char *err, size_t errlen)
+{
+    double spp = j->spp, g = 32, seed = (double)j->tracer.seed, depth = j->tracer.max_depth;
+    double uniform = UINT32_MAX, target = 0, confidence = 0.95, share = 1.0;
+    if (int_field(req, "spp", 1, 4294967295.0, &spp, err, errlen) < 0 ||
+        int_field(req, "granularity", 1, TRACER_MAX_TASK_SAMPLES, &g, err, errlen) < 0 ||
+        int_field(req, "seed", 0, 9007199254740992.0, &seed, err, errlen) < 0 ||
+        int_field(req, "max_depth", 0, 1000000, &depth, err, errlen) < 0 ||
+        int_field(req, "uniform_layers", 0, 4294967294.0, &uniform, err, errlen) < 0 ||
+        range_field(req, "target_error", 0, 1e6, 1, &target, err, errlen) < 0 ||
+        range_field(req, "confidence", 0, 0.999999, 1, &confidence, err, errlen) < 0 ||
+        range_field(req, "target_share", 0, 1, 1, &share, err, errlen) < 0)
+        return -1;
+    /* seed: a JSON number holds integers exactly up to 2^53 only */
+    j->spp = (uint32_t)spp;
+    j->granularity = (uint32_t)g;
+    j->tracer.seed = (uint64_t)seed;
+    j->tracer.max_depth = (uint32_t)depth;
+    j->target_error = target;
+    j->adaptive = SCHED_ADAPTIVE_THESIS;
+    const cJSON *it;
+    if ((it = cJSON_GetObjectItemCaseSensitive(req, "time_limit")) != NULL) {
+        if (!cJSON_IsNumber(it) || !(it->valuedouble >= 0) || !isfinite(it->valuedouble)) {
+            snprintf(err, errlen, "time_limit must be a number of seconds >= 0");
+            return -1;
+        }
+        j->time_limit = it->valuedouble;
+    }
+    if ((it = cJSON_GetObjectItemCaseSensitive(req, "adaptive")) != NULL) {
+        int a = cJSON_IsString(it) ? sched_adaptive_from_name(it->valuestring) : -1;
+        if (a < 0) {
+            snprintf(err, errlen, "adaptive must be \"thesis\", \"variance\", \"relerr\" or \"none\"");
+            return -1;
+        }
+        j->adaptive = (sched_adaptive_t)a;
+    }
+    if ((it = cJSON_GetObjectItemCaseSensitive(req, "integrator")) != NULL) {
+        int in = cJSON_IsString(it) ? scene_integrator_from_name(it->valuestring) : -1;
+        if (in < 0) {
+            snprintf(err, errlen, "integrator must be \"path\" or \"naive\"");
+            return -1;
+        }
+        j->tracer.integrator = (scene_integrator_t)in;
+    }
+    if ((it = cJSON_GetObjectItemCaseSensitive(req, "flags")) != NULL) {
+        if (!cJSON_IsString(it)) {
+            snprintf(err, errlen, "flags must be a string of 0 and 1, one per layer");
+            return -1;
+        }
+        j->flags = strdup(it->valuestring);
+        if (!j->flags) {
+            snprintf(err, errlen, "out of memory");
+            return -1;
+        }
+    }
+    const cJSON *rs = cJSON_GetObjectItemCaseSensitive(req, "random_selection");
+    const cJSON *dl = cJSON_GetObjectItemCaseSensitive(req, "dilate");
+    j->sched_cfg = (sched_config_t){.width = j->width, .height = j->height, .spp = j->spp,
+                                    .granularity = j->granularity, .adaptive = j->adaptive,
+                                    .uniform_layers = (uint32_t)uniform, .flags = j->flags,
+                                    .random_selection = cJSON_IsTrue(rs), .dilate = cJSON_IsTrue(dl),
+                                    .seed = j->tracer.seed, .target_error = j->target_error,
+                                    .confidence = confidence, .target_share = share};
+    char schederr[MASTER_ERR_LEN - 32];
+    j->sched = sched_new(&j->sched_cfg, schederr, sizeof schederr);
+    if (!j->sched) {
+        snprintf(err, errlen, "bad settings: %s", schederr);
+        return -1;
+    }
+    size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
+    j->attempt = calloc(cells, sizeof *j->attempt);
+    j->holder = malloc(cells * sizeof *j->holder);
+    if (!j->attempt || !j->holder) {
+        snprintf(err, errlen, "out of memory");
+        return -1;
+    }
+    for (size_t c = 0; c < cells; c++)
+        j->holder[c] = -1;
+    return 0;
+}
+
+/* The reference: three float32 planes R, G, B of the image's size. */
+static int submit_reference(job_t *j, const submit_frame_t *frames, char *err, size_t errlen)
+{
+    size_t plane = (size_t)j->width * j->height * sizeof(float);
+    for (int c = 0; c < 3; c++) {
+        if (frames[c].size != plane) {
+            snprintf(err, errlen, "reference: channel %d has %zu bytes, a %ux%u image needs %zu (another size?)", c,
+                     frames[c].size, j->width, j->height, plane);
+            return -1;
+        }
+        j->ref[c] = malloc(plane);
+        j->cur[c] = malloc(plane);
+        if (!j->ref[c] || !j->cur[c]) {
+            snprintf(err, errlen, "out of memory");
+            return -1;
+        }
+        memcpy(j->ref[c], frames[c].data, plane);
+    }
+    return 0;
+}
+
+/* The bundle's content hash: what workers cache scenes by. */
+static int submit_hash(job_t *j, char *err, size_t errlen)
+{
+    proto_bundle_t *view = calloc(1, sizeof *view);
+    if (!view) {
+        snprintf(err, errlen, "out of memory");
+        return -1;
+    }
+    view->json = j->json;
+    view->json_size = (uint32_t)j->json_size;
+    view->mesh_count = j->mesh_count;
+    for (uint32_t k = 0; k < j->mesh_count; k++) {
+        memcpy(view->meshes[k].name, j->mesh_names[k], sizeof view->meshes[k].name);
+        view->meshes[k].data = j->mesh_data[k];
+        view->meshes[k].size = j->mesh_sizes[k];
+    }
+    proto_bundle_hash(view, j->hash);
+    free(view);
+    return 0;
+}
+
+static int submit_request_id(job_t *j, const cJSON *req, char *err, size_t errlen)
+{
+    const cJSON *rid = cJSON_GetObjectItemCaseSensitive(req, "request_id");
+    if (!rid)
+        return 0;
+    const char *v = cJSON_IsString(rid) ? rid->valuestring : NULL;
+    size_t n = v ? strlen(v) : 0;
+    if (!v || n == 0 || n > MASTER_MAX_REQUEST_ID ||
+        strspn(v, "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-") != n) {
+        snprintf(err, errlen, "request_id must be 1 to %d characters from A-Z a-z 0-9 _ -", MASTER_MAX_REQUEST_ID);
+        return -1;
+    }
+    memcpy(j->request_id, v, n + 1);
+    return 0;
+}
+
+job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes, char *err, size_t errlen)
+{
+    if (nframes < 1) {
+        snprintf(err, errlen, "submit needs the scene JSON as its second frame");
+        return NULL;
+    }
+    const cJSON *meshes = cJSON_GetObjectItemCaseSensitive(req, "meshes");
+    if (meshes && !cJSON_IsArray(meshes)) {
+        snprintf(err, errlen, "\"meshes\" must be an array of names");
+        return NULL;
+    }
+    int mesh_count = meshes ? cJSON_GetArraySize(meshes) : 0;
+    const cJSON *refspec = cJSON_GetObjectItemCaseSensitive(req, "reference");
+    int ref_frames = refspec ? 3 : 0;
+    if (mesh_count != nframes - 1 - ref_frames || mesh_count > PROTO_MAX_MESHES) {
+        snprintf(err, errlen, "%d mesh names%s but %d frames after the scene", mesh_count,
+                 ref_frames ? " and a reference (3 frames)" : "", nframes - 1);
+        return NULL;
+    }
+    job_t *j = calloc(1, sizeof *j);
+    if (!j) {
+        snprintf(err, errlen, "out of memory");
+        return NULL;
+    }
+    const cJSON *name = cJSON_GetObjectItemCaseSensitive(req, "name");
+    snprintf(j->name, sizeof j->name, "%s", cJSON_IsString(name) ? name->valuestring : "scene.json");
+    scene_blob_t blobs[PROTO_MAX_MESHES];
+    if (submit_request_id(j, req, err, errlen) < 0 ||
+        submit_bundle(j, meshes, frames + 1, mesh_count, blobs, err, errlen) < 0 ||
+        submit_scene(j, &frames[0], blobs, err, errlen) < 0 || submit_settings(j, req, err, errlen) < 0 ||
+        (refspec && submit_reference(j, frames + 1 + mesh_count, err, errlen) < 0) ||
+        submit_hash(j, err, errlen) < 0) {
+        job_free(j);
+        return NULL;
+    }
+    j->state = JOB_QUEUED;
+    return j;
+}
