@@ -142,6 +142,11 @@ static cJSON *ctl_workers(ctl_req_t *r)
         cJSON_AddStringToObject(o, "build", w->build);
         cJSON_AddItemToArray(arr, o);
     }
+    /* what the master dropped: bad input is counted, and logged only at a
+     * bounded rate */
+    cJSON *st = cJSON_AddObjectToObject(b, "master");
+    cJSON_AddNumberToObject(st, "malformed_messages", (double)m->malformed);
+    cJSON_AddNumberToObject(st, "late_results", (double)m->dropped_late);
     return b;
 }
 
@@ -242,11 +247,13 @@ static cJSON *answer(ctl_req_t *r, int overflow)
     const cJSON *cmd = r->body ? cJSON_GetObjectItemCaseSensitive(r->body, "cmd") : NULL;
     if (overflow)
         return error_body("too many frames (at most %d mesh files)", PROTO_MAX_MESHES);
+    const ctl_command_t *c = cJSON_IsString(cmd) ? find_command(cmd->valuestring) : NULL;
+    if (!c)
+        r->m->malformed++; /* counted with the worker port's: both are bad input */
     if (!r->body || !cJSON_IsObject(r->body))
         return error_body("request is not a JSON object");
     if (!cJSON_IsString(cmd))
         return error_body("request has no \"cmd\"");
-    const ctl_command_t *c = find_command(cmd->valuestring);
     if (!c)
         return error_body("unknown command \"%.64s\" (submit, status, jobs, workers, cancel, fetch, delete)",
                           cmd->valuestring);

@@ -460,6 +460,7 @@ void peer_handle_message(master_t *m)
     if (rc == -2) { /* another protocol version or magic */
         char text[MASTER_ERR_LEN + 32];
         snprintf(text, sizeof text, "master refuses: %s", err);
+        m->malformed++;
         master_log_limited(m, "refused", "refused a peer: %s", err);
         send_text(m, id, id_len, PROTO_REFUSE, text);
     } else if (rc < 0) {

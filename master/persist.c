@@ -24,11 +24,32 @@
 #include "image.h"
 #include "master_priv.h"
 
+/* ---- fault injection (test builds only) -------------------------------------------- */
+
+/* The fault build fails every state write while the file named by
+ * VB_FAULT_FAIL_WRITES_IF exists, as a full disk would. */
+static int injected_write_failure(char *err, size_t errlen)
+{
+#ifdef VB_FAULT_INJECTION
+    const char *flag = getenv("VB_FAULT_FAIL_WRITES_IF");
+    if (flag && access(flag, F_OK) == 0) {
+        snprintf(err, errlen, "No space left on device (injected fault)");
+        return -1;
+    }
+#else
+    (void)err;
+    (void)errlen;
+#endif
+    return 0;
+}
+
 /* ---- submissions ----------------------------------------------------------------- */
 
 int persist_submission(master_t *m, job_t *j, const void *req, size_t req_size, const submit_frame_t *frames,
                        int nframes, char *err, size_t errlen)
 {
+    if (injected_write_failure(err, errlen) < 0)
+        return -1;
     uint64_t id = store_take_job_id(m->store, err, errlen);
     if (!id || store_job_dir(m->store, id, err, errlen) < 0)
         return -1;
@@ -203,6 +224,11 @@ static int bg_write(void *ctx, int report_fd)
         if (!j->in_write)
             continue;
         char err[MASTER_ERR_LEN] = "";
+        if (injected_write_failure(err, sizeof err) < 0) {
+            store_bg_report(report_fd, j->id, err);
+            failed = 1;
+            continue;
+        }
         int rc = j->in_write == PERSIST_FINAL ? write_final(c->m, j, err, sizeof err)
                                               : write_checkpoint(c->m, j, c->now, err, sizeof err);
         store_bg_report(report_fd, j->id, rc < 0 ? err : NULL);

@@ -26,6 +26,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/prctl.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
@@ -39,7 +40,7 @@
 #define PATHLEN 1024
 #define OUTLEN 16384
 #define CMDLEN 4096
-#define MAX_DAEMONS 16
+#define MAX_DAEMONS 32
 #define STOP_MS 5000      /* a daemon must exit this soon after SIGTERM */
 #define JOB_TIMEOUT_MS 60000
 
@@ -1558,6 +1559,220 @@ START_TEST(corrupt_checkpoint)
     remove_scratch();
 }
 END_TEST
+/* A failed state write (a full disk, simulated by the fault build while a
+ * flag file exists) is logged and shown in status; the job keeps running,
+ * nothing durable is damaged, the daemon never exits, and the image is
+ * still the uninterrupted one. */
+START_TEST(storage_failure)
+{
+    const char *fault_bin = getenv("VB_FAULT_MASTER");
+    ck_assert_msg(fault_bin && access(fault_bin, X_OK) == 0, "VB_FAULT_MASTER is not built");
+    static const char *const settings = "--spp 1024 --granularity 16 --adaptive none --seed 13";
+    char scene[PATHLEN], dir[PATHLEN], flag[PATHLEN], ref[PATHLEN], got[PATHLEN], out[OUTLEN], env[PATHLEN + 64];
+    scene_file(scene, sizeof scene, 48, NULL, NULL);
+    state_dir(dir, sizeof dir, "state-full");
+    ck_assert_int_eq(mkdir(dir, 0700), 0);
+    snprintf(flag, sizeof flag, "%.1000s.full", dir);
+    keep_scratch(flag);
+    snprintf(env, sizeof env, "VB_FAULT_FAIL_WRITES_IF=%s", flag);
+    int port = slot_port(9);
+    char wep[64], cep[64];
+    snprintf(wep, sizeof wep, "tcp://127.0.0.1:%d", port);
+    snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
+    const char *args[] = {"env", env, fault_bin, "--workers", wep, "--control", cep, "--heartbeat-ms", "200",
+                          "--state", dir, "--checkpoint-s", "0.2", NULL};
+    daemon_t *m = spawn("l-master", NULL, args);
+    /* the disk is full: a submission is refused with the reason, no id */
+    ck_assert_ptr_nonnull(tu_write_tmp(flag, sizeof flag, strrchr(flag, '/') + 1, "full"));
+    int rc = 1;
+    for (int tries = 0; tries < 50 && (rc = client(out, sizeof out, "jobs --master %s", cep)) != 0; tries++)
+        sleep_ms(100);
+    ck_assert_msg(rc == 0, "the fault master does not answer\n%s", logs_tail());
+    rc = client(out, sizeof out, "submit '%s' %s --master %s", scene, settings, cep);
+    ck_assert_msg(rc != 0 && strstr(out, "No space left"), "submit on a full disk: exit %d:\n%s", rc, out);
+    /* room again: submitted; then full while it runs */
+    unlink(flag);
+    unsigned long long job = submit(port + 1, scene, settings);
+    ck_assert_ptr_nonnull(tu_write_tmp(flag, sizeof flag, strrchr(flag, '/') + 1, "full"));
+    daemon_t *w = start_worker(port, 1, "l-worker", NULL);
+    double end = now_ms() + 20000;
+    cJSON *s = NULL;
+    for (;;) {
+        s = job_status(port + 1, job);
+        if (strstr(jstr(s, "storage_error"), "No space left") || now_ms() > end)
+            break;
+        cJSON_Delete(s);
+        sleep_ms(50);
+    }
+    ck_assert_msg(strstr(jstr(s, "storage_error"), "No space left"), "status shows no storage error: %s",
+                  jstr(s, "storage_error"));
+    ck_assert_msg(state_is(s, "running"), "the job is %s while its writes fail", jstr(s, "state"));
+    cJSON_Delete(s);
+    assert_alive(m);
+    char log[65536];
+    read_log(m, log, sizeof log);
+    ck_assert_msg(strstr(log, "cannot write its state"), "the log does not report the failed write:\n%s", log);
+    unlink(flag);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "full.exr"));
+    end = now_ms() + 10000;
+    while (!file_exists(dir, job, "final") && now_ms() < end)
+        sleep_ms(20);
+    ck_assert_msg(file_exists(dir, job, "final"), "the final record was not written once the disk had room");
+    s = job_status(port + 1, job);
+    ck_assert_msg(strlen(jstr(s, "storage_error")) == 0, "storage error still shown: %s", jstr(s, "storage_error"));
+    cJSON_Delete(s);
+    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "full-ref.exr"));
+    compare_exr(ref, got);
+    stop_clean(w);
+    stop_clean(m);
+    remove_state(dir);
+    remove_scratch();
+}
+END_TEST
+
+/* Churn: four workers over a whole job; every 2 s one is killed with
+ * SIGKILL and a new one starts. The image is the fault-free one. */
+START_TEST(churn)
+{
+    static const char *const settings = "--spp 2048 --granularity 32 --adaptive thesis --seed 17";
+    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], name[32];
+    scene_file(scene, sizeof scene, 80, NULL, NULL);
+    int port = slot_port(10);
+    start_master(&port, "m-master");
+    daemon_t *w[4];
+    for (int i = 0; i < 4; i++) {
+        snprintf(name, sizeof name, "m-worker%d", i);
+        w[i] = start_worker(port, 1, name, NULL);
+    }
+    wait_workers(port + 1, 4);
+    unsigned long long job = submit(port + 1, scene, settings);
+    int kills = 0;
+    double next = now_ms() + 2000, end = now_ms() + JOB_TIMEOUT_MS * 2;
+    for (;;) {
+        cJSON *s = job_status(port + 1, job);
+        int ended = job_ended(s);
+        cJSON_Delete(s);
+        if (ended)
+            break;
+        ck_assert_msg(now_ms() < end, "job %llu still running under churn\n%s", job, logs_tail());
+        if (now_ms() >= next) {
+            int k = kills % 4;
+            kill9(w[k]);
+            snprintf(name, sizeof name, "m-worker%d-%d", k, kills);
+            if (daemon_count < MAX_DAEMONS)
+                w[k] = start_worker(port, 1, name, NULL);
+            kills++;
+            next += 2000;
+        }
+        sleep_ms(50);
+    }
+    ck_assert_msg(kills >= 2, "the job ended after %d kills: make it longer", kills);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "churn.exr"));
+    cJSON *s = job_status(port + 1, job);
+    ck_assert_msg(jnum(s, "tasks_reissued") > 0, "%d workers killed, no task issued again", kills);
+    cJSON_Delete(s);
+    render_embedded(scene, settings, 2, tmp(ref, sizeof ref, "churn-ref.exr"));
+    compare_exr(ref, got);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+static long rss_kib(pid_t pid)
+{
+    char path[64], line[256];
+    snprintf(path, sizeof path, "/proc/%ld/status", (long)pid);
+    FILE *f = fopen(path, "r");
+    long kib = -1;
+    while (f && fgets(line, sizeof line, f))
+        if (sscanf(line, "VmRSS: %ld kB", &kib) == 1)
+            break;
+    if (f)
+        fclose(f);
+    return kib;
+}
+
+/* A flood during a job: 1,000,000 malformed frames on the worker port and
+ * 100,000 malformed control requests, from several connections, then 300
+ * fetches nobody reads. The master's memory stays within 2x, the drops are
+ * counted, the log stays small, and the job's image is the fault-free one. */
+START_TEST(flood)
+{
+    static const char *const settings = "--spp 512 --granularity 16 --adaptive none --seed 19";
+    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], ep[64];
+    scene_file(scene, sizeof scene, 64, NULL, NULL);
+    int port = slot_port(11);
+    daemon_t *m = start_master(&port, "n-master");
+    start_worker(port, 1, "n-worker", NULL);
+    wait_workers(port + 1, 1);
+    sleep_ms(300);
+    long before = rss_kib(m->pid), peak = before;
+    unsigned long long job = submit(port + 1, scene, settings);
+    void *ctx = zmq_ctx_new();
+    void *socks[4];
+    int timeout = 10000, zero = 0;
+    for (int k = 0; k < 4; k++) {
+        socks[k] = zmq_socket(ctx, ZMQ_DEALER);
+        zmq_setsockopt(socks[k], ZMQ_SNDTIMEO, &timeout, sizeof timeout);
+        zmq_setsockopt(socks[k], ZMQ_LINGER, &zero, sizeof zero);
+        snprintf(ep, sizeof ep, "tcp://127.0.0.1:%d", k < 3 ? port : port + 1);
+        ck_assert_int_eq(zmq_connect(socks[k], ep), 0);
+    }
+    uint8_t junk[64];
+    uint32_t x = 777;
+    for (long i = 0; i < 1000000; i++) {
+        size_t len = 1 + (x = x * 1664525u + 1013904223u) % sizeof junk;
+        for (size_t b = 0; b < len; b++)
+            junk[b] = (uint8_t)((x = x * 1664525u + 1013904223u) >> 24);
+        junk[0] = 0; /* never a valid magic */
+        ck_assert_int_ge(zmq_send(socks[i % 3], junk, len, 0), 0);
+        if (i < 100000) {
+            /* [empty][not JSON], as a REQ socket would frame it */
+            ck_assert_int_ge(zmq_send(socks[3], "", 0, ZMQ_SNDMORE), 0);
+            ck_assert_int_ge(zmq_send(socks[3], junk, len, 0), 0);
+        }
+        if (i % 50000 == 0) {
+            long r = rss_kib(m->pid);
+            peak = r > peak ? r : peak;
+        }
+    }
+    cJSON *st = wait_end(port + 1, job);
+    ck_assert_msg(state_is(st, "done"), "job %s under the flood", jstr(st, "state"));
+    cJSON_Delete(st);
+    /* 300 fetches whose replies are never read */
+    for (int i = 0; i < 300; i++) {
+        char req[64];
+        snprintf(req, sizeof req, "{\"cmd\":\"fetch\",\"job\":%llu}", job);
+        ck_assert_int_ge(zmq_send(socks[3], "", 0, ZMQ_SNDMORE), 0);
+        ck_assert_int_ge(zmq_send(socks[3], req, strlen(req), 0), 0);
+        if (i % 30 == 0) {
+            long r = rss_kib(m->pid);
+            peak = r > peak ? r : peak;
+        }
+    }
+    sleep_ms(500);
+    long r = rss_kib(m->pid);
+    peak = r > peak ? r : peak;
+    ck_assert_msg(before > 0 && peak <= 2 * before, "master RSS %ld KiB before the flood, %ld KiB at its peak", before,
+                  peak);
+    for (int k = 0; k < 4; k++)
+        zmq_close(socks[k]);
+    zmq_ctx_term(ctx);
+    cJSON *wl = ctl(port + 1, "workers", 0);
+    ck_assert_ptr_nonnull(wl);
+    double dropped = jnum(cJSON_GetObjectItemCaseSensitive(wl, "master"), "malformed_messages");
+    cJSON_Delete(wl);
+    ck_assert_msg(dropped >= 1000000, "the master counted %.0f malformed messages of 1,100,000", dropped);
+    struct stat lst;
+    ck_assert_int_eq(stat(m->log, &lst), 0);
+    ck_assert_msg(lst.st_size < 64 * 1024, "the master wrote %lld bytes of log for the flood", (long long)lst.st_size);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "flood.exr"));
+    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "flood-ref.exr"));
+    compare_exr(ref, got);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
 
 /* ---- suite ------------------------------------------------------------------------ */
 
@@ -1574,6 +1789,8 @@ static Suite *cluster_suite(void)
         {"garbage", master_garbage},            {"version", worker_refuses_version},
         {"sigterm", sigterm},                   {"several_hosts", several_hosts},
         {"master_crash", master_crash},         {"corrupt_checkpoint", corrupt_checkpoint},
+        {"storage_failure", storage_failure},   {"churn", churn},
+        {"flood", flood},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         TCase *tc = tcase_create(cases[i].name);
