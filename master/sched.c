@@ -36,8 +36,9 @@ struct sched {
     uint8_t *conv_flight[2];
     uint32_t *batches;      /* per pixel: layers merged (batch means) */
     double *bmean, *bm2;    /* per pixel: Welford over the layers' luminance means */
-    double *t_table;        /* t factors by batches - 1, for relerr (0.95) and the target */
-    double *t_target;
+    double *t_table;        /* t factors by batches - 1, for relerr (0.95) and the target, */
+    double *t_target;       /* 0 until first needed (t_factor): ~50 us each, and a submit must
+                               not compute one per layer up front (1M layers: a minute) */
     uint64_t converged;
     int stopped_on_target;
     uint8_t *scratch;       /* npix: dilation */
@@ -176,11 +177,6 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
         s->cfg.confidence = 0.95;
     if (s->cfg.target_share <= 0)
         s->cfg.target_share = 1.0;
-    /* t factors once per job, by degrees of freedom */
-    for (uint32_t k = 1; s->t_table && s->t_target && k <= s->layers; k++) {
-        s->t_table[k] = stats_t_two_sided(0.95, k);
-        s->t_target[k] = stats_t_two_sided(s->cfg.confidence, k);
-    }
     s->out = calloc(cells, sizeof(tracer_task_t *));
     s->out_count = calloc(cells, sizeof(uint32_t));
     s->q_cap = cells + 1;
@@ -272,6 +268,16 @@ int sched_pixel_in_layer(const sched_t *s, uint32_t layer, uint32_t pixel)
 double sched_threshold(const sched_t *s, uint32_t layer)
 {
     return layer < s->layers ? s->threshold[layer] : 0.0;
+}
+
+/* The two-sided t factor at `confidence` for k degrees of freedom, cached in
+ * table[k]. 0 means not computed yet: a quantile is never 0 for k >= 1 (and
+ * if one ever underflowed it would merely be computed again). */
+static double t_factor(double *table, double confidence, uint32_t k)
+{
+    if (table[k] == 0)
+        table[k] = stats_t_two_sided(confidence, k);
+    return table[k];
 }
 
 static void complete_range(sched_t *s, uint32_t layer, uint32_t range);
@@ -543,14 +549,14 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
             pv[p] = s->film->pixels[p].count >= 2 ? film_variance_of_mean(s->film, p) : INFINITY;
             break;
         case SCHED_ADAPTIVE_RELERR:
-            pv[p] = nb >= 2 ? s->t_table[nb - 1] * se / (fabs(s->bmean[p]) + SCHED_RELERR_EPS) : INFINITY;
+            pv[p] = nb >= 2 ? t_factor(s->t_table, 0.95, nb - 1) * se / (fabs(s->bmean[p]) + SCHED_RELERR_EPS) : INFINITY;
             break;
         default:
             pv[p] = results[i].pvar;
             break;
         }
         cv[p] = (uint8_t)(s->cfg.target_error > 0 && nb >= SCHED_TARGET_MIN_LAYERS &&
-                          s->t_target[nb - 1] * se <= s->cfg.target_error * (fabs(s->bmean[p]) + SCHED_TARGET_EPS));
+                          t_factor(s->t_target, s->cfg.confidence, nb - 1) * se <= s->cfg.target_error * (fabs(s->bmean[p]) + SCHED_TARGET_EPS));
     }
     free(s->out[cell]);
     s->out[cell] = NULL;

@@ -409,6 +409,43 @@ START_TEST(test_bad_configs)
 }
 END_TEST
 
+/* A submit must not freeze the master: sched_new for a job of about a
+ * million layers does no per-layer work beyond zeroed allocations (the t
+ * factors are computed when first needed). Not timed: 20 of them took about
+ * 20 minutes when every t factor was computed up front, and Check's timeout
+ * catches that; now they take milliseconds. */
+START_TEST(test_many_layers_new_is_cheap)
+{
+    char err[256];
+    for (int i = 0; i < 20; i++) {
+        /* 2^25 samples in layers of 32: 2^20 layers of one pixel; relerr and a
+         * target error read both t tables */
+        sched_config_t c = {.width = 1, .height = 1, .spp = 1u << 25, .granularity = 32,
+                            .adaptive = i % 2 ? SCHED_ADAPTIVE_RELERR : SCHED_ADAPTIVE_THESIS,
+                            .uniform_layers = UINT32_MAX, .target_error = 0.01, .confidence = 0.99};
+        sched_t *s = sched_new(&c, err, sizeof err);
+        ck_assert_msg(s != NULL, "%s", err);
+        ck_assert_uint_eq(sched_layer_count(s), 1u << 20);
+        /* a few layers still run, and read the (lazy) t factors */
+        sched_task_t t;
+        tracer_result_t r;
+        for (uint32_t l = 0; l < 6; l++) {
+            ck_assert_int_eq(sched_next(s, &t), 1);
+            ck_assert_uint_eq(t.layer, l);
+            memset(&r, 0, sizeof r);
+            r.pixel = 0;
+            r.samples = 32;
+            r.sum[0] = r.sum[1] = r.sum[2] = 16.0 + 0.5 * (l % 2);
+            r.lum_m2 = 1.0;
+            r.pvar = 1.0;
+            ck_assert_msg(sched_complete(s, t.id, &r, 1, err, sizeof err) == 0, "%s", err);
+        }
+        ck_assert_uint_eq(sched_samples_done(s), 6 * 32);
+        sched_destroy(&s);
+    }
+}
+END_TEST
+
 int main(void)
 {
     Suite *s = suite_create("sched");
@@ -422,6 +459,7 @@ int main(void)
     tcase_add_test(tc, test_dilation);
     tcase_add_test(tc, test_random_selection);
     tcase_add_test(tc, test_bad_configs);
+    tcase_add_test(tc, test_many_layers_new_is_cheap);
     suite_add_tcase(s, tc);
     SRunner *sr = srunner_create(s);
     srunner_run_all(sr, CK_NORMAL);
