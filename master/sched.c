@@ -36,8 +36,9 @@ struct sched {
     uint8_t *conv_flight[2];
     uint32_t *batches;      /* per pixel: layers merged (batch means) */
     double *bmean, *bm2;    /* per pixel: Welford over the layers' luminance means */
-    double *t_table;        /* t factors by batches - 1, for relerr (0.95) and the target */
-    double *t_target;
+    double *t_table;        /* t factors by batches - 1, for relerr (0.95) and the target, */
+    double *t_target;       /* 0 until first needed (t_factor): ~50 us each, and a submit must
+                               not compute one per layer up front (1M layers: a minute) */
     uint64_t converged;
     int stopped_on_target;
     uint8_t *scratch;       /* npix: dilation */
@@ -176,11 +177,6 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
         s->cfg.confidence = 0.95;
     if (s->cfg.target_share <= 0)
         s->cfg.target_share = 1.0;
-    /* t factors once per job, by degrees of freedom */
-    for (uint32_t k = 1; s->t_table && s->t_target && k <= s->layers; k++) {
-        s->t_table[k] = stats_t_two_sided(0.95, k);
-        s->t_target[k] = stats_t_two_sided(s->cfg.confidence, k);
-    }
     s->out = calloc(cells, sizeof(tracer_task_t *));
     s->out_count = calloc(cells, sizeof(uint32_t));
     s->q_cap = cells + 1;
@@ -274,6 +270,16 @@ double sched_threshold(const sched_t *s, uint32_t layer)
     return layer < s->layers ? s->threshold[layer] : 0.0;
 }
 
+/* The two-sided t factor at `confidence` for k degrees of freedom, cached in
+ * table[k]. 0 means not computed yet: a quantile is never 0 for k >= 1 (and
+ * if one ever underflowed it would merely be computed again). */
+static double t_factor(double *table, double confidence, uint32_t k)
+{
+    if (table[k] == 0)
+        table[k] = stats_t_two_sided(confidence, k);
+    return table[k];
+}
+
 static void complete_range(sched_t *s, uint32_t layer, uint32_t range);
 
 /* (layer, range) can run: queue it, or complete it at once when the layer
@@ -293,13 +299,19 @@ static void make_ready(sched_t *s, uint32_t layer, uint32_t range)
     s->q_tail = (s->q_tail + 1) % s->q_cap;
 }
 
+/* Whether layer's pixels are chosen by the skip rule (rule 3). */
+static int applies_skip_rule(const sched_t *s, uint32_t layer)
+{
+    int flag = s->flags ? s->flags[layer] == '1' : layer >= s->uniform;
+    return flag && layer >= 2 && s->cfg.adaptive != SCHED_ADAPTIVE_NONE;
+}
+
 /* Chooses the pixels of a layer from the snapshot (layers < s->complete). */
 static void decide_layer(sched_t *s, uint32_t layer)
 {
     if (layer >= s->layers || s->decided[layer])
         return;
-    int flag = s->flags ? s->flags[layer] == '1' : layer >= s->uniform;
-    int skip_rule = flag && layer >= 2 && s->cfg.adaptive != SCHED_ADAPTIVE_NONE;
+    int skip_rule = applies_skip_rule(s, layer);
     double threshold = 0;
     if (skip_rule) {
         /* the mean over pixels (eq. 4.3); pixels without a value yet (inf)
@@ -543,18 +555,592 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
             pv[p] = s->film->pixels[p].count >= 2 ? film_variance_of_mean(s->film, p) : INFINITY;
             break;
         case SCHED_ADAPTIVE_RELERR:
-            pv[p] = nb >= 2 ? s->t_table[nb - 1] * se / (fabs(s->bmean[p]) + SCHED_RELERR_EPS) : INFINITY;
+            pv[p] = nb >= 2 ? t_factor(s->t_table, 0.95, nb - 1) * se / (fabs(s->bmean[p]) + SCHED_RELERR_EPS)
+                            : INFINITY;
             break;
         default:
             pv[p] = results[i].pvar;
             break;
         }
         cv[p] = (uint8_t)(s->cfg.target_error > 0 && nb >= SCHED_TARGET_MIN_LAYERS &&
-                          s->t_target[nb - 1] * se <= s->cfg.target_error * (fabs(s->bmean[p]) + SCHED_TARGET_EPS));
+                          t_factor(s->t_target, s->cfg.confidence, nb - 1) * se <=
+                              s->cfg.target_error * (fabs(s->bmean[p]) + SCHED_TARGET_EPS));
     }
     free(s->out[cell]);
     s->out[cell] = NULL;
     s->out_count[cell] = 0;
     complete_range(s, layer, range);
     return 0;
+}
+
+/* ---- checkpoints ---------------------------------------------------------- */
+
+/* write and read calls carry at most this much: the pipe or socket behind
+ * them need not take a gigabyte bitmap in one call. */
+#define SAVE_CHUNK ((size_t)1 << 20)
+
+static const uint8_t save_magic[8] = {'V', 'B', 'S', 'C', 'H', 'E', 'D', '\n'};
+
+/* The fingerprint: what a restored scheduler must share with the saved one
+ * (settings first, so a mismatch names the setting, not what it derives). */
+enum {
+    FP_WIDTH, FP_HEIGHT, FP_SPP, FP_GRANULARITY, FP_ADAPTIVE, FP_UNIFORM, FP_HAS_FLAGS, FP_FLAGS,
+    FP_RANGE_PIXELS, FP_RANDOM_SELECTION, FP_DILATE, FP_SEED, FP_TARGET_ERROR, FP_CONFIDENCE,
+    FP_TARGET_SHARE, FP_PIXELS, FP_LAYERS, FP_RANGES, FP_PIXEL_BYTES, FP_COUNT
+};
+static const char *const fp_names[FP_COUNT] = {
+    "width", "height", "spp", "granularity", "adaptive", "uniform layers", "flag sequence (present)",
+    "flag sequence", "range_pixels", "random_selection", "dilate", "seed", "target_error", "confidence",
+    "target_share", "pixels", "layers", "ranges", "film pixel size"};
+
+static uint64_t f64_bits(double x)
+{
+    uint64_t u;
+    memcpy(&u, &x, sizeof u);
+    return u;
+}
+
+static void fingerprint(const sched_t *s, uint64_t fp[FP_COUNT])
+{
+    uint64_t h = 0xcbf29ce484222325ULL; /* FNV-1a of the flag sequence */
+    for (uint32_t l = 0; s->flags && l < s->layers; l++)
+        h = (h ^ (uint8_t)s->flags[l]) * 0x100000001b3ULL;
+    fp[FP_WIDTH] = s->cfg.width;
+    fp[FP_HEIGHT] = s->cfg.height;
+    fp[FP_SPP] = s->cfg.spp;
+    fp[FP_GRANULARITY] = s->cfg.granularity;
+    fp[FP_ADAPTIVE] = (uint64_t)s->cfg.adaptive;
+    fp[FP_UNIFORM] = s->uniform;
+    fp[FP_HAS_FLAGS] = s->flags != NULL;
+    fp[FP_FLAGS] = s->flags ? h : 0;
+    fp[FP_RANGE_PIXELS] = s->range_pixels;
+    fp[FP_RANDOM_SELECTION] = (uint64_t)(int64_t)s->cfg.random_selection;
+    fp[FP_DILATE] = (uint64_t)(int64_t)s->cfg.dilate;
+    fp[FP_SEED] = s->cfg.seed;
+    fp[FP_TARGET_ERROR] = f64_bits(s->cfg.target_error);
+    fp[FP_CONFIDENCE] = f64_bits(s->cfg.confidence); /* as normalised by sched_new */
+    fp[FP_TARGET_SHARE] = f64_bits(s->cfg.target_share);
+    fp[FP_PIXELS] = s->npix;
+    fp[FP_LAYERS] = s->layers;
+    fp[FP_RANGES] = s->ranges;
+    fp[FP_PIXEL_BYTES] = sizeof(film_pixel_t);
+}
+
+/* A checksum of the stream, the same however it is cut into calls: words
+ * of 8 bytes (a partial one kept back), each folded in by a bijection, so
+ * one changed word always changes the sum. Not cryptographic: it catches
+ * corruption that the consistency checks cannot see (a finite film value
+ * with a flipped bit). */
+typedef struct cksum {
+    uint64_t h, total;
+    uint8_t pend[8];
+    unsigned npend;
+} cksum_t;
+
+static void ck_word(cksum_t *c, uint64_t w)
+{
+    uint64_t h = (c->h ^ w) * 0x9e3779b97f4a7c15ULL;
+    c->h = h ^ (h >> 29);
+}
+
+static void ck_update(cksum_t *c, const void *data, size_t len)
+{
+    const uint8_t *p = data;
+    uint64_t w;
+    c->total += len;
+    while (len > 0 && c->npend > 0) {
+        c->pend[c->npend++] = *p++;
+        len--;
+        if (c->npend == 8) {
+            memcpy(&w, c->pend, 8);
+            ck_word(c, w);
+            c->npend = 0;
+        }
+    }
+    for (; len >= 8; p += 8, len -= 8) {
+        memcpy(&w, p, 8);
+        ck_word(c, w);
+    }
+    while (len > 0) { /* here npend == 0 and len < 8 */
+        c->pend[c->npend++] = *p++;
+        len--;
+    }
+}
+
+static uint64_t ck_final(const cksum_t *c0)
+{
+    cksum_t c = *c0;
+    uint64_t w = 0;
+    memcpy(&w, c.pend, c.npend);
+    ck_word(&c, w);
+    ck_word(&c, c.total);
+    return rng_mix64(c.h);
+}
+
+static void tag_bytes(const char *tag, uint8_t out[8])
+{
+    size_t n = strlen(tag);
+    memset(out, 0, 8);
+    memcpy(out, tag, n < 8 ? n : 8);
+}
+
+static size_t member_bytes(const sched_t *s)
+{
+    return ((size_t)s->layers * s->npix + 7) / 8;
+}
+
+typedef struct saver {
+    sched_write_fn write;
+    void *ctx;
+    cksum_t ck;
+    int rc;
+} saver_t;
+
+static int put(saver_t *w, const void *data, size_t len)
+{
+    const uint8_t *p = data;
+    while (len > 0 && w->rc == 0) {
+        size_t n = len < SAVE_CHUNK ? len : SAVE_CHUNK;
+        ck_update(&w->ck, p, n);
+        w->rc = w->write(w->ctx, p, n);
+        p += n;
+        len -= n;
+    }
+    return w->rc;
+}
+
+static int put_head(saver_t *w, const char *tag, uint64_t bytes)
+{
+    uint8_t h[16];
+    tag_bytes(tag, h);
+    memcpy(h + 8, &bytes, 8);
+    return put(w, h, sizeof h);
+}
+
+static int put_section(saver_t *w, const char *tag, const void *data, size_t bytes)
+{
+    if (put_head(w, tag, bytes))
+        return w->rc;
+    return put(w, data, bytes);
+}
+
+/* Counters, in this order in the "counters" section. */
+enum { CT_COMPLETE, CT_CONVERGED, CT_STOPPED, CT_SAMPLES, CT_PIXEL_LAYERS, CT_SKIPPED, CT_NONFINITE, CT_COUNT };
+
+int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
+{
+    /* Everything here lives on the stack or in *s: this runs in a forked
+     * child, where malloc may be locked by a thread that no longer exists. */
+    saver_t w = {write, ctx, {0, 0, {0}, 0}, 0};
+    const size_t cells = (size_t)s->layers * s->ranges, n = s->npix;
+    uint32_t vc[2] = {SCHED_SAVE_VERSION, FP_COUNT};
+    uint64_t fp[FP_COUNT];
+    fingerprint(s, fp);
+    const uint64_t ct[CT_COUNT] = {s->complete, s->converged, (uint64_t)s->stopped_on_target, s->samples_done,
+                                   s->pixel_layers, s->skipped, s->nonfinite};
+    if (put(&w, save_magic, sizeof save_magic) || put(&w, vc, sizeof vc) || put(&w, fp, sizeof fp) ||
+        put_section(&w, "counters", ct, sizeof ct) ||
+        put_section(&w, "film", s->film->pixels, n * sizeof(film_pixel_t)) ||
+        put_section(&w, "member", s->member, member_bytes(s)) ||
+        put_section(&w, "decided", s->decided, s->layers) ||
+        put_section(&w, "thresh", s->threshold, s->layers * sizeof(double)))
+        return w.rc;
+    /* Outstanding tasks go out as ready: their records are not saved, and
+     * sched_next rebuilds them from the film (layer l of a range is merged
+     * only when it completes, so the film holds exactly its priors). */
+    if (put_head(&w, "state", cells))
+        return w.rc;
+    uint8_t buf[4096];
+    for (size_t c0 = 0; c0 < cells; c0 += sizeof buf) {
+        size_t k = cells - c0 < sizeof buf ? cells - c0 : sizeof buf;
+        for (size_t i = 0; i < k; i++)
+            buf[i] = s->state[c0 + i] == ST_OUT ? ST_READY : s->state[c0 + i];
+        if (put(&w, buf, k))
+            return w.rc;
+    }
+    if (put_section(&w, "rdone", s->range_done, s->layers * sizeof(uint32_t)) ||
+        put_section(&w, "var", s->var_snapshot, n * sizeof(double)) ||
+        put_section(&w, "pvar0", s->pvar_flight[0], n * sizeof(double)) ||
+        put_section(&w, "pvar1", s->pvar_flight[1], n * sizeof(double)) ||
+        put_section(&w, "conv", s->conv_snapshot, n) ||
+        put_section(&w, "conv0", s->conv_flight[0], n) ||
+        put_section(&w, "conv1", s->conv_flight[1], n) ||
+        put_section(&w, "batches", s->batches, n * sizeof(uint32_t)) ||
+        put_section(&w, "bmean", s->bmean, n * sizeof(double)) ||
+        put_section(&w, "bm2", s->bm2, n * sizeof(double)) ||
+        put_head(&w, "end", sizeof(uint64_t)))
+        return w.rc;
+    uint64_t sum = ck_final(&w.ck);
+    return put(&w, &sum, sizeof sum);
+}
+
+typedef struct loader {
+    sched_read_fn read;
+    void *ctx;
+    cksum_t ck;
+} loader_t;
+
+static int get(loader_t *r, void *data, size_t len, const char *what, char *err, size_t errlen)
+{
+    uint8_t *p = data;
+    while (len > 0) {
+        size_t n = len < SAVE_CHUNK ? len : SAVE_CHUNK;
+        if (r->read(r->ctx, p, n) != 0) {
+            snprintf(err, errlen, "checkpoint: truncated or unreadable (reading %s)", what);
+            return -1;
+        }
+        ck_update(&r->ck, p, n);
+        p += n;
+        len -= n;
+    }
+    return 0;
+}
+
+/* A section's head: its tag and its size, both fixed by the config. */
+static int get_head(loader_t *r, const char *tag, size_t bytes, char *err, size_t errlen)
+{
+    uint8_t h[16], want[8];
+    uint64_t n;
+    if (get(r, h, sizeof h, tag, err, errlen))
+        return -1;
+    tag_bytes(tag, want);
+    if (memcmp(h, want, 8) != 0) {
+        snprintf(err, errlen, "checkpoint: section \"%s\" expected, another tag in its place", tag);
+        return -1;
+    }
+    memcpy(&n, h + 8, 8);
+    if (n != bytes) {
+        snprintf(err, errlen, "checkpoint: section \"%s\" holds %llu bytes, this config needs %zu", tag,
+                 (unsigned long long)n, bytes);
+        return -1;
+    }
+    return 0;
+}
+
+static int get_section(loader_t *r, const char *tag, void *data, size_t bytes, char *err, size_t errlen)
+{
+    if (get_head(r, tag, bytes, err, errlen))
+        return -1;
+    return get(r, data, bytes, tag, err, errlen);
+}
+
+/* Reads the stream into s (made by sched_new for the caller's config, so
+ * every size comes from the config, none from the stream). The checksum is
+ * returned, not compared: the consistency checks name a problem better. */
+static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *sum_computed, char *err,
+                       size_t errlen)
+{
+    const size_t cells = (size_t)s->layers * s->ranges, n = s->npix;
+    uint8_t magic[8];
+    uint32_t vc[2];
+    uint64_t fp[FP_COUNT], want[FP_COUNT], ct[CT_COUNT];
+    if (get(r, magic, sizeof magic, "header", err, errlen))
+        return -1;
+    if (memcmp(magic, save_magic, sizeof magic) != 0) {
+        snprintf(err, errlen, "checkpoint: not a scheduler checkpoint (bad magic)");
+        return -1;
+    }
+    if (get(r, vc, sizeof vc, "header", err, errlen))
+        return -1;
+    if (vc[0] != SCHED_SAVE_VERSION) {
+        snprintf(err, errlen, "checkpoint: format version %u, this build reads version %u only", vc[0],
+                 SCHED_SAVE_VERSION);
+        return -1;
+    }
+    if (vc[1] != FP_COUNT) {
+        snprintf(err, errlen, "checkpoint: %u config fingerprint fields, format version %u has %u", vc[1],
+                 SCHED_SAVE_VERSION, FP_COUNT);
+        return -1;
+    }
+    if (get(r, fp, sizeof fp, "header", err, errlen))
+        return -1;
+    fingerprint(s, want);
+    for (int i = 0; i < FP_COUNT; i++) {
+        if (fp[i] == want[i])
+            continue;
+        if (i == FP_TARGET_ERROR || i == FP_CONFIDENCE || i == FP_TARGET_SHARE) {
+            double a, b;
+            memcpy(&a, &fp[i], sizeof a);
+            memcpy(&b, &want[i], sizeof b);
+            snprintf(err, errlen, "checkpoint: the saved job's config differs in %s (saved %.17g, this config %.17g)",
+                     fp_names[i], a, b);
+        } else {
+            snprintf(err, errlen, "checkpoint: the saved job's config differs in %s (saved %llu, this config %llu)",
+                     fp_names[i], (unsigned long long)fp[i], (unsigned long long)want[i]);
+        }
+        return -1;
+    }
+    if (get_section(r, "counters", ct, sizeof ct, err, errlen))
+        return -1;
+    if (ct[CT_COMPLETE] > s->layers || ct[CT_STOPPED] > 1) {
+        snprintf(err, errlen, "checkpoint: counters out of range (%llu layers complete of %u, stopped %llu)",
+                 (unsigned long long)ct[CT_COMPLETE], s->layers, (unsigned long long)ct[CT_STOPPED]);
+        return -1;
+    }
+    s->complete = (uint32_t)ct[CT_COMPLETE];
+    s->converged = ct[CT_CONVERGED];
+    s->stopped_on_target = (int)ct[CT_STOPPED];
+    s->samples_done = ct[CT_SAMPLES];
+    s->pixel_layers = ct[CT_PIXEL_LAYERS];
+    s->skipped = ct[CT_SKIPPED];
+    s->nonfinite = ct[CT_NONFINITE];
+    if (get_section(r, "film", s->film->pixels, n * sizeof(film_pixel_t), err, errlen) ||
+        get_section(r, "member", s->member, member_bytes(s), err, errlen) ||
+        get_section(r, "decided", s->decided, s->layers, err, errlen) ||
+        get_section(r, "thresh", s->threshold, s->layers * sizeof(double), err, errlen) ||
+        get_section(r, "state", s->state, cells, err, errlen) ||
+        get_section(r, "rdone", s->range_done, s->layers * sizeof(uint32_t), err, errlen) ||
+        get_section(r, "var", s->var_snapshot, n * sizeof(double), err, errlen) ||
+        get_section(r, "pvar0", s->pvar_flight[0], n * sizeof(double), err, errlen) ||
+        get_section(r, "pvar1", s->pvar_flight[1], n * sizeof(double), err, errlen) ||
+        get_section(r, "conv", s->conv_snapshot, n, err, errlen) ||
+        get_section(r, "conv0", s->conv_flight[0], n, err, errlen) ||
+        get_section(r, "conv1", s->conv_flight[1], n, err, errlen) ||
+        get_section(r, "batches", s->batches, n * sizeof(uint32_t), err, errlen) ||
+        get_section(r, "bmean", s->bmean, n * sizeof(double), err, errlen) ||
+        get_section(r, "bm2", s->bm2, n * sizeof(double), err, errlen) ||
+        get_head(r, "end", sizeof(uint64_t), err, errlen))
+        return -1;
+    *sum_computed = ck_final(&r->ck);
+    return get(r, sum_read, sizeof *sum_read, "checksum", err, errlen);
+}
+
+static const char *state_name(uint8_t st)
+{
+    static const char *const names[] = {"waiting", "ready", "outstanding", "done"};
+    return st <= ST_DONE ? names[st] : "?";
+}
+
+static unsigned popcount8(uint8_t b)
+{
+    unsigned n = 0;
+    for (; b; b &= (uint8_t)(b - 1))
+        n++;
+    return n;
+}
+
+/* Cell states, decided layers and their counts: each must follow from the
+ * others exactly as the scheduler's own transitions leave them. */
+static int check_cells(const sched_t *s, uint32_t *decided_out, char *err, size_t errlen)
+{
+    const uint32_t L = s->layers, R = s->ranges;
+    const size_t cells = (size_t)L * R;
+    /* saved outstanding tasks come back ready, so never ST_OUT */
+    for (size_t c = 0; c < cells; c++)
+        if (s->state[c] != ST_WAITING && s->state[c] != ST_READY && s->state[c] != ST_DONE) {
+            snprintf(err, errlen, "checkpoint: cell state %u at layer %zu, range %zu is not waiting, ready or done",
+                     s->state[c], c / R, c % R);
+            return -1;
+        }
+    /* decided layers are a prefix: the first two, then two past the complete ones */
+    uint32_t D = 0;
+    while (D < L && s->decided[D] == 1)
+        D++;
+    for (uint32_t l = D; l < L; l++)
+        if (s->decided[l] != 0) {
+            snprintf(err, errlen, "checkpoint: decided flag %u at layer %u after undecided layer %u",
+                     s->decided[l], l, D);
+            return -1;
+        }
+    uint32_t complete = L;
+    for (uint32_t l = 0; l < L; l++) {
+        uint32_t done = 0;
+        for (uint32_t r = 0; r < R; r++)
+            done += s->state[(size_t)l * R + r] == ST_DONE;
+        if (done != s->range_done[l]) {
+            snprintf(err, errlen, "checkpoint: layer %u has range_done %u but %u cells in state done", l,
+                     s->range_done[l], done);
+            return -1;
+        }
+        if (done < R && complete == L)
+            complete = l;
+    }
+    if (s->complete != complete) {
+        snprintf(err, errlen, "checkpoint: %u layers complete, but the cell states say %u", s->complete, complete);
+        return -1;
+    }
+    uint64_t want_d = D == 0 ? 0 : (uint64_t)complete + 2 < L ? (uint64_t)complete + 2 : L;
+    if (D != want_d) {
+        snprintf(err, errlen, "checkpoint: %u layers decided, expected %llu with %u complete", D,
+                 (unsigned long long)want_d, complete);
+        return -1;
+    }
+    /* rule 1: a cell runs once its layer is decided and its range's previous
+     * layer is done; then at once (done) if the layer has none of its pixels */
+    for (uint32_t l = 0; l < L; l++)
+        for (uint32_t r = 0; r < R; r++) {
+            uint8_t st = s->state[(size_t)l * R + r];
+            int may = s->decided[l] && (l == 0 || s->state[(size_t)(l - 1) * R + r] == ST_DONE);
+            if ((st != ST_WAITING) != may) {
+                snprintf(err, errlen, "checkpoint: cell state %s at layer %u, range %u contradicts rule 1 "
+                         "(layer %s, previous layer's cell %s)", state_name(st), l, r,
+                         s->decided[l] ? "decided" : "undecided",
+                         l ? state_name(s->state[(size_t)(l - 1) * R + r]) : "none");
+                return -1;
+            }
+            if (st == ST_READY && range_members(s, l, r) == 0) {
+                snprintf(err, errlen, "checkpoint: cell state ready at layer %u, range %u, which has no pixels", l, r);
+                return -1;
+            }
+        }
+    *decided_out = D;
+    return 0;
+}
+
+/* Layer membership, thresholds and the counters that count them. */
+static int check_layers(const sched_t *s, uint32_t D, char *err, size_t errlen)
+{
+    for (uint32_t l = 0; l < s->layers; l++) {
+        double t = s->threshold[l];
+        if (l < D && applies_skip_rule(s, l) ? isnan(t) : t != 0) {
+            snprintf(err, errlen, "checkpoint: threshold %g of layer %u (%s)", t, l,
+                     l < D ? "decided" : "not decided yet");
+            return -1;
+        }
+    }
+    /* the member bits of decided layers, and none beyond */
+    const size_t used = (size_t)D * s->npix, bytes = member_bytes(s), full = used / 8;
+    uint64_t pop = 0;
+    int stray = 0;
+    for (size_t i = 0; i < full; i++)
+        pop += popcount8(s->member[i]);
+    if (full < bytes) {
+        uint8_t low = (uint8_t)((1u << (used & 7)) - 1);
+        pop += popcount8(s->member[full] & low);
+        stray = (s->member[full] & (uint8_t)~low) != 0;
+        for (size_t i = full + 1; i < bytes && !stray; i++)
+            stray = s->member[i] != 0;
+    }
+    if (stray) {
+        snprintf(err, errlen, "checkpoint: member bits set in layers not decided yet");
+        return -1;
+    }
+    if (s->pixel_layers != pop || s->skipped != used - pop) {
+        snprintf(err, errlen, "checkpoint: pixel_layers %llu and skipped %llu, but the member bitmap holds %llu "
+                 "of %zu", (unsigned long long)s->pixel_layers, (unsigned long long)s->skipped,
+                 (unsigned long long)pop, used);
+        return -1;
+    }
+    if (s->converged > s->npix || (s->cfg.target_error == 0 && (s->converged || s->stopped_on_target))) {
+        snprintf(err, errlen, "checkpoint: converged %llu / stopped %d (of %u pixels, target error %g)",
+                 (unsigned long long)s->converged, s->stopped_on_target, s->npix, s->cfg.target_error);
+        return -1;
+    }
+    return 0;
+}
+
+/* The film against the cells that were merged into it, and the per-pixel
+ * statistics. */
+static int check_pixels(const sched_t *s, uint32_t D, char *err, size_t errlen)
+{
+    const uint32_t N = s->npix, R = s->ranges;
+    uint32_t *layers = calloc(N, sizeof *layers);
+    uint64_t *samples = calloc(N, sizeof *samples);
+    int rc = -1;
+    if (!layers || !samples) {
+        snprintf(err, errlen, "out of memory");
+        goto out;
+    }
+    /* what the done cells merged: each member pixel one layer of `take` samples */
+    for (uint32_t l = 0; l < D; l++) {
+        uint64_t first = (uint64_t)l * s->cfg.granularity;
+        uint32_t take = (uint32_t)(s->cfg.spp - first < s->cfg.granularity ? s->cfg.spp - first
+                                                                           : s->cfg.granularity);
+        for (uint32_t r = 0; r < R; r++) {
+            if (s->state[(size_t)l * R + r] != ST_DONE)
+                continue;
+            uint32_t p0 = r * s->range_pixels, p1 = p0 + s->range_pixels < N ? p0 + s->range_pixels : N;
+            for (uint32_t p = p0; p < p1; p++)
+                if (is_member(s, l, p)) {
+                    layers[p]++;
+                    samples[p] += take;
+                }
+        }
+    }
+    uint64_t total = 0, nonfinite = 0;
+    const int batch = s->cfg.adaptive == SCHED_ADAPTIVE_RELERR || s->cfg.target_error > 0;
+    for (uint32_t p = 0; p < N; p++) {
+        const film_pixel_t *fp = &s->film->pixels[p];
+        static const char *const names[8] = {"sum[0]", "sum[1]", "sum[2]", "comp[0]", "comp[1]", "comp[2]",
+                                             "lum_m2", "pvar"};
+        const double v[8] = {fp->sum[0], fp->sum[1], fp->sum[2], fp->comp[0], fp->comp[1], fp->comp[2],
+                             fp->lum_m2, fp->pvar};
+        for (int k = 0; k < 8; k++)
+            if (!isfinite(v[k])) {
+                snprintf(err, errlen, "checkpoint: film pixel %u: %s is not finite (%g)", p, names[k], v[k]);
+                goto out;
+            }
+        if (fp->layers != layers[p]) {
+            snprintf(err, errlen, "checkpoint: film pixel %u merged %u layers, the cell states say %u", p,
+                     fp->layers, layers[p]);
+            goto out;
+        }
+        if (fp->count > samples[p] || fp->nonfinite != samples[p] - fp->count) {
+            snprintf(err, errlen, "checkpoint: film pixel %u holds %llu + %llu nonfinite samples, its layers %llu",
+                     p, (unsigned long long)fp->count, (unsigned long long)fp->nonfinite,
+                     (unsigned long long)samples[p]);
+            goto out;
+        }
+        total += samples[p];
+        nonfinite += fp->nonfinite;
+        const double m[3] = {s->var_snapshot[p], s->pvar_flight[0][p], s->pvar_flight[1][p]};
+        for (int k = 0; k < 3; k++)
+            if (isnan(m[k]) || m[k] == -INFINITY) {
+                snprintf(err, errlen, "checkpoint: pixel %u: adaptive metric %g", p, m[k]);
+                goto out;
+            }
+        const uint8_t c[3] = {s->conv_snapshot[p], s->conv_flight[0][p], s->conv_flight[1][p]};
+        for (int k = 0; k < 3; k++)
+            if (c[k] > (s->cfg.target_error > 0)) {
+                snprintf(err, errlen, "checkpoint: pixel %u: converged flag %u (target error %g)", p, c[k],
+                         s->cfg.target_error);
+                goto out;
+            }
+        if (batch ? s->batches[p] > layers[p] || !isfinite(s->bmean[p]) || !isfinite(s->bm2[p])
+                  : s->batches[p] != 0 || s->bmean[p] != 0 || s->bm2[p] != 0) {
+            snprintf(err, errlen, "checkpoint: pixel %u: batch statistics (%u batches of %u layers, mean %g, m2 %g)",
+                     p, s->batches[p], layers[p], s->bmean[p], s->bm2[p]);
+            goto out;
+        }
+    }
+    if (total != s->samples_done || nonfinite != s->nonfinite) {
+        snprintf(err, errlen, "checkpoint: samples_done %llu and nonfinite %llu, but the film holds %llu and %llu",
+                 (unsigned long long)s->samples_done, (unsigned long long)s->nonfinite,
+                 (unsigned long long)total, (unsigned long long)nonfinite);
+        goto out;
+    }
+    rc = 0;
+out:
+    free(layers);
+    free(samples);
+    return rc;
+}
+
+sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, char *err, size_t errlen)
+{
+    sched_t *s = sched_new(cfg, err, errlen);
+    if (!s)
+        return NULL;
+    loader_t r = {read, ctx, {0, 0, {0}, 0}};
+    uint64_t sum_read = 0, sum = 0;
+    uint32_t decided = 0;
+    if (load_stream(s, &r, &sum_read, &sum, err, errlen) || check_cells(s, &decided, err, errlen) ||
+        check_layers(s, decided, err, errlen) || check_pixels(s, decided, err, errlen)) {
+        sched_destroy(&s);
+        return NULL;
+    }
+    if (sum_read != sum) {
+        snprintf(err, errlen, "checkpoint: checksum mismatch (the stream is corrupt)");
+        sched_destroy(&s);
+        return NULL;
+    }
+    /* The ready queue in id order: results merge per pixel in layer order
+     * and decisions read snapshots only, so the order tasks are issued in
+     * changes nothing. */
+    size_t cells = (size_t)s->layers * s->ranges;
+    s->q_head = s->q_tail = 0;
+    for (size_t c = 0; c < cells; c++)
+        if (s->state[c] == ST_READY)
+            s->queue[s->q_tail++] = (uint64_t)c + 1;
+    return s;
 }

@@ -141,4 +141,31 @@ const film_t *sched_film(const sched_t *s);
 int sched_pixel_in_layer(const sched_t *s, uint32_t layer, uint32_t pixel);
 double sched_threshold(const sched_t *s, uint32_t layer);
 
+/* Checkpoints. sched_save streams the scheduler's whole state (the film
+ * included) through write(ctx, data, len). It allocates nothing and touches
+ * no globals: it runs in a forked child of the master. Tasks handed out but
+ * not completed are saved as ready: a restored scheduler issues them again.
+ * Returns 0, or the first non-zero value write returned.
+ *
+ * The stream (same-host byte order and layout; film pixels as film_pixel_t):
+ * an 8-byte magic, a uint32 format version, a uint32 count n, n uint64
+ * fingerprint fields; then sections, each an 8-byte ASCII tag (NUL padded),
+ * a uint64 byte count and the bytes; last the section "end" holding a
+ * uint64 checksum of everything before it. */
+#define SCHED_SAVE_VERSION 1
+typedef int (*sched_write_fn)(void *ctx, const void *data, size_t len);
+/* Reads exactly len bytes; returns 0, or non-zero on a short read / error. */
+typedef int (*sched_read_fn)(void *ctx, void *data, size_t len);
+int sched_save(const sched_t *s, sched_write_fn write, void *ctx);
+/* A scheduler for cfg restored from what sched_save wrote. cfg must be the
+ * job's config (the same one the saved scheduler was made with): a saved
+ * fingerprint of the derived sizes and settings (pixels, layers, ranges,
+ * range_pixels, spp, G, adaptive, uniform layers, flags, target settings,
+ * seed...) must match, or it fails. Everything read is checked before it is
+ * trusted: cell states in range, counts consistent with states (range_done
+ * vs DONE cells, complete layers, decided flags consistent), film values
+ * finite, counts that add up (samples_done equals the film's total, ...).
+ * Garbage is never merged: NULL with a message naming what is wrong. */
+sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, char *err, size_t errlen);
+
 #endif

@@ -4,6 +4,7 @@
  * "so far" sums, so a scheduler that handed out stale priors would differ. */
 #include <check.h>
 #include <math.h>
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -409,6 +410,402 @@ START_TEST(test_bad_configs)
 }
 END_TEST
 
+/* A submit must not freeze the master: sched_new for a job of about a
+ * million layers does no per-layer work beyond zeroed allocations (the t
+ * factors are computed when first needed). Not timed: 20 of them took about
+ * 20 minutes when every t factor was computed up front, and Check's timeout
+ * catches that; now they take milliseconds. */
+START_TEST(test_many_layers_new_is_cheap)
+{
+    char err[256];
+    for (int i = 0; i < 20; i++) {
+        /* 2^25 samples in layers of 32: 2^20 layers of one pixel; relerr and a
+         * target error read both t tables */
+        sched_config_t c = {.width = 1, .height = 1, .spp = 1u << 25, .granularity = 32,
+                            .adaptive = i % 2 ? SCHED_ADAPTIVE_RELERR : SCHED_ADAPTIVE_THESIS,
+                            .uniform_layers = UINT32_MAX, .target_error = 0.01, .confidence = 0.99};
+        sched_t *s = sched_new(&c, err, sizeof err);
+        ck_assert_msg(s != NULL, "%s", err);
+        ck_assert_uint_eq(sched_layer_count(s), 1u << 20);
+        /* a few layers still run, and read the (lazy) t factors */
+        sched_task_t t;
+        tracer_result_t r;
+        for (uint32_t l = 0; l < 6; l++) {
+            ck_assert_int_eq(sched_next(s, &t), 1);
+            ck_assert_uint_eq(t.layer, l);
+            memset(&r, 0, sizeof r);
+            r.pixel = 0;
+            r.samples = 32;
+            r.sum[0] = r.sum[1] = r.sum[2] = 16.0 + 0.5 * (l % 2);
+            r.lum_m2 = 1.0;
+            r.pvar = 1.0;
+            ck_assert_msg(sched_complete(s, t.id, &r, 1, err, sizeof err) == 0, "%s", err);
+        }
+        ck_assert_uint_eq(sched_samples_done(s), 6 * 32);
+        sched_destroy(&s);
+    }
+}
+END_TEST
+
+/* ---- checkpoints ---------------------------------------------------------- */
+
+typedef struct membuf {
+    uint8_t *data;
+    size_t len, cap, pos;
+} membuf_t;
+
+static int mem_write(void *ctx, const void *data, size_t len)
+{
+    membuf_t *b = ctx;
+    if (b->len + len > b->cap) {
+        size_t cap = b->cap ? b->cap : 4096;
+        while (cap < b->len + len)
+            cap *= 2;
+        uint8_t *d = realloc(b->data, cap);
+        if (!d)
+            return -1;
+        b->data = d;
+        b->cap = cap;
+    }
+    memcpy(b->data + b->len, data, len);
+    b->len += len;
+    return 0;
+}
+
+static int mem_read(void *ctx, void *data, size_t len)
+{
+    membuf_t *b = ctx;
+    if (len > b->len - b->pos)
+        return -1;
+    memcpy(data, b->data + b->pos, len);
+    b->pos += len;
+    return 0;
+}
+
+static membuf_t save_mem(const sched_t *s)
+{
+    membuf_t b = {0};
+    ck_assert_int_eq(sched_save(s, mem_write, &b), 0);
+    return b;
+}
+
+/* Loads from the first len bytes of b. */
+static sched_t *load_mem(const sched_config_t *c, const membuf_t *b, size_t len, char *err, size_t errlen)
+{
+    membuf_t r = {b->data, len, len, 0};
+    return sched_load(c, mem_read, &r, err, errlen);
+}
+
+/* A worker for checkpoint runs: a pixel's layer is a pure function of
+ * (pixel, first sample) and of its prior sums (stale priors in a restored
+ * task would show). Some pixels are noisy and most steady, so the adaptive
+ * modes skip and the target error converges; now and then a sample is NaN. */
+static void hashed_results(const sched_task_t *t, tracer_result_t *r)
+{
+    for (uint32_t i = 0; i < t->count; i++) {
+        const tracer_task_t *k = &t->records[i];
+        rng_stream_t st = rng_stream(0xc0ffee, k->pixel, k->first_sample);
+        double u = rng_next_double(&st), v = rng_next_double(&st);
+        double noise = k->pixel % 5 == 0 ? 0.9 : k->pixel % 3 == 0 ? 0.2 : 0.01;
+        double mean = 0.3 + 0.05 * (k->pixel % 7) + noise * (u - 0.5);
+        memset(&r[i], 0, sizeof r[i]);
+        r[i].pixel = k->pixel;
+        r[i].nonfinite = k->sample_count > 1 && v < 0.05;
+        r[i].samples = k->sample_count - r[i].nonfinite;
+        for (int c = 0; c < 3; c++)
+            r[i].sum[c] = mean * r[i].samples * (1.0 + 0.1 * c) + 1e-9 * k->prior_sum[c] +
+                          1e-12 * (double)k->prior_count;
+        r[i].lum_m2 = noise * noise * r[i].samples * (0.5 + v);
+        r[i].pvar = noise * noise * (0.5 + u);
+    }
+}
+
+/* A job with simulated workers finishing in a pseudo-random order and now
+ * and then losing a task (requeue). */
+typedef struct sim {
+    sched_t *s;
+    sched_task_t inflight[32];
+    int n, workers;
+    uint64_t seed, step;
+} sim_t;
+
+/* One event; 0 once the job is done. */
+static int sim_step(sim_t *m)
+{
+    tracer_result_t r[64];
+    char err[256];
+    sched_task_t t;
+    while (m->n < m->workers && sched_next(m->s, &t) == 1)
+        m->inflight[m->n++] = t;
+    if (m->n == 0) {
+        ck_assert(sched_done(m->s));
+        return 0;
+    }
+    rng_stream_t st = rng_stream(m->seed, 0, m->step++);
+    int pick = (int)(rng_next_double(&st) * m->n);
+    if (rng_next_double(&st) < 0.15) {
+        ck_assert_int_eq(sched_requeue(m->s, m->inflight[pick].id), 0);
+    } else {
+        ck_assert_uint_le(m->inflight[pick].count, 64);
+        hashed_results(&m->inflight[pick], r);
+        ck_assert_msg(sched_complete(m->s, m->inflight[pick].id, r, m->inflight[pick].count, err, sizeof err) == 0,
+                      "%s", err);
+    }
+    m->inflight[pick] = m->inflight[--m->n];
+    return 1;
+}
+
+/* Replaces the sim's scheduler by one saved and restored from it: its
+ * outstanding tasks are dropped, as a crashed master's are. */
+static void sim_restore(sim_t *m, const sched_config_t *c)
+{
+    char err[256];
+    membuf_t b = save_mem(m->s);
+    sched_t *n = load_mem(c, &b, b.len, err, sizeof err);
+    ck_assert_msg(n != NULL, "%s", err);
+    free(b.data);
+    sched_destroy(&m->s);
+    m->s = n;
+    m->n = 0;
+}
+
+/* Two finished jobs gave the same film, layers and counters. */
+static void assert_same_job(const sched_t *a, const sched_t *b, const char *what, uint64_t at)
+{
+    ck_assert(sched_done(a) && sched_done(b));
+    const film_t *fa = sched_film(a), *fb = sched_film(b);
+    size_t n = (size_t)fa->width * (size_t)fa->height;
+    ck_assert_msg(memcmp(fa->pixels, fb->pixels, n * sizeof(film_pixel_t)) == 0,
+                  "%s, restored at step %llu: film differs", what, (unsigned long long)at);
+    ck_assert_uint_eq(sched_pixel_layers(a), sched_pixel_layers(b));
+    ck_assert_uint_eq(sched_pixel_layers_skipped(a), sched_pixel_layers_skipped(b));
+    ck_assert_uint_eq(sched_converged(a), sched_converged(b));
+    ck_assert_int_eq(sched_stopped_on_target(a), sched_stopped_on_target(b));
+    ck_assert_uint_eq(sched_samples_done(a), sched_samples_done(b));
+    ck_assert_uint_eq(sched_nonfinite(a), sched_nonfinite(b));
+    ck_assert_uint_eq(sched_layers_complete(a), sched_layers_complete(b));
+    for (uint32_t l = 0; l < sched_layer_count(a); l++) {
+        double ta = sched_threshold(a, l), tb = sched_threshold(b, l);
+        ck_assert_msg(memcmp(&ta, &tb, sizeof ta) == 0, "%s: threshold of layer %u differs", what, l);
+        for (uint32_t p = 0; p < n; p++)
+            ck_assert_int_eq(sched_pixel_in_layer(a, l, p), sched_pixel_in_layer(b, l, p));
+    }
+}
+
+typedef struct ckpt_case {
+    const char *name;
+    sched_config_t cfg;
+} ckpt_case_t;
+
+#define CK_BASE .width = 11, .height = 9, .spp = 48, .granularity = 4, .range_pixels = 7
+static const ckpt_case_t ckpt_cases[] = {
+    {"uniform", {CK_BASE, .adaptive = SCHED_ADAPTIVE_NONE, .uniform_layers = 3}},
+    {"thesis", {CK_BASE, .adaptive = SCHED_ADAPTIVE_THESIS, .uniform_layers = 3}},
+    {"variance", {CK_BASE, .adaptive = SCHED_ADAPTIVE_VARIANCE, .uniform_layers = 3}},
+    {"relerr", {CK_BASE, .adaptive = SCHED_ADAPTIVE_RELERR, .uniform_layers = 3}},
+    /* more uniform layers: relerr alone would skip the steady pixels before
+     * they have the layers to converge */
+    {"relerr, target error", {CK_BASE, .adaptive = SCHED_ADAPTIVE_RELERR, .uniform_layers = 6, .target_error = 0.05}},
+    {"uniform, target error stops the job",
+     {CK_BASE, .adaptive = SCHED_ADAPTIVE_NONE, .uniform_layers = 3, .target_error = 0.05, .confidence = 0.9,
+      .target_share = 0.5}},
+    {"thesis, random selection, dilation",
+     {CK_BASE, .adaptive = SCHED_ADAPTIVE_THESIS, .uniform_layers = 3, .random_selection = 1, .dilate = 1,
+      .seed = 1234}},
+    {"variance, flag sequence", {CK_BASE, .adaptive = SCHED_ADAPTIVE_VARIANCE, .uniform_layers = UINT32_MAX,
+                                   .flags = "001101011011"}},
+};
+
+/* THE property of checkpoints: a job saved after any event (tasks out,
+ * tasks requeued, mid-layer), restored, and run to the end gives the film,
+ * layers and counters of the same job run without interruption. Every
+ * event is a save point here; each restored job finishes in another order
+ * with other workers, and is itself restored once more on the way. */
+START_TEST(test_checkpoint_resumes_bit_identical)
+{
+    const ckpt_case_t *k = &ckpt_cases[_i];
+    char err[256];
+    sim_t ref = {.workers = 1, .seed = 1};
+    ref.s = sched_new(&k->cfg, err, sizeof err);
+    ck_assert_msg(ref.s != NULL, "%s", err);
+    while (sim_step(&ref))
+        ;
+    if (k->cfg.adaptive != SCHED_ADAPTIVE_NONE || k->cfg.target_error > 0)
+        ck_assert_msg(sched_pixel_layers_skipped(ref.s) > 0, "%s: nothing skipped", k->name);
+    else
+        ck_assert_uint_eq(sched_pixel_layers_skipped(ref.s), 0);
+    if (k->cfg.target_error > 0)
+        ck_assert_msg(sched_converged(ref.s) > 0, "%s: nothing converged", k->name);
+    if (k->cfg.target_share == 0.5)
+        ck_assert_msg(sched_stopped_on_target(ref.s), "%s: did not stop on the target", k->name);
+
+    sim_t a = {.workers = 6, .seed = 2};
+    a.s = sched_new(&k->cfg, err, sizeof err);
+    ck_assert_msg(a.s != NULL, "%s", err);
+    int with_out = 0;
+    for (uint64_t at = 0;; at++) {
+        with_out += a.n > 0;
+        membuf_t buf = save_mem(a.s);
+        sim_t b = {.workers = 1 + (int)(at % 5), .seed = 1000 + at};
+        b.s = load_mem(&k->cfg, &buf, buf.len, err, sizeof err);
+        ck_assert_msg(b.s != NULL, "%s, step %llu: %s", k->name, (unsigned long long)at, err);
+        free(buf.data);
+        for (uint64_t j = 0; sim_step(&b); j++)
+            if (j == 3)
+                sim_restore(&b, &k->cfg);
+        assert_same_job(ref.s, b.s, k->name, at);
+        sched_destroy(&b.s);
+        if (!sim_step(&a))
+            break;
+    }
+    ck_assert_msg(with_out > 10, "%s: few save points with tasks out", k->name);
+    assert_same_job(ref.s, a.s, k->name, 0);
+    sched_destroy(&a.s);
+    sched_destroy(&ref.s);
+}
+END_TEST
+
+/* The bytes of a section of a saved stream (the framing in sched.h). */
+static uint8_t *find_section(const membuf_t *b, const char *tag, size_t *len)
+{
+    uint32_t count;
+    memcpy(&count, b->data + 12, sizeof count);
+    size_t off = 16 + 8 * (size_t)count;
+    while (off + 16 <= b->len) {
+        char t[9] = {0};
+        uint64_t n;
+        memcpy(t, b->data + off, 8);
+        memcpy(&n, b->data + off + 8, sizeof n);
+        if (strcmp(t, tag) == 0) {
+            *len = (size_t)n;
+            return b->data + off + 16;
+        }
+        off += 16 + (size_t)n;
+    }
+    ck_abort_msg("no section %s", tag);
+    return NULL;
+}
+
+/* Loads a copy of b changed by one byte at off (to v); must fail naming `want`. */
+static void expect_refused(const sched_config_t *c, const membuf_t *b, size_t off, uint8_t v, const char *want)
+{
+    char err[256] = "";
+    membuf_t m = {malloc(b->len), b->len, b->len, 0};
+    memcpy(m.data, b->data, b->len);
+    m.data[off] = v;
+    sched_t *s = load_mem(c, &m, m.len, err, sizeof err);
+    ck_assert_msg(s == NULL, "byte %zu set to %u was accepted (want: %s)", off, v, want);
+    ck_assert_msg(strstr(err, want) != NULL, "byte %zu: \"%s\" does not name %s", off, err, want);
+    free(m.data);
+}
+
+static int failing_write(void *ctx, const void *data, size_t len)
+{
+    (void)data;
+    size_t *left = ctx;
+    if (len > *left)
+        return 7;
+    *left -= len;
+    return 0;
+}
+
+/* Whatever is wrong with a stream, sched_load refuses it with a message
+ * naming the problem, and sched_save passes a writer's error on. */
+START_TEST(test_checkpoint_refuses_garbage)
+{
+    char err[256];
+    sched_config_t c = ckpt_cases[4].cfg; /* relerr with a target: every section in use */
+    sim_t a = {.workers = 5, .seed = 3};
+    a.s = sched_new(&c, err, sizeof err);
+    for (int i = 0; i < 60; i++)
+        ck_assert(sim_step(&a));
+    ck_assert_int_gt(a.n, 0);
+    membuf_t b = save_mem(a.s);
+    sched_t *s = load_mem(&c, &b, b.len, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    sched_destroy(&s);
+
+    /* truncated anywhere */
+    const size_t cuts[] = {0, 4, 8, 12, 16, 40, 200, b.len / 2, b.len - 9, b.len - 8, b.len - 1};
+    for (size_t i = 0; i < sizeof cuts / sizeof cuts[0]; i++) {
+        ck_assert(load_mem(&c, &b, cuts[i], err, sizeof err) == NULL);
+        ck_assert_msg(strstr(err, "truncated") != NULL, "cut at %zu: %s", cuts[i], err);
+    }
+    /* header: magic, format version, then every byte of the fingerprint */
+    expect_refused(&c, &b, 0, 'X', "magic");
+    expect_refused(&c, &b, 8, SCHED_SAVE_VERSION + 1, "version");
+    uint32_t fields;
+    memcpy(&fields, b.data + 12, sizeof fields);
+    for (size_t off = 16; off < 16 + 8 * (size_t)fields; off++) {
+        expect_refused(&c, &b, off, b.data[off] ^ 0x01, "config");
+        expect_refused(&c, &b, off, b.data[off] ^ 0x80, "config");
+    }
+    /* another job's config */
+    sched_config_t other = c;
+    other.spp = 52;
+    ck_assert(load_mem(&other, &b, b.len, err, sizeof err) == NULL);
+    ck_assert_msg(strstr(err, "config") && strstr(err, "spp"), "%s", err);
+    other = c;
+    other.seed = 99;
+    ck_assert(load_mem(&other, &b, b.len, err, sizeof err) == NULL);
+    ck_assert_msg(strstr(err, "config") && strstr(err, "seed"), "%s", err);
+    other = c;
+    other.adaptive = SCHED_ADAPTIVE_THESIS;
+    ck_assert(load_mem(&other, &b, b.len, err, sizeof err) == NULL);
+    ck_assert_msg(strstr(err, "config") && strstr(err, "adaptive"), "%s", err);
+
+    /* cell states: out of range, outstanding (never saved), done too early */
+    size_t n;
+    uint8_t *st = find_section(&b, "state", &n);
+    size_t off = (size_t)(st - b.data);
+    expect_refused(&c, &b, off, 7, "state");
+    expect_refused(&c, &b, off + n - 1, 2, "state");
+    expect_refused(&c, &b, off + n - 1, 3, "state");
+    ck_assert_uint_eq(st[n - 1], 0); /* the last layer is not ready yet */
+    /* a decided flag beyond the decided layers */
+    uint8_t *dec = find_section(&b, "decided", &n);
+    expect_refused(&c, &b, (size_t)(dec - b.data) + n - 1, 1, "decided");
+    /* a film sum that is not finite: NaN, then +inf (top bytes of a double) */
+    uint8_t *film = find_section(&b, "film", &n);
+    size_t sum1 = (size_t)(film - b.data) + 5 * sizeof(film_pixel_t) + offsetof(film_pixel_t, sum) + 8;
+    double nan = NAN, inf = INFINITY;
+    membuf_t m = {malloc(b.len), b.len, b.len, 0};
+    memcpy(m.data, b.data, b.len);
+    memcpy(m.data + sum1, &nan, sizeof nan);
+    ck_assert(load_mem(&c, &m, m.len, err, sizeof err) == NULL);
+    ck_assert_msg(strstr(err, "film") && strstr(err, "finite"), "%s", err);
+    memcpy(m.data + sum1, &inf, sizeof inf);
+    ck_assert(load_mem(&c, &m, m.len, err, sizeof err) == NULL);
+    ck_assert_msg(strstr(err, "finite"), "%s", err);
+    /* a finite film value off by one ulp: only the checksum sees it */
+    double v;
+    memcpy(m.data, b.data, b.len);
+    memcpy(&v, m.data + sum1, sizeof v);
+    v = nextafter(v, 1e300);
+    memcpy(m.data + sum1, &v, sizeof v);
+    ck_assert(load_mem(&c, &m, m.len, err, sizeof err) == NULL);
+    ck_assert_msg(strstr(err, "checksum"), "%s", err);
+    /* counters that do not add up */
+    memcpy(m.data, b.data, b.len);
+    uint8_t *ct = find_section(&m, "counters", &n); /* the fourth counter is samples_done */
+    uint64_t samples;
+    memcpy(&samples, ct + 3 * sizeof samples, sizeof samples);
+    samples++;
+    memcpy(ct + 3 * sizeof samples, &samples, sizeof samples);
+    ck_assert(load_mem(&c, &m, m.len, err, sizeof err) == NULL);
+    ck_assert_msg(strstr(err, "samples_done"), "%s", err);
+    free(m.data);
+
+    /* a writer's error comes back, wherever it happens */
+    for (size_t left = 0; left < b.len; left += b.len / 7) {
+        size_t l = left;
+        ck_assert_int_eq(sched_save(a.s, failing_write, &l), 7);
+    }
+    free(b.data);
+    sched_destroy(&a.s);
+}
+END_TEST
+
 int main(void)
 {
     Suite *s = suite_create("sched");
@@ -422,6 +819,10 @@ int main(void)
     tcase_add_test(tc, test_dilation);
     tcase_add_test(tc, test_random_selection);
     tcase_add_test(tc, test_bad_configs);
+    tcase_add_test(tc, test_many_layers_new_is_cheap);
+    tcase_add_loop_test(tc, test_checkpoint_resumes_bit_identical, 0,
+                        (int)(sizeof ckpt_cases / sizeof ckpt_cases[0]));
+    tcase_add_test(tc, test_checkpoint_refuses_garbage);
     suite_add_tcase(s, tc);
     SRunner *sr = srunner_create(s);
     srunner_run_all(sr, CK_NORMAL);
