@@ -1634,9 +1634,9 @@ END_TEST
  * SIGKILL and a new one starts. The image is the fault-free one. */
 START_TEST(churn)
 {
-    static const char *const settings = "--spp 2048 --granularity 32 --adaptive thesis --seed 17";
+    static const char *const settings = "--spp 6144 --granularity 32 --adaptive thesis --seed 17";
     char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], name[32];
-    scene_file(scene, sizeof scene, 80, NULL, NULL);
+    scene_file(scene, sizeof scene, 64, NULL, NULL);
     int port = slot_port(10);
     start_master(&port, "m-master");
     daemon_t *w[4];
@@ -1666,7 +1666,7 @@ START_TEST(churn)
         }
         sleep_ms(50);
     }
-    ck_assert_msg(kills >= 2, "the job ended after %d kills: make it longer", kills);
+    ck_assert_msg(kills >= 3, "the job ended after %d kills: make it longer", kills);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "churn.exr"));
     cJSON *s = job_status(port + 1, job);
     ck_assert_msg(jnum(s, "tasks_reissued") > 0, "%d workers killed, no task issued again", kills);
