@@ -5,7 +5,9 @@
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <sodium.h>
 #include <string.h>
+#include <time.h>
 #include <zmq.h>
 
 #include "proto.h"
@@ -14,7 +16,8 @@ struct control {
     void *ctx;
     void *sock;
     char endpoint[256];
-    int timeout_ms;
+    int timeout_ms; /* the most a try waits to send and for the reply */
+    int lost;       /* the last request got no answer in time */
     zmq_msg_t extra[16];
     int nextra;
 };
@@ -35,7 +38,6 @@ static int open_socket(control_t *c, char *err, size_t errlen)
     }
     int zero = 0;
     zmq_setsockopt(c->sock, ZMQ_LINGER, &zero, sizeof zero);
-    zmq_setsockopt(c->sock, ZMQ_RCVTIMEO, &c->timeout_ms, sizeof c->timeout_ms);
     if (zmq_connect(c->sock, c->endpoint) < 0) {
         snprintf(err, errlen, "cannot connect to %s: %s", c->endpoint, zmq_strerror(errno));
         zmq_close(c->sock);
@@ -73,10 +75,28 @@ void control_destroy(control_t **cp)
     *cp = NULL;
 }
 
-cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames, const size_t *sizes,
-                       int nframes, char *err, size_t errlen)
+/* A REQ socket that missed its reply (or sent part of a request) is
+ * stuck: open a new one. A reply to the old one is then dropped. */
+static void reopen_socket(control_t *c)
+{
+    if (c->sock)
+        zmq_close(c->sock);
+    c->sock = NULL;
+    char e2[64];
+    open_socket(c, e2, sizeof e2);
+}
+
+/* One try: send, then wait up to timeout_ms for the reply. */
+static cJSON *request_once(control_t *c, const cJSON *req, const void *const *frames, const size_t *sizes,
+                           int nframes, int timeout_ms, char *err, size_t errlen)
 {
     drop_extra(c);
+    c->lost = 0;
+    if (!c->sock && open_socket(c, err, errlen) < 0)
+        return NULL;
+    /* the send waits too: a REQ socket without a peer may block in it */
+    zmq_setsockopt(c->sock, ZMQ_SNDTIMEO, &timeout_ms, sizeof timeout_ms);
+    zmq_setsockopt(c->sock, ZMQ_RCVTIMEO, &timeout_ms, sizeof timeout_ms);
     char *text = cJSON_PrintUnformatted(req);
     if (!text) {
         snprintf(err, errlen, "out of memory");
@@ -87,19 +107,25 @@ cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames
     for (int i = 0; rc >= 0 && i < nframes; i++)
         rc = zmq_send(c->sock, frames[i], sizes[i], i + 1 < nframes ? ZMQ_SNDMORE : 0);
     if (rc < 0) {
-        snprintf(err, errlen, "cannot send to %s: %s", c->endpoint, zmq_strerror(errno));
+        int e = errno;
+        if (e == EAGAIN) {
+            snprintf(err, errlen, "cannot send to the master at %s within %.1f s (is it running?)", c->endpoint,
+                     timeout_ms / 1000.0);
+            c->lost = 1;
+        } else {
+            snprintf(err, errlen, "cannot send to %s: %s", c->endpoint, zmq_strerror(e));
+        }
+        reopen_socket(c);
         return NULL;
     }
     zmq_msg_t reply;
     zmq_msg_init(&reply);
     if (zmq_msg_recv(&reply, c->sock, 0) < 0) {
         snprintf(err, errlen, "no answer from the master at %s within %.1f s (is it running?)", c->endpoint,
-                 c->timeout_ms / 1000.0);
+                 timeout_ms / 1000.0);
         zmq_msg_close(&reply);
-        /* a REQ socket that missed its reply is stuck: open a new one */
-        zmq_close(c->sock);
-        char e2[64];
-        open_socket(c, e2, sizeof e2);
+        c->lost = 1;
+        reopen_socket(c);
         return NULL;
     }
     int more = zmq_msg_more(&reply);
@@ -121,6 +147,72 @@ cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames
     if (!body)
         snprintf(err, errlen, "the master's reply is not JSON");
     return body;
+}
+
+cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames, const size_t *sizes,
+                       int nframes, char *err, size_t errlen)
+{
+    return request_once(c, req, frames, sizes, nframes, c->timeout_ms, err, errlen);
+}
+
+int control_lost(const control_t *c)
+{
+    return c->lost;
+}
+
+static double now_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static void sleep_seconds(double s)
+{
+    if (!(s > 0))
+        return;
+    struct timespec ts = {(time_t)s, (long)((s - (double)(time_t)s) * 1e9)};
+    while (nanosleep(&ts, &ts) < 0 && errno == EINTR) {
+    }
+}
+
+cJSON *control_request_retry(control_t *c, const cJSON *req, const void *const *frames, const size_t *sizes,
+                             int nframes, control_retry_t *retry, char *err, size_t errlen)
+{
+    if (!retry || !(retry->timeout_s > 0))
+        return control_request(c, req, frames, sizes, nframes, err, errlen);
+    retry->unreachable = 0;
+    const double deadline = now_seconds() + retry->timeout_s;
+    /* a lost reply shows only as a timeout: tries short enough that a
+     * restart is noticed and several tries fit in timeout_s */
+    double per_try = retry->timeout_s / 5;
+    if (per_try < 0.5)
+        per_try = 0.5;
+    if (per_try > c->timeout_ms / 1000.0)
+        per_try = c->timeout_ms / 1000.0;
+    double backoff = 0.25;
+    int told = 0;
+    for (;;) {
+        double left = deadline - now_seconds();
+        if (left <= 0)
+            break;
+        double t = per_try < left ? per_try : left;
+        int ms = (int)(t * 1000.0);
+        cJSON *reply = request_once(c, req, frames, sizes, nframes, ms > 0 ? ms : 1, err, errlen);
+        if (reply || !c->lost)
+            return reply;
+        left = deadline - now_seconds();
+        if (left <= 0)
+            break;
+        if (!told && retry->on_outage)
+            retry->on_outage(retry->arg, c->endpoint, retry->timeout_s);
+        told = 1;
+        sleep_seconds(backoff < left ? backoff : left);
+        backoff = backoff * 2 < 2.0 ? backoff * 2 : 2.0;
+    }
+    retry->unreachable = 1;
+    snprintf(err, errlen, "master at %s unreachable for %g s", c->endpoint, retry->timeout_s);
+    return NULL;
 }
 
 /* ---- bundles ------------------------------------------------------------------- */
@@ -154,9 +246,26 @@ static unsigned char *read_all(const char *path, size_t *size, char *err, size_t
     return buf;
 }
 
-unsigned long long control_submit(control_t *c, const char *scene_path, const cJSON *settings,
-                                  const image_t *reference, char *err, size_t errlen)
+/* 32 hex digits from 16 random bytes: a submit's request id. Random, not
+ * a counter, so two clients (or two runs of one) never share one. */
+static int new_request_id(char out[33], char *err, size_t errlen)
 {
+    if (sodium_init() < 0) {
+        snprintf(err, errlen, "cannot make a request id: libsodium failed to start");
+        return -1;
+    }
+    unsigned char bytes[16];
+    randombytes_buf(bytes, sizeof bytes);
+    sodium_bin2hex(out, 33, bytes, sizeof bytes);
+    return 0;
+}
+
+unsigned long long control_submit(control_t *c, const char *scene_path, const cJSON *settings,
+                                  const image_t *reference, control_retry_t *retry, char *err, size_t errlen)
+{
+    char request_id[33];
+    if (new_request_id(request_id, err, errlen) < 0)
+        return 0;
     size_t size = 0;
     unsigned char *text = read_all(scene_path, &size, err, errlen);
     if (!text)
@@ -184,6 +293,8 @@ unsigned long long control_submit(control_t *c, const char *scene_path, const cJ
     cJSON *req = cJSON_CreateObject();
     cJSON_AddStringToObject(req, "cmd", "submit");
     cJSON_AddStringToObject(req, "name", base);
+    /* a retried submit after a lost reply names the job it meant */
+    cJSON_AddStringToObject(req, "request_id", request_id);
     cJSON *names = cJSON_AddArrayToObject(req, "meshes");
     for (const cJSON *it = settings ? settings->child : NULL; it; it = it->next)
         cJSON_AddItemToObject(req, it->string, cJSON_Duplicate(it, 1));
@@ -251,7 +362,7 @@ unsigned long long control_submit(control_t *c, const char *scene_path, const cJ
             sizes[nframes++] = (size_t)reference->width * reference->height * sizeof(float);
         }
     }
-    cJSON *reply = control_request(c, req, (const void *const *)frames, sizes, nframes, err, errlen);
+    cJSON *reply = control_request_retry(c, req, (const void *const *)frames, sizes, nframes, retry, err, errlen);
     if (reply) {
         const cJSON *ok = cJSON_GetObjectItemCaseSensitive(reply, "ok");
         const cJSON *id = cJSON_GetObjectItemCaseSensitive(reply, "job");

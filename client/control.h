@@ -19,17 +19,43 @@ void control_destroy(control_t **c);
  * with cJSON_Delete), or NULL with a message when the master does not
  * answer in time or the reply is not JSON. A reply {"ok": false, "error":
  * "..."} is returned as is: the caller reports its error. Extra reply
- * frames, if any, are stored until control_take_frames. */
+ * frames, if any, are stored until control_take_frames. Neither the send
+ * nor the receive waits longer than the timeout given to control_new. */
 cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames, const size_t *sizes,
                        int nframes, char *err, size_t errlen);
+
+/* Whether the last request got no answer in time: the master is down,
+ * restarting or busy, and it may or may not have received the request. */
+int control_lost(const control_t *c);
+
+/* How control_request_retry keeps asking a master that does not answer. */
+typedef struct control_retry {
+    double timeout_s; /* give up when the master stays silent this long; <= 0: one try */
+    /* called once per outage, before the first retry (may be NULL) */
+    void (*on_outage)(void *arg, const char *endpoint, double timeout_s);
+    void *arg;
+    int unreachable; /* out: 1 when it gave up after timeout_s */
+} control_retry_t;
+
+/* control_request, sent again (the same request, the same frames) while
+ * the reply is lost, with a backoff of 0.25 s growing to 2 s, until the
+ * master answers or retry->timeout_s has passed since the call. A try
+ * waits at most the control_new timeout, and at most a fifth of
+ * timeout_s (at least 0.5 s) so that several tries fit in it. Only a
+ * request that is safe to repeat may be sent this way. retry NULL: one try. */
+cJSON *control_request_retry(control_t *c, const cJSON *req, const void *const *frames, const size_t *sizes,
+                             int nframes, control_retry_t *retry, char *err, size_t errlen);
 
 /* Reads a scene file and the mesh files it names, renames the meshes to
  * bundle names (mesh0.ply, ...), and submits it with the given settings
  * (a JSON object of submit fields; may be NULL) and, if not NULL, a
  * reference image (channels R, G, B) the master measures the error
- * against. Returns the job id, or 0 with a message. */
+ * against. The request carries a fresh random "request_id", so it is
+ * retried as control_request_retry says (retry may be NULL: one try)
+ * without queueing the job twice. Returns the job id, or 0 with a
+ * message. */
 unsigned long long control_submit(control_t *c, const char *scene_path, const cJSON *settings,
-                                  const image_t *reference, char *err, size_t errlen);
+                                  const image_t *reference, control_retry_t *retry, char *err, size_t errlen);
 
 /* Fetches a job's image (channels R, G, B, samples, variance) with the
  * job's status in *job (free with cJSON_Delete). NULL with a message. */

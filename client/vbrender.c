@@ -2,7 +2,7 @@
  *
  *   vbrender render SCENE.json [-o OUT.exr] [job settings] [--workers N] [--threads T]
  *   vbrender submit SCENE.json [job settings] [--master EP]   (prints the job id last)
- *   vbrender status [JOB] | wait JOB | fetch JOB -o OUT.exr | cancel JOB | jobs | workers
+ *   vbrender status [JOB] | wait JOB | fetch JOB -o OUT.exr | cancel JOB | delete JOB | jobs | workers
  *
  * `render` is the embedded default: it runs the same master and worker code
  * in this process over ZeroMQ's inproc transport, so its pixels equal those
@@ -10,6 +10,10 @@
  *
  * Exit status: 0 done, 1 the work failed (bad scene, job failed or
  * cancelled, I/O, no master), 2 bad usage.
+ *
+ * `submit` and `wait` outlast a master restart: while the master does not
+ * answer they ask again (a submit with the same request id, so the job is
+ * queued once) for up to --timeout seconds.
  */
 #include <errno.h>
 #include <inttypes.h>
@@ -34,17 +38,22 @@
 #include "worker.h"
 
 #define DEFAULT_MASTER "tcp://localhost:7071"
+#define DEFAULT_TIMEOUT_S 300.0 /* submit, wait: how long a master may stay away */
+#define REQUEST_TIMEOUT_MS 10000 /* a request to a master (one try) */
 
 static const char usage_text[] =
     "usage: vbrender COMMAND ...\n"
     "\n"
     "  render SCENE.json [-o OUT.exr] [settings] [--workers N] [--threads T]\n"
     "        render on this machine (a master and N local workers in this process)\n"
-    "  submit SCENE.json [settings] [--master EP]   queue a job; prints its id last\n"
+    "  submit SCENE.json [settings] [--master EP] [--timeout S]   queue a job; prints its id last\n"
     "  status [JOB]      a job's state (all jobs without JOB)\n"
-    "  wait JOB          progress until the job ends; exit 1 if it failed or was cancelled\n"
+    "  wait JOB [--timeout S]   progress until the job ends; exit 1 if it failed or was\n"
+    "                    cancelled, or if the master stayed away for S seconds\n"
     "  fetch JOB -o OUT.exr   the image (also OUT.png and OUT-samples.png, a heat map)\n"
     "  cancel JOB        stop a job (its image so far can still be fetched)\n"
+    "  delete JOB        cancel a job if it runs, then remove it, its image and its\n"
+    "                    saved state from the master\n"
     "  jobs              all jobs\n"
     "  workers           connected workers: host, threads, rays/s, tasks done\n"
     "  compare A.exr REF.exr [--threshold E] [--error-map OUT.png]\n"
@@ -73,6 +82,8 @@ static const char usage_text[] =
     "\n"
     "other options:\n"
     "  --master EP             control endpoint (default " DEFAULT_MASTER ")\n"
+    "  --timeout SECONDS       submit, wait: while the master does not answer (say it\n"
+    "                          restarts), ask again for this long (default 300)\n"
     "  --workers N             render: local workers (default 1)\n"
     "  --threads T             render: threads in all (default: all cores)\n"
     "  --progress MODE         auto, bar, lines or none (default auto)\n"
@@ -117,15 +128,17 @@ typedef struct args {
     const char *reference; /* --reference REF.exr */
     const char *master;
     cJSON *settings; /* submit fields */
+    double timeout_s; /* --timeout */
     uint64_t workers, threads;
     progress_mode_t progress;
     int have_workers, have_threads;
 } args_t;
 
-static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int allow_output)
+static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int allow_output, int allow_timeout)
 {
     a->settings = cJSON_CreateObject();
     a->master = DEFAULT_MASTER;
+    a->timeout_s = DEFAULT_TIMEOUT_S;
     a->workers = 1;
     long cores = sysconf(_SC_NPROCESSORS_ONLN);
     a->threads = cores > 0 ? (uint64_t)cores : 1;
@@ -143,6 +156,13 @@ static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int 
             if (!v || !*v)
                 return usage_error("%s needs an endpoint such as tcp://host:7071", o);
             a->master = v;
+        } else if (allow_timeout && strcmp(o, "--timeout") == 0) {
+            char *end;
+            errno = 0;
+            double t = v ? strtod(v, &end) : -1;
+            if (!v || errno || *end || !(t > 0) || !(t <= 1e9))
+                return usage_error("--timeout needs a number of seconds > 0 (got '%s')", v ? v : "");
+            a->timeout_s = t;
         } else if (strcmp(o, "--progress") == 0) {
             if (v && strcmp(v, "auto") == 0)
                 a->progress = PROGRESS_AUTO;
@@ -285,41 +305,102 @@ static void progress_detail(const cJSON *job, char *buf, size_t len)
         snprintf(buf + n, len - (size_t)n, ", relMSE %.3g", jnum(job, "relmse"));
 }
 
-/* Polls status until the job ends; returns the final status (or NULL). */
-static cJSON *wait_job(control_t *c, unsigned long long job, progress_mode_t mode, char *err, size_t errlen)
+/* What wait shows on stderr: the progress, and lines between its updates. */
+typedef struct wait_view {
+    progress_t *prog;
+    int bar;   /* the progress is a bar redrawn in place */
+    int drawn; /* ... and it is on the screen: end its line before another */
+    char storage_error[512], recovered[512]; /* as last shown */
+} wait_view_t;
+
+/* Ends a half-drawn bar's line, so a message does not overwrite it; the
+ * next update draws the bar again below the message. */
+static void view_break(wait_view_t *v)
+{
+    if (v && v->bar && v->drawn) {
+        fputc('\n', stderr);
+        v->drawn = 0;
+    }
+}
+
+static void say_outage(void *arg, const char *endpoint, double timeout_s)
+{
+    view_break(arg);
+    fprintf(stderr, "vbrender: master at %s not answering; retrying (up to %g s)\n", endpoint, timeout_s);
+    fflush(stderr);
+}
+
+/* Says what the master reports about a job's state files, once per new text. */
+static void show_job_notes(wait_view_t *v, unsigned long long job, const cJSON *st)
+{
+    const char *se = jstr(st, "storage_error"), *rec = jstr(st, "recovered");
+    if (*se && strncmp(se, v->storage_error, sizeof v->storage_error - 1) != 0) {
+        view_break(v);
+        fprintf(stderr, "vbrender: job %llu: storage error: %s\n", job, se);
+        snprintf(v->storage_error, sizeof v->storage_error, "%s", se);
+    }
+    if (*rec && strncmp(rec, v->recovered, sizeof v->recovered - 1) != 0) {
+        view_break(v);
+        fprintf(stderr, "vbrender: job %llu: recovered from %s\n", job, rec);
+        snprintf(v->recovered, sizeof v->recovered, "%s", rec);
+    }
+}
+
+/* Polls status until the job ends; returns the final status, or NULL with
+ * a message (one saying the job may still run when the master stayed away
+ * for timeout_s; timeout_s <= 0: no retries). */
+static cJSON *wait_job(control_t *c, unsigned long long job, progress_mode_t mode, double timeout_s, char *err,
+                       size_t errlen)
 {
     char label[32];
     snprintf(label, sizeof label, "job %llu", job);
-    progress_t *prog = progress_new(stderr, mode, label);
+    wait_view_t view;
+    memset(&view, 0, sizeof view);
+    view.prog = progress_new(stderr, mode, label);
+    view.bar = mode == PROGRESS_BAR || (mode == PROGRESS_AUTO && isatty(fileno(stderr)));
+    control_retry_t retry = {timeout_s, say_outage, &view, 0};
     cJSON *req = cJSON_CreateObject();
     cJSON_AddStringToObject(req, "cmd", "status");
     cJSON_AddNumberToObject(req, "job", (double)job);
     cJSON *st = NULL;
     for (;;) {
-        cJSON *reply = control_request(c, req, NULL, NULL, 0, err, errlen);
-        if (!reply)
+        /* status is safe to ask again: a restarted master answers it anew */
+        cJSON *reply = control_request_retry(c, req, NULL, NULL, 0, &retry, err, errlen);
+        if (!reply) {
+            if (retry.unreachable) {
+                size_t n = strlen(err);
+                if (n < errlen)
+                    snprintf(err + n, errlen - n, "; job %llu may still be running", job);
+            }
             break;
+        }
         if (!cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(reply, "ok"))) {
-            snprintf(err, errlen, "%s", jstr(reply, "error"));
+            /* e.g. "no such job" from a master that restarted without it */
+            const char *e = jstr(reply, "error");
+            snprintf(err, errlen, "job %llu: %s", job, *e ? e : "the master refused the status request");
             cJSON_Delete(reply);
             break;
         }
         cJSON_Delete(st);
         st = cJSON_DetachItemFromObject(reply, "job");
         cJSON_Delete(reply);
+        show_job_notes(&view, job, st);
         char detail[160];
         progress_detail(st, detail, sizeof detail);
         if (job_ended(st)) {
             char end[64];
             snprintf(end, sizeof end, "%s in %.2fs", jstr(st, "state"), jnum(st, "seconds"));
-            progress_finish(prog, end);
+            progress_finish(view.prog, end);
+            view.drawn = 0;
             break;
         }
-        progress_update(prog, job_fraction(st), detail);
+        progress_update(view.prog, job_fraction(st), detail);
+        view.drawn = 1;
         struct timespec ts = {0, 100 * 1000 * 1000};
         nanosleep(&ts, NULL);
     }
-    progress_destroy(&prog);
+    view_break(&view);
+    progress_destroy(&view.prog);
     cJSON_Delete(req);
     if (st && !job_ended(st)) {
         cJSON_Delete(st);
@@ -439,7 +520,7 @@ static int cmd_render(int argc, char **argv)
 {
     args_t a;
     memset(&a, 0, sizeof a);
-    int rc = parse_args(argc, argv, &a, 1, 1);
+    int rc = parse_args(argc, argv, &a, 1, 1, 0);
     if (rc || !a.positional) {
         cJSON_Delete(a.settings);
         return rc ? rc : usage_error("%s", "render needs a scene file: vbrender render SCENE.json");
@@ -517,13 +598,14 @@ static int cmd_render(int argc, char **argv)
         goto done;
     }
     c = control_new(ctx, cep, 600000, err, sizeof err);
-    unsigned long long id = c ? control_submit(c, a.positional, a.settings, ref, err, sizeof err) : 0;
+    /* in-process: a lost reply is a bug, not a restart; no retries */
+    unsigned long long id = c ? control_submit(c, a.positional, a.settings, ref, NULL, err, sizeof err) : 0;
     image_destroy(&ref);
     if (!id) {
         fprintf(stderr, "vbrender: %s\n", err);
         goto done;
     }
-    job = wait_job(c, id, a.progress, err, sizeof err);
+    job = wait_job(c, id, a.progress, 0, err, sizeof err);
     if (!job) {
         fprintf(stderr, "vbrender: %s\n", err);
         goto done;
@@ -575,13 +657,15 @@ static int simple_command(const char *cmd, int argc, char **argv)
     memset(&a, 0, sizeof a);
     int is_fetch = strcmp(cmd, "fetch") == 0;
     int is_submit = strcmp(cmd, "submit") == 0;
-    int rc = parse_args(argc, argv, &a, is_submit, is_fetch);
+    int is_wait = strcmp(cmd, "wait") == 0;
+    int is_delete = strcmp(cmd, "delete") == 0;
+    int rc = parse_args(argc, argv, &a, is_submit, is_fetch, is_submit || is_wait);
     if (rc) {
         cJSON_Delete(a.settings);
         return rc;
     }
     unsigned long long job = 0;
-    int needs_job = strcmp(cmd, "wait") == 0 || is_fetch || strcmp(cmd, "cancel") == 0;
+    int needs_job = is_wait || is_fetch || is_delete || strcmp(cmd, "cancel") == 0;
     if (is_submit && !a.positional)
         rc = usage_error("%s", "submit needs a scene file: vbrender submit SCENE.json");
     else if ((needs_job || (strcmp(cmd, "status") == 0 && a.positional)) && (!a.positional || parse_job_id(a.positional, &job) < 0))
@@ -600,7 +684,7 @@ static int simple_command(const char *cmd, int argc, char **argv)
     }
     void *ctx = zmq_ctx_new();
     char err[2048];
-    control_t *c = control_new(ctx, a.master, 10000, err, sizeof err);
+    control_t *c = control_new(ctx, a.master, REQUEST_TIMEOUT_MS, err, sizeof err);
     rc = 1;
     if (!c) {
         fprintf(stderr, "vbrender: %s\n", err);
@@ -612,16 +696,20 @@ static int simple_command(const char *cmd, int argc, char **argv)
             fprintf(stderr, "vbrender: %s\n", err);
             goto done;
         }
-        unsigned long long id = control_submit(c, a.positional, a.settings, ref, err, sizeof err);
+        control_retry_t retry = {a.timeout_s, say_outage, NULL, 0};
+        unsigned long long id = control_submit(c, a.positional, a.settings, ref, &retry, err, sizeof err);
         image_destroy(&ref);
         if (!id) {
-            fprintf(stderr, "vbrender: %s\n", err);
+            if (retry.unreachable) /* some try may have reached it */
+                fprintf(stderr, "vbrender: %s; the job may have been queued (see 'vbrender jobs')\n", err);
+            else
+                fprintf(stderr, "vbrender: %s\n", err);
             goto done;
         }
         printf("%llu\n", id);
         rc = 0;
-    } else if (strcmp(cmd, "wait") == 0) {
-        cJSON *st = wait_job(c, job, a.progress, err, sizeof err);
+    } else if (is_wait) {
+        cJSON *st = wait_job(c, job, a.progress, a.timeout_s, err, sizeof err);
         if (!st) {
             fprintf(stderr, "vbrender: %s\n", err);
             goto done;
@@ -629,7 +717,8 @@ static int simple_command(const char *cmd, int argc, char **argv)
         print_summary(st, 0, 0);
         rc = strcmp(jstr(st, "state"), "done") == 0 ? 0 : 1;
         if (rc)
-            fprintf(stderr, "vbrender: job %llu %s: %s\n", job, jstr(st, "state"), jstr(st, "error"));
+            fprintf(stderr, "vbrender: job %llu %s: %s\n", job, jstr(st, "state"),
+                    *jstr(st, "error") ? jstr(st, "error") : "no reason given");
         cJSON_Delete(st);
     } else if (is_fetch) {
         cJSON *st = NULL;
@@ -657,7 +746,10 @@ static int simple_command(const char *cmd, int argc, char **argv)
             goto done;
         }
         const cJSON *list = cJSON_GetObjectItemCaseSensitive(reply, strcmp(cmd, "workers") == 0 ? "workers" : "jobs");
-        if (strcmp(cmd, "workers") == 0) {
+        if (is_delete) {
+            const cJSON *d = cJSON_GetObjectItemCaseSensitive(reply, "deleted");
+            printf("deleted job %llu\n", cJSON_IsNumber(d) ? (unsigned long long)d->valuedouble : job);
+        } else if (strcmp(cmd, "workers") == 0) {
             printf("%-24s %7s %12s %12s %10s\n", "host", "threads", "rays/s", "tasks done", "busy s");
             const cJSON *w;
             cJSON_ArrayForEach(w, list)
@@ -677,12 +769,23 @@ static int simple_command(const char *cmd, int argc, char **argv)
                 snprintf(layers, sizeof layers, "%.0f/%.0f", jnum(j, "layers_done"), jnum(j, "layers"));
                 printf("%6.0f %-10s %-24s %9s %8s %12s %9.2f\n", jnum(j, "id"), jstr(j, "state"), jstr(j, "scene"),
                        size, layers, render_si(jnum(j, "samples"), s, sizeof s), jnum(j, "seconds"));
+                /* a durable master's notes on the job's state files, under its row */
+                if (*jstr(j, "storage_error"))
+                    printf("%6s storage error: %s\n", "", jstr(j, "storage_error"));
+                if (*jstr(j, "recovered"))
+                    printf("%6s recovered from %s\n", "", jstr(j, "recovered"));
             }
         } else {
             /* one job: its status as JSON, for people and scripts */
-            char *text = cJSON_Print(cJSON_GetObjectItemCaseSensitive(reply, "job"));
+            const cJSON *st = cJSON_GetObjectItemCaseSensitive(reply, "job");
+            char *text = cJSON_Print(st);
             printf("%s\n", text ? text : "{}");
             cJSON_free(text);
+            /* and in words on stderr, so stdout stays JSON */
+            if (*jstr(st, "storage_error"))
+                fprintf(stderr, "vbrender: job %llu: storage error: %s\n", job, jstr(st, "storage_error"));
+            if (*jstr(st, "recovered"))
+                fprintf(stderr, "vbrender: job %llu: recovered from %s\n", job, jstr(st, "recovered"));
         }
         cJSON_Delete(reply);
         rc = 0;
@@ -776,7 +879,7 @@ int main(int argc, char **argv)
         return cmd_render(argc - 2, argv + 2);
     if (strcmp(argv[1], "compare") == 0)
         return cmd_compare(argc - 2, argv + 2);
-    static const char *const commands[] = {"submit", "status", "wait", "fetch", "cancel", "jobs", "workers"};
+    static const char *const commands[] = {"submit", "status", "wait", "fetch", "cancel", "delete", "jobs", "workers"};
     for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
         if (strcmp(argv[1], commands[i]) == 0)
             return simple_command(argv[1], argc - 2, argv + 2);

@@ -1,14 +1,21 @@
 /* test_cli.c - Check suite for the vbrender command line (client/vbrender.c),
  * run as a separate process: usage and exit codes (0 done, 1 the work
  * failed, 2 bad usage), a message naming every bad flag, scene and output
- * errors, and one tiny real render whose EXR is read back. */
+ * errors, one tiny real render whose EXR is read back, and the commands for
+ * a running master against a scripted fake one (lost replies, restarts). */
+#include <cJSON.h>
 #include <check.h>
+#include <ctype.h>
 #include <math.h>
+#include <pthread.h>
 #include <stdarg.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include <unistd.h>
+#include <zmq.h>
 
 #include "image.h"
 #include "testutil.h"
@@ -354,6 +361,388 @@ START_TEST(default_output_and_flags)
 }
 END_TEST
 
+/* ---- a fake master ------------------------------------------------------ */
+
+/* A ROUTER socket on a loopback port, in a thread, answering the client as
+ * a script says: the requests it got are kept for the test to check. */
+#define FAKE_MAX 64
+
+typedef struct fake_master fake_master_t;
+/* Returns the reply (JSON text) to request n (0-based, its JSON text), or
+ * NULL to drop it unanswered, as a master that died would; t: seconds
+ * since the first request. */
+typedef const char *(*fake_script_fn)(fake_master_t *f, int n, const char *json, double t);
+
+struct fake_master {
+    void *ctx, *sock;
+    char endpoint[64];
+    pthread_t thread;
+    atomic_int stop;
+    fake_script_fn script;
+    double first; /* time of the first request */
+    pthread_mutex_t lock;
+    int count; /* requests received */
+    char *json[FAKE_MAX];
+    int frames[FAKE_MAX];             /* frames after the JSON */
+    unsigned long long hash[FAKE_MAX]; /* FNV-1a over those frames */
+};
+
+static double mono_now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static void *fake_thread(void *arg)
+{
+    fake_master_t *f = arg;
+    while (!atomic_load(&f->stop)) {
+        zmq_pollitem_t item = {f->sock, 0, ZMQ_POLLIN, 0};
+        if (zmq_poll(&item, 1, 20) <= 0)
+            continue;
+        /* [identity][empty][json][frames...] */
+        zmq_msg_t parts[8];
+        int n = 0, more = 1, extra = 0;
+        unsigned long long h = 1469598103934665603ULL;
+        while (more) {
+            zmq_msg_t m;
+            zmq_msg_init(&m);
+            if (zmq_msg_recv(&m, f->sock, 0) < 0) {
+                zmq_msg_close(&m);
+                break;
+            }
+            more = zmq_msg_more(&m);
+            if (n >= 3) {
+                const unsigned char *d = zmq_msg_data(&m);
+                for (size_t k = 0; k < zmq_msg_size(&m); k++)
+                    h = (h ^ d[k]) * 1099511628211ULL;
+                h = (h ^ 0xff) * 1099511628211ULL; /* frame boundary */
+                extra++;
+            }
+            if (n < 8)
+                parts[n++] = m;
+            else
+                zmq_msg_close(&m);
+        }
+        if (n < 3) {
+            for (int k = 0; k < n; k++)
+                zmq_msg_close(&parts[k]);
+            continue;
+        }
+        char *json = strndup(zmq_msg_data(&parts[2]), zmq_msg_size(&parts[2]));
+        double t = mono_now();
+        pthread_mutex_lock(&f->lock);
+        int idx = f->count++;
+        if (idx == 0)
+            f->first = t;
+        t -= f->first;
+        if (idx < FAKE_MAX) {
+            f->json[idx] = json;
+            f->frames[idx] = extra;
+            f->hash[idx] = h;
+        }
+        pthread_mutex_unlock(&f->lock);
+        const char *reply = f->script(f, idx, json, t);
+        if (idx >= FAKE_MAX)
+            free(json);
+        if (reply) {
+            zmq_send(f->sock, zmq_msg_data(&parts[0]), zmq_msg_size(&parts[0]), ZMQ_SNDMORE);
+            zmq_send(f->sock, "", 0, ZMQ_SNDMORE);
+            zmq_send(f->sock, reply, strlen(reply), 0);
+        }
+        for (int k = 0; k < n; k++)
+            zmq_msg_close(&parts[k]);
+    }
+    return NULL;
+}
+
+static void fake_start(fake_master_t *f, fake_script_fn script)
+{
+    memset(f, 0, sizeof *f);
+    f->script = script;
+    pthread_mutex_init(&f->lock, NULL);
+    f->ctx = zmq_ctx_new();
+    f->sock = zmq_socket(f->ctx, ZMQ_ROUTER);
+    ck_assert_ptr_nonnull(f->sock);
+    int zero = 0;
+    zmq_setsockopt(f->sock, ZMQ_LINGER, &zero, sizeof zero);
+    ck_assert_int_eq(zmq_bind(f->sock, "tcp://127.0.0.1:*"), 0);
+    size_t len = sizeof f->endpoint;
+    ck_assert_int_eq(zmq_getsockopt(f->sock, ZMQ_LAST_ENDPOINT, f->endpoint, &len), 0);
+    ck_assert_int_eq(pthread_create(&f->thread, NULL, fake_thread, f), 0);
+}
+
+/* Stops the thread; what it received stays for the test until fake_free. */
+static void fake_stop(fake_master_t *f)
+{
+    atomic_store(&f->stop, 1);
+    pthread_join(f->thread, NULL);
+    zmq_close(f->sock);
+    zmq_ctx_term(f->ctx);
+    pthread_mutex_destroy(&f->lock);
+}
+
+static void fake_free(fake_master_t *f)
+{
+    for (int i = 0; i < f->count && i < FAKE_MAX; i++)
+        free(f->json[i]);
+    f->count = 0;
+}
+
+/* A loopback endpoint nobody listens on: bound, read back, closed. */
+static void dead_endpoint(char *buf, size_t len)
+{
+    void *ctx = zmq_ctx_new();
+    void *s = zmq_socket(ctx, ZMQ_ROUTER);
+    ck_assert_int_eq(zmq_bind(s, "tcp://127.0.0.1:*"), 0);
+    ck_assert_int_eq(zmq_getsockopt(s, ZMQ_LAST_ENDPOINT, buf, &len), 0);
+    zmq_close(s);
+    zmq_ctx_term(ctx);
+}
+
+static int count_of(const char *text, const char *frag)
+{
+    int n = 0;
+    for (const char *p = strstr(text, frag); p; p = strstr(p + 1, frag))
+        n++;
+    return n;
+}
+
+static const char *running_job =
+    "{\"ok\": true, \"job\": {\"id\": 7, \"state\": \"running\", \"layers\": 4, \"layers_done\": 1, "
+    "\"samples\": 10, \"max_samples\": 40, \"seconds\": 0.5}}";
+
+/* drops the first request (a reply lost in a restart), answers the rest */
+static const char *script_submit(fake_master_t *f, int n, const char *json, double t)
+{
+    (void)f, (void)json, (void)t;
+    return n == 0 ? NULL : "{\"ok\": true, \"job\": 4242, \"duplicate\": true}";
+}
+
+/* running, then silent for 1.5 s (restarting), then done */
+static const char *script_restart(fake_master_t *f, int n, const char *json, double t)
+{
+    (void)f, (void)n, (void)json;
+    if (t < 0.3)
+        return running_job;
+    if (t < 1.8)
+        return NULL;
+    return "{\"ok\": true, \"job\": {\"id\": 7, \"state\": \"done\", \"layers\": 4, \"layers_done\": 4, "
+           "\"samples\": 40, \"max_samples\": 40, \"seconds\": 2.5, "
+           "\"recovered\": \"checkpoint at 1 layers\"}}";
+}
+
+static const char *script_cancelled(fake_master_t *f, int n, const char *json, double t)
+{
+    (void)f, (void)json, (void)t;
+    return n < 2 ? running_job
+                 : "{\"ok\": true, \"job\": {\"id\": 7, \"state\": \"cancelled\", \"layers\": 4, "
+                   "\"layers_done\": 2, \"seconds\": 1, \"error\": \"cancelled by a client\"}}";
+}
+
+static const char *script_no_such_job(fake_master_t *f, int n, const char *json, double t)
+{
+    (void)f, (void)n, (void)json, (void)t;
+    return "{\"ok\": false, \"error\": \"status: no such job\"}";
+}
+
+static const char *script_delete(fake_master_t *f, int n, const char *json, double t)
+{
+    (void)f, (void)n, (void)json, (void)t;
+    return "{\"ok\": true, \"deleted\": 5}";
+}
+
+/* a durable master's notes on a job: status JOB or jobs */
+static const char *script_notes(fake_master_t *f, int n, const char *json, double t)
+{
+    (void)f, (void)n, (void)t;
+#define NOTED_JOB                                                                                    \
+    "{\"id\": 7, \"state\": \"running\", \"storage_error\": \"state/7.ckpt: No space left on device\", " \
+    "\"recovered\": \"checkpoint at 42 layers\"}"
+    if (strstr(json, "\"jobs\""))
+        return "{\"ok\": true, \"jobs\": [" NOTED_JOB ", {\"id\": 8, \"state\": \"queued\"}]}";
+    return "{\"ok\": true, \"job\": " NOTED_JOB "}";
+#undef NOTED_JOB
+}
+
+START_TEST(timeout_flag_checked)
+{
+    expect_usage_error("wait 1 --timeout 0", "--timeout");
+    expect_usage_error("wait 1 --timeout -3", "--timeout");
+    expect_usage_error("wait 1 --timeout abc", "--timeout");
+    expect_usage_error("wait 1 --timeout", "--timeout");
+    expect_usage_error("submit x.json --timeout nan", "--timeout");
+    /* only the commands that retry take it */
+    expect_usage_error("status 1 --timeout 5", "--timeout");
+}
+END_TEST
+
+START_TEST(delete_needs_job)
+{
+    expect_usage_error("delete", "delete needs a job id");
+    expect_usage_error("delete x", "delete needs a job id");
+}
+END_TEST
+
+/* Nothing listens: wait gives up after --timeout, saying so once per
+ * outage, and not as a job failure. */
+START_TEST(wait_unreachable)
+{
+    char ep[64], out[OUTLEN];
+    dead_endpoint(ep, sizeof ep);
+    double t0 = mono_now();
+    int rc = run(out, sizeof out, "wait 3 --master %s --timeout 2 --progress none", ep);
+    double took = mono_now() - t0;
+    ck_assert_msg(rc == 1, "exit %d:\n%s", rc, out);
+    ck_assert_msg(strstr(out, "unreachable for 2 s; job 3 may still be running"), "no timeout message:\n%s", out);
+    ck_assert_msg(count_of(out, "not answering; retrying (up to 2 s)") == 1, "want one outage line:\n%s", out);
+    ck_assert_msg(!strstr(out, "cancelled") && !strstr(out, "failed"), "reads as a job failure:\n%s", out);
+    ck_assert_msg(took >= 1.5, "gave up after %.2f s, before --timeout", took);
+}
+END_TEST
+
+/* The first submit's reply is lost; the retry carries the same request id
+ * and frames, and the job id the master answers is printed. */
+START_TEST(submit_retries_same_request)
+{
+    char scene[PATHLEN], out[OUTLEN];
+    tiny_scene(scene, sizeof scene, "cli-fake-submit.json", 0);
+    fake_master_t f;
+    fake_start(&f, script_submit);
+    int rc = run(out, sizeof out, "submit '%s' --spp 8 --master %s --timeout 5", scene, f.endpoint);
+    fake_stop(&f);
+    ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
+    ck_assert_msg(strstr(out, "4242\n") != NULL, "job id not printed:\n%s", out);
+    ck_assert_msg(strstr(out, "not answering; retrying") != NULL, "outage not reported:\n%s", out);
+    ck_assert_int_eq(f.count, 2);
+    char ids[2][80];
+    for (int i = 0; i < 2; i++) {
+        cJSON *req = cJSON_Parse(f.json[i]);
+        ck_assert_ptr_nonnull(req);
+        ck_assert_str_eq(cJSON_GetObjectItemCaseSensitive(req, "cmd")->valuestring, "submit");
+        const cJSON *id = cJSON_GetObjectItemCaseSensitive(req, "request_id");
+        ck_assert_msg(cJSON_IsString(id), "request %d has no request_id: %s", i, f.json[i]);
+        snprintf(ids[i], sizeof ids[i], "%s", id->valuestring);
+        cJSON_Delete(req);
+        ck_assert_uint_eq(strlen(ids[i]), 32);
+        for (int k = 0; k < 32; k++)
+            ck_assert_msg(isxdigit((unsigned char)ids[i][k]), "request_id %s is not hex", ids[i]);
+    }
+    ck_assert_str_eq(ids[0], ids[1]);
+    ck_assert_str_eq(f.json[0], f.json[1]);
+    ck_assert_int_eq(f.frames[0], 1); /* the scene JSON, no meshes */
+    ck_assert_int_eq(f.frames[1], f.frames[0]);
+    ck_assert(f.hash[0] == f.hash[1]);
+    fake_free(&f);
+    /* a second submit is another request */
+    fake_start(&f, script_submit);
+    rc = run(out, sizeof out, "submit '%s' --master %s --timeout 5", scene, f.endpoint);
+    fake_stop(&f);
+    ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
+    ck_assert_int_eq(f.count, 2);
+    ck_assert_msg(strstr(f.json[0], ids[0]) == NULL, "two submits share request id %s", ids[0]);
+    fake_free(&f);
+}
+END_TEST
+
+/* The master goes quiet for 1.5 s (a restart) and comes back: wait carries
+ * on and ends with the job done, exit 0. */
+START_TEST(wait_outlasts_restart)
+{
+    char out[OUTLEN];
+    fake_master_t f;
+    fake_start(&f, script_restart);
+    int rc = run(out, sizeof out, "wait 7 --master %s --timeout 10 --progress lines", f.endpoint);
+    fake_stop(&f);
+    ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
+    ck_assert_msg(count_of(out, "not answering; retrying (up to 10 s)") == 1, "want one outage line:\n%s", out);
+    ck_assert_msg(strstr(out, "done in") != NULL, "no end of progress:\n%s", out);
+    ck_assert_msg(strstr(out, "job 7: recovered from checkpoint at 1 layers") != NULL, "recovery not shown:\n%s", out);
+    for (int i = 0; i < f.count && i < FAKE_MAX; i++)
+        ck_assert_msg(strstr(f.json[i], "\"cmd\":\"status\"") && strstr(f.json[i], "\"job\":7"), "request %s",
+                      f.json[i]);
+    ck_assert_msg(f.count >= 4, "only %d requests", f.count);
+    fake_free(&f);
+}
+END_TEST
+
+START_TEST(wait_cancelled_fails)
+{
+    char out[OUTLEN];
+    fake_master_t f;
+    fake_start(&f, script_cancelled);
+    int rc = run(out, sizeof out, "wait 7 --master %s --progress none", f.endpoint);
+    fake_stop(&f);
+    ck_assert_msg(rc == 1, "exit %d:\n%s", rc, out);
+    ck_assert_msg(strstr(out, "job 7 cancelled: cancelled by a client") != NULL, "no reason:\n%s", out);
+    ck_assert_msg(strstr(out, "unreachable") == NULL, "reads as an outage:\n%s", out);
+    fake_free(&f);
+}
+END_TEST
+
+/* A master that restarted without the job: a real error, no retries. */
+START_TEST(wait_no_such_job)
+{
+    char out[OUTLEN];
+    fake_master_t f;
+    fake_start(&f, script_no_such_job);
+    int rc = run(out, sizeof out, "wait 7 --master %s --progress none", f.endpoint);
+    fake_stop(&f);
+    ck_assert_msg(rc == 1, "exit %d:\n%s", rc, out);
+    ck_assert_msg(strstr(out, "job 7: status: no such job") != NULL, "no message:\n%s", out);
+    ck_assert_int_eq(f.count, 1);
+    fake_free(&f);
+}
+END_TEST
+
+START_TEST(status_shows_notes)
+{
+    char out[OUTLEN];
+    fake_master_t f;
+    fake_start(&f, script_notes);
+    char cmd[CMDLEN];
+    snprintf(cmd, sizeof cmd, "{ '%s' status 7 --master %s 2>/dev/null; }", tu_bin(), f.endpoint);
+    int rc = tu_run(cmd, out, sizeof out);
+    ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
+    cJSON *st = cJSON_Parse(out); /* stdout stays JSON */
+    ck_assert_msg(st != NULL, "stdout is not JSON:\n%s", out);
+    cJSON_Delete(st);
+    rc = run(out, sizeof out, "status 7 --master %s", f.endpoint);
+    ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
+    ck_assert_msg(strstr(out, "job 7: storage error: state/7.ckpt: No space left on device") &&
+                      strstr(out, "job 7: recovered from checkpoint at 42 layers"),
+                  "notes not shown:\n%s", out);
+    rc = run(out, sizeof out, "jobs --master %s", f.endpoint);
+    fake_stop(&f);
+    ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
+    ck_assert_msg(count_of(out, "storage error: ") == 1 && count_of(out, "recovered from ") == 1,
+                  "jobs does not mark the job once:\n%s", out);
+    fake_free(&f);
+}
+END_TEST
+
+START_TEST(delete_sends_request)
+{
+    char out[OUTLEN];
+    fake_master_t f;
+    fake_start(&f, script_delete);
+    int rc = run(out, sizeof out, "delete 5 --master %s", f.endpoint);
+    fake_stop(&f);
+    ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
+    ck_assert_msg(strstr(out, "deleted job 5") != NULL, "result not printed:\n%s", out);
+    ck_assert_int_eq(f.count, 1);
+    cJSON *req = cJSON_Parse(f.json[0]);
+    ck_assert_ptr_nonnull(req);
+    ck_assert_int_eq(cJSON_GetArraySize(req), 2);
+    ck_assert_str_eq(cJSON_GetObjectItemCaseSensitive(req, "cmd")->valuestring, "delete");
+    ck_assert_double_eq(cJSON_GetObjectItemCaseSensitive(req, "job")->valuedouble, 5);
+    cJSON_Delete(req);
+    ck_assert_int_eq(f.frames[0], 0);
+    fake_free(&f);
+}
+END_TEST
+
 /* ---- suite -------------------------------------------------------------- */
 
 static Suite *cli_suite(void)
@@ -382,6 +771,19 @@ static Suite *cli_suite(void)
     tcase_add_test(tc, tiny_render);
     tcase_add_test(tc, default_output_and_flags);
     tcase_add_test(tc, deterministic_exr);
+    suite_add_tcase(su, tc);
+
+    tc = tcase_create("master");
+    tcase_set_timeout(tc, 30);
+    tcase_add_test(tc, timeout_flag_checked);
+    tcase_add_test(tc, delete_needs_job);
+    tcase_add_test(tc, wait_unreachable);
+    tcase_add_test(tc, submit_retries_same_request);
+    tcase_add_test(tc, wait_outlasts_restart);
+    tcase_add_test(tc, wait_cancelled_fails);
+    tcase_add_test(tc, wait_no_such_job);
+    tcase_add_test(tc, status_shows_notes);
+    tcase_add_test(tc, delete_sends_request);
     suite_add_tcase(su, tc);
     return su;
 }
