@@ -16,7 +16,7 @@ BIN       = bin
 
 DEB_PACKAGES = build-essential pkg-config libembree-dev libzmq3-dev \
                libopenexr-dev libcjson-dev check libsubunit-dev libpng-dev \
-               libsodium-dev
+               libsodium-dev nftables
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 # Determinism: no -ffast-math, no FMA contraction, no -march=native (the same

@@ -406,6 +406,14 @@ static void on_message(master_t *m, const uint8_t *id, size_t id_len, proto_msg_
 {
     peer_t *w = find_peer(m, id, id_len);
     if (!w) {
+        if (msg->h.type == PROTO_RESULT || msg->h.type == PROTO_TASK_FAILED) {
+            /* from a worker dropped meanwhile (silent, partitioned): its
+             * tasks went out again, so this result is late */
+            job_t *j = job_find(m, msg->h.job);
+            if (j)
+                j->late_results++;
+            m->dropped_late++;
+        }
         /* e.g. the master restarted: tell the worker to start over */
         send_text(m, id, id_len, PROTO_BYE, "unknown worker: say HELLO first");
         return;

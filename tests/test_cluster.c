@@ -1266,51 +1266,65 @@ static int sh(char *why, size_t len, const char *fmt, ...)
  * joined to it by veth pairs (10.200.1.0/24 and 10.200.2.0/24, which exist
  * only inside these namespaces). Skipped, with a SKIPPED line, where
  * namespaces cannot be made. */
-START_TEST(several_hosts)
+/* Three network namespaces: the master's (10.200.1.1 and 10.200.2.1) and
+ * two workers' (10.200.1.2 and 10.200.2.2), joined by veth pairs; these
+ * addresses exist only inside them. 0 when made; -1 with the reason in why
+ * where namespaces cannot be made here (the caller prints SKIPPED). */
+static int make_hosts(char *why, size_t whylen, char if_b[16])
 {
-    char why[1024] = "", out[OUTLEN], scene[PATHLEN], ref[PATHLEN], got[PATHLEN];
+    char out[OUTLEN];
     long pid = (long)getpid();
     const char *ns_m = netns[0], *ns_a = netns[1], *ns_b = netns[2];
     snprintf(netns[0], sizeof netns[0], "vbc-m-%ld", pid);
     snprintf(netns[1], sizeof netns[1], "vbc-a-%ld", pid);
     snprintf(netns[2], sizeof netns[2], "vbc-b-%ld", pid);
     /* interface names: at most 15 characters */
-    char if_ma[16], if_a[16], if_mb[16], if_b[16];
+    char if_ma[16], if_a[16], if_mb[16];
     snprintf(if_ma, sizeof if_ma, "vb%ldma", pid % 10000000);
     snprintf(if_a, sizeof if_a, "vb%lda", pid % 10000000);
     snprintf(if_mb, sizeof if_mb, "vb%ldmb", pid % 10000000);
-    snprintf(if_b, sizeof if_b, "vb%ldb", pid % 10000000);
+    snprintf(if_b, 16, "vb%ldb", pid % 10000000);
+    why[0] = '\0';
     if (geteuid() != 0)
-        snprintf(why, sizeof why, "not root");
+        snprintf(why, whylen, "not root");
     else if (tu_run("ip -V", out, sizeof out) != 0)
-        snprintf(why, sizeof why, "no ip command");
+        snprintf(why, whylen, "no ip command");
     if (!why[0]) {
         /* leftovers of an earlier run that died with this pid */
         netns_count = 3;
         netns_delete_all();
         for (int i = 0; i < 3 && !why[0]; i++)
-            if (sh(why, sizeof why, "ip netns add '%s'", netns[i]) == 0)
+            if (sh(why, whylen, "ip netns add '%s'", netns[i]) == 0)
                 netns_count = i + 1;
     }
     /* no veth pairs here (a failure leaves its reason in why): skip too */
-    if (!why[0] && sh(why, sizeof why, "ip -n '%s' link add %s type veth peer name %s netns '%s'", ns_m, if_ma,
+    if (!why[0] && sh(why, whylen, "ip -n '%s' link add %s type veth peer name %s netns '%s'", ns_m, if_ma,
                       if_a, ns_a) == 0)
-        sh(why, sizeof why, "ip -n '%s' link add %s type veth peer name %s netns '%s'", ns_m, if_mb, if_b, ns_b);
+        sh(why, whylen, "ip -n '%s' link add %s type veth peer name %s netns '%s'", ns_m, if_mb, if_b, ns_b);
     if (why[0]) {
         netns_delete_all();
+        return -1;
+    }
+    /* from here on a failure is a failure */
+    ck_assert_msg(sh(why, whylen, "ip -n '%s' addr add 10.200.1.1/24 dev %s && ip -n '%s' addr add 10.200.2.1/24 dev %s"
+                     " && ip -n '%s' link set lo up && ip -n '%s' link set %s up && ip -n '%s' link set %s up",
+                     ns_m, if_ma, ns_m, if_mb, ns_m, ns_m, if_ma, ns_m, if_mb) == 0, "%s", why);
+    ck_assert_msg(sh(why, whylen, "ip -n '%s' addr add 10.200.1.2/24 dev %s && ip -n '%s' link set lo up"
+                     " && ip -n '%s' link set %s up", ns_a, if_a, ns_a, ns_a, if_a) == 0, "%s", why);
+    ck_assert_msg(sh(why, whylen, "ip -n '%s' addr add 10.200.2.2/24 dev %s && ip -n '%s' link set lo up"
+                     " && ip -n '%s' link set %s up", ns_b, if_b, ns_b, ns_b, if_b) == 0, "%s", why);
+    return 0;
+}
+
+START_TEST(several_hosts)
+{
+    char why[1024] = "", out[OUTLEN], scene[PATHLEN], ref[PATHLEN], got[PATHLEN], if_b[16];
+    const char *ns_m = netns[0], *ns_a = netns[1], *ns_b = netns[2];
+    if (make_hosts(why, sizeof why, if_b) < 0) {
         printf("SKIPPED: netns: %s\n", why);
         fflush(stdout);
         return;
     }
-    /* from here on a failure is a failure */
-    ck_assert_msg(sh(why, sizeof why, "ip -n '%s' addr add 10.200.1.1/24 dev %s && ip -n '%s' addr add 10.200.2.1/24 dev %s"
-                     " && ip -n '%s' link set lo up && ip -n '%s' link set %s up && ip -n '%s' link set %s up",
-                     ns_m, if_ma, ns_m, if_mb, ns_m, ns_m, if_ma, ns_m, if_mb) == 0, "%s", why);
-    ck_assert_msg(sh(why, sizeof why, "ip -n '%s' addr add 10.200.1.2/24 dev %s && ip -n '%s' link set lo up"
-                     " && ip -n '%s' link set %s up", ns_a, if_a, ns_a, ns_a, if_a) == 0, "%s", why);
-    ck_assert_msg(sh(why, sizeof why, "ip -n '%s' addr add 10.200.2.2/24 dev %s && ip -n '%s' link set lo up"
-                     " && ip -n '%s' link set %s up", ns_b, if_b, ns_b, ns_b, if_b) == 0, "%s", why);
-
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     const int port = 7070; /* each namespace has its own ports */
     char bin[PATHLEN], wep[64], cep[64];
@@ -1753,8 +1767,14 @@ START_TEST(flood)
     sleep_ms(500);
     long r = rss_kib(m->pid);
     peak = r > peak ? r : peak;
+#ifdef __SANITIZE_ADDRESS__
+    /* ASan keeps freed memory in quarantine (256 MiB by default), so RSS
+     * says nothing about the master here; the plain build checks it */
+    printf("SKIPPED: flood: the RSS bound under ASan (%ld KiB before, %ld KiB peak)\n", before, peak);
+#else
     ck_assert_msg(before > 0 && peak <= 2 * before, "master RSS %ld KiB before the flood, %ld KiB at its peak", before,
                   peak);
+#endif
     for (int k = 0; k < 4; k++)
         zmq_close(socks[k]);
     zmq_ctx_term(ctx);
@@ -1771,6 +1791,157 @@ START_TEST(flood)
     compare_exr(ref, got);
     stop_all_clean();
     remove_scratch();
+}
+END_TEST
+/* A job's status through the client inside ns (the test's own sockets
+ * cannot reach into a namespace). */
+static cJSON *status_in(const char *ns, const char *cep, unsigned long long job)
+{
+    char out[OUTLEN];
+    int rc = client_in(ns, out, sizeof out, "status %llu --master %s", job, cep);
+    ck_assert_msg(rc == 0, "status %llu: exit %d:\n%s\n%s", job, rc, out, logs_tail());
+    const char *brace = strchr(out, '{');
+    cJSON *r = brace ? cJSON_Parse(brace) : NULL;
+    ck_assert_msg(r != NULL, "status %llu printed no JSON:\n%s", job, out);
+    /* the client prints the job object itself, or a reply holding it */
+    cJSON *j = cJSON_DetachItemFromObject(r, "job");
+    if (j) {
+        cJSON_Delete(r);
+        return j;
+    }
+    return r;
+}
+
+/* An nftables table in ns that drops packets on interface ifname, both
+ * ways: all of them, or 5 % at random. */
+static void nft_drop(const char *ns, const char *ifname, int lossy)
+{
+    char why[1024];
+    const char *what = lossy ? "numgen random mod 100 < 5 drop" : "drop";
+    ck_assert_msg(sh(why, sizeof why,
+                     "ip netns exec '%s' nft 'add table inet vbfault; "
+                     "add chain inet vbfault in { type filter hook input priority 0; }; "
+                     "add chain inet vbfault out { type filter hook output priority 0; }; "
+                     "add rule inet vbfault in iifname \"%s\" %s; add rule inet vbfault out oifname \"%s\" %s'",
+                     ns, ifname, what, ifname, what) == 0,
+                  "nftables: %s", why);
+}
+
+static void nft_heal(const char *ns)
+{
+    char why[1024];
+    ck_assert_msg(sh(why, sizeof why, "ip netns exec '%s' nft delete table inet vbfault", ns) == 0, "%s", why);
+}
+
+/* Master and worker A in their namespaces; worker B's link is cut for 10 s
+ * (partition) or drops 5 % of its packets for the whole job (lossy). */
+static void net_fault(int lossy)
+{
+    char why[1024] = "", out[OUTLEN], scene[PATHLEN], ref[PATHLEN], got[PATHLEN], if_b[16];
+    const char *ns_m = netns[0], *ns_a = netns[1], *ns_b = netns[2];
+    if (make_hosts(why, sizeof why, if_b) < 0 || tu_run("nft --version", out, sizeof out) != 0) {
+        if (!why[0])
+            snprintf(why, sizeof why, "no nft command (make deps installs nftables)");
+        netns_delete_all();
+        printf("SKIPPED: netns: %s\n", why);
+        fflush(stdout);
+        return;
+    }
+    static const char *const settings = "--spp 4096 --granularity 32 --adaptive thesis --seed 23";
+    scene_file(scene, sizeof scene, 64, NULL, NULL);
+    const int port = 7070;
+    char bin[PATHLEN], wep[64], cep[64];
+    snprintf(bin, sizeof bin, "%s/vbrender-master", bindir());
+    snprintf(wep, sizeof wep, "tcp://*:%d", port);
+    snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
+    /* leases of 3 s: the cut-off worker's tasks go out again well within
+     * the 10 s partition (its heartbeats stop sooner still) */
+    const char *margs[] = {bin, "--workers", wep, "--control", cep, "--heartbeat-ms", "200", "--lease-ms", "3000",
+                           "--state", "none", NULL};
+    daemon_t *m = spawn(lossy ? "q-master" : "p-master", ns_m, margs);
+    int ready = 0;
+    for (int tries = 0; tries < 50 && !ready; tries++) {
+        assert_alive(m);
+        ready = client_in(ns_m, out, sizeof out, "jobs --master %s", cep) == 0;
+        if (!ready)
+            sleep_ms(100);
+    }
+    ck_assert_msg(ready, "the master in %s does not answer:\n%s\n%s", ns_m, out, logs_tail());
+    char wbin[PATHLEN], ep_a[64], ep_b[64];
+    snprintf(wbin, sizeof wbin, "%s/vbrender-worker", bindir());
+    snprintf(ep_a, sizeof ep_a, "tcp://10.200.1.1:%d", port);
+    snprintf(ep_b, sizeof ep_b, "tcp://10.200.2.1:%d", port);
+    const char *aargs[] = {wbin, "--master", ep_a, "--threads", "1", "--name", "pq-worker-a", NULL};
+    const char *bargs[] = {wbin, "--master", ep_b, "--threads", "1", "--name", "pq-worker-b", NULL};
+    spawn("pq-worker-a", ns_a, aargs);
+    spawn("pq-worker-b", ns_b, bargs);
+    int both = 0;
+    for (int tries = 0; tries < 100 && !both; tries++) {
+        client_in(ns_m, out, sizeof out, "workers --master %s", cep);
+        both = strstr(out, "10.200.1.2") != NULL && strstr(out, "10.200.2.2") != NULL;
+        if (!both)
+            sleep_ms(100);
+    }
+    ck_assert_msg(both, "want workers at 10.200.1.2 and 10.200.2.2:\n%s\n%s", out, logs_tail());
+    if (lossy)
+        nft_drop(ns_b, if_b, 1);
+    unsigned long long job = submit_in(ns_m, port + 1, scene, settings);
+    if (!lossy) {
+        double end = now_ms() + JOB_TIMEOUT_MS;
+        for (;;) {
+            cJSON *st = status_in(ns_m, cep, job);
+            int go = jnum(st, "layers_done") >= 1;
+            ck_assert_msg(!job_ended(st), "the job ended before the partition (make it longer)");
+            cJSON_Delete(st);
+            if (go)
+                break;
+            ck_assert_msg(now_ms() < end, "no layer done\n%s", logs_tail());
+            sleep_ms(50);
+        }
+        nft_drop(ns_b, if_b, 0);
+        sleep_ms(10000);
+        nft_heal(ns_b);
+    }
+    finish_and_fetch_in(ns_m, port + 1, job, tmp(got, sizeof got, lossy ? "lossy.exr" : "partition.exr"));
+    cJSON *st = status_in(ns_m, cep, job);
+    if (!lossy) {
+        ck_assert_msg(jnum(st, "tasks_reissued") > 0, "the cut-off worker's tasks were not issued again\n%s",
+                      logs_tail());
+        printf("partition: %.0f tasks issued again, %.0f late results dropped\n", jnum(st, "tasks_reissued"),
+               jnum(st, "late_results"));
+        /* it rejoins */
+        int back = 0;
+        for (int tries = 0; tries < 200 && !back; tries++) {
+            client_in(ns_m, out, sizeof out, "workers --master %s", cep);
+            back = strstr(out, "10.200.2.2") != NULL;
+            if (!back)
+                sleep_ms(100);
+        }
+        ck_assert_msg(back, "the cut-off worker did not rejoin:\n%s\n%s", out, logs_tail());
+        char log[65536];
+        read_log(m, log, sizeof log);
+        ck_assert_msg(strstr(log, "10.200.2.2") && (strstr(log, "silent") || strstr(log, "lease ran out")),
+                      "the master did not drop the cut-off worker:\n%s", logs_tail());
+    }
+    cJSON_Delete(st);
+    render_embedded(scene, settings, 2, tmp(ref, sizeof ref, lossy ? "lossy-ref.exr" : "partition-ref.exr"));
+    compare_exr(ref, got);
+    if (lossy)
+        nft_heal(ns_b);
+    stop_all_clean();
+    netns_delete_all();
+    remove_scratch();
+}
+
+START_TEST(partition)
+{
+    net_fault(0);
+}
+END_TEST
+
+START_TEST(lossy_link)
+{
+    net_fault(1);
 }
 END_TEST
 
@@ -1790,7 +1961,8 @@ static Suite *cluster_suite(void)
         {"sigterm", sigterm},                   {"several_hosts", several_hosts},
         {"master_crash", master_crash},         {"corrupt_checkpoint", corrupt_checkpoint},
         {"storage_failure", storage_failure},   {"churn", churn},
-        {"flood", flood},
+        {"flood", flood},                       {"partition", partition},
+        {"lossy_link", lossy_link},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         TCase *tc = tcase_create(cases[i].name);
