@@ -154,6 +154,7 @@ bench: deps
 	$(MAKE) all $(BENCH_BIN)
 	bench/run-core.sh
 	if [ -x bench/run-distributed.sh ]; then bench/run-distributed.sh; fi
+	bench/run-durable.sh
 
 bench-error: deps
 	$(MAKE) all

@@ -147,6 +147,14 @@ static cJSON *ctl_workers(ctl_req_t *r)
     cJSON *st = cJSON_AddObjectToObject(b, "master");
     cJSON_AddNumberToObject(st, "malformed_messages", (double)m->malformed);
     cJSON_AddNumberToObject(st, "late_results", (double)m->dropped_late);
+    if (m->store) {
+        /* the last background write of checkpoints and images: what it costs */
+        store_bg_stats_t bg = store_bg_last(m->store);
+        cJSON_AddNumberToObject(st, "state_writes", (double)bg.runs);
+        cJSON_AddNumberToObject(st, "state_write_seconds", bg.wall_s);
+        cJSON_AddNumberToObject(st, "state_write_cpu_seconds", bg.cpu_s);
+        cJSON_AddNumberToObject(st, "state_fork_ms", bg.fork_ms);
+    }
     return b;
 }
 

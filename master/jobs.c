@@ -153,21 +153,21 @@ void job_release_all(master_t *m, job_t *j)
         return;
     size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
     for (size_t c = 0; c < cells; c++)
-        if (j->holder[c] >= 0) {
-            peer_t *w = &m->workers[j->holder[c]];
+        if (j->holder[c]) {
+            peer_t *w = &m->workers[j->holder[c] - 1];
             if (w->outstanding)
                 w->outstanding--;
-            j->holder[c] = -1;
+            j->holder[c] = 0;
         }
     j->outstanding = 0;
 }
 
 void job_reissue(master_t *m, job_t *j, size_t cell)
 {
-    peer_t *w = &m->workers[j->holder[cell]];
+    peer_t *w = &m->workers[j->holder[cell] - 1];
     if (w->outstanding)
         w->outstanding--;
-    j->holder[cell] = -1;
+    j->holder[cell] = 0;
     j->outstanding--;
     j->reissued++;
     /* The task was handed out, so the scheduler holds it as outstanding and

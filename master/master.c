@@ -3,6 +3,7 @@
 #include "master.h"
 
 #include <errno.h>
+#include <sodium.h>
 #include <inttypes.h>
 #include <stdarg.h>
 #include <stdlib.h>
@@ -47,10 +48,10 @@ static void expire_leases(master_t *m, double now)
         if (!j || j->state != JOB_RUNNING || !j->holder)
             continue;
         size_t c = (size_t)(l.task - 1);
-        if (j->holder[c] < 0 || j->attempt[c] != l.attempt)
+        if (!j->holder[c] || j->attempt[c] != l.attempt)
             continue;
         master_log(m, "job %" PRIu64 " task %" PRIu64 ": lease ran out on %s; issuing it again", j->id, l.task,
-                   m->workers[j->holder[c]].host);
+                   m->workers[j->holder[c] - 1].host);
         /* No credit back here: the slow worker still holds the task, and its
          * late result (ignored) returns the credit then. */
         job_reissue(m, j, c);

@@ -97,7 +97,8 @@ typedef struct job {
     /* progress */
     sched_t *sched;
     uint32_t *attempt; /* per task id - 1 */
-    int32_t *holder;   /* per task id - 1: worker slot, -1 none */
+    uint32_t *holder;  /* per task id - 1: worker slot + 1, 0 none (calloc'd:
+                          no O(tasks) work at submit) */
     uint32_t outstanding, reissued, failures;
     double submitted, started, finished;
     double run_before; /* seconds run before the last restart */

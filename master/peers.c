@@ -94,7 +94,7 @@ static peer_t *find_peer(master_t *m, const uint8_t *id, size_t len)
 /* Gives back every task the worker holds. */
 void peer_lost(master_t *m, peer_t *w, const char *why)
 {
-    int slot = (int)(w - m->workers);
+    uint32_t slot = (uint32_t)(w - m->workers) + 1;
     uint32_t back = 0;
     for (job_t *j = m->jobs; j; j = j->next) {
         if (j->state != JOB_RUNNING || !j->holder)
@@ -221,7 +221,7 @@ void dispatch(master_t *m)
             peer_lost(m, w, "unreachable");
             continue;
         }
-        j->holder[c] = (int32_t)i;
+        j->holder[c] = i + 1;
         lease_t l = {.job = j->id, .task = t.id, .attempt = msg->h.attempt,
                      .deadline = now + m->cfg.lease_ms / 1000.0};
         if (lease_push(m->leases, &l) < 0)
@@ -237,7 +237,7 @@ void dispatch(master_t *m)
 
 static void on_task_failed(master_t *m, peer_t *w, job_t *j, size_t c, const char *text)
 {
-    j->holder[c] = -1;
+    j->holder[c] = 0;
     j->outstanding--;
     w->outstanding--;
     j->failures++;
@@ -262,7 +262,7 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
     }
     uint64_t id = msg->h.task;
     size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
-    int slot = (int)(w - m->workers);
+    uint32_t slot = (uint32_t)(w - m->workers) + 1;
     if (id == 0 || id > cells || j->holder[id - 1] != slot || j->attempt[id - 1] != msg->h.attempt) {
         j->late_results++;
         m->dropped_late++;
@@ -275,7 +275,7 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
     }
     char err[MASTER_ERR_LEN];
     int rc = sched_complete(j->sched, id, msg->u.result.records, msg->u.result.count, err, sizeof err);
-    j->holder[c] = -1;
+    j->holder[c] = 0;
     j->outstanding--;
     w->outstanding--;
     if (rc < 0) {

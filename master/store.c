@@ -11,8 +11,11 @@
 #include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
+#include <sys/time.h>
 #include <sys/wait.h>
+#include <time.h>
 #include <unistd.h>
 
 static const char store_magic[8] = {'V', 'B', 'S', 'T', 'A', 'T', 'E', '\n'};
@@ -30,7 +33,21 @@ struct store {
     int bg_fd;         /* read end of the child's report pipe */
     char *bg_buf;      /* what the child reported so far */
     size_t bg_len, bg_cap;
+    double bg_started, bg_fork_ms;
+    store_bg_stats_t last;
 };
+
+static double mono_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+store_bg_stats_t store_bg_last(const store_t *s)
+{
+    return s->last;
+}
 
 static void set_err(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 static void set_err(char *err, size_t errlen, const char *fmt, ...)
@@ -69,6 +86,69 @@ static uint64_t get_u64(const uint8_t *p)
     for (int i = 7; i >= 0; i--)
         v = v << 8 | p[i];
     return v;
+}
+
+/* ---- the checksum ------------------------------------------------------------- */
+
+void store_sum_init(store_sum_t *c)
+{
+    memset(c, 0, sizeof *c);
+    for (int i = 0; i < 4; i++)
+        c->lane[i] = 0x9e3779b97f4a7c15ULL * (uint64_t)(i + 1);
+}
+
+/* Each step is a bijection of the lane for a given word and of the word for
+ * a given lane: one changed word always changes its lane's final value. */
+static inline uint64_t fold(uint64_t h, uint64_t w)
+{
+    h = (h ^ w) * 0xff51afd7ed558ccdULL;
+    return h ^ (h >> 32);
+}
+
+static void sum_block(store_sum_t *c, const uint8_t *p)
+{
+    for (int i = 0; i < 4; i++) {
+        uint64_t w;
+        memcpy(&w, p + 8 * i, 8);
+        c->lane[i] = fold(c->lane[i], w);
+    }
+}
+
+void store_sum_update(store_sum_t *c, const void *data, size_t len)
+{
+    const uint8_t *p = data;
+    c->total += len;
+    while (len > 0 && c->npend > 0) {
+        c->pend[c->npend++] = *p++;
+        len--;
+        if (c->npend == 32) {
+            sum_block(c, c->pend);
+            c->npend = 0;
+        }
+    }
+    for (; len >= 32; p += 32, len -= 32)
+        sum_block(c, p);
+    while (len > 0) {
+        c->pend[c->npend++] = *p++;
+        len--;
+    }
+}
+
+void store_sum_final(const store_sum_t *c0, uint8_t out[32])
+{
+    store_sum_t c = *c0;
+    memset(c.pend + c.npend, 0, 32 - c.npend);
+    sum_block(&c, c.pend);
+    for (int i = 0; i < 4; i++) {
+        /* the length and the other lanes into each lane (splitmix64's finaliser) */
+        uint64_t h = c.lane[i] ^ c.total ^ c.lane[(i + 1) & 3] * 0xc4ceb9fe1a85ec53ULL;
+        h ^= h >> 33;
+        h *= 0xff51afd7ed558ccdULL;
+        h ^= h >> 33;
+        h *= 0xc4ceb9fe1a85ec53ULL;
+        h ^= h >> 33;
+        put_u64(out + 8 * i, h);
+    }
 }
 
 /* ---- crash-safe records ------------------------------------------------------ */
@@ -150,12 +230,12 @@ int store_rec_begin(store_rec_writer_t *w, const char *path, store_kind_t kind)
         w->failed = 1;
         return -1;
     }
-    crypto_generichash_init(&w->hash, NULL, 0, 32);
+    store_sum_init(&w->hash);
     uint8_t header[STORE_HEADER_SIZE];
     memcpy(header, store_magic, 8);
     put_u32(header + 8, STORE_FORMAT_VERSION);
     put_u32(header + 12, (uint32_t)kind);
-    crypto_generichash_update(&w->hash, header, sizeof header);
+    store_sum_update(&w->hash, header, sizeof header);
     return raw_write(w, header, sizeof header);
 }
 
@@ -164,7 +244,7 @@ int store_rec_write(void *wp, const void *data, size_t len)
     store_rec_writer_t *w = wp;
     if (w->failed)
         return -1;
-    crypto_generichash_update(&w->hash, data, len);
+    store_sum_update(&w->hash, data, len);
     w->length += len;
     return raw_write(w, data, len);
 }
@@ -197,8 +277,8 @@ int store_rec_finish(store_rec_writer_t *w)
     }
     uint8_t trailer[STORE_TRAILER_SIZE];
     put_u64(trailer, w->length);
-    crypto_generichash_update(&w->hash, trailer, 8);
-    crypto_generichash_final(&w->hash, trailer + 8, 32);
+    store_sum_update(&w->hash, trailer, 8);
+    store_sum_final(&w->hash, trailer + 8);
     if (raw_write(w, trailer, sizeof trailer) < 0 || flush_buf(w) < 0) {
         store_rec_abort(w);
         return -1;
@@ -269,8 +349,11 @@ static const char *check_record(const uint8_t *all, uint64_t size, store_kind_t 
     if (get_u64(all + size - STORE_TRAILER_SIZE) != size - STORE_HEADER_SIZE - STORE_TRAILER_SIZE)
         return "torn (length mismatch)";
     uint8_t hash[32];
-    crypto_generichash(hash, 32, all, (unsigned long long)(size - 32), NULL, 0);
-    if (sodium_memcmp(hash, all + size - 32, 32) != 0)
+    store_sum_t c;
+    store_sum_init(&c);
+    store_sum_update(&c, all, (size_t)(size - 32));
+    store_sum_final(&c, hash);
+    if (memcmp(hash, all + size - 32, 32) != 0)
         return "corrupt (checksum mismatch)";
     return NULL;
 }
@@ -521,10 +604,6 @@ int store_job_ids(const store_t *s, uint64_t **ids, size_t *count, char *err, si
 
 store_t *store_open(const char *dir, char *err, size_t errlen)
 {
-    if (sodium_init() < 0) {
-        set_err(err, errlen, "libsodium failed to initialise");
-        return NULL;
-    }
     store_t *s = calloc(1, sizeof *s);
     if (!s) {
         set_err(err, errlen, "out of memory");
@@ -615,6 +694,7 @@ int store_bg_start(store_t *s, store_bg_fn fn, void *ctx, char *err, size_t errl
     }
     fcntl(p[0], F_SETFD, FD_CLOEXEC);
     fflush(NULL); /* nothing buffered is written twice */
+    double t0 = mono_s();
     pid_t pid = fork();
     if (pid < 0) {
         set_err(err, errlen, "fork: %.600s", strerror(errno));
@@ -631,6 +711,8 @@ int store_bg_start(store_t *s, store_bg_fn fn, void *ctx, char *err, size_t errl
         close(p[1]);
         _exit(rc);
     }
+    s->bg_fork_ms = (mono_s() - t0) * 1e3;
+    s->bg_started = t0;
     close(p[1]);
     fcntl(p[0], F_SETFL, fcntl(p[0], F_GETFL) | O_NONBLOCK);
     s->bg_pid = pid;
@@ -702,9 +784,16 @@ int store_bg_poll(store_t *s, store_bg_report_fn on_report, void *ctx, int *exit
     if (s->bg_buf || s->bg_cap == 0)
         drain(s);
     int status;
-    pid_t r = waitpid(s->bg_pid, &status, WNOHANG);
+    struct rusage ru;
+    memset(&ru, 0, sizeof ru);
+    pid_t r = wait4(s->bg_pid, &status, WNOHANG, &ru);
     if (r == 0)
         return 0;
+    s->last.runs++;
+    s->last.wall_s = mono_s() - s->bg_started;
+    s->last.cpu_s = (double)ru.ru_utime.tv_sec + 1e-6 * (double)ru.ru_utime.tv_usec + (double)ru.ru_stime.tv_sec +
+                    1e-6 * (double)ru.ru_stime.tv_usec;
+    s->last.fork_ms = s->bg_fork_ms;
     drain(s);
     close(s->bg_fd);
     s->bg_fd = -1;

@@ -11,7 +11,11 @@
  *   DIR/jobs/<id>/final           the job's closing status (JSON)
  *
  * Every file is one record: a header (magic, format version, kind), the
- * payload, and a trailer (payload length, BLAKE2b-256 of all before it).
+ * payload, and a trailer (payload length, a 256-bit checksum of all before
+ * it). The checksum is four interleaved 64-bit multiply-fold lanes, not
+ * BLAKE2b: it guards against torn and corrupt files, not against forgery
+ * (whoever can write the state directory owns the master anyway), and it
+ * runs at memory speed, where BLAKE2b was 60 % of a 1080p checkpoint's CPU.
  * Files are written crash-safe: a temporary file, fsync, rename, fsync of
  * the directory. A file that fails its checks is reported, never trusted.
  *
@@ -26,7 +30,6 @@
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
-#include <sodium.h>
 #include <sys/types.h>
 
 #define STORE_FORMAT_VERSION 1
@@ -61,11 +64,22 @@ uint64_t store_take_job_id(store_t *s, char *err, size_t errlen);
 /* A record being written (crash-safe): store_rec_begin, store_rec_write any
  * number of times, store_rec_commit (fsync, rename, fsync dir). Allocates
  * nothing, so it may run in a forked child. */
+/* The records' checksum, fed in pieces of any size. */
+typedef struct store_sum {
+    uint64_t lane[4];
+    uint64_t total;
+    uint8_t pend[32];
+    unsigned npend;
+} store_sum_t;
+void store_sum_init(store_sum_t *c);
+void store_sum_update(store_sum_t *c, const void *data, size_t len);
+void store_sum_final(const store_sum_t *c, uint8_t out[32]);
+
 typedef struct store_rec_writer {
     int fd;
     int failed;
     uint64_t length;
-    crypto_generichash_state hash;
+    store_sum_t hash;
     size_t buffered;
     uint8_t buf[1 << 16];
     char tmp[4096], path[4096];
@@ -135,6 +149,13 @@ int store_bg_running(const store_t *s);
  * leaves that job unreported: the caller treats it as not written. */
 typedef void (*store_bg_report_fn)(void *ctx, uint64_t id, const char *error);
 int store_bg_poll(store_t *s, store_bg_report_fn on_report, void *ctx, int *exit_status);
+/* The last finished child: its wall and CPU seconds, and how long the
+ * fork itself held the caller. */
+typedef struct store_bg_stats {
+    uint64_t runs;
+    double wall_s, cpu_s, fork_ms;
+} store_bg_stats_t;
+store_bg_stats_t store_bg_last(const store_t *s);
 /* Waits for a running child (at shutdown). */
 void store_bg_wait(store_t *s, store_bg_report_fn on_report, void *ctx);
 

@@ -189,13 +189,11 @@ static int submit_settings(job_t *j, const cJSON *req, char *err, size_t errlen)
     }
     size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
     j->attempt = calloc(cells, sizeof *j->attempt);
-    j->holder = malloc(cells * sizeof *j->holder);
+    j->holder = calloc(cells, sizeof *j->holder);
     if (!j->attempt || !j->holder) {
         snprintf(err, errlen, "out of memory");
         return -1;
     }
-    for (size_t c = 0; c < cells; c++)
-        j->holder[c] = -1;
     return 0;
 }
 

@@ -1,0 +1,199 @@
+#!/usr/bin/env bash
+# run-durable.sh - what a durable master costs (vbrender-master --state),
+# written to bench/results/durable.json, with a table on stdout.
+#
+#   1. Checkpoint overhead: the Cornell box at 256x256 and 1920x1080, uniform,
+#      2 workers x 1 thread, a fixed time (--time-limit), once with --state none
+#      and once with a state directory at the default checkpoint interval
+#      (10 s). Throughput (samples/s) of each, and the checkpoints' own cost as
+#      the master reports it: the fork (the only time the event loop waits)
+#      and the writer child's CPU seconds, as a share of the cores' time.
+#   2. Restart to busy: kill -9 of the master mid-job, restart with the same
+#      flags; seconds until the job's sample count grows again.
+#   3. Master memory against ended jobs: 10, 100 and 1000 small jobs, with
+#      a state directory (images on disk) and with --state none (in memory).
+#
+# Knobs (environment): BENCH_DUR_SECONDS (25: time limit of each run in 1),
+# BENCH_DUR_JOBS ("10 100 1000"), BENCH_DUR_PORT (18800).
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+SECONDS_RUN="${BENCH_DUR_SECONDS:-25}"
+JOBS="${BENCH_DUR_JOBS:-10 100 1000}"
+PORT="${BENCH_DUR_PORT:-18800}"
+OUT=build/bench/out-durable
+RESULTS=bench/results
+CORES=$(nproc)
+VB=bin/vbrender
+VBM=bin/vbrender-master
+VBW=bin/vbrender-worker
+CTL=build/bench/bench_ctl
+for b in $VB $VBM $VBW $CTL; do
+    [ -x "$b" ] || { echo "run-durable.sh: $b is missing (make all build/bench/bench_ctl)" >&2; exit 1; }
+done
+rm -rf "$OUT"
+mkdir -p "$OUT" "$RESULTS"
+PIDS=()
+cleanup() { for p in "${PIDS[@]}"; do kill -9 "$p" 2>/dev/null || true; done; }
+trap cleanup EXIT
+
+port_free() { ! (exec 3<>"/dev/tcp/127.0.0.1/$1") 2>/dev/null; }
+next_ports() {
+    while ! port_free "$PORT" || ! port_free $((PORT + 1)); do PORT=$((PORT + 2)); done
+    WEP="tcp://127.0.0.1:$PORT"
+    CEP="tcp://127.0.0.1:$((PORT + 1))"
+    PORT=$((PORT + 2))
+}
+# start_master LOG ARGS...: sets MPID
+start_master() {
+    local log=$1
+    shift
+    "$VBM" --workers "$WEP" --control "$CEP" "$@" 2>>"$log" &
+    MPID=$!
+    PIDS+=("$MPID")
+    for _ in $(seq 100); do "$CTL" "$CEP" workers >/dev/null 2>&1 && return 0; sleep 0.05; done
+    echo "run-durable.sh: the master does not answer" >&2
+    return 1
+}
+start_workers() {
+    WPIDS=()
+    for i in $(seq "$1"); do
+        "$VBW" --master "$WEP" --threads 1 --name "w$i" 2>>"$OUT/workers.log" &
+        WPIDS+=($!)
+        PIDS+=($!)
+    done
+    "$CTL" "$CEP" wait-workers "$1" 20 >/dev/null
+}
+stop_all() {
+    for p in "$@"; do kill -TERM "$p" 2>/dev/null || true; done
+    for p in "$@"; do wait "$p" 2>/dev/null || true; done
+}
+rss_kib() { awk '/^VmRSS:/ { print $2 }' "/proc/$1/status"; }
+jget() { python3 -c 'import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))' "$@"; }
+scene_of() { # scene_of W H FILE
+    python3 - "$1" "$2" "$3" <<'PY'
+import sys, re
+w, h, out = sys.argv[1:4]
+t = open("scenes/cornell-box.json").read()
+t = t.replace('"width": 256, "height": 256', '"width": %s, "height": %s' % (w, h))
+open(out, "w").write(t)
+PY
+}
+
+# ---- 1. checkpoint overhead ------------------------------------------------------
+declare -A SPP=([256x256]=4096 [1920x1080]=64)
+for size in 256x256 1920x1080; do
+    w=${size%x*}
+    h=${size#*x}
+    scene_of "$w" "$h" "$OUT/cornell-$size.json"
+    for mode in none state; do
+        tag="ckpt-$size-$mode"
+        next_ports
+        if [ $mode = none ]; then
+            start_master "$OUT/$tag.log" --state none
+        else
+            start_master "$OUT/$tag.log" --state "$OUT/state-$size"
+        fi
+        start_workers 2
+        id=$("$VB" submit "$OUT/cornell-$size.json" --spp "${SPP[$size]}" --adaptive none \
+            --time-limit "$SECONDS_RUN" --master "$CEP" | tail -n 1)
+        "$CTL" "$CEP" wait "$id" 600 >"$OUT/$tag.status.json"
+        "$CTL" "$CEP" workers >"$OUT/$tag.workers.json"
+        ckpt_bytes=0
+        if [ $mode = state ]; then
+            ckpt_bytes=$(du -sb "$OUT/state-$size/jobs/$id" | cut -f1)
+        fi
+        echo "$ckpt_bytes" >"$OUT/$tag.bytes"
+        stop_all "$MPID" "${WPIDS[@]}"
+        echo "  $tag: $(jget "$OUT/$tag.status.json" 'round(d["samples_per_second"])') samples/s" >&2
+    done
+done
+
+# ---- 2. restart to busy ------------------------------------------------------------
+next_ports
+start_master "$OUT/restart.log" --state "$OUT/state-restart" --checkpoint-s 1
+start_workers 2
+id=$("$VB" submit "$OUT/cornell-256x256.json" --spp 8192 --adaptive none --master "$CEP" | tail -n 1)
+sleep 5
+kill -9 "$MPID"
+wait "$MPID" 2>/dev/null || true
+t0=$(date +%s.%N)
+start_master "$OUT/restart.log" --state "$OUT/state-restart" --checkpoint-s 1
+s0=$("$CTL" "$CEP" status "$id" | python3 -c 'import json,sys; print(json.load(sys.stdin)["samples"])')
+while :; do
+    s=$("$CTL" "$CEP" status "$id" | python3 -c 'import json,sys; print(json.load(sys.stdin)["samples"])')
+    if python3 -c "import sys; sys.exit(0 if float('$s') > float('$s0') else 1)"; then break; fi
+    sleep 0.02
+done
+t1=$(date +%s.%N)
+echo "$t0 $t1 $s0" >"$OUT/restart.times"
+"$VB" cancel "$id" --master "$CEP" >/dev/null
+stop_all "$MPID" "${WPIDS[@]}"
+
+# ---- 3. memory against ended jobs --------------------------------------------------
+scene_of 16 16 "$OUT/tiny.json"
+for mode in state none; do
+    next_ports
+    if [ $mode = none ]; then
+        start_master "$OUT/mem-$mode.log" --state none --keep-finished 100000
+    else
+        start_master "$OUT/mem-$mode.log" --state "$OUT/state-mem" --keep-finished 100000
+    fi
+    start_workers 1
+    done_jobs=0
+    : >"$OUT/mem-$mode.txt"
+    for target in $JOBS; do
+        while [ "$done_jobs" -lt "$target" ]; do
+            id=$("$VB" submit "$OUT/tiny.json" --spp 64 --master "$CEP" | tail -n 1)
+            done_jobs=$((done_jobs + 1))
+        done
+        "$CTL" "$CEP" wait "$id" 600 >/dev/null
+        sleep 1.5 # the last image reaches the disk and leaves memory
+        echo "$target $(rss_kib "$MPID")" >>"$OUT/mem-$mode.txt"
+        echo "  memory $mode: $target jobs, $(rss_kib "$MPID") KiB" >&2
+    done
+    stop_all "$MPID" "${WPIDS[@]}"
+done
+
+python3 - "$OUT" "$RESULTS/durable.json" "$SECONDS_RUN" "$CORES" <<'PY'
+import json, sys
+out, dest, secs, cores = sys.argv[1], sys.argv[2], float(sys.argv[3]), int(sys.argv[4])
+res = {"cores": cores, "time_limit_s": secs, "checkpoint_interval_s": 10, "checkpoint": [], "restart": {}, "memory": {}}
+print("\nCheckpoint overhead (Cornell box, uniform, 2 workers x 1 thread, %g s each, checkpoints every 10 s)" % secs)
+print("| image | samples/s, --state none | samples/s, --state DIR | A/B change | writes | fork ms | writer CPU s per write | writer CPU share of the cores | state on disk |")
+print("|---|--:|--:|--:|--:|--:|--:|--:|--:|")
+for size in ("256x256", "1920x1080"):
+    a = json.load(open("%s/ckpt-%s-none.status.json" % (out, size)))
+    b = json.load(open("%s/ckpt-%s-state.status.json" % (out, size)))
+    m = json.load(open("%s/ckpt-%s-state.workers.json" % (out, size)))["master"]
+    nbytes = int(open("%s/ckpt-%s-state.bytes" % (out, size)).read())
+    writes = m.get("state_writes", 0)
+    cpu = m.get("state_write_cpu_seconds", 0.0)
+    share = cpu / (10.0 * cores) if writes else 0.0
+    ab = b["samples_per_second"] / a["samples_per_second"] - 1
+    row = {"image": size, "sps_none": a["samples_per_second"], "sps_state": b["samples_per_second"],
+           "ab_change": ab, "writes": writes, "fork_ms": m.get("state_fork_ms", 0.0),
+           "writer_seconds": m.get("state_write_seconds", 0.0), "writer_cpu_s": cpu,
+           "writer_share_of_cores": share, "state_bytes": nbytes}
+    res["checkpoint"].append(row)
+    print("| %s | %.0f | %.0f | %+.1f %% | %d | %.2f | %.3f | %.2f %% | %.1f MB |" % (
+        size, row["sps_none"], row["sps_state"], 100 * ab, writes, row["fork_ms"], cpu, 100 * share, nbytes / 1e6))
+t0, t1, s0 = open(out + "/restart.times").read().split()
+res["restart"] = {"seconds_to_busy": float(t1) - float(t0), "samples_recovered": float(s0)}
+print("\nRestart to busy: %.2f s from the new master's start to the job's samples growing (it resumed at %.0f samples)" %
+      (float(t1) - float(t0), float(s0)))
+print("\nMaster memory against ended jobs (16x16 jobs, RSS)")
+print("| ended jobs | --state DIR | --state none |")
+print("|--:|--:|--:|")
+mem = {}
+for mode in ("state", "none"):
+    for line in open("%s/mem-%s.txt" % (out, mode)):
+        n, kib = line.split()
+        mem.setdefault(int(n), {})[mode] = int(kib)
+for n in sorted(mem):
+    print("| %d | %.1f MiB | %.1f MiB |" % (n, mem[n].get("state", 0) / 1024, mem[n].get("none", 0) / 1024))
+res["memory"] = {str(n): v for n, v in mem.items()}
+json.dump(res, open(dest, "w"), indent=1)
+print("\nwritten to " + dest)
+PY

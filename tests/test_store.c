@@ -1,0 +1,337 @@
+/* test_store.c - the master's durable records (master/store.c) and task
+ * leases (master/lease.c). */
+#include <check.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "lease.h"
+#include "store.h"
+#include "testutil.h"
+
+#define PATHLEN 1024
+
+/* A fresh directory for one test. */
+static const char *fresh_dir(char *buf, size_t len, const char *name)
+{
+    char file[128], cmd[PATHLEN + 16], out[256];
+    snprintf(file, sizeof file, "store-%ld-%s", (long)getpid(), name);
+    tu_tmp_path(buf, len, file);
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", buf);
+    tu_run(cmd, out, sizeof out);
+    return buf;
+}
+
+static void rm_rf(const char *dir)
+{
+    char cmd[PATHLEN + 16], out[256];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", dir);
+    tu_run(cmd, out, sizeof out);
+}
+
+static void write_rec(const char *path, store_kind_t kind, const void *data, size_t len, int keep_prev)
+{
+    store_rec_writer_t *w = malloc(sizeof *w);
+    ck_assert_ptr_nonnull(w);
+    ck_assert_int_eq(store_rec_begin(w, path, kind), 0);
+    /* in uneven pieces: the checksum must not depend on them */
+    size_t off = 0, step = 1;
+    while (off < len) {
+        size_t n = len - off < step ? len - off : step;
+        ck_assert_int_eq(store_rec_write(w, (const char *)data + off, n), 0);
+        off += n;
+        step = step * 3 + 1;
+    }
+    ck_assert_msg(store_rec_commit(w, keep_prev) == 0, "%s", w->err);
+    free(w);
+}
+
+static uint8_t *read_file(const char *path, size_t *n)
+{
+    FILE *f = fopen(path, "rb");
+    ck_assert_ptr_nonnull(f);
+    fseek(f, 0, SEEK_END);
+    long size = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    uint8_t *d = malloc((size_t)size + 1);
+    ck_assert_ptr_nonnull(d);
+    ck_assert_uint_eq(fread(d, 1, (size_t)size, f), (size_t)size);
+    fclose(f);
+    *n = (size_t)size;
+    return d;
+}
+
+START_TEST(record_round_trip)
+{
+    char dir[PATHLEN], path[PATHLEN + 16], err[1024];
+    fresh_dir(dir, sizeof dir, "rt");
+    ck_assert_int_eq(mkdir(dir, 0700), 0);
+    snprintf(path, sizeof path, "%s/rec", dir);
+    uint8_t data[5000];
+    for (size_t i = 0; i < sizeof data; i++)
+        data[i] = (uint8_t)(i * 131 + 7);
+    write_rec(path, STORE_KIND_CHECKPOINT, data, sizeof data, 0);
+    store_rec_t rec;
+    ck_assert_msg(store_rec_load(path, STORE_KIND_CHECKPOINT, &rec, err, sizeof err) == 0, "%s", err);
+    ck_assert_uint_eq(rec.size, sizeof data);
+    ck_assert_int_eq(memcmp(rec.data, data, sizeof data), 0);
+    uint8_t first[10];
+    ck_assert_int_eq(store_rec_read(&rec, first, sizeof first), 0);
+    ck_assert_int_eq(memcmp(first, data, sizeof first), 0);
+    store_rec_free(&rec);
+    /* another kind is refused */
+    ck_assert_int_eq(store_rec_load(path, STORE_KIND_FINAL, &rec, err, sizeof err), -1);
+    ck_assert_msg(strstr(err, "another kind"), "%s", err);
+    /* no temporary file is left behind */
+    char cmd[PATHLEN + 64], out[4096];
+    snprintf(cmd, sizeof cmd, "ls '%s'", dir);
+    tu_run(cmd, out, sizeof out);
+    ck_assert_msg(strstr(out, ".tmp.") == NULL, "left behind: %s", out);
+    rm_rf(dir);
+}
+END_TEST
+
+/* Every truncation and every single-bit flip is found: garbage is never
+ * read as a record. */
+START_TEST(record_damage_found)
+{
+    char dir[PATHLEN], path[PATHLEN + 16], err[1024];
+    fresh_dir(dir, sizeof dir, "dmg");
+    ck_assert_int_eq(mkdir(dir, 0700), 0);
+    snprintf(path, sizeof path, "%s/rec", dir);
+    const char text[] = "{\"state\":\"done\",\"samples\":123456}";
+    write_rec(path, STORE_KIND_FINAL, text, sizeof text - 1, 0);
+    size_t n;
+    uint8_t *good = read_file(path, &n);
+    store_rec_t rec;
+    ck_assert_int_eq(store_rec_parse(good, n, STORE_KIND_FINAL, &rec, err, sizeof err), 0);
+    store_rec_free(&rec);
+    for (size_t cut = 0; cut < n; cut++) {
+        ck_assert_msg(store_rec_parse(good, cut, STORE_KIND_FINAL, &rec, err, sizeof err) == -1,
+                      "a record cut at %zu of %zu bytes was accepted", cut, n);
+        ck_assert(err[0] != '\0');
+    }
+    uint8_t *bad = malloc(n);
+    for (size_t byte = 0; byte < n; byte++)
+        for (int bit = 0; bit < 8; bit++) {
+            memcpy(bad, good, n);
+            bad[byte] ^= (uint8_t)(1u << bit);
+            ck_assert_msg(store_rec_parse(bad, n, STORE_KIND_FINAL, &rec, err, sizeof err) == -1,
+                          "bit %d of byte %zu flipped was accepted", bit, byte);
+        }
+    /* the messages say what is wrong */
+    memcpy(bad, good, n);
+    bad[n / 2] ^= 1;
+    store_rec_parse(bad, n, STORE_KIND_FINAL, &rec, err, sizeof err);
+    ck_assert_msg(strstr(err, "checksum"), "%s", err);
+    memcpy(bad, good, n);
+    bad[8] = 9; /* format version */
+    store_rec_parse(bad, n, STORE_KIND_FINAL, &rec, err, sizeof err);
+    ck_assert_msg(strstr(err, "format version 9"), "%s", err);
+    free(bad);
+    free(good);
+    rm_rf(dir);
+}
+END_TEST
+
+START_TEST(keep_prev)
+{
+    char dir[PATHLEN], path[PATHLEN + 16], prev[PATHLEN + 32], err[1024];
+    fresh_dir(dir, sizeof dir, "prev");
+    ck_assert_int_eq(mkdir(dir, 0700), 0);
+    snprintf(path, sizeof path, "%s/checkpoint", dir);
+    snprintf(prev, sizeof prev, "%s.prev", path);
+    write_rec(path, STORE_KIND_CHECKPOINT, "one", 3, 1);
+    ck_assert_int_ne(access(prev, F_OK), 0);
+    write_rec(path, STORE_KIND_CHECKPOINT, "two", 3, 1);
+    store_rec_t rec;
+    ck_assert_int_eq(store_rec_load(path, STORE_KIND_CHECKPOINT, &rec, err, sizeof err), 0);
+    ck_assert_int_eq(memcmp(rec.data, "two", 3), 0);
+    store_rec_free(&rec);
+    ck_assert_int_eq(store_rec_load(prev, STORE_KIND_CHECKPOINT, &rec, err, sizeof err), 0);
+    ck_assert_int_eq(memcmp(rec.data, "one", 3), 0);
+    store_rec_free(&rec);
+    rm_rf(dir);
+}
+END_TEST
+
+/* Ids increase across reopenings and never repeat, even when the meta
+ * record is lost: the job directories carry them too. */
+START_TEST(job_ids_increase)
+{
+    char dir[PATHLEN], err[1024], path[PATHLEN + 64];
+    fresh_dir(dir, sizeof dir, "ids");
+    store_t *s = store_open(dir, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    ck_assert_uint_eq(store_boots(s), 1);
+    uint64_t a = store_take_job_id(s, err, sizeof err), b = store_take_job_id(s, err, sizeof err);
+    ck_assert_uint_eq(a, 1);
+    ck_assert_uint_eq(b, 2);
+    ck_assert_int_eq(store_job_dir(s, b, err, sizeof err), 0);
+    store_close(&s);
+    s = store_open(dir, err, sizeof err);
+    ck_assert_ptr_nonnull(s);
+    ck_assert_uint_eq(store_boots(s), 2);
+    ck_assert_uint_eq(store_take_job_id(s, err, sizeof err), 3);
+    store_close(&s);
+    /* meta gone: the directory of job 2 still says ids 1 and 2 are taken */
+    snprintf(path, sizeof path, "%s/meta", dir);
+    ck_assert_int_eq(unlink(path), 0);
+    s = store_open(dir, err, sizeof err);
+    ck_assert_ptr_nonnull(s);
+    ck_assert_uint_ge(store_take_job_id(s, err, sizeof err), 3);
+    uint64_t *ids;
+    size_t count;
+    ck_assert_int_eq(store_job_ids(s, &ids, &count, err, sizeof err), 0);
+    ck_assert_uint_eq(count, 1);
+    ck_assert_uint_eq(ids[0], 2);
+    free(ids);
+    ck_assert_int_eq(store_job_remove(s, 2, err, sizeof err), 0);
+    ck_assert_int_eq(store_job_ids(s, &ids, &count, err, sizeof err), 0);
+    ck_assert_uint_eq(count, 0);
+    free(ids);
+    store_close(&s);
+    rm_rf(dir);
+}
+END_TEST
+
+typedef struct seen {
+    uint64_t ids[8];
+    char errors[8][64];
+    int n;
+} seen_t;
+
+static void on_report(void *ctx, uint64_t id, const char *error)
+{
+    seen_t *s = ctx;
+    if (s->n < 8) {
+        s->ids[s->n] = id;
+        snprintf(s->errors[s->n], sizeof s->errors[s->n], "%s", error ? error : "");
+        s->n++;
+    }
+}
+
+static int child_writes(void *ctx, int fd)
+{
+    (void)ctx;
+    store_bg_report(fd, 7, NULL);
+    store_bg_report(fd, 8, "disk\nfull");
+    return 3;
+}
+
+START_TEST(background_writer)
+{
+    char dir[PATHLEN], err[1024];
+    fresh_dir(dir, sizeof dir, "bg");
+    store_t *s = store_open(dir, err, sizeof err);
+    ck_assert_ptr_nonnull(s);
+    ck_assert_int_eq(store_bg_start(s, child_writes, NULL, err, sizeof err), 0);
+    ck_assert(store_bg_running(s));
+    /* one child at a time */
+    ck_assert_int_eq(store_bg_start(s, child_writes, NULL, err, sizeof err), -1);
+    seen_t seen = {0};
+    int status = -1, done = 0;
+    for (int i = 0; i < 5000 && !done; i++) {
+        done = store_bg_poll(s, on_report, &seen, &status);
+        if (!done)
+            usleep(1000);
+    }
+    ck_assert(done);
+    ck_assert_int_eq(status, 3);
+    ck_assert_int_eq(seen.n, 2);
+    ck_assert_uint_eq(seen.ids[0], 7);
+    ck_assert_str_eq(seen.errors[0], "");
+    ck_assert_uint_eq(seen.ids[1], 8);
+    ck_assert_str_eq(seen.errors[1], "disk full"); /* one line per report */
+    ck_assert(!store_bg_running(s));
+    ck_assert_uint_eq(store_bg_last(s).runs, 1);
+    store_close(&s);
+    rm_rf(dir);
+}
+END_TEST
+
+START_TEST(checksum_split_invariant)
+{
+    uint8_t data[1000], a[32], b[32];
+    for (size_t i = 0; i < sizeof data; i++)
+        data[i] = (uint8_t)(i ^ (i >> 3));
+    store_sum_t c;
+    store_sum_init(&c);
+    store_sum_update(&c, data, sizeof data);
+    store_sum_final(&c, a);
+    for (size_t cut = 0; cut <= sizeof data; cut += 37) {
+        store_sum_init(&c);
+        store_sum_update(&c, data, cut);
+        store_sum_update(&c, data + cut, sizeof data - cut);
+        store_sum_final(&c, b);
+        ck_assert_int_eq(memcmp(a, b, 32), 0);
+    }
+    /* a zero byte appended is another input */
+    store_sum_init(&c);
+    uint8_t longer[1001] = {0};
+    memcpy(longer, data, sizeof data);
+    store_sum_update(&c, longer, sizeof longer);
+    store_sum_final(&c, b);
+    ck_assert_int_ne(memcmp(a, b, 32), 0);
+}
+END_TEST
+
+START_TEST(lease_fifo)
+{
+    lease_queue_t *q = lease_queue_new();
+    ck_assert_ptr_nonnull(q);
+    lease_t out;
+    ck_assert_int_eq(lease_pop_expired(q, 100.0, &out), 0);
+    /* more than the first allocation, wrapping around as it goes */
+    for (uint64_t i = 0; i < 1000; i++) {
+        lease_t l = {.job = 1, .task = i + 1, .attempt = 1, .deadline = (double)i};
+        ck_assert_int_eq(lease_push(q, &l), 0);
+        if (i % 3 == 0) {
+            ck_assert_int_eq(lease_pop_expired(q, 1e9, &out), 1);
+        }
+    }
+    size_t left = lease_count(q);
+    ck_assert_uint_eq(left, 1000 - 334);
+    /* only those past their deadline, oldest first */
+    double last = -1;
+    size_t popped = 0;
+    while (lease_pop_expired(q, 900.5, &out)) {
+        ck_assert(out.deadline < 900.5);
+        ck_assert(out.deadline > last);
+        last = out.deadline;
+        popped++;
+    }
+    ck_assert_uint_eq(lease_count(q), left - popped);
+    ck_assert_int_eq(lease_pop_expired(q, 900.5, &out), 0);
+    ck_assert_double_eq(last, 900.0);
+    lease_queue_destroy(&q);
+    ck_assert_ptr_null(q);
+}
+END_TEST
+
+static Suite *store_suite(void)
+{
+    Suite *s = suite_create("store");
+    TCase *tc = tcase_create("store");
+    tcase_set_timeout(tc, 60);
+    tcase_add_test(tc, record_round_trip);
+    tcase_add_test(tc, record_damage_found);
+    tcase_add_test(tc, keep_prev);
+    tcase_add_test(tc, job_ids_increase);
+    tcase_add_test(tc, background_writer);
+    tcase_add_test(tc, checksum_split_invariant);
+    tcase_add_test(tc, lease_fifo);
+    suite_add_tcase(s, tc);
+    return s;
+}
+
+int main(void)
+{
+    SRunner *sr = srunner_create(store_suite());
+    srunner_run_all(sr, CK_NORMAL);
+    int failed = srunner_ntests_failed(sr);
+    srunner_free(sr);
+    return failed == 0 ? EXIT_SUCCESS : EXIT_FAILURE;
+}
