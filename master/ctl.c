@@ -70,44 +70,106 @@ static cJSON *ok_with_job(const job_t *j)
     return b;
 }
 
+static int inflight_find(const master_t *m, const char *rid)
+{
+    for (size_t i = 0; i < m->inflight_n; i++)
+        if (strcmp(m->inflight[i], rid) == 0)
+            return (int)i;
+    return -1;
+}
+
+static void inflight_add(master_t *m, const char *rid)
+{
+    if (m->inflight_n == m->inflight_cap) {
+        size_t cap = m->inflight_cap ? 2 * m->inflight_cap : 16;
+        char(*n)[MASTER_MAX_REQUEST_ID + 1] = realloc(m->inflight, cap * sizeof *n);
+        if (!n)
+            return; /* a duplicate may then make a second job: rare and harmless */
+        m->inflight = n;
+        m->inflight_cap = cap;
+    }
+    snprintf(m->inflight[m->inflight_n++], sizeof m->inflight[0], "%s", rid);
+}
+
+static void inflight_remove(master_t *m, const char *rid)
+{
+    int i = inflight_find(m, rid);
+    if (i >= 0)
+        memmove(&m->inflight[i], &m->inflight[i + 1], (m->inflight_n - (size_t)i - 1) * sizeof m->inflight[0]);
+    if (i >= 0)
+        m->inflight_n--;
+}
+
+static cJSON *duplicate_body(const job_t *j)
+{
+    /* the client retried after a lost reply: the job exists already */
+    cJSON *b = ok_body();
+    cJSON_AddNumberToObject(b, "job", (double)j->id);
+    cJSON_AddBoolToObject(b, "duplicate", 1);
+    return b;
+}
+
+static const char *request_id_of(const cJSON *req)
+{
+    const cJSON *rid = cJSON_GetObjectItemCaseSensitive(req, "request_id");
+    return cJSON_IsString(rid) && strlen(rid->valuestring) <= MASTER_MAX_REQUEST_ID ? rid->valuestring : NULL;
+}
+
+/* The request goes to the offload thread (scene loading, storing); the
+ * reply follows when it is done (ctl_offload_done). */
 static cJSON *ctl_submit(ctl_req_t *r)
 {
     master_t *m = r->m;
-    char err[MASTER_ERR_LEN];
-    const cJSON *rid = cJSON_GetObjectItemCaseSensitive(r->body, "request_id");
-    job_t *dup = cJSON_IsString(rid) ? job_find_by_request(m, rid->valuestring) : NULL;
-    if (dup) {
-        /* the client retried after a lost reply: the job exists already */
-        cJSON *b = ok_body();
-        cJSON_AddNumberToObject(b, "job", (double)dup->id);
-        cJSON_AddBoolToObject(b, "duplicate", 1);
-        return b;
+    const char *rid = request_id_of(r->body);
+    job_t *dup = rid ? job_find_by_request(m, rid) : NULL;
+    if (dup)
+        return duplicate_body(dup);
+    offload_item_t *it = offload_item_new(OFFLOAD_SUBMIT);
+    if (!it || !(it->req = cJSON_Duplicate(r->body, 1))) {
+        offload_item_free(it);
+        return error_body("out of memory");
     }
-    submit_frame_t frames[PROTO_MAX_MESHES + 4];
+    zmq_msg_copy(&it->client, r->id);
+    zmq_msg_move(&it->frames[0], r->json_frame);
     for (int i = 0; i < r->nextra; i++)
-        frames[i] = (submit_frame_t){zmq_msg_data(&r->extra[i]), zmq_msg_size(&r->extra[i])};
-    job_t *j = submit_parse(r->body, frames, r->nextra, err, sizeof err);
-    if (!j) {
-        master_log_limited(m, "refused-submission", "refused a submission: %s", err);
-        return error_body("%s", err);
-    }
-    if (m->store) {
-        /* durable before the client hears the id */
-        if (persist_submission(m, j, zmq_msg_data(r->json_frame), zmq_msg_size(r->json_frame), frames,
-                               r->nextra, err, sizeof err) < 0) {
-            master_log(m, "refused a submission: cannot store it: %s", err);
-            job_free(j);
-            return error_body("the master cannot store the job: %s", err);
-        }
+        zmq_msg_move(&it->frames[1 + i], &r->extra[i]);
+    it->nframes = 1 + r->nextra;
+    if (rid && inflight_find(m, rid) >= 0)
+        it->kind = OFFLOAD_SUBMIT_DUPLICATE; /* answered once the first is in */
+    else if (rid)
+        inflight_add(m, rid);
+    offload_push(m->offload, it);
+    return NULL;
+}
+
+/* A submission the offload thread has checked (and stored). */
+static void submit_done(master_t *m, offload_item_t *it)
+{
+    const char *rid = request_id_of(it->req);
+    job_t *dup = rid ? job_find_by_request(m, rid) : NULL;
+    cJSON *b;
+    if (it->kind == OFFLOAD_SUBMIT_DUPLICATE && dup) {
+        b = duplicate_body(dup);
+    } else if (it->kind == OFFLOAD_SUBMIT_DUPLICATE) {
+        b = error_body("the first try of this request failed; submit again");
+    } else if (!it->job) {
+        master_log_limited(m, "refused-submission", "refused a submission: %s", it->err);
+        b = error_body("%s", it->err);
     } else {
-        j->id = ++m->next_job;
+        job_t *j = it->job;
+        it->job = NULL;
+        if (!m->store)
+            j->id = ++m->next_job;
+        j->submitted = master_now();
+        job_append(m, j);
+        master_log(m, "job %" PRIu64 " queued: %s", j->id, j->name);
+        b = ok_body();
+        cJSON_AddNumberToObject(b, "job", (double)j->id);
     }
-    j->submitted = master_now();
-    job_append(m, j);
-    master_log(m, "job %" PRIu64 " queued: %s", j->id, j->name);
-    cJSON *b = ok_body();
-    cJSON_AddNumberToObject(b, "job", (double)j->id);
-    return b;
+    if (rid && it->kind == OFFLOAD_SUBMIT)
+        inflight_remove(m, rid);
+    reply_json(m, &it->client, b, 0);
+    cJSON_Delete(b);
 }
 
 static cJSON *ctl_jobs(ctl_req_t *r)
@@ -189,38 +251,74 @@ static cJSON *ctl_delete(ctl_req_t *r)
     return b;
 }
 
-static cJSON *ctl_fetch(ctl_req_t *r)
+/* The reply to fetch: the job's status, its channel names, then one frame
+ * per channel. */
+static void send_image(master_t *m, zmq_msg_t *client, const job_t *j, const image_t *img)
 {
-    master_t *m = r->m;
-    job_t *j = r->job;
-    image_t *img;
-    char err[MASTER_ERR_LEN] = "out of memory";
-    if (j->sched)
-        img = film_to_image(sched_film(j->sched));
-    else
-        img = persist_load_image(m, j, err, sizeof err);
-    if (!img)
-        return error_body("fetch: %s", err);
     cJSON *b = ok_body();
-    cJSON *st = job_json(j, 1);
-    if (!j->sched && m->store) {
-        /* the error series lives with the final status, on disk */
-        cJSON *series = cJSON_GetObjectItemCaseSensitive(j->summary, "error_series");
-        if (series && st && !cJSON_GetObjectItemCaseSensitive(st, "error_series"))
-            cJSON_AddItemToObject(st, "error_series", cJSON_Duplicate(series, 1));
-    }
-    cJSON_AddItemToObject(b, "job", st);
+    cJSON_AddItemToObject(b, "job", job_json(j, 1));
     cJSON *ch = cJSON_AddArrayToObject(b, "channels");
     for (int c = 0; c < img->channel_count; c++)
         cJSON_AddItemToArray(ch, cJSON_CreateString(img->channel_names[c]));
-    reply_json(m, r->id, b, 1);
+    reply_json(m, client, b, 1);
     cJSON_Delete(b);
     size_t plane = (size_t)img->width * img->height * sizeof(float);
     for (int c = 0; c < img->channel_count; c++)
         zmq_send(m->control_sock, img->channels[c], plane,
                  (c + 1 < img->channel_count ? ZMQ_SNDMORE : 0) | ZMQ_DONTWAIT);
+}
+
+static cJSON *ctl_fetch(ctl_req_t *r)
+{
+    master_t *m = r->m;
+    job_t *j = r->job;
+    if (!j->sched) {
+        /* an ended job's image is on disk: read it off the loop */
+        offload_item_t *it = offload_item_new(OFFLOAD_FETCH);
+        if (!it)
+            return error_body("out of memory");
+        zmq_msg_copy(&it->client, r->id);
+        it->job_id = j->id;
+        persist_image_path(m, j, it->path, sizeof it->path);
+        offload_push(m->offload, it);
+        return NULL;
+    }
+    image_t *img = film_to_image(sched_film(j->sched));
+    if (!img)
+        return error_body("fetch: out of memory");
+    send_image(m, r->id, j, img);
     image_destroy(&img);
     return NULL;
+}
+
+static void fetch_done(master_t *m, offload_item_t *it)
+{
+    job_t *j = job_find(m, it->job_id);
+    cJSON *b = NULL;
+    if (!j)
+        b = error_body("fetch: no such job %" PRIu64 " (deleted meanwhile)", it->job_id);
+    else if (!it->image)
+        b = error_body("fetch: %s", it->err);
+    if (b) {
+        reply_json(m, &it->client, b, 0);
+        cJSON_Delete(b);
+        return;
+    }
+    send_image(m, &it->client, j, it->image);
+}
+
+void ctl_offload_done(master_t *m)
+{
+    offload_item_t *it = offload_take_done(m->offload);
+    while (it) {
+        offload_item_t *next = it->next;
+        if (it->kind == OFFLOAD_FETCH)
+            fetch_done(m, it);
+        else
+            submit_done(m, it);
+        offload_item_free(it);
+        it = next;
+    }
 }
 
 static const ctl_command_t ctl_commands[] = {

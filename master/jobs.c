@@ -64,7 +64,7 @@ static void free_bundle(job_t *j)
 void job_shed(job_t *j)
 {
     if (!j->summary)
-        j->summary = job_json(j, 0);
+        j->summary = job_json(j, 1);
     if (!j->summary)
         return; /* out of memory: keep the job whole */
     free_bundle(j);
@@ -204,6 +204,8 @@ cJSON *job_json(const job_t *j, int with_series)
         /* an ended job whose film is on disk: its status as of the end, with
          * what may have changed since */
         cJSON *o = cJSON_Duplicate(j->summary, 1);
+        if (o && !with_series)
+            cJSON_DeleteItemFromObjectCaseSensitive(o, "error_series");
         if (o && j->storage_error[0]) {
             cJSON_DeleteItemFromObjectCaseSensitive(o, "storage_error");
             cJSON_AddStringToObject(o, "storage_error", j->storage_error);

@@ -164,6 +164,10 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
         /* attempts of this boot never equal a late result's from the last */
         m->attempt_base = (store_boots(m->store) & 0xfff) << 20;
     }
+    if (!(m->offload = offload_new(m->store, err, errlen))) {
+        master_destroy(&m);
+        return NULL;
+    }
     if (open_sockets(m, err, errlen) < 0) {
         master_destroy(&m);
         return NULL;
@@ -177,9 +181,11 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
 
 int master_run(master_t *m, const atomic_int *stop)
 {
-    zmq_pollitem_t items[2] = {{m->workers_sock, 0, ZMQ_POLLIN, 0}, {m->control_sock, 0, ZMQ_POLLIN, 0}};
+    zmq_pollitem_t items[3] = {{m->workers_sock, 0, ZMQ_POLLIN, 0},
+                               {m->control_sock, 0, ZMQ_POLLIN, 0},
+                               {NULL, offload_fd(m->offload), ZMQ_POLLIN, 0}};
     while (!(stop && atomic_load(stop)) && !m->shutdown) {
-        int rc = zmq_poll(items, 2, MASTER_POLL_MS);
+        int rc = zmq_poll(items, 3, MASTER_POLL_MS);
         if (rc < 0 && errno != EINTR)
             break;
         /* bounded batches so neither socket starves the other */
@@ -193,6 +199,8 @@ int master_run(master_t *m, const atomic_int *stop)
         }
         if (items[1].revents & ZMQ_POLLIN)
             ctl_handle_message(m);
+        if (items[2].revents & ZMQ_POLLIN)
+            ctl_offload_done(m);
         double now = master_now();
         if (now - m->last_timer >= MASTER_TIMER_S) {
             periodic(m, now);
@@ -216,7 +224,9 @@ void master_destroy(master_t **mp)
         zmq_close(m->workers_sock);
     if (m->control_sock)
         zmq_close(m->control_sock);
+    offload_destroy(&m->offload); /* before the store it writes to */
     store_close(&m->store);
+    free(m->inflight);
     job_t *j = m->jobs;
     while (j) {
         job_t *next = j->next;

@@ -28,6 +28,7 @@
 
 #include "lease.h"
 #include "master.h"
+#include "offload.h"
 #include "proto.h"
 #include "sched.h"
 #include "store.h"
@@ -136,6 +137,9 @@ struct master {
     tracer_result_t *results; /* decode buffer */
     lease_queue_t *leases;
     store_t *store;          /* NULL: --state none, or embedded */
+    offload_t *offload;      /* slow control work, off the loop */
+    char (*inflight)[MASTER_MAX_REQUEST_ID + 1]; /* request ids being submitted */
+    size_t inflight_n, inflight_cap;
     uint32_t attempt_base;   /* first attempt number of this boot */
     uint64_t *doomed;        /* job ids to remove from the store */
     size_t doomed_n, doomed_cap;
@@ -194,15 +198,18 @@ void dispatch(master_t *m);
 
 /* ctl.c */
 void ctl_handle_message(master_t *m);
+/* Replies to the control work the offload thread has finished. */
+void ctl_offload_done(master_t *m);
 
 /* persist.c */
 enum { PERSIST_CHECKPOINT = 1, PERSIST_FINAL = 2 };
-int persist_submission(master_t *m, job_t *j, const void *req, size_t req_size, const submit_frame_t *frames,
+/* Writes a submission and gives the job its id (the offload thread). */
+int persist_submission(store_t *store, job_t *j, const void *req, size_t req_size, const submit_frame_t *frames,
                        int nframes, char *err, size_t errlen);
+/* Where an ended job's image is; "" without a store. */
+void persist_image_path(master_t *m, const job_t *j, char *out, size_t outlen);
 void persist_tick(master_t *m, double now, int force);
 void persist_recover(master_t *m);
 void persist_finish(master_t *m); /* at shutdown: last checkpoints, wait */
-/* An ended job's image from the store; NULL with a message. */
-image_t *persist_load_image(master_t *m, const job_t *j, char *err, size_t errlen);
 
 #endif

@@ -45,16 +45,16 @@ static int injected_write_failure(char *err, size_t errlen)
 
 /* ---- submissions ----------------------------------------------------------------- */
 
-int persist_submission(master_t *m, job_t *j, const void *req, size_t req_size, const submit_frame_t *frames,
+int persist_submission(store_t *store, job_t *j, const void *req, size_t req_size, const submit_frame_t *frames,
                        int nframes, char *err, size_t errlen)
 {
     if (injected_write_failure(err, errlen) < 0)
         return -1;
-    uint64_t id = store_take_job_id(m->store, err, errlen);
-    if (!id || store_job_dir(m->store, id, err, errlen) < 0)
+    uint64_t id = store_take_job_id(store, err, errlen);
+    if (!id || store_job_dir(store, id, err, errlen) < 0)
         return -1;
     char path[4096];
-    store_job_path(m->store, id, "submit", path, sizeof path);
+    store_job_path(store, id, "submit", path, sizeof path);
     store_rec_writer_t *w = malloc(sizeof *w);
     if (!w) {
         snprintf(err, errlen, "out of memory");
@@ -70,7 +70,7 @@ int persist_submission(master_t *m, job_t *j, const void *req, size_t req_size, 
     if (rc < 0) {
         snprintf(err, errlen, "%s", w->err);
         store_rec_abort(w);
-        store_job_remove(m->store, id, NULL, 0);
+        store_job_remove(store, id, NULL, 0);
     }
     free(w);
     if (rc < 0)
@@ -335,18 +335,12 @@ void persist_finish(master_t *m)
     collect(m);
 }
 
-image_t *persist_load_image(master_t *m, const job_t *j, char *err, size_t errlen)
+void persist_image_path(master_t *m, const job_t *j, char *out, size_t outlen)
 {
-    if (!m->store) {
-        snprintf(err, errlen, "job %" PRIu64 " has no image", j->id);
-        return NULL;
-    }
-    char path[4096];
-    store_job_path(m->store, j->id, "image.exr", path, sizeof path);
-    image_t *img = NULL;
-    if (image_read_exr(path, &img, err, errlen) < 0)
-        return NULL;
-    return img;
+    if (m->store)
+        store_job_path(m->store, j->id, "image.exr", out, outlen);
+    else if (outlen)
+        out[0] = '\0';
 }
 
 /* ---- recovery ------------------------------------------------------------------------ */
