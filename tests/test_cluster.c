@@ -1956,6 +1956,36 @@ START_TEST(lossy_link)
     net_fault(1);
 }
 END_TEST
+/* A submission of 2^20 layers (the scheduler's t factors were once computed
+ * for each at submit, 55 s on the master's only thread): the master keeps
+ * answering and keeps its worker. */
+START_TEST(big_submit)
+{
+    char scene[PATHLEN];
+    scene_file(scene, sizeof scene, 1, NULL, NULL);
+    int port = slot_port(12);
+    daemon_t *m = start_master(&port, "o-master");
+    start_worker(port, 1, "o-worker", NULL);
+    wait_workers(port + 1, 1);
+    unsigned long long job =
+        submit(port + 1, scene, "--spp 33554432 --granularity 32 --adaptive relerr --target-error 0.01");
+    for (int i = 0; i < 20; i++) {
+        double t0 = now_ms();
+        cJSON *r = ctl(port + 1, "jobs", 0);
+        ck_assert_msg(r != NULL, "the master did not answer within 5 s\n%s", logs_tail());
+        cJSON_Delete(r);
+        ck_assert_msg(now_ms() - t0 < 2000, "jobs took %.0f ms", now_ms() - t0);
+        sleep_ms(50);
+    }
+    wait_workers(port + 1, 1);
+    cJSON *r = ctl(port + 1, "cancel", job);
+    ck_assert_ptr_nonnull(r);
+    cJSON_Delete(r);
+    assert_alive(m);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
 
 /* ---- suite ------------------------------------------------------------------------ */
 
@@ -1974,7 +2004,7 @@ static Suite *cluster_suite(void)
         {"master_crash", master_crash},         {"corrupt_checkpoint", corrupt_checkpoint},
         {"storage_failure", storage_failure},   {"churn", churn},
         {"flood", flood},                       {"partition", partition},
-        {"lossy_link", lossy_link},
+        {"lossy_link", lossy_link},             {"big_submit", big_submit},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         TCase *tc = tcase_create(cases[i].name);
