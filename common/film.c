@@ -43,6 +43,33 @@ static inline void neumaier_add(double *sum, double *c, double x)
     *sum = t;
 }
 
+/* The pixel's M2 after merging r (Chan et al.: M2 = M2a + M2b + delta^2
+ * na nb / n, means from the sums). */
+static double merged_m2(const film_pixel_t *p, const tracer_result_t *r)
+{
+    if (p->count == 0)
+        return r->lum_m2;
+    double na = (double)p->count, nb = (double)r->samples;
+    double sa[3] = {p->sum[0] + p->comp[0], p->sum[1] + p->comp[1], p->sum[2] + p->comp[2]};
+    double mean_a = vmath_luminance(sa[0], sa[1], sa[2]) / na;
+    double mean_b = vmath_luminance(r->sum[0], r->sum[1], r->sum[2]) / nb;
+    double delta = mean_b - mean_a;
+    return p->lum_m2 + r->lum_m2 + delta * delta * na * nb / (na + nb);
+}
+
+int film_merge_check(const film_t *f, const tracer_result_t *r)
+{
+    if ((uint64_t)r->pixel >= (uint64_t)f->width * (uint64_t)f->height)
+        return -1;
+    const film_pixel_t *p = &f->pixels[r->pixel];
+    if (r->samples == 0)
+        return 0;
+    for (int c = 0; c < 3; c++)
+        if (!isfinite(p->sum[c] + p->comp[c] + r->sum[c]) || !isfinite(p->sum[c] + r->sum[c]))
+            return -1;
+    return isfinite(merged_m2(p, r)) ? 0 : -1;
+}
+
 int film_merge(film_t *f, const tracer_result_t *r)
 {
     if ((uint64_t)r->pixel >= (uint64_t)f->width * (uint64_t)f->height)
@@ -53,17 +80,7 @@ int film_merge(film_t *f, const tracer_result_t *r)
     p->layers++;
     if (r->samples == 0)
         return 0;
-    /* Chan et al.: M2 = M2a + M2b + delta^2 na nb / n, means from the sums. */
-    double na = (double)p->count, nb = (double)r->samples;
-    if (p->count > 0) {
-        double sa[3] = {p->sum[0] + p->comp[0], p->sum[1] + p->comp[1], p->sum[2] + p->comp[2]};
-        double mean_a = vmath_luminance(sa[0], sa[1], sa[2]) / na;
-        double mean_b = vmath_luminance(r->sum[0], r->sum[1], r->sum[2]) / nb;
-        double delta = mean_b - mean_a;
-        p->lum_m2 += r->lum_m2 + delta * delta * na * nb / (na + nb);
-    } else {
-        p->lum_m2 = r->lum_m2;
-    }
+    p->lum_m2 = merged_m2(p, r);
     for (int c = 0; c < 3; c++)
         neumaier_add(&p->sum[c], &p->comp[c], r->sum[c]);
     p->count += r->samples;

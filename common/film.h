@@ -38,6 +38,10 @@ void film_destroy(film_t **f);
  * pixel). Returns -1 if the pixel is outside the film. */
 int film_merge(film_t *f, const tracer_result_t *r);
 
+/* Whether merging r keeps the pixel finite: 0, or -1 when a sum or M2
+ * would overflow (a result that must be refused, not merged). */
+int film_merge_check(const film_t *f, const tracer_result_t *r);
+
 /* Fills a task's "so far" fields (prior_count, prior_sum) for a pixel. */
 void film_prior(const film_t *f, tracer_task_t *task);
 

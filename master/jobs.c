@@ -157,6 +157,7 @@ void job_release_all(master_t *m, job_t *j)
             peer_t *w = &m->workers[j->holder[c] - 1];
             if (w->outstanding)
                 w->outstanding--;
+            w->owed++;
             j->holder[c] = 0;
         }
     j->outstanding = 0;

@@ -54,6 +54,7 @@ static void expire_leases(master_t *m, double now)
                    m->workers[j->holder[c] - 1].host);
         /* No credit back here: the slow worker still holds the task, and its
          * late result (ignored) returns the credit then. */
+        m->workers[j->holder[c] - 1].owed++;
         job_reissue(m, j, c);
     }
 }

@@ -68,6 +68,10 @@ typedef struct peer {
     uint32_t threads;
     uint32_t credit;
     uint32_t outstanding;
+    uint32_t owed;        /* tasks taken back while it still works on them
+                             (lease ran out, job ended): their late results
+                             return credit, other unmatched results do not */
+    uint32_t bad_results; /* results refused as out of range or misfit */
     double joined, last_seen, last_sent;
     uint64_t rays, tasks_done, busy_us, samples;
     int alive;

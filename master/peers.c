@@ -252,22 +252,43 @@ static void on_task_failed(master_t *m, peer_t *w, job_t *j, size_t c, const cha
     }
 }
 
+/* The most tasks a worker may hold or be owed: what an honest worker of
+ * its size asks for. */
+static uint32_t credit_cap(const peer_t *w)
+{
+    uint64_t cap = (uint64_t)PROTO_CREDIT_PER_THREAD * (w->threads ? w->threads : 1);
+    return cap > PROTO_MAX_CREDIT ? PROTO_MAX_CREDIT : (uint32_t)cap;
+}
+
+/* A result that matches no task the worker holds: late (its task was taken
+ * back, which returns the credit) or made up (which returns nothing, so
+ * results cannot forge credit). */
+static void unmatched_result(master_t *m, peer_t *w, job_t *j)
+{
+    if (w->owed > 0) {
+        w->owed--;
+        w->credit++;
+    }
+    if (j)
+        j->late_results++;
+    m->dropped_late++;
+}
+
 static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
 {
     job_t *j = job_find(m, msg->h.job);
-    w->credit++; /* a result returns the task's credit */
-    if (!j || j->state != JOB_RUNNING) {
-        m->dropped_late++;
+    if (!j || j->state != JOB_RUNNING || !j->holder) {
+        unmatched_result(m, w, NULL);
         return;
     }
     uint64_t id = msg->h.task;
     size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
     uint32_t slot = (uint32_t)(w - m->workers) + 1;
     if (id == 0 || id > cells || j->holder[id - 1] != slot || j->attempt[id - 1] != msg->h.attempt) {
-        j->late_results++;
-        m->dropped_late++;
+        unmatched_result(m, w, j);
         return;
     }
+    w->credit++; /* a result of a task it holds returns the task's credit */
     size_t c = (size_t)(id - 1);
     if (msg->h.type == PROTO_TASK_FAILED) {
         on_task_failed(m, w, j, c, msg->u.text.text);
@@ -420,9 +441,14 @@ static void on_message(master_t *m, const uint8_t *id, size_t id_len, proto_msg_
     }
     w->last_seen = master_now();
     switch (msg->h.type) {
-    case PROTO_CREDIT:
-        w->credit = w->credit + msg->u.credit > PROTO_MAX_CREDIT ? PROTO_MAX_CREDIT : w->credit + msg->u.credit;
+    case PROTO_CREDIT: {
+        /* credit, tasks held and tasks owed never exceed what a worker of
+         * its size asks for: re-sent CREDIT cannot hoard tasks */
+        uint64_t have = (uint64_t)w->credit + w->outstanding + w->owed, cap = credit_cap(w);
+        uint64_t add = have >= cap ? 0 : cap - have;
+        w->credit += (uint32_t)(msg->u.credit < add ? msg->u.credit : add);
         break;
+    }
     case PROTO_SCENE_REQUEST:
         on_scene_request(m, w, msg);
         break;

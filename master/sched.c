@@ -513,15 +513,38 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
                  count, s->out_count[cell]);
         return -1;
     }
-    /* Check everything before merging anything: a bad result changes nothing. */
+    /* Check everything before merging anything: a bad result changes nothing,
+     * and no merge may make the film non-finite. */
+    uint64_t nonfinite = 0, taken = 0;
     for (uint32_t i = 0; i < count; i++) {
-        if (results[i].pixel != rec[i].pixel ||
-            (uint64_t)results[i].samples + results[i].nonfinite != rec[i].sample_count) {
+        const tracer_result_t *r = &results[i];
+        if (r->pixel != rec[i].pixel || (uint64_t)r->samples + r->nonfinite != rec[i].sample_count) {
             snprintf(err, errlen, "task %llu: result %u is for pixel %u with %u+%u samples, "
-                     "expected pixel %u with %u", (unsigned long long)task_id, i, results[i].pixel,
-                     results[i].samples, results[i].nonfinite, rec[i].pixel, rec[i].sample_count);
+                     "expected pixel %u with %u", (unsigned long long)task_id, i, r->pixel,
+                     r->samples, r->nonfinite, rec[i].pixel, rec[i].sample_count);
             return -1;
         }
+        /* radiance is never negative; sums of no samples are zero */
+        const double n = r->samples, cap = SCHED_MAX_RADIANCE;
+        int bad = !(r->lum_m2 >= 0 && r->lum_m2 <= n * cap * cap) ||
+                  !(r->pvar >= 0 && r->pvar <= (double)rec[i].sample_count * cap * cap);
+        for (int c = 0; c < 3; c++)
+            bad |= !(r->sum[c] >= 0 && r->sum[c] <= n * cap);
+        if (bad || film_merge_check(s->film, r) < 0) {
+            snprintf(err, errlen, "task %llu: result %u (pixel %u) is out of range: sums %g %g %g, M2 %g, "
+                     "eq. 4.1 %g%s", (unsigned long long)task_id, i, r->pixel, r->sum[0], r->sum[1], r->sum[2],
+                     r->lum_m2, r->pvar, bad ? "" : " (the merge would overflow the film)");
+            return -1;
+        }
+        nonfinite += r->nonfinite;
+        taken += rec[i].sample_count;
+    }
+    /* A tracer leaves out a NaN/Inf sample now and then; a task where most
+     * are is a broken or lying worker, not light. */
+    if (taken > 0 && 2 * nonfinite > taken) {
+        snprintf(err, errlen, "task %llu: %llu of %llu samples NaN/Inf: implausible", (unsigned long long)task_id,
+                 (unsigned long long)nonfinite, (unsigned long long)taken);
+        return -1;
     }
     uint32_t layer = (uint32_t)((task_id - 1) / s->ranges), range = (uint32_t)((task_id - 1) % s->ranges);
     double *pv = s->pvar_flight[layer & 1];

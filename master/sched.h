@@ -52,6 +52,11 @@ typedef enum {
  * fewest layers before a pixel may count as converged. */
 #define SCHED_TARGET_EPS 1e-3
 #define SCHED_TARGET_MIN_LAYERS 4
+/* The largest mean radiance a result may report per sample. No scene comes
+ * near it (the brightest test light is 1e7), and squares and sums of it
+ * stay far from overflow in every statistic the master computes: a result
+ * past it is a broken or lying worker, refused before it reaches the film. */
+#define SCHED_MAX_RADIANCE 1e30
 
 /* "thesis", "variance", "relerr", "none"; -1 for anything else. */
 int sched_adaptive_from_name(const char *name);
@@ -110,8 +115,11 @@ int sched_next(sched_t *s, sched_task_t *out);
 int sched_requeue(sched_t *s, uint64_t task_id);
 
 /* Completes a handed-out task with its results (records in the task's pixel
- * order). Checks count, pixels and sample counts against the task; -1 with
- * a message and nothing merged if they do not match; -2 if the task is not
+ * order). Checks count, pixels and sample counts against the task, and
+ * every value's range (finite, non-negative, at most SCHED_MAX_RADIANCE per
+ * sample, zero sums for no samples, at most half the samples NaN/Inf, and
+ * no merge that would make the film non-finite); -1 with a message and
+ * nothing merged if anything is off; -2 if the task is not
  * outstanding (already completed, or never issued). */
 int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count,
                    char *err, size_t errlen);

@@ -31,6 +31,7 @@
 #define PROTO_MAX_BUNDLE (1536u << 20)    /* bytes of a whole bundle payload */
 #define PROTO_MAX_NAME 128                /* mesh file name in a bundle */
 #define PROTO_MAX_CREDIT 1024             /* tasks a worker may ask for at once */
+#define PROTO_CREDIT_PER_THREAD 2         /* what a worker asks for: tasks in flight per thread */
 #define PROTO_MAX_THREADS 4096
 
 #define PROTO_TASK_RECORD_SIZE 48

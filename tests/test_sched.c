@@ -410,6 +410,76 @@ START_TEST(test_bad_configs)
 }
 END_TEST
 
+/* Results are range-checked before anything is merged: a lying or broken
+ * worker's values are refused with a message, the task stays outstanding
+ * (the master issues it again), and the film never becomes non-finite. */
+START_TEST(test_results_range_checked)
+{
+    sched_t *s = make(4, 1, 64, 32, SCHED_ADAPTIVE_NONE, UINT32_MAX, 4);
+    sched_task_t t;
+    tracer_result_t r[4];
+    char err[256];
+    ck_assert_int_eq(sched_next(s, &t), 1);
+    static const struct {
+        int field; /* 0 sum, 1 m2, 2 pvar, 3 all NaN samples, 4 sums without samples */
+        double v;
+        const char *want;
+    } bad[] = {
+        {0, NAN, "out of range"},     {0, INFINITY, "out of range"}, {0, -1.0, "out of range"},
+        {0, 1.7e308, "out of range"}, {0, 32 * 2e30, "out of range"}, {1, -0.5, "out of range"},
+        {1, NAN, "out of range"},     {2, INFINITY, "out of range"}, {3, 0, "implausible"},
+        {4, 1.0, "out of range"},
+    };
+    for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
+        fake_results(&t, r, NULL);
+        switch (bad[k].field) {
+        case 0:
+            r[1].sum[2] = bad[k].v;
+            break;
+        case 1:
+            r[1].lum_m2 = bad[k].v;
+            break;
+        case 2:
+            r[1].pvar = bad[k].v;
+            break;
+        case 3:
+            for (uint32_t i = 0; i < t.count; i++) {
+                r[i].nonfinite = r[i].samples;
+                r[i].samples = 0;
+                r[i].sum[0] = r[i].sum[1] = r[i].sum[2] = r[i].lum_m2 = 0;
+            }
+            break;
+        default:
+            r[1].nonfinite = r[1].samples;
+            r[1].samples = 0;
+            r[1].lum_m2 = 0;
+            r[1].sum[0] = bad[k].v;
+            break;
+        }
+        ck_assert_msg(sched_complete(s, t.id, r, t.count, err, sizeof err) == -1, "case %zu accepted", k);
+        ck_assert_msg(strstr(err, bad[k].want) != NULL, "case %zu: %s", k, err);
+        ck_assert_uint_eq(sched_samples_done(s), 0);
+    }
+    /* just under the cap merges (the film's own overflow check,
+     * film_merge_check, is tested in test_film) */
+    fake_results(&t, r, NULL);
+    r[0].sum[0] = 32 * 0.9e30;
+    ck_assert_msg(sched_complete(s, t.id, r, t.count, err, sizeof err) == 0, "%s", err);
+    const film_t *f = sched_film(s);
+    for (int p = 0; p < 4; p++)
+        for (int c = 0; c < 3; c++)
+            ck_assert(isfinite(f->pixels[p].sum[c]));
+    /* a few NaN samples are light, not lies */
+    ck_assert_int_eq(sched_next(s, &t), 1);
+    fake_results(&t, r, NULL);
+    r[2].nonfinite = 3;
+    r[2].samples -= 3;
+    ck_assert_msg(sched_complete(s, t.id, r, t.count, err, sizeof err) == 0, "%s", err);
+    ck_assert(sched_done(s));
+    sched_destroy(&s);
+}
+END_TEST
+
 /* A submit must not freeze the master: sched_new for a job of about a
  * million layers does no per-layer work beyond zeroed allocations (the t
  * factors are computed when first needed). Not timed: 20 of them took about
@@ -507,7 +577,7 @@ static void hashed_results(const sched_task_t *t, tracer_result_t *r)
         rng_stream_t st = rng_stream(0xc0ffee, k->pixel, k->first_sample);
         double u = rng_next_double(&st), v = rng_next_double(&st);
         double noise = k->pixel % 5 == 0 ? 0.9 : k->pixel % 3 == 0 ? 0.2 : 0.01;
-        double mean = 0.3 + 0.05 * (k->pixel % 7) + noise * (u - 0.5);
+        double mean = 0.5 + 0.05 * (k->pixel % 7) + noise * (u - 0.5); /* > 0: radiance */
         memset(&r[i], 0, sizeof r[i]);
         r[i].pixel = k->pixel;
         r[i].nonfinite = k->sample_count > 1 && v < 0.05;
@@ -819,6 +889,7 @@ int main(void)
     tcase_add_test(tc, test_dilation);
     tcase_add_test(tc, test_random_selection);
     tcase_add_test(tc, test_bad_configs);
+    tcase_add_test(tc, test_results_range_checked);
     tcase_add_test(tc, test_many_layers_new_is_cheap);
     tcase_add_loop_test(tc, test_checkpoint_resumes_bit_identical, 0,
                         (int)(sizeof ckpt_cases / sizeof ckpt_cases[0]));

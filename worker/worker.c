@@ -499,8 +499,8 @@ static void handle_message(worker_t *w)
             proto_msg_t c;
             memset(&c, 0, sizeof c);
             c.h.type = PROTO_CREDIT;
-            c.u.credit = (uint32_t)(2 * w->cfg.threads) > PROTO_MAX_CREDIT ? PROTO_MAX_CREDIT
-                                                                              : (uint32_t)(2 * w->cfg.threads);
+            uint32_t want = (uint32_t)(PROTO_CREDIT_PER_THREAD * w->cfg.threads);
+            c.u.credit = want > PROTO_MAX_CREDIT ? PROTO_MAX_CREDIT : want;
             send_msg(w, &c);
             logf_(w, "connected to %s with %d threads", w->cfg.master_endpoint, w->cfg.threads);
         }
