@@ -136,9 +136,9 @@ scene_of 16 16 "$OUT/tiny.json"
 for mode in state none; do
     next_ports
     if [ $mode = none ]; then
-        start_master "$OUT/mem-$mode.log" --state none --keep-finished 100000
+        start_master "$OUT/mem-$mode.log" --state none --keep-finished 100000 --max-queued-per-client 100000
     else
-        start_master "$OUT/mem-$mode.log" --state "$OUT/state-mem" --keep-finished 100000
+        start_master "$OUT/mem-$mode.log" --state "$OUT/state-mem" --keep-finished 100000 --max-queued-per-client 100000
     fi
     start_workers 1
     done_jobs=0

@@ -20,6 +20,59 @@ typedef struct ctl_req {
     job_t *job;            /* for commands on one job */
 } ctl_req_t;
 
+/* The client a request comes from: its CURVE key (the ZAP handler's
+ * User-Id), or without keys its address. */
+static void client_of(zmq_msg_t *frame, char *out, size_t len)
+{
+    const char *key = zmq_msg_gets(frame, "User-Id");
+    if (key && *key) {
+        snprintf(out, len, "%s", key);
+        return;
+    }
+    const char *addr = zmq_msg_gets(frame, "Peer-Address");
+    snprintf(out, len, "%s", addr && *addr ? addr : "local");
+}
+
+/* A token bucket per connection (routing identity): max_requests_per_s
+ * refill, twice that as a burst. A fixed table; a new connection takes the
+ * slot least recently used. */
+typedef struct ctl_bucket {
+    uint8_t id[64];
+    size_t id_len;
+    double tokens, last;
+} ctl_bucket_t;
+
+static int rate_ok(master_t *m, zmq_msg_t *id, double now)
+{
+    if (!m->buckets && !(m->buckets = calloc(MASTER_RATE_BUCKETS, sizeof *m->buckets)))
+        return 1;
+    size_t len = zmq_msg_size(id) < sizeof m->buckets[0].id ? zmq_msg_size(id) : sizeof m->buckets[0].id;
+    ctl_bucket_t *b = NULL, *oldest = &m->buckets[0];
+    for (size_t i = 0; i < MASTER_RATE_BUCKETS && !b; i++) {
+        ctl_bucket_t *c = &m->buckets[i];
+        if (c->id_len == len && memcmp(c->id, zmq_msg_data(id), len) == 0)
+            b = c;
+        else if (c->last < oldest->last)
+            oldest = c;
+    }
+    double rate = m->cfg.max_requests_per_s, burst = 2 * rate;
+    if (!b) {
+        b = oldest;
+        memcpy(b->id, zmq_msg_data(id), len);
+        b->id_len = len;
+        b->tokens = burst;
+        b->last = now;
+    }
+    b->tokens += (now - b->last) * rate;
+    if (b->tokens > burst)
+        b->tokens = burst;
+    b->last = now;
+    if (b->tokens < 1)
+        return 0;
+    b->tokens -= 1;
+    return 1;
+}
+
 /* A handler returns the reply body (sent and freed by the caller), or NULL
  * when it sent its reply itself. */
 typedef cJSON *(*ctl_handler_fn)(ctl_req_t *r);
@@ -124,12 +177,21 @@ static cJSON *ctl_submit(ctl_req_t *r)
     job_t *dup = rid ? job_find_by_request(m, rid) : NULL;
     if (dup)
         return duplicate_body(dup);
+    char client[128];
+    client_of(r->json_frame, client, sizeof client);
+    uint32_t queued = 0;
+    for (job_t *j = m->jobs; j; j = j->next)
+        queued += !job_ended(j) && strcmp(j->owner, client) == 0;
+    if (queued >= m->cfg.max_queued_per_client)
+        return error_body("this client has %u jobs queued or running; the master takes at most %u "
+                          "(--max-queued-per-client)", queued, m->cfg.max_queued_per_client);
     offload_item_t *it = offload_item_new(OFFLOAD_SUBMIT);
     if (!it || !(it->req = cJSON_Duplicate(r->body, 1))) {
         offload_item_free(it);
         return error_body("out of memory");
     }
     zmq_msg_copy(&it->client, r->id);
+    snprintf(it->owner, sizeof it->owner, "%s", client);
     zmq_msg_move(&it->frames[0], r->json_frame);
     for (int i = 0; i < r->nextra; i++)
         zmq_msg_move(&it->frames[1 + i], &r->extra[i]);
@@ -209,6 +271,7 @@ static cJSON *ctl_workers(ctl_req_t *r)
     cJSON *st = cJSON_AddObjectToObject(b, "master");
     cJSON_AddNumberToObject(st, "malformed_messages", (double)m->malformed);
     cJSON_AddNumberToObject(st, "late_results", (double)m->dropped_late);
+    cJSON_AddNumberToObject(st, "rate_limited_requests", (double)m->rate_limited);
     if (m->store) {
         /* the last background write of checkpoints and images: what it costs */
         store_bg_stats_t bg = store_bg_last(m->store);
@@ -321,10 +384,20 @@ void ctl_offload_done(master_t *m)
     }
 }
 
+static cJSON *ctl_readmit(ctl_req_t *r)
+{
+    const cJSON *who = cJSON_GetObjectItemCaseSensitive(r->body, "worker");
+    if (!cJSON_IsString(who))
+        return error_body("readmit: give \"worker\": its key, or its address without keys");
+    if (peer_readmit(r->m, who->valuestring) < 0)
+        return error_body("readmit: %.200s is not quarantined", who->valuestring);
+    return ok_body();
+}
+
 static const ctl_command_t ctl_commands[] = {
     {"submit", ctl_submit, 1, 0},  {"status", ctl_status, 0, 1}, {"jobs", ctl_jobs, 0, 0},
     {"workers", ctl_workers, 0, 0}, {"cancel", ctl_cancel, 0, 1}, {"fetch", ctl_fetch, 0, 1},
-    {"delete", ctl_delete, 0, 1},   {"shutdown", ctl_shutdown, 0, 0},
+    {"delete", ctl_delete, 0, 1},   {"shutdown", ctl_shutdown, 0, 0}, {"readmit", ctl_readmit, 0, 0},
 };
 
 static const ctl_command_t *find_command(const char *name)
@@ -405,7 +478,14 @@ void ctl_handle_message(master_t *m)
     cJSON *req = cJSON_ParseWithLength(zmq_msg_data(&frames[2]), zmq_msg_size(&frames[2]));
     ctl_req_t r = {.m = m, .id = &frames[0], .body = req, .json_frame = &frames[2], .extra = frames + 3,
                    .nextra = n - 3};
-    cJSON *b = answer(&r, overflow);
+    cJSON *b;
+    if (!rate_ok(m, &frames[0], master_now())) {
+        m->rate_limited++;
+        b = error_body("too many requests: this master answers at most %u a second per connection",
+                       m->cfg.max_requests_per_s);
+    } else {
+        b = answer(&r, overflow);
+    }
     if (b) {
         reply_json(m, &frames[0], b, 0);
         cJSON_Delete(b);

@@ -268,6 +268,10 @@ cJSON *job_json(const job_t *j, int with_series)
         add_str(o, "storage_error", j->storage_error);
     if (j->recovered[0])
         add_str(o, "recovered", j->recovered);
+    if (j->owner[0])
+        add_str(o, "owner", j->owner);
+    if (j->request_id[0])
+        add_str(o, "request_id", j->request_id);
     return o;
 }
 

@@ -38,6 +38,11 @@ static const char usage[] =
     "                       (default ./vbrender-state); none: keep them in memory only\n"
     "  --checkpoint-s S     checkpoint running jobs this often (default 10)\n"
     "  --keep-finished N    ended jobs kept before the oldest are deleted (default 1000)\n"
+    "  --max-bundle-mib N   a job's scene and meshes, at most (default 1024)\n"
+    "  --max-queued-per-client N  queued and running jobs of one client (default 100)\n"
+    "  --max-pixels N       image width x height of one job (default 67108864)\n"
+    "  --max-spp N          samples per pixel of one job (default 1048576)\n"
+    "  --max-requests-per-s N  control requests per connection and second (default 100)\n"
     "  --version            print the build id and exit\n"
     "Signals: TERM or INT checkpoint every running job and stop.\n";
 
@@ -96,6 +101,29 @@ int main(int argc, char **argv)
                         v ? v : "");
                 return 2;
             }
+            i++;
+        } else if (strcmp(argv[i], "--max-bundle-mib") == 0 || strcmp(argv[i], "--max-queued-per-client") == 0 ||
+                   strcmp(argv[i], "--max-pixels") == 0 || strcmp(argv[i], "--max-spp") == 0 ||
+                   strcmp(argv[i], "--max-requests-per-s") == 0) {
+            /* positive integers; each limit's own range */
+            double hi = strcmp(argv[i], "--max-pixels") == 0 ? (double)(1u << 28)
+                        : strcmp(argv[i], "--max-bundle-mib") == 0 ? (double)(PROTO_MAX_BUNDLE >> 20)
+                                                                    : 4294967295.0;
+            if (parse_count(v, 1, hi, &v_keep) < 0 || v_keep != (double)(uint64_t)v_keep) {
+                fprintf(stderr, "vbrender-master: %s needs an integer from 1 to %.0f (got '%s')\n", argv[i], hi,
+                        v ? v : "");
+                return 2;
+            }
+            if (strcmp(argv[i], "--max-bundle-mib") == 0)
+                cfg.max_bundle_mib = (uint32_t)v_keep;
+            else if (strcmp(argv[i], "--max-queued-per-client") == 0)
+                cfg.max_queued_per_client = (uint32_t)v_keep;
+            else if (strcmp(argv[i], "--max-pixels") == 0)
+                cfg.max_pixels = (uint64_t)v_keep;
+            else if (strcmp(argv[i], "--max-spp") == 0)
+                cfg.max_spp = (uint32_t)v_keep;
+            else
+                cfg.max_requests_per_s = (uint32_t)v_keep;
             i++;
         } else if (strcmp(argv[i], "--keep-finished") == 0) {
             if (parse_count(v, 1, 1e7, &v_keep) < 0 || v_keep != (double)(uint32_t)v_keep) {

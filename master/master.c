@@ -165,7 +165,19 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
         /* attempts of this boot never equal a late result's from the last */
         m->attempt_base = (store_boots(m->store) & 0xfff) << 20;
     }
-    if (!(m->offload = offload_new(m->store, err, errlen))) {
+    if (!m->cfg.max_bundle_mib)
+        m->cfg.max_bundle_mib = MASTER_DEFAULT_MAX_BUNDLE_MIB;
+    if (!m->cfg.max_queued_per_client)
+        m->cfg.max_queued_per_client = MASTER_DEFAULT_MAX_QUEUED_PER_CLIENT;
+    if (!m->cfg.max_pixels)
+        m->cfg.max_pixels = MASTER_DEFAULT_MAX_PIXELS;
+    if (!m->cfg.max_spp)
+        m->cfg.max_spp = MASTER_DEFAULT_MAX_SPP;
+    if (!m->cfg.max_requests_per_s)
+        m->cfg.max_requests_per_s = MASTER_DEFAULT_MAX_REQUESTS_PER_S;
+    submit_limits_t limits = {.max_bundle_bytes = (uint64_t)m->cfg.max_bundle_mib << 20,
+                              .max_pixels = m->cfg.max_pixels, .max_spp = m->cfg.max_spp};
+    if (!(m->offload = offload_new(m->store, &limits, err, errlen))) {
         master_destroy(&m);
         return NULL;
     }
@@ -228,6 +240,8 @@ void master_destroy(master_t **mp)
     offload_destroy(&m->offload); /* before the store it writes to */
     store_close(&m->store);
     free(m->inflight);
+    free(m->buckets);
+    free(m->quarantine);
     job_t *j = m->jobs;
     while (j) {
         job_t *next = j->next;

@@ -23,6 +23,11 @@ typedef struct master master_t;
 #define MASTER_DEFAULT_KEEP_FINISHED 1000
 #define MASTER_DEFAULT_HEARTBEAT_MS 1000
 #define MASTER_DEFAULT_LEASE_MS 60000
+#define MASTER_DEFAULT_MAX_BUNDLE_MIB 1024
+#define MASTER_DEFAULT_MAX_QUEUED_PER_CLIENT 100
+#define MASTER_DEFAULT_MAX_PIXELS (8192u * 8192u)
+#define MASTER_DEFAULT_MAX_SPP (1u << 20)
+#define MASTER_DEFAULT_MAX_REQUESTS_PER_S 100
 
 typedef struct master_config {
     void *zmq_ctx;                /* the ZeroMQ context to use (not owned) */
@@ -35,6 +40,12 @@ typedef struct master_config {
     const char *state_dir;        /* durable state (store.h); NULL: in memory only */
     double checkpoint_s;          /* 0: MASTER_DEFAULT_CHECKPOINT_S */
     uint32_t keep_finished;       /* ended jobs kept; 0: MASTER_DEFAULT_KEEP_FINISHED */
+    /* Limits, each checked before a request's data is copied (0: default). */
+    uint32_t max_bundle_mib;        /* scene JSON and meshes of one job */
+    uint32_t max_queued_per_client; /* queued and running jobs of one client */
+    uint64_t max_pixels;            /* width x height of one job */
+    uint32_t max_spp;               /* samples per pixel of one job */
+    uint32_t max_requests_per_s;    /* control requests of one connection */
     FILE *log;                    /* NULL: silent */
 } master_config_t;
 

@@ -47,6 +47,8 @@
 #define MASTER_EVAL_S 0.25           /* error against a reference, this often */
 #define MASTER_CONTROL_HWM 4         /* replies queued per client before drops */
 #define MASTER_MAX_REQUEST_ID 64
+#define MASTER_RATE_BUCKETS 1024     /* connections whose request rate is tracked */
+#define MASTER_MAX_BAD_RESULTS 8     /* refused results before a worker is quarantined */
 #define MASTER_CONTROL_MAX_BYTES ((int64_t)PROTO_MAX_BUNDLE + (1 << 20))
 
 typedef enum { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_FAILED, JOB_CANCELLED } job_state_t;
@@ -64,6 +66,7 @@ typedef struct peer {
     uint8_t id[MASTER_MAX_IDENTITY];
     size_t id_len;
     char host[64];
+    char key[64];         /* its CURVE public key (Z85), "" without keys */
     char build[PROTO_BUILD_SIZE + 1];
     uint32_t threads;
     uint32_t credit;
@@ -83,6 +86,7 @@ typedef struct job {
     char error[MASTER_ERR_LEN];
     char name[128];
     char request_id[MASTER_MAX_REQUEST_ID + 1];
+    char owner[128];  /* the client that submitted it: its key, or its address without keys */
     /* the bundle, shipped to workers by hash; freed once the job has ended
      * and its image is durable */
     uint8_t hash[PROTO_HASH_SIZE];
@@ -148,7 +152,10 @@ struct master {
     uint64_t *doomed;        /* job ids to remove from the store */
     size_t doomed_n, doomed_cap;
     char storage_error[MASTER_ERR_LEN];
-    uint64_t malformed, dropped_late;
+    struct ctl_bucket *buckets; /* request rate per control connection */
+    char (*quarantine)[128];    /* workers refused: key, or address without keys */
+    size_t quarantine_n, quarantine_cap;
+    uint64_t malformed, dropped_late, rate_limited;
     vblog_limiter_t limiter; /* lines a peer can provoke at will */
     double last_timer;
     int shutdown;
@@ -187,10 +194,19 @@ typedef struct submit_frame {
     const void *data;
     size_t size;
 } submit_frame_t;
+typedef struct submit_limits {
+    uint64_t max_bundle_bytes;
+    uint64_t max_pixels;
+    uint32_t max_spp;
+} submit_limits_t;
 /* Builds a queued job (no id yet) from a submit request and its binary
  * frames: validates the whole scene, loaded from the bundle exactly as a
  * worker will load it, and every setting. NULL with a message. */
-job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes, char *err, size_t errlen);
+job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes, const submit_limits_t *limits,
+                    char *err, size_t errlen);
+/* A mesh file name as a bundle may carry it (proto/PROTOCOL.md): 1 to
+ * PROTO_MAX_NAME characters from A-Z a-z 0-9 . _ -, not starting with '.'. */
+int submit_name_ok(const char *name);
 
 /* peers.c */
 void peer_handle_message(master_t *m);
@@ -198,6 +214,14 @@ void peer_lost(master_t *m, peer_t *w, const char *why);
 int peer_send(master_t *m, peer_t *w, proto_msg_t *msg);
 void peer_heartbeats(master_t *m, double now);
 void peer_say_bye_all(master_t *m);
+/* Who a worker is for quarantine: its key, or its address without keys. */
+const char *peer_identity(const peer_t *w);
+/* Refuses the worker from now on (until a restart or readmit), drops it. */
+void peer_quarantine(master_t *m, peer_t *w, const char *why);
+/* 1 if who (a key or an address) is quarantined. */
+int peer_quarantined(const master_t *m, const char *who);
+/* Lets who in again: 0, or -1 if it was not quarantined. */
+int peer_readmit(master_t *m, const char *who);
 void dispatch(master_t *m);
 
 /* ctl.c */

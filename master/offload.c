@@ -12,6 +12,7 @@
 
 struct offload {
     store_t *store;
+    submit_limits_t limits;
     pthread_t thread;
     int started;
     pthread_mutex_t lock;
@@ -54,9 +55,10 @@ static void do_submit(offload_t *o, offload_item_t *it)
     for (int i = 0; i < it->nframes; i++)
         frames[i] = (submit_frame_t){zmq_msg_data(&it->frames[i]), zmq_msg_size(&it->frames[i])};
     /* frames[0] is the request's JSON, then the scene and its files */
-    job_t *j = submit_parse(it->req, frames + 1, it->nframes - 1, it->err, sizeof it->err);
+    job_t *j = submit_parse(it->req, frames + 1, it->nframes - 1, &o->limits, it->err, sizeof it->err);
     if (!j)
         return;
+    snprintf(j->owner, sizeof j->owner, "%s", it->owner);
     if (o->store) {
         char err[OFFLOAD_ERR_LEN - 64];
         if (persist_submission(o->store, j, frames[0].data, frames[0].size, frames + 1, it->nframes - 1, err,
@@ -102,7 +104,7 @@ static void *run(void *arg)
     return NULL;
 }
 
-offload_t *offload_new(store_t *store, char *err, size_t errlen)
+offload_t *offload_new(store_t *store, const submit_limits_t *limits, char *err, size_t errlen)
 {
     offload_t *o = calloc(1, sizeof *o);
     if (!o) {
@@ -110,6 +112,7 @@ offload_t *offload_new(store_t *store, char *err, size_t errlen)
         return NULL;
     }
     o->store = store;
+    o->limits = *limits;
     o->pipe_r = o->pipe_w = -1;
     int p[2];
     if (pipe(p) != 0) {

@@ -49,13 +49,16 @@ typedef struct offload_item {
     struct job *job;   /* submit: the new job (with its id when stored) */
     image_t *image;    /* fetch */
     char err[OFFLOAD_ERR_LEN];
+    char owner[128];   /* submit: the client the job will belong to */
     struct offload_item *next;
 } offload_item_t;
 
 typedef struct offload offload_t;
 
-/* store may be NULL (no state directory). Starts the thread. */
-offload_t *offload_new(store_t *store, char *err, size_t errlen);
+struct submit_limits;
+/* store may be NULL (no state directory); limits are copied. Starts the
+ * thread. */
+offload_t *offload_new(store_t *store, const struct submit_limits *limits, char *err, size_t errlen);
 /* Stops the thread after the item it is on; items not done are freed. */
 void offload_destroy(offload_t **o);
 

@@ -146,6 +146,53 @@ void peer_say_bye_all(master_t *m)
         }
 }
 
+const char *peer_identity(const peer_t *w)
+{
+    return w->key[0] ? w->key : w->host;
+}
+
+int peer_quarantined(const master_t *m, const char *who)
+{
+    for (size_t i = 0; i < m->quarantine_n; i++)
+        if (strcmp(m->quarantine[i], who) == 0)
+            return 1;
+    return 0;
+}
+
+void peer_quarantine(master_t *m, peer_t *w, const char *why)
+{
+    const char *who = peer_identity(w);
+    if (!peer_quarantined(m, who)) {
+        if (m->quarantine_n == m->quarantine_cap) {
+            size_t cap = m->quarantine_cap ? 2 * m->quarantine_cap : 8;
+            char(*q)[128] = realloc(m->quarantine, cap * sizeof *q);
+            if (q) {
+                m->quarantine = q;
+                m->quarantine_cap = cap;
+            }
+        }
+        if (m->quarantine_n < m->quarantine_cap)
+            snprintf(m->quarantine[m->quarantine_n++], sizeof m->quarantine[0], "%s", who);
+    }
+    master_log(m, "worker %s quarantined: %s (refused until the master restarts or an admin readmits it)", who, why);
+    char text[512];
+    snprintf(text, sizeof text, "quarantined: %.400s", why);
+    send_text(m, w->id, w->id_len, PROTO_REFUSE, text);
+    peer_lost(m, w, "quarantined");
+}
+
+int peer_readmit(master_t *m, const char *who)
+{
+    for (size_t i = 0; i < m->quarantine_n; i++)
+        if (strcmp(m->quarantine[i], who) == 0) {
+            memmove(&m->quarantine[i], &m->quarantine[i + 1], (m->quarantine_n - i - 1) * sizeof m->quarantine[0]);
+            m->quarantine_n--;
+            master_log(m, "worker %s readmitted", who);
+            return 0;
+        }
+    return -1;
+}
+
 /* ---- dispatch ------------------------------------------------------------------- */
 
 /* The oldest running job's next ready task, starting queued jobs as it goes. */
@@ -300,11 +347,19 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
     j->outstanding--;
     w->outstanding--;
     if (rc < 0) {
-        /* a result that does not fit its task: drop it, issue the task again */
+        /* a result that does not fit its task: drop it, issue the task again,
+         * and count it against the worker */
         m->malformed++;
-        master_log_limited(m, "bad-result", "job %" PRIu64 " task %" PRIu64 ": bad result from %s: %s", j->id, id, w->host, err);
+        w->bad_results++;
+        master_log_limited(m, "bad-result", "job %" PRIu64 " task %" PRIu64 ": bad result from %s: %s", j->id, id,
+                           peer_identity(w), err);
         j->reissued++;
         (void)sched_requeue(j->sched, id); /* still outstanding: nothing was merged */
+        if (w->bad_results >= MASTER_MAX_BAD_RESULTS) {
+            char why[MASTER_ERR_LEN];
+            snprintf(why, sizeof why, "%u results refused; the last: %.700s", w->bad_results, err);
+            peer_quarantine(m, w, why);
+        }
         return;
     }
     j->rays += msg->u.result.rays;
@@ -320,8 +375,15 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
         job_eval_error(j, master_now()); /* a point per finished layer, however fast */
 }
 
-static void on_hello(master_t *m, const uint8_t *id, size_t id_len, const char *host, proto_msg_t *msg)
+static void on_hello(master_t *m, const uint8_t *id, size_t id_len, const char *host, const char *key,
+                     proto_msg_t *msg)
 {
+    if (peer_quarantined(m, key && *key ? key : host)) {
+        master_log_limited(m, "quarantined", "refused quarantined worker %s", key && *key ? key : host);
+        send_text(m, id, id_len, PROTO_REFUSE, "quarantined: this worker's results were refused (an admin can "
+                                               "readmit it: vbrender readmit)");
+        return;
+    }
     if (strcmp(msg->u.hello.build, m->build) != 0) {
         char text[512];
         snprintf(text, sizeof text, "build mismatch: master is %s, worker is %s (they could trace different bits)",
@@ -353,6 +415,7 @@ static void on_hello(master_t *m, const uint8_t *id, size_t id_len, const char *
     memcpy(w->id, id, id_len);
     w->id_len = id_len;
     snprintf(w->host, sizeof w->host, "%s", host);
+    snprintf(w->key, sizeof w->key, "%s", key ? key : "");
     snprintf(w->build, sizeof w->build, "%s", msg->u.hello.build);
     w->threads = msg->u.hello.threads;
     w->joined = w->last_seen = master_now();
@@ -501,7 +564,8 @@ void peer_handle_message(master_t *m)
         m->malformed++;
         master_log_limited(m, "malformed", "dropped a malformed worker message (%" PRIu64 " so far): %s", m->malformed, err);
     } else if (msg->h.type == PROTO_HELLO) {
-        on_hello(m, id, id_len, host, msg);
+        const char *key = zmq_msg_gets(&frames[1], "User-Id");
+        on_hello(m, id, id_len, host, key, msg);
     } else {
         on_message(m, id, id_len, msg);
     }

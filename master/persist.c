@@ -66,6 +66,7 @@ int persist_submission(store_t *store, job_t *j, const void *req, size_t req_siz
     rc = rc < 0 ? rc : store_rec_write(w, &n, sizeof n);
     for (int i = 0; rc == 0 && i < nframes; i++)
         rc = store_rec_write_block(w, frames[i].data, frames[i].size);
+    rc = rc < 0 ? rc : store_rec_write_block(w, j->owner, strlen(j->owner));
     rc = rc < 0 ? rc : store_rec_commit(w, 0);
     if (rc < 0) {
         snprintf(err, errlen, "%s", w->err);
@@ -385,6 +386,9 @@ static job_t *recover_ended(uint64_t id, store_rec_t *rec)
     j->final_durable = 1;
     const cJSON *name = cJSON_GetObjectItemCaseSensitive(st, "scene");
     snprintf(j->name, sizeof j->name, "%s", cJSON_IsString(name) ? name->valuestring : "?");
+    const cJSON *owner = cJSON_GetObjectItemCaseSensitive(st, "owner");
+    if (cJSON_IsString(owner))
+        snprintf(j->owner, sizeof j->owner, "%s", owner->valuestring);
     const cJSON *rid = cJSON_GetObjectItemCaseSensitive(st, "request_id");
     if (cJSON_IsString(rid))
         snprintf(j->request_id, sizeof j->request_id, "%s", rid->valuestring);
@@ -423,9 +427,17 @@ static job_t *recover_submitted(master_t *m, uint64_t id, char *err, size_t errl
         snprintf(err, errlen, "%.900s: the request is not JSON", path);
         goto out;
     }
-    j = submit_parse(req, frames, (int)n, err, errlen);
-    if (j)
+    /* no limits: the job was accepted once, under the limits of its day */
+    j = submit_parse(req, frames, (int)n, NULL, err, errlen);
+    if (j) {
         j->id = id;
+        const uint8_t *owner;
+        size_t olen;
+        if (store_rec_read_block(&rec, &owner, &olen) == 0 && olen < sizeof j->owner) {
+            memcpy(j->owner, owner, olen);
+            j->owner[olen] = '\0';
+        }
+    }
 out:
     cJSON_Delete(req);
     store_rec_free(&rec);

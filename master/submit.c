@@ -10,6 +10,80 @@
 #include "master_priv.h"
 #include "scene.h"
 
+int submit_name_ok(const char *name)
+{
+    size_t n = strlen(name);
+    return n >= 1 && n <= PROTO_MAX_NAME && name[0] != '.' &&
+           strspn(name, "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789._-") == n;
+}
+
+/* Sizes, before anything is copied: the bundle as a worker will receive it
+ * (the encoder's own limit) and the master's --max-bundle-mib. */
+static int submit_sizes(const cJSON *meshes, const submit_frame_t *frames, int mesh_count,
+                        const submit_limits_t *limits, char *err, size_t errlen)
+{
+    proto_msg_t *msg = calloc(1, sizeof *msg);
+    if (!msg) {
+        snprintf(err, errlen, "out of memory");
+        return -1;
+    }
+    msg->h.type = PROTO_SCENE_BUNDLE;
+    msg->u.bundle.json = frames[0].data;
+    msg->u.bundle.json_size = frames[0].size > UINT32_MAX ? UINT32_MAX : (uint32_t)frames[0].size;
+    msg->u.bundle.mesh_count = (uint32_t)mesh_count;
+    uint64_t total = frames[0].size;
+    int i = 0;
+    for (const cJSON *it = meshes ? meshes->child : NULL; it && i < mesh_count; it = it->next, i++) {
+        total += frames[1 + i].size;
+        if (cJSON_IsString(it))
+            snprintf(msg->u.bundle.meshes[i].name, sizeof msg->u.bundle.meshes[i].name, "%s", it->valuestring);
+        msg->u.bundle.meshes[i].size = frames[1 + i].size > UINT32_MAX ? UINT32_MAX : (uint32_t)frames[1 + i].size;
+    }
+    size_t payload = proto_payload_size(msg);
+    free(msg);
+    if (limits && limits->max_bundle_bytes && total > limits->max_bundle_bytes) {
+        snprintf(err, errlen, "the scene and its meshes are %.1f MiB; this master takes at most %.0f MiB "
+                 "(--max-bundle-mib)", total / 1048576.0, limits->max_bundle_bytes / 1048576.0);
+        return -1;
+    }
+    if (payload > PROTO_MAX_BUNDLE) {
+        snprintf(err, errlen, "the scene and its meshes make a %.1f MiB bundle; the protocol carries at most %u MiB",
+                 payload / 1048576.0, PROTO_MAX_BUNDLE >> 20);
+        return -1;
+    }
+    return 0;
+}
+
+/* The image size and spp the job will have, from the scene JSON and the
+ * request, checked against the caps before the scene is loaded. */
+static int submit_caps(const cJSON *req, const submit_frame_t *json, const submit_limits_t *limits, char *err,
+                       size_t errlen)
+{
+    if (!limits)
+        return 0;
+    cJSON *scene = cJSON_ParseWithLength(json->data, json->size);
+    const cJSON *cam = cJSON_GetObjectItemCaseSensitive(scene, "camera");
+    const cJSON *render = cJSON_GetObjectItemCaseSensitive(scene, "render");
+    const cJSON *w = cJSON_GetObjectItemCaseSensitive(cam, "width"), *h = cJSON_GetObjectItemCaseSensitive(cam, "height");
+    const cJSON *spp = cJSON_GetObjectItemCaseSensitive(req, "spp");
+    if (!spp)
+        spp = cJSON_GetObjectItemCaseSensitive(render, "spp");
+    double pixels = cJSON_IsNumber(w) && cJSON_IsNumber(h) ? w->valuedouble * h->valuedouble : 0;
+    double n = cJSON_IsNumber(spp) ? spp->valuedouble : 0;
+    cJSON_Delete(scene);
+    /* a malformed scene is left to the full load, which names what is wrong */
+    if (limits->max_pixels && pixels > (double)limits->max_pixels) {
+        snprintf(err, errlen, "the image has %.0f pixels; this master takes at most %llu (--max-pixels)", pixels,
+                 (unsigned long long)limits->max_pixels);
+        return -1;
+    }
+    if (limits->max_spp && n > limits->max_spp) {
+        snprintf(err, errlen, "%.0f samples per pixel; this master takes at most %u (--max-spp)", n, limits->max_spp);
+        return -1;
+    }
+    return 0;
+}
+
 /* The mesh files: names checked, data copied. */
 static int submit_bundle(job_t *j, const cJSON *meshes, const submit_frame_t *frames, int mesh_count,
                          scene_blob_t *blobs, char *err, size_t errlen)
@@ -24,9 +98,9 @@ static int submit_bundle(job_t *j, const cJSON *meshes, const submit_frame_t *fr
     }
     int i = 0;
     for (const cJSON *it = meshes ? meshes->child : NULL; it; it = it->next, i++) {
-        if (!cJSON_IsString(it) || strlen(it->valuestring) == 0 || strlen(it->valuestring) > PROTO_MAX_NAME ||
-            strchr(it->valuestring, '/') || strchr(it->valuestring, '\\')) {
-            snprintf(err, errlen, "meshes[%d]: a name of 1 to %d characters without '/'", i, PROTO_MAX_NAME);
+        if (!cJSON_IsString(it) || !submit_name_ok(it->valuestring)) {
+            snprintf(err, errlen, "meshes[%d]: a name of 1 to %d characters from A-Z a-z 0-9 . _ -, not starting "
+                     "with '.'", i, PROTO_MAX_NAME);
             return -1;
         }
         size_t sz = frames[i].size;
@@ -255,7 +329,8 @@ static int submit_request_id(job_t *j, const cJSON *req, char *err, size_t errle
     return 0;
 }
 
-job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes, char *err, size_t errlen)
+job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes, const submit_limits_t *limits,
+                    char *err, size_t errlen)
 {
     if (nframes < 1) {
         snprintf(err, errlen, "submit needs the scene JSON as its second frame");
@@ -274,6 +349,9 @@ job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes,
                  ref_frames ? " and a reference (3 frames)" : "", nframes - 1);
         return NULL;
     }
+    if (submit_sizes(meshes, frames, mesh_count, limits, err, errlen) < 0 ||
+        submit_caps(req, &frames[0], limits, err, errlen) < 0)
+        return NULL;
     job_t *j = calloc(1, sizeof *j);
     if (!j) {
         snprintf(err, errlen, "out of memory");

@@ -1968,7 +1968,7 @@ START_TEST(big_submit)
     start_worker(port, 1, "o-worker", NULL);
     wait_workers(port + 1, 1);
     unsigned long long job =
-        submit(port + 1, scene, "--spp 33554432 --granularity 32 --adaptive relerr --target-error 0.01");
+        submit(port + 1, scene, "--spp 1048576 --granularity 1 --adaptive relerr --target-error 0.01");
     for (int i = 0; i < 20; i++) {
         double t0 = now_ms();
         cJSON *r = ctl(port + 1, "jobs", 0);
@@ -1981,6 +1981,275 @@ START_TEST(big_submit)
     cJSON *r = ctl(port + 1, "cancel", job);
     ck_assert_ptr_nonnull(r);
     cJSON_Delete(r);
+    assert_alive(m);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+/* ---- k. workers that lie, clients that overreach --------------------------------- */
+
+/* A message to the master from a fake worker's DEALER: header and payload
+ * (heap buffers: a result can be large). */
+static void fake_send(void *s, proto_msg_t *msg)
+{
+    uint8_t header[PROTO_HEADER_SIZE];
+    size_t cap = proto_payload_size(msg) + 16;
+    uint8_t *payload = malloc(cap);
+    char err[256];
+    long n = proto_encode(msg, header, payload, cap, err, sizeof err);
+    ck_assert_msg(n >= 0, "encode: %s", err);
+    ck_assert_int_ge(zmq_send(s, header, sizeof header, ZMQ_SNDMORE), 0);
+    ck_assert_int_ge(zmq_send(s, payload, (size_t)n, 0), 0);
+    free(payload);
+}
+
+/* Receives one message (records into recs); 0, or -1 on timeout/garbage. */
+static int fake_recv(void *s, proto_msg_t *msg, tracer_task_t *recs)
+{
+    zmq_msg_t f[2];
+    zmq_msg_init(&f[0]);
+    zmq_msg_init(&f[1]);
+    int rc = -1;
+    if (zmq_msg_recv(&f[0], s, 0) >= 0 && zmq_msg_more(&f[0]) && zmq_msg_recv(&f[1], s, 0) >= 0) {
+        char err[256];
+        memset(msg, 0, sizeof *msg);
+        msg->capacity = PROTO_MAX_TASK_PIXELS;
+        msg->u.task.records = recs;
+        rc = proto_decode(zmq_msg_data(&f[0]), zmq_msg_size(&f[0]), zmq_msg_data(&f[1]), zmq_msg_size(&f[1]), msg,
+                          err, sizeof err);
+    }
+    zmq_msg_close(&f[0]);
+    zmq_msg_close(&f[1]);
+    return rc;
+}
+
+/* A worker that connects from 127.0.0.9 and answers every task with sums
+ * of 1.7e308 (which once overflowed the film and poisoned the job for
+ * good); first it forges credit with 3,000 results of tasks it never held.
+ * The master refuses every lie, issues the tasks to the honest worker,
+ * caps the liar's tasks at what a worker of its size asks for, quarantines
+ * it, and the image is the honest one. */
+START_TEST(lying_worker)
+{
+    static const char *const settings = "--spp 256 --granularity 16 --adaptive none --seed 29";
+    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], log[65536], ep[96], build[PROTO_BUILD_SIZE + 1];
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    int port = slot_port(13);
+    daemon_t *m = start_master(&port, "r-master");
+    void *ctx = zmq_ctx_new();
+    void *s = zmq_socket(ctx, ZMQ_DEALER);
+    int zero = 0, timeout = 200;
+    zmq_setsockopt(s, ZMQ_LINGER, &zero, sizeof zero);
+    zmq_setsockopt(s, ZMQ_RCVTIMEO, &timeout, sizeof timeout);
+    snprintf(ep, sizeof ep, "tcp://127.0.0.9:0;127.0.0.1:%d", port);
+    ck_assert_int_eq(zmq_connect(s, ep), 0);
+    __builtin_cpu_init();
+    proto_build_id(__builtin_cpu_supports("avx2") ? "avx2" : "sse4.2", build);
+    proto_msg_t *msg = calloc(1, sizeof *msg);
+    tracer_task_t *recs = calloc(PROTO_MAX_TASK_PIXELS, sizeof *recs);
+    tracer_result_t *res = calloc(PROTO_MAX_TASK_PIXELS, sizeof *res);
+    msg->h.type = PROTO_HELLO;
+    msg->u.hello.threads = 1;
+    memcpy(msg->u.hello.build, build, sizeof msg->u.hello.build);
+    fake_send(s, msg);
+    ck_assert_msg(fake_recv(s, msg, recs) == 0 && msg->h.type == PROTO_WELCOME, "no WELCOME for the fake\n%s",
+                  logs_tail());
+    /* forged credit: results of tasks it never held, then CREDIT again */
+    for (int i = 0; i < 3000; i++) {
+        memset(msg, 0, sizeof *msg);
+        msg->h.type = PROTO_RESULT;
+        msg->h.job = 1;
+        msg->h.task = 1 + (uint64_t)(i % 7);
+        msg->h.attempt = 1;
+        msg->u.result.count = 0;
+        msg->u.result.records = res;
+        fake_send(s, msg);
+    }
+    for (int i = 0; i < 10; i++) {
+        memset(msg, 0, sizeof *msg);
+        msg->h.type = PROTO_CREDIT;
+        msg->u.credit = PROTO_MAX_CREDIT;
+        fake_send(s, msg);
+    }
+    start_worker(port, 1, "r-worker", "127.0.0.2");
+    wait_workers(port + 1, 2);
+    unsigned long long job = submit(port + 1, scene, settings);
+    int lies = 0, quarantined = 0, most_held = 0;
+    double end = now_ms() + JOB_TIMEOUT_MS;
+    while (!quarantined && now_ms() < end) {
+        int held = outstanding_at(port + 1, "127.0.0.9");
+        most_held = held > most_held ? held : most_held;
+        if (fake_recv(s, msg, recs) < 0)
+            continue;
+        if (msg->h.type == PROTO_REFUSE) {
+            quarantined = strstr(msg->u.text.text, "quarantined") != NULL;
+            break;
+        }
+        if (msg->h.type != PROTO_TASK)
+            continue;
+        uint32_t n = msg->u.task.count;
+        for (uint32_t i = 0; i < n; i++) {
+            memset(&res[i], 0, sizeof res[i]);
+            res[i].pixel = recs[i].pixel;
+            res[i].samples = recs[i].sample_count;
+            res[i].sum[0] = res[i].sum[1] = res[i].sum[2] = 1.7e308;
+        }
+        uint64_t j = msg->h.job, t = msg->h.task;
+        uint32_t a = msg->h.attempt;
+        memset(msg, 0, sizeof *msg);
+        msg->h.type = PROTO_RESULT;
+        msg->h.job = j;
+        msg->h.task = t;
+        msg->h.attempt = a;
+        msg->u.result.count = n;
+        msg->u.result.records = res;
+        fake_send(s, msg);
+        lies++;
+    }
+    ck_assert_msg(quarantined, "the liar was not quarantined after %d lies\n%s", lies, logs_tail());
+    ck_assert_msg(most_held <= PROTO_CREDIT_PER_THREAD, "a 1-thread fake held %d tasks after forging credit",
+                  most_held);
+    /* it cannot come back */
+    memset(msg, 0, sizeof *msg);
+    msg->h.type = PROTO_HELLO;
+    msg->u.hello.threads = 1;
+    memcpy(msg->u.hello.build, build, sizeof msg->u.hello.build);
+    fake_send(s, msg);
+    int refused = 0;
+    for (int i = 0; i < 20 && !refused; i++)
+        refused = fake_recv(s, msg, recs) == 0 && msg->h.type == PROTO_REFUSE;
+    ck_assert_msg(refused, "a quarantined worker was let in again");
+    zmq_close(s);
+    zmq_ctx_term(ctx);
+    free(msg);
+    free(recs);
+    free(res);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "liar.exr"));
+    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "liar-ref.exr"));
+    compare_exr(ref, got);
+    read_log(m, log, sizeof log);
+    ck_assert_msg(strstr(log, "127.0.0.9 quarantined"), "the log does not name the quarantined worker:\n%s", log);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* A raw control request with binary frames (the client renames meshes, so
+ * a test of the master's own checks needs this). The reply's "error", or
+ * "" on success. */
+static void raw_submit(int cport, const char *json_req, const char *const *frames, const size_t *sizes, int n,
+                       char *err, size_t errlen)
+{
+    void *ctx = zmq_ctx_new();
+    void *s = zmq_socket(ctx, ZMQ_REQ);
+    int zero = 0, timeout = 10000;
+    zmq_setsockopt(s, ZMQ_LINGER, &zero, sizeof zero);
+    zmq_setsockopt(s, ZMQ_RCVTIMEO, &timeout, sizeof timeout);
+    char ep[64];
+    snprintf(ep, sizeof ep, "tcp://127.0.0.1:%d", cport);
+    ck_assert_int_eq(zmq_connect(s, ep), 0);
+    ck_assert_int_ge(zmq_send(s, json_req, strlen(json_req), n ? ZMQ_SNDMORE : 0), 0);
+    for (int i = 0; i < n; i++)
+        ck_assert_int_ge(zmq_send(s, frames[i], sizes[i], i + 1 < n ? ZMQ_SNDMORE : 0), 0);
+    zmq_msg_t r;
+    zmq_msg_init(&r);
+    ck_assert_msg(zmq_msg_recv(&r, s, 0) >= 0, "no reply to a raw submit");
+    cJSON *body = cJSON_ParseWithLength(zmq_msg_data(&r), zmq_msg_size(&r));
+    zmq_msg_close(&r);
+    snprintf(err, errlen, "%s", cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(body, "ok")) ? ""
+                                : jstr(body, "error")[0] ? jstr(body, "error") : "?");
+    cJSON_Delete(body);
+    zmq_close(s);
+    zmq_ctx_term(ctx);
+}
+
+/* Each limit just under and just over, and the mesh names a bundle may
+ * carry: refused with a clear error, nothing queued, the master unharmed. */
+START_TEST(limits)
+{
+    char scene[PATHLEN], big[PATHLEN], out[OUTLEN], err[1024];
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    int port = slot_port(14);
+    const char *extra[] = {"--state", "none", "--max-bundle-mib", "1", "--max-queued-per-client", "2",
+                           "--max-pixels", "1024", "--max-spp", "64", "--max-requests-per-s", "20", NULL};
+    daemon_t *m = start_master_with(&port, "s-master", extra);
+    /* pixels and spp: 32x32 at 64 spp is in; 33x32 or 65 spp is out */
+    int rc = client(out, sizeof out, "submit '%s' --spp 65 --master tcp://127.0.0.1:%d", scene, port + 1);
+    ck_assert_msg(rc != 0 && strstr(out, "--max-spp"), "65 spp: exit %d: %s", rc, out);
+    scene_file(big, sizeof big, 32, "\"width\": 32", "\"width\": 33");
+    rc = client(out, sizeof out, "submit '%s' --spp 64 --master tcp://127.0.0.1:%d", big, port + 1);
+    ck_assert_msg(rc != 0 && strstr(out, "--max-pixels"), "33x32: exit %d: %s", rc, out);
+    cJSON *r;
+    /* the bundle: a mesh file of 1 MiB - 4 KiB is in, 1 MiB + 1 is out (the
+     * scene names no mesh, so only the sizes are at stake) */
+    FILE *f = fopen(scene, "rb");
+    static char json[65536];
+    size_t jn = fread(json, 1, sizeof json - 1, f);
+    fclose(f);
+    json[jn] = '\0';
+    size_t sizes[2] = {jn, (1u << 20) - 4096 - jn};
+    char *mesh = calloc(1, (1u << 20) + 1);
+    const char *frames[2] = {json, mesh};
+    raw_submit(port + 1, "{\"cmd\":\"submit\",\"name\":\"a.json\",\"spp\":64,\"meshes\":[\"m.ply\"]}", frames, sizes,
+               2, err, sizeof err);
+    ck_assert_msg(err[0] == '\0', "just under the bundle limit: %s", err);
+    sizes[1] = (1u << 20) + 1 - jn;
+    raw_submit(port + 1, "{\"cmd\":\"submit\",\"name\":\"a.json\",\"spp\":64,\"meshes\":[\"m.ply\"]}", frames, sizes,
+               2, err, sizeof err);
+    ck_assert_msg(strstr(err, "--max-bundle-mib") != NULL, "just over the bundle limit: %s", err);
+    /* mesh names: the allowed set, and what is not in it */
+    static const char *const bad_names[] = {"..", ".hidden", "a/b", "a\\\\b", "tab\\there", "caf\\u00e9.ply", ""};
+    sizes[1] = 16;
+    for (size_t i = 0; i < sizeof bad_names / sizeof bad_names[0]; i++) {
+        char req[256];
+        snprintf(req, sizeof req, "{\"cmd\":\"submit\",\"name\":\"a.json\",\"spp\":64,\"meshes\":[\"%s\"]}",
+                 bad_names[i]);
+        raw_submit(port + 1, req, frames, sizes, 2, err, sizeof err);
+        ck_assert_msg(strstr(err, "meshes[0]") != NULL, "mesh name %s: %s", bad_names[i], err);
+    }
+    free(mesh);
+    r = ctl(port + 1, "cancel", 1);
+    cJSON_Delete(r);
+    /* queued per client: no worker, so jobs stay queued */
+    submit(port + 1, scene, "--spp 64");
+    submit(port + 1, scene, "--spp 64");
+    rc = client(out, sizeof out, "submit '%s' --spp 64 --master tcp://127.0.0.1:%d", scene, port + 1);
+    ck_assert_msg(rc != 0 && strstr(out, "--max-queued-per-client"), "third job: exit %d: %s", rc, out);
+    r = ctl(port + 1, "jobs", 0);
+    ck_assert_int_eq(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(r, "jobs")), 3); /* 1 cancelled */
+    cJSON_Delete(r);
+    /* requests per second: a burst of 40 is allowed, more is refused */
+    int refused = 0;
+    void *ctx = zmq_ctx_new();
+    void *s = zmq_socket(ctx, ZMQ_DEALER);
+    int zero = 0, timeout = 1000;
+    zmq_setsockopt(s, ZMQ_LINGER, &zero, sizeof zero);
+    zmq_setsockopt(s, ZMQ_RCVTIMEO, &timeout, sizeof timeout);
+    char ep[64];
+    snprintf(ep, sizeof ep, "tcp://127.0.0.1:%d", port + 1);
+    ck_assert_int_eq(zmq_connect(s, ep), 0);
+    for (int i = 0; i < 60; i++) {
+        ck_assert_int_ge(zmq_send(s, "", 0, ZMQ_SNDMORE), 0);
+        ck_assert_int_ge(zmq_send(s, "{\"cmd\":\"jobs\"}", 14, 0), 0);
+    }
+    for (int i = 0; i < 60; i++) {
+        zmq_msg_t a, b;
+        zmq_msg_init(&a);
+        zmq_msg_init(&b);
+        if (zmq_msg_recv(&a, s, 0) < 0 || zmq_msg_recv(&b, s, 0) < 0)
+            break; /* replies past the high-water mark are dropped */
+        refused++;
+        zmq_msg_close(&a);
+        zmq_msg_close(&b);
+    }
+    zmq_close(s);
+    zmq_ctx_term(ctx);
+    r = ctl(port + 1, "workers", 0);
+    double limited = jnum(cJSON_GetObjectItemCaseSensitive(r, "master"), "rate_limited_requests");
+    cJSON_Delete(r);
+    ck_assert_msg(limited >= 15 && limited <= 25, "%.0f of 60 requests in a burst refused; 20 expected (burst 40)",
+                  limited);
+    ck_assert_int_gt(refused, 0); /* some replies came back */
     assert_alive(m);
     stop_all_clean();
     remove_scratch();
@@ -2005,6 +2274,7 @@ static Suite *cluster_suite(void)
         {"storage_failure", storage_failure},   {"churn", churn},
         {"flood", flood},                       {"partition", partition},
         {"lossy_link", lossy_link},             {"big_submit", big_submit},
+        {"lying_worker", lying_worker},         {"limits", limits},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         TCase *tc = tcase_create(cases[i].name);
