@@ -18,7 +18,19 @@ typedef struct ctl_req {
     zmq_msg_t *extra;      /* binary frames after the JSON */
     int nextra;
     job_t *job;            /* for commands on one job */
+    /* who asks: with CURVE keys a client owns the jobs it submitted and
+     * acts on those only, unless it is an admin; without keys there is no
+     * identity to own by (loopback or --insecure), so every client may act
+     * on every job */
+    char client[128];
+    int keyed, admin;
 } ctl_req_t;
+
+/* Whether r's client may see and act on j. */
+static int may_act(const ctl_req_t *r, const job_t *j)
+{
+    return !r->keyed || r->admin || strcmp(j->owner, r->client) == 0;
+}
 
 /* The client a request comes from: its CURVE key (the ZAP handler's
  * User-Id), or without keys its address. */
@@ -81,7 +93,8 @@ typedef struct ctl_command {
     const char *name;
     ctl_handler_fn handler;
     int takes_frames; /* binary frames after the JSON */
-    int needs_job;    /* a "job": N that names an existing job */
+    int needs_job;    /* a "job": N that names an existing job the client may act on */
+    int admin_only;   /* with keys, admins only */
 } ctl_command_t;
 
 static void reply_json(master_t *m, zmq_msg_t *id, cJSON *body, int more)
@@ -177,8 +190,7 @@ static cJSON *ctl_submit(ctl_req_t *r)
     job_t *dup = rid ? job_find_by_request(m, rid) : NULL;
     if (dup)
         return duplicate_body(dup);
-    char client[128];
-    client_of(r->json_frame, client, sizeof client);
+    const char *client = r->client;
     uint32_t queued = 0;
     for (job_t *j = m->jobs; j; j = j->next)
         queued += !job_ended(j) && strcmp(j->owner, client) == 0;
@@ -239,7 +251,8 @@ static cJSON *ctl_jobs(ctl_req_t *r)
     cJSON *b = ok_body();
     cJSON *arr = cJSON_AddArrayToObject(b, "jobs");
     for (job_t *j = r->m->jobs; j; j = j->next)
-        cJSON_AddItemToArray(arr, job_json(j, 0));
+        if (may_act(r, j))
+            cJSON_AddItemToArray(arr, job_json(j, 0));
     return b;
 }
 
@@ -395,9 +408,9 @@ static cJSON *ctl_readmit(ctl_req_t *r)
 }
 
 static const ctl_command_t ctl_commands[] = {
-    {"submit", ctl_submit, 1, 0},  {"status", ctl_status, 0, 1}, {"jobs", ctl_jobs, 0, 0},
-    {"workers", ctl_workers, 0, 0}, {"cancel", ctl_cancel, 0, 1}, {"fetch", ctl_fetch, 0, 1},
-    {"delete", ctl_delete, 0, 1},   {"shutdown", ctl_shutdown, 0, 0}, {"readmit", ctl_readmit, 0, 0},
+    {"submit", ctl_submit, 1, 0, 0},   {"status", ctl_status, 0, 1, 0},    {"jobs", ctl_jobs, 0, 0, 0},
+    {"workers", ctl_workers, 0, 0, 0}, {"cancel", ctl_cancel, 0, 1, 0},    {"fetch", ctl_fetch, 0, 1, 0},
+    {"delete", ctl_delete, 0, 1, 0},   {"shutdown", ctl_shutdown, 0, 0, 0}, {"readmit", ctl_readmit, 0, 0, 1},
 };
 
 static const ctl_command_t *find_command(const char *name)
@@ -444,7 +457,12 @@ static cJSON *answer(ctl_req_t *r, int overflow)
             return error_body("%s: give \"job\": N, a job id", c->name);
         if (!(r->job = job_find(r->m, id)))
             return error_body("%s: no such job %" PRIu64, c->name, id);
+        if (!may_act(r, r->job))
+            return error_body("%s: job %" PRIu64 " belongs to another client (an admin key may act on it)", c->name,
+                              id);
     }
+    if (c->admin_only && r->keyed && !r->admin)
+        return error_body("%s: only an admin key may do this", c->name);
     return c->handler(r);
 }
 
@@ -478,6 +496,10 @@ void ctl_handle_message(master_t *m)
     cJSON *req = cJSON_ParseWithLength(zmq_msg_data(&frames[2]), zmq_msg_size(&frames[2]));
     ctl_req_t r = {.m = m, .id = &frames[0], .body = req, .json_frame = &frames[2], .extra = frames + 3,
                    .nextra = n - 3};
+    client_of(&frames[2], r.client, sizeof r.client);
+    const char *key = zmq_msg_gets(&frames[2], "User-Id");
+    r.keyed = key && *key;
+    r.admin = r.keyed && master_is_admin(m, key);
     cJSON *b;
     if (!rate_ok(m, &frames[0], master_now())) {
         m->rate_limited++;

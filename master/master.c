@@ -36,6 +36,13 @@ void master_log_limited(master_t *m, const char *key, const char *fmt, ...)
     va_end(ap);
 }
 
+int master_is_admin(master_t *m, const char *key)
+{
+    (void)m;
+    (void)key;
+    return 0; /* until the ZAP handler's allow-lists land */
+}
+
 /* ---- periodic tasks ------------------------------------------------------------- */
 
 /* Tasks whose lease ran out go out again. The queue is in deadline order;

@@ -163,6 +163,8 @@ struct master {
 
 /* master.c */
 double master_now(void);
+/* Whether a client key (Z85) is in --admin-clients. */
+int master_is_admin(master_t *m, const char *key);
 void master_log(master_t *m, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 /* A line any peer can provoke (bad input): rate-limited per key (a string
  * literal naming the kind of line), repeats summarised. */
