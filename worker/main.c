@@ -5,6 +5,7 @@
  * SIGTERM or SIGINT: returns or releases its tasks, says BYE, exits 0.
  * Exit 1 when the master refuses it (protocol or build mismatch). */
 #include <errno.h>
+#include <pthread.h>
 #include <signal.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -15,14 +16,28 @@
 
 #include "worker.h"
 
-/* The one global: a signal handler can reach nothing else. A lock-free
- * atomic is safe to store from a handler (C11 7.14.1.1). */
-static atomic_int stop_requested;
+/* SIGTERM and SIGINT are blocked in every thread and taken by one thread
+ * with sigwait, not by a handler. A process-directed signal goes to any
+ * thread that does not block it, and this process has threads it does not
+ * own: ZeroMQ's I/O threads and the TBB pool Embree starts on the first
+ * BVH build. Under ThreadSanitizer, which runs a handler only when the
+ * receiving thread next enters its runtime, a signal that landed on an idle
+ * TBB thread (asleep in a raw futex syscall) never ran, and the worker
+ * never stopped. The mask is set before the first thread starts, so every
+ * later thread, the TBB pool included, inherits it. */
+typedef struct signal_waiter {
+    sigset_t set;
+    atomic_int *stop;
+} signal_waiter_t;
 
-static void on_signal(int sig)
+static void *wait_for_signal(void *arg)
 {
-    (void)sig;
-    atomic_store(&stop_requested, 1);
+    signal_waiter_t *sw = arg;
+    int sig = 0;
+    while (sigwait(&sw->set, &sig) != 0)
+        ;
+    atomic_store(sw->stop, 1);
+    return NULL;
 }
 
 static const char usage[] =
@@ -71,23 +86,38 @@ int main(int argc, char **argv)
         fprintf(stderr, "vbrender-worker: --master ENDPOINT is required\n%s", usage);
         return 2;
     }
-    struct sigaction sa;
-    memset(&sa, 0, sizeof sa);
-    sa.sa_handler = on_signal;
-    sigaction(SIGTERM, &sa, NULL);
-    sigaction(SIGINT, &sa, NULL);
     signal(SIGPIPE, SIG_IGN);
+    atomic_int stop;
+    atomic_init(&stop, 0);
+    signal_waiter_t sw;
+    sw.stop = &stop;
+    sigemptyset(&sw.set);
+    sigaddset(&sw.set, SIGTERM);
+    sigaddset(&sw.set, SIGINT);
+    pthread_t waiter;
+    int err_no = pthread_sigmask(SIG_BLOCK, &sw.set, NULL);
+    if (err_no == 0)
+        err_no = pthread_create(&waiter, NULL, wait_for_signal, &sw);
+    if (err_no != 0) {
+        fprintf(stderr, "vbrender-worker: cannot set up signal handling: %s\n", strerror(err_no));
+        return 1;
+    }
     void *ctx = zmq_ctx_new();
     cfg.zmq_ctx = ctx;
     char err[512];
+    int rc = 1;
     worker_t *w = worker_new(&cfg, err, sizeof err);
-    if (!w) {
+    if (w)
+        rc = worker_run(w, &stop);
+    else
         fprintf(stderr, "vbrender-worker: %s\n", err);
-        zmq_ctx_term(ctx);
-        return 1;
-    }
-    int rc = worker_run(w, &stop_requested);
     worker_destroy(&w);
     zmq_ctx_term(ctx);
+    /* No signal came (refused, or worker_new failed): wake the waiter with
+     * one aimed at it. If one did come, the waiter has returned or is
+     * returning, and this one is discarded with it. */
+    if (!atomic_load(&stop))
+        pthread_kill(waiter, SIGTERM);
+    pthread_join(waiter, NULL);
     return rc;
 }

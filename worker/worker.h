@@ -7,7 +7,10 @@
  * bundle. It heartbeats, reconnects with backoff when the master goes away,
  * and on stop releases what it has not started, returns what it has, and
  * says BYE. All state is in the worker_t: several run in one process in the
- * embedded `vbrender render`.
+ * embedded `vbrender render`. Its threads (the render threads, and the TBB
+ * pool Embree starts on the first scene) inherit the caller's signal mask:
+ * a process that stops on a signal blocks it before worker_new and takes it
+ * on a thread of its own (worker/main.c says why).
  */
 #ifndef VB_WORKER_H
 #define VB_WORKER_H
