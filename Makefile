@@ -6,7 +6,8 @@
 #                networking) and build/libvbnet.a (protocol, master, worker)
 #   make check   deps, build, all tests, then the same tests under ASan+UBSan
 #   make demo    deps, build, render scenes/cornell-box.json to out/
-#   make bench   deps, build, core and distributed benchmarks (bench/results/)
+#   make bench   deps, build, core, distributed, durable and verification
+#                benchmarks (bench/results/)
 #   make bench-error   the error study: adaptive modes against uniform and Mitsuba 3
 
 BUILD    ?= build
@@ -165,6 +166,7 @@ bench: deps
 	bench/run-core.sh
 	if [ -x bench/run-distributed.sh ]; then bench/run-distributed.sh; fi
 	bench/run-durable.sh
+	bench/run-verify.sh
 
 bench-error: deps
 	$(MAKE) all
