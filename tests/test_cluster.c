@@ -2271,15 +2271,16 @@ static int selected_count(uint64_t seed, double tasks, double share)
 }
 
 /* The fault build of the worker (VB_FAULT_WORKER), perturbing one result in
- * lie_every, connected from src like start_worker's. */
-static daemon_t *start_liar(int port, const char *name, const char *src, int lie_every)
+ * lie_every (bit `bit` of a sum), connected from src like start_worker's. */
+static daemon_t *start_liar(int port, const char *name, const char *src, int lie_every, int bit)
 {
     const char *bin = getenv("VB_FAULT_WORKER");
     ck_assert_msg(bin && access(bin, X_OK) == 0, "VB_FAULT_WORKER (%s) is not built", bin ? bin : "unset");
-    char ep[128], every[48];
+    char ep[128], every[48], flip[48];
     snprintf(ep, sizeof ep, "tcp://%s:0;127.0.0.1:%d", src, port);
     snprintf(every, sizeof every, "VB_FAULT_LIE_EVERY=%d", lie_every);
-    const char *args[] = {"env", every, bin, "--master", ep, "--threads", "1", "--name", name, NULL};
+    snprintf(flip, sizeof flip, "VB_FAULT_LIE_BIT=%d", bit);
+    const char *args[] = {"env", every, flip, bin, "--master", ep, "--threads", "1", "--name", name, NULL};
     return spawn(name, NULL, args);
 }
 
@@ -2328,7 +2329,7 @@ START_TEST(verify_liar)
                   jnum(st, "tasks_unverified"));
     cJSON_Delete(st);
     start_worker(port, 1, "v-worker2", "127.0.0.3");
-    daemon_t *liar = start_liar(port, "v-liar", "127.0.0.4", 3);
+    daemon_t *liar = start_liar(port, "v-liar", "127.0.0.4", 3, 0);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "verify.exr"));
     st = job_status(port + 1, job);
     double tasks = jnum(st, "tasks");
@@ -2351,6 +2352,46 @@ START_TEST(verify_liar)
                   "an honest worker was quarantined:\n%s", log);
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "verify-ref.exr"));
     compare_exr(ref, got);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* Three workers that always disagree (one honest, two liars flipping
+ * different bits): no majority, so every copy is dropped, nobody is
+ * quarantined, nothing is merged, and the task is issued afresh; the job
+ * can be cancelled and the master stays sound. */
+START_TEST(verify_no_majority)
+{
+    char scene[PATHLEN], log[65536];
+    scene_file(scene, sizeof scene, 16, NULL, NULL);
+    int port = slot_port(18);
+    const char *extra[] = {"--state", "none", "--verify-share", "1", NULL};
+    daemon_t *m = start_master_with(&port, "y-master", extra);
+    start_worker(port, 1, "y-worker", "127.0.0.2");
+    start_liar(port, "y-liar1", "127.0.0.3", 1, 0);
+    start_liar(port, "y-liar2", "127.0.0.4", 1, 1);
+    wait_workers(port + 1, 3);
+    unsigned long long job = submit(port + 1, scene, "--spp 64 --granularity 16 --adaptive none --seed 43");
+    double end = now_ms() + 20000;
+    while (!strstr(read_log(m, log, sizeof log), "three different results")) {
+        ck_assert_msg(now_ms() < end, "no task was dropped for three different results\n%s", logs_tail());
+        sleep_ms(50);
+    }
+    cJSON *st = job_status(port + 1, job);
+    ck_assert_msg(state_is(st, "running") && jnum(st, "samples") == 0 && jnum(st, "tasks_verified") == 0,
+                  "%s with %.0f samples, %.0f tasks verified, without a majority", jstr(st, "state"),
+                  jnum(st, "samples"), jnum(st, "tasks_verified"));
+    ck_assert_msg(jnum(st, "verify_mismatches") >= 1 && jnum(st, "tasks_reissued") >= 1,
+                  "%.0f mismatches, %.0f tasks reissued", jnum(st, "verify_mismatches"), jnum(st, "tasks_reissued"));
+    ck_assert_int_eq(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(st, "quarantined")), 0);
+    cJSON_Delete(st);
+    ck_assert_msg(!strstr(log, "quarantined"), "a worker was quarantined without a majority:\n%s", log);
+    cJSON *r = ctl(port + 1, "cancel", job);
+    ck_assert_ptr_nonnull(r);
+    cJSON_Delete(r);
+    wait_workers(port + 1, 3);
+    assert_alive(m);
     stop_all_clean();
     remove_scratch();
 }
@@ -2439,7 +2480,7 @@ static Suite *cluster_suite(void)
         {"lossy_link", lossy_link},             {"big_submit", big_submit},
         {"lying_worker", lying_worker},         {"limits", limits},
         {"verify_liar", verify_liar},           {"verify_quarter", verify_quarter},
-        {"verify_one_worker", verify_one_worker},
+        {"verify_one_worker", verify_one_worker}, {"verify_no_majority", verify_no_majority},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         TCase *tc = tcase_create(cases[i].name);

@@ -83,6 +83,7 @@ struct worker {
     int own_device;
 #ifdef VB_FAULT_INJECTION
     unsigned long lie_every; /* VB_FAULT_LIE_EVERY: perturb one result in this many */
+    unsigned long lie_bit;   /* VB_FAULT_LIE_BIT: the bit flipped (default 0) */
     unsigned long results_sent;
 #endif
 };
@@ -209,8 +210,9 @@ static void send_hello(worker_t *w)
 }
 
 /* Test builds only (VB_FAULT_INJECTION): one result in VB_FAULT_LIE_EVERY
- * has the lowest bit of the first record's red sum flipped: still a
- * plausible value, which only another worker's copy can expose. */
+ * has the lowest bit (or bit VB_FAULT_LIE_BIT, so two liars can lie
+ * differently) of the first record's red sum flipped: still a plausible
+ * value, which only another worker's copy can expose. */
 static void maybe_lie(worker_t *w, wtask_t *t)
 {
 #ifdef VB_FAULT_INJECTION
@@ -218,7 +220,7 @@ static void maybe_lie(worker_t *w, wtask_t *t)
         return;
     uint64_t bits;
     memcpy(&bits, &t->results[0].sum[0], sizeof bits);
-    bits ^= 1;
+    bits ^= (uint64_t)1 << (w->lie_bit & 31);
     memcpy(&t->results[0].sum[0], &bits, sizeof bits);
     logf_(w, "fault injection: lying about job %" PRIu64 " task %" PRIu64 " attempt %u", t->job, t->task,
           t->attempt);
@@ -578,6 +580,8 @@ worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
 #ifdef VB_FAULT_INJECTION
     const char *lie = getenv("VB_FAULT_LIE_EVERY");
     w->lie_every = lie ? strtoul(lie, NULL, 10) : 0;
+    const char *bit = getenv("VB_FAULT_LIE_BIT");
+    w->lie_bit = bit ? strtoul(bit, NULL, 10) : 0;
 #endif
     pthread_mutex_init(&w->lock, NULL);
     pthread_cond_init(&w->cond, NULL);
