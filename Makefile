@@ -7,7 +7,8 @@
 #   make check   deps, build, all tests, then the same tests under ASan+UBSan,
 #                then the multi-threaded ones under ThreadSanitizer (test-tsan)
 #   make demo    deps, build, render scenes/cornell-box.json to out/
-#   make bench   deps, build, core and distributed benchmarks (bench/results/)
+#   make bench   deps, build, core, distributed, durable and verification
+#                benchmarks (bench/results/)
 #   make bench-error   the error study: adaptive modes against uniform and Mitsuba 3
 
 BUILD    ?= build
@@ -133,12 +134,22 @@ $(BUILD)/tests/persist-fault.o: master/persist.c
 $(FAULT_MASTER): $(BUILD)/master/main.o $(BUILD)/tests/persist-fault.o $(LIBS_ALL)
 	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_ALL)
 
+# The worker likewise (worker.c with VB_FAULT_INJECTION linked first): with
+# VB_FAULT_LIE_EVERY=N it perturbs one result in N, for the verification
+# tests.
+FAULT_WORKER = $(BUILD)/tests/vbrender-worker-fault
+$(BUILD)/tests/worker-fault.o: worker/worker.c
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -DVB_FAULT_INJECTION -c $< -o $@
+$(FAULT_WORKER): $(BUILD)/worker/main.o $(BUILD)/tests/worker-fault.o $(LIBS_ALL)
+	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_ALL)
+
 $(BUILD)/bench/%: $(BUILD)/bench/%.o $(LIBS_ALL)
 	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_ALL)
 
 # Tests find the binary under test and the shared data through these.
 TEST_ENV = VB_BIN=$(abspath $(BIN)/vbrender) VB_BINDIR=$(abspath $(BIN)) VB_ROOT=$(CURDIR) \
-           VB_FAULT_MASTER=$(abspath $(FAULT_MASTER)) \
+           VB_FAULT_MASTER=$(abspath $(FAULT_MASTER)) VB_FAULT_WORKER=$(abspath $(FAULT_WORKER)) \
            VB_SHARED=$(abspath ../shared)
 # Under the sanitizers each suite runs in one process (no fork per test), so
 # LeakSanitizer checks the whole run at exit.
@@ -146,7 +157,7 @@ ifeq ($(SAN),1)
   TEST_ENV += CK_FORK=no
 endif
 
-test: $(BIN)/vbrender $(DAEMONS) $(TEST_BIN) $(FUZZ_BIN) $(FAULT_MASTER)
+test: $(BIN)/vbrender $(DAEMONS) $(TEST_BIN) $(FUZZ_BIN) $(FAULT_MASTER) $(FAULT_WORKER)
 	@mkdir -p $(BUILD)/test-out
 	@$(TEST_ENV) VB_TMP=$(abspath $(BUILD)/test-out) tests/run-suites.sh $(TEST_BIN) -- $(FUZZ_BIN)
 
@@ -205,6 +216,7 @@ bench: deps
 	bench/run-core.sh
 	if [ -x bench/run-distributed.sh ]; then bench/run-distributed.sh; fi
 	bench/run-durable.sh
+	bench/run-verify.sh
 
 bench-error: deps
 	$(MAKE) all
@@ -214,4 +226,5 @@ clean:
 	rm -rf build build-asan build-tsan bin
 
 -include $(CORE_OBJ:.o=.d) $(NET_OBJ:.o=.d) $(CLIENT_OBJ:.o=.d) $(BUILD)/master/main.d $(BUILD)/worker/main.d $(TEST_BIN:=.d) $(TEST_HELPER_OBJ:.o=.d) \
-         $(FUZZ_BIN:=.d) $(BUILD)/tests/fuzzdriver.d $(BENCH_BIN:=.d) $(BUILD)/tests/persist-fault.d
+         $(FUZZ_BIN:=.d) $(BUILD)/tests/fuzzdriver.d $(BENCH_BIN:=.d) $(BUILD)/tests/persist-fault.d \
+         $(BUILD)/tests/worker-fault.d

@@ -12,6 +12,14 @@
  * (REQ, JSON) on a synthetic one-quad scene of --size x --size pixels, and
  * status is polled until it is done.
  *
+ * --verify-share P runs the master with that share of tasks verified by
+ * replication (master/verify.c): a chosen task goes to two synthetic
+ * workers, whose answers agree since they are a pure function of the task.
+ * Copies must go to workers of different identity (address without keys),
+ * so over tcp each synthetic worker connects from its own loopback address
+ * (127.0.0.10 + k); over inproc they all share one and nothing can be
+ * verified (the chosen tasks are merged unverified).
+ *
  * Reported (JSON): pixel-layer results merged (status samples / G), job
  * seconds, results/s, and the CPU time of the master's thread (its
  * pthread CPU clock, read from outside: master.c is not instrumented), of
@@ -23,7 +31,8 @@
  * usage: bench_master [--workers K] [--transport inproc|tcp] [--port P]
  *                     [--size N] [--spp S] [--granularity G]
  *                     [--adaptive none|thesis] [--uniform-layers U]
- *                     [--credit C] [--max-seconds T] [--json OUT.json]
+ *                     [--credit C] [--max-seconds T] [--verify-share P]
+ *                     [--json OUT.json]
  */
 #include <cJSON.h>
 #include <errno.h>
@@ -55,18 +64,20 @@ static const char usage_text[] =
     "  --uniform-layers U     layers before the skip rule applies (default: the master's, half)\n"
     "  --credit C             tasks each synthetic worker asks for at once (default 8)\n"
     "  --max-seconds T        cancel the job after T s and report what was merged (default 60)\n"
+    "  --verify-share P       share of tasks the master verifies on two workers (default 0; tcp)\n"
     "  --json FILE            write the result as JSON (default: stdout only)\n";
 
 typedef struct args {
     uint64_t workers, port, size, spp, granularity, credit, uniform_layers, max_seconds;
     int have_uniform, tcp;
+    double verify_share;
     const char *adaptive;
     const char *json;
 } args_t;
 
 typedef struct synth {
     void *ctx;
-    const char *endpoint;
+    char endpoint[96];
     uint32_t credit;
     const atomic_int *stop;
     pthread_t thread;
@@ -386,6 +397,10 @@ static int parse_args(int argc, char **argv, args_t *a)
         } else if (strcmp(o, "--adaptive") == 0) {
             bad = !v || (strcmp(v, "none") != 0 && strcmp(v, "thesis") != 0);
             a->adaptive = v;
+        } else if (strcmp(o, "--verify-share") == 0) {
+            char *end = NULL;
+            a->verify_share = v ? strtod(v, &end) : -1;
+            bad = !v || *end || !(a->verify_share >= 0 && a->verify_share <= 1);
         } else if (strcmp(o, "--json") == 0) {
             bad = !v;
             a->json = v;
@@ -426,6 +441,7 @@ int main(int argc, char **argv)
     mc.worker_endpoint = wep;
     mc.control_endpoint = cep;
     mc.log = getenv("VB_LOG") ? stderr : NULL;
+    mc.verify_share = a.verify_share;
     master_thread_t mt;
     memset(&mt, 0, sizeof mt);
     synth_t synth[MAX_SYNTH];
@@ -444,7 +460,12 @@ int main(int argc, char **argv)
     clockid_t master_clock;
     pthread_getcpuclockid(mt.thread, &master_clock);
     for (uint64_t i = 0; i < a.workers; i++) {
-        synth[i] = (synth_t){.ctx = ctx, .endpoint = wep_connect, .credit = (uint32_t)a.credit, .stop = &synth_stop};
+        synth[i] = (synth_t){.ctx = ctx, .credit = (uint32_t)a.credit, .stop = &synth_stop};
+        if (a.tcp) /* an address each: verified copies go to workers of another identity */
+            snprintf(synth[i].endpoint, sizeof synth[i].endpoint, "tcp://127.0.0.%" PRIu64 ":0;%s", 10 + i,
+                     wep_connect + strlen("tcp://"));
+        else
+            snprintf(synth[i].endpoint, sizeof synth[i].endpoint, "%s", wep_connect);
         pthread_create(&synth[i].thread, NULL, synth_main, &synth[i]);
         synth[i].started = 1;
     }
@@ -572,6 +593,10 @@ int main(int argc, char **argv)
     cJSON_AddNumberToObject(out, "spp", (double)a.spp);
     cJSON_AddNumberToObject(out, "granularity", (double)a.granularity);
     cJSON_AddStringToObject(out, "adaptive", a.adaptive);
+    cJSON_AddNumberToObject(out, "verify_share", a.verify_share);
+    cJSON_AddNumberToObject(out, "tasks_verified", jnum(status, "tasks_verified"));
+    cJSON_AddNumberToObject(out, "tasks_unverified", jnum(status, "tasks_unverified"));
+    cJSON_AddNumberToObject(out, "verify_mismatches", jnum(status, "verify_mismatches"));
     cJSON_AddStringToObject(out, "state", jstr(status, "state"));
     cJSON_AddNumberToObject(out, "layers", jnum(status, "layers"));
     cJSON_AddNumberToObject(out, "layers_done", jnum(status, "layers_done"));

@@ -311,6 +311,7 @@ typedef struct wait_view {
     int bar;   /* the progress is a bar redrawn in place */
     int drawn; /* ... and it is on the screen: end its line before another */
     char storage_error[512], recovered[512]; /* as last shown */
+    char waiting_for[64];                    /* verification: the worker awaited */
 } wait_view_t;
 
 /* Ends a half-drawn bar's line, so a message does not overwrite it; the
@@ -344,6 +345,14 @@ static void show_job_notes(wait_view_t *v, unsigned long long job, const cJSON *
         fprintf(stderr, "vbrender: job %llu: recovered from %s\n", job, rec);
         snprintf(v->recovered, sizeof v->recovered, "%s", rec);
     }
+    /* --verify-share 1 without a second worker: the job makes no progress */
+    const char *wf = jstr(st, "waiting_for");
+    if (*wf && strcmp(wf, v->waiting_for) != 0) {
+        view_break(v);
+        fprintf(stderr, "vbrender: job %llu: %.0f tasks wait for %s to verify them\n", job,
+                jnum(st, "verify_waiting"), wf);
+    }
+    snprintf(v->waiting_for, sizeof v->waiting_for, "%s", wf);
 }
 
 /* Polls status until the job ends; returns the final status, or NULL with

@@ -68,6 +68,7 @@ void job_shed(job_t *j)
     if (!j->summary)
         return; /* out of memory: keep the job whole */
     free_bundle(j);
+    verify_free(j);
     sched_destroy(&j->sched);
     free(j->attempt);
     free(j->holder);
@@ -88,8 +89,10 @@ void job_free(job_t *j)
     if (!j)
         return;
     free_bundle(j);
+    verify_free(j);
     sched_destroy(&j->sched);
     free(j->flags);
+    free(j->quarantined);
     free(j->attempt);
     free(j->holder);
     for (int c = 0; c < 3; c++) {
@@ -151,6 +154,7 @@ void job_release_all(master_t *m, job_t *j)
 {
     if (!j->holder || !j->sched)
         return;
+    verify_release_all(m, j); /* its cells are free after this */
     size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
     for (size_t c = 0; c < cells; c++)
         if (j->holder[c]) {
@@ -175,6 +179,14 @@ void job_reissue(master_t *m, job_t *j, size_t cell)
      * takes it back; a refusal would be a bug in our bookkeeping. */
     if (sched_requeue(j->sched, (uint64_t)cell + 1) < 0)
         master_log(m, "job %" PRIu64 " task %zu: the scheduler refused it back (out of memory?)", j->id, cell + 1);
+}
+
+void job_merged(master_t *m, job_t *j)
+{
+    if (sched_done(j->sched))
+        job_finish(m, j, JOB_DONE, sched_stopped_on_target(j->sched) ? "target error reached" : NULL);
+    else if (j->ref[0] && sched_layers_complete(j->sched) != j->last_eval_layers)
+        job_eval_error(j, master_now()); /* a point per finished layer, however fast */
 }
 
 void job_finish(master_t *m, job_t *j, job_state_t st, const char *why)
@@ -246,6 +258,7 @@ cJSON *job_json(const job_t *j, int with_series)
     cJSON_AddNumberToObject(o, "tasks_reissued", j->reissued);
     cJSON_AddNumberToObject(o, "late_results", (double)j->late_results);
     cJSON_AddNumberToObject(o, "nonfinite", (double)sched_nonfinite(j->sched));
+    verify_json(j, o);
     cJSON_AddNumberToObject(o, "time_limit", j->time_limit);
     if (j->target_error > 0) {
         cJSON_AddNumberToObject(o, "target_error", j->target_error);

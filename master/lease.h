@@ -4,7 +4,9 @@
  * granted: a FIFO is a deadline-ordered queue, and the master's timer looks
  * only at its head instead of scanning every task of every job. A lease is
  * fenced by (job, task, attempt): one whose task was completed or issued
- * again since is stale, and the caller skips it when it pops.
+ * again since is stale, and the caller skips it when it pops. A task sent
+ * to several workers for verification has one lease per copy: (job, task,
+ * attempt, worker slot) names the copy.
  */
 #ifndef VB_LEASE_H
 #define VB_LEASE_H
@@ -16,6 +18,7 @@ typedef struct lease {
     uint64_t job;
     uint64_t task;
     uint32_t attempt;
+    uint32_t slot;   /* the worker it was sent to: slot + 1 */
     double deadline;
 } lease_t;
 

@@ -3,6 +3,7 @@
  *   vbrender-master [--workers ENDPOINT] [--control ENDPOINT]  (default tcp ports 7070, 7071)
  *                   [--heartbeat-ms N] [--lease-ms N]
  *                   [--state DIR|none] [--checkpoint-s S] [--keep-finished N]
+ *                   [--verify-share P]
  *
  * Logs to stderr with timestamps; SIGTERM or SIGINT stops it cleanly. */
 #include <errno.h>
@@ -30,6 +31,7 @@ static const char usage[] =
     "usage: vbrender-master [--workers ENDPOINT] [--control ENDPOINT]\n"
     "                       [--heartbeat-ms N] [--lease-ms N]\n"
     "                       [--state DIR|none] [--checkpoint-s S] [--keep-finished N]\n"
+    "                       [--verify-share P]\n"
     "  --workers ENDPOINT   where workers connect (default tcp://*:7070)\n"
     "  --control ENDPOINT   where clients connect (default tcp://*:7071)\n"
     "  --heartbeat-ms N     heartbeat interval (default 1000)\n"
@@ -43,6 +45,10 @@ static const char usage[] =
     "  --max-pixels N       image width x height of one job (default 67108864)\n"
     "  --max-spp N          samples per pixel of one job (default 1048576)\n"
     "  --max-requests-per-s N  control requests per connection and second (default 100)\n"
+    "  --verify-share P     this share of tasks (0..1, chosen by job seed and task id) also runs\n"
+    "                       on a second worker and merges only when both agree bit for bit; a\n"
+    "                       third worker settles a mismatch and the odd one is quarantined\n"
+    "                       (default 0.01; 0: off; 1: every task, never merged unverified)\n"
     "  --version            print the build id and exit\n"
     "Signals: TERM or INT checkpoint every running job and stop.\n";
 
@@ -80,6 +86,7 @@ int main(int argc, char **argv)
     cfg.control_endpoint = MASTER_DEFAULT_CONTROL;
     cfg.state_dir = MASTER_DEFAULT_STATE;
     cfg.log = stderr;
+    cfg.verify_share = MASTER_DEFAULT_VERIFY_SHARE;
     double v_keep;
     for (int i = 1; i < argc; i++) {
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
@@ -124,6 +131,12 @@ int main(int argc, char **argv)
                 cfg.max_spp = (uint32_t)v_keep;
             else
                 cfg.max_requests_per_s = (uint32_t)v_keep;
+            i++;
+        } else if (strcmp(argv[i], "--verify-share") == 0) {
+            if (parse_count(v, 0, 1, &cfg.verify_share) < 0) {
+                fprintf(stderr, "vbrender-master: --verify-share needs a share from 0 to 1 (got '%s')\n", v ? v : "");
+                return 2;
+            }
             i++;
         } else if (strcmp(argv[i], "--keep-finished") == 0) {
             if (parse_count(v, 1, 1e7, &v_keep) < 0 || v_keep != (double)(uint32_t)v_keep) {

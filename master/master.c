@@ -55,6 +55,10 @@ static void expire_leases(master_t *m, double now)
         if (!j || j->state != JOB_RUNNING || !j->holder)
             continue;
         size_t c = (size_t)(l.task - 1);
+        if (verify_holds(j, c)) {
+            verify_lease_expired(m, j, c, &l); /* one copy of several */
+            continue;
+        }
         if (!j->holder[c] || j->attempt[c] != l.attempt)
             continue;
         master_log(m, "job %" PRIu64 " task %" PRIu64 ": lease ran out on %s; issuing it again", j->id, l.task,
@@ -89,6 +93,7 @@ static void periodic(master_t *m, double now)
 {
     peer_heartbeats(m, now);
     expire_leases(m, now);
+    verify_tick(m);
     job_clocks(m, now);
     vblog_limiter_flush(&m->limiter, m->cfg.log, "master", now);
     if (m->store)

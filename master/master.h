@@ -28,6 +28,7 @@ typedef struct master master_t;
 #define MASTER_DEFAULT_MAX_PIXELS (8192u * 8192u)
 #define MASTER_DEFAULT_MAX_SPP (1u << 20)
 #define MASTER_DEFAULT_MAX_REQUESTS_PER_S 100
+#define MASTER_DEFAULT_VERIFY_SHARE 0.01 /* the daemon's; 0 in a zeroed config */
 
 typedef struct master_config {
     void *zmq_ctx;                /* the ZeroMQ context to use (not owned) */
@@ -46,6 +47,10 @@ typedef struct master_config {
     uint64_t max_pixels;            /* width x height of one job */
     uint32_t max_spp;               /* samples per pixel of one job */
     uint32_t max_requests_per_s;    /* control requests of one connection */
+    /* Verification by replication: this share of tasks (chosen by job seed
+     * and task id) also goes to a second worker, and is merged only when
+     * both results agree bit for bit. 0: none; 1: every task. */
+    double verify_share;
     FILE *log;                    /* NULL: silent */
 } master_config_t;
 

@@ -12,12 +12,18 @@
  *   persist.c   durable state: submissions, checkpoints, final images, and
  *               recovery at startup (through store.h)
  *   lease.c     task leases in deadline order (lease.h)
+ *   verify.c    verification by replication: a seeded share of tasks goes
+ *               to two (on a mismatch three) different workers and is
+ *               merged only when two results agree bit for bit
  *
  * Work is fenced by (job, task, attempt): a result counts only if its job
  * is running, its task is outstanding with that worker, and its attempt is
  * the task's current one; anything else is late or a duplicate and is
- * dropped. Bad messages are logged, counted and dropped: the master never
- * exits on input.
+ * dropped. A task being verified has several copies out at once, each
+ * fenced by (job, task, attempt, worker): every copy gets its own attempt
+ * number, and the task's holder names its verify entry instead of a worker
+ * (verify_holds). Bad messages are logged, counted and dropped: the master
+ * never exits on input.
  */
 #ifndef VB_MASTER_PRIV_H
 #define VB_MASTER_PRIV_H
@@ -50,6 +56,14 @@
 #define MASTER_RATE_BUCKETS 1024     /* connections whose request rate is tracked */
 #define MASTER_MAX_BAD_RESULTS 8     /* refused results before a worker is quarantined */
 #define MASTER_CONTROL_MAX_BYTES ((int64_t)PROTO_MAX_BUNDLE + (1 << 20))
+/* A job with this many verified tasks waiting for a copy to go out takes
+ * no new tasks: with --verify-share 1 and no second worker, results would
+ * otherwise pile up unmerged without bound. */
+#define MASTER_VERIFY_MAX_QUEUED 1024
+/* holder[] of a task out for verification: this bit and the index of its
+ * entry in the job's verify state (worker slots stay below it). */
+#define MASTER_VERIFY_HOLDER 0x80000000u
+#define MASTER_MAX_WHO 64 /* peer_identity: a key or an address, with its NUL */
 
 typedef enum { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_FAILED, JOB_CANCELLED } job_state_t;
 extern const char *const job_state_names[];
@@ -128,6 +142,15 @@ typedef struct job {
     char storage_error[MASTER_ERR_LEN];
     char recovered[MASTER_ERR_LEN];
     cJSON *summary;             /* status of an ended job whose film is freed */
+    /* verification by replication (verify.c) */
+    struct verify_job *verify;  /* its tasks out to several workers; NULL: none */
+    uint64_t tasks_verified;    /* merged once two results agreed */
+    uint64_t verify_mismatches; /* tasks whose results differed */
+    uint64_t tasks_unverified;  /* chosen, but merged on one result (no second worker) */
+    uint32_t verify_waiting;    /* tasks whose next copy no connected worker may run */
+    uint32_t verify_waiting_for; /* 2 or 3: the worker they wait for */
+    char (*quarantined)[MASTER_MAX_WHO]; /* workers quarantined over its results */
+    size_t quarantined_n;
     struct job *next;
 } job_t;
 
@@ -190,6 +213,9 @@ void job_delete(master_t *m, job_t *j);
 void job_retention(master_t *m);
 /* Takes a task back from its holder and hands it to the scheduler again. */
 void job_reissue(master_t *m, job_t *j, size_t cell);
+/* After a merge: finishes the job when the scheduler is done, else adds a
+ * point to its error series per finished layer. */
+void job_merged(master_t *m, job_t *j);
 
 /* submit.c: a frame of a submit request */
 typedef struct submit_frame {
@@ -225,6 +251,59 @@ int peer_quarantined(const master_t *m, const char *who);
 /* Lets who in again: 0, or -1 if it was not quarantined. */
 int peer_readmit(master_t *m, const char *who);
 void dispatch(master_t *m);
+/* Sends task t of job j to w (slot: its index) with the task's next attempt
+ * number, stored in *attempt; msg is scratch space. SEND_*. */
+int peer_send_task(master_t *m, peer_t *w, job_t *j, const sched_task_t *t, proto_msg_t *msg, uint32_t *attempt);
+/* Counts an accepted result's work (rays, busy time, samples) for the job
+ * and the worker. */
+void peer_count_result(peer_t *w, job_t *j, const proto_msg_t *msg);
+/* Quarantines who (a key or an address) whether or not it is connected:
+ * every connection of it is refused and dropped. */
+void peer_quarantine_identity(master_t *m, const char *who, const char *why);
+
+/* verify.c: verification by replication (see the top of verify.c) */
+/* Whether task_id of a job with this seed is verified at this share: a
+ * pure function (same seed, same tasks); share 0 none, share 1 all. */
+int verify_selected(uint64_t seed, uint64_t task_id, double share);
+static inline int verify_holds(const job_t *j, size_t cell)
+{
+    return (j->holder[cell] & MASTER_VERIFY_HOLDER) != 0;
+}
+/* Whether dispatch sends t out for verification rather than once. */
+int verify_wanted(master_t *m, const job_t *j, uint64_t task_id);
+/* Sends t (just handed out by the scheduler) to w as the first of its
+ * copies; the next copies wait for other workers. 1, or -1 when out of
+ * memory (the task went back to the scheduler). */
+int verify_start(master_t *m, job_t *j, const sched_task_t *t, peer_t *w, proto_msg_t *msg, double now);
+/* Sends w a copy some verified task waits for, if w may run one (another
+ * worker than those with a copy): 1 if something was sent or tried, 0 if
+ * none fits, -1 when out of memory. *msg: scratch, allocated when needed. */
+int verify_dispatch_copy(master_t *m, peer_t *w, proto_msg_t **msg, double now);
+/* Whether any job has copies waiting for a worker. */
+int verify_copies_waiting(const master_t *m);
+/* Whether the job takes no new tasks for now (MASTER_VERIFY_MAX_QUEUED). */
+int verify_saturated(const job_t *j);
+/* A RESULT or TASK_FAILED for a task being verified: 0 if it was for a copy
+ * w holds (handled), -1 if not (the caller counts it unmatched). */
+int verify_on_result(master_t *m, peer_t *w, job_t *j, const proto_msg_t *msg);
+/* The lease of a copy ran out: the copy goes to another worker. */
+void verify_lease_expired(master_t *m, job_t *j, size_t cell, const lease_t *l);
+/* Worker slot (index + 1) is gone: the copies it held go out again (and its
+ * answers are dropped if it was quarantined). Returns the copies. */
+uint32_t verify_peer_lost(master_t *m, job_t *j, uint32_t slot);
+/* The job ended: copies out are released (owed) and the state is freed. */
+void verify_release_all(master_t *m, job_t *j);
+void verify_free(job_t *j);
+/* Periodic: tasks that wait for a worker that is not there (status), and
+ * with a share below 1, one result merged when no second worker is left. */
+void verify_tick(master_t *m);
+/* A task merged on one result by the plain path: counted when it was
+ * chosen for verification. */
+void verify_note_plain(master_t *m, job_t *j, uint64_t task_id);
+/* Names who among the job's quarantined workers. */
+void verify_note_quarantined(job_t *j, const char *who);
+/* The job's verification fields in its status object. */
+void verify_json(const job_t *j, cJSON *o);
 
 /* ctl.c */
 void ctl_handle_message(master_t *m);

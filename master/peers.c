@@ -99,6 +99,7 @@ void peer_lost(master_t *m, peer_t *w, const char *why)
     for (job_t *j = m->jobs; j; j = j->next) {
         if (j->state != JOB_RUNNING || !j->holder)
             continue;
+        back += verify_peer_lost(m, j, slot);
         size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
         for (size_t c = 0; c < cells && j->outstanding > 0; c++)
             if (j->holder[c] == slot) {
@@ -159,9 +160,8 @@ int peer_quarantined(const master_t *m, const char *who)
     return 0;
 }
 
-void peer_quarantine(master_t *m, peer_t *w, const char *why)
+static void quarantine_add(master_t *m, const char *who)
 {
-    const char *who = peer_identity(w);
     if (!peer_quarantined(m, who)) {
         if (m->quarantine_n == m->quarantine_cap) {
             size_t cap = m->quarantine_cap ? 2 * m->quarantine_cap : 8;
@@ -174,11 +174,34 @@ void peer_quarantine(master_t *m, peer_t *w, const char *why)
         if (m->quarantine_n < m->quarantine_cap)
             snprintf(m->quarantine[m->quarantine_n++], sizeof m->quarantine[0], "%s", who);
     }
+}
+
+void peer_quarantine(master_t *m, peer_t *w, const char *why)
+{
+    const char *who = peer_identity(w);
+    quarantine_add(m, who);
     master_log(m, "worker %s quarantined: %s (refused until the master restarts or an admin readmits it)", who, why);
     char text[512];
     snprintf(text, sizeof text, "quarantined: %.400s", why);
     send_text(m, w->id, w->id_len, PROTO_REFUSE, text);
     peer_lost(m, w, "quarantined");
+}
+
+void peer_quarantine_identity(master_t *m, const char *who, const char *why)
+{
+    char id[MASTER_MAX_WHO];
+    snprintf(id, sizeof id, "%s", who); /* who may live in a peer this drops */
+    int connected = 0;
+    for (uint32_t i = 0; i < m->worker_count; i++)
+        if (m->workers[i].alive && strcmp(peer_identity(&m->workers[i]), id) == 0) {
+            peer_quarantine(m, &m->workers[i], why);
+            connected = 1;
+        }
+    if (!connected && !peer_quarantined(m, id)) {
+        quarantine_add(m, id);
+        master_log(m, "worker %s quarantined: %s (it had left; refused until the master restarts or an admin "
+                      "readmits it)", id, why);
+    }
 }
 
 int peer_readmit(master_t *m, const char *who)
@@ -205,7 +228,7 @@ static job_t *next_task(master_t *m, sched_task_t *t, double now)
             master_log(m, "job %" PRIu64 " started: %s %ux%u, %u spp, G %u, adaptive %s", j->id, j->name, j->width,
                        j->height, j->spp, j->granularity, sched_adaptive_name(j->adaptive));
         }
-        if (j->state != JOB_RUNNING || j->stopped_issuing)
+        if (j->state != JOB_RUNNING || j->stopped_issuing || verify_saturated(j))
             continue;
         if (sched_next(j->sched, t) == 1)
             return j;
@@ -213,10 +236,10 @@ static job_t *next_task(master_t *m, sched_task_t *t, double now)
     return NULL;
 }
 
-static peer_t *next_peer_with_credit(master_t *m, uint32_t *slot)
+static peer_t *next_peer_with_credit(master_t *m, uint32_t from, uint32_t *slot)
 {
     for (uint32_t k = 0; k < m->worker_count; k++) {
-        uint32_t i = (m->rr + k) % m->worker_count;
+        uint32_t i = (from + k) % m->worker_count;
         if (m->workers[i].alive && m->workers[i].credit > 0) {
             *slot = i;
             return &m->workers[i];
@@ -225,57 +248,91 @@ static peer_t *next_peer_with_credit(master_t *m, uint32_t *slot)
     return NULL;
 }
 
+int peer_send_task(master_t *m, peer_t *w, job_t *j, const sched_task_t *t, proto_msg_t *msg, uint32_t *attempt)
+{
+    size_t c = (size_t)(t->id - 1);
+    memset(msg, 0, sizeof *msg);
+    msg->h.type = PROTO_TASK;
+    msg->h.job = j->id;
+    msg->h.task = t->id;
+    msg->h.attempt = *attempt = j->attempt[c] = j->attempt[c] ? j->attempt[c] + 1 : m->attempt_base + 1;
+    memcpy(msg->u.task.scene_hash, j->hash, PROTO_HASH_SIZE);
+    msg->u.task.settings = j->tracer;
+    msg->u.task.layer = t->layer;
+    msg->u.task.count = t->count;
+    msg->u.task.records = (tracer_task_t *)t->records;
+    return peer_send(m, w, msg);
+}
+
+/* Hands worker w (index i) a new task, sent once or, when chosen, as the
+ * first copy of a verified task: 1 if one was taken from a scheduler, 0 if
+ * none is ready, -1 when out of memory. */
+static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t **msg, double now)
+{
+    sched_task_t t;
+    job_t *j = next_task(m, &t, now);
+    if (!j)
+        return 0;
+    if (!*msg && !(*msg = malloc(sizeof **msg))) {
+        (void)sched_requeue(j->sched, t.id); /* just handed out: it takes it back */
+        return -1;
+    }
+    if (verify_wanted(m, j, t.id))
+        return verify_start(m, j, &t, w, *msg, now);
+    size_t c = (size_t)(t.id - 1);
+    uint32_t attempt;
+    int rc = peer_send_task(m, w, j, &t, *msg, &attempt);
+    if (rc == SEND_BAD_MESSAGE) {
+        (void)sched_requeue(j->sched, t.id);
+        job_finish(m, j, JOB_FAILED, "a task of this job cannot be encoded (see the master's log)");
+        return 1;
+    }
+    if (rc == SEND_UNREACHABLE) {
+        (void)sched_requeue(j->sched, t.id);
+        peer_lost(m, w, "unreachable");
+        return 1;
+    }
+    j->holder[c] = i + 1;
+    lease_t l = {.job = j->id, .task = t.id, .attempt = attempt, .slot = i + 1,
+                 .deadline = now + m->cfg.lease_ms / 1000.0};
+    if (lease_push(m->leases, &l) < 0)
+        master_log(m, "job %" PRIu64 " task %" PRIu64 ": out of memory for its lease", j->id, t.id);
+    j->outstanding++;
+    w->outstanding++;
+    w->credit--;
+    return 1;
+}
+
 /* Hands ready tasks to workers with credit, one task per worker in turn
  * (round robin from the worker after the last one served), so a trickle of
- * ready tasks spreads over all workers instead of filling the first. */
+ * ready tasks spreads over all workers instead of filling the first. Copies
+ * waiting for verification go first. A worker given nothing ends the round
+ * unless copies wait: one it may not run (it has the first copy) may suit
+ * the next worker, so the round goes on until it comes back to it. */
 void dispatch(master_t *m)
 {
     double now = master_now();
     proto_msg_t *msg = NULL;
+    uint32_t from = m->rr, first_miss = UINT32_MAX;
     for (;;) {
         uint32_t i = 0;
-        peer_t *w = next_peer_with_credit(m, &i);
-        if (!w)
+        peer_t *w = next_peer_with_credit(m, from, &i);
+        if (!w || i == first_miss)
             break;
-        sched_task_t t;
-        job_t *j = next_task(m, &t, now);
-        if (!j)
+        int rc = verify_dispatch_copy(m, w, &msg, now);
+        if (rc == 0)
+            rc = dispatch_new(m, w, i, &msg, now);
+        if (rc < 0)
             break;
-        size_t c = (size_t)(t.id - 1);
-        if (!msg && !(msg = malloc(sizeof *msg))) {
-            (void)sched_requeue(j->sched, t.id); /* just handed out: it takes it back */
+        from = i + 1;
+        if (rc > 0) {
+            m->rr = from;
+            first_miss = UINT32_MAX;
+        } else if (!verify_copies_waiting(m)) {
             break;
+        } else if (first_miss == UINT32_MAX) {
+            first_miss = i;
         }
-        memset(msg, 0, sizeof *msg);
-        msg->h.type = PROTO_TASK;
-        msg->h.job = j->id;
-        msg->h.task = t.id;
-        msg->h.attempt = j->attempt[c] = j->attempt[c] ? j->attempt[c] + 1 : m->attempt_base + 1;
-        memcpy(msg->u.task.scene_hash, j->hash, PROTO_HASH_SIZE);
-        msg->u.task.settings = j->tracer;
-        msg->u.task.layer = t.layer;
-        msg->u.task.count = t.count;
-        msg->u.task.records = (tracer_task_t *)t.records;
-        int rc = peer_send(m, w, msg);
-        m->rr = i + 1;
-        if (rc == SEND_BAD_MESSAGE) {
-            (void)sched_requeue(j->sched, t.id);
-            job_finish(m, j, JOB_FAILED, "a task of this job cannot be encoded (see the master's log)");
-            continue;
-        }
-        if (rc == SEND_UNREACHABLE) {
-            (void)sched_requeue(j->sched, t.id);
-            peer_lost(m, w, "unreachable");
-            continue;
-        }
-        j->holder[c] = i + 1;
-        lease_t l = {.job = j->id, .task = t.id, .attempt = msg->h.attempt,
-                     .deadline = now + m->cfg.lease_ms / 1000.0};
-        if (lease_push(m->leases, &l) < 0)
-            master_log(m, "job %" PRIu64 " task %" PRIu64 ": out of memory for its lease", j->id, t.id);
-        j->outstanding++;
-        w->outstanding++;
-        w->credit--;
     }
     free(msg);
 }
@@ -331,6 +388,11 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
     uint64_t id = msg->h.task;
     size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
     uint32_t slot = (uint32_t)(w - m->workers) + 1;
+    if (id != 0 && id <= cells && verify_holds(j, id - 1)) {
+        if (verify_on_result(m, w, j, msg) < 0)
+            unmatched_result(m, w, j);
+        return;
+    }
     if (id == 0 || id > cells || j->holder[id - 1] != slot || j->attempt[id - 1] != msg->h.attempt) {
         unmatched_result(m, w, j);
         return;
@@ -358,10 +420,18 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
         if (w->bad_results >= MASTER_MAX_BAD_RESULTS) {
             char why[MASTER_ERR_LEN];
             snprintf(why, sizeof why, "%u results refused; the last: %.700s", w->bad_results, err);
+            verify_note_quarantined(j, peer_identity(w));
             peer_quarantine(m, w, why);
         }
         return;
     }
+    peer_count_result(w, j, msg);
+    verify_note_plain(m, j, id);
+    job_merged(m, j);
+}
+
+void peer_count_result(peer_t *w, job_t *j, const proto_msg_t *msg)
+{
     j->rays += msg->u.result.rays;
     j->busy_us += msg->u.result.busy_us;
     w->rays += msg->u.result.rays;
@@ -369,10 +439,6 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
     w->tasks_done++;
     for (uint32_t i = 0; i < msg->u.result.count; i++)
         w->samples += msg->u.result.records[i].samples + msg->u.result.records[i].nonfinite;
-    if (sched_done(j->sched))
-        job_finish(m, j, JOB_DONE, sched_stopped_on_target(j->sched) ? "target error reached" : NULL);
-    else if (j->ref[0] && sched_layers_complete(j->sched) != j->last_eval_layers)
-        job_eval_error(j, master_now()); /* a point per finished layer, however fast */
 }
 
 static void on_hello(master_t *m, const uint8_t *id, size_t id_len, const char *host, const char *key,

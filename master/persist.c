@@ -93,6 +93,14 @@ static char *extras_json(const job_t *j, double now)
     cJSON_AddNumberToObject(o, "reissued", j->reissued);
     cJSON_AddNumberToObject(o, "late_results", (double)j->late_results);
     cJSON_AddNumberToObject(o, "failures", j->failures);
+    cJSON_AddNumberToObject(o, "tasks_verified", (double)j->tasks_verified);
+    cJSON_AddNumberToObject(o, "verify_mismatches", (double)j->verify_mismatches);
+    cJSON_AddNumberToObject(o, "tasks_unverified", (double)j->tasks_unverified);
+    if (j->quarantined_n) {
+        cJSON *q = cJSON_AddArrayToObject(o, "quarantined");
+        for (size_t i = 0; q && i < j->quarantined_n; i++)
+            cJSON_AddItemToArray(q, cJSON_CreateString(j->quarantined[i]));
+    }
     if (j->series_n) {
         cJSON *arr = cJSON_AddArrayToObject(o, "series");
         for (size_t i = 0; i < j->series_n; i++)
@@ -117,6 +125,15 @@ static void apply_extras(job_t *j, const cJSON *o)
     j->reissued = (uint32_t)num(o, "reissued");
     j->late_results = (uint64_t)num(o, "late_results");
     j->failures = (uint32_t)num(o, "failures");
+    j->tasks_verified = (uint64_t)num(o, "tasks_verified");
+    j->verify_mismatches = (uint64_t)num(o, "verify_mismatches");
+    j->tasks_unverified = (uint64_t)num(o, "tasks_unverified");
+    const cJSON *who;
+    cJSON_ArrayForEach(who, cJSON_GetObjectItemCaseSensitive(o, "quarantined"))
+    {
+        if (cJSON_IsString(who))
+            verify_note_quarantined(j, who->valuestring);
+    }
     const cJSON *series = cJSON_GetObjectItemCaseSensitive(o, "series");
     int n = cJSON_IsArray(series) ? cJSON_GetArraySize(series) : 0;
     if (n > 0 && (j->series = calloc((size_t)n * 4, sizeof(double))) != NULL) {

@@ -499,8 +499,21 @@ int sched_requeue(sched_t *s, uint64_t task_id)
     return 0;
 }
 
-int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count,
-                   char *err, size_t errlen)
+int sched_outstanding(const sched_t *s, uint64_t task_id, sched_task_t *out)
+{
+    size_t cell;
+    if (lookup(s, task_id, &cell) < 0)
+        return -1;
+    out->id = task_id;
+    out->layer = (uint32_t)(cell / s->ranges);
+    out->range = (uint32_t)(cell % s->ranges);
+    out->count = s->out_count[cell];
+    out->records = s->out[cell];
+    return 0;
+}
+
+int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count, char *err,
+                size_t errlen)
 {
     size_t cell;
     if (lookup(s, task_id, &cell) < 0) {
@@ -546,6 +559,17 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
                  (unsigned long long)nonfinite, (unsigned long long)taken);
         return -1;
     }
+    return 0;
+}
+
+int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count,
+                   char *err, size_t errlen)
+{
+    int rc = sched_check(s, task_id, results, count, err, errlen);
+    if (rc < 0)
+        return rc;
+    const size_t cell = (size_t)(task_id - 1);
+    const tracer_task_t *rec = s->out[cell];
     uint32_t layer = (uint32_t)((task_id - 1) / s->ranges), range = (uint32_t)((task_id - 1) % s->ranges);
     double *pv = s->pvar_flight[layer & 1];
     uint8_t *cv = s->conv_flight[layer & 1];

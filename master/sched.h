@@ -124,6 +124,20 @@ int sched_requeue(sched_t *s, uint64_t task_id);
 int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count,
                    char *err, size_t errlen);
 
+/* sched_complete's checks without the merge (the same codes and messages):
+ * a result can be judged when it arrives and merged later, once another
+ * worker's copy agrees (verification by replication, master/verify.c).
+ * The checks hold until the merge: the pixels a task reads are changed
+ * only by that task while it is outstanding. */
+int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count,
+                char *err, size_t errlen);
+
+/* A handed-out task, as sched_next gave it (records included), to send the
+ * same task to another worker: 0 and *out, or -1 if the task is not
+ * outstanding (never issued, requeued, or completed). The records stay
+ * valid until it is completed or requeued. */
+int sched_outstanding(const sched_t *s, uint64_t task_id, sched_task_t *out);
+
 int sched_done(const sched_t *s);
 
 /* Progress: layers fully complete, tasks outstanding, samples merged. */

@@ -2256,6 +2256,210 @@ START_TEST(limits)
 }
 END_TEST
 
+/* ---- l. verification by replication ---------------------------------------------- */
+
+/* master/verify.c: which tasks a job verifies (a pure function of its seed
+ * and task id), so a test can count them as the master must. */
+int verify_selected(uint64_t seed, uint64_t task_id, double share);
+
+static int selected_count(uint64_t seed, double tasks, double share)
+{
+    int n = 0;
+    for (uint64_t id = 1; id <= (uint64_t)tasks; id++)
+        n += verify_selected(seed, id, share);
+    return n;
+}
+
+/* The fault build of the worker (VB_FAULT_WORKER), perturbing one result in
+ * lie_every (bit `bit` of a sum), connected from src like start_worker's. */
+static daemon_t *start_liar(int port, const char *name, const char *src, int lie_every, int bit)
+{
+    const char *bin = getenv("VB_FAULT_WORKER");
+    ck_assert_msg(bin && access(bin, X_OK) == 0, "VB_FAULT_WORKER (%s) is not built", bin ? bin : "unset");
+    char ep[128], every[48], flip[48];
+    snprintf(ep, sizeof ep, "tcp://%s:0;127.0.0.1:%d", src, port);
+    snprintf(every, sizeof every, "VB_FAULT_LIE_EVERY=%d", lie_every);
+    snprintf(flip, sizeof flip, "VB_FAULT_LIE_BIT=%d", bit);
+    const char *args[] = {"env", every, flip, bin, "--master", ep, "--threads", "1", "--name", name, NULL};
+    return spawn(name, NULL, args);
+}
+
+/* 1 if the job's "quarantined" list names who. */
+static int names_quarantined(const cJSON *st, const char *who)
+{
+    const cJSON *q = cJSON_GetObjectItemCaseSensitive(st, "quarantined"), *it;
+    ck_assert_msg(cJSON_IsArray(q), "status has no quarantined list");
+    cJSON_ArrayForEach(it, q)
+    {
+        if (cJSON_IsString(it) && strcmp(it->valuestring, who) == 0)
+            return 1;
+    }
+    return 0;
+}
+
+/* --verify-share 1: with one worker nothing is merged (the status says a
+ * second worker is awaited); then two honest workers and one that perturbs
+ * every third result join. Every task is merged only on two equal results,
+ * a mismatch calls a third worker, and the liar is quarantined (refused:
+ * it exits 1; the status and the log name it); the image is the embedded
+ * render's bit for bit. */
+START_TEST(verify_liar)
+{
+    static const char *const settings = "--spp 256 --granularity 16 --adaptive none --seed 31";
+    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], log[65536], why[64];
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    int port = slot_port(15);
+    const char *extra[] = {"--state", "none", "--verify-share", "1", NULL};
+    daemon_t *m = start_master_with(&port, "v-master", extra);
+    start_worker(port, 1, "v-worker1", "127.0.0.2");
+    wait_workers(port + 1, 1);
+    unsigned long long job = submit(port + 1, scene, settings);
+    cJSON *st = NULL;
+    double end = now_ms() + 20000;
+    for (;;) {
+        st = job_status(port + 1, job);
+        if (strcmp(jstr(st, "waiting_for"), "a second worker") == 0 && jnum(st, "verify_waiting") > 0)
+            break;
+        ck_assert_msg(now_ms() < end, "the status never said it waits for a second worker\n%s", logs_tail());
+        cJSON_Delete(st);
+        sleep_ms(50);
+    }
+    ck_assert_msg(jnum(st, "samples") == 0 && jnum(st, "tasks_unverified") == 0,
+                  "share 1 merged %.0f samples, %.0f tasks unverified, with one worker", jnum(st, "samples"),
+                  jnum(st, "tasks_unverified"));
+    cJSON_Delete(st);
+    start_worker(port, 1, "v-worker2", "127.0.0.3");
+    daemon_t *liar = start_liar(port, "v-liar", "127.0.0.4", 3, 0);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "verify.exr"));
+    st = job_status(port + 1, job);
+    double tasks = jnum(st, "tasks");
+    ck_assert_msg(jnum(st, "tasks_verified") == tasks && tasks > 0 && jnum(st, "tasks_unverified") == 0,
+                  "%.0f of %.0f tasks verified, %.0f unverified\n%s", jnum(st, "tasks_verified"), tasks,
+                  jnum(st, "tasks_unverified"), logs_tail());
+    ck_assert_msg(jnum(st, "verify_mismatches") >= 1, "no mismatch seen\n%s", logs_tail());
+    ck_assert_msg(names_quarantined(st, "127.0.0.4"), "the status does not name the liar\n%s", logs_tail());
+    ck_assert_msg(!names_quarantined(st, "127.0.0.2") && !names_quarantined(st, "127.0.0.3"),
+                  "an honest worker was quarantined\n%s", logs_tail());
+    cJSON_Delete(st);
+    int status = 0;
+    ck_assert_msg(reap(liar, 5000, &status) && WIFEXITED(status) && WEXITSTATUS(status) == 1,
+                  "the liar was not refused: %s\n%s", describe_status(status, why, sizeof why), logs_tail());
+    ck_assert_msg(strstr(read_log(liar, log, sizeof log), "fault injection: lying"), "the liar never lied:\n%s",
+                  log);
+    read_log(m, log, sizeof log);
+    ck_assert_msg(strstr(log, "worker 127.0.0.4 quarantined"), "the log does not name the liar:\n%s", log);
+    ck_assert_msg(!strstr(log, "worker 127.0.0.2 quarantined") && !strstr(log, "worker 127.0.0.3 quarantined"),
+                  "an honest worker was quarantined:\n%s", log);
+    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "verify-ref.exr"));
+    compare_exr(ref, got);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* Three workers that always disagree (one honest, two liars flipping
+ * different bits): no majority, so every copy is dropped, nobody is
+ * quarantined, nothing is merged, and the task is issued afresh; the job
+ * can be cancelled and the master stays sound. */
+START_TEST(verify_no_majority)
+{
+    char scene[PATHLEN], log[65536];
+    scene_file(scene, sizeof scene, 16, NULL, NULL);
+    int port = slot_port(18);
+    const char *extra[] = {"--state", "none", "--verify-share", "1", NULL};
+    daemon_t *m = start_master_with(&port, "y-master", extra);
+    start_worker(port, 1, "y-worker", "127.0.0.2");
+    start_liar(port, "y-liar1", "127.0.0.3", 1, 0);
+    start_liar(port, "y-liar2", "127.0.0.4", 1, 1);
+    wait_workers(port + 1, 3);
+    unsigned long long job = submit(port + 1, scene, "--spp 64 --granularity 16 --adaptive none --seed 43");
+    double end = now_ms() + 20000;
+    while (!strstr(read_log(m, log, sizeof log), "three different results")) {
+        ck_assert_msg(now_ms() < end, "no task was dropped for three different results\n%s", logs_tail());
+        sleep_ms(50);
+    }
+    cJSON *st = job_status(port + 1, job);
+    ck_assert_msg(state_is(st, "running") && jnum(st, "samples") == 0 && jnum(st, "tasks_verified") == 0,
+                  "%s with %.0f samples, %.0f tasks verified, without a majority", jstr(st, "state"),
+                  jnum(st, "samples"), jnum(st, "tasks_verified"));
+    ck_assert_msg(jnum(st, "verify_mismatches") >= 1 && jnum(st, "tasks_reissued") >= 1,
+                  "%.0f mismatches, %.0f tasks reissued", jnum(st, "verify_mismatches"), jnum(st, "tasks_reissued"));
+    ck_assert_int_eq(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(st, "quarantined")), 0);
+    cJSON_Delete(st);
+    ck_assert_msg(!strstr(log, "quarantined"), "a worker was quarantined without a majority:\n%s", log);
+    cJSON *r = ctl(port + 1, "cancel", job);
+    ck_assert_ptr_nonnull(r);
+    cJSON_Delete(r);
+    wait_workers(port + 1, 3);
+    assert_alive(m);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* --verify-share 0.25 with two honest workers: exactly the tasks the seed
+ * chooses (about a quarter) are verified, none mismatch, none is merged
+ * unverified, and the image is the embedded render's. */
+START_TEST(verify_quarter)
+{
+    static const char *const settings = "--spp 256 --granularity 16 --adaptive none --seed 37";
+    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN];
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    int port = slot_port(16);
+    const char *extra[] = {"--state", "none", "--verify-share", "0.25", NULL};
+    start_master_with(&port, "w-master", extra);
+    start_worker(port, 1, "w-worker1", "127.0.0.2");
+    start_worker(port, 1, "w-worker2", "127.0.0.3");
+    wait_workers(port + 1, 2);
+    unsigned long long job = submit(port + 1, scene, settings);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "quarter.exr"));
+    cJSON *st = job_status(port + 1, job);
+    double tasks = jnum(st, "tasks"), verified = jnum(st, "tasks_verified");
+    int chosen = selected_count(37, tasks, 0.25);
+    ck_assert_msg(verified > 0.15 * tasks && verified < 0.35 * tasks, "%.0f of %.0f tasks verified at share 0.25",
+                  verified, tasks);
+    /* a worker dropped meanwhile (a slow test machine) leaves some unverified */
+    ck_assert_msg(verified + jnum(st, "tasks_unverified") == chosen, "%.0f verified + %.0f unverified, %d chosen",
+                  verified, jnum(st, "tasks_unverified"), chosen);
+    ck_assert_msg(jnum(st, "verify_mismatches") == 0, "%.0f mismatches between honest workers\n%s",
+                  jnum(st, "verify_mismatches"), logs_tail());
+    ck_assert_int_eq(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(st, "quarantined")), 0);
+    cJSON_Delete(st);
+    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "quarter-ref.exr"));
+    compare_exr(ref, got);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* --verify-share 0.5 with one worker: no second worker to verify with, so
+ * the chosen tasks are merged on one result and counted; the job ends and
+ * the image is the embedded render's. */
+START_TEST(verify_one_worker)
+{
+    static const char *const settings = "--spp 128 --granularity 16 --adaptive none --seed 41";
+    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN];
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    int port = slot_port(17);
+    const char *extra[] = {"--state", "none", "--verify-share", "0.5", NULL};
+    start_master_with(&port, "x-master", extra);
+    start_worker(port, 1, "x-worker", "127.0.0.2");
+    wait_workers(port + 1, 1);
+    unsigned long long job = submit(port + 1, scene, settings);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "one.exr"));
+    cJSON *st = job_status(port + 1, job);
+    int chosen = selected_count(41, jnum(st, "tasks"), 0.5);
+    ck_assert_msg(chosen > 0 && jnum(st, "tasks_unverified") == chosen && jnum(st, "tasks_verified") == 0,
+                  "%.0f unverified, %.0f verified, %d chosen\n%s", jnum(st, "tasks_unverified"),
+                  jnum(st, "tasks_verified"), chosen, logs_tail());
+    cJSON_Delete(st);
+    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "one-ref.exr"));
+    compare_exr(ref, got);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
 /* ---- suite ------------------------------------------------------------------------ */
 
 static Suite *cluster_suite(void)
@@ -2275,6 +2479,8 @@ static Suite *cluster_suite(void)
         {"flood", flood},                       {"partition", partition},
         {"lossy_link", lossy_link},             {"big_submit", big_submit},
         {"lying_worker", lying_worker},         {"limits", limits},
+        {"verify_liar", verify_liar},           {"verify_quarter", verify_quarter},
+        {"verify_one_worker", verify_one_worker}, {"verify_no_majority", verify_no_majority},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         TCase *tc = tcase_create(cases[i].name);

@@ -480,6 +480,56 @@ START_TEST(test_results_range_checked)
 }
 END_TEST
 
+/* What verification (master/verify.c) needs: an outstanding task's records
+ * again, the same pointer and values sched_next gave, to send the task to a
+ * second worker; and a result judged without merging (sched_check), which
+ * changes nothing until sched_complete merges it. Requeued or completed
+ * tasks are not outstanding. */
+START_TEST(test_outstanding_and_check)
+{
+    sched_t *s = make(4, 1, 64, 32, SCHED_ADAPTIVE_NONE, UINT32_MAX, 2);
+    sched_task_t a, b, again;
+    tracer_result_t r[4];
+    char err[256];
+    ck_assert_int_eq(sched_outstanding(s, 1, &again), -1); /* nothing issued yet */
+    ck_assert_int_eq(sched_next(s, &a), 1);
+    ck_assert_int_eq(sched_next(s, &b), 1);
+    ck_assert_int_eq(sched_outstanding(s, a.id, &again), 0);
+    ck_assert_uint_eq(again.id, a.id);
+    ck_assert_uint_eq(again.layer, a.layer);
+    ck_assert_uint_eq(again.range, a.range);
+    ck_assert_uint_eq(again.count, a.count);
+    ck_assert_ptr_eq(again.records, a.records);
+    ck_assert_int_eq(sched_outstanding(s, 0, &again), -1);
+    ck_assert_int_eq(sched_outstanding(s, 12345, &again), -1);
+    /* judged, not merged */
+    fake_results(&a, r, NULL);
+    ck_assert_msg(sched_check(s, a.id, r, a.count, err, sizeof err) == 0, "%s", err);
+    ck_assert_uint_eq(sched_samples_done(s), 0);
+    ck_assert_int_eq(sched_outstanding(s, a.id, &again), 0);
+    r[1].sum[0] = -1.0;
+    ck_assert_int_eq(sched_check(s, a.id, r, a.count, err, sizeof err), -1);
+    ck_assert_msg(strstr(err, "out of range") != NULL, "%s", err);
+    ck_assert_int_eq(sched_check(s, a.id, r, a.count + 1, err, sizeof err), -1);
+    /* requeued: not outstanding until issued again, then the same records */
+    ck_assert_int_eq(sched_requeue(s, b.id), 0);
+    ck_assert_int_eq(sched_outstanding(s, b.id, &again), -1);
+    fake_results(&b, r, NULL);
+    ck_assert_int_eq(sched_check(s, b.id, r, b.count, err, sizeof err), -2);
+    ck_assert_int_eq(sched_next(s, &again), 1);
+    ck_assert_uint_eq(again.id, b.id);
+    ck_assert_int_eq(sched_outstanding(s, b.id, &again), 0);
+    ck_assert_ptr_eq(again.records, b.records);
+    /* completed: gone */
+    fake_results(&a, r, NULL);
+    ck_assert_msg(sched_complete(s, a.id, r, a.count, err, sizeof err) == 0, "%s", err);
+    ck_assert_int_eq(sched_outstanding(s, a.id, &again), -1);
+    ck_assert_int_eq(sched_check(s, a.id, r, a.count, err, sizeof err), -2);
+    ck_assert_uint_eq(sched_samples_done(s), 2 * 32);
+    sched_destroy(&s);
+}
+END_TEST
+
 /* A submit must not freeze the master: sched_new for a job of about a
  * million layers does no per-layer work beyond zeroed allocations (the t
  * factors are computed when first needed). Not timed: 20 of them took about
@@ -890,6 +940,7 @@ int main(void)
     tcase_add_test(tc, test_random_selection);
     tcase_add_test(tc, test_bad_configs);
     tcase_add_test(tc, test_results_range_checked);
+    tcase_add_test(tc, test_outstanding_and_check);
     tcase_add_test(tc, test_many_layers_new_is_cheap);
     tcase_add_loop_test(tc, test_checkpoint_resumes_bit_identical, 0,
                         (int)(sizeof ckpt_cases / sizeof ckpt_cases[0]));

@@ -81,6 +81,11 @@ struct worker {
     int refused;
     tracer_device_t *device;
     int own_device;
+#ifdef VB_FAULT_INJECTION
+    unsigned long lie_every; /* VB_FAULT_LIE_EVERY: perturb one result in this many */
+    unsigned long lie_bit;   /* VB_FAULT_LIE_BIT: the bit flipped (default 0) */
+    unsigned long results_sent;
+#endif
 };
 
 static double now_s(void)
@@ -204,6 +209,27 @@ static void send_hello(worker_t *w)
     w->last_hello = now_s();
 }
 
+/* Test builds only (VB_FAULT_INJECTION): one result in VB_FAULT_LIE_EVERY
+ * has the lowest bit (or bit VB_FAULT_LIE_BIT, so two liars can lie
+ * differently) of the first record's red sum flipped: still a plausible
+ * value, which only another worker's copy can expose. */
+static void maybe_lie(worker_t *w, wtask_t *t)
+{
+#ifdef VB_FAULT_INJECTION
+    if (!w->lie_every || t->count == 0 || ++w->results_sent % w->lie_every != 0)
+        return;
+    uint64_t bits;
+    memcpy(&bits, &t->results[0].sum[0], sizeof bits);
+    bits ^= (uint64_t)1 << (w->lie_bit & 31);
+    memcpy(&t->results[0].sum[0], &bits, sizeof bits);
+    logf_(w, "fault injection: lying about job %" PRIu64 " task %" PRIu64 " attempt %u", t->job, t->task,
+          t->attempt);
+#else
+    (void)w;
+    (void)t;
+#endif
+}
+
 static void report(worker_t *w, wtask_t *t)
 {
     if (t->generation != w->generation || !w->welcomed)
@@ -218,6 +244,7 @@ static void report(worker_t *w, wtask_t *t)
         msg->h.type = PROTO_TASK_FAILED;
         snprintf(msg->u.text.text, sizeof msg->u.text.text, "%s: %s", w->name, t->error);
     } else {
+        maybe_lie(w, t);
         msg->h.type = PROTO_RESULT;
         msg->u.result.rays = t->rays;
         msg->u.result.busy_us = t->busy_us;
@@ -550,6 +577,12 @@ worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
     }
     w->cfg = *cfg;
     snprintf(w->name, sizeof w->name, "%s", cfg->name ? cfg->name : "worker");
+#ifdef VB_FAULT_INJECTION
+    const char *lie = getenv("VB_FAULT_LIE_EVERY");
+    w->lie_every = lie ? strtoul(lie, NULL, 10) : 0;
+    const char *bit = getenv("VB_FAULT_LIE_BIT");
+    w->lie_bit = bit ? strtoul(bit, NULL, 10) : 0;
+#endif
     pthread_mutex_init(&w->lock, NULL);
     pthread_cond_init(&w->cond, NULL);
     w->decode_records = malloc(PROTO_MAX_TASK_PIXELS * sizeof *w->decode_records);
