@@ -36,6 +36,35 @@ void master_log_limited(master_t *m, const char *key, const char *fmt, ...)
     va_end(ap);
 }
 
+const char *master_peer_key(zmq_msg_t *frame)
+{
+    const char *k = zmq_msg_gets(frame, "User-Id");
+    return k ? k : "";
+}
+
+int master_peer_allowed(master_t *m, const char *domain, zmq_msg_t *frame)
+{
+    return !m->auth || auth_allowed(m->auth, domain, master_peer_key(frame));
+}
+
+int master_peer_is_admin(master_t *m, zmq_msg_t *frame)
+{
+    return !m->auth || auth_is_admin(m->auth, master_peer_key(frame));
+}
+
+/* SIGHUP: the allow-lists again; peers whose key went are dropped as
+ * their next message arrives (master_peer_allowed). */
+static void reload_keys(master_t *m)
+{
+    char msg[MASTER_ERR_LEN];
+    if (!m->auth)
+        master_log(m, "reload asked for, but this master runs without --key: no allow-lists to read");
+    else if (auth_reload(m->auth, msg, sizeof msg) < 0)
+        master_log(m, "cannot reload the allow-lists, keeping the old ones: %s", msg);
+    else
+        master_log(m, "allow-lists reloaded: %s", msg);
+}
+
 /* ---- periodic tasks ------------------------------------------------------------- */
 
 /* Tasks whose lease ran out go out again. The queue is in deadline order;
@@ -91,6 +120,16 @@ static void periodic(master_t *m, double now)
 
 /* ---- lifecycle ------------------------------------------------------------------- */
 
+/* Without keys: loopback only, unless --insecure. With keys: a CURVE
+ * server whose ZAP domain tells the handler which allow-list applies. */
+static int secure_socket(master_t *m, void *sock, const char *domain, const char *endpoint, char *err,
+                         size_t errlen)
+{
+    if (m->auth)
+        return auth_secure_socket(m->auth, sock, domain, err, errlen);
+    return auth_check_bind(endpoint, m->cfg.insecure, err, errlen);
+}
+
 static int open_sockets(master_t *m, char *err, size_t errlen)
 {
     const master_config_t *cfg = &m->cfg;
@@ -111,6 +150,9 @@ static int open_sockets(master_t *m, char *err, size_t errlen)
     zmq_setsockopt(m->control_sock, ZMQ_MAXMSGSIZE, &max_control, sizeof max_control);
     /* replies a client does not read are dropped past a few, not queued */
     zmq_setsockopt(m->control_sock, ZMQ_SNDHWM, &hwm, sizeof hwm);
+    if (secure_socket(m, m->workers_sock, AUTH_DOMAIN_WORKERS, cfg->worker_endpoint, err, errlen) < 0 ||
+        secure_socket(m, m->control_sock, AUTH_DOMAIN_CONTROL, cfg->control_endpoint, err, errlen) < 0)
+        return -1;
     if (zmq_bind(m->workers_sock, cfg->worker_endpoint) < 0) {
         snprintf(err, errlen, "cannot bind the worker socket to %s: %s", cfg->worker_endpoint, zmq_strerror(errno));
         return -1;
@@ -164,12 +206,30 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
         /* attempts of this boot never equal a late result's from the last */
         m->attempt_base = (store_boots(m->store) & 0xfff) << 20;
     }
+    if (cfg->curve_secret_key) {
+        /* before the sockets bind: ZeroMQ admits every key without a handler */
+        auth_config_t ac = {cfg->zmq_ctx, cfg->curve_secret_key, cfg->allow_workers_dir, cfg->allow_clients_dir,
+                            cfg->admin_clients_dir, cfg->log};
+        if (!(m->auth = auth_new(&ac, err, errlen))) {
+            master_destroy(&m);
+            return NULL;
+        }
+        m->cfg.curve_secret_key = NULL; /* the caller's; auth keeps its own copy */
+    }
     if (open_sockets(m, err, errlen) < 0) {
         master_destroy(&m);
         return NULL;
     }
     master_log(m, "listening: workers %s, control %s, build %s", cfg->worker_endpoint, cfg->control_endpoint,
                m->build);
+    if (m->auth) {
+        char keys[256];
+        auth_describe(m->auth, keys, sizeof keys);
+        master_log(m, "CURVE on both sockets: %s", keys);
+    } else if (!auth_endpoint_is_local(cfg->worker_endpoint) || !auth_endpoint_is_local(cfg->control_endpoint)) {
+        master_log(m, "warning: --insecure: without keys, anyone who can reach %s or %s can submit jobs or pose "
+                   "as a worker, and the traffic is not encrypted", cfg->worker_endpoint, cfg->control_endpoint);
+    }
     if (m->store)
         persist_recover(m);
     return m;
@@ -179,6 +239,8 @@ int master_run(master_t *m, const atomic_int *stop)
 {
     zmq_pollitem_t items[2] = {{m->workers_sock, 0, ZMQ_POLLIN, 0}, {m->control_sock, 0, ZMQ_POLLIN, 0}};
     while (!(stop && atomic_load(stop)) && !m->shutdown) {
+        if (m->cfg.reload && atomic_exchange(m->cfg.reload, 0))
+            reload_keys(m);
         int rc = zmq_poll(items, 2, MASTER_POLL_MS);
         if (rc < 0 && errno != EINTR)
             break;
@@ -216,6 +278,7 @@ void master_destroy(master_t **mp)
         zmq_close(m->workers_sock);
     if (m->control_sock)
         zmq_close(m->control_sock);
+    auth_destroy(&m->auth); /* after the sockets it guards */
     store_close(&m->store);
     job_t *j = m->jobs;
     while (j) {

@@ -12,6 +12,7 @@
  *   persist.c   durable state: submissions, checkpoints, final images, and
  *               recovery at startup (through store.h)
  *   lease.c     task leases in deadline order (lease.h)
+ *   auth.c      CURVE keys, the ZAP handler and its allow-lists (auth.h)
  *
  * Work is fenced by (job, task, attempt): a result counts only if its job
  * is running, its task is outstanding with that worker, and its attempt is
@@ -26,6 +27,7 @@
 #include <stdint.h>
 #include <zmq.h>
 
+#include "auth.h"
 #include "lease.h"
 #include "master.h"
 #include "proto.h"
@@ -142,6 +144,7 @@ struct master {
     char storage_error[MASTER_ERR_LEN];
     uint64_t malformed, dropped_late;
     vblog_limiter_t limiter; /* lines a peer can provoke at will */
+    auth_t *auth;            /* NULL: no CURVE */
     double last_timer;
     int shutdown;
 };
@@ -152,6 +155,19 @@ void master_log(master_t *m, const char *fmt, ...) __attribute__((format(printf,
 /* A line any peer can provoke (bad input): rate-limited per key (a string
  * literal naming the kind of line), repeats summarised. */
 void master_log_limited(master_t *m, const char *key, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+/* The CURVE public key (Z85) a received frame came with: the User-Id the
+ * ZAP handler gave its peer; "" on a master without CURVE. Any frame of a
+ * message carries it (the identity frame of a ROUTER too). */
+const char *master_peer_key(zmq_msg_t *frame);
+/* Whether the frame's peer is still admitted to the domain
+ * (AUTH_DOMAIN_WORKERS or AUTH_DOMAIN_CONTROL): a key removed from an
+ * allow-list on SIGHUP stays connected until it is asked this. Always 1 on
+ * a master without CURVE. */
+int master_peer_allowed(master_t *m, const char *domain, zmq_msg_t *frame);
+/* Whether the frame's peer may act on every job: a key in --admin-clients,
+ * or any peer of a master without CURVE (which listens on loopback only,
+ * unless told --insecure). */
+int master_peer_is_admin(master_t *m, zmq_msg_t *frame);
 
 /* jobs.c */
 job_t *job_find(master_t *m, uint64_t id);
