@@ -120,14 +120,11 @@ static void periodic(master_t *m, double now)
 
 /* ---- lifecycle ------------------------------------------------------------------- */
 
-/* Without keys: loopback only, unless --insecure. With keys: a CURVE
- * server whose ZAP domain tells the handler which allow-list applies. */
-static int secure_socket(master_t *m, void *sock, const char *domain, const char *endpoint, char *err,
-                         size_t errlen)
+/* With keys: a CURVE server whose ZAP domain tells the handler which
+ * allow-list applies. */
+static int secure_socket(master_t *m, void *sock, const char *domain, char *err, size_t errlen)
 {
-    if (m->auth)
-        return auth_secure_socket(m->auth, sock, domain, err, errlen);
-    return auth_check_bind(endpoint, m->cfg.insecure, err, errlen);
+    return m->auth ? auth_secure_socket(m->auth, sock, domain, err, errlen) : 0;
 }
 
 static int open_sockets(master_t *m, char *err, size_t errlen)
@@ -150,8 +147,8 @@ static int open_sockets(master_t *m, char *err, size_t errlen)
     zmq_setsockopt(m->control_sock, ZMQ_MAXMSGSIZE, &max_control, sizeof max_control);
     /* replies a client does not read are dropped past a few, not queued */
     zmq_setsockopt(m->control_sock, ZMQ_SNDHWM, &hwm, sizeof hwm);
-    if (secure_socket(m, m->workers_sock, AUTH_DOMAIN_WORKERS, cfg->worker_endpoint, err, errlen) < 0 ||
-        secure_socket(m, m->control_sock, AUTH_DOMAIN_CONTROL, cfg->control_endpoint, err, errlen) < 0)
+    if (secure_socket(m, m->workers_sock, AUTH_DOMAIN_WORKERS, err, errlen) < 0 ||
+        secure_socket(m, m->control_sock, AUTH_DOMAIN_CONTROL, err, errlen) < 0)
         return -1;
     if (zmq_bind(m->workers_sock, cfg->worker_endpoint) < 0) {
         snprintf(err, errlen, "cannot bind the worker socket to %s: %s", cfg->worker_endpoint, zmq_strerror(errno));
@@ -195,6 +192,13 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
         master_destroy(&m);
         return NULL;
     }
+    /* without keys, loopback only unless --insecure: checked before the
+     * state directory is made */
+    if (!cfg->curve_secret_key && (auth_check_bind(cfg->worker_endpoint, cfg->insecure, err, errlen) < 0 ||
+                                   auth_check_bind(cfg->control_endpoint, cfg->insecure, err, errlen) < 0)) {
+        master_destroy(&m);
+        return NULL;
+    }
     /* The build id pins the ISA: a worker on another ISA could trace other bits. */
     __builtin_cpu_init();
     proto_build_id(__builtin_cpu_supports("avx2") ? "avx2" : "sse4.2", m->build);
@@ -226,9 +230,13 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
         char keys[256];
         auth_describe(m->auth, keys, sizeof keys);
         master_log(m, "CURVE on both sockets: %s", keys);
-    } else if (!auth_endpoint_is_local(cfg->worker_endpoint) || !auth_endpoint_is_local(cfg->control_endpoint)) {
-        master_log(m, "warning: --insecure: without keys, anyone who can reach %s or %s can submit jobs or pose "
-                   "as a worker, and the traffic is not encrypted", cfg->worker_endpoint, cfg->control_endpoint);
+    } else {
+        int wl = auth_endpoint_is_local(cfg->worker_endpoint), cl = auth_endpoint_is_local(cfg->control_endpoint);
+        if (!wl || !cl)
+            master_log(m, "warning: --insecure: no CURVE keys, so anyone who can reach %s%s%s may %s, and the "
+                       "traffic is not encrypted", wl ? "" : cfg->worker_endpoint, !wl && !cl ? " or " : "",
+                       cl ? "" : cfg->control_endpoint,
+                       !wl && !cl ? "pose as a worker or submit jobs" : !wl ? "pose as a worker" : "submit jobs");
     }
     if (m->store)
         persist_recover(m);
