@@ -194,9 +194,12 @@ static cJSON *request_once(control_t *c, const cJSON *req, const void *const *fr
     /* a failed handshake ends in silence: watch for it while waiting */
     int ready = wait_socket(c, ZMQ_POLLOUT, deadline);
     if (ready < 0) {
+        /* closed, not reopened: a new handshake now would fail the same
+         * way (and be logged by the master again); the next request opens
+         * a socket */
         snprintf(err, errlen, "%s", c->handshake_error);
         cJSON_free(text);
-        reopen_socket(c);
+        close_socket(c);
         return NULL;
     }
     int rc = ready ? zmq_send(c->sock, text, strlen(text), nframes > 0 ? ZMQ_SNDMORE : 0) : -1;
@@ -220,7 +223,7 @@ static cJSON *request_once(control_t *c, const cJSON *req, const void *const *fr
     ready = wait_socket(c, ZMQ_POLLIN, deadline);
     if (ready < 0) {
         snprintf(err, errlen, "%s", c->handshake_error);
-        reopen_socket(c);
+        close_socket(c);
         return NULL;
     }
     zmq_msg_t reply;

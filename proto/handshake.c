@@ -101,7 +101,7 @@ handshake_result_t handshake_describe(uint16_t event, uint32_t value, const char
                      strerror((int)value));
         else
             snprintf(msg, msglen, "handshake with %s failed: the peer closed the connection during the handshake "
-                     "(%s); a master that requires CURVE keys (give this %s --key and --master-key), or not a "
+                     "(%s): a master that requires CURVE keys (give this %s --key and --master-key), or not a "
                      "vbrender master?", ep, strerror((int)value), who);
         return HANDSHAKE_CLOSED;
     default:
