@@ -155,6 +155,7 @@ bench: deps
 	bench/run-core.sh
 	if [ -x bench/run-distributed.sh ]; then bench/run-distributed.sh; fi
 	bench/run-durable.sh
+	bench/run-curve.sh
 
 bench-error: deps
 	$(MAKE) all

@@ -306,7 +306,7 @@ void ctl_handle_message(master_t *m)
     }
     if (!master_peer_allowed(m, AUTH_DOMAIN_CONTROL, &frames[2])) {
         /* its key left the allow-lists (SIGHUP) while it was connected */
-        master_log_limited(m, "key-revoked", "refused a request: client key %s no longer allowed",
+        master_log_limited(m, "client-key-revoked", "refused a request: client key %s no longer allowed",
                            master_peer_key(&frames[2]));
         cJSON *b = error_body("this client's key is no longer allowed by the master");
         reply_json(m, &frames[0], b, 0);

@@ -56,6 +56,9 @@ static const char usage[] =
     "  --admin-clients DIR  public keys of clients that may act on every job (admitted too)\n"
     "  --insecure           without --key, listen beyond loopback anyway (anyone who can\n"
     "                       reach the ports may submit jobs or pose as a worker)\n"
+    "  --io-threads N       ZeroMQ I/O threads (default 1). With --key they do the\n"
+    "                       encryption, one connection each: with many workers and cores\n"
+    "                       to spare, 3 keep them from limiting the master\n"
     "  --version            print the build id and exit\n"
     "Without --key only loopback endpoints are bound (tcp://127.x, tcp://localhost,\n"
     "tcp://[::1], ipc://, inproc://) unless --insecure is given.\n"
@@ -98,7 +101,7 @@ int main(int argc, char **argv)
     cfg.log = stderr;
     cfg.reload = &reload_requested;
     const char *key_file = NULL;
-    double v_keep;
+    double v_keep, io_threads = 1;
     for (int i = 1; i < argc; i++) {
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (strcmp(argv[i], "-h") == 0 || strcmp(argv[i], "--help") == 0) {
@@ -148,6 +151,13 @@ int main(int argc, char **argv)
             i++;
         } else if (strcmp(argv[i], "--insecure") == 0) {
             cfg.insecure = 1;
+        } else if (strcmp(argv[i], "--io-threads") == 0) {
+            if (parse_count(v, 1, 64, &io_threads) < 0 || io_threads != (double)(int)io_threads) {
+                fprintf(stderr, "vbrender-master: --io-threads needs an integer from 1 to 64 (got '%s')\n",
+                        v ? v : "");
+                return 2;
+            }
+            i++;
         } else if (strcmp(argv[i], "--heartbeat-ms") == 0) {
             if (parse_ms(v, &cfg.heartbeat_ms) < 0) {
                 fprintf(stderr, "vbrender-master: --heartbeat-ms needs 10..3600000 (got '%s')\n", v ? v : "");
@@ -196,6 +206,7 @@ int main(int argc, char **argv)
     sigaction(SIGHUP, &sa, NULL);
     signal(SIGPIPE, SIG_IGN);
     void *ctx = zmq_ctx_new();
+    zmq_ctx_set(ctx, ZMQ_IO_THREADS, (int)io_threads); /* before the first socket */
     cfg.zmq_ctx = ctx;
     if (!cfg.state_dir)
         fprintf(stderr, "vbrender-master: warning: --state none: jobs are kept in memory only and a restart "

@@ -468,7 +468,7 @@ void peer_handle_message(master_t *m)
     if (!master_peer_allowed(m, AUTH_DOMAIN_WORKERS, &frames[1])) {
         /* its key left --allow-workers (SIGHUP) while it was connected */
         peer_t *w = find_peer(m, id, id_len);
-        master_log_limited(m, "key-revoked", "refused a message from worker %s: key %s no longer allowed", host,
+        master_log_limited(m, "worker-key-revoked", "refused a message from worker %s: key %s no longer allowed", host,
                            master_peer_key(&frames[1]));
         if (w)
             peer_lost(m, w, "key no longer allowed");
