@@ -65,6 +65,14 @@ void *handshake_monitor_socket(handshake_monitor_t *h)
     return h->pair;
 }
 
+/* Where the keys come from: the client also reads them from the
+ * environment, which a user may not think of. */
+static const char *key_options(const char *who)
+{
+    return strcmp(who, "client") == 0 ? "--key and --master-key, or VBRENDER_KEY and VBRENDER_MASTER_KEY"
+                                      : "--key and --master-key";
+}
+
 handshake_result_t handshake_describe(uint16_t event, uint32_t value, const char *ep, const char *who, int curve,
                                       char *msg, size_t msglen)
 {
@@ -83,10 +91,10 @@ handshake_result_t handshake_describe(uint16_t event, uint32_t value, const char
         if (value == ZMQ_PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH) {
             if (curve)
                 snprintf(msg, msglen, "handshake with %s failed: the master does not use CURVE keys, this %s does "
-                         "(drop --key and --master-key)", ep, who);
+                         "(drop %s)", ep, who, key_options(who));
             else
                 snprintf(msg, msglen, "handshake with %s failed: the master requires CURVE keys (give this %s "
-                         "--key and --master-key)", ep, who);
+                         "%s)", ep, who, key_options(who));
             return HANDSHAKE_MISMATCH;
         }
         snprintf(msg, msglen, "handshake with %s failed: ZMTP protocol error 0x%08x%s", ep, value,
@@ -101,8 +109,8 @@ handshake_result_t handshake_describe(uint16_t event, uint32_t value, const char
                      strerror((int)value));
         else
             snprintf(msg, msglen, "handshake with %s failed: the peer closed the connection during the handshake "
-                     "(%s): a master that requires CURVE keys (give this %s --key and --master-key), or not a "
-                     "vbrender master?", ep, strerror((int)value), who);
+                     "(%s): a master that requires CURVE keys (give this %s %s), or not a vbrender master?", ep,
+                     strerror((int)value), who, key_options(who));
         return HANDSHAKE_CLOSED;
     default:
         return HANDSHAKE_NONE;
