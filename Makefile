@@ -217,6 +217,7 @@ bench: deps
 	if [ -x bench/run-distributed.sh ]; then bench/run-distributed.sh; fi
 	bench/run-durable.sh
 	bench/run-verify.sh
+	bench/run-curve.sh
 
 bench-error: deps
 	$(MAKE) all

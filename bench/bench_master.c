@@ -28,13 +28,27 @@
  * per master-thread CPU second is the rate one master core sustains when
  * it is the bottleneck; the master's CPU utilization says whether it was.
  *
+ * --curve (tcp only) runs the master with CURVE keys (auth.h) and the
+ * synthetic workers and the control socket as CURVE clients with admitted
+ * keys: what encryption and the per-message key check cost. ZeroMQ
+ * encrypts and decrypts in its I/O threads; --worker-context own gives the
+ * synthetic workers a context (an I/O thread) of their own, as remote
+ * workers would have, so the master's I/O thread does only the master's
+ * half of the crypto.
+ *
  * usage: bench_master [--workers K] [--transport inproc|tcp] [--port P]
  *                     [--size N] [--spp S] [--granularity G]
  *                     [--adaptive none|thesis] [--uniform-layers U]
  *                     [--credit C] [--max-seconds T] [--verify-share P]
  *                     [--json OUT.json]
+ *                     [--curve] [--worker-context shared|own] [--io-threads N]
+ *
+ * --io-threads N gives the master's context N I/O threads (ZeroMQ binds each
+ * connection to one of them): with CURVE, the crypto of several workers'
+ * connections is then spread out.
  */
 #include <cJSON.h>
+#include <dirent.h>
 #include <errno.h>
 #include <inttypes.h>
 #include <pthread.h>
@@ -44,9 +58,12 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/prctl.h>
+#include <sys/stat.h>
+#include <unistd.h>
 #include <time.h>
 #include <zmq.h>
 
+#include "keys.h"
 #include "master.h"
 #include "proto.h"
 
@@ -65,19 +82,30 @@ static const char usage_text[] =
     "  --credit C             tasks each synthetic worker asks for at once (default 8)\n"
     "  --max-seconds T        cancel the job after T s and report what was merged (default 60)\n"
     "  --verify-share P       share of tasks the master verifies on two workers (default 0; tcp)\n"
-    "  --json FILE            write the result as JSON (default: stdout only)\n";
+    "  --json FILE            write the result as JSON (default: stdout only)\n"
+    "  --curve                tcp: CURVE keys on the master, the workers and the control socket\n"
+    "  --worker-context C     shared (default: one ZeroMQ context for all) or own (the\n"
+    "                         synthetic workers get their own context and I/O thread)\n"
+    "  --io-threads N         ZeroMQ I/O threads of the master's context (default 1)\n";
 
 typedef struct args {
-    uint64_t workers, port, size, spp, granularity, credit, uniform_layers, max_seconds;
-    int have_uniform, tcp;
+    uint64_t workers, port, size, spp, granularity, credit, uniform_layers, max_seconds, io_threads;
+    int have_uniform, tcp, curve, own_context;
     double verify_share;
     const char *adaptive;
     const char *json;
 } args_t;
 
+/* CURVE keys of a --curve run (Z85). */
+typedef struct bench_keys {
+    keys_pair_t master, worker, client;
+    char dir[64]; /* the allow-lists: dir/workers, dir/clients */
+} bench_keys_t;
+
 typedef struct synth {
     void *ctx;
     char endpoint[96];
+    const bench_keys_t *keys; /* NULL: no CURVE */
     uint32_t credit;
     const atomic_int *stop;
     pthread_t thread;
@@ -123,6 +151,66 @@ static int parse_u64(const char *s, uint64_t lo, uint64_t hi, uint64_t *out)
         return -1;
     *out = v;
     return 0;
+}
+
+/* ZeroMQ's I/O threads, found by name: "ZMQbg/IO/N" in the master's
+ * context, "1/ZMQbg/IO/N" in the workers' own (ZMQ_THREAD_NAME_PREFIX 1).
+ * Their CPU time is where ZeroMQ encrypts and decrypts. */
+#define MAX_IO_THREADS 16
+typedef struct io_threads {
+    pid_t tid[MAX_IO_THREADS];
+    int workers[MAX_IO_THREADS]; /* of the workers' own context */
+    double cpu0[MAX_IO_THREADS];
+    int n;
+} io_threads_t;
+
+/* The CPU clock of thread tid of this process, encoded as glibc's
+ * pthread_getcpuclockid encodes one (Linux: ~tid << 3 | per-thread | sched). */
+static clockid_t tid_clock(pid_t tid)
+{
+    return (clockid_t)((~(unsigned)tid << 3) | 6u);
+}
+
+static void io_threads_start(io_threads_t *io)
+{
+    io->n = 0;
+    DIR *d = opendir("/proc/self/task");
+    struct dirent *e;
+    while (d && (e = readdir(d)) != NULL && io->n < MAX_IO_THREADS) {
+        char path[300], name[32] = "";
+        snprintf(path, sizeof path, "/proc/self/task/%s/comm", e->d_name);
+        FILE *f = e->d_name[0] != '.' ? fopen(path, "r") : NULL;
+        if (!f)
+            continue;
+        if (!fgets(name, sizeof name, f))
+            name[0] = '\0';
+        fclose(f);
+        int mine = strncmp(name, "ZMQbg/IO/", 9) == 0, theirs = strncmp(name, "1/ZMQbg/IO/", 11) == 0;
+        if (!mine && !theirs)
+            continue;
+        io->tid[io->n] = (pid_t)atoi(e->d_name);
+        io->workers[io->n] = theirs;
+        io->cpu0[io->n] = clock_s(tid_clock(io->tid[io->n]));
+        io->n++;
+    }
+    if (d)
+        closedir(d);
+}
+
+/* CPU seconds since io_threads_start of the master's (which = 0) or the
+ * workers' (which = 1) I/O threads: all of them, and the busiest one. */
+static double io_threads_cpu(const io_threads_t *io, int which, double *busiest)
+{
+    double sum = 0, max = 0;
+    for (int i = 0; i < io->n; i++)
+        if (io->workers[i] == which) {
+            double c = clock_s(tid_clock(io->tid[i])) - io->cpu0[i];
+            sum += c;
+            max = c > max ? c : max;
+        }
+    if (busiest)
+        *busiest = max;
+    return sum;
 }
 
 /* A hash of (pixel, layer) to [0, 1): the synthetic eq. 4.1 statistic. */
@@ -171,6 +259,11 @@ static void *synth_main(void *arg)
     }
     int zero = 0;
     zmq_setsockopt(sock, ZMQ_LINGER, &zero, sizeof zero);
+    if (s->keys) {
+        zmq_setsockopt(sock, ZMQ_CURVE_SERVERKEY, s->keys->master.public_z85, KEYS_Z85_LEN);
+        zmq_setsockopt(sock, ZMQ_CURVE_PUBLICKEY, s->keys->worker.public_z85, KEYS_Z85_LEN);
+        zmq_setsockopt(sock, ZMQ_CURVE_SECRETKEY, s->keys->worker.secret_z85, KEYS_Z85_LEN);
+    }
     if (zmq_connect(sock, s->endpoint) < 0) {
         snprintf(s->error, sizeof s->error, "connect %s: %s", s->endpoint, zmq_strerror(errno));
         s->failed = 1;
@@ -366,7 +459,7 @@ static const char *jstr(const cJSON *o, const char *k)
 
 static int parse_args(int argc, char **argv, args_t *a)
 {
-    *a = (args_t){.workers = 1, .port = 17570, .size = 1024, .spp = 1024, .granularity = 32, .credit = 8,
+    *a = (args_t){.workers = 1, .io_threads = 1, .port = 17570, .size = 1024, .spp = 1024, .granularity = 32, .credit = 8,
                   .max_seconds = 60, .adaptive = "none"};
     for (int i = 1; i < argc; i++) {
         const char *o = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
@@ -386,6 +479,8 @@ static int parse_args(int argc, char **argv, args_t *a)
             bad = parse_u64(v, 1, TRACER_MAX_TASK_SAMPLES, &a->granularity);
         else if (strcmp(o, "--credit") == 0)
             bad = parse_u64(v, 1, PROTO_MAX_CREDIT, &a->credit);
+        else if (strcmp(o, "--io-threads") == 0)
+            bad = parse_u64(v, 1, 16, &a->io_threads);
         else if (strcmp(o, "--max-seconds") == 0)
             bad = parse_u64(v, 1, 3600, &a->max_seconds);
         else if (strcmp(o, "--uniform-layers") == 0) {
@@ -404,6 +499,12 @@ static int parse_args(int argc, char **argv, args_t *a)
         } else if (strcmp(o, "--json") == 0) {
             bad = !v;
             a->json = v;
+        } else if (strcmp(o, "--curve") == 0) {
+            a->curve = 1;
+            continue; /* takes no value */
+        } else if (strcmp(o, "--worker-context") == 0) {
+            bad = !v || (strcmp(v, "shared") != 0 && strcmp(v, "own") != 0);
+            a->own_context = v && strcmp(v, "own") == 0;
         } else {
             fprintf(stderr, "bench_master: unknown option '%s'\n%s", o, usage_text);
             return 2;
@@ -417,6 +518,50 @@ static int parse_args(int argc, char **argv, args_t *a)
     return 0;
 }
 
+/* Writes one .pub file: dir/sub/name.pub. */
+static int write_pub(const char *dir, const char *sub, const char *name, const char *z85)
+{
+    char path[256];
+    snprintf(path, sizeof path, "%s/%s", dir, sub);
+    if (mkdir(path, 0700) < 0 && errno != EEXIST)
+        return -1;
+    snprintf(path, sizeof path, "%s/%s/%s.pub", dir, sub, name);
+    FILE *f = fopen(path, "w");
+    if (!f)
+        return -1;
+    fprintf(f, "%s\n", z85);
+    return fclose(f);
+}
+
+/* Fresh key pairs, and the allow-lists in a scratch directory. */
+static int make_keys(bench_keys_t *k, char *err, size_t errlen)
+{
+    if (keys_generate(&k->master, err, errlen) < 0 || keys_generate(&k->worker, err, errlen) < 0 ||
+        keys_generate(&k->client, err, errlen) < 0)
+        return -1;
+    snprintf(k->dir, sizeof k->dir, "/tmp/bench-master-keys-XXXXXX");
+    if (!mkdtemp(k->dir) || write_pub(k->dir, "workers", "synth", k->worker.public_z85) < 0 ||
+        write_pub(k->dir, "clients", "bench", k->client.public_z85) < 0) {
+        snprintf(err, errlen, "cannot write the allow-lists under %s: %s", k->dir, strerror(errno));
+        return -1;
+    }
+    return 0;
+}
+
+static void remove_keys(const bench_keys_t *k)
+{
+    char path[256];
+    snprintf(path, sizeof path, "%s/workers/synth.pub", k->dir);
+    unlink(path);
+    snprintf(path, sizeof path, "%s/clients/bench.pub", k->dir);
+    unlink(path);
+    snprintf(path, sizeof path, "%s/workers", k->dir);
+    rmdir(path);
+    snprintf(path, sizeof path, "%s/clients", k->dir);
+    rmdir(path);
+    rmdir(k->dir);
+}
+
 int main(int argc, char **argv)
 {
     signal(SIGPIPE, SIG_IGN);
@@ -424,6 +569,14 @@ int main(int argc, char **argv)
     int rc = parse_args(argc, argv, &a);
     if (rc)
         return rc;
+    if (a.curve && !a.tcp) {
+        fprintf(stderr, "bench_master: --curve needs --transport tcp (ZeroMQ does not secure inproc)\n");
+        return 2;
+    }
+    if (a.own_context && !a.tcp) {
+        fprintf(stderr, "bench_master: --worker-context own needs --transport tcp (inproc is per context)\n");
+        return 2;
+    }
     char wep[64], cep[64], wep_connect[64], err[1024];
     if (a.tcp) {
         snprintf(wep, sizeof wep, "tcp://127.0.0.1:%" PRIu64, a.port);
@@ -434,7 +587,20 @@ int main(int argc, char **argv)
     }
     snprintf(wep_connect, sizeof wep_connect, "%s", wep);
 
+    bench_keys_t keys;
+    memset(&keys, 0, sizeof keys);
+    if (a.curve && make_keys(&keys, err, sizeof err) < 0) {
+        fprintf(stderr, "bench_master: %s\n", err);
+        return 1;
+    }
+    char workers_dir[128], clients_dir[128];
+    snprintf(workers_dir, sizeof workers_dir, "%s/workers", keys.dir);
+    snprintf(clients_dir, sizeof clients_dir, "%s/clients", keys.dir);
     void *ctx = zmq_ctx_new();
+    zmq_ctx_set(ctx, ZMQ_IO_THREADS, (int)a.io_threads); /* before its first socket */
+    void *wctx = a.own_context ? zmq_ctx_new() : ctx;
+    if (wctx != ctx)
+        zmq_ctx_set(wctx, ZMQ_THREAD_NAME_PREFIX, 1); /* tells its I/O threads apart */
     master_config_t mc;
     memset(&mc, 0, sizeof mc);
     mc.zmq_ctx = ctx;
@@ -442,6 +608,11 @@ int main(int argc, char **argv)
     mc.control_endpoint = cep;
     mc.log = getenv("VB_LOG") ? stderr : NULL;
     mc.verify_share = a.verify_share;
+    if (a.curve) {
+        mc.curve_secret_key = keys.master.secret_z85;
+        mc.allow_workers_dir = workers_dir;
+        mc.allow_clients_dir = clients_dir;
+    }
     master_thread_t mt;
     memset(&mt, 0, sizeof mt);
     synth_t synth[MAX_SYNTH];
@@ -453,14 +624,19 @@ int main(int argc, char **argv)
     mt.m = master_new(&mc, err, sizeof err);
     if (!mt.m) {
         fprintf(stderr, "bench_master: %s\n", err);
+        if (wctx != ctx)
+            zmq_ctx_term(wctx);
         zmq_ctx_term(ctx);
+        if (a.curve)
+            remove_keys(&keys);
         return 1;
     }
     pthread_create(&mt.thread, NULL, master_main, &mt);
     clockid_t master_clock;
     pthread_getcpuclockid(mt.thread, &master_clock);
     for (uint64_t i = 0; i < a.workers; i++) {
-        synth[i] = (synth_t){.ctx = ctx, .credit = (uint32_t)a.credit, .stop = &synth_stop};
+        synth[i] = (synth_t){.ctx = wctx, .keys = a.curve ? &keys : NULL, .credit = (uint32_t)a.credit,
+                             .stop = &synth_stop};
         if (a.tcp) /* an address each: verified copies go to workers of another identity */
             snprintf(synth[i].endpoint, sizeof synth[i].endpoint, "tcp://127.0.0.%" PRIu64 ":0;%s", 10 + i,
                      wep_connect + strlen("tcp://"));
@@ -468,11 +644,21 @@ int main(int argc, char **argv)
             snprintf(synth[i].endpoint, sizeof synth[i].endpoint, "%s", wep_connect);
         pthread_create(&synth[i].thread, NULL, synth_main, &synth[i]);
         synth[i].started = 1;
+        /* staggered, as real workers join: ZeroMQ gives an accepted
+         * connection to its least loaded I/O thread, and connections
+         * accepted at once all see the same loads */
+        struct timespec gap = {0, 20 * 1000 * 1000};
+        nanosleep(&gap, NULL);
     }
     req = zmq_socket(ctx, ZMQ_REQ);
     int zero = 0, timeout = 30000;
     zmq_setsockopt(req, ZMQ_LINGER, &zero, sizeof zero);
     zmq_setsockopt(req, ZMQ_RCVTIMEO, &timeout, sizeof timeout);
+    if (a.curve) {
+        zmq_setsockopt(req, ZMQ_CURVE_SERVERKEY, keys.master.public_z85, KEYS_Z85_LEN);
+        zmq_setsockopt(req, ZMQ_CURVE_PUBLICKEY, keys.client.public_z85, KEYS_Z85_LEN);
+        zmq_setsockopt(req, ZMQ_CURVE_SECRETKEY, keys.client.secret_z85, KEYS_Z85_LEN);
+    }
     if (zmq_connect(req, cep) < 0) {
         fprintf(stderr, "bench_master: connect %s: %s\n", cep, zmq_strerror(errno));
         goto done;
@@ -524,6 +710,8 @@ int main(int argc, char **argv)
     if (a.have_uniform)
         cJSON_AddNumberToObject(q, "uniform_layers", (double)a.uniform_layers);
     double synth_cpu0[MAX_SYNTH];
+    io_threads_t io;
+    io_threads_start(&io);
     double wall0 = now_s(), master_cpu0 = clock_s(master_clock), proc_cpu0 = clock_s(CLOCK_PROCESS_CPUTIME_ID);
     for (uint64_t i = 0; i < a.workers; i++)
         synth_cpu0[i] = clock_s(synth[i].clock);
@@ -579,6 +767,8 @@ int main(int argc, char **argv)
         bytes_in += synth[i].bytes_in;
         bytes_out += synth[i].bytes_out;
     }
+    double master_io_busiest = 0;
+    double master_io_cpu = io_threads_cpu(&io, 0, &master_io_busiest), worker_io_cpu = io_threads_cpu(&io, 1, NULL);
     double seconds = jnum(status, "seconds"), samples = jnum(status, "samples");
     double results = samples / (double)a.granularity;
     double master_cpu = master_cpu1 - master_cpu0, proc_cpu = proc_cpu1 - proc_cpu0, wall = wall1 - wall0;
@@ -586,6 +776,8 @@ int main(int argc, char **argv)
     out = cJSON_CreateObject();
     cJSON_AddStringToObject(out, "benchmark", "master");
     cJSON_AddStringToObject(out, "transport", a.tcp ? "tcp" : "inproc");
+    cJSON_AddBoolToObject(out, "curve", a.curve);
+    cJSON_AddStringToObject(out, "worker_context", a.own_context ? "own" : "shared");
     cJSON_AddNumberToObject(out, "workers", (double)a.workers);
     cJSON_AddNumberToObject(out, "credit", (double)a.credit);
     cJSON_AddNumberToObject(out, "width", (double)a.size);
@@ -615,6 +807,16 @@ int main(int argc, char **argv)
     cJSON_AddNumberToObject(out, "master_cpu_seconds", master_cpu);
     cJSON_AddNumberToObject(out, "master_cpu_utilization", wall > 0 ? master_cpu / wall : 0);
     cJSON_AddNumberToObject(out, "results_per_master_cpu_second", master_cpu > 0 ? results / master_cpu : 0);
+    cJSON_AddNumberToObject(out, "master_ns_per_result", results > 0 ? master_cpu / results * 1e9 : 0);
+    /* ZeroMQ's I/O threads of the master's context (shared: the workers' too) */
+    cJSON_AddNumberToObject(out, "master_io_cpu_seconds", master_io_cpu);
+    cJSON_AddNumberToObject(out, "master_io_ns_per_result", results > 0 ? master_io_cpu / results * 1e9 : 0);
+    cJSON_AddNumberToObject(out, "master_io_threads", (double)a.io_threads);
+    /* a host with a core per thread is bounded by its busiest master thread */
+    cJSON_AddNumberToObject(out, "master_io_busiest_ns_per_result",
+                            results > 0 ? master_io_busiest / results * 1e9 : 0);
+    cJSON_AddNumberToObject(out, "worker_io_cpu_seconds", worker_io_cpu);
+    cJSON_AddNumberToObject(out, "process_ns_per_result", results > 0 ? proc_cpu / results * 1e9 : 0);
     cJSON_AddNumberToObject(out, "workers_cpu_seconds", synth_cpu);
     cJSON_AddNumberToObject(out, "other_cpu_seconds", proc_cpu - master_cpu - synth_cpu);
     cJSON_AddNumberToObject(out, "process_cpu_seconds", proc_cpu);
@@ -632,9 +834,9 @@ int main(int argc, char **argv)
         cJSON_free(text);
     }
     fprintf(stderr,
-            "bench_master: %s, %" PRIu64 " worker(s), %s, G %" PRIu64 ": %.3g results in %.2f s = %.3g results/s; "
+            "bench_master: %s%s, %" PRIu64 " worker(s), %s, G %" PRIu64 ": %.3g results in %.2f s = %.3g results/s; "
             "master thread %.2f CPU s (%.0f%%) = %.3g results per master CPU s\n",
-            a.tcp ? "tcp" : "inproc", a.workers, a.adaptive, a.granularity, results, seconds,
+            a.tcp ? "tcp" : "inproc", a.curve ? " with CURVE" : "", a.workers, a.adaptive, a.granularity, results, seconds,
             seconds > 0 ? results / seconds : 0, master_cpu, wall > 0 ? 100 * master_cpu / wall : 0,
             master_cpu > 0 ? results / master_cpu : 0);
     rc = strcmp(jstr(status, "state"), "done") == 0 || cancelled ? 0 : 1;
@@ -651,6 +853,10 @@ done:
     cJSON_Delete(q);
     cJSON_Delete(status);
     cJSON_Delete(out);
+    if (wctx != ctx)
+        zmq_ctx_term(wctx);
     zmq_ctx_term(ctx);
+    if (a.curve)
+        remove_keys(&keys);
     return rc;
 }

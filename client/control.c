@@ -10,6 +10,7 @@
 #include <time.h>
 #include <zmq.h>
 
+#include "handshake.h"
 #include "proto.h"
 
 struct control {
@@ -20,13 +21,36 @@ struct control {
     int lost;       /* the last request got no answer in time */
     zmq_msg_t extra[16];
     int nextra;
+    int curve;                 /* the socket is a CURVE client */
+    char keys[3][64];          /* public, secret, master: Z85 */
+    handshake_monitor_t *mon;  /* sock's handshakes */
+    int closed_in_row;         /* handshakes closed without a word, in a row */
+    int failed;                /* a handshake failed for good: handshake_error says why */
+    char handshake_error[768];
 };
+
+static double now_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
 
 static void drop_extra(control_t *c)
 {
     for (int i = 0; i < c->nextra; i++)
         zmq_msg_close(&c->extra[i]);
     c->nextra = 0;
+}
+
+static void close_socket(control_t *c)
+{
+    handshake_monitor_destroy(&c->mon); /* before the socket it watches */
+    if (c->sock)
+        zmq_close(c->sock);
+    c->sock = NULL;
+    c->closed_in_row = 0;
+    c->failed = 0;
 }
 
 static int open_socket(control_t *c, char *err, size_t errlen)
@@ -38,16 +62,67 @@ static int open_socket(control_t *c, char *err, size_t errlen)
     }
     int zero = 0;
     zmq_setsockopt(c->sock, ZMQ_LINGER, &zero, sizeof zero);
+    if (c->curve && (zmq_setsockopt(c->sock, ZMQ_CURVE_SERVERKEY, c->keys[2], strlen(c->keys[2])) < 0 ||
+                     zmq_setsockopt(c->sock, ZMQ_CURVE_PUBLICKEY, c->keys[0], strlen(c->keys[0])) < 0 ||
+                     zmq_setsockopt(c->sock, ZMQ_CURVE_SECRETKEY, c->keys[1], strlen(c->keys[1])) < 0)) {
+        snprintf(err, errlen, "cannot set the CURVE keys: %s", zmq_strerror(errno));
+        close_socket(c);
+        return -1;
+    }
+    /* watched before it connects, so no handshake goes unseen */
+    if (!(c->mon = handshake_monitor_new(c->ctx, c->sock, err, errlen))) {
+        close_socket(c);
+        return -1;
+    }
     if (zmq_connect(c->sock, c->endpoint) < 0) {
         snprintf(err, errlen, "cannot connect to %s: %s", c->endpoint, zmq_strerror(errno));
-        zmq_close(c->sock);
-        c->sock = NULL;
+        close_socket(c);
         return -1;
     }
     return 0;
 }
 
-control_t *control_new(void *zmq_ctx, const char *endpoint, int timeout_ms, char *err, size_t errlen)
+/* Reads the handshake events so far: 1 when one failed for good. A refused
+ * key or CURVE on one side only ends the connection (ZeroMQ does not try
+ * again); a handshake closed without a word twice in a row is a wrong
+ * master key (once could be a master going down mid-handshake). */
+static int handshake_failed(control_t *c)
+{
+    char msg[sizeof c->handshake_error];
+    handshake_result_t r;
+    while (!c->failed && c->mon &&
+           (r = handshake_monitor_read(c->mon, c->endpoint, "client", c->curve, msg, sizeof msg)) != HANDSHAKE_NONE) {
+        if (r == HANDSHAKE_OK)
+            c->closed_in_row = 0;
+        else if (r != HANDSHAKE_CLOSED || ++c->closed_in_row >= 2) {
+            c->failed = 1;
+            snprintf(c->handshake_error, sizeof c->handshake_error, "%s", msg);
+        }
+    }
+    return c->failed;
+}
+
+/* Waits until the socket has events, the deadline passes or a handshake
+ * fails: 1, 0 or -1. */
+static int wait_socket(control_t *c, short events, double deadline)
+{
+    for (;;) {
+        if (handshake_failed(c))
+            return -1;
+        double left = deadline - now_seconds();
+        if (left <= 0)
+            return 0;
+        zmq_pollitem_t it[2] = {{c->sock, 0, events, 0}, {handshake_monitor_socket(c->mon), 0, ZMQ_POLLIN, 0}};
+        int rc = zmq_poll(it, 2, (long)(left * 1000.0) + 1);
+        if (rc < 0 && errno != EINTR)
+            return 0;
+        if (rc > 0 && (it[0].revents & events))
+            return 1;
+    }
+}
+
+control_t *control_new_with_keys(void *zmq_ctx, const char *endpoint, int timeout_ms, const control_keys_t *keys,
+                                 char *err, size_t errlen)
 {
     control_t *c = calloc(1, sizeof *c);
     if (!c) {
@@ -57,11 +132,26 @@ control_t *control_new(void *zmq_ctx, const char *endpoint, int timeout_ms, char
     c->ctx = zmq_ctx;
     c->timeout_ms = timeout_ms > 0 ? timeout_ms : 10000;
     snprintf(c->endpoint, sizeof c->endpoint, "%s", endpoint);
+    if (keys) {
+        const char *k[3] = {keys->public_key, keys->secret_key, keys->master_key};
+        for (int i = 0; i < 3; i++)
+            if (!k[i] || (size_t)snprintf(c->keys[i], sizeof c->keys[i], "%s", k[i]) >= sizeof c->keys[i]) {
+                snprintf(err, errlen, "CURVE needs this client's key pair and the master's public key");
+                control_destroy(&c);
+                return NULL;
+            }
+        c->curve = 1;
+    }
     if (open_socket(c, err, errlen) < 0) {
-        free(c);
+        control_destroy(&c);
         return NULL;
     }
     return c;
+}
+
+control_t *control_new(void *zmq_ctx, const char *endpoint, int timeout_ms, char *err, size_t errlen)
+{
+    return control_new_with_keys(zmq_ctx, endpoint, timeout_ms, NULL, err, errlen);
 }
 
 void control_destroy(control_t **cp)
@@ -69,8 +159,8 @@ void control_destroy(control_t **cp)
     if (!cp || !*cp)
         return;
     drop_extra(*cp);
-    if ((*cp)->sock)
-        zmq_close((*cp)->sock);
+    close_socket(*cp);
+    explicit_bzero((*cp)->keys, sizeof (*cp)->keys);
     free(*cp);
     *cp = NULL;
 }
@@ -79,10 +169,8 @@ void control_destroy(control_t **cp)
  * stuck: open a new one. A reply to the old one is then dropped. */
 static void reopen_socket(control_t *c)
 {
-    if (c->sock)
-        zmq_close(c->sock);
-    c->sock = NULL;
-    char e2[64];
+    close_socket(c);
+    char e2[256];
     open_socket(c, e2, sizeof e2);
 }
 
@@ -97,12 +185,26 @@ static cJSON *request_once(control_t *c, const cJSON *req, const void *const *fr
     /* the send waits too: a REQ socket without a peer may block in it */
     zmq_setsockopt(c->sock, ZMQ_SNDTIMEO, &timeout_ms, sizeof timeout_ms);
     zmq_setsockopt(c->sock, ZMQ_RCVTIMEO, &timeout_ms, sizeof timeout_ms);
+    const double deadline = now_seconds() + timeout_ms / 1000.0;
     char *text = cJSON_PrintUnformatted(req);
     if (!text) {
         snprintf(err, errlen, "out of memory");
         return NULL;
     }
-    int rc = zmq_send(c->sock, text, strlen(text), nframes > 0 ? ZMQ_SNDMORE : 0);
+    /* a failed handshake ends in silence: watch for it while waiting */
+    int ready = wait_socket(c, ZMQ_POLLOUT, deadline);
+    if (ready < 0) {
+        /* closed, not reopened: a new handshake now would fail the same
+         * way (and be logged by the master again); the next request opens
+         * a socket */
+        snprintf(err, errlen, "%s", c->handshake_error);
+        cJSON_free(text);
+        close_socket(c);
+        return NULL;
+    }
+    int rc = ready ? zmq_send(c->sock, text, strlen(text), nframes > 0 ? ZMQ_SNDMORE : 0) : -1;
+    if (!ready)
+        errno = EAGAIN;
     cJSON_free(text);
     for (int i = 0; rc >= 0 && i < nframes; i++)
         rc = zmq_send(c->sock, frames[i], sizes[i], i + 1 < nframes ? ZMQ_SNDMORE : 0);
@@ -118,9 +220,15 @@ static cJSON *request_once(control_t *c, const cJSON *req, const void *const *fr
         reopen_socket(c);
         return NULL;
     }
+    ready = wait_socket(c, ZMQ_POLLIN, deadline);
+    if (ready < 0) {
+        snprintf(err, errlen, "%s", c->handshake_error);
+        close_socket(c);
+        return NULL;
+    }
     zmq_msg_t reply;
     zmq_msg_init(&reply);
-    if (zmq_msg_recv(&reply, c->sock, 0) < 0) {
+    if (!ready || zmq_msg_recv(&reply, c->sock, ZMQ_DONTWAIT) < 0) {
         snprintf(err, errlen, "no answer from the master at %s within %.1f s (is it running?)", c->endpoint,
                  timeout_ms / 1000.0);
         zmq_msg_close(&reply);
@@ -158,13 +266,6 @@ cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames
 int control_lost(const control_t *c)
 {
     return c->lost;
-}
-
-static double now_seconds(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
 static void sleep_seconds(double s)

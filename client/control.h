@@ -11,8 +11,23 @@
 
 typedef struct control control_t;
 
+/* CURVE keys for a master that uses them (keys.h, Z85). */
+typedef struct control_keys {
+    const char *public_key, *secret_key; /* this client's key pair */
+    const char *master_key;              /* the master's public key */
+} control_keys_t;
+
 /* A REQ socket to the master's control endpoint, with a receive timeout. */
 control_t *control_new(void *zmq_ctx, const char *endpoint, int timeout_ms, char *err, size_t errlen);
+
+/* The same as a CURVE client (keys NULL: without CURVE). Either way the
+ * socket's handshakes are watched: a request to a master that refuses this
+ * client's key, or that this client cannot handshake with (the wrong
+ * master key, CURVE on one side only), fails at once with a message saying
+ * so (handshake.h) instead of waiting out the timeout; control_lost is then
+ * 0, so nothing retries it. */
+control_t *control_new_with_keys(void *zmq_ctx, const char *endpoint, int timeout_ms, const control_keys_t *keys,
+                                 char *err, size_t errlen);
 void control_destroy(control_t **c);
 
 /* Sends a request (and binary frames) and returns the parsed reply (free

@@ -3,6 +3,11 @@
  *   vbrender render SCENE.json [-o OUT.exr] [job settings] [--workers N] [--threads T]
  *   vbrender submit SCENE.json [job settings] [--master EP]   (prints the job id last)
  *   vbrender status [JOB] | wait JOB | fetch JOB -o OUT.exr | cancel JOB | delete JOB | jobs | workers
+ *   vbrender keygen NAME   (NAME.key and NAME.pub: a CURVE key pair)
+ *
+ * The commands for a running master take --key client.key --master-key
+ * master.pub (or VBRENDER_KEY, VBRENDER_MASTER_KEY) for a master that uses
+ * CURVE keys.
  *
  * `render` is the embedded default: it runs the same master and worker code
  * in this process over ZeroMQ's inproc transport, so its pixels equal those
@@ -31,6 +36,7 @@
 #include "compare.h"
 #include "control.h"
 #include "image.h"
+#include "keys.h"
 #include "master.h"
 #include "progress.h"
 #include "render.h"
@@ -56,6 +62,8 @@ static const char usage_text[] =
     "                    saved state from the master\n"
     "  jobs              all jobs\n"
     "  workers           connected workers: host, threads, rays/s, tasks done\n"
+    "  keygen NAME       a CURVE key pair: NAME.key (secret, mode 0600) and NAME.pub\n"
+    "                    (the public key, for the master's allow-lists or --master-key)\n"
     "  compare A.exr REF.exr [--threshold E] [--error-map OUT.png]\n"
     "        error of A against REF: relMSE, RMSE, mean abs. relative error, max,\n"
     "        share of pixels with relative error above E (default 0.05)\n"
@@ -82,6 +90,9 @@ static const char usage_text[] =
     "\n"
     "other options:\n"
     "  --master EP             control endpoint (default " DEFAULT_MASTER ")\n"
+    "  --key FILE              this client's key pair, for a master that uses CURVE\n"
+    "                          keys (default: $VBRENDER_KEY)\n"
+    "  --master-key FILE       that master's public key (default: $VBRENDER_MASTER_KEY)\n"
     "  --timeout SECONDS       submit, wait: while the master does not answer (say it\n"
     "                          restarts), ask again for this long (default 300)\n"
     "  --workers N             render: local workers (default 1)\n"
@@ -127,6 +138,7 @@ typedef struct args {
     const char *output;
     const char *reference; /* --reference REF.exr */
     const char *master;
+    const char *key_file, *master_key_file; /* --key, --master-key */
     cJSON *settings; /* submit fields */
     double timeout_s; /* --timeout */
     uint64_t workers, threads;
@@ -156,6 +168,13 @@ static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int 
             if (!v || !*v)
                 return usage_error("%s needs an endpoint such as tcp://host:7071", o);
             a->master = v;
+        } else if (strcmp(o, "--key") == 0 || strcmp(o, "--master-key") == 0) {
+            if (!v || !*v)
+                return usage_error("%s needs a file name", o);
+            if (strcmp(o, "--key") == 0)
+                a->key_file = v;
+            else
+                a->master_key_file = v;
         } else if (allow_timeout && strcmp(o, "--timeout") == 0) {
             char *end;
             errno = 0;
@@ -534,6 +553,10 @@ static int cmd_render(int argc, char **argv)
         cJSON_Delete(a.settings);
         return rc ? rc : usage_error("%s", "render needs a scene file: vbrender render SCENE.json");
     }
+    if (a.key_file || a.master_key_file) {
+        cJSON_Delete(a.settings);
+        return usage_error("%s", "render runs its master in this process: it takes no keys");
+    }
     char out_exr[4096];
     if (a.output) {
         snprintf(out_exr, sizeof out_exr, "%s", a.output);
@@ -592,7 +615,8 @@ static int cmd_render(int argc, char **argv)
     for (uint64_t i = 0; i < a.workers; i++) {
         char name[32];
         snprintf(name, sizeof name, "worker-%llu", (unsigned long long)i + 1);
-        worker_config_t wc = {ctx, wep, per + ((int)i < extra ? 1 : 0), 0, mc.log, name, device};
+        worker_config_t wc = {.zmq_ctx = ctx, .master_endpoint = wep, .threads = per + ((int)i < extra ? 1 : 0),
+                              .log = mc.log, .name = name, .device = device};
         ew[i].w = worker_new(&wc, err, sizeof err);
         if (!ew[i].w) {
             fprintf(stderr, "vbrender: %s\n", err);
@@ -660,6 +684,31 @@ done:
 
 /* ---- commands for a running master ----------------------------------------------- */
 
+/* The CURVE keys from --key and --master-key, else VBRENDER_KEY and
+ * VBRENDER_MASTER_KEY: 1 with keys loaded, 0 without keys, -1 after a
+ * message (2 as the exit status: usage; 1: a file). */
+static int load_client_keys(const args_t *a, keys_pair_t *mine, char master[KEYS_Z85_LEN + 1], int *status)
+{
+    const char *kf = a->key_file, *mf = a->master_key_file;
+    if (!kf && getenv("VBRENDER_KEY") && *getenv("VBRENDER_KEY"))
+        kf = getenv("VBRENDER_KEY");
+    if (!mf && getenv("VBRENDER_MASTER_KEY") && *getenv("VBRENDER_MASTER_KEY"))
+        mf = getenv("VBRENDER_MASTER_KEY");
+    if (!kf && !mf)
+        return 0;
+    if (!kf || !mf) {
+        *status = usage_error("%s", "--key and --master-key go together (or VBRENDER_KEY and VBRENDER_MASTER_KEY)");
+        return -1;
+    }
+    char err[1024];
+    if (keys_load_secret(kf, mine, err, sizeof err) < 0 || keys_load_public(mf, master, err, sizeof err) < 0) {
+        fprintf(stderr, "vbrender: %s\n", err);
+        *status = 1;
+        return -1;
+    }
+    return 1;
+}
+
 static int simple_command(const char *cmd, int argc, char **argv)
 {
     args_t a;
@@ -691,9 +740,19 @@ static int simple_command(const char *cmd, int argc, char **argv)
         cJSON_Delete(a.settings);
         return 1;
     }
+    keys_pair_t mine;
+    char master_key[KEYS_Z85_LEN + 1];
+    int have_keys = load_client_keys(&a, &mine, master_key, &rc);
+    if (have_keys < 0) {
+        cJSON_Delete(a.settings);
+        return rc;
+    }
+    control_keys_t keys = {mine.public_z85, mine.secret_z85, master_key};
     void *ctx = zmq_ctx_new();
     char err[2048];
-    control_t *c = control_new(ctx, a.master, REQUEST_TIMEOUT_MS, err, sizeof err);
+    control_t *c = control_new_with_keys(ctx, a.master, REQUEST_TIMEOUT_MS, have_keys ? &keys : NULL, err, sizeof err);
+    if (have_keys)
+        explicit_bzero(&mine, sizeof mine); /* control keeps its own copy */
     rc = 1;
     if (!c) {
         fprintf(stderr, "vbrender: %s\n", err);
@@ -806,6 +865,24 @@ done:
     return rc;
 }
 
+/* ---- keygen ----------------------------------------------------------------------- */
+
+static int cmd_keygen(int argc, char **argv)
+{
+    if (argc != 1 || argv[0][0] == '-' || !argv[0][0])
+        return usage_error("%s", "keygen needs a name: vbrender keygen NAME (writes NAME.key and NAME.pub)");
+    keys_pair_t k;
+    char err[1024];
+    if (keys_generate(&k, err, sizeof err) < 0 || keys_write(argv[0], &k, err, sizeof err) < 0) {
+        explicit_bzero(&k, sizeof k);
+        fprintf(stderr, "vbrender: %s\n", err);
+        return 1;
+    }
+    printf("%s.key  key pair (keep it secret: mode 0600)\n%s.pub  public key %s\n", argv[0], argv[0], k.public_z85);
+    explicit_bzero(&k, sizeof k);
+    return 0;
+}
+
 /* ---- compare ---------------------------------------------------------------------- */
 
 static int cmd_compare(int argc, char **argv)
@@ -888,6 +965,8 @@ int main(int argc, char **argv)
         return cmd_render(argc - 2, argv + 2);
     if (strcmp(argv[1], "compare") == 0)
         return cmd_compare(argc - 2, argv + 2);
+    if (strcmp(argv[1], "keygen") == 0)
+        return cmd_keygen(argc - 2, argv + 2);
     static const char *const commands[] = {"submit", "status", "wait", "fetch", "cancel", "delete", "jobs", "workers"};
     for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
         if (strcmp(argv[1], commands[i]) == 0)

@@ -493,6 +493,17 @@ void ctl_handle_message(master_t *m)
             zmq_msg_close(&frames[i]);
         return;
     }
+    if (!master_peer_allowed(m, AUTH_DOMAIN_CONTROL, &frames[2])) {
+        /* its key left the allow-lists (SIGHUP) while it was connected */
+        master_log_limited(m, "client-key-revoked", "refused a request: client key %s no longer allowed",
+                           master_peer_key(&frames[2]));
+        cJSON *b = error_body("this client's key is no longer allowed by the master");
+        reply_json(m, &frames[0], b, 0);
+        cJSON_Delete(b);
+        for (int i = 0; i < n; i++)
+            zmq_msg_close(&frames[i]);
+        return;
+    }
     cJSON *req = cJSON_ParseWithLength(zmq_msg_data(&frames[2]), zmq_msg_size(&frames[2]));
     ctl_req_t r = {.m = m, .id = &frames[0], .body = req, .json_frame = &frames[2], .extra = frames + 3,
                    .nextra = n - 3};

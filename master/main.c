@@ -3,9 +3,12 @@
  *   vbrender-master [--workers ENDPOINT] [--control ENDPOINT]  (default tcp ports 7070, 7071)
  *                   [--heartbeat-ms N] [--lease-ms N]
  *                   [--state DIR|none] [--checkpoint-s S] [--keep-finished N]
+ *                   [--key master.key --allow-workers DIR --allow-clients DIR
+ *                    [--admin-clients DIR] | --insecure]
  *                   [--verify-share P]
  *
- * Logs to stderr with timestamps; SIGTERM or SIGINT stops it cleanly. */
+ * Logs to stderr with timestamps; SIGTERM or SIGINT stops it cleanly,
+ * SIGHUP reloads the allow-lists. */
 #include <errno.h>
 #include <signal.h>
 #include <stdatomic.h>
@@ -14,26 +17,33 @@
 #include <string.h>
 #include <zmq.h>
 
+#include "keys.h"
 #include "master.h"
 #include "proto.h"
 
-/* The one global: a signal handler can reach nothing else. A lock-free
- * atomic is safe to store from a handler (C11 7.14.1.1). */
+/* The globals: a signal handler can reach nothing else. A lock-free atomic
+ * is safe to store from a handler (C11 7.14.1.1). */
 static atomic_int stop_requested;
+static atomic_int reload_requested;
 
 static void on_signal(int sig)
 {
-    (void)sig;
-    atomic_store(&stop_requested, 1);
+    if (sig == SIGHUP)
+        atomic_store(&reload_requested, 1);
+    else
+        atomic_store(&stop_requested, 1);
 }
 
 static const char usage[] =
     "usage: vbrender-master [--workers ENDPOINT] [--control ENDPOINT]\n"
     "                       [--heartbeat-ms N] [--lease-ms N]\n"
     "                       [--state DIR|none] [--checkpoint-s S] [--keep-finished N]\n"
+    "                       [--key FILE --allow-workers DIR --allow-clients DIR\n"
+    "                        [--admin-clients DIR] | --insecure]\n"
     "                       [--verify-share P]\n"
-    "  --workers ENDPOINT   where workers connect (default tcp://*:7070)\n"
-    "  --control ENDPOINT   where clients connect (default tcp://*:7071)\n"
+    "  --workers ENDPOINT   where workers connect (default tcp://*:7070: needs --key or\n"
+    "                       --insecure)\n"
+    "  --control ENDPOINT   where clients connect (default tcp://*:7071: the same)\n"
     "  --heartbeat-ms N     heartbeat interval (default 1000)\n"
     "  --lease-ms N         a task unanswered this long is issued again (default 60000)\n"
     "  --state DIR          jobs, checkpoints and images survive a restart here\n"
@@ -49,8 +59,22 @@ static const char usage[] =
     "                       on a second worker and merges only when both agree bit for bit; a\n"
     "                       third worker settles a mismatch and the odd one is quarantined\n"
     "                       (default 0.01; 0: off; 1: every task, never merged unverified)\n"
+    "  --key FILE           this master's CURVE key pair ('vbrender keygen NAME' makes\n"
+    "                       NAME.key and NAME.pub): both sockets then encrypt and admit\n"
+    "                       only the keys listed below\n"
+    "  --allow-workers DIR  public keys (.pub files) of the workers admitted\n"
+    "  --allow-clients DIR  public keys of the clients admitted\n"
+    "  --admin-clients DIR  public keys of clients that may act on every job (admitted too)\n"
+    "  --insecure           without --key, listen beyond loopback anyway (anyone who can\n"
+    "                       reach the ports may submit jobs or pose as a worker)\n"
+    "  --io-threads N       ZeroMQ I/O threads (default 1). With --key they do the\n"
+    "                       encryption, one connection each: with many workers and cores\n"
+    "                       to spare, 3 keep them from limiting the master\n"
     "  --version            print the build id and exit\n"
-    "Signals: TERM or INT checkpoint every running job and stop.\n";
+    "Without --key only loopback endpoints are bound (tcp://127.x, tcp://localhost,\n"
+    "tcp://[::1], ipc://, inproc://) unless --insecure is given.\n"
+    "Signals: TERM or INT checkpoint every running job and stop; HUP reads the\n"
+    "allow-lists again (peers whose key was removed are dropped).\n";
 
 static int parse_count(const char *s, double lo, double hi, double *out)
 {
@@ -87,7 +111,9 @@ int main(int argc, char **argv)
     cfg.state_dir = MASTER_DEFAULT_STATE;
     cfg.log = stderr;
     cfg.verify_share = MASTER_DEFAULT_VERIFY_SHARE;
-    double v_keep;
+    cfg.reload = &reload_requested;
+    const char *key_file = NULL;
+    double v_keep, io_threads = 1;
     for (int i = 1; i < argc; i++) {
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (strcmp(argv[i], "-h") == 0 || strcmp(argv[i], "--help") == 0) {
@@ -152,6 +178,27 @@ int main(int argc, char **argv)
         } else if (strcmp(argv[i], "--control") == 0 && v) {
             cfg.control_endpoint = v;
             i++;
+        } else if (strcmp(argv[i], "--key") == 0 && v) {
+            key_file = v;
+            i++;
+        } else if (strcmp(argv[i], "--allow-workers") == 0 && v) {
+            cfg.allow_workers_dir = v;
+            i++;
+        } else if (strcmp(argv[i], "--allow-clients") == 0 && v) {
+            cfg.allow_clients_dir = v;
+            i++;
+        } else if (strcmp(argv[i], "--admin-clients") == 0 && v) {
+            cfg.admin_clients_dir = v;
+            i++;
+        } else if (strcmp(argv[i], "--insecure") == 0) {
+            cfg.insecure = 1;
+        } else if (strcmp(argv[i], "--io-threads") == 0) {
+            if (parse_count(v, 1, 64, &io_threads) < 0 || io_threads != (double)(int)io_threads) {
+                fprintf(stderr, "vbrender-master: --io-threads needs an integer from 1 to 64 (got '%s')\n",
+                        v ? v : "");
+                return 2;
+            }
+            i++;
         } else if (strcmp(argv[i], "--heartbeat-ms") == 0) {
             if (parse_ms(v, &cfg.heartbeat_ms) < 0) {
                 fprintf(stderr, "vbrender-master: --heartbeat-ms needs 10..3600000 (got '%s')\n", v ? v : "");
@@ -169,19 +216,44 @@ int main(int argc, char **argv)
             return 2;
         }
     }
+    int have_lists = cfg.allow_workers_dir || cfg.allow_clients_dir || cfg.admin_clients_dir;
+    if (key_file && cfg.insecure) {
+        fprintf(stderr, "vbrender-master: --insecure and --key contradict each other\n");
+        return 2;
+    }
+    if (!key_file && have_lists) {
+        fprintf(stderr, "vbrender-master: --allow-workers, --allow-clients and --admin-clients need --key\n");
+        return 2;
+    }
+    if (key_file && (!cfg.allow_workers_dir || !(cfg.allow_clients_dir || cfg.admin_clients_dir))) {
+        fprintf(stderr, "vbrender-master: --key needs --allow-workers DIR and --allow-clients DIR (or "
+                        "--admin-clients DIR): the keys it admits\n");
+        return 2;
+    }
+    char err[512];
+    keys_pair_t key;
+    if (key_file) {
+        if (keys_load_secret(key_file, &key, err, sizeof err) < 0) {
+            fprintf(stderr, "vbrender-master: %s\n", err);
+            return 1;
+        }
+        cfg.curve_secret_key = key.secret_z85;
+    }
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);
     sa.sa_handler = on_signal;
     sigaction(SIGTERM, &sa, NULL);
     sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGHUP, &sa, NULL);
     signal(SIGPIPE, SIG_IGN);
     void *ctx = zmq_ctx_new();
+    zmq_ctx_set(ctx, ZMQ_IO_THREADS, (int)io_threads); /* before the first socket */
     cfg.zmq_ctx = ctx;
-    char err[512];
     if (!cfg.state_dir)
         fprintf(stderr, "vbrender-master: warning: --state none: jobs are kept in memory only and a restart "
                         "loses them\n");
     master_t *m = master_new(&cfg, err, sizeof err);
+    explicit_bzero(&key, sizeof key); /* the master keeps its own copy */
     if (!m) {
         fprintf(stderr, "vbrender-master: %s\n", err);
         zmq_ctx_term(ctx);

@@ -38,9 +38,36 @@ void master_log_limited(master_t *m, const char *key, const char *fmt, ...)
 
 int master_is_admin(master_t *m, const char *key)
 {
-    (void)m;
-    (void)key;
-    return 0; /* until the ZAP handler's allow-lists land */
+    return m->auth && auth_is_admin(m->auth, key);
+}
+
+const char *master_peer_key(zmq_msg_t *frame)
+{
+    const char *k = zmq_msg_gets(frame, "User-Id");
+    return k ? k : "";
+}
+
+int master_peer_allowed(master_t *m, const char *domain, zmq_msg_t *frame)
+{
+    return !m->auth || auth_allowed(m->auth, domain, master_peer_key(frame));
+}
+
+int master_peer_is_admin(master_t *m, zmq_msg_t *frame)
+{
+    return !m->auth || auth_is_admin(m->auth, master_peer_key(frame));
+}
+
+/* SIGHUP: the allow-lists again; peers whose key went are dropped as
+ * their next message arrives (master_peer_allowed). */
+static void reload_keys(master_t *m)
+{
+    char msg[MASTER_ERR_LEN];
+    if (!m->auth)
+        master_log(m, "reload asked for, but this master runs without --key: no allow-lists to read");
+    else if (auth_reload(m->auth, msg, sizeof msg) < 0)
+        master_log(m, "cannot reload the allow-lists, keeping the old ones: %s", msg);
+    else
+        master_log(m, "allow-lists reloaded: %s", msg);
 }
 
 /* ---- periodic tasks ------------------------------------------------------------- */
@@ -104,6 +131,13 @@ static void periodic(master_t *m, double now)
 
 /* ---- lifecycle ------------------------------------------------------------------- */
 
+/* With keys: a CURVE server whose ZAP domain tells the handler which
+ * allow-list applies. */
+static int secure_socket(master_t *m, void *sock, const char *domain, char *err, size_t errlen)
+{
+    return m->auth ? auth_secure_socket(m->auth, sock, domain, err, errlen) : 0;
+}
+
 static int open_sockets(master_t *m, char *err, size_t errlen)
 {
     const master_config_t *cfg = &m->cfg;
@@ -124,6 +158,9 @@ static int open_sockets(master_t *m, char *err, size_t errlen)
     zmq_setsockopt(m->control_sock, ZMQ_MAXMSGSIZE, &max_control, sizeof max_control);
     /* replies a client does not read are dropped past a few, not queued */
     zmq_setsockopt(m->control_sock, ZMQ_SNDHWM, &hwm, sizeof hwm);
+    if (secure_socket(m, m->workers_sock, AUTH_DOMAIN_WORKERS, err, errlen) < 0 ||
+        secure_socket(m, m->control_sock, AUTH_DOMAIN_CONTROL, err, errlen) < 0)
+        return -1;
     if (zmq_bind(m->workers_sock, cfg->worker_endpoint) < 0) {
         snprintf(err, errlen, "cannot bind the worker socket to %s: %s", cfg->worker_endpoint, zmq_strerror(errno));
         return -1;
@@ -166,6 +203,13 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
         master_destroy(&m);
         return NULL;
     }
+    /* without keys, loopback only unless --insecure: checked before the
+     * state directory is made */
+    if (!cfg->curve_secret_key && (auth_check_bind(cfg->worker_endpoint, cfg->insecure, err, errlen) < 0 ||
+                                   auth_check_bind(cfg->control_endpoint, cfg->insecure, err, errlen) < 0)) {
+        master_destroy(&m);
+        return NULL;
+    }
     /* The build id pins the ISA: a worker on another ISA could trace other bits. */
     __builtin_cpu_init();
     proto_build_id(__builtin_cpu_supports("avx2") ? "avx2" : "sse4.2", m->build);
@@ -193,12 +237,34 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
         master_destroy(&m);
         return NULL;
     }
+    if (cfg->curve_secret_key) {
+        /* before the sockets bind: ZeroMQ admits every key without a handler */
+        auth_config_t ac = {cfg->zmq_ctx, cfg->curve_secret_key, cfg->allow_workers_dir, cfg->allow_clients_dir,
+                            cfg->admin_clients_dir, cfg->log};
+        if (!(m->auth = auth_new(&ac, err, errlen))) {
+            master_destroy(&m);
+            return NULL;
+        }
+        m->cfg.curve_secret_key = NULL; /* the caller's; auth keeps its own copy */
+    }
     if (open_sockets(m, err, errlen) < 0) {
         master_destroy(&m);
         return NULL;
     }
     master_log(m, "listening: workers %s, control %s, build %s", cfg->worker_endpoint, cfg->control_endpoint,
                m->build);
+    if (m->auth) {
+        char keys[256];
+        auth_describe(m->auth, keys, sizeof keys);
+        master_log(m, "CURVE on both sockets: %s", keys);
+    } else {
+        int wl = auth_endpoint_is_local(cfg->worker_endpoint), cl = auth_endpoint_is_local(cfg->control_endpoint);
+        if (!wl || !cl)
+            master_log(m, "warning: --insecure: no CURVE keys, so anyone who can reach %s%s%s may %s, and the "
+                       "traffic is not encrypted", wl ? "" : cfg->worker_endpoint, !wl && !cl ? " or " : "",
+                       cl ? "" : cfg->control_endpoint,
+                       !wl && !cl ? "pose as a worker or submit jobs" : !wl ? "pose as a worker" : "submit jobs");
+    }
     if (m->store)
         persist_recover(m);
     return m;
@@ -210,6 +276,8 @@ int master_run(master_t *m, const atomic_int *stop)
                                {m->control_sock, 0, ZMQ_POLLIN, 0},
                                {NULL, offload_fd(m->offload), ZMQ_POLLIN, 0}};
     while (!(stop && atomic_load(stop)) && !m->shutdown) {
+        if (m->cfg.reload && atomic_exchange(m->cfg.reload, 0))
+            reload_keys(m);
         int rc = zmq_poll(items, 3, MASTER_POLL_MS);
         if (rc < 0 && errno != EINTR)
             break;
@@ -250,6 +318,7 @@ void master_destroy(master_t **mp)
     if (m->control_sock)
         zmq_close(m->control_sock);
     offload_destroy(&m->offload); /* before the store it writes to */
+    auth_destroy(&m->auth); /* after the sockets it guards */
     store_close(&m->store);
     free(m->inflight);
     free(m->buckets);

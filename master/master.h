@@ -52,6 +52,16 @@ typedef struct master_config {
      * both results agree bit for bit. 0: none; 1: every task. */
     double verify_share;
     FILE *log;                    /* NULL: silent */
+    /* transport security (auth.h) */
+    const char *curve_secret_key; /* Z85 (keys.h): both sockets speak CURVE and admit
+                                     the listed keys only; NULL: no CURVE, and then
+                                     loopback endpoints only unless insecure */
+    const char *allow_workers_dir; /* .pub files: workers admitted (needed with a key) */
+    const char *allow_clients_dir; /* .pub files: clients admitted */
+    const char *admin_clients_dir; /* .pub files: clients that may act on every job */
+    int insecure;                  /* without a key, bind beyond loopback anyway */
+    atomic_int *reload;            /* non-zero (SIGHUP): master_run reads the
+                                      allow-lists again and clears it; may be NULL */
 } master_config_t;
 
 /* Binds both sockets; with a state directory, recovers every job in it.
@@ -59,7 +69,7 @@ typedef struct master_config {
 master_t *master_new(const master_config_t *cfg, char *err, size_t errlen);
 
 /* Runs the event loop until *stop becomes non-zero or a shutdown command
- * arrives. Returns 0. */
+ * arrives; reloads the allow-lists when *cfg.reload is set. Returns 0. */
 int master_run(master_t *m, const atomic_int *stop);
 
 void master_destroy(master_t **m);

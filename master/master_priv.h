@@ -15,6 +15,7 @@
  *   verify.c    verification by replication: a seeded share of tasks goes
  *               to two (on a mismatch three) different workers and is
  *               merged only when two results agree bit for bit
+ *   auth.c      CURVE keys, the ZAP handler and its allow-lists (auth.h)
  *
  * Work is fenced by (job, task, attempt): a result counts only if its job
  * is running, its task is outstanding with that worker, and its attempt is
@@ -32,6 +33,7 @@
 #include <stdint.h>
 #include <zmq.h>
 
+#include "auth.h"
 #include "lease.h"
 #include "master.h"
 #include "offload.h"
@@ -180,6 +182,7 @@ struct master {
     size_t quarantine_n, quarantine_cap;
     uint64_t malformed, dropped_late, rate_limited;
     vblog_limiter_t limiter; /* lines a peer can provoke at will */
+    auth_t *auth;            /* NULL: no CURVE */
     double last_timer;
     int shutdown;
 };
@@ -192,6 +195,19 @@ void master_log(master_t *m, const char *fmt, ...) __attribute__((format(printf,
 /* A line any peer can provoke (bad input): rate-limited per key (a string
  * literal naming the kind of line), repeats summarised. */
 void master_log_limited(master_t *m, const char *key, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+/* The CURVE public key (Z85) a received frame came with: the User-Id the
+ * ZAP handler gave its peer; "" on a master without CURVE. Any frame of a
+ * message carries it (the identity frame of a ROUTER too). */
+const char *master_peer_key(zmq_msg_t *frame);
+/* Whether the frame's peer is still admitted to the domain
+ * (AUTH_DOMAIN_WORKERS or AUTH_DOMAIN_CONTROL): a key removed from an
+ * allow-list on SIGHUP stays connected until it is asked this. Always 1 on
+ * a master without CURVE. */
+int master_peer_allowed(master_t *m, const char *domain, zmq_msg_t *frame);
+/* Whether the frame's peer may act on every job: a key in --admin-clients,
+ * or any peer of a master without CURVE (which listens on loopback only,
+ * unless told --insecure). */
+int master_peer_is_admin(master_t *m, zmq_msg_t *frame);
 
 /* jobs.c */
 job_t *job_find(master_t *m, uint64_t id);

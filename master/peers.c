@@ -620,7 +620,15 @@ void peer_handle_message(master_t *m)
     char err[MASTER_ERR_LEN];
     int rc = proto_decode(zmq_msg_data(&frames[1]), zmq_msg_size(&frames[1]), zmq_msg_data(&frames[2]),
                           zmq_msg_size(&frames[2]), msg, err, sizeof err);
-    if (rc == -2) { /* another protocol version or magic */
+    if (!master_peer_allowed(m, AUTH_DOMAIN_WORKERS, &frames[1])) {
+        /* its key left --allow-workers (SIGHUP) while it was connected */
+        peer_t *w = find_peer(m, id, id_len);
+        master_log_limited(m, "worker-key-revoked", "refused a message from worker %s: key %s no longer allowed", host,
+                           master_peer_key(&frames[1]));
+        if (w)
+            peer_lost(m, w, "key no longer allowed");
+        send_text(m, id, id_len, PROTO_REFUSE, "this worker's key is no longer allowed by the master");
+    } else if (rc == -2) { /* another protocol version or magic */
         char text[MASTER_ERR_LEN + 32];
         snprintf(text, sizeof text, "master refuses: %s", err);
         m->malformed++;

@@ -33,6 +33,7 @@
 #include <zmq.h>
 
 #include "image.h"
+#include "keys.h"
 #include "proto.h"
 #include "testutil.h"
 #include "vblog.h"
@@ -69,6 +70,18 @@ static const char *keep_scratch(const char *path)
     if (scratch_count < (int)(sizeof scratch / sizeof scratch[0]))
         snprintf(scratch[scratch_count++], PATHLEN, "%s", path);
     return path;
+}
+
+/* The CURVE keys ctl() uses (Z85), set by a test whose master has keys;
+ * empty: none. The client runs get them through VBRENDER_KEY and
+ * VBRENDER_MASTER_KEY, set by the same test. */
+static char ctl_public[KEYS_Z85_LEN + 1], ctl_secret[KEYS_Z85_LEN + 1], ctl_master[KEYS_Z85_LEN + 1];
+
+static void forget_client_keys(void)
+{
+    ctl_public[0] = ctl_secret[0] = ctl_master[0] = '\0';
+    unsetenv("VBRENDER_KEY");
+    unsetenv("VBRENDER_MASTER_KEY");
 }
 
 /* The network namespaces of the netns test, deleted in the teardown too. */
@@ -279,6 +292,7 @@ static void netns_delete_all(void)
 
 static void setup(void)
 {
+    forget_client_keys();
     daemon_count = 0;
     netns_count = 0;
     scratch_count = 0;
@@ -313,6 +327,7 @@ static void teardown(void)
         }
     daemon_count = 0;
     netns_delete_all();
+    forget_client_keys();
 }
 
 /* ---- ports and daemons -------------------------------------------------- */
@@ -401,10 +416,12 @@ static daemon_t *start_master(int *port, const char *name)
     return start_master_with(port, name, extra);
 }
 
-/* Starts a worker with `threads` threads; with src (a loopback address such
- * as 127.0.0.2) its connection comes from there, so the master lists it
- * under that host and a test can tell workers apart. */
-static daemon_t *start_worker(int port, int threads, const char *name, const char *src)
+/* Starts a worker with `threads` threads and the extra arguments (may be
+ * NULL); with src (a loopback address such as 127.0.0.2) its connection
+ * comes from there, so the master lists it under that host and a test can
+ * tell workers apart. */
+static daemon_t *start_worker_with(int port, int threads, const char *name, const char *src,
+                                   const char *const *extra)
 {
     char bin[PATHLEN], ep[128], th[16];
     snprintf(bin, sizeof bin, "%s/vbrender-worker", bindir());
@@ -413,8 +430,17 @@ static daemon_t *start_worker(int port, int threads, const char *name, const cha
     else
         snprintf(ep, sizeof ep, "tcp://127.0.0.1:%d", port);
     snprintf(th, sizeof th, "%d", threads);
-    const char *args[] = {bin, "--master", ep, "--threads", th, "--name", name, NULL};
+    const char *args[24] = {bin, "--master", ep, "--threads", th, "--name", name};
+    int na = 7;
+    for (int i = 0; extra && extra[i] && na < 23; i++)
+        args[na++] = extra[i];
+    args[na] = NULL;
     return spawn(name, NULL, args);
+}
+
+static daemon_t *start_worker(int port, int threads, const char *name, const char *src)
+{
+    return start_worker_with(port, threads, name, src, NULL);
 }
 
 /* ---- control requests straight from the test ---------------------------- */
@@ -430,6 +456,11 @@ static cJSON *ctl(int cport, const char *cmd, unsigned long long job)
     zmq_setsockopt(s, ZMQ_LINGER, &zero, sizeof zero);
     zmq_setsockopt(s, ZMQ_RCVTIMEO, &timeout, sizeof timeout);
     zmq_setsockopt(s, ZMQ_SNDTIMEO, &timeout, sizeof timeout);
+    if (ctl_master[0]) {
+        zmq_setsockopt(s, ZMQ_CURVE_SERVERKEY, ctl_master, KEYS_Z85_LEN);
+        zmq_setsockopt(s, ZMQ_CURVE_PUBLICKEY, ctl_public, KEYS_Z85_LEN);
+        zmq_setsockopt(s, ZMQ_CURVE_SECRETKEY, ctl_secret, KEYS_Z85_LEN);
+    }
     char ep[64];
     snprintf(ep, sizeof ep, "tcp://127.0.0.1:%d", cport);
     cJSON *reply = NULL;
@@ -1331,7 +1362,9 @@ START_TEST(several_hosts)
     snprintf(bin, sizeof bin, "%s/vbrender-master", bindir());
     snprintf(wep, sizeof wep, "tcp://*:%d", port);
     snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
-    const char *margs[] = {bin, "--workers", wep, "--control", cep, "--heartbeat-ms", "200", "--state", "none", NULL};
+    /* every interface without keys: --insecure (the namespaces reach nothing else) */
+    const char *margs[] = {bin, "--workers", wep, "--control", cep, "--heartbeat-ms", "200", "--state", "none",
+                           "--insecure", NULL};
     daemon_t *m = spawn("i-master", ns_m, margs);
     int ready = 0;
     for (int tries = 0; tries < 50 && !ready; tries++) {
@@ -1869,7 +1902,7 @@ static void net_fault(int lossy)
     /* leases of 3 s: the cut-off worker's tasks go out again well within
      * the 10 s partition (its heartbeats stop sooner still) */
     const char *margs[] = {bin, "--workers", wep, "--control", cep, "--heartbeat-ms", "200", "--lease-ms", "3000",
-                           "--state", "none", NULL};
+                           "--state", "none", "--insecure", NULL};
     daemon_t *m = spawn(lossy ? "q-master" : "p-master", ns_m, margs);
     int ready = 0;
     for (int tries = 0; tries < 50 && !ready; tries++) {
@@ -2460,6 +2493,376 @@ START_TEST(verify_one_worker)
 }
 END_TEST
 
+
+/* ---- k. CURVE keys ------------------------------------------------------------------ */
+
+/* A fresh key directory for the test (removed when it passes), with the
+ * allow-lists workers/ and clients/ in it. */
+static const char *key_dir(char *buf, size_t len)
+{
+    state_dir(buf, len, "keys");
+    char sub[PATHLEN + 16];
+    ck_assert_int_eq(mkdir(buf, 0700), 0);
+    snprintf(sub, sizeof sub, "%s/workers", buf);
+    ck_assert_int_eq(mkdir(sub, 0700), 0);
+    snprintf(sub, sizeof sub, "%s/clients", buf);
+    ck_assert_int_eq(mkdir(sub, 0700), 0);
+    return buf;
+}
+
+static const char *key_path(char *buf, size_t len, const char *dir, const char *name, const char *ext)
+{
+    snprintf(buf, len, "%s/%s.%s", dir, name, ext);
+    return buf;
+}
+
+/* `vbrender keygen DIR/NAME`; with list ("workers" or "clients") its .pub
+ * goes into that allow-list too. */
+static void keygen(const char *dir, const char *name, const char *list)
+{
+    char out[OUTLEN];
+    int rc = client(out, sizeof out, "keygen '%s/%s'", dir, name);
+    ck_assert_msg(rc == 0, "keygen %s: exit %d:\n%s", name, rc, out);
+    if (list) {
+        char cmd[3 * PATHLEN];
+        snprintf(cmd, sizeof cmd, "cp '%s/%s.pub' '%s/%s/'", dir, name, dir, list);
+        ck_assert_int_eq(tu_run(cmd, out, sizeof out), 0);
+    }
+}
+
+static void public_key(const char *dir, const char *name, char out[KEYS_Z85_LEN + 1])
+{
+    char path[PATHLEN + 64], err[1024];
+    ck_assert_msg(keys_load_public(key_path(path, sizeof path, dir, name, "pub"), out, err, sizeof err) == 0, "%s",
+                  err);
+}
+
+/* The test talks to the master of DIR/master.pub with the key pair
+ * DIR/NAME.key: ctl() directly, the client runs through the environment. */
+static void use_client_keys(const char *dir, const char *name)
+{
+    char key[PATHLEN + 64], master[PATHLEN + 64], err[1024];
+    keys_pair_t k;
+    ck_assert_msg(keys_load_secret(key_path(key, sizeof key, dir, name, "key"), &k, err, sizeof err) == 0, "%s",
+                  err);
+    memcpy(ctl_public, k.public_z85, sizeof ctl_public);
+    memcpy(ctl_secret, k.secret_z85, sizeof ctl_secret);
+    public_key(dir, "master", ctl_master);
+    setenv("VBRENDER_KEY", key, 1);
+    setenv("VBRENDER_MASTER_KEY", key_path(master, sizeof master, dir, "master", "pub"), 1);
+}
+
+/* A master with the keys of dir (master.key, workers/, clients/), jobs in
+ * memory; the test's client keys must be set (use_client_keys). */
+static daemon_t *start_keyed_master(int *port, const char *name, const char *dir)
+{
+    char key[PATHLEN + 64], workers[PATHLEN + 16], clients[PATHLEN + 16];
+    key_path(key, sizeof key, dir, "master", "key");
+    snprintf(workers, sizeof workers, "%s/workers", dir);
+    snprintf(clients, sizeof clients, "%s/clients", dir);
+    const char *extra[] = {"--state", "none", "--key", key, "--allow-workers", workers, "--allow-clients", clients,
+                           NULL};
+    return start_master_with(port, name, extra);
+}
+
+/* A one-thread worker with the key pair DIR/KEY.key, holding DIR/MASTER.pub
+ * as the master's public key. */
+static daemon_t *start_keyed_worker(int port, const char *name, const char *src, const char *dir, const char *key,
+                                    const char *master)
+{
+    char k[PATHLEN + 64], m[PATHLEN + 64];
+    const char *extra[] = {"--key", key_path(k, sizeof k, dir, key, "key"), "--master-key",
+                           key_path(m, sizeof m, dir, master, "pub"), NULL};
+    return start_worker_with(port, 1, name, src, extra);
+}
+
+/* Whether d's log has text within ms. */
+static int log_has(const daemon_t *d, const char *text, int ms)
+{
+    static char log[65536];
+    double end = now_ms() + ms;
+    for (;;) {
+        if (strstr(read_log(d, log, sizeof log), text))
+            return 1;
+        if (now_ms() >= end)
+            return 0;
+        sleep_ms(20);
+    }
+}
+
+/* Workers with keys in the allow-list render what the embedded render does. */
+START_TEST(curve_render)
+{
+    char dir[PATHLEN], scene[PATHLEN], ref[PATHLEN], got[PATHLEN];
+    key_dir(dir, sizeof dir);
+    keygen(dir, "master", NULL);
+    keygen(dir, "w1", "workers");
+    keygen(dir, "w2", "workers");
+    keygen(dir, "client", "clients");
+    use_client_keys(dir, "client");
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    int port = slot_port(12);
+    daemon_t *m = start_keyed_master(&port, "k-master", dir);
+    ck_assert_msg(log_has(m, "CURVE on both sockets: 2 worker keys, 1 client key", 0), "%s", logs_tail());
+    start_keyed_worker(port, "k-worker1", "127.0.0.2", dir, "w1", "master");
+    start_keyed_worker(port, "k-worker2", "127.0.0.3", dir, "w2", "master");
+    wait_workers(port + 1, 2);
+    static const char *const settings = "--spp 128 --granularity 16 --adaptive thesis --uniform-layers 2 --seed 31";
+    unsigned long long job = submit(port + 1, scene, settings);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "curve.exr"));
+    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "curve-ref.exr"));
+    compare_exr(ref, got);
+    stop_all_clean();
+    remove_state(dir);
+    remove_scratch();
+}
+END_TEST
+
+/* A worker whose key is not in the allow-list gets nothing: the job runs
+ * on the admitted worker, the master's log names the refused key and the
+ * refused worker's log says why, and it keeps trying. */
+START_TEST(curve_unknown_worker)
+{
+    char dir[PATHLEN], scene[PATHLEN], ref[PATHLEN], got[PATHLEN], pub[KEYS_Z85_LEN + 1], want[256];
+    key_dir(dir, sizeof dir);
+    keygen(dir, "master", NULL);
+    keygen(dir, "good", "workers");
+    keygen(dir, "stranger", NULL);
+    keygen(dir, "client", "clients");
+    use_client_keys(dir, "client");
+    public_key(dir, "stranger", pub);
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    int port = slot_port(13);
+    daemon_t *m = start_keyed_master(&port, "l-master", dir);
+    daemon_t *stranger = start_keyed_worker(port, "l-stranger", "127.0.0.3", dir, "stranger", "master");
+    start_keyed_worker(port, "l-good", "127.0.0.2", dir, "good", "master");
+    snprintf(want, sizeof want, "refused worker key %s from 127.0.0.3", pub);
+    ck_assert_msg(log_has(m, want, 10000), "the master's log does not say '%s'\n%s", want, logs_tail());
+    ck_assert_msg(log_has(stranger, "refused this worker's key (not in its allow-list)", 10000),
+                  "the refused worker does not say why\n%s", logs_tail());
+    wait_workers(port + 1, 1);
+    unsigned long long job = submit(port + 1, scene, SMALL);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "stranger.exr"));
+    cJSON *list = workers_list(port + 1);
+    ck_assert_int_eq(cJSON_GetArraySize(list), 1);
+    const cJSON *w = cJSON_GetArrayItem(list, 0);
+    ck_assert_msg(strcmp(jstr(w, "host"), "127.0.0.2") == 0 && jnum(w, "tasks_done") > 0,
+                  "want the admitted worker (127.0.0.2) to have done the job, got %s with %.0f tasks\n%s",
+                  jstr(w, "host"), jnum(w, "tasks_done"), logs_tail());
+    cJSON_Delete(list);
+    assert_alive(stranger); /* refused, not gone: it tries again with backoff */
+    render_embedded(scene, SMALL, 1, tmp(ref, sizeof ref, "stranger-ref.exr"));
+    compare_exr(ref, got);
+    stop_all_clean();
+    remove_state(dir);
+    remove_scratch();
+}
+END_TEST
+
+/* A client the master does not know, one holding the wrong master key and
+ * one without keys are told why within 5 s and exit non-zero (submit and
+ * wait too, which otherwise retry a silent master); a worker holding the
+ * wrong master key says so. */
+START_TEST(curve_refused_clients)
+{
+    char dir[PATHLEN], scene[PATHLEN], out[OUTLEN], ep[64];
+    key_dir(dir, sizeof dir);
+    keygen(dir, "master", NULL);
+    keygen(dir, "w", "workers");
+    keygen(dir, "client", "clients");
+    keygen(dir, "stranger", NULL);
+    use_client_keys(dir, "client");
+    scene_file(scene, sizeof scene, 16, NULL, NULL);
+    int port = slot_port(14);
+    start_keyed_master(&port, "m-master", dir);
+    snprintf(ep, sizeof ep, "tcp://127.0.0.1:%d", port + 1);
+    static const char *const refused = "refused this client's key (not in its allow-list)";
+    static const char *const wrong = "wrong master key";
+    struct {
+        const char *cmd, *key, *master, *want;
+    } cases[] = {
+        {"jobs", "stranger", "master", refused},
+        {"jobs", "client", "stranger", wrong},
+        {"submit", "stranger", "master", refused},
+        {"wait 1 --progress none", "client", "stranger", wrong},
+        /* the mechanism mismatch, or (the master closing first) a
+         * connection closed mid-handshake: both say keys are required */
+        {"jobs", NULL, NULL, "requires CURVE keys"},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        char keys[3 * PATHLEN] = "", k[PATHLEN + 64], mk[PATHLEN + 64];
+        if (cases[i].key)
+            snprintf(keys, sizeof keys, "--key '%s' --master-key '%s'", key_path(k, sizeof k, dir, cases[i].key, "key"),
+                     key_path(mk, sizeof mk, dir, cases[i].master, "pub"));
+        else
+            forget_client_keys(); /* the last case: none at all */
+        int is_submit = strncmp(cases[i].cmd, "submit", 6) == 0;
+        double t0 = now_ms();
+        int rc = client(out, sizeof out, "%s %s%s%s --master %s %s", cases[i].cmd, is_submit ? "'" : "",
+                        is_submit ? scene : "", is_submit ? "'" : "", ep, keys);
+        double ms = now_ms() - t0;
+        ck_assert_msg(rc == 1 && ms < 5000 && strstr(out, cases[i].want), "%s with %s and %s: exit %d after %.0f ms, "
+                      "want 1 within 5000 ms saying '%s':\n%s\n%s", cases[i].cmd, cases[i].key ? cases[i].key : "no key",
+                      cases[i].master ? cases[i].master : "no master key", rc, ms, cases[i].want, out, logs_tail());
+    }
+    use_client_keys(dir, "client");
+    daemon_t *w = start_keyed_worker(port, "m-wrong-master-key", NULL, dir, "w", "stranger");
+    ck_assert_msg(log_has(w, wrong, 10000), "the worker holding the wrong master key does not say so\n%s",
+                  logs_tail());
+    cJSON *list = workers_list(port + 1);
+    ck_assert_int_eq(cJSON_GetArraySize(list), 0);
+    cJSON_Delete(list);
+    /* the master serves on */
+    int rc = client(out, sizeof out, "jobs --master %s", ep);
+    ck_assert_msg(rc == 0, "jobs with the admitted key: exit %d:\n%s", rc, out);
+    stop_all_clean();
+    remove_state(dir);
+    remove_scratch();
+}
+END_TEST
+
+/* A secret key that group or others may read is refused by the client,
+ * the worker and the master, each naming the file and its mode. */
+START_TEST(curve_key_mode)
+{
+    char dir[PATHLEN], out[OUTLEN], key[PATHLEN + 64], pub[PATHLEN + 64], workers[PATHLEN + 16],
+        clients[PATHLEN + 16], log[8192], bin[PATHLEN], wep[64], cep[64], why[64];
+    key_dir(dir, sizeof dir);
+    keygen(dir, "master", NULL);
+    keygen(dir, "w", "workers");
+    keygen(dir, "client", "clients");
+    int port = slot_port(15);
+    key_path(pub, sizeof pub, dir, "master", "pub");
+
+    ck_assert_int_eq(chmod(key_path(key, sizeof key, dir, "client", "key"), 0644), 0);
+    int rc = client(out, sizeof out, "jobs --master tcp://127.0.0.1:%d --key '%s' --master-key '%s'", port + 1, key, pub);
+    ck_assert_msg(rc == 1 && strstr(out, key) && strstr(out, "0644") && strstr(out, "too open"),
+                  "client with a 0644 key: exit %d:\n%s", rc, out);
+
+    ck_assert_int_eq(chmod(key_path(key, sizeof key, dir, "w", "key"), 0604), 0);
+    const char *wargs[] = {"--key", key, "--master-key", pub, NULL};
+    daemon_t *w = start_worker_with(port, 1, "n-worker", NULL, wargs);
+    int st = 0;
+    ck_assert_msg(reap(w, 5000, &st) && WIFEXITED(st) && WEXITSTATUS(st) == 1, "the worker with a 0604 key did not "
+                  "exit 1:\n%s", logs_tail());
+    read_log(w, log, sizeof log);
+    ck_assert_msg(strstr(log, key) && strstr(log, "0604"), "the worker does not name the key and its mode:\n%s", log);
+
+    ck_assert_int_eq(chmod(key_path(key, sizeof key, dir, "master", "key"), 0640), 0);
+    snprintf(bin, sizeof bin, "%s/vbrender-master", bindir());
+    snprintf(wep, sizeof wep, "tcp://127.0.0.1:%d", port);
+    snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
+    snprintf(workers, sizeof workers, "%s/workers", dir);
+    snprintf(clients, sizeof clients, "%s/clients", dir);
+    const char *margs[] = {bin, "--workers", wep, "--control", cep, "--state", "none", "--key", key,
+                           "--allow-workers", workers, "--allow-clients", clients, NULL};
+    daemon_t *m = spawn("n-master", NULL, margs);
+    ck_assert_msg(reap(m, 5000, &st) && WIFEXITED(st) && WEXITSTATUS(st) == 1, "the master with a 0640 key: %s\n%s",
+                  describe_status(st, why, sizeof why), logs_tail());
+    read_log(m, log, sizeof log);
+    ck_assert_msg(strstr(log, key) && strstr(log, "0640"), "the master does not name the key and its mode:\n%s", log);
+    remove_state(dir);
+    remove_scratch();
+}
+END_TEST
+
+/* Without keys the master binds loopback only; a wildcard bind needs
+ * --insecure, and then it warns. Nothing connects from outside. */
+START_TEST(insecure_bind)
+{
+    char bin[PATHLEN], wep[64], cep[64], out[OUTLEN], log[8192], why[64];
+    snprintf(bin, sizeof bin, "%s/vbrender-master", bindir());
+    int port = slot_port(16);
+    /* the worker side, then the control side beyond loopback */
+    for (int side = 0; side < 2; side++) {
+        snprintf(wep, sizeof wep, side ? "tcp://127.0.0.1:%d" : "tcp://*:%d", port);
+        snprintf(cep, sizeof cep, side ? "tcp://0.0.0.0:%d" : "tcp://127.0.0.1:%d", port + 1);
+        const char *args[] = {bin, "--workers", wep, "--control", cep, "--state", "none", NULL};
+        daemon_t *m = spawn(side ? "o-refused-control" : "o-refused-workers", NULL, args);
+        int st = 0;
+        ck_assert_msg(reap(m, 5000, &st) && WIFEXITED(st) && (WEXITSTATUS(st) == 1 || WEXITSTATUS(st) == 2),
+                      "a master binding %s without keys: %s\n%s", side ? cep : wep, describe_status(st, why, sizeof why),
+                      logs_tail());
+        read_log(m, log, sizeof log);
+        ck_assert_msg(strstr(log, side ? cep : wep) && strstr(log, "--insecure"),
+                      "the refusal does not name %s and --insecure:\n%s", side ? cep : wep, log);
+    }
+    for (int attempt = 0;; attempt++, port += 4000) {
+        ck_assert_msg(attempt < 3, "no free port for the master\n%s", logs_tail());
+        snprintf(wep, sizeof wep, "tcp://*:%d", port);
+        snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
+        const char *args[] = {bin, "--workers", wep, "--control", cep, "--state", "none", "--insecure", NULL};
+        daemon_t *m = spawn("o-insecure", NULL, args);
+        int st = 0, exited = 0;
+        double end = now_ms() + 10000;
+        while (!strstr(read_log(m, log, sizeof log), "listening") && !(exited = reap(m, 0, &st)) && now_ms() < end)
+            sleep_ms(10);
+        if (exited) {
+            ck_assert_msg(strstr(read_log(m, log, sizeof log), "cannot bind") != NULL, "--insecure master exited:\n%s",
+                          logs_tail());
+            continue; /* port taken */
+        }
+        ck_assert_msg(log_has(m, "warning: --insecure", 2000) && log_has(m, wep, 0),
+                      "the --insecure master does not warn about %s:\n%s", wep, logs_tail());
+        int rc = client(out, sizeof out, "jobs --master %s", cep);
+        ck_assert_msg(rc == 0, "jobs: exit %d:\n%s\n%s", rc, out, logs_tail());
+        break;
+    }
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* SIGHUP with a worker's key removed from the allow-list: that worker is
+ * dropped (and told, so it exits 1), the job completes on the other and
+ * the image equals the embedded render. */
+START_TEST(curve_sighup)
+{
+    char dir[PATHLEN], scene[PATHLEN], ref[PATHLEN], got[PATHLEN], path[PATHLEN + 64], log[65536], why[64];
+    key_dir(dir, sizeof dir);
+    keygen(dir, "master", NULL);
+    keygen(dir, "w1", "workers");
+    keygen(dir, "w2", "workers");
+    keygen(dir, "client", "clients");
+    use_client_keys(dir, "client");
+    scene_file(scene, sizeof scene, 64, NULL, NULL);
+    static const char *const settings = "--spp 512 --granularity 16 --adaptive none --seed 13";
+    int port = slot_port(17);
+    daemon_t *m = start_keyed_master(&port, "p-master", dir);
+    start_keyed_worker(port, "p-worker1", "127.0.0.2", dir, "w1", "master");
+    daemon_t *w2 = start_keyed_worker(port, "p-worker2", "127.0.0.3", dir, "w2", "master");
+    wait_workers(port + 1, 2);
+    unsigned long long job = submit(port + 1, scene, settings);
+    cJSON *st = wait_layers(port + 1, job, 1);
+    ck_assert_msg(!job_ended(st), "job %llu ended before the reload (make it longer)", job);
+    cJSON_Delete(st);
+    snprintf(path, sizeof path, "%s/workers/w2.pub", dir);
+    ck_assert_int_eq(unlink(path), 0);
+    ck_assert_int_eq(kill(m->pid, SIGHUP), 0);
+    ck_assert_msg(log_has(m, "allow-lists reloaded: 1 worker key", 5000), "no reload\n%s", logs_tail());
+    ck_assert_msg(log_has(m, "gone: key no longer allowed", 5000), "worker 2 was not dropped\n%s", logs_tail());
+    int status = 0;
+    ck_assert_msg(reap(w2, 10000, &status) && WIFEXITED(status) && WEXITSTATUS(status) == 1,
+                  "the dropped worker: %s, want exit 1\n%s", describe_status(status, why, sizeof why), logs_tail());
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "sighup.exr"));
+    /* dropped while the job ran */
+    read_log(m, log, sizeof log);
+    char done[64];
+    snprintf(done, sizeof done, "job %llu done", job);
+    const char *drop_at = strstr(log, "gone: key no longer allowed"), *done_at = strstr(log, done);
+    ck_assert_msg(drop_at && done_at && drop_at < done_at, "the worker was not dropped mid-job:\n%s", logs_tail());
+    cJSON *list = workers_list(port + 1);
+    ck_assert_int_eq(cJSON_GetArraySize(list), 1);
+    ck_assert_str_eq(jstr(cJSON_GetArrayItem(list, 0), "host"), "127.0.0.2");
+    cJSON_Delete(list);
+    render_embedded(scene, settings, 2, tmp(ref, sizeof ref, "sighup-ref.exr"));
+    compare_exr(ref, got);
+    stop_all_clean();
+    remove_state(dir);
+    remove_scratch();
+}
+END_TEST
+
 /* ---- suite ------------------------------------------------------------------------ */
 
 static Suite *cluster_suite(void)
@@ -2481,6 +2884,10 @@ static Suite *cluster_suite(void)
         {"lying_worker", lying_worker},         {"limits", limits},
         {"verify_liar", verify_liar},           {"verify_quarter", verify_quarter},
         {"verify_one_worker", verify_one_worker}, {"verify_no_majority", verify_no_majority},
+        {"curve_render", curve_render},
+        {"curve_unknown_worker", curve_unknown_worker}, {"curve_refused_clients", curve_refused_clients},
+        {"curve_key_mode", curve_key_mode},     {"insecure_bind", insecure_bind},
+        {"curve_sighup", curve_sighup},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         TCase *tc = tcase_create(cases[i].name);

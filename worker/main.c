@@ -1,9 +1,13 @@
 /* main.c - the vbrender-worker daemon.
  *
  *   vbrender-worker --master tcp://HOST:7070 [--threads N] [--name NAME]
+ *                   [--key worker.key --master-key master.pub]
  *
  * SIGTERM or SIGINT: returns or releases its tasks, says BYE, exits 0.
- * Exit 1 when the master refuses it (protocol or build mismatch). */
+ * Exit 1 when the master refuses it (protocol or build mismatch, its key
+ * removed while connected) or a key file is unusable. A failed handshake
+ * (a key the master does not admit, the wrong master key) is logged and
+ * tried again with backoff. */
 #include <errno.h>
 #include <pthread.h>
 #include <signal.h>
@@ -14,6 +18,7 @@
 #include <unistd.h>
 #include <zmq.h>
 
+#include "keys.h"
 #include "worker.h"
 
 /* SIGTERM and SIGINT are blocked in every thread and taken by one thread
@@ -42,9 +47,13 @@ static void *wait_for_signal(void *arg)
 
 static const char usage[] =
     "usage: vbrender-worker --master tcp://HOST:7070 [--threads N] [--name NAME]\n"
+    "                       [--key worker.key --master-key master.pub]\n"
     "  --master ENDPOINT   the master's worker endpoint\n"
     "  --threads N         render threads (default: all cores)\n"
-    "  --name NAME         name in log lines (default: worker-PID)\n";
+    "  --name NAME         name in log lines (default: worker-PID)\n"
+    "  --key FILE          this worker's CURVE key pair ('vbrender keygen NAME'); its\n"
+    "                      .pub must be in the master's --allow-workers directory\n"
+    "  --master-key FILE   the master's public key (its .pub file)\n";
 
 int main(int argc, char **argv)
 {
@@ -56,6 +65,7 @@ int main(int argc, char **argv)
     char name[64];
     snprintf(name, sizeof name, "worker-%ld", (long)getpid());
     cfg.name = name;
+    const char *key_file = NULL, *master_key_file = NULL;
     for (int i = 1; i < argc; i++) {
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (strcmp(argv[i], "-h") == 0 || strcmp(argv[i], "--help") == 0) {
@@ -63,6 +73,12 @@ int main(int argc, char **argv)
             return 0;
         } else if (strcmp(argv[i], "--master") == 0 && v) {
             cfg.master_endpoint = v;
+            i++;
+        } else if (strcmp(argv[i], "--key") == 0 && v) {
+            key_file = v;
+            i++;
+        } else if (strcmp(argv[i], "--master-key") == 0 && v) {
+            master_key_file = v;
             i++;
         } else if (strcmp(argv[i], "--name") == 0 && v) {
             cfg.name = v;
@@ -86,6 +102,23 @@ int main(int argc, char **argv)
         fprintf(stderr, "vbrender-worker: --master ENDPOINT is required\n%s", usage);
         return 2;
     }
+    if (!key_file != !master_key_file) {
+        fprintf(stderr, "vbrender-worker: --key and --master-key go together\n");
+        return 2;
+    }
+    char err[512];
+    keys_pair_t key;
+    char master_key[KEYS_Z85_LEN + 1];
+    if (key_file) {
+        if (keys_load_secret(key_file, &key, err, sizeof err) < 0 ||
+            keys_load_public(master_key_file, master_key, err, sizeof err) < 0) {
+            fprintf(stderr, "vbrender-worker: %s\n", err);
+            return 1;
+        }
+        cfg.public_key = key.public_z85;
+        cfg.secret_key = key.secret_z85;
+        cfg.master_key = master_key;
+    }
     signal(SIGPIPE, SIG_IGN);
     atomic_int stop;
     atomic_init(&stop, 0);
@@ -104,9 +137,10 @@ int main(int argc, char **argv)
     }
     void *ctx = zmq_ctx_new();
     cfg.zmq_ctx = ctx;
-    char err[512];
     int rc = 1;
     worker_t *w = worker_new(&cfg, err, sizeof err);
+    if (key_file)
+        explicit_bzero(&key, sizeof key); /* the worker keeps its own copy */
     if (w)
         rc = worker_run(w, &stop);
     else

@@ -19,6 +19,7 @@
 #include <time.h>
 #include <zmq.h>
 
+#include "handshake.h"
 #include "proto.h"
 #include "vblog.h"
 #include "scene.h"
@@ -79,6 +80,11 @@ struct worker {
     size_t payload_cap;
     tracer_task_t *decode_records;
     int refused;
+    int curve;                /* keys given: the socket is a CURVE client */
+    handshake_monitor_t *mon; /* sock's handshakes */
+    double reopen_at;         /* sock closed after a failed handshake: open it then */
+    double handshake_backoff; /* seconds before the next try: 1 doubling to 30 */
+    char keys[3][64];         /* copies of the CURVE keys cfg points to */
     tracer_device_t *device;
     int own_device;
 #ifdef VB_FAULT_INJECTION
@@ -165,6 +171,8 @@ static void *render_main(void *arg)
 
 static int send_msg(worker_t *w, proto_msg_t *msg)
 {
+    if (!w->sock)
+        return -1; /* waiting to try the handshake again */
     size_t need = proto_payload_size(msg);
     if (need > w->payload_cap) {
         uint8_t *p = realloc(w->payload, need);
@@ -558,6 +566,96 @@ out:
         zmq_msg_close(&f[i]);
 }
 
+/* ---- the socket to the master ------------------------------------------------------ */
+
+static int open_master_socket(worker_t *w, char *err, size_t errlen)
+{
+    w->sock = zmq_socket(w->cfg.zmq_ctx, ZMQ_DEALER);
+    if (!w->sock) {
+        snprintf(err, errlen, "cannot create a socket: %s", zmq_strerror(errno));
+        return -1;
+    }
+    int zero = 0, one = 1, ivl = 100, ivl_max = 5000;
+    int64_t max_msg = (int64_t)PROTO_MAX_BUNDLE + PROTO_HEADER_SIZE + 4096;
+    zmq_setsockopt(w->sock, ZMQ_LINGER, &zero, sizeof zero);
+    /* queue nothing for a master that is not there: HELLO is resent instead */
+    zmq_setsockopt(w->sock, ZMQ_IMMEDIATE, &one, sizeof one);
+    zmq_setsockopt(w->sock, ZMQ_RECONNECT_IVL, &ivl, sizeof ivl);
+    zmq_setsockopt(w->sock, ZMQ_RECONNECT_IVL_MAX, &ivl_max, sizeof ivl_max);
+    zmq_setsockopt(w->sock, ZMQ_MAXMSGSIZE, &max_msg, sizeof max_msg);
+    if (w->curve && (zmq_setsockopt(w->sock, ZMQ_CURVE_SERVERKEY, w->cfg.master_key, strlen(w->cfg.master_key)) < 0 ||
+                     zmq_setsockopt(w->sock, ZMQ_CURVE_PUBLICKEY, w->cfg.public_key, strlen(w->cfg.public_key)) < 0 ||
+                     zmq_setsockopt(w->sock, ZMQ_CURVE_SECRETKEY, w->cfg.secret_key, strlen(w->cfg.secret_key)) < 0)) {
+        snprintf(err, errlen, "cannot set the CURVE keys: %s", zmq_strerror(errno));
+        zmq_close(w->sock);
+        w->sock = NULL;
+        return -1;
+    }
+    /* watched before it connects, so no handshake goes unseen */
+    if (!(w->mon = handshake_monitor_new(w->cfg.zmq_ctx, w->sock, err, errlen))) {
+        zmq_close(w->sock);
+        w->sock = NULL;
+        return -1;
+    }
+    if (zmq_connect(w->sock, w->cfg.master_endpoint) < 0) {
+        snprintf(err, errlen, "cannot connect to %s: %s", w->cfg.master_endpoint, zmq_strerror(errno));
+        handshake_monitor_destroy(&w->mon);
+        zmq_close(w->sock);
+        w->sock = NULL;
+        return -1;
+    }
+    return 0;
+}
+
+static void close_master_socket(worker_t *w)
+{
+    handshake_monitor_destroy(&w->mon);
+    if (w->sock)
+        zmq_close(w->sock);
+    w->sock = NULL;
+}
+
+/* A failed handshake is not retried by ZeroMQ (a refused key, CURVE on one
+ * side only) or retried every 100 ms (a wrong master key): either way the
+ * worker says why, closes the socket and opens a new one after a backoff,
+ * so a key added to the master's allow-list later is picked up. */
+static void on_handshake_events(worker_t *w, double now)
+{
+    char msg[768];
+    handshake_result_t r;
+    while (w->mon &&
+           (r = handshake_monitor_read(w->mon, w->cfg.master_endpoint, "worker", w->curve, msg, sizeof msg)) !=
+               HANDSHAKE_NONE) {
+        if (r == HANDSHAKE_OK) {
+            if (w->handshake_backoff > 1.0)
+                logf_(w, "%s", msg);
+            w->handshake_backoff = 1.0;
+            continue;
+        }
+        logf_(w, "%s; trying again in %.0f s", msg, w->handshake_backoff);
+        close_master_socket(w);
+        release_queued(w);
+        w->generation++;
+        w->welcomed = 0;
+        w->reopen_at = now + w->handshake_backoff;
+        w->handshake_backoff = w->handshake_backoff * 2 > 30.0 ? 30.0 : w->handshake_backoff * 2;
+    }
+}
+
+static void reopen_if_due(worker_t *w, double now)
+{
+    if (w->sock || now < w->reopen_at)
+        return;
+    char err[512];
+    if (open_master_socket(w, err, sizeof err) < 0) {
+        logf_(w, "%s; trying again in %.0f s", err, w->handshake_backoff);
+        w->reopen_at = now + w->handshake_backoff;
+        return;
+    }
+    w->hello_backoff = 0.1;
+    send_hello(w);
+}
+
 /* ---- lifecycle -------------------------------------------------------------------- */
 
 worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
@@ -603,23 +701,29 @@ worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
     proto_build_id(tracer_device_isa(w->device), w->build);
     snprintf(w->wake_endpoint, sizeof w->wake_endpoint, "inproc://vb-worker-wake-%p", (void *)w);
     w->wake = zmq_socket(cfg->zmq_ctx, ZMQ_PULL);
-    w->sock = zmq_socket(cfg->zmq_ctx, ZMQ_DEALER);
-    if (!w->wake || !w->sock || zmq_bind(w->wake, w->wake_endpoint) < 0) {
+    /* sock and its monitor: open_master_socket */
+    if (!w->wake || zmq_bind(w->wake, w->wake_endpoint) < 0) {
         snprintf(err, errlen, "cannot create sockets: %s", zmq_strerror(errno));
         worker_destroy(&w);
         return NULL;
     }
-    int zero = 0, one = 1, ivl = 100, ivl_max = 5000;
-    int64_t max_msg = (int64_t)PROTO_MAX_BUNDLE + PROTO_HEADER_SIZE + 4096;
-    zmq_setsockopt(w->sock, ZMQ_LINGER, &zero, sizeof zero);
+    int zero = 0;
     zmq_setsockopt(w->wake, ZMQ_LINGER, &zero, sizeof zero);
-    /* queue nothing for a master that is not there: HELLO is resent instead */
-    zmq_setsockopt(w->sock, ZMQ_IMMEDIATE, &one, sizeof one);
-    zmq_setsockopt(w->sock, ZMQ_RECONNECT_IVL, &ivl, sizeof ivl);
-    zmq_setsockopt(w->sock, ZMQ_RECONNECT_IVL_MAX, &ivl_max, sizeof ivl_max);
-    zmq_setsockopt(w->sock, ZMQ_MAXMSGSIZE, &max_msg, sizeof max_msg);
-    if (zmq_connect(w->sock, cfg->master_endpoint) < 0) {
-        snprintf(err, errlen, "cannot connect to %s: %s", cfg->master_endpoint, zmq_strerror(errno));
+    w->curve = cfg->public_key || cfg->secret_key || cfg->master_key;
+    if (w->curve) {
+        const char *k[3] = {cfg->public_key, cfg->secret_key, cfg->master_key};
+        for (int i = 0; i < 3; i++)
+            if (!k[i] || (size_t)snprintf(w->keys[i], sizeof w->keys[i], "%s", k[i]) >= sizeof w->keys[i]) {
+                snprintf(err, errlen, "CURVE needs this worker's key pair and the master's public key (Z85)");
+                worker_destroy(&w);
+                return NULL;
+            }
+        w->cfg.public_key = w->keys[0];
+        w->cfg.secret_key = w->keys[1];
+        w->cfg.master_key = w->keys[2];
+    }
+    w->handshake_backoff = 1.0;
+    if (open_master_socket(w, err, errlen) < 0) {
         worker_destroy(&w);
         return NULL;
     }
@@ -637,20 +741,22 @@ worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
 
 int worker_run(worker_t *w, const atomic_int *stop)
 {
-    zmq_pollitem_t items[2] = {{w->sock, 0, ZMQ_POLLIN, 0}, {w->wake, 0, ZMQ_POLLIN, 0}};
     w->hello_backoff = 0.1;
     w->last_from_master = now_s();
     send_hello(w);
     while (!(stop && atomic_load(stop)) && !w->refused) {
-        if (zmq_poll(items, 2, 50) < 0 && errno != EINTR)
+        /* wake always; the master's socket and its monitor while open */
+        zmq_pollitem_t items[3] = {{w->wake, 0, ZMQ_POLLIN, 0}, {w->sock, 0, ZMQ_POLLIN, 0},
+                                   {w->sock ? handshake_monitor_socket(w->mon) : NULL, 0, ZMQ_POLLIN, 0}};
+        if (zmq_poll(items, w->sock ? 3 : 1, 50) < 0 && errno != EINTR)
             break;
-        if (items[1].revents & ZMQ_POLLIN) {
+        if (items[0].revents & ZMQ_POLLIN) {
             char b;
             while (zmq_recv(w->wake, &b, 1, ZMQ_DONTWAIT) >= 0)
                 ;
             drain_done(w);
         }
-        for (int k = 0; k < 256 && (items[0].revents & ZMQ_POLLIN); k++) {
+        for (int k = 0; k < 256 && w->sock && (items[1].revents & ZMQ_POLLIN); k++) {
             handle_message(w);
             int ev = 0;
             size_t sz = sizeof ev;
@@ -658,6 +764,9 @@ int worker_run(worker_t *w, const atomic_int *stop)
             if (!(ev & ZMQ_POLLIN))
                 break;
         }
+        if (w->sock && (items[2].revents & ZMQ_POLLIN))
+            on_handshake_events(w, now_s());
+        reopen_if_due(w, now_s());
         double now = now_s();
         if (!w->welcomed) {
             /* HELLO again with backoff until the master answers */
@@ -682,7 +791,8 @@ int worker_run(worker_t *w, const atomic_int *stop)
         drain_done(w);
         if (!busy)
             break;
-        zmq_poll(items + 1, 1, 20);
+        zmq_pollitem_t wake = {w->wake, 0, ZMQ_POLLIN, 0};
+        zmq_poll(&wake, 1, 20);
         char b;
         while (zmq_recv(w->wake, &b, 1, ZMQ_DONTWAIT) >= 0)
             ;
@@ -720,14 +830,14 @@ void worker_destroy(worker_t **wp)
         free(w->cache);
         w->cache = next;
     }
-    if (w->sock)
-        zmq_close(w->sock);
+    close_master_socket(w);
     if (w->wake)
         zmq_close(w->wake);
     if (w->own_device)
         tracer_device_destroy(&w->device);
     pthread_mutex_destroy(&w->lock);
     pthread_cond_destroy(&w->cond);
+    explicit_bzero(w->keys, sizeof w->keys);
     free(w->threads);
     free(w->decode_records);
     free(w->payload);

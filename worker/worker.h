@@ -4,13 +4,15 @@
  *
  * A worker is stateless as far as the image goes: everything a task needs
  * comes in the task (pixels, sample indices, "so far" sums) and the scene
- * bundle. It heartbeats, reconnects with backoff when the master goes away,
- * and on stop releases what it has not started, returns what it has, and
- * says BYE. All state is in the worker_t: several run in one process in the
- * embedded `vbrender render`. Its threads (the render threads, and the TBB
- * pool Embree starts on the first scene) inherit the caller's signal mask:
- * a process that stops on a signal blocks it before worker_new and takes it
- * on a thread of its own (worker/main.c says why).
+ * bundle. It heartbeats, reconnects with backoff when the master goes away
+ * or refuses its handshake (a key it does not know, or the wrong master key:
+ * logged in words, see handshake.h), and on stop releases what it has not
+ * started, returns what it has, and says BYE. All state is in the worker_t:
+ * several run in one process in the embedded `vbrender render`. Its threads
+ * (the render threads, and the TBB pool Embree starts on the first scene)
+ * inherit the caller's signal mask: a process that stops on a signal blocks
+ * it before worker_new and takes it on a thread of its own (worker/main.c
+ * says why).
  */
 #ifndef VB_WORKER_H
 #define VB_WORKER_H
@@ -30,12 +32,17 @@ typedef struct worker_config {
     const char *name;            /* for log lines */
     struct tracer_device *device; /* the process's Embree device, shared; NULL:
                                      the worker makes (and owns) its own */
+    /* CURVE (keys.h, Z85): all three, or none for a master without keys */
+    const char *public_key;       /* this worker's key pair */
+    const char *secret_key;
+    const char *master_key;       /* the master's public key */
 } worker_config_t;
 
 worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen);
 
 /* Runs until *stop becomes non-zero (then leaves cleanly) or the master
- * refuses this worker (version or build mismatch: returns 1). 0 otherwise. */
+ * refuses this worker (version or build mismatch, or its key was removed
+ * from the allow-list while connected: returns 1). 0 otherwise. */
 int worker_run(worker_t *w, const atomic_int *stop);
 
 void worker_destroy(worker_t **w);
