@@ -58,6 +58,8 @@ static const char usage_text[] =
     "                    cancelled, or if the master stayed away for S seconds\n"
     "  fetch JOB -o OUT.exr   the image (also OUT.png and OUT-samples.png, a heat map)\n"
     "  cancel JOB        stop a job (its image so far can still be fetched)\n"
+    "  readmit WORKER    let a quarantined worker in again (its key, or its address\n"
+    "                    without keys; admins only)\n"
     "  delete JOB        cancel a job if it runs, then remove it, its image and its\n"
     "                    saved state from the master\n"
     "  jobs              all jobs\n"
@@ -717,6 +719,7 @@ static int simple_command(const char *cmd, int argc, char **argv)
     int is_submit = strcmp(cmd, "submit") == 0;
     int is_wait = strcmp(cmd, "wait") == 0;
     int is_delete = strcmp(cmd, "delete") == 0;
+    int is_readmit = strcmp(cmd, "readmit") == 0;
     int rc = parse_args(argc, argv, &a, is_submit, is_fetch, is_submit || is_wait);
     if (rc) {
         cJSON_Delete(a.settings);
@@ -728,7 +731,9 @@ static int simple_command(const char *cmd, int argc, char **argv)
         rc = usage_error("%s", "submit needs a scene file: vbrender submit SCENE.json");
     else if ((needs_job || (strcmp(cmd, "status") == 0 && a.positional)) && (!a.positional || parse_job_id(a.positional, &job) < 0))
         rc = usage_error("%s needs a job id (a positive integer)", cmd);
-    else if (!needs_job && !is_submit && strcmp(cmd, "status") != 0 && a.positional)
+    else if (is_readmit && !a.positional)
+        rc = usage_error("%s", "readmit needs a worker: its key (Z85), or its address without keys");
+    else if (!needs_job && !is_submit && !is_readmit && strcmp(cmd, "status") != 0 && a.positional)
         rc = usage_error("unexpected argument '%s'", a.positional);
     else if (is_fetch && !a.output)
         rc = usage_error("%s", "fetch needs -o OUT.exr");
@@ -802,6 +807,8 @@ static int simple_command(const char *cmd, int argc, char **argv)
         cJSON_AddStringToObject(req, "cmd", strcmp(cmd, "status") == 0 && !job ? "jobs" : cmd);
         if (job)
             cJSON_AddNumberToObject(req, "job", (double)job);
+        if (is_readmit)
+            cJSON_AddStringToObject(req, "worker", a.positional);
         cJSON *reply = control_request(c, req, NULL, NULL, 0, err, sizeof err);
         cJSON_Delete(req);
         if (!reply) {
@@ -814,7 +821,9 @@ static int simple_command(const char *cmd, int argc, char **argv)
             goto done;
         }
         const cJSON *list = cJSON_GetObjectItemCaseSensitive(reply, strcmp(cmd, "workers") == 0 ? "workers" : "jobs");
-        if (is_delete) {
+        if (is_readmit) {
+            printf("readmitted %s\n", a.positional);
+        } else if (is_delete) {
             const cJSON *d = cJSON_GetObjectItemCaseSensitive(reply, "deleted");
             printf("deleted job %llu\n", cJSON_IsNumber(d) ? (unsigned long long)d->valuedouble : job);
         } else if (strcmp(cmd, "workers") == 0) {
@@ -967,7 +976,8 @@ int main(int argc, char **argv)
         return cmd_compare(argc - 2, argv + 2);
     if (strcmp(argv[1], "keygen") == 0)
         return cmd_keygen(argc - 2, argv + 2);
-    static const char *const commands[] = {"submit", "status", "wait", "fetch", "cancel", "delete", "jobs", "workers"};
+    static const char *const commands[] = {"submit", "status", "wait",    "fetch",  "cancel",
+                                           "delete", "jobs",   "workers", "readmit"};
     for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
         if (strcmp(argv[1], commands[i]) == 0)
             return simple_command(argv[1], argc - 2, argv + 2);

@@ -2862,6 +2862,78 @@ START_TEST(curve_sighup)
     remove_scratch();
 }
 END_TEST
+/* Ownership: a job belongs to the client key that submitted it. Another
+ * client neither sees it (jobs, status) nor may cancel, fetch or delete it;
+ * an admin key sees every job and may act on it; readmit is admin-only. */
+START_TEST(curve_ownership)
+{
+    char dir[PATHLEN], scene[PATHLEN], out[OUTLEN], admins[PATHLEN + 16], cmd[3 * PATHLEN], got[PATHLEN];
+    key_dir(dir, sizeof dir);
+    keygen(dir, "master", NULL);
+    keygen(dir, "w1", "workers");
+    keygen(dir, "alice", "clients");
+    keygen(dir, "bob", "clients");
+    keygen(dir, "root", NULL);
+    snprintf(admins, sizeof admins, "%s/admins", dir);
+    ck_assert_int_eq(mkdir(admins, 0700), 0);
+    snprintf(cmd, sizeof cmd, "cp '%s/root.pub' '%s/'", dir, admins);
+    ck_assert_int_eq(tu_run(cmd, out, sizeof out), 0);
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    int port = slot_port(15);
+    char key[PATHLEN + 64], workers[PATHLEN + 16], clients[PATHLEN + 16];
+    key_path(key, sizeof key, dir, "master", "key");
+    snprintf(workers, sizeof workers, "%s/workers", dir);
+    snprintf(clients, sizeof clients, "%s/clients", dir);
+    const char *extra[] = {"--state", "none", "--key", key, "--allow-workers", workers, "--allow-clients", clients,
+                           "--admin-clients", admins, NULL};
+    use_client_keys(dir, "alice");
+    start_master_with(&port, "t-master", extra);
+    /* alice's job, queued (no worker yet) */
+    unsigned long long job = submit(port + 1, scene, "--spp 64 --granularity 16");
+    /* bob sees nothing and may do nothing with it */
+    use_client_keys(dir, "bob");
+    cJSON *r = ctl(port + 1, "jobs", 0);
+    ck_assert_ptr_nonnull(r);
+    ck_assert_int_eq(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(r, "jobs")), 0);
+    cJSON_Delete(r);
+    static const char *const cmds[] = {"status", "cancel", "fetch", "delete"};
+    for (size_t i = 0; i < 4; i++) {
+        r = ctl(port + 1, cmds[i], job);
+        ck_assert_msg(r && strstr(jstr(r, "error"), "belongs to another client"), "bob's %s: %s", cmds[i],
+                      r ? jstr(r, "error") : "no reply");
+        cJSON_Delete(r);
+    }
+    int rc = client(out, sizeof out, "fetch %llu -o '%s' --master tcp://127.0.0.1:%d", job,
+                    tmp(got, sizeof got, "bob.exr"), port + 1);
+    ck_assert_msg(rc != 0 && strstr(out, "another client"), "bob's fetch through the client: exit %d: %s", rc, out);
+    r = cJSON_CreateObject();
+    cJSON_Delete(r);
+    /* the admin sees it and may act on it */
+    use_client_keys(dir, "root");
+    r = ctl(port + 1, "jobs", 0);
+    ck_assert_int_eq(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(r, "jobs")), 1);
+    cJSON_Delete(r);
+    /* alice, the owner, may too: her job runs to the end and she fetches it */
+    use_client_keys(dir, "alice");
+    start_keyed_worker(port, "t-worker", "127.0.0.2", dir, "w1", "master");
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "alice.exr"));
+    /* readmit is for admins */
+    rc = client(out, sizeof out, "readmit 127.0.0.9 --master tcp://127.0.0.1:%d", port + 1);
+    ck_assert_msg(rc != 0 && strstr(out, "only an admin"), "alice's readmit: exit %d: %s", rc, out);
+    use_client_keys(dir, "root");
+    r = ctl(port + 1, "cancel", job);
+    ck_assert_msg(r && cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")), "the admin's cancel: %s",
+                  r ? jstr(r, "error") : "no reply");
+    cJSON_Delete(r);
+    r = ctl(port + 1, "delete", job);
+    ck_assert_msg(r && cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")), "the admin's delete: %s",
+                  r ? jstr(r, "error") : "no reply");
+    cJSON_Delete(r);
+    stop_all_clean();
+    remove_state(dir);
+    remove_scratch();
+}
+END_TEST
 
 /* ---- suite ------------------------------------------------------------------------ */
 
@@ -2887,7 +2959,7 @@ static Suite *cluster_suite(void)
         {"curve_render", curve_render},
         {"curve_unknown_worker", curve_unknown_worker}, {"curve_refused_clients", curve_refused_clients},
         {"curve_key_mode", curve_key_mode},     {"insecure_bind", insecure_bind},
-        {"curve_sighup", curve_sighup},
+        {"curve_sighup", curve_sighup},         {"curve_ownership", curve_ownership},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         TCase *tc = tcase_create(cases[i].name);
