@@ -877,23 +877,30 @@ START_TEST(test_checkpoint_refuses_garbage)
 }
 END_TEST
 
-/* Found by tests/fuzz_ckpt.c: a stream whose batch statistics no run can
- * make (a negative M2, the sum of squared deviations of a pixel's layer
- * means; a mean of -8e306) loaded, checksum and all. The resumed job's
- * relerr metric for that pixel was then NaN (the square root of M2), or
- * its M2 overflowed to infinity on the next merge, and every later
- * checkpoint was refused for it. Such values are refused on load. */
+/* Found by tests/fuzz_ckpt.c: streams whose batch statistics no run can
+ * make loaded, checksum and all: a negative M2 (the sum of squared
+ * deviations of a pixel's layer means), a mean of -8e306, a mean of 5e6
+ * with no batch yet. The resumed job's relerr metric for that pixel was
+ * then NaN (the square root of a negative M2, or of one that Welford's
+ * update drove negative), or its M2 overflowed on the next merge, and
+ * every later checkpoint was refused for it. Such values are refused. */
 static void expect_batch_refused(const sched_config_t *c, const membuf_t *b, const char *tag, double v)
 {
     char err[256] = "";
     membuf_t m = {malloc(b->len), b->len, b->len, 0};
     memcpy(m.data, b->data, b->len);
     size_t n, p = 0;
-    double *bm2 = (double *)(void *)find_section(&m, "bm2", &n), *sec = (double *)(void *)find_section(&m, tag, &n), x;
-    while (p < n / sizeof x && (memcpy(&x, bm2 + p, sizeof x), x <= 0))
+    double x;
+    uint8_t *bm2 = find_section(&m, "bm2", &n), *sec = find_section(&m, tag, &n);
+    while (p < n / sizeof x && (memcpy(&x, bm2 + p * sizeof x, sizeof x), x <= 0))
         p++; /* a pixel with two batches or more */
     ck_assert_msg(p < n / sizeof x, "no pixel with a batch M2 yet");
-    memcpy(sec + p, &v, sizeof v);
+    if (strcmp(tag, "batches") == 0) {
+        uint32_t k = (uint32_t)v;
+        memcpy(sec + p * sizeof k, &k, sizeof k);
+    } else {
+        memcpy(sec + p * sizeof v, &v, sizeof v);
+    }
     /* the stream's checksum made right again: only the checks can refuse it */
     fuzz_fix_sched_checksum(m.data, m.len);
     sched_t *s = load_mem(c, &m, m.len, err, sizeof err);
@@ -917,6 +924,8 @@ START_TEST(test_checkpoint_refuses_impossible_batches)
     expect_batch_refused(&c, &b, "bm2", -0.25);
     expect_batch_refused(&c, &b, "bmean", -8.13636e306);
     expect_batch_refused(&c, &b, "bmean", 1e300);
+    expect_batch_refused(&c, &b, "batches", 0); /* a mean and an M2, but no batch */
+    expect_batch_refused(&c, &b, "batches", 1); /* an M2 from one batch */
     free(b.data);
     sched_destroy(&a.s);
 }
