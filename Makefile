@@ -6,6 +6,10 @@
 #                networking) and build/libvbnet.a (protocol, master, worker)
 #   make check   deps, build, all tests, then the same tests under ASan+UBSan,
 #                then the multi-threaded ones under ThreadSanitizer (test-tsan)
+#                then a short libFuzzer pass of every fuzz target (fuzz-short)
+#   make fuzz    every fuzz target under libFuzzer (clang, ASan+UBSan, in
+#                build-fuzz/), 1,000,000 runs each on a copy of its corpus
+#   make fuzz-seeds   rewrite the seed corpora made by the project's writers
 #   make demo    deps, build, render scenes/cornell-box.json to out/
 #   make bench   deps, build, core, distributed, durable and verification
 #                benchmarks (bench/results/)
@@ -18,7 +22,7 @@ BIN       = bin
 
 DEB_PACKAGES = build-essential pkg-config libembree-dev libzmq3-dev \
                libopenexr-dev libcjson-dev check libsubunit-dev libpng-dev \
-               libsodium-dev nftables
+               libsodium-dev nftables clang libclang-rt-14-dev
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 # Determinism: no -ffast-math, no FMA contraction, no -march=native (the same
@@ -48,6 +52,20 @@ ifeq ($(SAN),thread)
   BUILD    = build-tsan
   BIN      = build-tsan/bin
 endif
+# FUZZ=1: the libFuzzer build (make fuzz, fuzz-short): clang, every source
+# instrumented for libFuzzer's coverage under ASan+UBSan, and the fuzz
+# targets linked with libFuzzer's main instead of tests/fuzzdriver.c.
+# (libclang-rt-14-dev holds libFuzzer; clang only recommends it.)
+FUZZ     ?= 0
+ifeq ($(FUZZ),1)
+  CC       = clang
+  # (-Wno-unknown-warning-option: scene.c silences a GCC-only warning)
+  OPT      = -O1 -fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=undefined \
+             -fno-omit-frame-pointer -DVB_LIBFUZZER -Wno-unknown-warning-option
+  LDSAN    = -fsanitize=fuzzer,address,undefined
+  BUILD    = build-fuzz
+  BIN      = build-fuzz/bin
+endif
 CFLAGS   ?=
 CFLAGS   += $(CFLAGS_COMMON) $(OPT)
 LDLIBS_CORE = -lembree3 -lOpenEXRCore -lpng16 -lcjson -lm -lpthread
@@ -74,6 +92,8 @@ TEST_HELPER_SRC = tests/testutil.c
 TEST_HELPER_OBJ = $(TEST_HELPER_SRC:%.c=$(BUILD)/%.o)
 FUZZ_SRC  = $(wildcard tests/fuzz_*.c)
 FUZZ_BIN  = $(FUZZ_SRC:tests/%.c=$(BUILD)/tests/%)
+FUZZ_TARGETS = $(FUZZ_SRC:tests/%.c=%)
+SEEDS_BIN = $(BUILD)/tests/gen_fuzz_seeds
 
 BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BIN = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
@@ -81,7 +101,7 @@ BENCH_BIN = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 # Keep intermediate objects: deleting them only forces rebuilds.
 .SECONDARY:
 
-.PHONY: all deps check test test-asan test-tsan tsan-run demo bench bench-error clean fuzz
+.PHONY: all deps check test test-asan test-tsan tsan-run demo bench bench-error clean fuzz fuzz-short fuzz-build fuzz-seeds
 all: $(BIN)/vbrender $(DAEMONS) $(CORE_LIB) $(NET_LIB)
 
 deps:
@@ -121,7 +141,15 @@ $(BIN)/vbrender-%: $(BUILD)/%/main.o $(LIBS_ALL)
 $(BUILD)/tests/test_%: $(BUILD)/tests/test_%.o $(TEST_HELPER_OBJ) $(LIBS_ALL)
 	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_CHECK) $(LDLIBS_ALL)
 
-$(BUILD)/tests/fuzz_%: $(BUILD)/tests/fuzz_%.o $(BUILD)/tests/fuzzdriver.o $(LIBS_ALL)
+ifeq ($(FUZZ),1)
+FUZZ_DRIVER =
+else
+FUZZ_DRIVER = $(BUILD)/tests/fuzzdriver.o
+endif
+$(BUILD)/tests/fuzz_%: $(BUILD)/tests/fuzz_%.o $(FUZZ_DRIVER) $(LIBS_ALL)
+	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_ALL)
+
+$(SEEDS_BIN): $(BUILD)/tests/gen_fuzz_seeds.o $(LIBS_ALL)
 	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_ALL)
 
 # The master with its fault-injection points compiled in (tests only): the
@@ -157,9 +185,16 @@ ifeq ($(SAN),1)
   TEST_ENV += CK_FORK=no
 endif
 
-test: $(BIN)/vbrender $(DAEMONS) $(TEST_BIN) $(FUZZ_BIN) $(FAULT_MASTER) $(FAULT_WORKER)
+# Mutations per fuzz target in `make test` (the standalone driver, fixed
+# seed). Every target does 20000 in under 4 s under ASan; one that gets
+# slow can have fewer, as FUZZ_N_fuzz_NAME = N.
+FUZZ_N    = 20000
+FUZZ_RUNS = $(foreach f,$(FUZZ_BIN),$(f):$(or $(FUZZ_N_$(notdir $(f))),$(FUZZ_N)))
+
+test: $(BIN)/vbrender $(DAEMONS) $(TEST_BIN) $(FUZZ_BIN) $(FAULT_MASTER) $(FAULT_WORKER) $(SEEDS_BIN)
 	@mkdir -p $(BUILD)/test-out
-	@$(TEST_ENV) VB_TMP=$(abspath $(BUILD)/test-out) tests/run-suites.sh $(TEST_BIN) -- $(FUZZ_BIN)
+	@TMPDIR=$(abspath $(BUILD)/test-out) $(SEEDS_BIN) --check tests/data
+	@$(TEST_ENV) VB_TMP=$(abspath $(BUILD)/test-out) tests/run-suites.sh $(TEST_BIN) -- $(FUZZ_RUNS)
 
 test-asan:
 	$(MAKE) SAN=1 test
@@ -205,6 +240,29 @@ check: deps
 	$(MAKE) test
 	$(MAKE) test-asan
 	$(MAKE) test-tsan
+	$(MAKE) fuzz-short
+
+# The seed corpora the project's own writers make (tests/gen_fuzz_seeds.c);
+# `make test` checks that the committed ones are still what they make.
+fuzz-seeds: $(SEEDS_BIN)
+	$(SEEDS_BIN) tests/data
+
+# Under FUZZ=1: the libFuzzer binaries, build-fuzz/tests/fuzz_*.
+fuzz-build: $(FUZZ_BIN)
+
+# Each target for 1,000,000 runs, one after another, on a scratch copy of
+# its corpus (tests/data/fuzz-NAME); a table of runs, seconds and findings;
+# fails on any finding (kept in build-fuzz/findings/).
+fuzz: deps
+	$(MAKE) FUZZ=1 fuzz-build
+	tests/run-libfuzzer.sh build-fuzz/tests 1000000 0 $(FUZZ_TARGETS)
+
+# CI's short pass: each target for 20,000 runs or 10 s, whichever comes
+# first; skipped where clang cannot link libFuzzer.
+fuzz-short:
+	@if tests/run-libfuzzer.sh --available; then \
+	  $(MAKE) FUZZ=1 fuzz-build && tests/run-libfuzzer.sh build-fuzz/tests 20000 10 $(FUZZ_TARGETS); \
+	else echo "fuzz-short: skipped (no clang with libFuzzer; make deps installs it)"; fi
 
 demo: deps
 	$(MAKE) all
@@ -224,8 +282,8 @@ bench-error: deps
 	bash bench/error/run.sh
 
 clean:
-	rm -rf build build-asan build-tsan bin
+	rm -rf build build-asan build-tsan build-fuzz bin
 
 -include $(CORE_OBJ:.o=.d) $(NET_OBJ:.o=.d) $(CLIENT_OBJ:.o=.d) $(BUILD)/master/main.d $(BUILD)/worker/main.d $(TEST_BIN:=.d) $(TEST_HELPER_OBJ:.o=.d) \
          $(FUZZ_BIN:=.d) $(BUILD)/tests/fuzzdriver.d $(BENCH_BIN:=.d) $(BUILD)/tests/persist-fault.d \
-         $(BUILD)/tests/worker-fault.d
+         $(BUILD)/tests/worker-fault.d $(SEEDS_BIN).d

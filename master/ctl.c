@@ -421,8 +421,7 @@ static const ctl_command_t *find_command(const char *name)
     return NULL;
 }
 
-/* "job": N as a job id: a positive integer a double holds exactly. */
-static int job_id_of(const cJSON *req, uint64_t *id)
+int ctl_job_id(const cJSON *req, uint64_t *id)
 {
     const cJSON *jid = cJSON_GetObjectItemCaseSensitive(req, "job");
     if (!cJSON_IsNumber(jid))
@@ -453,7 +452,7 @@ static cJSON *answer(ctl_req_t *r, int overflow)
         return error_body("%s takes no binary frames", c->name);
     if (c->needs_job) {
         uint64_t id;
-        if (job_id_of(r->body, &id) < 0)
+        if (ctl_job_id(r->body, &id) < 0)
             return error_body("%s: give \"job\": N, a job id", c->name);
         if (!(r->job = job_find(r->m, id)))
             return error_body("%s: no such job %" PRIu64, c->name, id);

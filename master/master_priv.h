@@ -325,6 +325,9 @@ void verify_json(const job_t *j, cJSON *o);
 void ctl_handle_message(master_t *m);
 /* Replies to the control work the offload thread has finished. */
 void ctl_offload_done(master_t *m);
+/* "job": N of a request as a job id: a positive integer a double holds
+ * exactly. 0, or -1 when absent or not such a number. */
+int ctl_job_id(const cJSON *req, uint64_t *id);
 
 /* persist.c */
 enum { PERSIST_CHECKPOINT = 1, PERSIST_FINAL = 2 };
@@ -336,5 +339,8 @@ void persist_image_path(master_t *m, const job_t *j, char *out, size_t outlen);
 void persist_tick(master_t *m, double now, int force);
 void persist_recover(master_t *m);
 void persist_finish(master_t *m); /* at shutdown: last checkpoints, wait */
+/* A checkpoint's counters (its extras block, parsed) into j; anything but
+ * a number in its counter's range counts as 0. */
+void persist_apply_extras(job_t *j, const cJSON *o);
 
 #endif

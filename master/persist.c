@@ -14,6 +14,7 @@
  * and the results merged in layer order, so the resumed job ends with the
  * image an uninterrupted run gives, bit for bit.
  */
+#include <float.h>
 #include <inttypes.h>
 #include <signal.h>
 #include <stdlib.h>
@@ -111,23 +112,28 @@ static char *extras_json(const job_t *j, double now)
     return text;
 }
 
-static double num(const cJSON *o, const char *key)
+/* The largest double below 2^64: every double up to it converts to uint64_t. */
+#define MAX_U64_DOUBLE 18446744073709549568.0
+
+/* A counter in [0, max], else 0: converting a double beyond its integer
+ * type's range is undefined behaviour (found by tests/fuzz_ckpt.c). */
+static double num(const cJSON *o, const char *key, double max)
 {
     const cJSON *it = cJSON_GetObjectItemCaseSensitive(o, key);
-    return cJSON_IsNumber(it) && it->valuedouble >= 0 ? it->valuedouble : 0;
+    return cJSON_IsNumber(it) && it->valuedouble >= 0 && it->valuedouble <= max ? it->valuedouble : 0;
 }
 
-static void apply_extras(job_t *j, const cJSON *o)
+void persist_apply_extras(job_t *j, const cJSON *o)
 {
-    j->run_before = num(o, "seconds");
-    j->rays = (uint64_t)num(o, "rays");
-    j->busy_us = (uint64_t)num(o, "busy_us");
-    j->reissued = (uint32_t)num(o, "reissued");
-    j->late_results = (uint64_t)num(o, "late_results");
-    j->failures = (uint32_t)num(o, "failures");
-    j->tasks_verified = (uint64_t)num(o, "tasks_verified");
-    j->verify_mismatches = (uint64_t)num(o, "verify_mismatches");
-    j->tasks_unverified = (uint64_t)num(o, "tasks_unverified");
+    j->run_before = num(o, "seconds", DBL_MAX);
+    j->rays = (uint64_t)num(o, "rays", MAX_U64_DOUBLE);
+    j->busy_us = (uint64_t)num(o, "busy_us", MAX_U64_DOUBLE);
+    j->reissued = (uint32_t)num(o, "reissued", UINT32_MAX);
+    j->late_results = (uint64_t)num(o, "late_results", MAX_U64_DOUBLE);
+    j->failures = (uint32_t)num(o, "failures", UINT32_MAX);
+    j->tasks_verified = (uint64_t)num(o, "tasks_verified", MAX_U64_DOUBLE);
+    j->verify_mismatches = (uint64_t)num(o, "verify_mismatches", MAX_U64_DOUBLE);
+    j->tasks_unverified = (uint64_t)num(o, "tasks_unverified", MAX_U64_DOUBLE);
     const cJSON *who;
     cJSON_ArrayForEach(who, cJSON_GetObjectItemCaseSensitive(o, "quarantined"))
     {
@@ -489,7 +495,7 @@ static void recover_progress(master_t *m, job_t *j)
         if (s) {
             sched_destroy(&j->sched);
             j->sched = s;
-            apply_extras(j, extras);
+            persist_apply_extras(j, extras);
             j->ckpt_samples = sched_samples_done(s);
             snprintf(j->recovered, sizeof j->recovered, "%s at %u of %u layers (%" PRIu64 " samples)%s%.400s",
                      names[k], sched_layers_complete(s), sched_layer_count(s), sched_samples_done(s),

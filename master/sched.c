@@ -1143,8 +1143,16 @@ static int check_pixels(const sched_t *s, uint32_t D, char *err, size_t errlen)
                          s->cfg.target_error);
                 goto out;
             }
-        if (batch ? s->batches[p] > layers[p] || !isfinite(s->bmean[p]) || !isfinite(s->bm2[p])
-                  : s->batches[p] != 0 || s->bmean[p] != 0 || s->bm2[p] != 0) {
+        /* what results in range can make: a mean of layer luminances in
+         * [0, SCHED_MAX_RADIANCE] (2x: rounding), a sum of squares >= 0,
+         * both 0 before the first batch and the sum still 0 after it.
+         * Anything else can turn the metrics NaN or infinite on the next
+         * merge (Welford's update assumes them) */
+        const uint32_t nb = s->batches[p];
+        if (batch ? nb > layers[p] || !(s->bmean[p] >= 0 && s->bmean[p] <= 2 * SCHED_MAX_RADIANCE) ||
+                        !(s->bm2[p] >= 0 && isfinite(s->bm2[p])) || (nb == 0 && s->bmean[p] != 0) ||
+                        (nb <= 1 && s->bm2[p] != 0)
+                  : nb != 0 || s->bmean[p] != 0 || s->bm2[p] != 0) {
             snprintf(err, errlen, "checkpoint: pixel %u: batch statistics (%u batches of %u layers, mean %g, m2 %g)",
                      p, s->batches[p], layers[p], s->bmean[p], s->bm2[p]);
             goto out;

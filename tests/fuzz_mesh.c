@@ -80,11 +80,6 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 
 #include "fuzzdriver.h"
 
-static int is_num_char(unsigned char ch)
-{
-    return (ch >= '0' && ch <= '9') || ch == '.' || ch == '-' || ch == '+' || ch == 'e';
-}
-
 static void mutate(fuzz_buf_t *b, uint64_t *s)
 {
     static const char *const numbers[] = {
@@ -110,38 +105,16 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
     case 3:
         fuzz_mutate_bytes(b, s, kind, tokens, sizeof tokens / sizeof tokens[0]);
         break;
-    case 4: { /* duplicate a chunk somewhere else */
-        if (!n)
-            break;
-        size_t from = fuzz_rnd_below(s, n), len = 1 + fuzz_rnd_below(s, n - from < 256 ? n - from : 256);
-        unsigned char tmp[256];
-        memcpy(tmp, b->d + from, len);
-        fuzz_insert(b, fuzz_rnd_below(s, n + 1), tmp, len);
+    case 4: /* duplicate a chunk somewhere else */
+        fuzz_dup_chunk(b, s);
         break;
-    }
-    case 5: /* delete a chunk */
-        if (n)
-            fuzz_erase(b, fuzz_rnd_below(s, n), 1 + fuzz_rnd_below(s, 64));
+    case 5:
+        fuzz_del_chunk(b, s);
         break;
     case 6:
-    case 7: { /* replace a number (text) by an awkward one */
-        if (!n)
-            break;
-        size_t at = fuzz_rnd_below(s, n), tries = 0;
-        while (at < n && !(b->d[at] >= '0' && b->d[at] <= '9') && tries++ < 256)
-            at++;
-        if (at >= n || !(b->d[at] >= '0' && b->d[at] <= '9'))
-            break;
-        while (at > 0 && is_num_char(b->d[at - 1]))
-            at--;
-        size_t end = at;
-        while (end < n && is_num_char(b->d[end]))
-            end++;
-        const char *t = numbers[fuzz_rnd_below(s, sizeof numbers / sizeof numbers[0])];
-        fuzz_erase(b, at, end - at);
-        fuzz_insert(b, at, t, strlen(t));
+    case 7: /* replace a number (text) by an awkward one */
+        fuzz_replace_number(b, s, numbers, sizeof numbers / sizeof numbers[0]);
         break;
-    }
     default: { /* overwrite a binary word, either byte order */
         if (n < 4)
             break;
@@ -157,7 +130,7 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
 
 int main(int argc, char **argv)
 {
-    static const fuzz_target_t target = {"fuzz_mesh", run_one, mutate, NULL, {"as .ply", "as .obj"}, NULL};
+    static const fuzz_target_t target = {"fuzz_mesh", run_one, mutate, NULL, {"as .ply", "as .obj"}, "-mesh"};
     return fuzz_main(argc, argv, &target);
 }
 

@@ -17,10 +17,10 @@
  *
  * runs every file in CORPUS_DIR, then N deterministic mutations of them
  * (fixed seed: a failure reproduces exactly). `make test` passes every fuzz
- * target the same folder, tests/data/fuzz, which holds the mesh fuzzer's
- * corpus; so a CORPUS_DIR whose last component is "fuzz" is read as
- * "fuzz-proto" beside it (tests/data/fuzz-proto: the valid vectors of
- * proto/vectors/ as raw inputs, written by proto/vectors/gen-vectors.py).
+ * target the same folder name, tests/data/fuzz, and each reads its own
+ * corpus beside it: here "fuzz-proto" (tests/data/fuzz-proto: the valid
+ * vectors of proto/vectors/ as raw inputs, written by
+ * proto/vectors/gen-vectors.py).
  */
 #include <stddef.h>
 #include <stdint.h>
@@ -169,18 +169,11 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
     case 3:
         fuzz_mutate_bytes(b, s, kind, tokens, sizeof tokens / sizeof tokens[0]);
         break;
-    case 4: { /* duplicate a chunk somewhere else (records, meshes) */
-        if (!n)
-            break;
-        size_t from = fuzz_rnd_below(s, n), len = 1 + fuzz_rnd_below(s, n - from < 256 ? n - from : 256);
-        unsigned char tmp[256];
-        memcpy(tmp, b->d + from, len);
-        fuzz_insert(b, fuzz_rnd_below(s, n + 1), tmp, len);
+    case 4: /* duplicate a chunk somewhere else (records, meshes) */
+        fuzz_dup_chunk(b, s);
         break;
-    }
-    case 5: /* delete a chunk */
-        if (n)
-            fuzz_erase(b, fuzz_rnd_below(s, n), 1 + fuzz_rnd_below(s, 64));
+    case 5:
+        fuzz_del_chunk(b, s);
         break;
     case 6: /* another header length now and then */
         if (n)

@@ -172,6 +172,48 @@ void fuzz_mutate_bytes(fuzz_buf_t *b, uint64_t *s, unsigned kind, const char *co
     }
 }
 
+void fuzz_dup_chunk(fuzz_buf_t *b, uint64_t *s)
+{
+    size_t n = b->n;
+    if (!n)
+        return;
+    size_t from = fuzz_rnd_below(s, n), len = 1 + fuzz_rnd_below(s, n - from < 256 ? n - from : 256);
+    unsigned char tmp[256];
+    memcpy(tmp, b->d + from, len);
+    fuzz_insert(b, fuzz_rnd_below(s, n + 1), tmp, len);
+}
+
+void fuzz_del_chunk(fuzz_buf_t *b, uint64_t *s)
+{
+    if (b->n)
+        fuzz_erase(b, fuzz_rnd_below(s, b->n), 1 + fuzz_rnd_below(s, 64));
+}
+
+static int is_num_char(unsigned char ch)
+{
+    return (ch >= '0' && ch <= '9') || ch == '.' || ch == '-' || ch == '+' || ch == 'e';
+}
+
+void fuzz_replace_number(fuzz_buf_t *b, uint64_t *s, const char *const *numbers, size_t nnumbers)
+{
+    size_t n = b->n;
+    if (!n)
+        return;
+    size_t at = fuzz_rnd_below(s, n), tries = 0;
+    while (at < n && !(b->d[at] >= '0' && b->d[at] <= '9') && tries++ < 256)
+        at++;
+    if (at >= n || !(b->d[at] >= '0' && b->d[at] <= '9'))
+        return;
+    while (at > 0 && is_num_char(b->d[at - 1]))
+        at--;
+    size_t end = at;
+    while (end < n && is_num_char(b->d[end]))
+        end++;
+    const char *t = numbers[fuzz_rnd_below(s, nnumbers)];
+    fuzz_erase(b, at, end - at);
+    fuzz_insert(b, at, t, strlen(t));
+}
+
 /* A CORPUS_DIR whose last component is "fuzz" (with or without a trailing
  * slash) gets the target's suffix: `make test` passes every target the same
  * folder. */

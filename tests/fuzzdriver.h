@@ -43,5 +43,12 @@ void fuzz_erase(fuzz_buf_t *b, size_t at, size_t n);
  * 2 truncate, 3 insert a few random bytes or one of the target's tokens. */
 void fuzz_mutate_bytes(fuzz_buf_t *b, uint64_t *s, unsigned kind, const char *const *tokens,
                        size_t ntokens);
+/* Structural ones: copy a chunk of up to 256 bytes somewhere else (a
+ * repeated record, key or frame); delete up to 64 bytes. */
+void fuzz_dup_chunk(fuzz_buf_t *b, uint64_t *s);
+void fuzz_del_chunk(fuzz_buf_t *b, uint64_t *s);
+/* Text formats: the number (digits . - + e) at or after a random place,
+ * within 256 bytes, becomes one of numbers. */
+void fuzz_replace_number(fuzz_buf_t *b, uint64_t *s, const char *const *numbers, size_t nnumbers);
 
 #endif

@@ -2,10 +2,11 @@
 # Runs every Check suite and fuzz target given on the command line, then
 # prints one closing line adding up the Check counts: "tests: N passed, M failed"
 # (then ", K skipped" when K > 0 tests printed a line starting with "SKIPPED:").
-# Usage: tests/run-suites.sh SUITE... [-- FUZZ...]; the environment (VB_*)
-# comes from the Makefile. A SUITE written PATH:CASE runs only that Check
-# case (CK_RUN_CASE takes one name, so a subset is one argument per case).
-# Exits non-zero if anything failed.
+# Usage: tests/run-suites.sh SUITE... [-- FUZZ[:N]...]; a fuzz target runs its
+# corpus and N mutations (20000 if not given). A SUITE written PATH:CASE runs
+# only that Check case (CK_RUN_CASE takes one name, so a subset is one
+# argument per case). The environment (VB_*) comes from the Makefile. Exits
+# non-zero if anything failed.
 set -u
 passed=0
 failed=0
@@ -15,8 +16,10 @@ fuzz=0
 for t in "$@"; do
     if [ "$t" = "--" ]; then fuzz=1; continue; fi
     if [ $fuzz = 1 ]; then
-        echo "== $t (corpus + 20000 mutations)"
-        if "$t" tests/data/fuzz 20000; then passed=$((passed + 1)); else failed=$((failed + 1)); status=1; fi
+        n=20000
+        case $t in *:*) n=${t##*:}; t=${t%:*} ;; esac
+        echo "== $t (corpus + $n mutations)"
+        if "$t" tests/data/fuzz "$n"; then passed=$((passed + 1)); else failed=$((failed + 1)); status=1; fi
         continue
     fi
     ck_case=""

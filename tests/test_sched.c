@@ -8,6 +8,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "fuzzmaster.h" /* fuzz_fix_sched_checksum */
 #include "rng.h"
 #include "sched.h"
 
@@ -926,6 +927,60 @@ START_TEST(test_checkpoint_refuses_garbage)
 }
 END_TEST
 
+/* Found by tests/fuzz_ckpt.c: streams whose batch statistics no run can
+ * make loaded, checksum and all: a negative M2 (the sum of squared
+ * deviations of a pixel's layer means), a mean of -8e306, a mean of 5e6
+ * with no batch yet. The resumed job's relerr metric for that pixel was
+ * then NaN (the square root of a negative M2, or of one that Welford's
+ * update drove negative), or its M2 overflowed on the next merge, and
+ * every later checkpoint was refused for it. Such values are refused. */
+static void expect_batch_refused(const sched_config_t *c, const membuf_t *b, const char *tag, double v)
+{
+    char err[256] = "";
+    membuf_t m = {malloc(b->len), b->len, b->len, 0};
+    memcpy(m.data, b->data, b->len);
+    size_t n, p = 0;
+    double x;
+    uint8_t *bm2 = find_section(&m, "bm2", &n), *sec = find_section(&m, tag, &n);
+    while (p < n / sizeof x && (memcpy(&x, bm2 + p * sizeof x, sizeof x), x <= 0))
+        p++; /* a pixel with two batches or more */
+    ck_assert_msg(p < n / sizeof x, "no pixel with a batch M2 yet");
+    if (strcmp(tag, "batches") == 0) {
+        uint32_t k = (uint32_t)v;
+        memcpy(sec + p * sizeof k, &k, sizeof k);
+    } else {
+        memcpy(sec + p * sizeof v, &v, sizeof v);
+    }
+    /* the stream's checksum made right again: only the checks can refuse it */
+    fuzz_fix_sched_checksum(m.data, m.len);
+    sched_t *s = load_mem(c, &m, m.len, err, sizeof err);
+    ck_assert_msg(s == NULL, "%s %g at pixel %zu was accepted", tag, v, p);
+    ck_assert_msg(strstr(err, "batch") != NULL, "%s", err);
+    free(m.data);
+}
+
+START_TEST(test_checkpoint_refuses_impossible_batches)
+{
+    char err[256];
+    sched_config_t c = ckpt_cases[4].cfg; /* relerr with a target */
+    sim_t a = {.workers = 5, .seed = 3};
+    a.s = sched_new(&c, err, sizeof err);
+    for (int i = 0; i < 60; i++)
+        ck_assert(sim_step(&a));
+    membuf_t b = save_mem(a.s);
+    sched_t *s = load_mem(&c, &b, b.len, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    sched_destroy(&s);
+    expect_batch_refused(&c, &b, "bm2", -0.25);
+    expect_batch_refused(&c, &b, "bmean", -8.13636e306);
+    expect_batch_refused(&c, &b, "bmean", 1e300);
+    expect_batch_refused(&c, &b, "batches", 0); /* a mean and an M2, but no batch */
+    expect_batch_refused(&c, &b, "batches", 1); /* an M2 from one batch */
+    free(b.data);
+    sched_destroy(&a.s);
+}
+END_TEST
+
 int main(void)
 {
     Suite *s = suite_create("sched");
@@ -945,6 +1000,7 @@ int main(void)
     tcase_add_loop_test(tc, test_checkpoint_resumes_bit_identical, 0,
                         (int)(sizeof ckpt_cases / sizeof ckpt_cases[0]));
     tcase_add_test(tc, test_checkpoint_refuses_garbage);
+    tcase_add_test(tc, test_checkpoint_refuses_impossible_batches);
     suite_add_tcase(s, tc);
     SRunner *sr = srunner_create(s);
     srunner_run_all(sr, CK_NORMAL);

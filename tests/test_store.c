@@ -1,5 +1,6 @@
-/* test_store.c - the master's durable records (master/store.c) and task
- * leases (master/lease.c). */
+/* test_store.c - the master's durable records (master/store.c), reading a
+ * checkpoint's counters (master/persist.c) and task leases
+ * (master/lease.c). */
 #include <check.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -8,6 +9,7 @@
 #include <unistd.h>
 
 #include "lease.h"
+#include "master_priv.h" /* persist_apply_extras */
 #include "store.h"
 #include "testutil.h"
 
@@ -311,6 +313,41 @@ START_TEST(lease_fifo)
 }
 END_TEST
 
+/* Found by tests/fuzz_ckpt.c (libFuzzer with UBSan): a checkpoint's
+ * counters are JSON numbers, and one past its integer type's range
+ * ("reissued": 1e999, "rays": 1e20) was converted anyway: undefined
+ * behaviour. Out of range they count as 0, as negative ones do. */
+START_TEST(checkpoint_counters_out_of_range)
+{
+    cJSON *o = cJSON_Parse("{\"seconds\":1e999,\"rays\":1e20,\"busy_us\":18446744073709551616,"
+                           "\"reissued\":1e999,\"late_results\":-5,\"failures\":4294967296}");
+    job_t *j = calloc(1, sizeof *j);
+    ck_assert_ptr_nonnull(o);
+    ck_assert_ptr_nonnull(j);
+    persist_apply_extras(j, o);
+    ck_assert(j->run_before == 0);
+    ck_assert_uint_eq(j->rays, 0);
+    ck_assert_uint_eq(j->busy_us, 0);
+    ck_assert_uint_eq(j->reissued, 0);
+    ck_assert_uint_eq(j->late_results, 0);
+    ck_assert_uint_eq(j->failures, 0);
+    cJSON_Delete(o);
+    /* in range: as they are */
+    o = cJSON_Parse("{\"seconds\":2.5,\"rays\":9007199254740992,\"busy_us\":18446744073709549568,"
+                    "\"reissued\":4294967295,\"late_results\":3,\"failures\":8}");
+    ck_assert_ptr_nonnull(o);
+    persist_apply_extras(j, o);
+    ck_assert(j->run_before == 2.5);
+    ck_assert_uint_eq(j->rays, UINT64_C(9007199254740992));
+    ck_assert_uint_eq(j->busy_us, UINT64_C(18446744073709549568));
+    ck_assert_uint_eq(j->reissued, 4294967295u);
+    ck_assert_uint_eq(j->late_results, 3);
+    ck_assert_uint_eq(j->failures, 8);
+    cJSON_Delete(o);
+    job_free(j);
+}
+END_TEST
+
 static Suite *store_suite(void)
 {
     Suite *s = suite_create("store");
@@ -323,6 +360,7 @@ static Suite *store_suite(void)
     tcase_add_test(tc, background_writer);
     tcase_add_test(tc, checksum_split_invariant);
     tcase_add_test(tc, lease_fifo);
+    tcase_add_test(tc, checkpoint_counters_out_of_range);
     suite_add_tcase(s, tc);
     return s;
 }
