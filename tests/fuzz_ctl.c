@@ -125,7 +125,10 @@ static int run_one(const uint8_t *data, size_t size)
         if (!fuzz_submit_too_big(req, nextra ? extra[0].data : "", nextra ? extra[0].size : 0)) {
             char err[MASTER_ERR_LEN];
             err[0] = '\0';
-            job_t *j = submit_parse(req, extra, nextra, err, sizeof err);
+            /* the master's own caps too, small: their checks come first */
+            static const submit_limits_t limits = {.max_bundle_bytes = 1u << 20, .max_pixels = 64 * 64,
+                                                   .max_spp = 1u << 16};
+            job_t *j = submit_parse(req, extra, nextra, &limits, err, sizeof err);
             check_job(j, err, req, extra, nextra);
             if (j)
                 out |= 2;

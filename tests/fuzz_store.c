@@ -62,7 +62,7 @@ static int read_submit(store_rec_t *rec)
     if (req && !fuzz_submit_too_big(req, n ? frames[0].data : "", n ? frames[0].size : 0)) {
         char err[MASTER_ERR_LEN];
         err[0] = '\0';
-        j = submit_parse(req, frames, (int)n, err, sizeof err);
+        j = submit_parse(req, frames, (int)n, NULL, err, sizeof err);
         if (!j && err[0] == '\0')
             abort();
         if (j && (j->json_size != frames[0].size || !j->sched))

@@ -207,7 +207,7 @@ static void check_submit(const request_t *r)
     char err[MASTER_ERR_LEN] = "";
     if (!req)
         die("%s: the request is not JSON", r->name);
-    job_t *j = submit_parse(req, r->frames, r->nframes, err, sizeof err);
+    job_t *j = submit_parse(req, r->frames, r->nframes, NULL, err, sizeof err);
     if (r->must_submit && !j)
         die("%s: submit_parse refuses the seed: %s", r->name, err);
     if (r->must_submit && fuzz_submit_too_big(req, r->frames[0].data, r->frames[0].size))
