@@ -1516,7 +1516,15 @@ START_TEST(master_crash)
            now_ms() < end)
         sleep_ms(10);
     ck_assert_msg(file_exists(dir, job, "checkpoint.prev"), "no new checkpoint within 10 s\n%s", logs_tail());
+    /* a client waiting on the job outlives the crash and the restart */
+    char jobarg[32], cep[64];
+    snprintf(jobarg, sizeof jobarg, "%llu", job);
+    snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
+    const char *wargs[] = {tu_bin(), "wait", jobarg, "--progress", "none", "--timeout", "60", "--master", cep, NULL};
+    daemon_t *waiter = spawn("j-wait", NULL, wargs);
+    sleep_ms(300);
     kill9(m);
+    sleep_ms(500); /* long enough for the client to notice */
     m = start_durable(&port, "j-master4", dir, NULL);
     s = job_status(port + 1, job);
     ck_assert_msg(strstr(jstr(s, "recovered"), "checkpoint at") != NULL, "status says recovered \"%s\"",
@@ -1525,6 +1533,10 @@ START_TEST(master_crash)
                   jnum(s, "layers_done"));
     cJSON_Delete(s);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "crash.exr"));
+    int wst = 0;
+    ck_assert_msg(reap(waiter, 20000, &wst), "vbrender wait did not end with the job\n%s", logs_tail());
+    ck_assert_msg(WIFEXITED(wst) && WEXITSTATUS(wst) == 0, "vbrender wait across the restart: %s\n%s",
+                  describe_status(wst, log, sizeof log), logs_tail());
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "crash-ref.exr"));
     compare_exr(ref, got);
     /* written by the background writer soon after the end */
