@@ -98,12 +98,14 @@ for size in 256x256 1920x1080; do
         start_workers 2
         id=$("$VB" submit "$OUT/cornell-$size.json" --spp "${SPP[$size]}" --adaptive none \
             --time-limit "$SECONDS_RUN" --master "$CEP" | tail -n 1)
-        "$CTL" "$CEP" wait "$id" 600 >"$OUT/$tag.status.json"
-        "$CTL" "$CEP" workers >"$OUT/$tag.workers.json"
         ckpt_bytes=0
         if [ $mode = state ]; then
-            ckpt_bytes=$(du -sb "$OUT/state-$size/jobs/$id" | cut -f1)
+            # one checkpoint file as written mid-run (the job's end removes it)
+            sleep 12
+            ckpt_bytes=$(stat -c %s "$OUT/state-$size/jobs/$id/checkpoint" 2>/dev/null || echo 0)
         fi
+        "$CTL" "$CEP" wait "$id" 600 >"$OUT/$tag.status.json"
+        "$CTL" "$CEP" workers >"$OUT/$tag.workers.json"
         echo "$ckpt_bytes" >"$OUT/$tag.bytes"
         stop_all "$MPID" "${WPIDS[@]}"
         echo "  $tag: $(jget "$OUT/$tag.status.json" 'round(d["samples_per_second"])') samples/s" >&2
@@ -144,11 +146,13 @@ for mode in state none; do
     done_jobs=0
     : >"$OUT/mem-$mode.txt"
     for target in $JOBS; do
+        # one at a time, as jobs come and go on a long-running master: the
+        # question is what an ended job leaves behind
         while [ "$done_jobs" -lt "$target" ]; do
             id=$("$VB" submit "$OUT/tiny.json" --spp 64 --master "$CEP" | tail -n 1)
+            "$CTL" "$CEP" wait "$id" 600 >/dev/null
             done_jobs=$((done_jobs + 1))
         done
-        "$CTL" "$CEP" wait "$id" 600 >/dev/null
         sleep 1.5 # the last image reaches the disk and leaves memory
         echo "$target $(rss_kib "$MPID")" >>"$OUT/mem-$mode.txt"
         echo "  memory $mode: $target jobs, $(rss_kib "$MPID") KiB" >&2
@@ -161,20 +165,20 @@ import json, sys
 out, dest, secs, cores = sys.argv[1], sys.argv[2], float(sys.argv[3]), int(sys.argv[4])
 res = {"cores": cores, "time_limit_s": secs, "checkpoint_interval_s": 10, "checkpoint": [], "restart": {}, "memory": {}}
 print("\nCheckpoint overhead (Cornell box, uniform, 2 workers x 1 thread, %g s each, checkpoints every 10 s)" % secs)
-print("| image | samples/s, --state none | samples/s, --state DIR | A/B change | writes | fork ms | writer CPU s per write | writer CPU share of the cores | state on disk |")
+print("| image | samples/s, --state none | samples/s, --state DIR | A/B change | checkpoints | fork ms (max) | writer CPU s per checkpoint | writer CPU share of the cores | checkpoint file |")
 print("|---|--:|--:|--:|--:|--:|--:|--:|--:|")
 for size in ("256x256", "1920x1080"):
     a = json.load(open("%s/ckpt-%s-none.status.json" % (out, size)))
     b = json.load(open("%s/ckpt-%s-state.status.json" % (out, size)))
     m = json.load(open("%s/ckpt-%s-state.workers.json" % (out, size)))["master"]
     nbytes = int(open("%s/ckpt-%s-state.bytes" % (out, size)).read())
-    writes = m.get("state_writes", 0)
-    cpu = m.get("state_write_cpu_seconds", 0.0)
+    writes = m.get("checkpoint_writes", 0)
+    cpu = m.get("checkpoint_cpu_seconds", 0.0) / writes if writes else 0.0
     share = cpu / (10.0 * cores) if writes else 0.0
     ab = b["samples_per_second"] / a["samples_per_second"] - 1
     row = {"image": size, "sps_none": a["samples_per_second"], "sps_state": b["samples_per_second"],
-           "ab_change": ab, "writes": writes, "fork_ms": m.get("state_fork_ms", 0.0),
-           "writer_seconds": m.get("state_write_seconds", 0.0), "writer_cpu_s": cpu,
+           "ab_change": ab, "checkpoints": writes, "fork_ms": m.get("checkpoint_fork_ms_max", 0.0),
+           "writer_seconds": m.get("checkpoint_wall_seconds", 0.0) / writes if writes else 0.0, "writer_cpu_s": cpu,
            "writer_share_of_cores": share, "state_bytes": nbytes}
     res["checkpoint"].append(row)
     print("| %s | %.0f | %.0f | %+.1f %% | %d | %.2f | %.3f | %.2f %% | %.1f MB |" % (

@@ -292,6 +292,10 @@ static cJSON *ctl_workers(ctl_req_t *r)
         cJSON_AddNumberToObject(st, "state_write_seconds", bg.wall_s);
         cJSON_AddNumberToObject(st, "state_write_cpu_seconds", bg.cpu_s);
         cJSON_AddNumberToObject(st, "state_fork_ms", bg.fork_ms);
+        cJSON_AddNumberToObject(st, "checkpoint_writes", (double)m->ckpt_runs);
+        cJSON_AddNumberToObject(st, "checkpoint_cpu_seconds", m->ckpt_cpu_s);
+        cJSON_AddNumberToObject(st, "checkpoint_wall_seconds", m->ckpt_wall_s);
+        cJSON_AddNumberToObject(st, "checkpoint_fork_ms_max", m->ckpt_fork_ms_max);
     }
     return b;
 }

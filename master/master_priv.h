@@ -181,6 +181,11 @@ struct master {
     char (*quarantine)[128];    /* workers refused: key, or address without keys */
     size_t quarantine_n, quarantine_cap;
     uint64_t malformed, dropped_late, rate_limited;
+    /* background writes of checkpoints only (not final images): what they
+     * cost, for the benchmark and the dashboard */
+    int bg_final;                 /* the write under way includes a final image */
+    uint64_t ckpt_runs;
+    double ckpt_cpu_s, ckpt_wall_s, ckpt_fork_ms_max;
     vblog_limiter_t limiter; /* lines a peer can provoke at will */
     auth_t *auth;            /* NULL: no CURVE */
     double last_timer;

@@ -16,6 +16,9 @@
  */
 #include <float.h>
 #include <inttypes.h>
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
 #include <signal.h>
 #include <stdlib.h>
 #include <string.h>
@@ -280,6 +283,11 @@ static void on_report(void *ctx, uint64_t id, const char *error)
     if (what == PERSIST_FINAL) {
         j->final_durable = 1;
         job_shed(j);
+#ifdef __GLIBC__
+        /* give the film's pages back: freed by this thread but allocated by
+         * the offload thread, they would stay in its arena otherwise */
+        malloc_trim(0);
+#endif
     } else {
         j->ckpt_samples = j->ckpt_writing;
     }
@@ -290,6 +298,14 @@ static void collect(master_t *m)
     int status = 0;
     if (!store_bg_poll(m->store, on_report, m, &status))
         return;
+    if (!m->bg_final) {
+        store_bg_stats_t bg = store_bg_last(m->store);
+        m->ckpt_runs++;
+        m->ckpt_cpu_s += bg.cpu_s;
+        m->ckpt_wall_s += bg.wall_s;
+        if (bg.fork_ms > m->ckpt_fork_ms_max)
+            m->ckpt_fork_ms_max = bg.fork_ms;
+    }
     for (job_t *j = m->jobs; j; j = j->next)
         if (j->in_write) {
             /* the child died before it reported this job */
@@ -318,6 +334,7 @@ void persist_tick(master_t *m, double now, int force)
     remove_doomed(m);
     job_retention(m);
     int any = 0;
+    m->bg_final = 0;
     for (job_t *j = m->jobs; j; j = j->next) {
         /* a failed write is retried after a checkpoint interval, not at once */
         double wait = j->storage_error[0] ? m->cfg.checkpoint_s : 0;
@@ -332,6 +349,7 @@ void persist_tick(master_t *m, double now, int force)
         /* what the child writes is decided now: a job that ends while its
          * checkpoint is being written gets its final record next time */
         j->in_write = job_ended(j) ? PERSIST_FINAL : PERSIST_CHECKPOINT;
+        m->bg_final |= j->in_write == PERSIST_FINAL;
         j->ckpt_writing = sched_samples_done(j->sched);
         j->last_ckpt = now;
         any = 1;
