@@ -63,8 +63,11 @@ static void free_bundle(job_t *j)
 
 void job_shed(job_t *j)
 {
-    if (!j->summary)
-        j->summary = job_json(j, 1);
+    if (!j->summary) {
+        cJSON *o = job_json(j, 1);
+        j->summary = o ? cJSON_PrintUnformatted(o) : NULL;
+        cJSON_Delete(o);
+    }
     if (!j->summary)
         return; /* out of memory: keep the job whole */
     free_bundle(j);
@@ -100,7 +103,7 @@ void job_free(job_t *j)
         free(j->cur[c]);
     }
     free(j->series);
-    cJSON_Delete(j->summary);
+    cJSON_free(j->summary);
     free(j);
 }
 
@@ -216,7 +219,7 @@ cJSON *job_json(const job_t *j, int with_series)
     if (j->summary && !j->sched) {
         /* an ended job whose film is on disk: its status as of the end, with
          * what may have changed since */
-        cJSON *o = cJSON_Duplicate(j->summary, 1);
+        cJSON *o = cJSON_Parse(j->summary);
         if (o && !with_series)
             cJSON_DeleteItemFromObjectCaseSensitive(o, "error_series");
         if (o && j->storage_error[0]) {

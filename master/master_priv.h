@@ -143,7 +143,8 @@ typedef struct job {
     int final_durable;          /* image and final status are on disk */
     char storage_error[MASTER_ERR_LEN];
     char recovered[MASTER_ERR_LEN];
-    cJSON *summary;             /* status of an ended job whose film is freed */
+    char *summary;              /* status of an ended job whose film is freed, as
+                                   JSON text: a tenth of the memory of its tree */
     /* verification by replication (verify.c) */
     struct verify_job *verify;  /* its tasks out to several workers; NULL: none */
     uint64_t tasks_verified;    /* merged once two results agreed */

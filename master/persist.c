@@ -397,11 +397,13 @@ static job_t *unrecoverable(uint64_t id, const char *why)
     j->state = JOB_FAILED;
     j->final_durable = 1;
     snprintf(j->error, sizeof j->error, "cannot recover the job: %.900s", why);
-    j->summary = cJSON_CreateObject();
-    cJSON_AddNumberToObject(j->summary, "id", (double)id);
-    cJSON_AddStringToObject(j->summary, "state", "failed");
-    cJSON_AddStringToObject(j->summary, "scene", "?");
-    cJSON_AddStringToObject(j->summary, "error", j->error);
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddNumberToObject(o, "id", (double)id);
+    cJSON_AddStringToObject(o, "state", "failed");
+    cJSON_AddStringToObject(o, "scene", "?");
+    cJSON_AddStringToObject(o, "error", j->error);
+    j->summary = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
     return j;
 }
 
@@ -433,7 +435,8 @@ static job_t *recover_ended(uint64_t id, store_rec_t *rec)
     const cJSON *rid = cJSON_GetObjectItemCaseSensitive(st, "request_id");
     if (cJSON_IsString(rid))
         snprintf(j->request_id, sizeof j->request_id, "%s", rid->valuestring);
-    j->summary = st;
+    j->summary = cJSON_PrintUnformatted(st);
+    cJSON_Delete(st);
     return j;
 }
 
