@@ -1347,25 +1347,21 @@ static int make_hosts(char *why, size_t whylen, char if_b[16])
     return 0;
 }
 
-START_TEST(several_hosts)
+/* In the namespaces of make_hosts: a master (without keys on every
+ * interface: --insecure, the namespaces reach nothing else) and a one-thread
+ * worker in each worker namespace, named after tag; returns once the master
+ * lists both. lease_ms NULL: the default. The control endpoint in cep. */
+static daemon_t *start_hosts_cluster(int port, const char *tag, const char *lease_ms, char *cep, size_t ceplen)
 {
-    char why[1024] = "", out[OUTLEN], scene[PATHLEN], ref[PATHLEN], got[PATHLEN], if_b[16];
-    const char *ns_m = netns[0], *ns_a = netns[1], *ns_b = netns[2];
-    if (make_hosts(why, sizeof why, if_b) < 0) {
-        printf("SKIPPED: netns: %s\n", why);
-        fflush(stdout);
-        return;
-    }
-    scene_file(scene, sizeof scene, 32, NULL, NULL);
-    const int port = 7070; /* each namespace has its own ports */
-    char bin[PATHLEN], wep[64], cep[64];
+    char out[OUTLEN], bin[PATHLEN], wep[64], name[32];
+    const char *ns_m = netns[0];
     snprintf(bin, sizeof bin, "%s/vbrender-master", bindir());
     snprintf(wep, sizeof wep, "tcp://*:%d", port);
-    snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
-    /* every interface without keys: --insecure (the namespaces reach nothing else) */
+    snprintf(cep, ceplen, "tcp://127.0.0.1:%d", port + 1);
     const char *margs[] = {bin, "--workers", wep, "--control", cep, "--heartbeat-ms", "200", "--state", "none",
-                           "--insecure", NULL};
-    daemon_t *m = spawn("i-master", ns_m, margs);
+                           "--insecure", lease_ms ? "--lease-ms" : NULL, lease_ms, NULL};
+    snprintf(name, sizeof name, "%s-master", tag);
+    daemon_t *m = spawn(name, ns_m, margs);
     int ready = 0;
     for (int tries = 0; tries < 50 && !ready; tries++) {
         assert_alive(m);
@@ -1374,14 +1370,15 @@ START_TEST(several_hosts)
             sleep_ms(100);
     }
     ck_assert_msg(ready, "the master in %s does not answer:\n%s\n%s", ns_m, out, logs_tail());
-    char wbin[PATHLEN], ep_a[64], ep_b[64];
+    char wbin[PATHLEN];
     snprintf(wbin, sizeof wbin, "%s/vbrender-worker", bindir());
-    snprintf(ep_a, sizeof ep_a, "tcp://10.200.1.1:%d", port);
-    snprintf(ep_b, sizeof ep_b, "tcp://10.200.2.1:%d", port);
-    const char *aargs[] = {wbin, "--master", ep_a, "--threads", "1", "--name", "i-worker-a", NULL};
-    const char *bargs[] = {wbin, "--master", ep_b, "--threads", "1", "--name", "i-worker-b", NULL};
-    spawn("i-worker-a", ns_a, aargs);
-    spawn("i-worker-b", ns_b, bargs);
+    for (int k = 0; k < 2; k++) {
+        char ep[64], wname[32];
+        snprintf(ep, sizeof ep, "tcp://10.200.%d.1:%d", k + 1, port);
+        snprintf(wname, sizeof wname, "%s-worker-%c", tag, 'a' + k);
+        const char *wargs[] = {wbin, "--master", ep, "--threads", "1", "--name", wname, NULL};
+        spawn(wname, netns[1 + k], wargs);
+    }
     /* both connected: the table lists both addresses */
     int both = 0;
     for (int tries = 0; tries < 100 && !both; tries++) {
@@ -1392,6 +1389,22 @@ START_TEST(several_hosts)
             sleep_ms(100);
     }
     ck_assert_msg(both, "want workers at 10.200.1.2 and 10.200.2.2:\n%s\n%s", out, logs_tail());
+    return m;
+}
+
+START_TEST(several_hosts)
+{
+    char why[1024] = "", out[OUTLEN], scene[PATHLEN], ref[PATHLEN], got[PATHLEN], if_b[16];
+    const char *ns_m = netns[0];
+    if (make_hosts(why, sizeof why, if_b) < 0) {
+        printf("SKIPPED: netns: %s\n", why);
+        fflush(stdout);
+        return;
+    }
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    const int port = 7070; /* each namespace has its own ports */
+    char cep[64];
+    start_hosts_cluster(port, "i", NULL, cep, sizeof cep);
     static const char *const settings = "--spp 128 --granularity 16 --adaptive thesis --uniform-layers 2 --seed 21";
     unsigned long long job = submit_in(ns_m, port + 1, scene, settings);
     finish_and_fetch_in(ns_m, port + 1, job, tmp(got, sizeof got, "hosts.exr"));
@@ -1895,7 +1908,7 @@ static void nft_heal(const char *ns)
 static void net_fault(int lossy)
 {
     char why[1024] = "", out[OUTLEN], scene[PATHLEN], ref[PATHLEN], got[PATHLEN], if_b[16];
-    const char *ns_m = netns[0], *ns_a = netns[1], *ns_b = netns[2];
+    const char *ns_m = netns[0], *ns_b = netns[2];
     if (make_hosts(why, sizeof why, if_b) < 0 || tu_run("nft --version", out, sizeof out) != 0) {
         if (!why[0])
             snprintf(why, sizeof why, "no nft command (make deps installs nftables)");
@@ -1907,39 +1920,10 @@ static void net_fault(int lossy)
     static const char *const settings = "--spp 4096 --granularity 32 --adaptive thesis --seed 23";
     scene_file(scene, sizeof scene, 64, NULL, NULL);
     const int port = 7070;
-    char bin[PATHLEN], wep[64], cep[64];
-    snprintf(bin, sizeof bin, "%s/vbrender-master", bindir());
-    snprintf(wep, sizeof wep, "tcp://*:%d", port);
-    snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
+    char cep[64];
     /* leases of 3 s: the cut-off worker's tasks go out again well within
      * the 10 s partition (its heartbeats stop sooner still) */
-    const char *margs[] = {bin, "--workers", wep, "--control", cep, "--heartbeat-ms", "200", "--lease-ms", "3000",
-                           "--state", "none", "--insecure", NULL};
-    daemon_t *m = spawn(lossy ? "q-master" : "p-master", ns_m, margs);
-    int ready = 0;
-    for (int tries = 0; tries < 50 && !ready; tries++) {
-        assert_alive(m);
-        ready = client_in(ns_m, out, sizeof out, "jobs --master %s", cep) == 0;
-        if (!ready)
-            sleep_ms(100);
-    }
-    ck_assert_msg(ready, "the master in %s does not answer:\n%s\n%s", ns_m, out, logs_tail());
-    char wbin[PATHLEN], ep_a[64], ep_b[64];
-    snprintf(wbin, sizeof wbin, "%s/vbrender-worker", bindir());
-    snprintf(ep_a, sizeof ep_a, "tcp://10.200.1.1:%d", port);
-    snprintf(ep_b, sizeof ep_b, "tcp://10.200.2.1:%d", port);
-    const char *aargs[] = {wbin, "--master", ep_a, "--threads", "1", "--name", "pq-worker-a", NULL};
-    const char *bargs[] = {wbin, "--master", ep_b, "--threads", "1", "--name", "pq-worker-b", NULL};
-    spawn("pq-worker-a", ns_a, aargs);
-    spawn("pq-worker-b", ns_b, bargs);
-    int both = 0;
-    for (int tries = 0; tries < 100 && !both; tries++) {
-        client_in(ns_m, out, sizeof out, "workers --master %s", cep);
-        both = strstr(out, "10.200.1.2") != NULL && strstr(out, "10.200.2.2") != NULL;
-        if (!both)
-            sleep_ms(100);
-    }
-    ck_assert_msg(both, "want workers at 10.200.1.2 and 10.200.2.2:\n%s\n%s", out, logs_tail());
+    daemon_t *m = start_hosts_cluster(port, lossy ? "q" : "p", "3000", cep, sizeof cep);
     if (lossy)
         nft_drop(ns_b, if_b, 1);
     unsigned long long job = submit_in(ns_m, port + 1, scene, settings);
