@@ -269,19 +269,9 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
                                          "\"rays\":", "\"seconds\":", "\"failures\":"};
     size_t n = b->n;
     unsigned kind = (unsigned)(fuzz_rnd(s) % 12);
+    if (fuzz_mutate_shared(b, s, kind, tokens, sizeof tokens / sizeof tokens[0]))
+        return;
     switch (kind) {
-    case 0:
-    case 1:
-    case 2:
-    case 3:
-        fuzz_mutate_bytes(b, s, kind, tokens, sizeof tokens / sizeof tokens[0]);
-        break;
-    case 4:
-        fuzz_dup_chunk(b, s);
-        break;
-    case 5:
-        fuzz_del_chunk(b, s);
-        break;
     case 6:
         fuzz_replace_number(b, s, numbers, sizeof numbers / sizeof numbers[0]);
         break;

@@ -162,19 +162,9 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
     static const char *const tokens[] = { "/", "\\", "..", ".", "\x7f", "a.obj", "\xc3\xa9" };
     size_t n = b->n;
     unsigned kind = (unsigned)(fuzz_rnd(s) % 11);
+    if (fuzz_mutate_shared(b, s, kind, tokens, sizeof tokens / sizeof tokens[0]))
+        return;
     switch (kind) {
-    case 0:
-    case 1:
-    case 2:
-    case 3:
-        fuzz_mutate_bytes(b, s, kind, tokens, sizeof tokens / sizeof tokens[0]);
-        break;
-    case 4: /* duplicate a chunk somewhere else (records, meshes) */
-        fuzz_dup_chunk(b, s);
-        break;
-    case 5:
-        fuzz_del_chunk(b, s);
-        break;
     case 6: /* another header length now and then */
         if (n)
             b->d[0] = (unsigned char)(fuzz_rnd(s) % 4 ? PROTO_HEADER_SIZE + fuzz_rnd_below(s, 3) - 1

@@ -295,3 +295,16 @@ int fuzz_main(int argc, char **argv, const fuzz_target_t *t)
     corpus_free(&c);
     return 0;
 }
+
+int fuzz_mutate_shared(fuzz_buf_t *b, uint64_t *s, unsigned kind, const char *const *tokens, size_t ntokens)
+{
+    if (kind <= 3)
+        fuzz_mutate_bytes(b, s, kind, tokens, ntokens);
+    else if (kind == 4)
+        fuzz_dup_chunk(b, s);
+    else if (kind == 5)
+        fuzz_del_chunk(b, s);
+    else
+        return 0;
+    return 1;
+}
