@@ -35,8 +35,8 @@
  * usage: bench_core --scene FILE.json [--threads T] [--spp N] [--runs R]
  *                   [--rays N] [--json OUT.json]
  */
-#include <embree3/rtcore.h>
 #include <cJSON.h>
+#include <embree3/rtcore.h>
 #include <errno.h>
 #include <inttypes.h>
 #include <math.h>
@@ -529,7 +529,8 @@ static int build_area_batch(const scene_t *s, uint64_t seed, batch_t *ext, batch
             continue;
         const uint32_t *v = s->indices + 3 * t;
         vec3_t a = vtx(s, v[0]);
-        total += 0.5 * (double)vec3_length(vec3_cross(vec3_sub(vtx(s, v[1]), a), vec3_sub(vtx(s, v[2]), a)));
+        total += 0.5 * (double)vec3_length(
+                           vec3_cross(vec3_sub(vtx(s, v[1]), a), vec3_sub(vtx(s, v[2]), a)));
         cdf[n] = total;
         ids[n++] = t;
     }
@@ -551,7 +552,8 @@ static int build_area_batch(const scene_t *s, uint64_t seed, batch_t *ext, batch
         batch_push(ext, vec3_offset_ray_origin(p, ng), material_sample_cosine(ng, u1, u2));
     }
     /* Bounded: a scene whose lights face no surface yields no shadow rays. */
-    for (uint64_t i = 0; s->light_count > 0 && sh->count < sh->cap && i < 50 * (uint64_t)sh->cap; i++) {
+    for (uint64_t i = 0; s->light_count > 0 && sh->count < sh->cap && i < 50 * (uint64_t)sh->cap;
+         i++) {
         rng_stream_t rng = rng_stream(seed, 2, i);
         uint32_t t = ids[cdf_pick(cdf, n, rng_next_double(&rng))];
         float u1 = rng_next_float(&rng), u2 = rng_next_float(&rng);
@@ -644,16 +646,19 @@ static int parse_args(int argc, char **argv, args_t *a)
             a->json = v;
         } else if (strcmp(o, "--threads") == 0) {
             if (parse_u64(v, 1, RENDER_MAX_THREADS, &a->threads) < 0)
-                return usage_error("--threads needs an integer from 1 to 256, got", v ? v : "nothing");
+                return usage_error("--threads needs an integer from 1 to 256, got",
+                                   v ? v : "nothing");
         } else if (strcmp(o, "--spp") == 0) {
             if (parse_u64(v, 1, 1u << 20, &a->spp) < 0)
-                return usage_error("--spp needs an integer from 1 to 1048576, got", v ? v : "nothing");
+                return usage_error("--spp needs an integer from 1 to 1048576, got",
+                                   v ? v : "nothing");
         } else if (strcmp(o, "--runs") == 0) {
             if (parse_u64(v, 1, MAX_RUNS - EXTRA_RUNS, &a->runs) < 0)
                 return usage_error("--runs needs an integer from 1 to 97, got", v ? v : "nothing");
         } else if (strcmp(o, "--rays") == 0) {
             if (parse_u64(v, 1000, 100000000, &a->rays) < 0)
-                return usage_error("--rays needs an integer from 1000 to 100000000, got", v ? v : "nothing");
+                return usage_error("--rays needs an integer from 1000 to 100000000, got",
+                                   v ? v : "nothing");
         } else {
             return usage_error("unknown argument", o);
         }
@@ -712,7 +717,8 @@ int main(int argc, char **argv)
     }
     tracer_t *tr = NULL;
     tracer_device_t *dev = NULL;
-    if (tracer_device_new(&dev, err, sizeof err) < 0 || tracer_new(dev, s, &tr, err, sizeof err) < 0) {
+    if (tracer_device_new(&dev, err, sizeof err) < 0 ||
+        tracer_new(dev, s, &tr, err, sizeof err) < 0) {
         fprintf(stderr, "bench_core: %s\n", err);
         tracer_device_destroy(&dev);
         scene_destroy(&s);
@@ -761,8 +767,10 @@ int main(int argc, char **argv)
     if (ext_per_sample > rays_per_sample)
         ext_per_sample = rays_per_sample;
     const double f_ext = ext_per_sample / rays_per_sample;
-    fprintf(stderr, "  ours: %.3f s best, %.3f M samples/s, %.3f M rays/s, %.3f rays/sample (%.3f extension)\n",
-            best, sps / 1e6, rps / 1e6, rays_per_sample, ext_per_sample);
+    fprintf(
+        stderr,
+        "  ours: %.3f s best, %.3f M samples/s, %.3f M rays/s, %.3f rays/sample (%.3f extension)\n",
+        best, sps / 1e6, rps / 1e6, rays_per_sample, ext_per_sample);
 
     /* 2. Raw Embree, after the renders so the batches do not count in the
      * renderer's peak memory. */
@@ -801,20 +809,24 @@ int main(int argc, char **argv)
         }
         dist[k].mix = mix_rate(f_ext, dist[k].ext.rays_per_second, dist[k].sh.rays_per_second);
         dist[k].mix_5050 = mix_rate(0.5, dist[k].ext.rays_per_second, dist[k].sh.rays_per_second);
-        fprintf(stderr,
-                "  raw %s (%.1f s to build): extension %.3f M rays/s (%.0f%% hit), shadow %.3f M "
-                "rays/s (%zu rays, %.0f%% occluded), our mix %.3f M rays/s; CPU %.0f%% / %.0f%%%s\n",
-                dist_name[k], tgen, dist[k].ext.rays_per_second / 1e6, 100 * dist[k].ext.hit_fraction,
-                dist[k].sh.rays_per_second / 1e6, dist[k].sh.rays, 100 * dist[k].sh.hit_fraction,
-                dist[k].mix / 1e6, 100 * dist[k].ext.utilization, 100 * dist[k].sh.utilization,
-                dist[k].ext.utilization < UNDISTURBED || dist[k].sh.utilization < UNDISTURBED
-                    ? " (disturbed)" : "");
+        fprintf(
+            stderr,
+            "  raw %s (%.1f s to build): extension %.3f M rays/s (%.0f%% hit), shadow %.3f M "
+            "rays/s (%zu rays, %.0f%% occluded), our mix %.3f M rays/s; CPU %.0f%% / %.0f%%%s\n",
+            dist_name[k], tgen, dist[k].ext.rays_per_second / 1e6, 100 * dist[k].ext.hit_fraction,
+            dist[k].sh.rays_per_second / 1e6, dist[k].sh.rays, 100 * dist[k].sh.hit_fraction,
+            dist[k].mix / 1e6, 100 * dist[k].ext.utilization, 100 * dist[k].sh.utilization,
+            dist[k].ext.utilization < UNDISTURBED || dist[k].sh.utilization < UNDISTURBED
+                ? " (disturbed)"
+                : "");
         if (k == 0) {
             fast.mix = mix_rate(f_ext, fast.ext.rays_per_second, fast.sh.rays_per_second);
             fast.mix_5050 = mix_rate(0.5, fast.ext.rays_per_second, fast.sh.rays_per_second);
-            fprintf(stderr, "  raw path, BVH without ROBUST: extension %.3f M rays/s, shadow %.3f M rays/s, "
-                    "our mix %.3f M rays/s\n", fast.ext.rays_per_second / 1e6,
-                    fast.sh.rays_per_second / 1e6, fast.mix / 1e6);
+            fprintf(
+                stderr,
+                "  raw path, BVH without ROBUST: extension %.3f M rays/s, shadow %.3f M rays/s, "
+                "our mix %.3f M rays/s\n",
+                fast.ext.rays_per_second / 1e6, fast.sh.rays_per_second / 1e6, fast.mix / 1e6);
         }
         batch_free(&ext);
         batch_free(&sh);
@@ -863,24 +875,33 @@ int main(int argc, char **argv)
         cJSON_AddNumberToObject(o, "extension_rays_per_sample", ext_per_sample);
         cJSON_AddNumberToObject(o, "shadow_rays_per_sample", rays_per_sample - ext_per_sample);
         cJSON_AddNumberToObject(o, "extension_fraction", f_ext);
-        cJSON_AddStringToObject(o, "mix_method", "extension rays/sample from a naive-integrator render "
-                                                 "at 8 spp; shadow = path - naive");
+        cJSON_AddStringToObject(o, "mix_method",
+                                "extension rays/sample from a naive-integrator render "
+                                "at 8 spp; shadow = path - naive");
 
         cJSON *r = cJSON_AddObjectToObject(root, "raw_embree");
         cJSON_AddNumberToObject(r, "rays_per_batch", (double)a.rays);
         cJSON_AddNumberToObject(r, "runs", raw_runs);
-        cJSON_AddItemToObject(r, "path", dist_json(&dist[0], threads,
-                              "rays of diffuse random walks from the camera, as the path integrator "
-                              "traces them (camera, bounce and next-event shadow rays)"));
-        cJSON_AddItemToObject(r, "area", dist_json(&dist[1], threads,
-                              "origins uniform by area on non-black-emitter triangles, cosine "
-                              "directions about the winding normal; shadow rays to uniform light "
-                              "points where both sides face each other"));
-        cJSON_AddItemToObject(r, "path_not_robust", dist_json(&fast, threads,
-                              "the path rays on a BVH built without RTC_SCENE_FLAG_ROBUST "
-                              "(reference: what the flag costs)"));
-        cJSON_AddNumberToObject(root, "ratio_ours_over_raw", dist[0].mix > 0 ? rps / dist[0].mix : 0.0);
-        cJSON_AddNumberToObject(root, "ratio_ours_over_raw_area", dist[1].mix > 0 ? rps / dist[1].mix : 0.0);
+        cJSON_AddItemToObject(
+            r, "path",
+            dist_json(&dist[0], threads,
+                      "rays of diffuse random walks from the camera, as the path integrator "
+                      "traces them (camera, bounce and next-event shadow rays)"));
+        cJSON_AddItemToObject(
+            r, "area",
+            dist_json(&dist[1], threads,
+                      "origins uniform by area on non-black-emitter triangles, cosine "
+                      "directions about the winding normal; shadow rays to uniform light "
+                      "points where both sides face each other"));
+        cJSON_AddItemToObject(
+            r, "path_not_robust",
+            dist_json(&fast, threads,
+                      "the path rays on a BVH built without RTC_SCENE_FLAG_ROBUST "
+                      "(reference: what the flag costs)"));
+        cJSON_AddNumberToObject(root, "ratio_ours_over_raw",
+                                dist[0].mix > 0 ? rps / dist[0].mix : 0.0);
+        cJSON_AddNumberToObject(root, "ratio_ours_over_raw_area",
+                                dist[1].mix > 0 ? rps / dist[1].mix : 0.0);
         cJSON_AddNumberToObject(root, "ratio_ours_over_raw_5050",
                                 dist[0].mix_5050 > 0 ? rps / dist[0].mix_5050 : 0.0);
         cJSON_AddNumberToObject(root, "peak_rss_kb_render", (double)rss_render);

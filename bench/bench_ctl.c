@@ -20,8 +20,9 @@
 #include <time.h>
 #include <zmq.h>
 
-static const char usage_text[] = "usage: bench_ctl ENDPOINT workers | status JOB | wait-workers N [SECONDS] | "
-                                 "wait JOB [SECONDS]\n";
+static const char usage_text[] =
+    "usage: bench_ctl ENDPOINT workers | status JOB | wait-workers N [SECONDS] | "
+    "wait JOB [SECONDS]\n";
 
 static double now_s(void)
 {
@@ -106,7 +107,8 @@ int main(int argc, char **argv)
         rc = 0;
     else if (strcmp(cmd, "status") == 0 && argc == 4)
         rc = parse_num(argv[3], 1, 9007199254740992.0, &arg) < 0 ? 2 : 0;
-    else if ((strcmp(cmd, "wait") == 0 || strcmp(cmd, "wait-workers") == 0) && (argc == 4 || argc == 5)) {
+    else if ((strcmp(cmd, "wait") == 0 || strcmp(cmd, "wait-workers") == 0) &&
+             (argc == 4 || argc == 5)) {
         limit = strcmp(cmd, "wait") == 0 ? 600 : 20;
         rc = parse_num(argv[3], 0, 9007199254740992.0, &arg) < 0 ||
                      (argc == 5 && parse_num(argv[4], 0.1, 86400, &limit) < 0)

@@ -59,8 +59,8 @@
 #include <string.h>
 #include <sys/prctl.h>
 #include <sys/stat.h>
-#include <unistd.h>
 #include <time.h>
+#include <unistd.h>
 #include <zmq.h>
 
 #include "keys.h"
@@ -185,7 +185,8 @@ static void io_threads_start(io_threads_t *io)
         if (!fgets(name, sizeof name, f))
             name[0] = '\0';
         fclose(f);
-        int mine = strncmp(name, "ZMQbg/IO/", 9) == 0, theirs = strncmp(name, "1/ZMQbg/IO/", 11) == 0;
+        int mine = strncmp(name, "ZMQbg/IO/", 9) == 0,
+            theirs = strncmp(name, "1/ZMQbg/IO/", 11) == 0;
         if (!mine && !theirs)
             continue;
         io->tid[io->n] = (pid_t)atoi(e->d_name);
@@ -231,7 +232,8 @@ static int synth_send(synth_t *s, void *sock, const proto_msg_t *msg, uint8_t *p
     long n = proto_encode(msg, header, payload, cap, s->error, sizeof s->error);
     if (n < 0)
         return -1;
-    if (zmq_send(sock, header, PROTO_HEADER_SIZE, ZMQ_SNDMORE) < 0 || zmq_send(sock, payload, (size_t)n, 0) < 0) {
+    if (zmq_send(sock, header, PROTO_HEADER_SIZE, ZMQ_SNDMORE) < 0 ||
+        zmq_send(sock, payload, (size_t)n, 0) < 0) {
         snprintf(s->error, sizeof s->error, "send: %s", zmq_strerror(errno));
         return -1;
     }
@@ -318,8 +320,8 @@ static void *synth_main(void *arg)
             memset(in, 0, sizeof *in);
             in->capacity = PROTO_MAX_TASK_PIXELS;
             in->u.task.records = task_rec;
-            int drc = proto_decode(zmq_msg_data(&hf), zmq_msg_size(&hf), zmq_msg_data(&pf), zmq_msg_size(&pf), in,
-                                   s->error, sizeof s->error);
+            int drc = proto_decode(zmq_msg_data(&hf), zmq_msg_size(&hf), zmq_msg_data(&pf),
+                                   zmq_msg_size(&pf), in, s->error, sizeof s->error);
             zmq_msg_close(&hf);
             zmq_msg_close(&pf);
             if (drc < 0) {
@@ -351,7 +353,8 @@ static void *synth_main(void *arg)
                 out->h.job = in->h.job;
                 out->h.task = in->h.task;
                 out->h.attempt = in->h.attempt;
-                out->u.result.rays = (uint64_t)t->count * (t->count ? t->records[0].sample_count : 0) * 6;
+                out->u.result.rays =
+                    (uint64_t)t->count * (t->count ? t->records[0].sample_count : 0) * 6;
                 out->u.result.busy_us = 1;
                 out->u.result.count = t->count;
                 out->u.result.records = res_rec;
@@ -363,8 +366,8 @@ static void *synth_main(void *arg)
                 s->records += t->count;
             } else if (in->h.type == PROTO_REFUSE || in->h.type == PROTO_BYE) {
                 if (!atomic_load(s->stop)) {
-                    snprintf(s->error, sizeof s->error, "master said %s: %.200s", proto_type_name(in->h.type),
-                             in->u.text.text);
+                    snprintf(s->error, sizeof s->error, "master said %s: %.200s",
+                             proto_type_name(in->h.type), in->u.text.text);
                     s->failed = 1;
                 }
                 break;
@@ -400,8 +403,8 @@ static void *master_main(void *arg)
 }
 
 /* One REQ round trip: [json][extra frame] -> parsed reply. */
-static cJSON *request(void *req_sock, const cJSON *body, const char *frame, size_t frame_len, char *err,
-                      size_t errlen)
+static cJSON *request(void *req_sock, const cJSON *body, const char *frame, size_t frame_len,
+                      char *err, size_t errlen)
 {
     char *text = cJSON_PrintUnformatted(body);
     if (!text) {
@@ -459,8 +462,15 @@ static const char *jstr(const cJSON *o, const char *k)
 
 static int parse_args(int argc, char **argv, args_t *a)
 {
-    *a = (args_t){.workers = 1, .io_threads = 1, .port = 17570, .size = 1024, .spp = 1024, .granularity = 32, .credit = 8,
-                  .max_seconds = 60, .adaptive = "none"};
+    *a = (args_t){.workers = 1,
+                  .io_threads = 1,
+                  .port = 17570,
+                  .size = 1024,
+                  .spp = 1024,
+                  .granularity = 32,
+                  .credit = 8,
+                  .max_seconds = 60,
+                  .adaptive = "none"};
     for (int i = 1; i < argc; i++) {
         const char *o = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
         int bad = 0;
@@ -570,11 +580,14 @@ int main(int argc, char **argv)
     if (rc)
         return rc;
     if (a.curve && !a.tcp) {
-        fprintf(stderr, "bench_master: --curve needs --transport tcp (ZeroMQ does not secure inproc)\n");
+        fprintf(stderr,
+                "bench_master: --curve needs --transport tcp (ZeroMQ does not secure inproc)\n");
         return 2;
     }
     if (a.own_context && !a.tcp) {
-        fprintf(stderr, "bench_master: --worker-context own needs --transport tcp (inproc is per context)\n");
+        fprintf(
+            stderr,
+            "bench_master: --worker-context own needs --transport tcp (inproc is per context)\n");
         return 2;
     }
     char wep[64], cep[64], wep_connect[64], err[1024];
@@ -635,11 +648,13 @@ int main(int argc, char **argv)
     clockid_t master_clock;
     pthread_getcpuclockid(mt.thread, &master_clock);
     for (uint64_t i = 0; i < a.workers; i++) {
-        synth[i] = (synth_t){.ctx = wctx, .keys = a.curve ? &keys : NULL, .credit = (uint32_t)a.credit,
+        synth[i] = (synth_t){.ctx = wctx,
+                             .keys = a.curve ? &keys : NULL,
+                             .credit = (uint32_t)a.credit,
                              .stop = &synth_stop};
         if (a.tcp) /* an address each: verified copies go to workers of another identity */
-            snprintf(synth[i].endpoint, sizeof synth[i].endpoint, "tcp://127.0.0.%" PRIu64 ":0;%s", 10 + i,
-                     wep_connect + strlen("tcp://"));
+            snprintf(synth[i].endpoint, sizeof synth[i].endpoint, "tcp://127.0.0.%" PRIu64 ":0;%s",
+                     10 + i, wep_connect + strlen("tcp://"));
         else
             snprintf(synth[i].endpoint, sizeof synth[i].endpoint, "%s", wep_connect);
         pthread_create(&synth[i].thread, NULL, synth_main, &synth[i]);
@@ -677,7 +692,8 @@ int main(int argc, char **argv)
         if (n == (int)a.workers)
             break;
         if (now_s() - t0 > 10) {
-            fprintf(stderr, "bench_master: only %d of %" PRIu64 " synthetic workers joined\n", n, a.workers);
+            fprintf(stderr, "bench_master: only %d of %" PRIu64 " synthetic workers joined\n", n,
+                    a.workers);
             goto done;
         }
         struct timespec ts = {0, 10 * 1000 * 1000};
@@ -693,14 +709,15 @@ int main(int argc, char **argv)
 
     /* the job: one emitting quad, nothing is traced anyway */
     char scene[1024];
-    int scene_len = snprintf(scene, sizeof scene,
-                             "{\"camera\": {\"position\": [0, 2, -3], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], "
-                             "\"fov\": 40, \"width\": %" PRIu64 ", \"height\": %" PRIu64 "},"
-                             " \"render\": {\"spp\": 1, \"seed\": 1, \"integrator\": \"path\"},"
-                             " \"materials\": {\"light\": {\"type\": \"emitter\", \"radiance\": [1, 1, 1]}},"
-                             " \"shapes\": [{\"type\": \"quad\", \"material\": \"light\", \"vertices\": "
-                             "[[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]]}]}",
-                             a.size, a.size);
+    int scene_len = snprintf(
+        scene, sizeof scene,
+        "{\"camera\": {\"position\": [0, 2, -3], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], "
+        "\"fov\": 40, \"width\": %" PRIu64 ", \"height\": %" PRIu64 "},"
+        " \"render\": {\"spp\": 1, \"seed\": 1, \"integrator\": \"path\"},"
+        " \"materials\": {\"light\": {\"type\": \"emitter\", \"radiance\": [1, 1, 1]}},"
+        " \"shapes\": [{\"type\": \"quad\", \"material\": \"light\", \"vertices\": "
+        "[[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]]}]}",
+        a.size, a.size);
     q = cJSON_CreateObject();
     cJSON_AddStringToObject(q, "cmd", "submit");
     cJSON_AddStringToObject(q, "name", "synthetic.json");
@@ -712,7 +729,8 @@ int main(int argc, char **argv)
     double synth_cpu0[MAX_SYNTH];
     io_threads_t io;
     io_threads_start(&io);
-    double wall0 = now_s(), master_cpu0 = clock_s(master_clock), proc_cpu0 = clock_s(CLOCK_PROCESS_CPUTIME_ID);
+    double wall0 = now_s(), master_cpu0 = clock_s(master_clock),
+           proc_cpu0 = clock_s(CLOCK_PROCESS_CPUTIME_ID);
     for (uint64_t i = 0; i < a.workers; i++)
         synth_cpu0[i] = clock_s(synth[i].clock);
     cJSON *r = request(req, q, scene, (size_t)scene_len, err, sizeof err);
@@ -744,7 +762,8 @@ int main(int argc, char **argv)
             break;
         for (uint64_t i = 0; i < a.workers; i++)
             if (synth[i].failed) {
-                fprintf(stderr, "bench_master: synthetic worker %" PRIu64 ": %s\n", i + 1, synth[i].error);
+                fprintf(stderr, "bench_master: synthetic worker %" PRIu64 ": %s\n", i + 1,
+                        synth[i].error);
                 goto done;
             }
         if (!cancelled && now_s() - wall0 > (double)a.max_seconds) {
@@ -757,7 +776,8 @@ int main(int argc, char **argv)
             cancelled = 1;
         }
     }
-    double wall1 = now_s(), master_cpu1 = clock_s(master_clock), proc_cpu1 = clock_s(CLOCK_PROCESS_CPUTIME_ID);
+    double wall1 = now_s(), master_cpu1 = clock_s(master_clock),
+           proc_cpu1 = clock_s(CLOCK_PROCESS_CPUTIME_ID);
     double synth_cpu = 0;
     uint64_t tasks = 0, records = 0, bytes_in = 0, bytes_out = 0;
     for (uint64_t i = 0; i < a.workers; i++) {
@@ -768,10 +788,12 @@ int main(int argc, char **argv)
         bytes_out += synth[i].bytes_out;
     }
     double master_io_busiest = 0;
-    double master_io_cpu = io_threads_cpu(&io, 0, &master_io_busiest), worker_io_cpu = io_threads_cpu(&io, 1, NULL);
+    double master_io_cpu = io_threads_cpu(&io, 0, &master_io_busiest),
+           worker_io_cpu = io_threads_cpu(&io, 1, NULL);
     double seconds = jnum(status, "seconds"), samples = jnum(status, "samples");
     double results = samples / (double)a.granularity;
-    double master_cpu = master_cpu1 - master_cpu0, proc_cpu = proc_cpu1 - proc_cpu0, wall = wall1 - wall0;
+    double master_cpu = master_cpu1 - master_cpu0, proc_cpu = proc_cpu1 - proc_cpu0,
+           wall = wall1 - wall0;
 
     out = cJSON_CreateObject();
     cJSON_AddStringToObject(out, "benchmark", "master");
@@ -806,17 +828,21 @@ int main(int argc, char **argv)
     cJSON_AddNumberToObject(out, "wall_seconds", wall);
     cJSON_AddNumberToObject(out, "master_cpu_seconds", master_cpu);
     cJSON_AddNumberToObject(out, "master_cpu_utilization", wall > 0 ? master_cpu / wall : 0);
-    cJSON_AddNumberToObject(out, "results_per_master_cpu_second", master_cpu > 0 ? results / master_cpu : 0);
-    cJSON_AddNumberToObject(out, "master_ns_per_result", results > 0 ? master_cpu / results * 1e9 : 0);
+    cJSON_AddNumberToObject(out, "results_per_master_cpu_second",
+                            master_cpu > 0 ? results / master_cpu : 0);
+    cJSON_AddNumberToObject(out, "master_ns_per_result",
+                            results > 0 ? master_cpu / results * 1e9 : 0);
     /* ZeroMQ's I/O threads of the master's context (shared: the workers' too) */
     cJSON_AddNumberToObject(out, "master_io_cpu_seconds", master_io_cpu);
-    cJSON_AddNumberToObject(out, "master_io_ns_per_result", results > 0 ? master_io_cpu / results * 1e9 : 0);
+    cJSON_AddNumberToObject(out, "master_io_ns_per_result",
+                            results > 0 ? master_io_cpu / results * 1e9 : 0);
     cJSON_AddNumberToObject(out, "master_io_threads", (double)a.io_threads);
     /* a host with a core per thread is bounded by its busiest master thread */
     cJSON_AddNumberToObject(out, "master_io_busiest_ns_per_result",
                             results > 0 ? master_io_busiest / results * 1e9 : 0);
     cJSON_AddNumberToObject(out, "worker_io_cpu_seconds", worker_io_cpu);
-    cJSON_AddNumberToObject(out, "process_ns_per_result", results > 0 ? proc_cpu / results * 1e9 : 0);
+    cJSON_AddNumberToObject(out, "process_ns_per_result",
+                            results > 0 ? proc_cpu / results * 1e9 : 0);
     cJSON_AddNumberToObject(out, "workers_cpu_seconds", synth_cpu);
     cJSON_AddNumberToObject(out, "other_cpu_seconds", proc_cpu - master_cpu - synth_cpu);
     cJSON_AddNumberToObject(out, "process_cpu_seconds", proc_cpu);
@@ -834,11 +860,12 @@ int main(int argc, char **argv)
         cJSON_free(text);
     }
     fprintf(stderr,
-            "bench_master: %s%s, %" PRIu64 " worker(s), %s, G %" PRIu64 ": %.3g results in %.2f s = %.3g results/s; "
+            "bench_master: %s%s, %" PRIu64 " worker(s), %s, G %" PRIu64
+            ": %.3g results in %.2f s = %.3g results/s; "
             "master thread %.2f CPU s (%.0f%%) = %.3g results per master CPU s\n",
-            a.tcp ? "tcp" : "inproc", a.curve ? " with CURVE" : "", a.workers, a.adaptive, a.granularity, results, seconds,
-            seconds > 0 ? results / seconds : 0, master_cpu, wall > 0 ? 100 * master_cpu / wall : 0,
-            master_cpu > 0 ? results / master_cpu : 0);
+            a.tcp ? "tcp" : "inproc", a.curve ? " with CURVE" : "", a.workers, a.adaptive,
+            a.granularity, results, seconds, seconds > 0 ? results / seconds : 0, master_cpu,
+            wall > 0 ? 100 * master_cpu / wall : 0, master_cpu > 0 ? results / master_cpu : 0);
     rc = strcmp(jstr(status, "state"), "done") == 0 || cancelled ? 0 : 1;
 done:
     atomic_store(&synth_stop, 1);

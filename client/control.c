@@ -3,9 +3,9 @@
 
 #include <ctype.h>
 #include <errno.h>
+#include <sodium.h>
 #include <stdio.h>
 #include <stdlib.h>
-#include <sodium.h>
 #include <string.h>
 #include <time.h>
 #include <zmq.h>
@@ -21,11 +21,11 @@ struct control {
     int lost;       /* the last request got no answer in time */
     zmq_msg_t extra[16];
     int nextra;
-    int curve;                 /* the socket is a CURVE client */
-    char keys[3][64];          /* public, secret, master: Z85 */
-    handshake_monitor_t *mon;  /* sock's handshakes */
-    int closed_in_row;         /* handshakes closed without a word, in a row */
-    int failed;                /* a handshake failed for good: handshake_error says why */
+    int curve;                /* the socket is a CURVE client */
+    char keys[3][64];         /* public, secret, master: Z85 */
+    handshake_monitor_t *mon; /* sock's handshakes */
+    int closed_in_row;        /* handshakes closed without a word, in a row */
+    int failed;               /* a handshake failed for good: handshake_error says why */
     char handshake_error[768];
 };
 
@@ -62,9 +62,10 @@ static int open_socket(control_t *c, char *err, size_t errlen)
     }
     int zero = 0;
     zmq_setsockopt(c->sock, ZMQ_LINGER, &zero, sizeof zero);
-    if (c->curve && (zmq_setsockopt(c->sock, ZMQ_CURVE_SERVERKEY, c->keys[2], strlen(c->keys[2])) < 0 ||
-                     zmq_setsockopt(c->sock, ZMQ_CURVE_PUBLICKEY, c->keys[0], strlen(c->keys[0])) < 0 ||
-                     zmq_setsockopt(c->sock, ZMQ_CURVE_SECRETKEY, c->keys[1], strlen(c->keys[1])) < 0)) {
+    if (c->curve &&
+        (zmq_setsockopt(c->sock, ZMQ_CURVE_SERVERKEY, c->keys[2], strlen(c->keys[2])) < 0 ||
+         zmq_setsockopt(c->sock, ZMQ_CURVE_PUBLICKEY, c->keys[0], strlen(c->keys[0])) < 0 ||
+         zmq_setsockopt(c->sock, ZMQ_CURVE_SECRETKEY, c->keys[1], strlen(c->keys[1])) < 0)) {
         snprintf(err, errlen, "cannot set the CURVE keys: %s", zmq_strerror(errno));
         close_socket(c);
         return -1;
@@ -91,7 +92,8 @@ static int handshake_failed(control_t *c)
     char msg[sizeof c->handshake_error];
     handshake_result_t r;
     while (!c->failed && c->mon &&
-           (r = handshake_monitor_read(c->mon, c->endpoint, "client", c->curve, msg, sizeof msg)) != HANDSHAKE_NONE) {
+           (r = handshake_monitor_read(c->mon, c->endpoint, "client", c->curve, msg, sizeof msg)) !=
+               HANDSHAKE_NONE) {
         if (r == HANDSHAKE_OK)
             c->closed_in_row = 0;
         else if (r != HANDSHAKE_CLOSED || ++c->closed_in_row >= 2) {
@@ -112,7 +114,8 @@ static int wait_socket(control_t *c, short events, double deadline)
         double left = deadline - now_seconds();
         if (left <= 0)
             return 0;
-        zmq_pollitem_t it[2] = {{c->sock, 0, events, 0}, {handshake_monitor_socket(c->mon), 0, ZMQ_POLLIN, 0}};
+        zmq_pollitem_t it[2] = {{c->sock, 0, events, 0},
+                                {handshake_monitor_socket(c->mon), 0, ZMQ_POLLIN, 0}};
         int rc = zmq_poll(it, 2, (long)(left * 1000.0) + 1);
         if (rc < 0 && errno != EINTR)
             return 0;
@@ -121,8 +124,8 @@ static int wait_socket(control_t *c, short events, double deadline)
     }
 }
 
-control_t *control_new_with_keys(void *zmq_ctx, const char *endpoint, int timeout_ms, const control_keys_t *keys,
-                                 char *err, size_t errlen)
+control_t *control_new_with_keys(void *zmq_ctx, const char *endpoint, int timeout_ms,
+                                 const control_keys_t *keys, char *err, size_t errlen)
 {
     control_t *c = calloc(1, sizeof *c);
     if (!c) {
@@ -135,8 +138,10 @@ control_t *control_new_with_keys(void *zmq_ctx, const char *endpoint, int timeou
     if (keys) {
         const char *k[3] = {keys->public_key, keys->secret_key, keys->master_key};
         for (int i = 0; i < 3; i++)
-            if (!k[i] || (size_t)snprintf(c->keys[i], sizeof c->keys[i], "%s", k[i]) >= sizeof c->keys[i]) {
-                snprintf(err, errlen, "CURVE needs this client's key pair and the master's public key");
+            if (!k[i] ||
+                (size_t)snprintf(c->keys[i], sizeof c->keys[i], "%s", k[i]) >= sizeof c->keys[i]) {
+                snprintf(err, errlen,
+                         "CURVE needs this client's key pair and the master's public key");
                 control_destroy(&c);
                 return NULL;
             }
@@ -149,7 +154,8 @@ control_t *control_new_with_keys(void *zmq_ctx, const char *endpoint, int timeou
     return c;
 }
 
-control_t *control_new(void *zmq_ctx, const char *endpoint, int timeout_ms, char *err, size_t errlen)
+control_t *control_new(void *zmq_ctx, const char *endpoint, int timeout_ms, char *err,
+                       size_t errlen)
 {
     return control_new_with_keys(zmq_ctx, endpoint, timeout_ms, NULL, err, errlen);
 }
@@ -160,7 +166,7 @@ void control_destroy(control_t **cp)
         return;
     drop_extra(*cp);
     close_socket(*cp);
-    explicit_bzero((*cp)->keys, sizeof (*cp)->keys);
+    explicit_bzero((*cp)->keys, sizeof(*cp)->keys);
     free(*cp);
     *cp = NULL;
 }
@@ -175,8 +181,9 @@ static void reopen_socket(control_t *c)
 }
 
 /* One try: send, then wait up to timeout_ms for the reply. */
-static cJSON *request_once(control_t *c, const cJSON *req, const void *const *frames, const size_t *sizes,
-                           int nframes, int timeout_ms, char *err, size_t errlen)
+static cJSON *request_once(control_t *c, const cJSON *req, const void *const *frames,
+                           const size_t *sizes, int nframes, int timeout_ms, char *err,
+                           size_t errlen)
 {
     drop_extra(c);
     c->lost = 0;
@@ -211,8 +218,8 @@ static cJSON *request_once(control_t *c, const cJSON *req, const void *const *fr
     if (rc < 0) {
         int e = errno;
         if (e == EAGAIN) {
-            snprintf(err, errlen, "cannot send to the master at %s within %.1f s (is it running?)", c->endpoint,
-                     timeout_ms / 1000.0);
+            snprintf(err, errlen, "cannot send to the master at %s within %.1f s (is it running?)",
+                     c->endpoint, timeout_ms / 1000.0);
             c->lost = 1;
         } else {
             snprintf(err, errlen, "cannot send to %s: %s", c->endpoint, zmq_strerror(e));
@@ -229,8 +236,8 @@ static cJSON *request_once(control_t *c, const cJSON *req, const void *const *fr
     zmq_msg_t reply;
     zmq_msg_init(&reply);
     if (!ready || zmq_msg_recv(&reply, c->sock, ZMQ_DONTWAIT) < 0) {
-        snprintf(err, errlen, "no answer from the master at %s within %.1f s (is it running?)", c->endpoint,
-                 timeout_ms / 1000.0);
+        snprintf(err, errlen, "no answer from the master at %s within %.1f s (is it running?)",
+                 c->endpoint, timeout_ms / 1000.0);
         zmq_msg_close(&reply);
         c->lost = 1;
         reopen_socket(c);
@@ -257,8 +264,8 @@ static cJSON *request_once(control_t *c, const cJSON *req, const void *const *fr
     return body;
 }
 
-cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames, const size_t *sizes,
-                       int nframes, char *err, size_t errlen)
+cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames,
+                       const size_t *sizes, int nframes, char *err, size_t errlen)
 {
     return request_once(c, req, frames, sizes, nframes, c->timeout_ms, err, errlen);
 }
@@ -277,8 +284,9 @@ static void sleep_seconds(double s)
     }
 }
 
-cJSON *control_request_retry(control_t *c, const cJSON *req, const void *const *frames, const size_t *sizes,
-                             int nframes, control_retry_t *retry, char *err, size_t errlen)
+cJSON *control_request_retry(control_t *c, const cJSON *req, const void *const *frames,
+                             const size_t *sizes, int nframes, control_retry_t *retry, char *err,
+                             size_t errlen)
 {
     if (!retry || !(retry->timeout_s > 0))
         return control_request(c, req, frames, sizes, nframes, err, errlen);
@@ -330,7 +338,8 @@ static unsigned char *read_all(const char *path, size_t *size, char *err, size_t
     if (fseek(f, 0, SEEK_END) == 0)
         n = ftell(f);
     if (n < 0 || fseek(f, 0, SEEK_SET) != 0 || (unsigned long)n > PROTO_MAX_MESH_BYTES) {
-        snprintf(err, errlen, "%s: cannot read it (not a regular file, or over %u bytes)", path, PROTO_MAX_MESH_BYTES);
+        snprintf(err, errlen, "%s: cannot read it (not a regular file, or over %u bytes)", path,
+                 PROTO_MAX_MESH_BYTES);
         fclose(f);
         return NULL;
     }
@@ -362,7 +371,8 @@ static int new_request_id(char out[33], char *err, size_t errlen)
 }
 
 unsigned long long control_submit(control_t *c, const char *scene_path, const cJSON *settings,
-                                  const image_t *reference, control_retry_t *retry, char *err, size_t errlen)
+                                  const image_t *reference, control_retry_t *retry, char *err,
+                                  size_t errlen)
 {
     char request_id[33];
     if (new_request_id(request_id, err, errlen) < 0)
@@ -409,7 +419,8 @@ unsigned long long control_submit(control_t *c, const char *scene_path, const cJ
     {
         cJSON *file = cJSON_GetObjectItemCaseSensitive(sh, "file");
         const cJSON *type = cJSON_GetObjectItemCaseSensitive(sh, "type");
-        if (!cJSON_IsString(type) || strcmp(type->valuestring, "mesh") != 0 || !cJSON_IsString(file))
+        if (!cJSON_IsString(type) || strcmp(type->valuestring, "mesh") != 0 ||
+            !cJSON_IsString(file))
             continue;
         if (mesh == PROTO_MAX_MESHES) {
             snprintf(err, errlen, "%s: more than %d mesh files", scene_path, PROTO_MAX_MESHES);
@@ -463,7 +474,8 @@ unsigned long long control_submit(control_t *c, const char *scene_path, const cJ
             sizes[nframes++] = (size_t)reference->width * reference->height * sizeof(float);
         }
     }
-    cJSON *reply = control_request_retry(c, req, (const void *const *)frames, sizes, nframes, retry, err, errlen);
+    cJSON *reply = control_request_retry(c, req, (const void *const *)frames, sizes, nframes, retry,
+                                         err, errlen);
     if (reply) {
         const cJSON *ok = cJSON_GetObjectItemCaseSensitive(reply, "ok");
         const cJSON *id = cJSON_GetObjectItemCaseSensitive(reply, "job");
@@ -471,7 +483,8 @@ unsigned long long control_submit(control_t *c, const char *scene_path, const cJ
         if (cJSON_IsTrue(ok) && cJSON_IsNumber(id))
             job = (unsigned long long)id->valuedouble;
         else
-            snprintf(err, errlen, "%s", cJSON_IsString(e) ? e->valuestring : "the master refused the job");
+            snprintf(err, errlen, "%s",
+                     cJSON_IsString(e) ? e->valuestring : "the master refused the job");
         cJSON_Delete(reply);
     }
 done:
@@ -486,7 +499,8 @@ done:
     return job;
 }
 
-image_t *control_fetch(control_t *c, unsigned long long job, cJSON **job_status, char *err, size_t errlen)
+image_t *control_fetch(control_t *c, unsigned long long job, cJSON **job_status, char *err,
+                       size_t errlen)
 {
     *job_status = NULL;
     cJSON *req = cJSON_CreateObject();
@@ -505,7 +519,8 @@ image_t *control_fetch(control_t *c, unsigned long long job, cJSON **job_status,
         snprintf(err, errlen, "%s", cJSON_IsString(e) ? e->valuestring : "fetch refused");
         goto done;
     }
-    const cJSON *w = cJSON_GetObjectItemCaseSensitive(st, "width"), *h = cJSON_GetObjectItemCaseSensitive(st, "height");
+    const cJSON *w = cJSON_GetObjectItemCaseSensitive(st, "width"),
+                *h = cJSON_GetObjectItemCaseSensitive(st, "height");
     int n = cJSON_GetArraySize(ch);
     if (!cJSON_IsNumber(w) || !cJSON_IsNumber(h) || n != c->nextra) {
         snprintf(err, errlen, "the master's image reply is malformed");

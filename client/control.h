@@ -18,7 +18,8 @@ typedef struct control_keys {
 } control_keys_t;
 
 /* A REQ socket to the master's control endpoint, with a receive timeout. */
-control_t *control_new(void *zmq_ctx, const char *endpoint, int timeout_ms, char *err, size_t errlen);
+control_t *control_new(void *zmq_ctx, const char *endpoint, int timeout_ms, char *err,
+                       size_t errlen);
 
 /* The same as a CURVE client (keys NULL: without CURVE). Either way the
  * socket's handshakes are watched: a request to a master that refuses this
@@ -26,8 +27,8 @@ control_t *control_new(void *zmq_ctx, const char *endpoint, int timeout_ms, char
  * master key, CURVE on one side only), fails at once with a message saying
  * so (handshake.h) instead of waiting out the timeout; control_lost is then
  * 0, so nothing retries it. */
-control_t *control_new_with_keys(void *zmq_ctx, const char *endpoint, int timeout_ms, const control_keys_t *keys,
-                                 char *err, size_t errlen);
+control_t *control_new_with_keys(void *zmq_ctx, const char *endpoint, int timeout_ms,
+                                 const control_keys_t *keys, char *err, size_t errlen);
 void control_destroy(control_t **c);
 
 /* Sends a request (and binary frames) and returns the parsed reply (free
@@ -36,8 +37,8 @@ void control_destroy(control_t **c);
  * "..."} is returned as is: the caller reports its error. Extra reply
  * frames, if any, are stored until control_take_frames. Neither the send
  * nor the receive waits longer than the timeout given to control_new. */
-cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames, const size_t *sizes,
-                       int nframes, char *err, size_t errlen);
+cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames,
+                       const size_t *sizes, int nframes, char *err, size_t errlen);
 
 /* Whether the last request got no answer in time: the master is down,
  * restarting or busy, and it may or may not have received the request. */
@@ -58,8 +59,9 @@ typedef struct control_retry {
  * waits at most the control_new timeout, and at most a fifth of
  * timeout_s (at least 0.5 s) so that several tries fit in it. Only a
  * request that is safe to repeat may be sent this way. retry NULL: one try. */
-cJSON *control_request_retry(control_t *c, const cJSON *req, const void *const *frames, const size_t *sizes,
-                             int nframes, control_retry_t *retry, char *err, size_t errlen);
+cJSON *control_request_retry(control_t *c, const cJSON *req, const void *const *frames,
+                             const size_t *sizes, int nframes, control_retry_t *retry, char *err,
+                             size_t errlen);
 
 /* Reads a scene file and the mesh files it names, renames the meshes to
  * bundle names (mesh0.ply, ...), and submits it with the given settings
@@ -70,10 +72,12 @@ cJSON *control_request_retry(control_t *c, const cJSON *req, const void *const *
  * without queueing the job twice. Returns the job id, or 0 with a
  * message. */
 unsigned long long control_submit(control_t *c, const char *scene_path, const cJSON *settings,
-                                  const image_t *reference, control_retry_t *retry, char *err, size_t errlen);
+                                  const image_t *reference, control_retry_t *retry, char *err,
+                                  size_t errlen);
 
 /* Fetches a job's image (channels R, G, B, samples, variance) with the
  * job's status in *job (free with cJSON_Delete). NULL with a message. */
-image_t *control_fetch(control_t *c, unsigned long long job, cJSON **job_status, char *err, size_t errlen);
+image_t *control_fetch(control_t *c, unsigned long long job, cJSON **job_status, char *err,
+                       size_t errlen);
 
 #endif

@@ -2,8 +2,8 @@
  *
  *   vbrender render SCENE.json [-o OUT.exr] [job settings] [--workers N] [--threads T]
  *   vbrender submit SCENE.json [job settings] [--master EP]   (prints the job id last)
- *   vbrender status [JOB] | wait JOB | fetch JOB -o OUT.exr | cancel JOB | delete JOB | jobs | workers
- *   vbrender keygen NAME   (NAME.key and NAME.pub: a CURVE key pair)
+ *   vbrender status [JOB] | wait JOB | fetch JOB -o OUT.exr | cancel JOB | delete JOB | jobs |
+ * workers vbrender keygen NAME   (NAME.key and NAME.pub: a CURVE key pair)
  *
  * The commands for a running master take --key client.key --master-key
  * master.pub (or VBRENDER_KEY, VBRENDER_MASTER_KEY) for a master that uses
@@ -44,7 +44,7 @@
 #include "worker.h"
 
 #define DEFAULT_MASTER "tcp://localhost:7071"
-#define DEFAULT_TIMEOUT_S 300.0 /* submit, wait: how long a master may stay away */
+#define DEFAULT_TIMEOUT_S 300.0  /* submit, wait: how long a master may stay away */
 #define REQUEST_TIMEOUT_MS 10000 /* a request to a master (one try) */
 
 static const char usage_text[] =
@@ -141,14 +141,15 @@ typedef struct args {
     const char *reference; /* --reference REF.exr */
     const char *master;
     const char *key_file, *master_key_file; /* --key, --master-key */
-    cJSON *settings; /* submit fields */
-    double timeout_s; /* --timeout */
+    cJSON *settings;                        /* submit fields */
+    double timeout_s;                       /* --timeout */
     uint64_t workers, threads;
     progress_mode_t progress;
     int have_workers, have_threads;
 } args_t;
 
-static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int allow_output, int allow_timeout)
+static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int allow_output,
+                      int allow_timeout)
 {
     a->settings = cJSON_CreateObject();
     a->master = DEFAULT_MASTER;
@@ -182,7 +183,8 @@ static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int 
             errno = 0;
             double t = v ? strtod(v, &end) : -1;
             if (!v || errno || *end || !(t > 0) || !(t <= 1e9))
-                return usage_error("--timeout needs a number of seconds > 0 (got '%s')", v ? v : "");
+                return usage_error("--timeout needs a number of seconds > 0 (got '%s')",
+                                   v ? v : "");
             a->timeout_s = t;
         } else if (strcmp(o, "--progress") == 0) {
             if (v && strcmp(v, "auto") == 0)
@@ -194,30 +196,37 @@ static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int 
             else if (v && strcmp(v, "none") == 0)
                 a->progress = PROGRESS_NONE;
             else
-                return usage_error("--progress must be auto, bar, lines or none (got '%s')", v ? v : "");
+                return usage_error("--progress must be auto, bar, lines or none (got '%s')",
+                                   v ? v : "");
         } else if (allow_settings && strcmp(o, "--workers") == 0) {
             if (parse_u64(v, 1, 64, &a->workers) < 0)
-                return usage_error("--workers needs an integer from 1 to 64 (got '%s')", v ? v : "");
+                return usage_error("--workers needs an integer from 1 to 64 (got '%s')",
+                                   v ? v : "");
             a->have_workers = 1;
         } else if (allow_settings && strcmp(o, "--threads") == 0) {
             if (parse_u64(v, 1, RENDER_MAX_THREADS, &a->threads) < 0)
-                return usage_error("--threads needs an integer from 1 to 256 (got '%s')", v ? v : "");
+                return usage_error("--threads needs an integer from 1 to 256 (got '%s')",
+                                   v ? v : "");
             a->have_threads = 1;
         } else if (allow_settings && strcmp(o, "--spp") == 0) {
             if (parse_u64(v, 1, UINT32_MAX, &n) < 0)
-                return usage_error("--spp needs an integer from 1 to 4294967295 (got '%s')", v ? v : "");
+                return usage_error("--spp needs an integer from 1 to 4294967295 (got '%s')",
+                                   v ? v : "");
             cJSON_AddNumberToObject(a->settings, "spp", (double)n);
         } else if (allow_settings && strcmp(o, "--granularity") == 0) {
             if (parse_u64(v, 1, TRACER_MAX_TASK_SAMPLES, &n) < 0)
-                return usage_error("--granularity needs an integer from 1 to 4096 (got '%s')", v ? v : "");
+                return usage_error("--granularity needs an integer from 1 to 4096 (got '%s')",
+                                   v ? v : "");
             cJSON_AddNumberToObject(a->settings, "granularity", (double)n);
         } else if (allow_settings && strcmp(o, "--uniform-layers") == 0) {
             if (parse_u64(v, 0, 1000000, &n) < 0)
-                return usage_error("--uniform-layers needs an integer from 0 to 1000000 (got '%s')", v ? v : "");
+                return usage_error("--uniform-layers needs an integer from 0 to 1000000 (got '%s')",
+                                   v ? v : "");
             cJSON_AddNumberToObject(a->settings, "uniform_layers", (double)n);
         } else if (allow_settings && strcmp(o, "--flags") == 0) {
             if (!v || !*v || strspn(v, "01") != strlen(v))
-                return usage_error("--flags needs a sequence of 0 and 1, one per layer (got '%s')", v ? v : "");
+                return usage_error("--flags needs a sequence of 0 and 1, one per layer (got '%s')",
+                                   v ? v : "");
             cJSON_AddStringToObject(a->settings, "flags", v);
         } else if (allow_settings && strcmp(o, "--seed") == 0) {
             if (parse_u64(v, 0, 9007199254740992ULL, &n) < 0)
@@ -225,21 +234,25 @@ static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int 
             cJSON_AddNumberToObject(a->settings, "seed", (double)n);
         } else if (allow_settings && strcmp(o, "--max-depth") == 0) {
             if (parse_u64(v, 0, 1000000, &n) < 0)
-                return usage_error("--max-depth needs an integer from 0 to 1000000 (got '%s')", v ? v : "");
+                return usage_error("--max-depth needs an integer from 0 to 1000000 (got '%s')",
+                                   v ? v : "");
             cJSON_AddNumberToObject(a->settings, "max_depth", (double)n);
         } else if (allow_settings && strcmp(o, "--time-limit") == 0) {
             char *end;
             errno = 0;
             double t = v ? strtod(v, &end) : -1;
             if (!v || errno || *end || !(t > 0) || !isfinite(t))
-                return usage_error("--time-limit needs a number of seconds > 0 (got '%s')", v ? v : "");
+                return usage_error("--time-limit needs a number of seconds > 0 (got '%s')",
+                                   v ? v : "");
             cJSON_AddNumberToObject(a->settings, "time_limit", t);
         } else if (allow_settings && strcmp(o, "--adaptive") == 0) {
             if (!v || sched_adaptive_from_name(v) < 0)
-                return usage_error("--adaptive must be thesis, variance, relerr or none (got '%s')", v ? v : "");
+                return usage_error("--adaptive must be thesis, variance, relerr or none (got '%s')",
+                                   v ? v : "");
             cJSON_AddStringToObject(a->settings, "adaptive", v);
-        } else if (allow_settings && (strcmp(o, "--target-error") == 0 || strcmp(o, "--confidence") == 0 ||
-                                      strcmp(o, "--target-share") == 0)) {
+        } else if (allow_settings &&
+                   (strcmp(o, "--target-error") == 0 || strcmp(o, "--confidence") == 0 ||
+                    strcmp(o, "--target-share") == 0)) {
             char *end;
             errno = 0;
             double t = v ? strtod(v, &end) : -1;
@@ -249,7 +262,11 @@ static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int 
                 return usage_error(conf ? "--confidence needs a probability in (0, 1) (got '%s')"
                                         : "%s needs a positive number (a share: at most 1)",
                                    conf ? (v ? v : "") : o);
-            cJSON_AddNumberToObject(a->settings, conf ? "confidence" : o[9] == 'e' ? "target_error" : "target_share", t);
+            cJSON_AddNumberToObject(a->settings,
+                                    conf          ? "confidence"
+                                    : o[9] == 'e' ? "target_error"
+                                                  : "target_share",
+                                    t);
         } else if (allow_settings && strcmp(o, "--random-selection") == 0) {
             cJSON_AddTrueToObject(a->settings, "random_selection");
             takes = 0;
@@ -319,8 +336,9 @@ static void progress_detail(const cJSON *job, char *buf, size_t len)
     char a[32], b[32];
     double frac = job_fraction(job), el = jnum(job, "seconds");
     double eta = frac > 0 ? el / frac - el : 0;
-    int n = snprintf(buf, len, "layer %.0f/%.0f, %s samples, %s rays/s, ETA %.0fs", jnum(job, "layers_done"),
-                     jnum(job, "layers"), render_si(jnum(job, "samples"), a, sizeof a),
+    int n = snprintf(buf, len, "layer %.0f/%.0f, %s samples, %s rays/s, ETA %.0fs",
+                     jnum(job, "layers_done"), jnum(job, "layers"),
+                     render_si(jnum(job, "samples"), a, sizeof a),
                      render_si(jnum(job, "rays_per_second"), b, sizeof b), eta);
     if (cJSON_GetObjectItemCaseSensitive(job, "relmse") && n > 0 && (size_t)n < len)
         snprintf(buf + n, len - (size_t)n, ", relMSE %.3g", jnum(job, "relmse"));
@@ -348,7 +366,8 @@ static void view_break(wait_view_t *v)
 static void say_outage(void *arg, const char *endpoint, double timeout_s)
 {
     view_break(arg);
-    fprintf(stderr, "vbrender: master at %s not answering; retrying (up to %g s)\n", endpoint, timeout_s);
+    fprintf(stderr, "vbrender: master at %s not answering; retrying (up to %g s)\n", endpoint,
+            timeout_s);
     fflush(stderr);
 }
 
@@ -379,8 +398,8 @@ static void show_job_notes(wait_view_t *v, unsigned long long job, const cJSON *
 /* Polls status until the job ends; returns the final status, or NULL with
  * a message (one saying the job may still run when the master stayed away
  * for timeout_s; timeout_s <= 0: no retries). */
-static cJSON *wait_job(control_t *c, unsigned long long job, progress_mode_t mode, double timeout_s, char *err,
-                       size_t errlen)
+static cJSON *wait_job(control_t *c, unsigned long long job, progress_mode_t mode, double timeout_s,
+                       char *err, size_t errlen)
 {
     char label[32];
     snprintf(label, sizeof label, "job %llu", job);
@@ -407,7 +426,8 @@ static cJSON *wait_job(control_t *c, unsigned long long job, progress_mode_t mod
         if (!cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(reply, "ok"))) {
             /* e.g. "no such job" from a master that restarted without it */
             const char *e = jstr(reply, "error");
-            snprintf(err, errlen, "job %llu: %s", job, *e ? e : "the master refused the status request");
+            snprintf(err, errlen, "job %llu: %s", job,
+                     *e ? e : "the master refused the status request");
             cJSON_Delete(reply);
             break;
         }
@@ -440,7 +460,8 @@ static cJSON *wait_job(control_t *c, unsigned long long job, progress_mode_t mod
 }
 
 /* Writes OUT.exr, OUT.png and OUT-samples.png from a fetched image. */
-static int write_outputs(image_t *img, const cJSON *job, const char *out_exr, char *err, size_t errlen)
+static int write_outputs(image_t *img, const cJSON *job, const char *out_exr, char *err,
+                         size_t errlen)
 {
     image_set_string(img, "vb.seed", jstr(job, "seed"));
     image_set_string(img, "vb.integrator", jstr(job, "integrator"));
@@ -454,8 +475,10 @@ static int write_outputs(image_t *img, const cJSON *job, const char *out_exr, ch
     char png[4096], heat[4096];
     replace_extension(out_exr, ".png", png, sizeof png);
     replace_extension(out_exr, "-samples.png", heat, sizeof heat);
-    if (image_write_exr(img, out_exr, err, errlen) < 0 || image_write_png(img, png, 1.0f, err, errlen) < 0 ||
-        image_write_heatmap_png(img, "samples", 0.0f, (float)jnum(job, "spp"), heat, err, errlen) < 0)
+    if (image_write_exr(img, out_exr, err, errlen) < 0 ||
+        image_write_png(img, png, 1.0f, err, errlen) < 0 ||
+        image_write_heatmap_png(img, "samples", 0.0f, (float)jnum(job, "spp"), heat, err, errlen) <
+            0)
         return -1;
     printf("%s\n%s\n%s\n", out_exr, png, heat);
     const cJSON *series = cJSON_GetObjectItemCaseSensitive(job, "error_series");
@@ -495,7 +518,8 @@ static int check_writable(const char *out_exr)
     else
         snprintf(dir, sizeof dir, ".");
     if (access(dir, W_OK) != 0) {
-        fprintf(stderr, "vbrender: cannot write %s: folder %s: %s\n", out_exr, dir, strerror(errno));
+        fprintf(stderr, "vbrender: cannot write %s: folder %s: %s\n", out_exr, dir,
+                strerror(errno));
         return -1;
     }
     return 0;
@@ -506,15 +530,18 @@ static void print_summary(const cJSON *job, int workers, int threads)
     char a1[32], a2[32], a3[32], a4[32], where[64] = "";
     double secs = jnum(job, "seconds") > 0 ? jnum(job, "seconds") : 1e-9;
     if (workers > 0) /* embedded: say what ran it; a remote job's workers are the master's */
-        snprintf(where, sizeof where, ", %d worker%s, %d threads", workers, workers == 1 ? "" : "s", threads);
-    fprintf(stderr,
-            "vbrender: %.0fx%.0f, %.0f spp max, %s, adaptive %s, seed %s%s: "
-            "%.2f s, %s samples (%s samples/s), %s rays (%s rays/s), %.0f NaN/Inf samples left out\n",
-            jnum(job, "width"), jnum(job, "height"), jnum(job, "spp"), jstr(job, "integrator"),
-            jstr(job, "adaptive"), jstr(job, "seed"), where,
-            jnum(job, "seconds"), render_si(jnum(job, "samples"), a1, sizeof a1),
-            render_si(jnum(job, "samples") / secs, a2, sizeof a2), render_si(jnum(job, "rays"), a3, sizeof a3),
-            render_si(jnum(job, "rays") / secs, a4, sizeof a4), jnum(job, "nonfinite"));
+        snprintf(where, sizeof where, ", %d worker%s, %d threads", workers, workers == 1 ? "" : "s",
+                 threads);
+    fprintf(
+        stderr,
+        "vbrender: %.0fx%.0f, %.0f spp max, %s, adaptive %s, seed %s%s: "
+        "%.2f s, %s samples (%s samples/s), %s rays (%s rays/s), %.0f NaN/Inf samples left out\n",
+        jnum(job, "width"), jnum(job, "height"), jnum(job, "spp"), jstr(job, "integrator"),
+        jstr(job, "adaptive"), jstr(job, "seed"), where, jnum(job, "seconds"),
+        render_si(jnum(job, "samples"), a1, sizeof a1),
+        render_si(jnum(job, "samples") / secs, a2, sizeof a2),
+        render_si(jnum(job, "rays"), a3, sizeof a3),
+        render_si(jnum(job, "rays") / secs, a4, sizeof a4), jnum(job, "nonfinite"));
 }
 
 /* ---- render: the embedded master and workers ------------------------------------ */
@@ -617,8 +644,12 @@ static int cmd_render(int argc, char **argv)
     for (uint64_t i = 0; i < a.workers; i++) {
         char name[32];
         snprintf(name, sizeof name, "worker-%llu", (unsigned long long)i + 1);
-        worker_config_t wc = {.zmq_ctx = ctx, .master_endpoint = wep, .threads = per + ((int)i < extra ? 1 : 0),
-                              .log = mc.log, .name = name, .device = device};
+        worker_config_t wc = {.zmq_ctx = ctx,
+                              .master_endpoint = wep,
+                              .threads = per + ((int)i < extra ? 1 : 0),
+                              .log = mc.log,
+                              .name = name,
+                              .device = device};
         ew[i].w = worker_new(&wc, err, sizeof err);
         if (!ew[i].w) {
             fprintf(stderr, "vbrender: %s\n", err);
@@ -634,7 +665,8 @@ static int cmd_render(int argc, char **argv)
     }
     c = control_new(ctx, cep, 600000, err, sizeof err);
     /* in-process: a lost reply is a bug, not a restart; no retries */
-    unsigned long long id = c ? control_submit(c, a.positional, a.settings, ref, NULL, err, sizeof err) : 0;
+    unsigned long long id =
+        c ? control_submit(c, a.positional, a.settings, ref, NULL, err, sizeof err) : 0;
     image_destroy(&ref);
     if (!id) {
         fprintf(stderr, "vbrender: %s\n", err);
@@ -689,7 +721,8 @@ done:
 /* The CURVE keys from --key and --master-key, else VBRENDER_KEY and
  * VBRENDER_MASTER_KEY: 1 with keys loaded, 0 without keys, -1 after a
  * message (2 as the exit status: usage; 1: a file). */
-static int load_client_keys(const args_t *a, keys_pair_t *mine, char master[KEYS_Z85_LEN + 1], int *status)
+static int load_client_keys(const args_t *a, keys_pair_t *mine, char master[KEYS_Z85_LEN + 1],
+                            int *status)
 {
     const char *kf = a->key_file, *mf = a->master_key_file;
     if (!kf && getenv("VBRENDER_KEY") && *getenv("VBRENDER_KEY"))
@@ -699,11 +732,13 @@ static int load_client_keys(const args_t *a, keys_pair_t *mine, char master[KEYS
     if (!kf && !mf)
         return 0;
     if (!kf || !mf) {
-        *status = usage_error("%s", "--key and --master-key go together (or VBRENDER_KEY and VBRENDER_MASTER_KEY)");
+        *status = usage_error(
+            "%s", "--key and --master-key go together (or VBRENDER_KEY and VBRENDER_MASTER_KEY)");
         return -1;
     }
     char err[1024];
-    if (keys_load_secret(kf, mine, err, sizeof err) < 0 || keys_load_public(mf, master, err, sizeof err) < 0) {
+    if (keys_load_secret(kf, mine, err, sizeof err) < 0 ||
+        keys_load_public(mf, master, err, sizeof err) < 0) {
         fprintf(stderr, "vbrender: %s\n", err);
         *status = 1;
         return -1;
@@ -729,10 +764,12 @@ static int simple_command(const char *cmd, int argc, char **argv)
     int needs_job = is_wait || is_fetch || is_delete || strcmp(cmd, "cancel") == 0;
     if (is_submit && !a.positional)
         rc = usage_error("%s", "submit needs a scene file: vbrender submit SCENE.json");
-    else if ((needs_job || (strcmp(cmd, "status") == 0 && a.positional)) && (!a.positional || parse_job_id(a.positional, &job) < 0))
+    else if ((needs_job || (strcmp(cmd, "status") == 0 && a.positional)) &&
+             (!a.positional || parse_job_id(a.positional, &job) < 0))
         rc = usage_error("%s needs a job id (a positive integer)", cmd);
     else if (is_readmit && !a.positional)
-        rc = usage_error("%s", "readmit needs a worker: its key (Z85), or its address without keys");
+        rc =
+            usage_error("%s", "readmit needs a worker: its key (Z85), or its address without keys");
     else if (!needs_job && !is_submit && !is_readmit && strcmp(cmd, "status") != 0 && a.positional)
         rc = usage_error("unexpected argument '%s'", a.positional);
     else if (is_fetch && !a.output)
@@ -755,7 +792,8 @@ static int simple_command(const char *cmd, int argc, char **argv)
     control_keys_t keys = {mine.public_z85, mine.secret_z85, master_key};
     void *ctx = zmq_ctx_new();
     char err[2048];
-    control_t *c = control_new_with_keys(ctx, a.master, REQUEST_TIMEOUT_MS, have_keys ? &keys : NULL, err, sizeof err);
+    control_t *c = control_new_with_keys(ctx, a.master, REQUEST_TIMEOUT_MS,
+                                         have_keys ? &keys : NULL, err, sizeof err);
     if (have_keys)
         explicit_bzero(&mine, sizeof mine); /* control keeps its own copy */
     rc = 1;
@@ -770,11 +808,13 @@ static int simple_command(const char *cmd, int argc, char **argv)
             goto done;
         }
         control_retry_t retry = {a.timeout_s, say_outage, NULL, 0};
-        unsigned long long id = control_submit(c, a.positional, a.settings, ref, &retry, err, sizeof err);
+        unsigned long long id =
+            control_submit(c, a.positional, a.settings, ref, &retry, err, sizeof err);
         image_destroy(&ref);
         if (!id) {
             if (retry.unreachable) /* some try may have reached it */
-                fprintf(stderr, "vbrender: %s; the job may have been queued (see 'vbrender jobs')\n", err);
+                fprintf(stderr,
+                        "vbrender: %s; the job may have been queued (see 'vbrender jobs')\n", err);
             else
                 fprintf(stderr, "vbrender: %s\n", err);
             goto done;
@@ -820,14 +860,17 @@ static int simple_command(const char *cmd, int argc, char **argv)
             cJSON_Delete(reply);
             goto done;
         }
-        const cJSON *list = cJSON_GetObjectItemCaseSensitive(reply, strcmp(cmd, "workers") == 0 ? "workers" : "jobs");
+        const cJSON *list = cJSON_GetObjectItemCaseSensitive(
+            reply, strcmp(cmd, "workers") == 0 ? "workers" : "jobs");
         if (is_readmit) {
             printf("readmitted %s\n", a.positional);
         } else if (is_delete) {
             const cJSON *d = cJSON_GetObjectItemCaseSensitive(reply, "deleted");
-            printf("deleted job %llu\n", cJSON_IsNumber(d) ? (unsigned long long)d->valuedouble : job);
+            printf("deleted job %llu\n",
+                   cJSON_IsNumber(d) ? (unsigned long long)d->valuedouble : job);
         } else if (strcmp(cmd, "workers") == 0) {
-            printf("%-24s %7s %12s %12s %10s\n", "host", "threads", "rays/s", "tasks done", "busy s");
+            printf("%-24s %7s %12s %12s %10s\n", "host", "threads", "rays/s", "tasks done",
+                   "busy s");
             const cJSON *w;
             cJSON_ArrayForEach(w, list)
             {
@@ -837,15 +880,18 @@ static int simple_command(const char *cmd, int argc, char **argv)
                        jnum(w, "busy_seconds"));
             }
         } else if (list) {
-            printf("%6s %-10s %-24s %9s %8s %12s %9s\n", "job", "state", "scene", "size", "layers", "samples", "seconds");
+            printf("%6s %-10s %-24s %9s %8s %12s %9s\n", "job", "state", "scene", "size", "layers",
+                   "samples", "seconds");
             const cJSON *j;
             cJSON_ArrayForEach(j, list)
             {
                 char size[32], layers[32], s[32];
                 snprintf(size, sizeof size, "%.0fx%.0f", jnum(j, "width"), jnum(j, "height"));
-                snprintf(layers, sizeof layers, "%.0f/%.0f", jnum(j, "layers_done"), jnum(j, "layers"));
-                printf("%6.0f %-10s %-24s %9s %8s %12s %9.2f\n", jnum(j, "id"), jstr(j, "state"), jstr(j, "scene"),
-                       size, layers, render_si(jnum(j, "samples"), s, sizeof s), jnum(j, "seconds"));
+                snprintf(layers, sizeof layers, "%.0f/%.0f", jnum(j, "layers_done"),
+                         jnum(j, "layers"));
+                printf("%6.0f %-10s %-24s %9s %8s %12s %9.2f\n", jnum(j, "id"), jstr(j, "state"),
+                       jstr(j, "scene"), size, layers, render_si(jnum(j, "samples"), s, sizeof s),
+                       jnum(j, "seconds"));
                 /* a durable master's notes on the job's state files, under its row */
                 if (*jstr(j, "storage_error"))
                     printf("%6s storage error: %s\n", "", jstr(j, "storage_error"));
@@ -860,9 +906,11 @@ static int simple_command(const char *cmd, int argc, char **argv)
             cJSON_free(text);
             /* and in words on stderr, so stdout stays JSON */
             if (*jstr(st, "storage_error"))
-                fprintf(stderr, "vbrender: job %llu: storage error: %s\n", job, jstr(st, "storage_error"));
+                fprintf(stderr, "vbrender: job %llu: storage error: %s\n", job,
+                        jstr(st, "storage_error"));
             if (*jstr(st, "recovered"))
-                fprintf(stderr, "vbrender: job %llu: recovered from %s\n", job, jstr(st, "recovered"));
+                fprintf(stderr, "vbrender: job %llu: recovered from %s\n", job,
+                        jstr(st, "recovered"));
         }
         cJSON_Delete(reply);
         rc = 0;
@@ -879,7 +927,8 @@ done:
 static int cmd_keygen(int argc, char **argv)
 {
     if (argc != 1 || argv[0][0] == '-' || !argv[0][0])
-        return usage_error("%s", "keygen needs a name: vbrender keygen NAME (writes NAME.key and NAME.pub)");
+        return usage_error(
+            "%s", "keygen needs a name: vbrender keygen NAME (writes NAME.key and NAME.pub)");
     keys_pair_t k;
     char err[1024];
     if (keys_generate(&k, err, sizeof err) < 0 || keys_write(argv[0], &k, err, sizeof err) < 0) {
@@ -887,7 +936,8 @@ static int cmd_keygen(int argc, char **argv)
         fprintf(stderr, "vbrender: %s\n", err);
         return 1;
     }
-    printf("%s.key  key pair (keep it secret: mode 0600)\n%s.pub  public key %s\n", argv[0], argv[0], k.public_z85);
+    printf("%s.key  key pair (keep it secret: mode 0600)\n%s.pub  public key %s\n", argv[0],
+           argv[0], k.public_z85);
     explicit_bzero(&k, sizeof k);
     return 0;
 }
@@ -906,7 +956,8 @@ static int cmd_compare(int argc, char **argv)
             errno = 0;
             threshold = v ? strtod(v, &end) : -1;
             if (!v || errno || *end || !(threshold >= 0) || !isfinite(threshold))
-                return usage_error("--threshold needs a relative error >= 0 (got '%s')", v ? v : "");
+                return usage_error("--threshold needs a relative error >= 0 (got '%s')",
+                                   v ? v : "");
             i++;
         } else if (strcmp(argv[i], "--error-map") == 0) {
             if (!v || v[0] == '-')
@@ -926,7 +977,8 @@ static int cmd_compare(int argc, char **argv)
     image_t *a = NULL, *r = NULL;
     char err[1024];
     int rc = 1;
-    if (image_read_exr(files[0], &a, err, sizeof err) < 0 || image_read_exr(files[1], &r, err, sizeof err) < 0) {
+    if (image_read_exr(files[0], &a, err, sizeof err) < 0 ||
+        image_read_exr(files[1], &r, err, sizeof err) < 0) {
         fprintf(stderr, "vbrender: %s\n", err);
         goto done;
     }
@@ -935,12 +987,13 @@ static int cmd_compare(int argc, char **argv)
         fprintf(stderr, "vbrender: cannot compare %s with %s: %s\n", files[0], files[1], err);
         goto done;
     }
-    printf("relMSE %.9g\nRMSE %.9g\nMARE %.9g\nmax %.9g\nabove %.9g %.9g\n", res.relmse, res.rmse, res.mare,
-           res.max_abs, threshold, res.above);
+    printf("relMSE %.9g\nRMSE %.9g\nMARE %.9g\nmax %.9g\nabove %.9g %.9g\n", res.relmse, res.rmse,
+           res.mare, res.max_abs, threshold, res.above);
     if (map) {
         image_t *e = compare_error_image(a, r);
-        if (!e || image_write_heatmap_png(e, "error", 0.0f, (float)(threshold > 0 ? 4 * threshold : 1.0), map,
-                                          err, sizeof err) < 0) {
+        if (!e ||
+            image_write_heatmap_png(e, "error", 0.0f, (float)(threshold > 0 ? 4 * threshold : 1.0),
+                                    map, err, sizeof err) < 0) {
             fprintf(stderr, "vbrender: %s\n", e ? err : "out of memory");
             image_destroy(&e);
             goto done;
@@ -961,7 +1014,8 @@ int main(int argc, char **argv)
         fputs(usage_text, stderr);
         return 2;
     }
-    if (strcmp(argv[1], "-h") == 0 || strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "help") == 0) {
+    if (strcmp(argv[1], "-h") == 0 || strcmp(argv[1], "--help") == 0 ||
+        strcmp(argv[1], "help") == 0) {
         fputs(usage_text, stdout);
         return 0;
     }

@@ -3,8 +3,8 @@
 
 #include <stdio.h>
 
-int camera_init(camera_t *c, vec3_t position, vec3_t look_at, vec3_t up, double fov_deg,
-                int width, int height, char *err, size_t errlen)
+int camera_init(camera_t *c, vec3_t position, vec3_t look_at, vec3_t up, double fov_deg, int width,
+                int height, char *err, size_t errlen)
 {
     if (!(fov_deg > 0.0 && fov_deg < 180.0)) {
         snprintf(err, errlen, "fov must be between 0 and 180 degrees (got %g)", fov_deg);

@@ -19,8 +19,8 @@ typedef struct camera {
 
 /* Fills c; returns -1 with a message when the basis is degenerate (look_at
  * equal to position, up parallel to the view) or the fov is outside (0,180). */
-int camera_init(camera_t *c, vec3_t position, vec3_t look_at, vec3_t up, double fov_deg,
-                int width, int height, char *err, size_t errlen);
+int camera_init(camera_t *c, vec3_t position, vec3_t look_at, vec3_t up, double fov_deg, int width,
+                int height, char *err, size_t errlen);
 
 /* Direction (not normalised) of the ray through film point (px+u1, py+u2). */
 static inline vec3_t camera_ray_dir(const camera_t *c, uint32_t px, uint32_t py, float u1, float u2)

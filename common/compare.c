@@ -48,7 +48,8 @@ int compare_images(const image_t *a, const image_t *ref, double threshold, compa
 {
     const float *pa[3], *pr[3];
     if (rgb(a, pa) < 0 || rgb(ref, pr) < 0) {
-        snprintf(err, errlen, "%s has no R, G and B channels", rgb(a, pa) < 0 ? "the image" : "the reference");
+        snprintf(err, errlen, "%s has no R, G and B channels",
+                 rgb(a, pa) < 0 ? "the image" : "the reference");
         return -1;
     }
     if (a->width != ref->width || a->height != ref->height) {

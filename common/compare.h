@@ -20,7 +20,7 @@
 
 typedef struct compare_result {
     double relmse, rmse, mare, max_abs;
-    double above;    /* share of pixels over the threshold */
+    double above; /* share of pixels over the threshold */
     double threshold;
     size_t pixels;
 } compare_result_t;

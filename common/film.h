@@ -20,10 +20,10 @@ typedef struct film_pixel {
     uint64_t count;     /* finite samples */
     uint64_t nonfinite; /* NaN/Inf samples left out */
     double sum[3];
-    double comp[3];     /* Neumaier compensation of sum */
-    double lum_m2;      /* sum of squared deviations of luminance from the mean */
-    double pvar;        /* eq. 4.1 of the last merged layer */
-    uint32_t layers;    /* tasks merged */
+    double comp[3];  /* Neumaier compensation of sum */
+    double lum_m2;   /* sum of squared deviations of luminance from the mean */
+    double pvar;     /* eq. 4.1 of the last merged layer */
+    uint32_t layers; /* tasks merged */
 } film_pixel_t;
 
 typedef struct film {

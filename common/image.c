@@ -192,8 +192,7 @@ static int commit_tmp(int fd, const char *tmp, const char *path, char *err, size
         return -1;
     }
     if (rename(tmp, path) != 0) {
-        set_err(err, errlen, "%s: cannot rename %s into place: %s", path, tmp,
-                strerror(errno));
+        set_err(err, errlen, "%s: cannot rename %s into place: %s", path, tmp, strerror(errno));
         unlink(tmp);
         return -1;
     }
@@ -220,8 +219,7 @@ static void exr_error_cb(exr_const_context_t ctxt, exr_result_t code, const char
     exr_io_t *io = ud;
     if (io->have_msg)
         return;
-    snprintf(io->msg, sizeof io->msg, "%s",
-             msg ? msg : exr_get_default_error_message(code));
+    snprintf(io->msg, sizeof io->msg, "%s", msg ? msg : exr_get_default_error_message(code));
     io->have_msg = 1;
 }
 
@@ -299,7 +297,7 @@ static int exr_write_pixels(exr_context_t ctx, int part, const image_t *img, exr
         return -1;
     }
     exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
-    compress_hook_t hook = { NULL };
+    compress_hook_t hook = {NULL};
     int inited = 0, ret = 0;
     const size_t w = (size_t)img->width;
     for (int y = 0; y < img->height; y += lines) {
@@ -383,18 +381,26 @@ static int exr_write_ctx(exr_context_t ctx, const image_t *img, exr_io_t *io, co
         rv = exr_add_channel(ctx, part, img->channel_names[c], EXR_PIXEL_FLOAT,
                              EXR_PERCEPTUALLY_LOGARITHMIC, 1, 1);
         if (rv != EXR_ERR_SUCCESS) {
-            set_err(err, errlen, "%s: cannot add channel %s: %s", path,
-                    img->channel_names[c], exr_why(io, rv));
+            set_err(err, errlen, "%s: cannot add channel %s: %s", path, img->channel_names[c],
+                    exr_why(io, rv));
             return -1;
         }
     }
     for (int a = 0; a < img->attr_count; a++) {
         const image_attr_t *at = &img->attrs[a];
         switch (at->type) {
-        case IMAGE_ATTR_STRING: rv = exr_attr_set_string(ctx, part, at->name, at->s); break;
-        case IMAGE_ATTR_INT: rv = exr_attr_set_int(ctx, part, at->name, at->i); break;
-        case IMAGE_ATTR_DOUBLE: rv = exr_attr_set_double(ctx, part, at->name, at->d); break;
-        default: rv = EXR_ERR_INVALID_ARGUMENT; break;
+        case IMAGE_ATTR_STRING:
+            rv = exr_attr_set_string(ctx, part, at->name, at->s);
+            break;
+        case IMAGE_ATTR_INT:
+            rv = exr_attr_set_int(ctx, part, at->name, at->i);
+            break;
+        case IMAGE_ATTR_DOUBLE:
+            rv = exr_attr_set_double(ctx, part, at->name, at->d);
+            break;
+        default:
+            rv = EXR_ERR_INVALID_ARGUMENT;
+            break;
         }
         if (rv != EXR_ERR_SUCCESS) {
             set_err(err, errlen, "%s: cannot set attribute %s: %s", path, at->name,
@@ -468,10 +474,20 @@ int image_write_exr(const image_t *img, const char *path, char *err, size_t errl
 static int exr_standard_attr(const char *name)
 {
     static const char *const std_names[] = {
-        "channels", "compression", "dataWindow", "displayWindow", "lineOrder",
-        "pixelAspectRatio", "screenWindowCenter", "screenWindowWidth",
+        "channels",
+        "compression",
+        "dataWindow",
+        "displayWindow",
+        "lineOrder",
+        "pixelAspectRatio",
+        "screenWindowCenter",
+        "screenWindowWidth",
         /* multi-part / tiled structure */
-        "tiles", "name", "type", "version", "chunkCount",
+        "tiles",
+        "name",
+        "type",
+        "version",
+        "chunkCount",
     };
     for (size_t k = 0; k < sizeof std_names / sizeof std_names[0]; k++)
         if (strcmp(name, std_names[k]) == 0)
@@ -483,8 +499,8 @@ static int exr_standard_attr(const char *name)
  * whose name or value does not fit image_attr_t, or beyond the table
  * size, are skipped rather than failing the read of an otherwise good
  * file. */
-static int exr_read_attrs(exr_context_t ctx, int part, image_t *img, exr_io_t *io,
-                          const char *path, char *err, size_t errlen)
+static int exr_read_attrs(exr_context_t ctx, int part, image_t *img, exr_io_t *io, const char *path,
+                          char *err, size_t errlen)
 {
     int32_t count = 0;
     exr_result_t rv = exr_get_attribute_count(ctx, part, &count);
@@ -496,8 +512,7 @@ static int exr_read_attrs(exr_context_t ctx, int part, image_t *img, exr_io_t *i
         const exr_attribute_t *a = NULL;
         rv = exr_get_attribute_by_index(ctx, part, EXR_ATTR_LIST_FILE_ORDER, k, &a);
         if (rv != EXR_ERR_SUCCESS || !a) {
-            set_err(err, errlen, "%s: cannot read attribute %d: %s", path, (int)k,
-                    exr_why(io, rv));
+            set_err(err, errlen, "%s: cannot read attribute %d: %s", path, (int)k, exr_why(io, rv));
             return -1;
         }
         if (!a->name || exr_standard_attr(a->name))
@@ -513,10 +528,17 @@ static int exr_read_attrs(exr_context_t ctx, int part, image_t *img, exr_io_t *i
             image_set_string(img, a->name, s);
             break;
         }
-        case EXR_ATTR_INT: image_set_int(img, a->name, a->i); break;
-        case EXR_ATTR_FLOAT: image_set_double(img, a->name, (double)a->f); break;
-        case EXR_ATTR_DOUBLE: image_set_double(img, a->name, a->d); break;
-        default: break;
+        case EXR_ATTR_INT:
+            image_set_int(img, a->name, a->i);
+            break;
+        case EXR_ATTR_FLOAT:
+            image_set_double(img, a->name, (double)a->f);
+            break;
+        case EXR_ATTR_DOUBLE:
+            image_set_double(img, a->name, a->d);
+            break;
+        default:
+            break;
         }
     }
     return 0;
@@ -525,15 +547,13 @@ static int exr_read_attrs(exr_context_t ctx, int part, image_t *img, exr_io_t *i
 /* Decodes one chunk whose top-left pixel is (x0, y0) in image coordinates
  * into the float planes. Setting the user type to FLOAT makes the library
  * convert HALF and UINT samples for us. */
-static int exr_decode_chunk(exr_context_t ctx, int part, const exr_chunk_info_t *cinfo,
-                            int x0, int y0, exr_decode_pipeline_t *dec, int *inited,
-                            image_t *img, exr_io_t *io, const char *path, char *err,
-                            size_t errlen)
+static int exr_decode_chunk(exr_context_t ctx, int part, const exr_chunk_info_t *cinfo, int x0,
+                            int y0, exr_decode_pipeline_t *dec, int *inited, image_t *img,
+                            exr_io_t *io, const char *path, char *err, size_t errlen)
 {
     if (x0 < 0 || y0 < 0 || cinfo->width <= 0 || cinfo->height <= 0 ||
         cinfo->width > img->width - x0 || cinfo->height > img->height - y0) {
-        set_err(err, errlen, "%s: chunk at (%d,%d) lies outside the data window", path,
-                x0, y0);
+        set_err(err, errlen, "%s: chunk at (%d,%d) lies outside the data window", path, x0, y0);
         return -1;
     }
     exr_result_t rv;
@@ -575,8 +595,8 @@ static int exr_decode_chunk(exr_context_t ctx, int part, const exr_chunk_info_t 
 }
 
 static int exr_read_pixels(exr_context_t ctx, int part, exr_storage_t storage,
-                           const exr_attr_box2i_t *dw, image_t *img, exr_io_t *io,
-                           const char *path, char *err, size_t errlen)
+                           const exr_attr_box2i_t *dw, image_t *img, exr_io_t *io, const char *path,
+                           char *err, size_t errlen)
 {
     exr_decode_pipeline_t dec = EXR_DECODE_PIPELINE_INITIALIZER;
     int inited = 0, ret = 0;
@@ -593,13 +613,13 @@ static int exr_read_pixels(exr_context_t ctx, int part, exr_storage_t storage,
             exr_chunk_info_t cinfo;
             rv = exr_read_scanline_chunk_info(ctx, part, dw->min.y + row, &cinfo);
             if (rv != EXR_ERR_SUCCESS) {
-                set_err(err, errlen, "%s: cannot read scanlines at y=%d: %s", path,
-                        dw->min.y + row, exr_why(io, rv));
+                set_err(err, errlen, "%s: cannot read scanlines at y=%d: %s", path, dw->min.y + row,
+                        exr_why(io, rv));
                 ret = -1;
                 break;
             }
-            ret = exr_decode_chunk(ctx, part, &cinfo, 0, cinfo.start_y - dw->min.y, &dec,
-                                   &inited, img, io, path, err, errlen);
+            ret = exr_decode_chunk(ctx, part, &cinfo, 0, cinfo.start_y - dw->min.y, &dec, &inited,
+                                   img, io, path, err, errlen);
         }
     } else {
         /* Tiled: level (0,0) is the full-resolution image; mip/rip levels
@@ -609,8 +629,7 @@ static int exr_read_pixels(exr_context_t ctx, int part, exr_storage_t storage,
         exr_tile_round_mode_t rmode;
         rv = exr_get_tile_descriptor(ctx, part, &tw, &th, &lmode, &rmode);
         if (rv != EXR_ERR_SUCCESS || tw == 0 || th == 0) {
-            set_err(err, errlen, "%s: cannot read tile description: %s", path,
-                    exr_why(io, rv));
+            set_err(err, errlen, "%s: cannot read tile description: %s", path, exr_why(io, rv));
             return -1;
         }
         int tiles_x = (int)(((uint64_t)img->width + tw - 1) / tw);
@@ -626,8 +645,8 @@ static int exr_read_pixels(exr_context_t ctx, int part, exr_storage_t storage,
                     break;
                 }
                 ret = exr_decode_chunk(ctx, part, &cinfo, (int)((uint64_t)tx * tw),
-                                       (int)((uint64_t)ty * th), &dec, &inited, img, io,
-                                       path, err, errlen);
+                                       (int)((uint64_t)ty * th), &dec, &inited, img, io, path, err,
+                                       errlen);
             }
         }
     }
@@ -637,8 +656,8 @@ static int exr_read_pixels(exr_context_t ctx, int part, exr_storage_t storage,
 }
 
 /* Reads part 0 of an open context into a new image. */
-static int exr_read_ctx(exr_context_t ctx, image_t **out, exr_io_t *io, const char *path,
-                        char *err, size_t errlen)
+static int exr_read_ctx(exr_context_t ctx, image_t **out, exr_io_t *io, const char *path, char *err,
+                        size_t errlen)
 {
     const int part = 0;
     exr_storage_t storage;
@@ -698,8 +717,10 @@ static int exr_read_ctx(exr_context_t ctx, image_t **out, exr_io_t *io, const ch
             return -1;
         }
         if (!image_add_channel(img, name)) {
-            set_err(err, errlen, "%s: cannot add channel \"%s\" (bad or duplicate name, "
-                    "or out of memory)", path, name);
+            set_err(err, errlen,
+                    "%s: cannot add channel \"%s\" (bad or duplicate name, "
+                    "or out of memory)",
+                    path, name);
             image_destroy(&img);
             return -1;
         }
@@ -737,7 +758,7 @@ int image_read_exr(const char *path, image_t **out, char *err, size_t errlen)
         return -1;
     }
     fclose(f);
-    static const unsigned char exr_magic[4] = { 0x76, 0x2f, 0x31, 0x01 };
+    static const unsigned char exr_magic[4] = {0x76, 0x2f, 0x31, 0x01};
     if (got != sizeof magic || memcmp(magic, exr_magic, sizeof magic) != 0) {
         set_err(err, errlen, "%s: not an OpenEXR file", path);
         return -1;
@@ -898,14 +919,13 @@ static unsigned char *rgb_alloc(const image_t *img, const char *path, char *err,
     return rgb;
 }
 
-int image_write_png(const image_t *img, const char *path, float exposure, char *err,
-                    size_t errlen)
+int image_write_png(const image_t *img, const char *path, float exposure, char *err, size_t errlen)
 {
     if (!img || !path || !path[0]) {
         set_err(err, errlen, "%s: cannot write PNG: bad arguments", path ? path : "(null)");
         return -1;
     }
-    static const char *const names[3] = { "R", "G", "B" };
+    static const char *const names[3] = {"R", "G", "B"};
     const float *planes[3];
     for (int k = 0; k < 3; k++) {
         planes[k] = image_channel(img, names[k]);
@@ -939,7 +959,7 @@ int image_write_png(const image_t *img, const char *path, float exposure, char *
 static void heat_ramp(double t, double out[3])
 {
     static const double stops[5][3] = {
-        { 0, 0, 0 }, { 0, 0, 1 }, { 1, 0, 0 }, { 1, 1, 0 }, { 1, 1, 1 },
+        {0, 0, 0}, {0, 0, 1}, {1, 0, 0}, {1, 1, 0}, {1, 1, 1},
     };
     double s = t * 4.0;
     int i = (int)s;

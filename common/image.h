@@ -78,12 +78,11 @@ int image_read_exr(const char *path, image_t **out, char *err, size_t errlen);
  * sRGB transfer curve, scaled by exposure first). -1 with a message when the
  * image lacks R, G or B, or on I/O failure. Like the EXR writer, both PNG
  * writers replace path atomically (temporary name, then rename). */
-int image_write_png(const image_t *img, const char *path, float exposure,
-                    char *err, size_t errlen);
+int image_write_png(const image_t *img, const char *path, float exposure, char *err, size_t errlen);
 
 /* Writes a PNG of one channel mapped through a colour ramp (black - blue -
  * red - yellow - white) from lo to hi, for sample-count heat maps. */
-int image_write_heatmap_png(const image_t *img, const char *channel, float lo,
-                            float hi, const char *path, char *err, size_t errlen);
+int image_write_heatmap_png(const image_t *img, const char *channel, float lo, float hi,
+                            const char *path, char *err, size_t errlen);
 
 #endif

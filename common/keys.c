@@ -31,7 +31,8 @@ int keys_generate(keys_pair_t *out, char *err, size_t errlen)
 {
     memset(out, 0, sizeof *out);
     if (zmq_curve_keypair(out->public_z85, out->secret_z85) != 0) {
-        snprintf(err, errlen, "cannot make a CURVE key pair: %s (libzmq built without CURVE?)", zmq_strerror(errno));
+        snprintf(err, errlen, "cannot make a CURVE key pair: %s (libzmq built without CURVE?)",
+                 zmq_strerror(errno));
         return -1;
     }
     return 0;
@@ -56,15 +57,17 @@ static int read_small(const char *path, int secret, char *buf, size_t cap, char 
     }
     if (secret && (st.st_mode & 077)) {
         /* as ssh: a secret others could have read is no secret */
-        snprintf(err, errlen,
-                 "%s: permissions 0%03o are too open: a secret key must be readable by its owner only "
-                 "(chmod 600 '%s')",
-                 path, (unsigned)(st.st_mode & 0777), path);
+        snprintf(
+            err, errlen,
+            "%s: permissions 0%03o are too open: a secret key must be readable by its owner only "
+            "(chmod 600 '%s')",
+            path, (unsigned)(st.st_mode & 0777), path);
         close(fd);
         return -1;
     }
     if (st.st_size >= (off_t)cap) {
-        snprintf(err, errlen, "%s: too long for a key file (%lld bytes)", path, (long long)st.st_size);
+        snprintf(err, errlen, "%s: too long for a key file (%lld bytes)", path,
+                 (long long)st.st_size);
         close(fd);
         return -1;
     }
@@ -116,8 +119,10 @@ int keys_load_public(const char *path, char out[KEYS_Z85_LEN + 1], char *err, si
     }
     trim_end(buf);
     if (!keys_valid_z85(buf)) {
-        snprintf(err, errlen, "%s: not a CURVE public key (%d Z85 characters on one line, as 'vbrender keygen' "
-                 "writes)", path, KEYS_Z85_LEN);
+        snprintf(err, errlen,
+                 "%s: not a CURVE public key (%d Z85 characters on one line, as 'vbrender keygen' "
+                 "writes)",
+                 path, KEYS_Z85_LEN);
         return -1;
     }
     memcpy(out, buf, KEYS_Z85_LEN + 1);
@@ -147,7 +152,8 @@ int keys_load_secret(const char *path, keys_pair_t *out, char *err, size_t errle
         } else if (strncmp(line, "secret ", 7) == 0) {
             val = line + 7, have = &have_sec, dst = out->secret_z85;
         } else {
-            snprintf(err, errlen, "%s: line %d: expected 'public KEY' or 'secret KEY'", path, lineno);
+            snprintf(err, errlen, "%s: line %d: expected 'public KEY' or 'secret KEY'", path,
+                     lineno);
             goto fail;
         }
         while (*val == ' ' || *val == '\t')
@@ -161,8 +167,11 @@ int keys_load_secret(const char *path, keys_pair_t *out, char *err, size_t errle
         *have = 1;
     }
     if (!have_pub || !have_sec) {
-        snprintf(err, errlen, "%s: not a key pair file (needs a 'public' and a 'secret' line, as 'vbrender keygen' "
-                 "writes)", path);
+        snprintf(
+            err, errlen,
+            "%s: not a key pair file (needs a 'public' and a 'secret' line, as 'vbrender keygen' "
+            "writes)",
+            path);
         goto fail;
     }
     char derived[KEYS_Z85_LEN + 1];
@@ -220,7 +229,9 @@ int keys_write(const char *base, const keys_pair_t *k, char *err, size_t errlen)
     }
     /* both or neither: refuse before writing anything */
     struct stat st;
-    const char *exists = lstat(key_path, &st) == 0 ? key_path : lstat(pub_path, &st) == 0 ? pub_path : NULL;
+    const char *exists = lstat(key_path, &st) == 0   ? key_path
+                         : lstat(pub_path, &st) == 0 ? pub_path
+                                                     : NULL;
     if (exists) {
         snprintf(err, errlen, "%s exists already: not overwriting a key", exists);
         return -1;

@@ -22,10 +22,10 @@
 
 #include <stddef.h>
 
-#define KEYS_Z85_LEN 40      /* a key as Z85 text, without the terminator */
-#define KEYS_MAX_FILE 4096   /* a .key or .pub file longer than this is not one */
-#define KEYS_MAX_SET 100000  /* keys in one allow-list directory */
-#define KEYS_NAME_MAX 64     /* a key's name (its file name less .pub), terminator included */
+#define KEYS_Z85_LEN 40     /* a key as Z85 text, without the terminator */
+#define KEYS_MAX_FILE 4096  /* a .key or .pub file longer than this is not one */
+#define KEYS_MAX_SET 100000 /* keys in one allow-list directory */
+#define KEYS_NAME_MAX 64    /* a key's name (its file name less .pub), terminator included */
 
 typedef struct keys_pair {
     char public_z85[KEYS_Z85_LEN + 1];

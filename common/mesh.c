@@ -43,8 +43,8 @@ typedef struct mesh_ctx {
 } mesh_ctx;
 
 /* Writes "name: [line N: |byte N: ]message" into the caller's buffer. */
-static void vset_err(const mesh_ctx *c, const char *loc_kind, size_t loc,
-                     const char *fmt, va_list ap)
+static void vset_err(const mesh_ctx *c, const char *loc_kind, size_t loc, const char *fmt,
+                     va_list ap)
 {
     if (!c->err || c->errlen == 0)
         return;
@@ -55,8 +55,7 @@ static void vset_err(const mesh_ctx *c, const char *loc_kind, size_t loc,
     vsnprintf(c->err + n, c->errlen - (size_t)n, fmt, ap);
 }
 
-__attribute__((format(printf, 2, 3)))
-static int fail(const mesh_ctx *c, const char *fmt, ...)
+__attribute__((format(printf, 2, 3))) static int fail(const mesh_ctx *c, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
@@ -66,8 +65,8 @@ static int fail(const mesh_ctx *c, const char *fmt, ...)
 }
 
 /* Binary PLY errors name a byte offset, text errors a line. */
-__attribute__((format(printf, 4, 5)))
-static int fail_at(const mesh_ctx *c, int binary, size_t loc, const char *fmt, ...)
+__attribute__((format(printf, 4, 5))) static int fail_at(const mesh_ctx *c, int binary, size_t loc,
+                                                         const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
@@ -148,25 +147,23 @@ enum { C_X, C_Y, C_Z, C_NX, C_NY, C_NZ, C_COUNT };
 /* Checks and stores vertex i from v[C_X..C_NZ] (normals only if b->nrm).
  * `number` is how the vertex is named in messages (0-based in PLY, 1-based
  * in OBJ, as each format numbers them). */
-static int store_vertex(const mesh_ctx *c, builder *b, size_t i, const double *v,
-                        int binary, size_t loc, size_t number)
+static int store_vertex(const mesh_ctx *c, builder *b, size_t i, const double *v, int binary,
+                        size_t loc, size_t number)
 {
     static const char axis[] = "xyz";
     for (int k = 0; k < 3; k++) {
         if (isnan(v[k]))
-            return fail_at(c, binary, loc, "vertex %zu: %c coordinate is NaN (not finite)",
-                           number, axis[k]);
+            return fail_at(c, binary, loc, "vertex %zu: %c coordinate is NaN (not finite)", number,
+                           axis[k]);
         /* Also catches values that are finite as double but round to Inf as
          * float (converting those is undefined behaviour in C). Values just
          * above FLT_MAX that round down to it, such as FLT_MAX printed with
          * 9 digits, are kept: 0x1.ffffffp127 is the midpoint to 2^128. */
         double a = fabs(v[k]);
         if (!(a < 0x1.ffffffp127))
-            return fail_at(c, binary, loc,
-                           "vertex %zu: %c coordinate %g is not finite as a float",
+            return fail_at(c, binary, loc, "vertex %zu: %c coordinate %g is not finite as a float",
                            number, axis[k], v[k]);
-        b->pos[3 * i + (size_t)k] = a > FLT_MAX ? (v[k] < 0 ? -FLT_MAX : FLT_MAX)
-                                                : (float)v[k];
+        b->pos[3 * i + (size_t)k] = a > FLT_MAX ? (v[k] < 0 ? -FLT_MAX : FLT_MAX) : (float)v[k];
     }
     if (!b->nrm)
         return 0;
@@ -214,9 +211,8 @@ static int repair_normals(builder *b)
             e1[k] = (double)p1[k] - p0[k];
             e2[k] = (double)p2[k] - p0[k];
         }
-        double f[3] = { e1[1] * e2[2] - e1[2] * e2[1],
-                        e1[2] * e2[0] - e1[0] * e2[2],
-                        e1[0] * e2[1] - e1[1] * e2[0] };
+        double f[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                       e1[0] * e2[1] - e1[1] * e2[0]};
         double m = fmax(fabs(f[0]), fmax(fabs(f[1]), fabs(f[2])));
         if (!(m > 0.0))
             continue;
@@ -314,10 +310,9 @@ static int parse_int(const char *s, size_t len, int64_t *out)
     return 0;
 }
 
-static const double pow10_exact[23] = {
-    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
-    1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22
-};
+static const double pow10_exact[23] = {1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,
+                                       1e8,  1e9,  1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
+                                       1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
 
 /* A whole token as a double, bit-identical to strtod. The common case (at
  * most 19 significant digits, mantissa <= 2^53, |power of ten| <= 22) is one
@@ -407,18 +402,16 @@ slow:;
 
 enum { PT_INT8, PT_UINT8, PT_INT16, PT_UINT16, PT_INT32, PT_UINT32, PT_FLOAT32, PT_FLOAT64 };
 
-static const unsigned char type_size[8] = { 1, 1, 2, 2, 4, 4, 4, 8 };
+static const unsigned char type_size[8] = {1, 1, 2, 2, 4, 4, 4, 8};
 
 static const struct {
     const char *name;
     int type;
 } type_names[] = {
-    { "char", PT_INT8 },     { "int8", PT_INT8 },       { "uchar", PT_UINT8 },
-    { "uint8", PT_UINT8 },   { "short", PT_INT16 },     { "int16", PT_INT16 },
-    { "ushort", PT_UINT16 }, { "uint16", PT_UINT16 },   { "int", PT_INT32 },
-    { "int32", PT_INT32 },   { "uint", PT_UINT32 },     { "uint32", PT_UINT32 },
-    { "float", PT_FLOAT32 }, { "float32", PT_FLOAT32 }, { "double", PT_FLOAT64 },
-    { "float64", PT_FLOAT64 },
+    {"char", PT_INT8},     {"int8", PT_INT8},       {"uchar", PT_UINT8},    {"uint8", PT_UINT8},
+    {"short", PT_INT16},   {"int16", PT_INT16},     {"ushort", PT_UINT16},  {"uint16", PT_UINT16},
+    {"int", PT_INT32},     {"int32", PT_INT32},     {"uint", PT_UINT32},    {"uint32", PT_UINT32},
+    {"float", PT_FLOAT32}, {"float32", PT_FLOAT32}, {"double", PT_FLOAT64}, {"float64", PT_FLOAT64},
 };
 
 enum { PLY_ASCII, PLY_LE, PLY_BE };
@@ -434,10 +427,10 @@ typedef struct ply_prop {
 } ply_prop;
 
 typedef struct ply_elem {
-    char name[32];            /* for messages; longer names are cut */
+    char name[32]; /* for messages; longer names are cut */
     uint64_t count;
-    size_t line;              /* header line, for messages */
-    size_t first, nprops;     /* range in ply_header.props */
+    size_t line;          /* header line, for messages */
+    size_t first, nprops; /* range in ply_header.props */
     int kind;
 } ply_elem;
 
@@ -447,8 +440,8 @@ typedef struct ply_header {
     size_t nelems, ecap;
     ply_prop *props;
     size_t nprops, pcap;
-    size_t data_off;          /* first byte after end_header's newline */
-    size_t data_line;         /* line number of that byte (text) */
+    size_t data_off;  /* first byte after end_header's newline */
+    size_t data_line; /* line number of that byte (text) */
     int has_normals;
 } ply_header;
 
@@ -484,7 +477,7 @@ static int ply_parse_header(const mesh_ctx *c, const unsigned char *data, size_t
 {
     size_t pos = 0, line = 0;
     int have_format = 0, done = 0;
-    int have_role[C_COUNT + 2] = { 0 };
+    int have_role[C_COUNT + 2] = {0};
     memset(h, 0, sizeof *h);
     h->format = -1;
 
@@ -545,11 +538,11 @@ static int ply_parse_header(const mesh_ctx *c, const unsigned char *data, size_t
             else if (tok_is(t[1], "binary_big_endian"))
                 h->format = PLY_BE;
             else
-                return fail_at(c, 0, line, "unsupported format \"%.*s\"",
-                               quote_len(t[1].n), t[1].s);
+                return fail_at(c, 0, line, "unsupported format \"%.*s\"", quote_len(t[1].n),
+                               t[1].s);
             if (!tok_is(t[2], "1.0"))
-                return fail_at(c, 0, line, "unsupported format version \"%.*s\"",
-                               quote_len(t[2].n), t[2].s);
+                return fail_at(c, 0, line, "unsupported format version \"%.*s\"", quote_len(t[2].n),
+                               t[2].s);
             have_format = 1;
         } else if (tok_is(t[0], "element")) {
             if (!have_format)
@@ -560,7 +553,9 @@ static int ply_parse_header(const mesh_ctx *c, const unsigned char *data, size_t
             if (t[2].s[0] == '-' || t[2].s[0] == '+' || parse_int(t[2].s, t[2].n, &cnt) != 0)
                 return fail_at(c, 0, line, "malformed header: bad element count \"%.*s\"",
                                quote_len(t[2].n), t[2].s);
-            int kind = tok_is(t[1], "vertex") ? EK_VERTEX : tok_is(t[1], "face") ? EK_FACE : EK_OTHER;
+            int kind = tok_is(t[1], "vertex") ? EK_VERTEX
+                       : tok_is(t[1], "face") ? EK_FACE
+                                              : EK_OTHER;
             for (size_t i = 0; i < h->nelems; i++)
                 if (kind != EK_OTHER && h->elems[i].kind == kind)
                     return fail_at(c, 0, line, "malformed header: second element %.*s",
@@ -582,12 +577,13 @@ static int ply_parse_header(const mesh_ctx *c, const unsigned char *data, size_t
             if (h->nelems == 0)
                 return fail_at(c, 0, line, "malformed header: property before any element");
             ply_elem *el = &h->elems[h->nelems - 1];
-            ply_prop p = { 0, 0, 0, R_NONE };
+            ply_prop p = {0, 0, 0, R_NONE};
             tok name;
             if (nt >= 2 && tok_is(t[1], "list")) {
                 if (nt != 5)
-                    return fail_at(c, 0, line, "malformed header: list property needs "
-                                               "a count type, an item type and a name");
+                    return fail_at(c, 0, line,
+                                   "malformed header: list property needs "
+                                   "a count type, an item type and a name");
                 int ct = lookup_type(t[2]), it = lookup_type(t[3]);
                 if (ct < 0 || it < 0) {
                     tok bad = ct < 0 ? t[2] : t[3];
@@ -600,7 +596,8 @@ static int ply_parse_header(const mesh_ctx *c, const unsigned char *data, size_t
                 name = t[4];
             } else {
                 if (nt != 3)
-                    return fail_at(c, 0, line, "malformed header: property needs a type and a name");
+                    return fail_at(c, 0, line,
+                                   "malformed header: property needs a type and a name");
                 int ty = lookup_type(t[1]);
                 if (ty < 0)
                     return fail_at(c, 0, line, "malformed header: unknown property type \"%.*s\"",
@@ -609,13 +606,15 @@ static int ply_parse_header(const mesh_ctx *c, const unsigned char *data, size_t
                 name = t[2];
             }
             if (el->kind == EK_VERTEX) {
-                static const char *const vnames[C_COUNT] = { "x", "y", "z", "nx", "ny", "nz" };
+                static const char *const vnames[C_COUNT] = {"x", "y", "z", "nx", "ny", "nz"};
                 for (int r = 0; r < C_COUNT; r++) {
                     if (!tok_is(name, vnames[r]))
                         continue;
                     if (p.is_list)
-                        return fail_at(c, 0, line, "malformed header: vertex property %s "
-                                                   "must not be a list", vnames[r]);
+                        return fail_at(c, 0, line,
+                                       "malformed header: vertex property %s "
+                                       "must not be a list",
+                                       vnames[r]);
                     if (have_role[r])
                         return fail_at(c, 0, line, "malformed header: second vertex property %s",
                                        vnames[r]);
@@ -625,7 +624,8 @@ static int ply_parse_header(const mesh_ctx *c, const unsigned char *data, size_t
             } else if (el->kind == EK_FACE &&
                        (tok_is(name, "vertex_indices") || tok_is(name, "vertex_index"))) {
                 if (!p.is_list)
-                    return fail_at(c, 0, line, "malformed header: face property %.*s must be a list",
+                    return fail_at(c, 0, line,
+                                   "malformed header: face property %.*s must be a list",
                                    quote_len(name.n), name.s);
                 if (have_role[R_INDICES])
                     return fail_at(c, 0, line, "malformed header: second face index list");
@@ -712,8 +712,9 @@ static int ply_check_counts(const mesh_ctx *c, const ply_header *h, size_t size)
         if (h->elems[e].kind == EK_VERTEX)
             vert = &h->elems[e];
     if (vert->count > UINT32_MAX)
-        return fail_at(c, 0, vert->line, "element vertex count %" PRIu64
-                       " is too large for 32-bit indices", vert->count);
+        return fail_at(c, 0, vert->line,
+                       "element vertex count %" PRIu64 " is too large for 32-bit indices",
+                       vert->count);
     return 0;
 }
 
@@ -735,14 +736,41 @@ static uint64_t load_bits(const unsigned char *p, unsigned n, int big)
 static double bits_to_double(uint64_t u, int type)
 {
     switch (type) {
-    case PT_INT8: { uint8_t x = (uint8_t)u; int8_t s; memcpy(&s, &x, 1); return s; }
-    case PT_UINT8: return (double)(uint8_t)u;
-    case PT_INT16: { uint16_t x = (uint16_t)u; int16_t s; memcpy(&s, &x, 2); return s; }
-    case PT_UINT16: return (double)(uint16_t)u;
-    case PT_INT32: { uint32_t x = (uint32_t)u; int32_t s; memcpy(&s, &x, 4); return s; }
-    case PT_UINT32: return (double)(uint32_t)u;
-    case PT_FLOAT32: { uint32_t x = (uint32_t)u; float f; memcpy(&f, &x, 4); return f; }
-    default: { double d; memcpy(&d, &u, 8); return d; }
+    case PT_INT8: {
+        uint8_t x = (uint8_t)u;
+        int8_t s;
+        memcpy(&s, &x, 1);
+        return s;
+    }
+    case PT_UINT8:
+        return (double)(uint8_t)u;
+    case PT_INT16: {
+        uint16_t x = (uint16_t)u;
+        int16_t s;
+        memcpy(&s, &x, 2);
+        return s;
+    }
+    case PT_UINT16:
+        return (double)(uint16_t)u;
+    case PT_INT32: {
+        uint32_t x = (uint32_t)u;
+        int32_t s;
+        memcpy(&s, &x, 4);
+        return s;
+    }
+    case PT_UINT32:
+        return (double)(uint32_t)u;
+    case PT_FLOAT32: {
+        uint32_t x = (uint32_t)u;
+        float f;
+        memcpy(&f, &x, 4);
+        return f;
+    }
+    default: {
+        double d;
+        memcpy(&d, &u, 8);
+        return d;
+    }
     }
 }
 
@@ -775,14 +803,13 @@ static int ply_read_binary(const mesh_ctx *c, const ply_header *h, const unsigne
             continue;
         for (uint64_t i = 0; i < el->count; i++) {
             size_t start = off;
-            double v[C_COUNT] = { 0 };
+            double v[C_COUNT] = {0};
             for (size_t k = 0; k < el->nprops; k++) {
                 const ply_prop *p = &props[k];
                 if (!p->is_list) {
                     unsigned sz = type_size[p->type];
                     if (size - off < sz)
-                        return fail_at(c, 1, off, "truncated in element %s %" PRIu64,
-                                       el->name, i);
+                        return fail_at(c, 1, off, "truncated in element %s %" PRIu64, el->name, i);
                     if (p->role < C_COUNT)
                         v[p->role] = bits_to_double(load_bits(data + off, sz, big), p->type);
                     off += sz;
@@ -793,31 +820,34 @@ static int ply_read_binary(const mesh_ctx *c, const ply_header *h, const unsigne
                 if (size - off < csz)
                     return fail_at(c, 1, off, "truncated in element %s %" PRIu64, el->name, i);
                 if (bits_to_int(load_bits(data + off, csz, big), p->count_type, &n) != 0 || n < 0)
-                    return fail_at(c, 1, off, "element %s %" PRIu64 ": bad list count",
-                                   el->name, i);
+                    return fail_at(c, 1, off, "element %s %" PRIu64 ": bad list count", el->name,
+                                   i);
                 off += csz;
                 if ((uint64_t)n > (size - off) / isz)
-                    return fail_at(c, 1, off, "truncated: element %s %" PRIu64 " has a list of %"
-                                   PRId64 " items but only %zu bytes are left",
+                    return fail_at(c, 1, off,
+                                   "truncated: element %s %" PRIu64 " has a list of %" PRId64
+                                   " items but only %zu bytes are left",
                                    el->name, i, n, size - off);
                 if (p->role != R_INDICES) {
                     off += (size_t)n * isz;
                     continue;
                 }
                 if (n < 3)
-                    return fail_at(c, 1, start, "face %" PRIu64 " has %" PRId64
-                                   " vertices (need at least 3)", i, n);
+                    return fail_at(c, 1, start,
+                                   "face %" PRIu64 " has %" PRId64 " vertices (need at least 3)", i,
+                                   n);
                 if (reserve_tris(b, (size_t)n - 2) != 0)
                     return fail(c, "out of memory");
                 uint32_t first = 0, prev = 0;
                 for (int64_t j = 0; j < n; j++, off += isz) {
                     int64_t x;
                     if (bits_to_int(load_bits(data + off, isz, big), p->type, &x) != 0)
-                        return fail_at(c, 1, off, "face %" PRIu64 ", index %" PRId64
-                                       ": not an integer", i, j);
+                        return fail_at(c, 1, off,
+                                       "face %" PRIu64 ", index %" PRId64 ": not an integer", i, j);
                     if (x < 0 || (uint64_t)x >= nv)
-                        return fail_at(c, 1, off, "face %" PRIu64 ", index %" PRId64
-                                       ": vertex %" PRId64 " is out of range (vertex count %zu)",
+                        return fail_at(c, 1, off,
+                                       "face %" PRIu64 ", index %" PRId64 ": vertex %" PRId64
+                                       " is out of range (vertex count %zu)",
                                        i, j, x, nv);
                     uint32_t u = (uint32_t)x;
                     if (j == 0)
@@ -827,8 +857,7 @@ static int ply_read_binary(const mesh_ctx *c, const ply_header *h, const unsigne
                     prev = u;
                 }
             }
-            if (el->kind == EK_VERTEX &&
-                store_vertex(c, b, (size_t)i, v, 1, start, (size_t)i) != 0)
+            if (el->kind == EK_VERTEX && store_vertex(c, b, (size_t)i, v, 1, start, (size_t)i) != 0)
                 return -1;
         }
     }
@@ -849,13 +878,14 @@ static int next_value(const mesh_ctx *c, cursor *cur, const ply_elem *el, uint64
     while (cur->p < cur->end && is_blank((unsigned char)*cur->p))
         cur->p++;
     if (cur->p == cur->end) {
-        fail_at(c, 0, cur->line, "truncated: file ends inside element %s %" PRIu64,
-                el->name, i);
+        fail_at(c, 0, cur->line, "truncated: file ends inside element %s %" PRIu64, el->name, i);
         return 0;
     }
     if (*cur->p == '\n') {
-        fail_at(c, 0, cur->line, "element %s %" PRIu64 " has fewer values than the header "
-                "declares", el->name, i);
+        fail_at(c, 0, cur->line,
+                "element %s %" PRIu64 " has fewer values than the header "
+                "declares",
+                el->name, i);
         return 0;
     }
     t->s = cur->p;
@@ -870,8 +900,8 @@ static int text_to_int(tok t, int type, int64_t *out)
     if (type != PT_FLOAT32 && type != PT_FLOAT64)
         return parse_int(t.s, t.n, out);
     double d;
-    if (parse_double(t.s, t.n, &d) != 0 ||
-        !(d >= -9007199254740992.0 && d <= 9007199254740992.0) || d != floor(d))
+    if (parse_double(t.s, t.n, &d) != 0 || !(d >= -9007199254740992.0 && d <= 9007199254740992.0) ||
+        d != floor(d))
         return -1;
     *out = (int64_t)d;
     return 0;
@@ -880,7 +910,7 @@ static int text_to_int(tok t, int type, int64_t *out)
 static int ply_read_ascii(const mesh_ctx *c, const ply_header *h, const unsigned char *data,
                           size_t size, builder *b)
 {
-    cursor cur = { (const char *)data + h->data_off, (const char *)data + size, h->data_line };
+    cursor cur = {(const char *)data + h->data_off, (const char *)data + size, h->data_line};
     const size_t nv = b->nv;
 
     for (size_t e = 0; e < h->nelems; e++) {
@@ -893,10 +923,11 @@ static int ply_read_ascii(const mesh_ctx *c, const ply_header *h, const unsigned
                 if (*cur.p++ == '\n')
                     cur.line++;
             if (cur.p == cur.end)
-                return fail_at(c, 0, cur.line, "truncated: the header declares %" PRIu64
+                return fail_at(c, 0, cur.line,
+                               "truncated: the header declares %" PRIu64
                                " %s elements, the file ends after %" PRIu64,
                                el->count, el->name, i);
-            double v[C_COUNT] = { 0 };
+            double v[C_COUNT] = {0};
             tok t;
             for (size_t k = 0; k < el->nprops; k++) {
                 const ply_prop *p = &props[k];
@@ -904,21 +935,23 @@ static int ply_read_ascii(const mesh_ctx *c, const ply_header *h, const unsigned
                     return -1;
                 if (!p->is_list) {
                     if (p->role < C_COUNT && parse_double(t.s, t.n, &v[p->role]) != 0)
-                        return fail_at(c, 0, cur.line, "element %s %" PRIu64
-                                       ": bad number \"%.*s\"", el->name, i,
+                        return fail_at(c, 0, cur.line,
+                                       "element %s %" PRIu64 ": bad number \"%.*s\"", el->name, i,
                                        quote_len(t.n), t.s);
                     continue;
                 }
                 int64_t n;
                 if (text_to_int(t, p->count_type, &n) != 0 || n < 0)
-                    return fail_at(c, 0, cur.line, "element %s %" PRIu64
-                                   ": bad list count \"%.*s\"", el->name, i,
+                    return fail_at(c, 0, cur.line,
+                                   "element %s %" PRIu64 ": bad list count \"%.*s\"", el->name, i,
                                    quote_len(t.n), t.s);
                 /* Each value takes at least two characters; this bounds the
                  * reservation below by the bytes actually there. */
                 if ((uint64_t)n > (uint64_t)(cur.end - cur.p) / 2 + 1)
-                    return fail_at(c, 0, cur.line, "truncated: element %s %" PRIu64
-                                   " has a list of %" PRId64 " items", el->name, i, n);
+                    return fail_at(c, 0, cur.line,
+                                   "truncated: element %s %" PRIu64 " has a list of %" PRId64
+                                   " items",
+                                   el->name, i, n);
                 if (p->role != R_INDICES) {
                     for (int64_t j = 0; j < n; j++)
                         if (!next_value(c, &cur, el, i, &t))
@@ -926,8 +959,9 @@ static int ply_read_ascii(const mesh_ctx *c, const ply_header *h, const unsigned
                     continue;
                 }
                 if (n < 3)
-                    return fail_at(c, 0, cur.line, "face %" PRIu64 " has %" PRId64
-                                   " vertices (need at least 3)", i, n);
+                    return fail_at(c, 0, cur.line,
+                                   "face %" PRIu64 " has %" PRId64 " vertices (need at least 3)", i,
+                                   n);
                 if (reserve_tris(b, (size_t)n - 2) != 0)
                     return fail(c, "out of memory");
                 uint32_t first = 0, prev = 0;
@@ -936,11 +970,13 @@ static int ply_read_ascii(const mesh_ctx *c, const ply_header *h, const unsigned
                     if (!next_value(c, &cur, el, i, &t))
                         return -1;
                     if (text_to_int(t, p->type, &x) != 0)
-                        return fail_at(c, 0, cur.line, "face %" PRIu64 ", index %" PRId64
-                                       ": bad number \"%.*s\"", i, j, quote_len(t.n), t.s);
+                        return fail_at(c, 0, cur.line,
+                                       "face %" PRIu64 ", index %" PRId64 ": bad number \"%.*s\"",
+                                       i, j, quote_len(t.n), t.s);
                     if (x < 0 || (uint64_t)x >= nv)
-                        return fail_at(c, 0, cur.line, "face %" PRIu64 ", index %" PRId64
-                                       ": vertex %" PRId64 " is out of range (vertex count %zu)",
+                        return fail_at(c, 0, cur.line,
+                                       "face %" PRIu64 ", index %" PRId64 ": vertex %" PRId64
+                                       " is out of range (vertex count %zu)",
                                        i, j, x, nv);
                     uint32_t u = (uint32_t)x;
                     if (j == 0)
@@ -953,8 +989,10 @@ static int ply_read_ascii(const mesh_ctx *c, const ply_header *h, const unsigned
             while (cur.p < cur.end && is_blank((unsigned char)*cur.p))
                 cur.p++;
             if (cur.p < cur.end && *cur.p != '\n')
-                return fail_at(c, 0, cur.line, "element %s %" PRIu64 " has more values than "
-                               "the header declares", el->name, i);
+                return fail_at(c, 0, cur.line,
+                               "element %s %" PRIu64 " has more values than "
+                               "the header declares",
+                               el->name, i);
             if (el->kind == EK_VERTEX &&
                 store_vertex(c, b, (size_t)i, v, 0, cur.line, (size_t)i) != 0)
                 return -1;
@@ -1021,7 +1059,7 @@ static int obj_load(const mesh_ctx *c, const unsigned char *data, size_t size, b
             continue; /* vn, vt, o, g, s, usemtl, mtllib, #, l, p, blank... */
 
         if (q[0] == 'v') {
-            double v[C_COUNT] = { 0 };
+            double v[C_COUNT] = {0};
             q++;
             for (int k = 0; k < 3; k++) {
                 while (q < eol && is_blank((unsigned char)*q))
@@ -1069,21 +1107,25 @@ static int obj_load(const mesh_ctx *c, const unsigned char *data, size_t size, b
             for (size_t j = ilen; j < n && !bad; j++) /* the vt/vn part is checked, not used */
                 bad = !(is_digit((unsigned char)s[j]) || s[j] == '/' || s[j] == '-');
             if (bad)
-                return fail_at(c, 0, line + 1, "face %zu: bad vertex \"%.*s\"", faces,
-                               quote_len(n), s);
+                return fail_at(c, 0, line + 1, "face %zu: bad vertex \"%.*s\"", faces, quote_len(n),
+                               s);
             if (x == 0)
-                return fail_at(c, 0, line + 1, "face %zu, index %zu: 0 is not a valid index "
-                               "(OBJ indices start at 1)", faces, corner + 1);
+                return fail_at(c, 0, line + 1,
+                               "face %zu, index %zu: 0 is not a valid index "
+                               "(OBJ indices start at 1)",
+                               faces, corner + 1);
             if (x < 0) {
                 if (-x > (int64_t)b->nv)
-                    return fail_at(c, 0, line + 1, "face %zu, index %zu: relative index %"
-                                   PRId64 " is out of range (%zu vertices so far)",
+                    return fail_at(c, 0, line + 1,
+                                   "face %zu, index %zu: relative index %" PRId64
+                                   " is out of range (%zu vertices so far)",
                                    faces, corner + 1, x, b->nv);
                 x += (int64_t)b->nv;
             } else {
                 if (x > (int64_t)UINT32_MAX)
-                    return fail_at(c, 0, line + 1, "face %zu, index %zu: %" PRId64
-                                   " is out of range", faces, corner + 1, x);
+                    return fail_at(c, 0, line + 1,
+                                   "face %zu, index %zu: %" PRId64 " is out of range", faces,
+                                   corner + 1, x);
                 if (x > max_idx) {
                     max_idx = x;
                     max_line = line + 1;
@@ -1103,11 +1145,12 @@ static int obj_load(const mesh_ctx *c, const unsigned char *data, size_t size, b
             prev = u;
         }
         if (corner < 3)
-            return fail_at(c, 0, line + 1, "face %zu has %zu vertices (need at least 3)",
-                           faces, corner);
+            return fail_at(c, 0, line + 1, "face %zu has %zu vertices (need at least 3)", faces,
+                           corner);
     }
     if ((uint64_t)max_idx > b->nv)
-        return fail_at(c, 0, max_line, "face %zu, index %zu: vertex %" PRId64
+        return fail_at(c, 0, max_line,
+                       "face %zu, index %zu: vertex %" PRId64
                        " is out of range (the file has %zu vertices)",
                        max_face, max_corner, max_idx, b->nv);
     return 0;
@@ -1125,10 +1168,10 @@ static int ends_with_obj(const char *name)
     return s[0] == '.' && (s[1] | 0x20) == 'o' && (s[2] | 0x20) == 'b' && (s[3] | 0x20) == 'j';
 }
 
-int mesh_load_buffer(const char *name, const unsigned char *data, size_t size,
-                     mesh_t **out, char *err, size_t errlen)
+int mesh_load_buffer(const char *name, const unsigned char *data, size_t size, mesh_t **out,
+                     char *err, size_t errlen)
 {
-    mesh_ctx c = { name ? name : "(buffer)", err, errlen };
+    mesh_ctx c = {name ? name : "(buffer)", err, errlen};
     if (err && errlen)
         err[0] = '\0';
     if (out)
@@ -1157,7 +1200,7 @@ int mesh_load_buffer(const char *name, const unsigned char *data, size_t size,
 
 int mesh_load(const char *path, mesh_t **out, char *err, size_t errlen)
 {
-    mesh_ctx c = { path ? path : "(null)", err, errlen };
+    mesh_ctx c = {path ? path : "(null)", err, errlen};
     if (out)
         *out = NULL;
     if (!path || !out)

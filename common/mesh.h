@@ -17,9 +17,9 @@
 #include <stdint.h>
 
 typedef struct mesh {
-    float *positions;        /* 3 * vertex_count floats, x y z */
-    float *normals;          /* 3 * vertex_count floats, or NULL when absent */
-    uint32_t *indices;       /* 3 * triangle_count vertex indices */
+    float *positions;  /* 3 * vertex_count floats, x y z */
+    float *normals;    /* 3 * vertex_count floats, or NULL when absent */
+    uint32_t *indices; /* 3 * triangle_count vertex indices */
     size_t vertex_count;
     size_t triangle_count;
 } mesh_t;
@@ -32,8 +32,8 @@ int mesh_load(const char *path, mesh_t **out, char *err, size_t errlen);
 
 /* The same from a buffer already in memory; name is used in messages and to
  * pick OBJ by extension. Used by the fuzz target. */
-int mesh_load_buffer(const char *name, const unsigned char *data, size_t size,
-                     mesh_t **out, char *err, size_t errlen);
+int mesh_load_buffer(const char *name, const unsigned char *data, size_t size, mesh_t **out,
+                     char *err, size_t errlen);
 
 /* Frees a mesh and sets *m to NULL. Accepts NULL and *m == NULL. */
 void mesh_destroy(mesh_t **m);

@@ -45,7 +45,8 @@ static void draw_bar(progress_t *p, double fraction, const char *detail)
     for (int i = 0; i < width; i++)
         bar[i] = i < filled ? '#' : '.';
     bar[width] = '\0';
-    fprintf(p->out, "\r%s [%s] %5.1f%%  %s\033[K", p->label, bar, 100.0 * fraction, detail ? detail : "");
+    fprintf(p->out, "\r%s [%s] %5.1f%%  %s\033[K", p->label, bar, 100.0 * fraction,
+            detail ? detail : "");
     fflush(p->out);
 }
 

@@ -19,13 +19,13 @@ typedef struct job {
     atomic_size_t next_batch;     /* of the current layer */
     atomic_uint_fast64_t samples; /* progress, read by the monitor */
     atomic_uint_fast64_t rays;
-    atomic_int running;           /* worker threads not finished */
+    atomic_int running; /* worker threads not finished */
     atomic_int failed;
-    pthread_mutex_t gate_lock;    /* workers wait here until the barrier */
-    pthread_cond_t gate;          /* is sized to the threads that started */
+    pthread_mutex_t gate_lock; /* workers wait here until the barrier */
+    pthread_cond_t gate;       /* is sized to the threads that started */
     int gate_open;
-    pthread_cond_t finished;      /* the last worker wakes the monitor */
-    char err[256];                /* written once by the first failing thread */
+    pthread_cond_t finished; /* the last worker wakes the monitor */
+    char err[256];           /* written once by the first failing thread */
     pthread_mutex_t err_lock;
 } job_t;
 
@@ -69,8 +69,9 @@ static void *worker_main(void *argp)
     pthread_mutex_unlock(&job->gate_lock);
     for (uint32_t layer = 0; layer < job->layers; layer++) {
         uint64_t first = (uint64_t)layer * s->granularity;
-        uint32_t take = (uint32_t)((uint64_t)s->spp - first < s->granularity ? (uint64_t)s->spp - first
-                                                                               : s->granularity);
+        uint32_t take =
+            (uint32_t)((uint64_t)s->spp - first < s->granularity ? (uint64_t)s->spp - first
+                                                                 : s->granularity);
         for (;;) {
             if (atomic_load(&job->failed))
                 break;
@@ -87,7 +88,8 @@ static void *worker_main(void *argp)
             }
             tracer_stats_t st = {0, 0};
             char err[256];
-            if (tracer_trace(job->tracer, &s->tracer, tasks, n, results, &st, err, sizeof err) < 0) {
+            if (tracer_trace(job->tracer, &s->tracer, tasks, n, results, &st, err, sizeof err) <
+                0) {
                 pthread_mutex_lock(&job->err_lock);
                 if (!atomic_load(&job->failed))
                     snprintf(job->err, sizeof job->err, "%s", err);
@@ -178,7 +180,8 @@ int render_run(const tracer_t *tracer, film_t *film, const render_settings_t *s,
     }
 
     const double total = (double)s->spp * (double)job.npix;
-    progress_t *prog = s->progress_out ? progress_new(s->progress_out, s->progress, "render") : NULL;
+    progress_t *prog =
+        s->progress_out ? progress_new(s->progress_out, s->progress, "render") : NULL;
     for (;;) {
         /* Wake every 100 ms for progress, or at once when the last worker ends. */
         struct timespec until;
@@ -200,8 +203,8 @@ int render_run(const tracer_t *tracer, film_t *film, const render_settings_t *s,
         double rate = el > 0 ? done / el : 0;
         double eta = rate > 0 ? (total - done) / rate : 0;
         snprintf(detail, sizeof detail, "%s samples/s, %s rays/s, ETA %.0fs",
-                 render_si(rate, a, sizeof a), render_si((double)atomic_load(&job.rays) / (el > 0 ? el : 1), b, sizeof b),
-                 eta);
+                 render_si(rate, a, sizeof a),
+                 render_si((double)atomic_load(&job.rays) / (el > 0 ? el : 1), b, sizeof b), eta);
         progress_update(prog, done / total, detail);
     }
     for (int i = 0; i < started; i++)

@@ -28,7 +28,7 @@ typedef struct render_settings {
     uint32_t granularity; /* G: samples per pixel per layer */
     int threads;          /* worker threads, >= 1 */
     progress_mode_t progress;
-    FILE *progress_out;   /* where progress goes (stderr); NULL: none */
+    FILE *progress_out; /* where progress goes (stderr); NULL: none */
 } render_settings_t;
 
 typedef struct render_summary {

@@ -138,8 +138,8 @@ static int parse_vec3_item(loader_t *L, const cJSON *it, const char *p, double o
     return 0;
 }
 
-static int get_vec3(loader_t *L, const cJSON *obj, const char *key, const char *path,
-                    int required, double out[3])
+static int get_vec3(loader_t *L, const cJSON *obj, const char *key, const char *path, int required,
+                    double out[3])
 {
     const cJSON *it = cJSON_GetObjectItemCaseSensitive(obj, key);
     char p[PATH_LEN];
@@ -177,8 +177,8 @@ static int parse_camera(loader_t *L, const cJSON *root)
         return fail(L, "camera", "absurd resolution %gx%g (each side 1..%d, at most %u pixels)", w,
                     h, SCENE_MAX_SIDE, SCENE_MAX_PIXELS);
     char msg[256];
-    if (camera_init(&L->s->camera, to_vec3(pos), to_vec3(at), to_vec3(up), fov, (int)w, (int)h,
-                    msg, sizeof msg) < 0)
+    if (camera_init(&L->s->camera, to_vec3(pos), to_vec3(at), to_vec3(up), fov, (int)w, (int)h, msg,
+                    sizeof msg) < 0)
         return fail(L, "camera", "%s", msg);
     return 0;
 }
@@ -245,8 +245,10 @@ static int parse_materials(loader_t *L, const cJSON *root)
             return fail(L, p, "missing \"type\" (diffuse, emitter, mirror or dielectric)");
         int t = material_type_from_name(type->valuestring);
         if (t < 0)
-            return fail(L, p, "unknown material type \"%s\" (expected diffuse, emitter, mirror or dielectric)",
-                        type->valuestring);
+            return fail(
+                L, p,
+                "unknown material type \"%s\" (expected diffuse, emitter, mirror or dielectric)",
+                type->valuestring);
         material_t *m = &L->s->materials[L->s->material_count];
         memcpy(m->name, it->string, strlen(it->string) + 1);
         m->type = (material_type_t)t;
@@ -295,8 +297,9 @@ static int parse_materials(loader_t *L, const cJSON *root)
         if (m->type != MATERIAL_DIELECTRIC)
             for (int k = 0; k < 3; k++)
                 if (v[k] < 0 || v[k] > 1)
-                    return fail(L, p, "%s components must be in [0, 1] (got %g): more would create energy",
-                                m->type == MATERIAL_MIRROR ? "reflectance" : "albedo", v[k]);
+                    return fail(
+                        L, p, "%s components must be in [0, 1] (got %g): more would create energy",
+                        m->type == MATERIAL_MIRROR ? "reflectance" : "albedo", v[k]);
         m->albedo = to_vec3(v);
         L->s->material_count++;
     }
@@ -465,11 +468,13 @@ static int check_coords(loader_t *L, const char *path, size_t first)
     for (size_t v = first; v < L->nv; v++)
         for (int i = 0; i < 3; i++)
             if (!isfinite(L->pos[3 * v + i]))
-                return fail(L, path, "vertex %zu is not finite after the transform (overflow)", v - first);
+                return fail(L, path, "vertex %zu is not finite after the transform (overflow)",
+                            v - first);
     return 0;
 }
 
-static void push_triangle(loader_t *L, const xform_t *x, uint32_t a, uint32_t b, uint32_t c, uint32_t mat)
+static void push_triangle(loader_t *L, const xform_t *x, uint32_t a, uint32_t b, uint32_t c,
+                          uint32_t mat)
 {
     uint32_t *d = L->idx + 3 * L->nt;
     d[0] = a;
@@ -478,7 +483,8 @@ static void push_triangle(loader_t *L, const xform_t *x, uint32_t a, uint32_t b,
     L->mat[L->nt++] = mat;
 }
 
-static int parse_points(loader_t *L, const cJSON *arr, const char *path, size_t want, double (*out)[3])
+static int parse_points(loader_t *L, const cJSON *arr, const char *path, size_t want,
+                        double (*out)[3])
 {
     if (!cJSON_IsArray(arr))
         return fail(L, path, "missing or not an array of points");
@@ -494,7 +500,8 @@ static int parse_points(loader_t *L, const cJSON *arr, const char *path, size_t 
     return 0;
 }
 
-static int shape_quad(loader_t *L, const cJSON *sh, const char *path, const xform_t *x, uint32_t mat)
+static int shape_quad(loader_t *L, const cJSON *sh, const char *path, const xform_t *x,
+                      uint32_t mat)
 {
     static const char *const keys[] = {"type", "material", "vertices", "transform", NULL};
     check_keys(L, sh, path, keys);
@@ -513,9 +520,11 @@ static int shape_quad(loader_t *L, const cJSON *sh, const char *path, const xfor
     return check_coords(L, path, base);
 }
 
-static int shape_triangles(loader_t *L, const cJSON *sh, const char *path, const xform_t *x, uint32_t mat)
+static int shape_triangles(loader_t *L, const cJSON *sh, const char *path, const xform_t *x,
+                           uint32_t mat)
 {
-    static const char *const keys[] = {"type", "material", "vertices", "indices", "transform", NULL};
+    static const char *const keys[] = {"type",    "material",  "vertices",
+                                       "indices", "transform", NULL};
     check_keys(L, sh, path, keys);
     const cJSON *va = cJSON_GetObjectItemCaseSensitive(sh, "vertices");
     const cJSON *ia = cJSON_GetObjectItemCaseSensitive(sh, "indices");
@@ -559,7 +568,8 @@ static int shape_triangles(loader_t *L, const cJSON *sh, const char *path, const
     return check_coords(L, path, base);
 }
 
-static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xform_t *x, uint32_t mat)
+static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xform_t *x,
+                      uint32_t mat)
 {
     static const char *const keys[] = {"type", "material", "file", "transform", NULL};
     check_keys(L, sh, path, keys);
@@ -612,10 +622,11 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
  * sphere, with exact normals (p - c) / r for smooth shading. Vertices are not
  * shared between faces; they are computed identically on both sides of an
  * edge (commutative midpoints), so the surface is watertight. */
-static int shape_sphere(loader_t *L, const cJSON *sh, const char *path, const xform_t *x, uint32_t mat)
+static int shape_sphere(loader_t *L, const cJSON *sh, const char *path, const xform_t *x,
+                        uint32_t mat)
 {
-    static const char *const keys[] = {"type", "material", "center", "radius", "subdivisions",
-                                       "transform", NULL};
+    static const char *const keys[] = {"type",         "material",  "center", "radius",
+                                       "subdivisions", "transform", NULL};
     check_keys(L, sh, path, keys);
     double c[3], r = 0, sub = 4;
     if (get_vec3(L, sh, "center", path, 1, c) < 0 ||
@@ -627,8 +638,8 @@ static int shape_sphere(loader_t *L, const cJSON *sh, const char *path, const xf
                                      {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
                                      {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
                                      {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
-    double ico[12][3] = {{-1, g, 0}, {1, g, 0}, {-1, -g, 0}, {1, -g, 0}, {0, -1, g}, {0, 1, g},
-                         {0, -1, -g}, {0, 1, -g}, {g, 0, -1}, {g, 0, 1}, {-g, 0, -1}, {-g, 0, 1}};
+    double ico[12][3] = {{-1, g, 0},  {1, g, 0},  {-1, -g, 0}, {1, -g, 0}, {0, -1, g},  {0, 1, g},
+                         {0, -1, -g}, {0, 1, -g}, {g, 0, -1},  {g, 0, 1},  {-g, 0, -1}, {-g, 0, 1}};
     size_t n = (size_t)sub, per_face = (size_t)1 << (2 * n), ntri = 20 * per_face;
     if (reserve(L, 3 * ntri, ntri, 1) < 0)
         return -1;
@@ -760,7 +771,8 @@ static int finish(loader_t *L)
             memmove(s->indices + 3 * kept, v, 3 * sizeof(uint32_t));
             s->tri_material[kept] = s->tri_material[t];
         }
-        s->tri_normal[kept] = vec3_make((float)(n[0] / len), (float)(n[1] / len), (float)(n[2] / len));
+        s->tri_normal[kept] =
+            vec3_make((float)(n[0] / len), (float)(n[1] / len), (float)(n[2] / len));
         int smooth = s->normals != NULL;
         for (int k = 0; smooth && k < 3; k++) {
             const float *vn = s->normals + 3 * s->indices[3 * kept + k];
@@ -790,7 +802,8 @@ static int finish(loader_t *L)
         free(power);
         if (lights && !isfinite(total_power))
             return fail(L, "materials", "total light power overflows");
-        warn(s, "%s: the scene has no light (no emitter with radiance > 0): the image will be black",
+        warn(s,
+             "%s: the scene has no light (no emitter with radiance > 0): the image will be black",
              L->name);
         return 0;
     }
@@ -815,10 +828,13 @@ static int finish(loader_t *L)
          * sizes differ by ~1e19 (or a light of area ~1e-38) cannot be
          * sampled there, and a wrong pdf would poison the image. */
         if (!(s->tri_light_pdf[t] > 0.0f) || !isfinite(s->tri_light_pdf[t]) ||
-            !(s->light_cdf[s->light_count - 1] > (s->light_count > 1 ? s->light_cdf[s->light_count - 2] : 0.0))) {
+            !(s->light_cdf[s->light_count - 1] >
+              (s->light_count > 1 ? s->light_cdf[s->light_count - 2] : 0.0))) {
             free(power);
-            return fail(L, "shapes", "light sizes out of single-precision range (light triangle %zu "
-                        "has area pdf %g): rescale the scene", t, pdf);
+            return fail(L, "shapes",
+                        "light sizes out of single-precision range (light triangle %zu "
+                        "has area pdf %g): rescale the scene",
+                        t, pdf);
         }
     }
     s->light_cdf[s->light_count - 1] = 1.0;
@@ -842,11 +858,16 @@ static void line_col(const char *text, size_t off, int *line, int *col)
 }
 
 static int load(const char *json, size_t len, const char *name, const char *base_dir,
-                const scene_blob_t *blobs, size_t blob_count, scene_t **out, char *err, size_t errlen)
+                const scene_blob_t *blobs, size_t blob_count, scene_t **out, char *err,
+                size_t errlen)
 {
     *out = NULL;
-    loader_t L = {.name = name ? name : "<scene>", .base_dir = base_dir, .err = err, .errlen = errlen,
-                  .blobs = blobs, .blob_count = blob_count};
+    loader_t L = {.name = name ? name : "<scene>",
+                  .base_dir = base_dir,
+                  .err = err,
+                  .errlen = errlen,
+                  .blobs = blobs,
+                  .blob_count = blob_count};
     L.s = calloc(1, sizeof(scene_t));
     if (!L.s)
         return fail(&L, NULL, "out of memory");
@@ -926,7 +947,8 @@ int scene_load(const char *path, scene_t **out, char *err, size_t errlen)
     }
     if ((unsigned long)size > MAX_SCENE_FILE_BYTES) {
         fclose(f);
-        snprintf(err, errlen, "%s: scene file too large (%ld bytes; meshes belong in mesh files)", path, size);
+        snprintf(err, errlen, "%s: scene file too large (%ld bytes; meshes belong in mesh files)",
+                 path, size);
         return -1;
     }
     buf = malloc((size_t)size + 1);

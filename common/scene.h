@@ -39,19 +39,19 @@ typedef struct scene {
     material_t *materials;
     size_t material_count;
 
-    float *positions;      /* 3 per vertex, world space */
-    float *normals;        /* 3 per vertex, or NULL; zero vector = none */
+    float *positions; /* 3 per vertex, world space */
+    float *normals;   /* 3 per vertex, or NULL; zero vector = none */
     size_t vertex_count;
-    uint32_t *indices;     /* 3 per triangle */
-    uint32_t *tri_material;/* per triangle */
-    vec3_t *tri_normal;    /* per triangle: unit geometric normal, from winding */
-    uint8_t *tri_smooth;   /* per triangle: 1 when all three vertex normals exist */
-    float *tri_light_pdf;  /* per triangle: area pdf of light sampling (0: not a light) */
+    uint32_t *indices;      /* 3 per triangle */
+    uint32_t *tri_material; /* per triangle */
+    vec3_t *tri_normal;     /* per triangle: unit geometric normal, from winding */
+    uint8_t *tri_smooth;    /* per triangle: 1 when all three vertex normals exist */
+    float *tri_light_pdf;   /* per triangle: area pdf of light sampling (0: not a light) */
     size_t triangle_count;
 
     /* Lights: emissive triangles, chosen proportionally to power. */
     uint32_t *light_tris;
-    double *light_cdf;     /* light_count entries, last is 1 */
+    double *light_cdf; /* light_count entries, last is 1 */
     size_t light_count;
 
     size_t dropped_degenerate; /* zero-area triangles left out */

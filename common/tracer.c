@@ -346,7 +346,8 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
                             float bsdf_pdf = cos_s * VMATH_INV_PI;
                             float w = power_heuristic(light_pdf, bsdf_pdf);
                             float k = w * cos_s * VMATH_INV_PI / light_pdf;
-                            L = vec3_add(L, vec3_mul(vec3_mul(beta, m->albedo), vec3_scale(lm->radiance, k)));
+                            L = vec3_add(L, vec3_mul(vec3_mul(beta, m->albedo),
+                                                     vec3_scale(lm->radiance, k)));
                         }
                     }
                 }
@@ -436,7 +437,8 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_ta
         r->pixel = task->pixel;
         /* eq. 4.1: P_i is the running estimate (all samples so far) after
          * the i-th sample of this task; Welford gives the task's own M2. */
-        double prior_lum = vmath_luminance(task->prior_sum[0], task->prior_sum[1], task->prior_sum[2]);
+        double prior_lum =
+            vmath_luminance(task->prior_sum[0], task->prior_sum[1], task->prior_sum[2]);
         double lum_sum = 0, mean = 0, m2 = 0;
         uint32_t n = 0;
         for (uint32_t i = 0; i < task->sample_count; i++) {

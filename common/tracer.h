@@ -62,9 +62,9 @@ typedef struct tracer_result {
     uint32_t samples;   /* finite samples in the sums */
     uint32_t nonfinite; /* NaN/Inf samples counted and left out */
     uint32_t pad_;
-    double sum[3];      /* RGB sums of this task's finite samples */
-    double lum_m2;      /* sum of squared deviations of luminance from this task's mean */
-    double pvar;        /* eq. 4.1: sum over i < G of (P_i - P_G)^2 */
+    double sum[3]; /* RGB sums of this task's finite samples */
+    double lum_m2; /* sum of squared deviations of luminance from this task's mean */
+    double pvar;   /* eq. 4.1: sum over i < G of (P_i - P_G)^2 */
 } tracer_result_t;
 
 typedef struct tracer_stats {
@@ -75,7 +75,8 @@ typedef struct tracer_stats {
 /* Builds the BVH for a scene on a device. Both are borrowed and must
  * outlive the tracer. Returns 0, or -1 with a message (Embree's own, from
  * the device's error callback, when it refuses). */
-int tracer_new(tracer_device_t *device, const scene_t *scene, tracer_t **out, char *err, size_t errlen);
+int tracer_new(tracer_device_t *device, const scene_t *scene, tracer_t **out, char *err,
+               size_t errlen);
 void tracer_destroy(tracer_t **t);
 
 /* The Embree ISA this tracer runs ("avx2" or "sse4.2"). */

@@ -72,7 +72,8 @@ static void summarise(vblog_limit_slot_t *s, FILE *out, const char *who)
     if (!s->suppressed)
         return;
     char prefix[96];
-    snprintf(prefix, sizeof prefix, "%llu more like this in the last %g s: ", (unsigned long long)s->suppressed,
+    snprintf(prefix, sizeof prefix,
+             "%llu more like this in the last %g s: ", (unsigned long long)s->suppressed,
              VBLOG_WINDOW_S);
     emit(out, who, prefix, s->last);
     s->suppressed = 0;

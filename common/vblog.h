@@ -20,7 +20,8 @@
 
 /* Writes "2026-11-23T14:53:46.051Z who: message\n" to out (nothing if out
  * is NULL). */
-void vblog_write(FILE *out, const char *who, const char *fmt, va_list ap) __attribute__((format(printf, 3, 0)));
+void vblog_write(FILE *out, const char *who, const char *fmt, va_list ap)
+    __attribute__((format(printf, 3, 0)));
 
 /* Rate limit: at most VBLOG_BURST lines of one key per VBLOG_WINDOW_S
  * window. 10 lines show what goes wrong; a flood of bad messages then costs
@@ -32,11 +33,11 @@ void vblog_write(FILE *out, const char *who, const char *fmt, va_list ap) __attr
 #define VBLOG_KEYS 32
 
 typedef struct vblog_limit_slot {
-    const char *key;      /* NULL: slot free */
-    double window_start;  /* now_s of the window's first line */
-    uint64_t used;        /* limiter tick of the last use, for LRU reuse */
-    unsigned written;     /* lines written in this window */
-    uint64_t suppressed;  /* lines held back in this window */
+    const char *key;          /* NULL: slot free */
+    double window_start;      /* now_s of the window's first line */
+    uint64_t used;            /* limiter tick of the last use, for LRU reuse */
+    unsigned written;         /* lines written in this window */
+    uint64_t suppressed;      /* lines held back in this window */
     char last[VBLOG_MSG_MAX]; /* the last line held back, unescaped */
 } vblog_limit_slot_t;
 

@@ -20,21 +20,54 @@ static inline vec3_t vec3_make(float x, float y, float z)
     vec3_t v = {x, y, z};
     return v;
 }
-static inline vec3_t vec3_add(vec3_t a, vec3_t b) { return vec3_make(a.x + b.x, a.y + b.y, a.z + b.z); }
-static inline vec3_t vec3_sub(vec3_t a, vec3_t b) { return vec3_make(a.x - b.x, a.y - b.y, a.z - b.z); }
-static inline vec3_t vec3_mul(vec3_t a, vec3_t b) { return vec3_make(a.x * b.x, a.y * b.y, a.z * b.z); }
-static inline vec3_t vec3_scale(vec3_t a, float s) { return vec3_make(a.x * s, a.y * s, a.z * s); }
-static inline vec3_t vec3_neg(vec3_t a) { return vec3_make(-a.x, -a.y, -a.z); }
-static inline float vec3_dot(vec3_t a, vec3_t b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+static inline vec3_t vec3_add(vec3_t a, vec3_t b)
+{
+    return vec3_make(a.x + b.x, a.y + b.y, a.z + b.z);
+}
+static inline vec3_t vec3_sub(vec3_t a, vec3_t b)
+{
+    return vec3_make(a.x - b.x, a.y - b.y, a.z - b.z);
+}
+static inline vec3_t vec3_mul(vec3_t a, vec3_t b)
+{
+    return vec3_make(a.x * b.x, a.y * b.y, a.z * b.z);
+}
+static inline vec3_t vec3_scale(vec3_t a, float s)
+{
+    return vec3_make(a.x * s, a.y * s, a.z * s);
+}
+static inline vec3_t vec3_neg(vec3_t a)
+{
+    return vec3_make(-a.x, -a.y, -a.z);
+}
+static inline float vec3_dot(vec3_t a, vec3_t b)
+{
+    return a.x * b.x + a.y * b.y + a.z * b.z;
+}
 static inline vec3_t vec3_cross(vec3_t a, vec3_t b)
 {
     return vec3_make(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
 }
-static inline float vec3_length(vec3_t a) { return sqrtf(vec3_dot(a, a)); }
-static inline vec3_t vec3_normalize(vec3_t a) { return vec3_scale(a, 1.0f / vec3_length(a)); }
-static inline float vec3_max_comp(vec3_t a) { return fmaxf(a.x, fmaxf(a.y, a.z)); }
-static inline int vec3_is_zero(vec3_t a) { return a.x == 0.0f && a.y == 0.0f && a.z == 0.0f; }
-static inline int vec3_is_finite(vec3_t a) { return isfinite(a.x) && isfinite(a.y) && isfinite(a.z); }
+static inline float vec3_length(vec3_t a)
+{
+    return sqrtf(vec3_dot(a, a));
+}
+static inline vec3_t vec3_normalize(vec3_t a)
+{
+    return vec3_scale(a, 1.0f / vec3_length(a));
+}
+static inline float vec3_max_comp(vec3_t a)
+{
+    return fmaxf(a.x, fmaxf(a.y, a.z));
+}
+static inline int vec3_is_zero(vec3_t a)
+{
+    return a.x == 0.0f && a.y == 0.0f && a.z == 0.0f;
+}
+static inline int vec3_is_finite(vec3_t a)
+{
+    return isfinite(a.x) && isfinite(a.y) && isfinite(a.z);
+}
 
 /* Luminance as the thesis defines it (P = 0.3 R + 0.59 G + 0.11 B); used for
  * every per-pixel statistic and for light selection. */

@@ -15,8 +15,8 @@
 #include "vblog.h"
 
 #define ZAP_ENDPOINT "inproc://zeromq.zap.01"
-#define ZAP_MAX_FRAMES 8    /* RFC 27: six, and one credential frame for CURVE */
-#define ZAP_FLUSH_MS 1000   /* the handler wakes this often to flush log summaries */
+#define ZAP_MAX_FRAMES 8  /* RFC 27: six, and one credential frame for CURVE */
+#define ZAP_FLUSH_MS 1000 /* the handler wakes this often to flush log summaries */
 
 /* The allow-lists, swapped whole on reload. */
 typedef struct auth_lists {
@@ -29,9 +29,9 @@ struct auth {
     char workers_dir[4096], clients_dir[4096], admins_dir[4096];
     pthread_mutex_t lock; /* guards lists: the handler and the master read, reload writes */
     auth_lists_t lists;
-    void *zap;          /* REP, the handler thread's */
-    void *stop_rx;      /* PAIR, the handler thread's: a message says stop */
-    void *stop_tx;      /* PAIR, the owner's */
+    void *zap;     /* REP, the handler thread's */
+    void *stop_rx; /* PAIR, the handler thread's: a message says stop */
+    void *stop_tx; /* PAIR, the owner's */
     char stop_endpoint[64];
     pthread_t thread;
     int started;
@@ -69,9 +69,10 @@ static int lists_load(const auth_t *a, auth_lists_t *l, char *err, size_t errlen
 
 static void describe_lists(const auth_lists_t *l, char *msg, size_t msglen)
 {
-    size_t w = keys_set_count(l->workers), c = keys_set_count(l->clients), a = keys_set_count(l->admins);
-    snprintf(msg, msglen, "%zu worker key%s, %zu client key%s, %zu admin key%s", w, w == 1 ? "" : "s", c,
-             c == 1 ? "" : "s", a, a == 1 ? "" : "s");
+    size_t w = keys_set_count(l->workers), c = keys_set_count(l->clients),
+           a = keys_set_count(l->admins);
+    snprintf(msg, msglen, "%zu worker key%s, %zu client key%s, %zu admin key%s", w,
+             w == 1 ? "" : "s", c, c == 1 ? "" : "s", a, a == 1 ? "" : "s");
 }
 
 /* Whether key is admitted to domain by lists l (the caller holds the lock). */
@@ -131,7 +132,8 @@ void auth_describe(auth_t *a, char *msg, size_t msglen)
 
 /* ---- the ZAP handler ----------------------------------------------------------------- */
 
-static void refusal(auth_t *a, const char *key, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+static void refusal(auth_t *a, const char *key, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
 static void refusal(auth_t *a, const char *key, const char *fmt, ...)
 {
     va_list ap;
@@ -156,10 +158,12 @@ static const char *frame_str(zmq_msg_t *f, int n, int i, char *buf, size_t cap)
 
 static int frame_is(zmq_msg_t *f, int n, int i, const char *text)
 {
-    return i < n && zmq_msg_size(&f[i]) == strlen(text) && memcmp(zmq_msg_data(&f[i]), text, strlen(text)) == 0;
+    return i < n && zmq_msg_size(&f[i]) == strlen(text) &&
+           memcmp(zmq_msg_data(&f[i]), text, strlen(text)) == 0;
 }
 
-static void reply(auth_t *a, zmq_msg_t *f, int n, const char *code, const char *text, const char *user_id)
+static void reply(auth_t *a, zmq_msg_t *f, int n, const char *code, const char *text,
+                  const char *user_id)
 {
     /* RFC 27: version, request id, status code, status text, user id, metadata */
     zmq_send(a->zap, "1.0", 3, ZMQ_SNDMORE);
@@ -212,14 +216,18 @@ static void handle_request(auth_t *a)
             reply(a, f, n, "200", "OK", key);
         } else if (strcmp(domain, AUTH_DOMAIN_WORKERS) == 0) {
             reply(a, f, n, "400", "worker key not allowed", "");
-            refusal(a, "zap-refused-worker", "refused worker key %s from %s: not in --allow-workers", key, address);
+            refusal(a, "zap-refused-worker",
+                    "refused worker key %s from %s: not in --allow-workers", key, address);
         } else if (strcmp(domain, AUTH_DOMAIN_CONTROL) == 0) {
             reply(a, f, n, "400", "client key not allowed", "");
-            refusal(a, "zap-refused-client", "refused client key %s from %s: not in --allow-clients or "
-                    "--admin-clients", key, address);
+            refusal(a, "zap-refused-client",
+                    "refused client key %s from %s: not in --allow-clients or "
+                    "--admin-clients",
+                    key, address);
         } else {
             reply(a, f, n, "400", "unknown domain", "");
-            refusal(a, "zap-domain", "refused key %s from %s: unknown ZAP domain '%s'", key, address, domain);
+            refusal(a, "zap-domain", "refused key %s from %s: unknown ZAP domain '%s'", key,
+                    address, domain);
         }
     }
     for (int i = 0; i < n; i++)
@@ -301,13 +309,15 @@ auth_t *auth_new(const auth_config_t *cfg, char *err, size_t errlen)
     zmq_setsockopt(a->stop_rx, ZMQ_LINGER, &zero, sizeof zero);
     zmq_setsockopt(a->stop_tx, ZMQ_LINGER, &zero, sizeof zero);
     if (zmq_bind(a->zap, ZAP_ENDPOINT) < 0) {
-        snprintf(err, errlen, "cannot bind the ZAP handler to %s: %s (one per ZeroMQ context)", ZAP_ENDPOINT,
-                 zmq_strerror(errno));
+        snprintf(err, errlen, "cannot bind the ZAP handler to %s: %s (one per ZeroMQ context)",
+                 ZAP_ENDPOINT, zmq_strerror(errno));
         auth_destroy(&a);
         return NULL;
     }
-    if (zmq_bind(a->stop_rx, a->stop_endpoint) < 0 || zmq_connect(a->stop_tx, a->stop_endpoint) < 0) {
-        snprintf(err, errlen, "cannot connect the ZAP handler's stop socket: %s", zmq_strerror(errno));
+    if (zmq_bind(a->stop_rx, a->stop_endpoint) < 0 ||
+        zmq_connect(a->stop_tx, a->stop_endpoint) < 0) {
+        snprintf(err, errlen, "cannot connect the ZAP handler's stop socket: %s",
+                 zmq_strerror(errno));
         auth_destroy(&a);
         return NULL;
     }
@@ -349,7 +359,8 @@ int auth_secure_socket(auth_t *a, void *sock, const char *domain, char *err, siz
     if (zmq_setsockopt(sock, ZMQ_CURVE_SERVER, &one, sizeof one) < 0 ||
         zmq_setsockopt(sock, ZMQ_CURVE_SECRETKEY, a->secret, KEYS_Z85_LEN) < 0 ||
         zmq_setsockopt(sock, ZMQ_ZAP_DOMAIN, domain, strlen(domain)) < 0) {
-        snprintf(err, errlen, "cannot make the %s socket a CURVE server: %s", domain, zmq_strerror(errno));
+        snprintf(err, errlen, "cannot make the %s socket a CURVE server: %s", domain,
+                 zmq_strerror(errno));
         return -1;
     }
     return 0;
@@ -388,8 +399,10 @@ int auth_check_bind(const char *endpoint, int insecure, char *err, size_t errlen
     if (insecure || auth_endpoint_is_local(endpoint))
         return 0;
     snprintf(err, errlen,
-             "refusing to listen on %s without CURVE keys: anyone who can reach it could submit jobs or pose as a "
-             "worker. Give --key with --allow-workers/--allow-clients (see 'vbrender keygen'), bind a loopback "
+             "refusing to listen on %s without CURVE keys: anyone who can reach it could submit "
+             "jobs or pose as a "
+             "worker. Give --key with --allow-workers/--allow-clients (see 'vbrender keygen'), "
+             "bind a loopback "
              "address, or pass --insecure to accept that",
              endpoint);
     return -1;

@@ -17,7 +17,7 @@ typedef struct ctl_req {
     zmq_msg_t *json_frame; /* the request as received (stored with a submission) */
     zmq_msg_t *extra;      /* binary frames after the JSON */
     int nextra;
-    job_t *job;            /* for commands on one job */
+    job_t *job; /* for commands on one job */
     /* who asks: with CURVE keys a client owns the jobs it submitted and
      * acts on those only, unless it is an admin; without keys there is no
      * identity to own by (loopback or --insecure), so every client may act
@@ -58,7 +58,8 @@ static int rate_ok(master_t *m, zmq_msg_t *id, double now)
 {
     if (!m->buckets && !(m->buckets = calloc(MASTER_RATE_BUCKETS, sizeof *m->buckets)))
         return 1;
-    size_t len = zmq_msg_size(id) < sizeof m->buckets[0].id ? zmq_msg_size(id) : sizeof m->buckets[0].id;
+    size_t len =
+        zmq_msg_size(id) < sizeof m->buckets[0].id ? zmq_msg_size(id) : sizeof m->buckets[0].id;
     ctl_bucket_t *b = NULL, *oldest = &m->buckets[0];
     for (size_t i = 0; i < MASTER_RATE_BUCKETS && !b; i++) {
         ctl_bucket_t *c = &m->buckets[i];
@@ -104,7 +105,8 @@ static void reply_json(master_t *m, zmq_msg_t *id, cJSON *body, int more)
      * the high-water mark rather than stalling the master */
     zmq_send(m->control_sock, zmq_msg_data(id), zmq_msg_size(id), ZMQ_SNDMORE | ZMQ_DONTWAIT);
     zmq_send(m->control_sock, "", 0, ZMQ_SNDMORE | ZMQ_DONTWAIT);
-    zmq_send(m->control_sock, text ? text : "{}", text ? strlen(text) : 2, (more ? ZMQ_SNDMORE : 0) | ZMQ_DONTWAIT);
+    zmq_send(m->control_sock, text ? text : "{}", text ? strlen(text) : 2,
+             (more ? ZMQ_SNDMORE : 0) | ZMQ_DONTWAIT);
     cJSON_free(text);
 }
 
@@ -161,7 +163,8 @@ static void inflight_remove(master_t *m, const char *rid)
 {
     int i = inflight_find(m, rid);
     if (i >= 0)
-        memmove(&m->inflight[i], &m->inflight[i + 1], (m->inflight_n - (size_t)i - 1) * sizeof m->inflight[0]);
+        memmove(&m->inflight[i], &m->inflight[i + 1],
+                (m->inflight_n - (size_t)i - 1) * sizeof m->inflight[0]);
     if (i >= 0)
         m->inflight_n--;
 }
@@ -178,7 +181,9 @@ static cJSON *duplicate_body(const job_t *j)
 static const char *request_id_of(const cJSON *req)
 {
     const cJSON *rid = cJSON_GetObjectItemCaseSensitive(req, "request_id");
-    return cJSON_IsString(rid) && strlen(rid->valuestring) <= MASTER_MAX_REQUEST_ID ? rid->valuestring : NULL;
+    return cJSON_IsString(rid) && strlen(rid->valuestring) <= MASTER_MAX_REQUEST_ID
+               ? rid->valuestring
+               : NULL;
 }
 
 /* The request goes to the offload thread (scene loading, storing); the
@@ -196,7 +201,8 @@ static cJSON *ctl_submit(ctl_req_t *r)
         queued += !job_ended(j) && strcmp(j->owner, client) == 0;
     if (queued >= m->cfg.max_queued_per_client)
         return error_body("this client has %u jobs queued or running; the master takes at most %u "
-                          "(--max-queued-per-client)", queued, m->cfg.max_queued_per_client);
+                          "(--max-queued-per-client)",
+                          queued, m->cfg.max_queued_per_client);
     offload_item_t *it = offload_item_new(OFFLOAD_SUBMIT);
     if (!it || !(it->req = cJSON_Duplicate(r->body, 1))) {
         offload_item_free(it);
@@ -275,7 +281,8 @@ static cJSON *ctl_workers(ctl_req_t *r)
         cJSON_AddNumberToObject(o, "samples", (double)w->samples);
         cJSON_AddNumberToObject(o, "busy_seconds", w->busy_us / 1e6);
         cJSON_AddNumberToObject(o, "seconds", now - w->joined);
-        cJSON_AddNumberToObject(o, "rays_per_second", w->busy_us ? w->rays / (w->busy_us / 1e6) * w->threads : 0);
+        cJSON_AddNumberToObject(o, "rays_per_second",
+                                w->busy_us ? w->rays / (w->busy_us / 1e6) * w->threads : 0);
         cJSON_AddStringToObject(o, "build", w->build);
         cJSON_AddItemToArray(arr, o);
     }
@@ -412,9 +419,11 @@ static cJSON *ctl_readmit(ctl_req_t *r)
 }
 
 static const ctl_command_t ctl_commands[] = {
-    {"submit", ctl_submit, 1, 0, 0},   {"status", ctl_status, 0, 1, 0},    {"jobs", ctl_jobs, 0, 0, 0},
-    {"workers", ctl_workers, 0, 0, 0}, {"cancel", ctl_cancel, 0, 1, 0},    {"fetch", ctl_fetch, 0, 1, 0},
-    {"delete", ctl_delete, 0, 1, 0},   {"shutdown", ctl_shutdown, 0, 0, 0}, {"readmit", ctl_readmit, 0, 0, 1},
+    {"submit", ctl_submit, 1, 0, 0},   {"status", ctl_status, 0, 1, 0},
+    {"jobs", ctl_jobs, 0, 0, 0},       {"workers", ctl_workers, 0, 0, 0},
+    {"cancel", ctl_cancel, 0, 1, 0},   {"fetch", ctl_fetch, 0, 1, 0},
+    {"delete", ctl_delete, 0, 1, 0},   {"shutdown", ctl_shutdown, 0, 0, 0},
+    {"readmit", ctl_readmit, 0, 0, 1},
 };
 
 static const ctl_command_t *find_command(const char *name)
@@ -450,8 +459,9 @@ static cJSON *answer(ctl_req_t *r, int overflow)
     if (!cJSON_IsString(cmd))
         return error_body("request has no \"cmd\"");
     if (!c)
-        return error_body("unknown command \"%.64s\" (submit, status, jobs, workers, cancel, fetch, delete)",
-                          cmd->valuestring);
+        return error_body(
+            "unknown command \"%.64s\" (submit, status, jobs, workers, cancel, fetch, delete)",
+            cmd->valuestring);
     if (!c->takes_frames && r->nextra > 0)
         return error_body("%s takes no binary frames", c->name);
     if (c->needs_job) {
@@ -461,8 +471,9 @@ static cJSON *answer(ctl_req_t *r, int overflow)
         if (!(r->job = job_find(r->m, id)))
             return error_body("%s: no such job %" PRIu64, c->name, id);
         if (!may_act(r, r->job))
-            return error_body("%s: job %" PRIu64 " belongs to another client (an admin key may act on it)", c->name,
-                              id);
+            return error_body("%s: job %" PRIu64
+                              " belongs to another client (an admin key may act on it)",
+                              c->name, id);
     }
     if (c->admin_only && r->keyed && !r->admin)
         return error_body("%s: only an admin key may do this", c->name);
@@ -498,7 +509,8 @@ void ctl_handle_message(master_t *m)
     }
     if (!master_peer_allowed(m, AUTH_DOMAIN_CONTROL, &frames[2])) {
         /* its key left the allow-lists (SIGHUP) while it was connected */
-        master_log_limited(m, "client-key-revoked", "refused a request: client key %s no longer allowed",
+        master_log_limited(m, "client-key-revoked",
+                           "refused a request: client key %s no longer allowed",
                            master_peer_key(&frames[2]));
         cJSON *b = error_body("this client's key is no longer allowed by the master");
         reply_json(m, &frames[0], b, 0);
@@ -508,7 +520,11 @@ void ctl_handle_message(master_t *m)
         return;
     }
     cJSON *req = cJSON_ParseWithLength(zmq_msg_data(&frames[2]), zmq_msg_size(&frames[2]));
-    ctl_req_t r = {.m = m, .id = &frames[0], .body = req, .json_frame = &frames[2], .extra = frames + 3,
+    ctl_req_t r = {.m = m,
+                   .id = &frames[0],
+                   .body = req,
+                   .json_frame = &frames[2],
+                   .extra = frames + 3,
                    .nextra = n - 3};
     client_of(&frames[2], r.client, sizeof r.client);
     const char *key = zmq_msg_gets(&frames[2], "User-Id");

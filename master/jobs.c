@@ -181,13 +181,15 @@ void job_reissue(master_t *m, job_t *j, size_t cell)
     /* The task was handed out, so the scheduler holds it as outstanding and
      * takes it back; a refusal would be a bug in our bookkeeping. */
     if (sched_requeue(j->sched, (uint64_t)cell + 1) < 0)
-        master_log(m, "job %" PRIu64 " task %zu: the scheduler refused it back (out of memory?)", j->id, cell + 1);
+        master_log(m, "job %" PRIu64 " task %zu: the scheduler refused it back (out of memory?)",
+                   j->id, cell + 1);
 }
 
 void job_merged(master_t *m, job_t *j)
 {
     if (sched_done(j->sched))
-        job_finish(m, j, JOB_DONE, sched_stopped_on_target(j->sched) ? "target error reached" : NULL);
+        job_finish(m, j, JOB_DONE,
+                   sched_stopped_on_target(j->sched) ? "target error reached" : NULL);
     else if (j->ref[0] && sched_layers_complete(j->sched) != j->last_eval_layers)
         job_eval_error(j, master_now()); /* a point per finished layer, however fast */
 }
@@ -204,9 +206,10 @@ void job_finish(master_t *m, job_t *j, job_state_t st, const char *why)
     job_eval_error(j, j->finished);
     if (why)
         snprintf(j->error, sizeof j->error, "%s", why);
-    master_log(m, "job %" PRIu64 " %s after %.2f s: %" PRIu64 " samples, %" PRIu64 " rays%s%s", j->id,
-               job_state_names[st], job_seconds(j, j->finished), j->sched ? sched_samples_done(j->sched) : 0,
-               j->rays, why ? ": " : "", why ? why : "");
+    master_log(m, "job %" PRIu64 " %s after %.2f s: %" PRIu64 " samples, %" PRIu64 " rays%s%s",
+               j->id, job_state_names[st], job_seconds(j, j->finished),
+               j->sched ? sched_samples_done(j->sched) : 0, j->rays, why ? ": " : "",
+               why ? why : "");
 }
 
 static void add_str(cJSON *o, const char *k, const char *v)
@@ -252,7 +255,8 @@ cJSON *job_json(const job_t *j, int with_series)
     cJSON_AddNumberToObject(o, "layers_done", sched_layers_complete(j->sched));
     cJSON_AddNumberToObject(o, "samples", (double)samples);
     cJSON_AddNumberToObject(o, "max_samples", (double)max_samples);
-    cJSON_AddNumberToObject(o, "pixel_layers_skipped", (double)sched_pixel_layers_skipped(j->sched));
+    cJSON_AddNumberToObject(o, "pixel_layers_skipped",
+                            (double)sched_pixel_layers_skipped(j->sched));
     cJSON_AddNumberToObject(o, "rays", (double)j->rays);
     cJSON_AddNumberToObject(o, "seconds", el);
     cJSON_AddNumberToObject(o, "rays_per_second", el > 0 ? j->rays / el : 0);
@@ -318,7 +322,8 @@ void job_delete(master_t *m, job_t *j)
         if (m->doomed_n < m->doomed_cap)
             m->doomed[m->doomed_n++] = j->id;
         else
-            master_log(m, "job %" PRIu64 ": out of memory; its files stay in the state directory", j->id);
+            master_log(m, "job %" PRIu64 ": out of memory; its files stay in the state directory",
+                       j->id);
     }
     job_free(j);
 }
@@ -332,12 +337,13 @@ void job_retention(master_t *m)
         job_t *oldest = NULL;
         for (job_t *j = m->jobs; j; j = j->next)
             if (job_ended(j) && (j->final_durable || !m->store) && !j->in_write &&
-                (!oldest || j->finished < oldest->finished || (j->finished == oldest->finished && j->id < oldest->id)))
+                (!oldest || j->finished < oldest->finished ||
+                 (j->finished == oldest->finished && j->id < oldest->id)))
                 oldest = j;
         if (!oldest)
             return;
-        master_log(m, "job %" PRIu64 " removed: more than %u ended jobs are kept (--keep-finished)", oldest->id,
-                   m->cfg.keep_finished);
+        master_log(m, "job %" PRIu64 " removed: more than %u ended jobs are kept (--keep-finished)",
+                   oldest->id, m->cfg.keep_finished);
         job_delete(m, oldest);
         ended--;
     }

@@ -18,7 +18,7 @@ typedef struct lease {
     uint64_t job;
     uint64_t task;
     uint32_t attempt;
-    uint32_t slot;   /* the worker it was sent to: slot + 1 */
+    uint32_t slot; /* the worker it was sent to: slot + 1 */
     double deadline;
 } lease_t;
 

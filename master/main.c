@@ -67,7 +67,8 @@ static const char usage[] =
     "  --admin-clients DIR  public keys of clients that may act on every job (admitted too)\n"
     "  --insecure           without --key, listen beyond loopback anyway (anyone who can\n"
     "                       reach the ports may submit jobs or pose as a worker)\n"
-    "  --io-threads N       ZeroMQ I/O threads (default 3 with --key, else 1). With --key they do the\n"
+    "  --io-threads N       ZeroMQ I/O threads (default 3 with --key, else 1). With --key they do "
+    "the\n"
     "                       encryption, one connection each: with many workers and cores\n"
     "                       to spare, 3 keep them from limiting the master\n"
     "  --version            print the build id and exit\n"
@@ -130,21 +131,25 @@ int main(int argc, char **argv)
             i++;
         } else if (strcmp(argv[i], "--checkpoint-s") == 0) {
             if (parse_count(v, 0.05, 86400, &cfg.checkpoint_s) < 0) {
-                fprintf(stderr, "vbrender-master: --checkpoint-s needs seconds from 0.05 to 86400 (got '%s')\n",
-                        v ? v : "");
+                fprintf(
+                    stderr,
+                    "vbrender-master: --checkpoint-s needs seconds from 0.05 to 86400 (got '%s')\n",
+                    v ? v : "");
                 return 2;
             }
             i++;
-        } else if (strcmp(argv[i], "--max-bundle-mib") == 0 || strcmp(argv[i], "--max-queued-per-client") == 0 ||
+        } else if (strcmp(argv[i], "--max-bundle-mib") == 0 ||
+                   strcmp(argv[i], "--max-queued-per-client") == 0 ||
                    strcmp(argv[i], "--max-pixels") == 0 || strcmp(argv[i], "--max-spp") == 0 ||
                    strcmp(argv[i], "--max-requests-per-s") == 0) {
             /* positive integers; each limit's own range */
             double hi = strcmp(argv[i], "--max-pixels") == 0 ? (double)(1u << 28)
-                        : strcmp(argv[i], "--max-bundle-mib") == 0 ? (double)(PROTO_MAX_BUNDLE >> 20)
-                                                                    : 4294967295.0;
+                        : strcmp(argv[i], "--max-bundle-mib") == 0
+                            ? (double)(PROTO_MAX_BUNDLE >> 20)
+                            : 4294967295.0;
             if (parse_count(v, 1, hi, &v_keep) < 0 || v_keep != (double)(uint64_t)v_keep) {
-                fprintf(stderr, "vbrender-master: %s needs an integer from 1 to %.0f (got '%s')\n", argv[i], hi,
-                        v ? v : "");
+                fprintf(stderr, "vbrender-master: %s needs an integer from 1 to %.0f (got '%s')\n",
+                        argv[i], hi, v ? v : "");
                 return 2;
             }
             if (strcmp(argv[i], "--max-bundle-mib") == 0)
@@ -160,13 +165,17 @@ int main(int argc, char **argv)
             i++;
         } else if (strcmp(argv[i], "--verify-share") == 0) {
             if (parse_count(v, 0, 1, &cfg.verify_share) < 0) {
-                fprintf(stderr, "vbrender-master: --verify-share needs a share from 0 to 1 (got '%s')\n", v ? v : "");
+                fprintf(stderr,
+                        "vbrender-master: --verify-share needs a share from 0 to 1 (got '%s')\n",
+                        v ? v : "");
                 return 2;
             }
             i++;
         } else if (strcmp(argv[i], "--keep-finished") == 0) {
             if (parse_count(v, 1, 1e7, &v_keep) < 0 || v_keep != (double)(uint32_t)v_keep) {
-                fprintf(stderr, "vbrender-master: --keep-finished needs an integer from 1 to 10000000 (got '%s')\n",
+                fprintf(stderr,
+                        "vbrender-master: --keep-finished needs an integer from 1 to 10000000 (got "
+                        "'%s')\n",
                         v ? v : "");
                 return 2;
             }
@@ -194,25 +203,29 @@ int main(int argc, char **argv)
             cfg.insecure = 1;
         } else if (strcmp(argv[i], "--io-threads") == 0) {
             if (parse_count(v, 1, 64, &io_threads) < 0 || io_threads != (double)(int)io_threads) {
-                fprintf(stderr, "vbrender-master: --io-threads needs an integer from 1 to 64 (got '%s')\n",
+                fprintf(stderr,
+                        "vbrender-master: --io-threads needs an integer from 1 to 64 (got '%s')\n",
                         v ? v : "");
                 return 2;
             }
             i++;
         } else if (strcmp(argv[i], "--heartbeat-ms") == 0) {
             if (parse_ms(v, &cfg.heartbeat_ms) < 0) {
-                fprintf(stderr, "vbrender-master: --heartbeat-ms needs 10..3600000 (got '%s')\n", v ? v : "");
+                fprintf(stderr, "vbrender-master: --heartbeat-ms needs 10..3600000 (got '%s')\n",
+                        v ? v : "");
                 return 2;
             }
             i++;
         } else if (strcmp(argv[i], "--lease-ms") == 0) {
             if (parse_ms(v, &cfg.lease_ms) < 0) {
-                fprintf(stderr, "vbrender-master: --lease-ms needs 10..3600000 (got '%s')\n", v ? v : "");
+                fprintf(stderr, "vbrender-master: --lease-ms needs 10..3600000 (got '%s')\n",
+                        v ? v : "");
                 return 2;
             }
             i++;
         } else {
-            fprintf(stderr, "vbrender-master: unknown or incomplete option '%s'\n%s", argv[i], usage);
+            fprintf(stderr, "vbrender-master: unknown or incomplete option '%s'\n%s", argv[i],
+                    usage);
             return 2;
         }
     }
@@ -222,12 +235,15 @@ int main(int argc, char **argv)
         return 2;
     }
     if (!key_file && have_lists) {
-        fprintf(stderr, "vbrender-master: --allow-workers, --allow-clients and --admin-clients need --key\n");
+        fprintf(
+            stderr,
+            "vbrender-master: --allow-workers, --allow-clients and --admin-clients need --key\n");
         return 2;
     }
     if (key_file && (!cfg.allow_workers_dir || !(cfg.allow_clients_dir || cfg.admin_clients_dir))) {
-        fprintf(stderr, "vbrender-master: --key needs --allow-workers DIR and --allow-clients DIR (or "
-                        "--admin-clients DIR): the keys it admits\n");
+        fprintf(stderr,
+                "vbrender-master: --key needs --allow-workers DIR and --allow-clients DIR (or "
+                "--admin-clients DIR): the keys it admits\n");
         return 2;
     }
     char err[512];
@@ -252,8 +268,10 @@ int main(int argc, char **argv)
     zmq_ctx_set(ctx, ZMQ_IO_THREADS, (int)io_threads); /* before the first socket */
     cfg.zmq_ctx = ctx;
     if (!cfg.state_dir)
-        fprintf(stderr, "vbrender-master: warning: --state none: jobs are kept in memory only and a restart "
-                        "loses them\n");
+        fprintf(
+            stderr,
+            "vbrender-master: warning: --state none: jobs are kept in memory only and a restart "
+            "loses them\n");
     master_t *m = master_new(&cfg, err, sizeof err);
     explicit_bzero(&key, sizeof key); /* the master keeps its own copy */
     if (!m) {

@@ -3,8 +3,8 @@
 #include "master.h"
 
 #include <errno.h>
-#include <sodium.h>
 #include <inttypes.h>
+#include <sodium.h>
 #include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
@@ -63,7 +63,8 @@ static void reload_keys(master_t *m)
 {
     char msg[MASTER_ERR_LEN];
     if (!m->auth)
-        master_log(m, "reload asked for, but this master runs without --key: no allow-lists to read");
+        master_log(m,
+                   "reload asked for, but this master runs without --key: no allow-lists to read");
     else if (auth_reload(m->auth, msg, sizeof msg) < 0)
         master_log(m, "cannot reload the allow-lists, keeping the old ones: %s", msg);
     else
@@ -88,8 +89,8 @@ static void expire_leases(master_t *m, double now)
         }
         if (!j->holder[c] || j->attempt[c] != l.attempt)
             continue;
-        master_log(m, "job %" PRIu64 " task %" PRIu64 ": lease ran out on %s; issuing it again", j->id, l.task,
-                   m->workers[j->holder[c] - 1].host);
+        master_log(m, "job %" PRIu64 " task %" PRIu64 ": lease ran out on %s; issuing it again",
+                   j->id, l.task, m->workers[j->holder[c] - 1].host);
         /* No credit back here: the slow worker still holds the task, and its
          * late result (ignored) returns the credit then. */
         m->workers[j->holder[c] - 1].owed++;
@@ -105,13 +106,15 @@ static void job_clocks(master_t *m, double now)
             continue;
         if (j->time_limit > 0 && !j->stopped_issuing && job_seconds(j, now) >= j->time_limit) {
             j->stopped_issuing = 1;
-            master_log(m, "job %" PRIu64 ": time limit %.1f s reached; finishing the tasks out", j->id, j->time_limit);
+            master_log(m, "job %" PRIu64 ": time limit %.1f s reached; finishing the tasks out",
+                       j->id, j->time_limit);
         }
         if (j->stopped_issuing && j->outstanding == 0) {
             job_finish(m, j, JOB_DONE, "time limit reached");
             continue;
         }
-        if (j->ref[0] && (now - j->last_eval >= MASTER_EVAL_S || sched_layers_complete(j->sched) != j->last_eval_layers))
+        if (j->ref[0] && (now - j->last_eval >= MASTER_EVAL_S ||
+                          sched_layers_complete(j->sched) != j->last_eval_layers))
             job_eval_error(j, now);
     }
 }
@@ -148,8 +151,8 @@ static int open_sockets(master_t *m, char *err, size_t errlen)
         return -1;
     }
     int zero = 0, one = 1, hwm = MASTER_CONTROL_HWM;
-    int64_t max_worker_msg =
-        (int64_t)PROTO_HEADER_SIZE + 24 + (int64_t)PROTO_RESULT_RECORD_SIZE * PROTO_MAX_TASK_PIXELS + 4096;
+    int64_t max_worker_msg = (int64_t)PROTO_HEADER_SIZE + 24 +
+                             (int64_t)PROTO_RESULT_RECORD_SIZE * PROTO_MAX_TASK_PIXELS + 4096;
     int64_t max_control = MASTER_CONTROL_MAX_BYTES;
     zmq_setsockopt(m->workers_sock, ZMQ_LINGER, &zero, sizeof zero);
     zmq_setsockopt(m->control_sock, ZMQ_LINGER, &zero, sizeof zero);
@@ -162,7 +165,8 @@ static int open_sockets(master_t *m, char *err, size_t errlen)
         secure_socket(m, m->control_sock, AUTH_DOMAIN_CONTROL, err, errlen) < 0)
         return -1;
     if (zmq_bind(m->workers_sock, cfg->worker_endpoint) < 0) {
-        snprintf(err, errlen, "cannot bind the worker socket to %s: %s", cfg->worker_endpoint, zmq_strerror(errno));
+        snprintf(err, errlen, "cannot bind the worker socket to %s: %s", cfg->worker_endpoint,
+                 zmq_strerror(errno));
         return -1;
     }
     if (zmq_bind(m->control_sock, cfg->control_endpoint) < 0) {
@@ -205,8 +209,9 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
     }
     /* without keys, loopback only unless --insecure: checked before the
      * state directory is made */
-    if (!cfg->curve_secret_key && (auth_check_bind(cfg->worker_endpoint, cfg->insecure, err, errlen) < 0 ||
-                                   auth_check_bind(cfg->control_endpoint, cfg->insecure, err, errlen) < 0)) {
+    if (!cfg->curve_secret_key &&
+        (auth_check_bind(cfg->worker_endpoint, cfg->insecure, err, errlen) < 0 ||
+         auth_check_bind(cfg->control_endpoint, cfg->insecure, err, errlen) < 0)) {
         master_destroy(&m);
         return NULL;
     }
@@ -232,15 +237,16 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
     if (!m->cfg.max_requests_per_s)
         m->cfg.max_requests_per_s = MASTER_DEFAULT_MAX_REQUESTS_PER_S;
     submit_limits_t limits = {.max_bundle_bytes = (uint64_t)m->cfg.max_bundle_mib << 20,
-                              .max_pixels = m->cfg.max_pixels, .max_spp = m->cfg.max_spp};
+                              .max_pixels = m->cfg.max_pixels,
+                              .max_spp = m->cfg.max_spp};
     if (!(m->offload = offload_new(m->store, &limits, err, errlen))) {
         master_destroy(&m);
         return NULL;
     }
     if (cfg->curve_secret_key) {
         /* before the sockets bind: ZeroMQ admits every key without a handler */
-        auth_config_t ac = {cfg->zmq_ctx, cfg->curve_secret_key, cfg->allow_workers_dir, cfg->allow_clients_dir,
-                            cfg->admin_clients_dir, cfg->log};
+        auth_config_t ac = {cfg->zmq_ctx,           cfg->curve_secret_key,  cfg->allow_workers_dir,
+                            cfg->allow_clients_dir, cfg->admin_clients_dir, cfg->log};
         if (!(m->auth = auth_new(&ac, err, errlen))) {
             master_destroy(&m);
             return NULL;
@@ -251,19 +257,25 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
         master_destroy(&m);
         return NULL;
     }
-    master_log(m, "listening: workers %s, control %s, build %s", cfg->worker_endpoint, cfg->control_endpoint,
-               m->build);
+    master_log(m, "listening: workers %s, control %s, build %s", cfg->worker_endpoint,
+               cfg->control_endpoint, m->build);
     if (m->auth) {
         char keys[256];
         auth_describe(m->auth, keys, sizeof keys);
         master_log(m, "CURVE on both sockets: %s", keys);
     } else {
-        int wl = auth_endpoint_is_local(cfg->worker_endpoint), cl = auth_endpoint_is_local(cfg->control_endpoint);
+        int wl = auth_endpoint_is_local(cfg->worker_endpoint),
+            cl = auth_endpoint_is_local(cfg->control_endpoint);
         if (!wl || !cl)
-            master_log(m, "warning: --insecure: no CURVE keys, so anyone who can reach %s%s%s may %s, and the "
-                       "traffic is not encrypted", wl ? "" : cfg->worker_endpoint, !wl && !cl ? " or " : "",
+            master_log(m,
+                       "warning: --insecure: no CURVE keys, so anyone who can reach %s%s%s may %s, "
+                       "and the "
+                       "traffic is not encrypted",
+                       wl ? "" : cfg->worker_endpoint, !wl && !cl ? " or " : "",
                        cl ? "" : cfg->control_endpoint,
-                       !wl && !cl ? "pose as a worker or submit jobs" : !wl ? "pose as a worker" : "submit jobs");
+                       !wl && !cl ? "pose as a worker or submit jobs"
+                       : !wl      ? "pose as a worker"
+                                  : "submit jobs");
     }
     if (m->store)
         persist_recover(m);
@@ -318,7 +330,7 @@ void master_destroy(master_t **mp)
     if (m->control_sock)
         zmq_close(m->control_sock);
     offload_destroy(&m->offload); /* before the store it writes to */
-    auth_destroy(&m->auth); /* after the sockets it guards */
+    auth_destroy(&m->auth);       /* after the sockets it guards */
     store_close(&m->store);
     free(m->inflight);
     free(m->buckets);

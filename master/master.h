@@ -51,11 +51,11 @@ typedef struct master_config {
      * and task id) also goes to a second worker, and is merged only when
      * both results agree bit for bit. 0: none; 1: every task. */
     double verify_share;
-    FILE *log;                    /* NULL: silent */
+    FILE *log; /* NULL: silent */
     /* transport security (auth.h) */
-    const char *curve_secret_key; /* Z85 (keys.h): both sockets speak CURVE and admit
-                                     the listed keys only; NULL: no CURVE, and then
-                                     loopback endpoints only unless insecure */
+    const char *curve_secret_key;  /* Z85 (keys.h): both sockets speak CURVE and admit
+                                      the listed keys only; NULL: no CURVE, and then
+                                      loopback endpoints only unless insecure */
     const char *allow_workers_dir; /* .pub files: workers admitted (needed with a key) */
     const char *allow_clients_dir; /* .pub files: clients admitted */
     const char *admin_clients_dir; /* .pub files: clients that may act on every job */

@@ -48,15 +48,15 @@
 
 #define MASTER_MAX_WORKERS 4096
 #define MASTER_MAX_IDENTITY 255
-#define MASTER_MAX_TASK_FAILURES 8   /* a job fails after this many TASK_FAILED */
-#define MASTER_POLL_MS 50            /* event loop wake-up when idle */
-#define MASTER_TIMER_S 0.1           /* periodic tasks run this often */
-#define MASTER_WORKER_BATCH 4096     /* worker messages per loop turn */
-#define MASTER_EVAL_S 0.25           /* error against a reference, this often */
-#define MASTER_CONTROL_HWM 4         /* replies queued per client before drops */
+#define MASTER_MAX_TASK_FAILURES 8 /* a job fails after this many TASK_FAILED */
+#define MASTER_POLL_MS 50          /* event loop wake-up when idle */
+#define MASTER_TIMER_S 0.1         /* periodic tasks run this often */
+#define MASTER_WORKER_BATCH 4096   /* worker messages per loop turn */
+#define MASTER_EVAL_S 0.25         /* error against a reference, this often */
+#define MASTER_CONTROL_HWM 4       /* replies queued per client before drops */
 #define MASTER_MAX_REQUEST_ID 64
-#define MASTER_RATE_BUCKETS 1024     /* connections whose request rate is tracked */
-#define MASTER_MAX_BAD_RESULTS 8     /* refused results before a worker is quarantined */
+#define MASTER_RATE_BUCKETS 1024 /* connections whose request rate is tracked */
+#define MASTER_MAX_BAD_RESULTS 8 /* refused results before a worker is quarantined */
 #define MASTER_CONTROL_MAX_BYTES ((int64_t)PROTO_MAX_BUNDLE + (1 << 20))
 /* A job with this many verified tasks waiting for a copy to go out takes
  * no new tasks: with --verify-share 1 and no second worker, results would
@@ -82,7 +82,7 @@ typedef struct peer {
     uint8_t id[MASTER_MAX_IDENTITY];
     size_t id_len;
     char host[64];
-    char key[64];         /* its CURVE public key (Z85), "" without keys */
+    char key[64]; /* its CURVE public key (Z85), "" without keys */
     char build[PROTO_BUILD_SIZE + 1];
     uint32_t threads;
     uint32_t credit;
@@ -102,7 +102,7 @@ typedef struct job {
     char error[MASTER_ERR_LEN];
     char name[128];
     char request_id[MASTER_MAX_REQUEST_ID + 1];
-    char owner[128];  /* the client that submitted it: its key, or its address without keys */
+    char owner[128]; /* the client that submitted it: its key, or its address without keys */
     /* the bundle, shipped to workers by hash; freed once the job has ended
      * and its image is durable */
     uint8_t hash[PROTO_HASH_SIZE];
@@ -136,22 +136,22 @@ typedef struct job {
     double last_eval;
     uint32_t last_eval_layers;
     /* durability (a master with --state) */
-    uint64_t ckpt_samples;      /* samples in the last durable checkpoint */
-    uint64_t ckpt_writing;      /* samples in the one being written */
+    uint64_t ckpt_samples; /* samples in the last durable checkpoint */
+    uint64_t ckpt_writing; /* samples in the one being written */
     double last_ckpt;
-    int in_write;               /* in the background write under way: PERSIST_* */
-    int final_durable;          /* image and final status are on disk */
+    int in_write;      /* in the background write under way: PERSIST_* */
+    int final_durable; /* image and final status are on disk */
     char storage_error[MASTER_ERR_LEN];
     char recovered[MASTER_ERR_LEN];
-    char *summary;              /* status of an ended job whose film is freed, as
-                                   JSON text: a tenth of the memory of its tree */
+    char *summary; /* status of an ended job whose film is freed, as
+                      JSON text: a tenth of the memory of its tree */
     /* verification by replication (verify.c) */
-    struct verify_job *verify;  /* its tasks out to several workers; NULL: none */
-    uint64_t tasks_verified;    /* merged once two results agreed */
-    uint64_t verify_mismatches; /* tasks whose results differed */
-    uint64_t tasks_unverified;  /* chosen, but merged on one result (no second worker) */
-    uint32_t verify_waiting;    /* tasks whose next copy no connected worker may run */
-    uint32_t verify_waiting_for; /* 2 or 3: the worker they wait for */
+    struct verify_job *verify;           /* its tasks out to several workers; NULL: none */
+    uint64_t tasks_verified;             /* merged once two results agreed */
+    uint64_t verify_mismatches;          /* tasks whose results differed */
+    uint64_t tasks_unverified;           /* chosen, but merged on one result (no second worker) */
+    uint32_t verify_waiting;             /* tasks whose next copy no connected worker may run */
+    uint32_t verify_waiting_for;         /* 2 or 3: the worker they wait for */
     char (*quarantined)[MASTER_MAX_WHO]; /* workers quarantined over its results */
     size_t quarantined_n;
     struct job *next;
@@ -166,16 +166,16 @@ struct master {
     uint64_t next_job;       /* without a store */
     uint32_t rr;             /* round-robin start for dispatch */
     char build[PROTO_BUILD_SIZE + 1];
-    uint8_t *payload;        /* encode buffer */
+    uint8_t *payload; /* encode buffer */
     size_t payload_cap;
     tracer_result_t *results; /* decode buffer */
     lease_queue_t *leases;
-    store_t *store;          /* NULL: --state none, or embedded */
-    offload_t *offload;      /* slow control work, off the loop */
+    store_t *store;                              /* NULL: --state none, or embedded */
+    offload_t *offload;                          /* slow control work, off the loop */
     char (*inflight)[MASTER_MAX_REQUEST_ID + 1]; /* request ids being submitted */
     size_t inflight_n, inflight_cap;
-    uint32_t attempt_base;   /* first attempt number of this boot */
-    uint64_t *doomed;        /* job ids to remove from the store */
+    uint32_t attempt_base; /* first attempt number of this boot */
+    uint64_t *doomed;      /* job ids to remove from the store */
     size_t doomed_n, doomed_cap;
     char storage_error[MASTER_ERR_LEN];
     struct ctl_bucket *buckets; /* request rate per control connection */
@@ -184,7 +184,7 @@ struct master {
     uint64_t malformed, dropped_late, rate_limited;
     /* background writes of checkpoints only (not final images): what they
      * cost, for the benchmark and the dashboard */
-    int bg_final;                 /* the write under way includes a final image */
+    int bg_final; /* the write under way includes a final image */
     uint64_t ckpt_runs;
     double ckpt_cpu_s, ckpt_wall_s, ckpt_fork_ms_max;
     vblog_limiter_t limiter; /* lines a peer can provoke at will */
@@ -200,7 +200,8 @@ int master_is_admin(master_t *m, const char *key);
 void master_log(master_t *m, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 /* A line any peer can provoke (bad input): rate-limited per key (a string
  * literal naming the kind of line), repeats summarised. */
-void master_log_limited(master_t *m, const char *key, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+void master_log_limited(master_t *m, const char *key, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
 /* The CURVE public key (Z85) a received frame came with: the User-Id the
  * ZAP handler gave its peer; "" on a master without CURVE. Any frame of a
  * message carries it (the identity frame of a ROUTER too). */
@@ -252,8 +253,8 @@ typedef struct submit_limits {
 /* Builds a queued job (no id yet) from a submit request and its binary
  * frames: validates the whole scene, loaded from the bundle exactly as a
  * worker will load it, and every setting. NULL with a message. */
-job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes, const submit_limits_t *limits,
-                    char *err, size_t errlen);
+job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes,
+                    const submit_limits_t *limits, char *err, size_t errlen);
 /* A mesh file name as a bundle may carry it (proto/PROTOCOL.md): 1 to
  * PROTO_MAX_NAME characters from A-Z a-z 0-9 . _ -, not starting with '.'. */
 int submit_name_ok(const char *name);
@@ -275,7 +276,8 @@ int peer_readmit(master_t *m, const char *who);
 void dispatch(master_t *m);
 /* Sends task t of job j to w (slot: its index) with the task's next attempt
  * number, stored in *attempt; msg is scratch space. SEND_*. */
-int peer_send_task(master_t *m, peer_t *w, job_t *j, const sched_task_t *t, proto_msg_t *msg, uint32_t *attempt);
+int peer_send_task(master_t *m, peer_t *w, job_t *j, const sched_task_t *t, proto_msg_t *msg,
+                   uint32_t *attempt);
 /* Counts an accepted result's work (rays, busy time, samples) for the job
  * and the worker. */
 void peer_count_result(peer_t *w, job_t *j, const proto_msg_t *msg);
@@ -296,7 +298,8 @@ int verify_wanted(master_t *m, const job_t *j, uint64_t task_id);
 /* Sends t (just handed out by the scheduler) to w as the first of its
  * copies; the next copies wait for other workers. 1, or -1 when out of
  * memory (the task went back to the scheduler). */
-int verify_start(master_t *m, job_t *j, const sched_task_t *t, peer_t *w, proto_msg_t *msg, double now);
+int verify_start(master_t *m, job_t *j, const sched_task_t *t, peer_t *w, proto_msg_t *msg,
+                 double now);
 /* Sends w a copy some verified task waits for, if w may run one (another
  * worker than those with a copy): 1 if something was sent or tried, 0 if
  * none fits, -1 when out of memory. *msg: scratch, allocated when needed. */
@@ -338,8 +341,8 @@ int ctl_job_id(const cJSON *req, uint64_t *id);
 /* persist.c */
 enum { PERSIST_CHECKPOINT = 1, PERSIST_FINAL = 2 };
 /* Writes a submission and gives the job its id (the offload thread). */
-int persist_submission(store_t *store, job_t *j, const void *req, size_t req_size, const submit_frame_t *frames,
-                       int nframes, char *err, size_t errlen);
+int persist_submission(store_t *store, job_t *j, const void *req, size_t req_size,
+                       const submit_frame_t *frames, int nframes, char *err, size_t errlen);
 /* Where an ended job's image is; "" without a store. */
 void persist_image_path(master_t *m, const job_t *j, char *out, size_t outlen);
 void persist_tick(master_t *m, double now, int force);

@@ -55,14 +55,15 @@ static void do_submit(offload_t *o, offload_item_t *it)
     for (int i = 0; i < it->nframes; i++)
         frames[i] = (submit_frame_t){zmq_msg_data(&it->frames[i]), zmq_msg_size(&it->frames[i])};
     /* frames[0] is the request's JSON, then the scene and its files */
-    job_t *j = submit_parse(it->req, frames + 1, it->nframes - 1, &o->limits, it->err, sizeof it->err);
+    job_t *j =
+        submit_parse(it->req, frames + 1, it->nframes - 1, &o->limits, it->err, sizeof it->err);
     if (!j)
         return;
     snprintf(j->owner, sizeof j->owner, "%s", it->owner);
     if (o->store) {
         char err[OFFLOAD_ERR_LEN - 64];
-        if (persist_submission(o->store, j, frames[0].data, frames[0].size, frames + 1, it->nframes - 1, err,
-                               sizeof err) < 0) {
+        if (persist_submission(o->store, j, frames[0].data, frames[0].size, frames + 1,
+                               it->nframes - 1, err, sizeof err) < 0) {
             snprintf(it->err, sizeof it->err, "the master cannot store the job: %s", err);
             job_free(j);
             return;
@@ -88,7 +89,8 @@ static void *run(void *arg)
         pthread_mutex_unlock(&o->lock);
         if (it->kind == OFFLOAD_SUBMIT)
             do_submit(o, it);
-        else if (it->kind == OFFLOAD_FETCH && image_read_exr(it->path, &it->image, it->err, sizeof it->err) < 0)
+        else if (it->kind == OFFLOAD_FETCH &&
+                 image_read_exr(it->path, &it->image, it->err, sizeof it->err) < 0)
             it->image = NULL;
         pthread_mutex_lock(&o->lock);
         if (o->done_tail)

@@ -37,7 +37,7 @@ struct job;
 
 typedef struct offload_item {
     offload_kind_t kind;
-    zmq_msg_t client;                     /* the requester's identity frame */
+    zmq_msg_t client; /* the requester's identity frame */
     /* submit: the request as received (JSON, then binary frames) */
     zmq_msg_t frames[OFFLOAD_MAX_FRAMES];
     int nframes;
@@ -46,10 +46,10 @@ typedef struct offload_item {
     uint64_t job_id;
     char path[4096];
     /* results */
-    struct job *job;   /* submit: the new job (with its id when stored) */
-    image_t *image;    /* fetch */
+    struct job *job; /* submit: the new job (with its id when stored) */
+    image_t *image;  /* fetch */
     char err[OFFLOAD_ERR_LEN];
-    char owner[128];   /* submit: the client the job will belong to */
+    char owner[128]; /* submit: the client the job will belong to */
     struct offload_item *next;
 } offload_item_t;
 
@@ -58,7 +58,8 @@ typedef struct offload offload_t;
 struct submit_limits;
 /* store may be NULL (no state directory); limits are copied. Starts the
  * thread. */
-offload_t *offload_new(store_t *store, const struct submit_limits *limits, char *err, size_t errlen);
+offload_t *offload_new(store_t *store, const struct submit_limits *limits, char *err,
+                       size_t errlen);
 /* Stops the thread after the item it is on; items not done are freed. */
 void offload_destroy(offload_t **o);
 

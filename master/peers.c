@@ -28,7 +28,8 @@ static int ensure_payload(master_t *m, size_t need)
 }
 
 /* Encodes msg into m->payload: its length, or -1 with a message. */
-static long encode(master_t *m, proto_msg_t *msg, uint8_t header[PROTO_HEADER_SIZE], char *err, size_t errlen)
+static long encode(master_t *m, proto_msg_t *msg, uint8_t header[PROTO_HEADER_SIZE], char *err,
+                   size_t errlen)
 {
     size_t need = proto_payload_size(msg);
     if (ensure_payload(m, need ? need : 1) < 0) {
@@ -53,7 +54,8 @@ int peer_send(master_t *m, peer_t *w, proto_msg_t *msg)
     char err[MASTER_ERR_LEN];
     long n = encode(m, msg, header, err, sizeof err);
     if (n < 0) {
-        master_log(m, "cannot encode %s for job %" PRIu64 ": %s", proto_type_name(msg->h.type), msg->h.job, err);
+        master_log(m, "cannot encode %s for job %" PRIu64 ": %s", proto_type_name(msg->h.type),
+                   msg->h.job, err);
         return SEND_BAD_MESSAGE;
     }
     int rc = send_frames(m, w->id, w->id_len, header, n);
@@ -86,7 +88,8 @@ static void send_text(master_t *m, const uint8_t *id, size_t id_len, int type, c
 static peer_t *find_peer(master_t *m, const uint8_t *id, size_t len)
 {
     for (uint32_t i = 0; i < m->worker_count; i++)
-        if (m->workers[i].alive && m->workers[i].id_len == len && memcmp(m->workers[i].id, id, len) == 0)
+        if (m->workers[i].alive && m->workers[i].id_len == len &&
+            memcmp(m->workers[i].id, id, len) == 0)
             return &m->workers[i];
     return NULL;
 }
@@ -107,8 +110,8 @@ void peer_lost(master_t *m, peer_t *w, const char *why)
                 back++;
             }
     }
-    master_log(m, "worker %s (%u threads) gone: %s; %u task%s issued again", w->host, w->threads, why, back,
-               back == 1 ? "" : "s");
+    master_log(m, "worker %s (%u threads) gone: %s; %u task%s issued again", w->host, w->threads,
+               why, back, back == 1 ? "" : "s");
     w->alive = 0;
     w->credit = 0;
     w->outstanding = 0;
@@ -180,7 +183,9 @@ void peer_quarantine(master_t *m, peer_t *w, const char *why)
 {
     const char *who = peer_identity(w);
     quarantine_add(m, who);
-    master_log(m, "worker %s quarantined: %s (refused until the master restarts or an admin readmits it)", who, why);
+    master_log(
+        m, "worker %s quarantined: %s (refused until the master restarts or an admin readmits it)",
+        who, why);
     char text[512];
     snprintf(text, sizeof text, "quarantined: %.400s", why);
     send_text(m, w->id, w->id_len, PROTO_REFUSE, text);
@@ -199,8 +204,11 @@ void peer_quarantine_identity(master_t *m, const char *who, const char *why)
         }
     if (!connected && !peer_quarantined(m, id)) {
         quarantine_add(m, id);
-        master_log(m, "worker %s quarantined: %s (it had left; refused until the master restarts or an admin "
-                      "readmits it)", id, why);
+        master_log(
+            m,
+            "worker %s quarantined: %s (it had left; refused until the master restarts or an admin "
+            "readmits it)",
+            id, why);
     }
 }
 
@@ -208,7 +216,8 @@ int peer_readmit(master_t *m, const char *who)
 {
     for (size_t i = 0; i < m->quarantine_n; i++)
         if (strcmp(m->quarantine[i], who) == 0) {
-            memmove(&m->quarantine[i], &m->quarantine[i + 1], (m->quarantine_n - i - 1) * sizeof m->quarantine[0]);
+            memmove(&m->quarantine[i], &m->quarantine[i + 1],
+                    (m->quarantine_n - i - 1) * sizeof m->quarantine[0]);
             m->quarantine_n--;
             master_log(m, "worker %s readmitted", who);
             return 0;
@@ -225,8 +234,9 @@ static job_t *next_task(master_t *m, sched_task_t *t, double now)
         if (j->state == JOB_QUEUED) {
             j->state = JOB_RUNNING;
             j->started = now;
-            master_log(m, "job %" PRIu64 " started: %s %ux%u, %u spp, G %u, adaptive %s", j->id, j->name, j->width,
-                       j->height, j->spp, j->granularity, sched_adaptive_name(j->adaptive));
+            master_log(m, "job %" PRIu64 " started: %s %ux%u, %u spp, G %u, adaptive %s", j->id,
+                       j->name, j->width, j->height, j->spp, j->granularity,
+                       sched_adaptive_name(j->adaptive));
         }
         if (j->state != JOB_RUNNING || j->stopped_issuing || verify_saturated(j))
             continue;
@@ -248,14 +258,16 @@ static peer_t *next_peer_with_credit(master_t *m, uint32_t from, uint32_t *slot)
     return NULL;
 }
 
-int peer_send_task(master_t *m, peer_t *w, job_t *j, const sched_task_t *t, proto_msg_t *msg, uint32_t *attempt)
+int peer_send_task(master_t *m, peer_t *w, job_t *j, const sched_task_t *t, proto_msg_t *msg,
+                   uint32_t *attempt)
 {
     size_t c = (size_t)(t->id - 1);
     memset(msg, 0, sizeof *msg);
     msg->h.type = PROTO_TASK;
     msg->h.job = j->id;
     msg->h.task = t->id;
-    msg->h.attempt = *attempt = j->attempt[c] = j->attempt[c] ? j->attempt[c] + 1 : m->attempt_base + 1;
+    msg->h.attempt = *attempt = j->attempt[c] =
+        j->attempt[c] ? j->attempt[c] + 1 : m->attempt_base + 1;
     memcpy(msg->u.task.scene_hash, j->hash, PROTO_HASH_SIZE);
     msg->u.task.settings = j->tracer;
     msg->u.task.layer = t->layer;
@@ -293,7 +305,10 @@ static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t **msg, d
         return 1;
     }
     j->holder[c] = i + 1;
-    lease_t l = {.job = j->id, .task = t.id, .attempt = attempt, .slot = i + 1,
+    lease_t l = {.job = j->id,
+                 .task = t.id,
+                 .attempt = attempt,
+                 .slot = i + 1,
                  .deadline = now + m->cfg.lease_ms / 1000.0};
     if (lease_push(m->leases, &l) < 0)
         master_log(m, "job %" PRIu64 " task %" PRIu64 ": out of memory for its lease", j->id, t.id);
@@ -345,7 +360,8 @@ static void on_task_failed(master_t *m, peer_t *w, job_t *j, size_t c, const cha
     j->outstanding--;
     w->outstanding--;
     j->failures++;
-    master_log_limited(m, "task-failed", "job %" PRIu64 " task %zu failed on %s: %s", j->id, c + 1, w->host, text);
+    master_log_limited(m, "task-failed", "job %" PRIu64 " task %zu failed on %s: %s", j->id, c + 1,
+                       w->host, text);
     if (j->failures >= MASTER_MAX_TASK_FAILURES) {
         char why[MASTER_ERR_LEN];
         snprintf(why, sizeof why, "workers failed %u tasks; last: %.400s", j->failures, text);
@@ -393,7 +409,8 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
             unmatched_result(m, w, j);
         return;
     }
-    if (id == 0 || id > cells || j->holder[id - 1] != slot || j->attempt[id - 1] != msg->h.attempt) {
+    if (id == 0 || id > cells || j->holder[id - 1] != slot ||
+        j->attempt[id - 1] != msg->h.attempt) {
         unmatched_result(m, w, j);
         return;
     }
@@ -404,7 +421,8 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
         return;
     }
     char err[MASTER_ERR_LEN];
-    int rc = sched_complete(j->sched, id, msg->u.result.records, msg->u.result.count, err, sizeof err);
+    int rc =
+        sched_complete(j->sched, id, msg->u.result.records, msg->u.result.count, err, sizeof err);
     j->holder[c] = 0;
     j->outstanding--;
     w->outstanding--;
@@ -413,7 +431,8 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
          * and count it against the worker */
         m->malformed++;
         w->bad_results++;
-        master_log_limited(m, "bad-result", "job %" PRIu64 " task %" PRIu64 ": bad result from %s: %s", j->id, id,
+        master_log_limited(m, "bad-result",
+                           "job %" PRIu64 " task %" PRIu64 ": bad result from %s: %s", j->id, id,
                            peer_identity(w), err);
         j->reissued++;
         (void)sched_requeue(j->sched, id); /* still outstanding: nothing was merged */
@@ -441,18 +460,21 @@ void peer_count_result(peer_t *w, job_t *j, const proto_msg_t *msg)
         w->samples += msg->u.result.records[i].samples + msg->u.result.records[i].nonfinite;
 }
 
-static void on_hello(master_t *m, const uint8_t *id, size_t id_len, const char *host, const char *key,
-                     proto_msg_t *msg)
+static void on_hello(master_t *m, const uint8_t *id, size_t id_len, const char *host,
+                     const char *key, proto_msg_t *msg)
 {
     if (peer_quarantined(m, key && *key ? key : host)) {
-        master_log_limited(m, "quarantined", "refused quarantined worker %s", key && *key ? key : host);
-        send_text(m, id, id_len, PROTO_REFUSE, "quarantined: this worker's results were refused (an admin can "
-                                               "readmit it: vbrender readmit)");
+        master_log_limited(m, "quarantined", "refused quarantined worker %s",
+                           key && *key ? key : host);
+        send_text(m, id, id_len, PROTO_REFUSE,
+                  "quarantined: this worker's results were refused (an admin can "
+                  "readmit it: vbrender readmit)");
         return;
     }
     if (strcmp(msg->u.hello.build, m->build) != 0) {
         char text[512];
-        snprintf(text, sizeof text, "build mismatch: master is %s, worker is %s (they could trace different bits)",
+        snprintf(text, sizeof text,
+                 "build mismatch: master is %s, worker is %s (they could trace different bits)",
                  m->build, msg->u.hello.build);
         master_log_limited(m, "refused", "refused worker %s: %s", host, text);
         send_text(m, id, id_len, PROTO_REFUSE, text);
@@ -520,7 +542,8 @@ static void on_scene_request(master_t *m, peer_t *w, proto_msg_t *msg)
     int rc = peer_send(m, w, b);
     free(b);
     if (rc == SEND_BAD_MESSAGE)
-        job_finish(m, j, JOB_FAILED, "its scene bundle cannot be encoded for workers (see the master's log)");
+        job_finish(m, j, JOB_FAILED,
+                   "its scene bundle cannot be encoded for workers (see the master's log)");
     else if (rc == SEND_UNREACHABLE)
         peer_lost(m, w, "unreachable");
 }
@@ -592,7 +615,8 @@ static void on_message(master_t *m, const uint8_t *id, size_t id_len, proto_msg_
         break;
     default:
         m->malformed++;
-        master_log_limited(m, "out-of-protocol", "dropped an out-of-protocol %s from worker %s", proto_type_name(msg->h.type), w->host);
+        master_log_limited(m, "out-of-protocol", "dropped an out-of-protocol %s from worker %s",
+                           proto_type_name(msg->h.type), w->host);
         break;
     }
 }
@@ -605,7 +629,8 @@ void peer_handle_message(master_t *m)
     recv_frames(m, frames, &n, host, sizeof host);
     if (n != 3) {
         m->malformed++;
-        master_log_limited(m, "frames", "dropped a worker message with %s frames", n > 3 ? "too many" : "too few");
+        master_log_limited(m, "frames", "dropped a worker message with %s frames",
+                           n > 3 ? "too many" : "too few");
         for (int i = 0; i < (n < 3 ? n : 3); i++)
             zmq_msg_close(&frames[i]);
         return;
@@ -618,16 +643,18 @@ void peer_handle_message(master_t *m)
     msg->capacity = PROTO_MAX_TASK_PIXELS;
     msg->u.result.records = m->results;
     char err[MASTER_ERR_LEN];
-    int rc = proto_decode(zmq_msg_data(&frames[1]), zmq_msg_size(&frames[1]), zmq_msg_data(&frames[2]),
-                          zmq_msg_size(&frames[2]), msg, err, sizeof err);
+    int rc = proto_decode(zmq_msg_data(&frames[1]), zmq_msg_size(&frames[1]),
+                          zmq_msg_data(&frames[2]), zmq_msg_size(&frames[2]), msg, err, sizeof err);
     if (!master_peer_allowed(m, AUTH_DOMAIN_WORKERS, &frames[1])) {
         /* its key left --allow-workers (SIGHUP) while it was connected */
         peer_t *w = find_peer(m, id, id_len);
-        master_log_limited(m, "worker-key-revoked", "refused a message from worker %s: key %s no longer allowed", host,
+        master_log_limited(m, "worker-key-revoked",
+                           "refused a message from worker %s: key %s no longer allowed", host,
                            master_peer_key(&frames[1]));
         if (w)
             peer_lost(m, w, "key no longer allowed");
-        send_text(m, id, id_len, PROTO_REFUSE, "this worker's key is no longer allowed by the master");
+        send_text(m, id, id_len, PROTO_REFUSE,
+                  "this worker's key is no longer allowed by the master");
     } else if (rc == -2) { /* another protocol version or magic */
         char text[MASTER_ERR_LEN + 32];
         snprintf(text, sizeof text, "master refuses: %s", err);
@@ -636,7 +663,9 @@ void peer_handle_message(master_t *m)
         send_text(m, id, id_len, PROTO_REFUSE, text);
     } else if (rc < 0) {
         m->malformed++;
-        master_log_limited(m, "malformed", "dropped a malformed worker message (%" PRIu64 " so far): %s", m->malformed, err);
+        master_log_limited(m, "malformed",
+                           "dropped a malformed worker message (%" PRIu64 " so far): %s",
+                           m->malformed, err);
     } else if (msg->h.type == PROTO_HELLO) {
         const char *key = zmq_msg_gets(&frames[1], "User-Id");
         on_hello(m, id, id_len, host, key, msg);

@@ -49,8 +49,8 @@ static int injected_write_failure(char *err, size_t errlen)
 
 /* ---- submissions ----------------------------------------------------------------- */
 
-int persist_submission(store_t *store, job_t *j, const void *req, size_t req_size, const submit_frame_t *frames,
-                       int nframes, char *err, size_t errlen)
+int persist_submission(store_t *store, job_t *j, const void *req, size_t req_size,
+                       const submit_frame_t *frames, int nframes, char *err, size_t errlen)
 {
     if (injected_write_failure(err, errlen) < 0)
         return -1;
@@ -123,7 +123,8 @@ static char *extras_json(const job_t *j, double now)
 static double num(const cJSON *o, const char *key, double max)
 {
     const cJSON *it = cJSON_GetObjectItemCaseSensitive(o, key);
-    return cJSON_IsNumber(it) && it->valuedouble >= 0 && it->valuedouble <= max ? it->valuedouble : 0;
+    return cJSON_IsNumber(it) && it->valuedouble >= 0 && it->valuedouble <= max ? it->valuedouble
+                                                                                : 0;
 }
 
 void persist_apply_extras(job_t *j, const cJSON *o)
@@ -310,8 +311,8 @@ static void collect(master_t *m)
         if (j->in_write) {
             /* the child died before it reported this job */
             j->in_write = 0;
-            snprintf(j->storage_error, sizeof j->storage_error, "the state writer died (status %d) before this job",
-                     status);
+            snprintf(j->storage_error, sizeof j->storage_error,
+                     "the state writer died (status %d) before this job", status);
             master_log(m, "job %" PRIu64 ": %s", j->id, j->storage_error);
         }
 }
@@ -343,7 +344,8 @@ void persist_tick(master_t *m, double now, int force)
             want = !j->final_durable && j->sched && (force || now - j->last_ckpt >= wait);
         else
             want = j->state == JOB_RUNNING && sched_samples_done(j->sched) != j->ckpt_samples &&
-                   (force || now - j->last_ckpt >= (wait > m->cfg.checkpoint_s ? wait : m->cfg.checkpoint_s));
+                   (force || now - j->last_ckpt >=
+                                 (wait > m->cfg.checkpoint_s ? wait : m->cfg.checkpoint_s));
         if (!want)
             continue;
         /* what the child writes is decided now: a job that ends while its
@@ -518,8 +520,9 @@ static void recover_progress(master_t *m, job_t *j)
             j->sched = s;
             persist_apply_extras(j, extras);
             j->ckpt_samples = sched_samples_done(s);
-            snprintf(j->recovered, sizeof j->recovered, "%s at %u of %u layers (%" PRIu64 " samples)%s%.400s",
-                     names[k], sched_layers_complete(s), sched_layer_count(s), sched_samples_done(s),
+            snprintf(j->recovered, sizeof j->recovered,
+                     "%s at %u of %u layers (%" PRIu64 " samples)%s%.400s", names[k],
+                     sched_layers_complete(s), sched_layer_count(s), sched_samples_done(s),
                      k ? "; the newer one was unusable: " : "", k ? why[0] : "");
         }
         cJSON_Delete(extras);
@@ -528,7 +531,8 @@ static void recover_progress(master_t *m, job_t *j)
             return;
     }
     if (present)
-        snprintf(j->recovered, sizeof j->recovered, "no usable checkpoint (%.400s%s%.400s): started over", why[0],
+        snprintf(j->recovered, sizeof j->recovered,
+                 "no usable checkpoint (%.400s%s%.400s): started over", why[0],
                  why[0][0] && why[1][0] ? "; " : "", why[1]);
 }
 
@@ -568,11 +572,12 @@ void persist_recover(master_t *m)
         recover_progress(m, j);
         job_append(m, j);
         resumed++;
-        master_log(m, "job %" PRIu64 " recovered: %s", j->id, j->recovered[0] ? j->recovered : "from its submission");
+        master_log(m, "job %" PRIu64 " recovered: %s", j->id,
+                   j->recovered[0] ? j->recovered : "from its submission");
         if (sched_done(j->sched)) /* it had finished; its image was not yet written */
             job_finish(m, j, JOB_DONE, NULL);
     }
     free(ids);
-    master_log(m, "state %s: %u job%s to resume, %u ended, %u unrecoverable", store_dir(m->store), resumed,
-               resumed == 1 ? "" : "s", ended, lost);
+    master_log(m, "state %s: %u job%s to resume, %u ended, %u unrecoverable", store_dir(m->store),
+               resumed, resumed == 1 ? "" : "s", ended, lost);
 }

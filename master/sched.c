@@ -21,7 +21,7 @@ enum { ST_WAITING = 0, ST_READY, ST_OUT, ST_DONE };
 
 struct sched {
     sched_config_t cfg;
-    char *flags;            /* copy of cfg.flags, or NULL */
+    char *flags; /* copy of cfg.flags, or NULL */
     uint32_t npix, layers, ranges, range_pixels, uniform;
     film_t *film;
     uint8_t *member;        /* layers x npix bits: pixel takes part in layer */
@@ -34,19 +34,19 @@ struct sched {
     double *pvar_flight[2]; /* per pixel: the metric after a layer in flight, by parity */
     uint8_t *conv_snapshot; /* per pixel: met the target error, as of layer complete-1 */
     uint8_t *conv_flight[2];
-    uint32_t *batches;      /* per pixel: layers merged (batch means) */
-    double *bmean, *bm2;    /* per pixel: Welford over the layers' luminance means */
-    double *t_table;        /* t factors by batches - 1, for relerr (0.95) and the target, */
-    double *t_target;       /* 0 until first needed (t_factor): ~50 us each, and a submit must
-                               not compute one per layer up front (1M layers: a minute) */
+    uint32_t *batches;   /* per pixel: layers merged (batch means) */
+    double *bmean, *bm2; /* per pixel: Welford over the layers' luminance means */
+    double *t_table;     /* t factors by batches - 1, for relerr (0.95) and the target, */
+    double *t_target;    /* 0 until first needed (t_factor): ~50 us each, and a submit must
+                            not compute one per layer up front (1M layers: a minute) */
     uint64_t converged;
     int stopped_on_target;
-    uint8_t *scratch;       /* npix: dilation */
-    tracer_task_t **out;    /* layers x ranges: records of outstanding tasks */
+    uint8_t *scratch;    /* npix: dilation */
+    tracer_task_t **out; /* layers x ranges: records of outstanding tasks */
     uint32_t *out_count;
-    uint64_t *queue;        /* ready task ids, FIFO */
+    uint64_t *queue; /* ready task ids, FIFO */
     size_t q_head, q_tail, q_cap;
-    uint64_t *requeued;     /* handed back, issued first (LIFO) */
+    uint64_t *requeued; /* handed back, issued first (LIFO) */
     size_t rq_len, rq_cap;
     uint64_t samples_done, pixel_layers, skipped, nonfinite;
 };
@@ -88,9 +88,10 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
         snprintf(err, errlen, "granularity must be 1..%d", TRACER_MAX_TASK_SAMPLES);
         return NULL;
     }
-    if (cfg->target_error < 0 || !isfinite(cfg->target_error) || cfg->confidence < 0 || cfg->confidence >= 1 ||
-        cfg->target_share < 0 || cfg->target_share > 1) {
-        snprintf(err, errlen, "target error must be >= 0, confidence in (0, 1), target share in (0, 1]");
+    if (cfg->target_error < 0 || !isfinite(cfg->target_error) || cfg->confidence < 0 ||
+        cfg->confidence >= 1 || cfg->target_share < 0 || cfg->target_share > 1) {
+        snprintf(err, errlen,
+                 "target error must be >= 0, confidence in (0, 1), target share in (0, 1]");
         return NULL;
     }
     if (cfg->adaptive == SCHED_ADAPTIVE_THESIS && cfg->granularity < 2) {
@@ -122,12 +123,13 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
     s->range_pixels = rp < 1 ? 1 : rp;
     s->ranges = (s->npix + s->range_pixels - 1) / s->range_pixels;
     s->uniform = cfg->adaptive == SCHED_ADAPTIVE_NONE ? s->layers
-                 : cfg->uniform_layers == UINT32_MAX ? s->layers / 2
-                                                     : cfg->uniform_layers;
+                 : cfg->uniform_layers == UINT32_MAX  ? s->layers / 2
+                                                      : cfg->uniform_layers;
     if (cfg->flags) {
         size_t n = strlen(cfg->flags);
         if (n != s->layers || strspn(cfg->flags, "01") != n) {
-            snprintf(err, errlen, "flag sequence must be %u characters of 0 and 1 (one per layer), got %zu",
+            snprintf(err, errlen,
+                     "flag sequence must be %u characters of 0 and 1 (one per layer), got %zu",
                      s->layers, n);
             free(s);
             return NULL;
@@ -151,7 +153,8 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
     size_t cells = (size_t)s->layers * s->ranges;
     size_t member_bytes = ((size_t)s->layers * s->npix + 7) / 8;
     if (member_bytes > ((size_t)1 << 30) || cells > ((size_t)1 << 26)) {
-        snprintf(err, errlen, "too many layers x pixels (%u layers of %u pixels)", s->layers, s->npix);
+        snprintf(err, errlen, "too many layers x pixels (%u layers of %u pixels)", s->layers,
+                 s->npix);
         free(s);
         return NULL;
     }
@@ -186,8 +189,7 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
     if (!s->film || !s->member || !s->decided || !s->threshold || !s->state || !s->range_done ||
         !s->var_snapshot || !s->pvar_flight[0] || !s->pvar_flight[1] || !s->out || !s->out_count ||
         !s->conv_snapshot || !s->conv_flight[0] || !s->conv_flight[1] || !s->batches || !s->bmean ||
-        !s->bm2 || !s->scratch || !s->t_table || !s->t_target ||
-        !s->queue || !s->requeued) {
+        !s->bm2 || !s->scratch || !s->t_table || !s->t_target || !s->queue || !s->requeued) {
         snprintf(err, errlen, "out of memory");
         sched_destroy(&s);
         return NULL;
@@ -230,18 +232,54 @@ void sched_destroy(sched_t **sp)
     *sp = NULL;
 }
 
-uint32_t sched_layer_count(const sched_t *s) { return s->layers; }
-uint32_t sched_uniform_layers(const sched_t *s) { return s->uniform; }
-uint32_t sched_range_count(const sched_t *s) { return s->ranges; }
-uint32_t sched_layers_complete(const sched_t *s) { return s->complete; }
-uint64_t sched_samples_done(const sched_t *s) { return s->samples_done; }
-uint64_t sched_nonfinite(const sched_t *s) { return s->nonfinite; }
-uint64_t sched_pixel_layers(const sched_t *s) { return s->pixel_layers; }
-uint64_t sched_pixel_layers_skipped(const sched_t *s) { return s->skipped; }
-const film_t *sched_film(const sched_t *s) { return s->film; }
-int sched_done(const sched_t *s) { return s->complete == s->layers; }
-uint64_t sched_converged(const sched_t *s) { return s->converged; }
-int sched_stopped_on_target(const sched_t *s) { return s->stopped_on_target; }
+uint32_t sched_layer_count(const sched_t *s)
+{
+    return s->layers;
+}
+uint32_t sched_uniform_layers(const sched_t *s)
+{
+    return s->uniform;
+}
+uint32_t sched_range_count(const sched_t *s)
+{
+    return s->ranges;
+}
+uint32_t sched_layers_complete(const sched_t *s)
+{
+    return s->complete;
+}
+uint64_t sched_samples_done(const sched_t *s)
+{
+    return s->samples_done;
+}
+uint64_t sched_nonfinite(const sched_t *s)
+{
+    return s->nonfinite;
+}
+uint64_t sched_pixel_layers(const sched_t *s)
+{
+    return s->pixel_layers;
+}
+uint64_t sched_pixel_layers_skipped(const sched_t *s)
+{
+    return s->skipped;
+}
+const film_t *sched_film(const sched_t *s)
+{
+    return s->film;
+}
+int sched_done(const sched_t *s)
+{
+    return s->complete == s->layers;
+}
+uint64_t sched_converged(const sched_t *s)
+{
+    return s->converged;
+}
+int sched_stopped_on_target(const sched_t *s)
+{
+    return s->stopped_on_target;
+}
 
 static const char *const adaptive_names[] = {"none", "thesis", "variance", "relerr"};
 
@@ -512,8 +550,8 @@ int sched_outstanding(const sched_t *s, uint64_t task_id, sched_task_t *out)
     return 0;
 }
 
-int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count, char *err,
-                size_t errlen)
+int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count,
+                char *err, size_t errlen)
 {
     size_t cell;
     if (lookup(s, task_id, &cell) < 0) {
@@ -531,10 +569,13 @@ int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *resul
     uint64_t nonfinite = 0, taken = 0;
     for (uint32_t i = 0; i < count; i++) {
         const tracer_result_t *r = &results[i];
-        if (r->pixel != rec[i].pixel || (uint64_t)r->samples + r->nonfinite != rec[i].sample_count) {
-            snprintf(err, errlen, "task %llu: result %u is for pixel %u with %u+%u samples, "
-                     "expected pixel %u with %u", (unsigned long long)task_id, i, r->pixel,
-                     r->samples, r->nonfinite, rec[i].pixel, rec[i].sample_count);
+        if (r->pixel != rec[i].pixel ||
+            (uint64_t)r->samples + r->nonfinite != rec[i].sample_count) {
+            snprintf(err, errlen,
+                     "task %llu: result %u is for pixel %u with %u+%u samples, "
+                     "expected pixel %u with %u",
+                     (unsigned long long)task_id, i, r->pixel, r->samples, r->nonfinite,
+                     rec[i].pixel, rec[i].sample_count);
             return -1;
         }
         /* radiance is never negative; sums of no samples are zero */
@@ -544,8 +585,10 @@ int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *resul
         for (int c = 0; c < 3; c++)
             bad |= !(r->sum[c] >= 0 && r->sum[c] <= n * cap);
         if (bad || film_merge_check(s->film, r) < 0) {
-            snprintf(err, errlen, "task %llu: result %u (pixel %u) is out of range: sums %g %g %g, M2 %g, "
-                     "eq. 4.1 %g%s", (unsigned long long)task_id, i, r->pixel, r->sum[0], r->sum[1], r->sum[2],
+            snprintf(err, errlen,
+                     "task %llu: result %u (pixel %u) is out of range: sums %g %g %g, M2 %g, "
+                     "eq. 4.1 %g%s",
+                     (unsigned long long)task_id, i, r->pixel, r->sum[0], r->sum[1], r->sum[2],
                      r->lum_m2, r->pvar, bad ? "" : " (the merge would overflow the film)");
             return -1;
         }
@@ -555,8 +598,9 @@ int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *resul
     /* A tracer leaves out a NaN/Inf sample now and then; a task where most
      * are is a broken or lying worker, not light. */
     if (taken > 0 && 2 * nonfinite > taken) {
-        snprintf(err, errlen, "task %llu: %llu of %llu samples NaN/Inf: implausible", (unsigned long long)task_id,
-                 (unsigned long long)nonfinite, (unsigned long long)taken);
+        snprintf(err, errlen, "task %llu: %llu of %llu samples NaN/Inf: implausible",
+                 (unsigned long long)task_id, (unsigned long long)nonfinite,
+                 (unsigned long long)taken);
         return -1;
     }
     return 0;
@@ -570,7 +614,8 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
         return rc;
     const size_t cell = (size_t)(task_id - 1);
     const tracer_task_t *rec = s->out[cell];
-    uint32_t layer = (uint32_t)((task_id - 1) / s->ranges), range = (uint32_t)((task_id - 1) % s->ranges);
+    uint32_t layer = (uint32_t)((task_id - 1) / s->ranges),
+             range = (uint32_t)((task_id - 1) % s->ranges);
     double *pv = s->pvar_flight[layer & 1];
     uint8_t *cv = s->conv_flight[layer & 1];
     /* batch statistics only where something reads them: this loop runs for
@@ -582,14 +627,16 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
         s->samples_done += rec[i].sample_count;
         s->nonfinite += results[i].nonfinite;
         if (!batches) {
-            pv[p] = s->cfg.adaptive == SCHED_ADAPTIVE_VARIANCE
-                        ? (s->film->pixels[p].count >= 2 ? film_variance_of_mean(s->film, p) : INFINITY)
-                        : results[i].pvar;
+            pv[p] =
+                s->cfg.adaptive == SCHED_ADAPTIVE_VARIANCE
+                    ? (s->film->pixels[p].count >= 2 ? film_variance_of_mean(s->film, p) : INFINITY)
+                    : results[i].pvar;
             continue;
         }
         /* the layer's mean is one batch; Welford over batches */
         if (results[i].samples > 0) {
-            double bm = vmath_luminance(results[i].sum[0], results[i].sum[1], results[i].sum[2]) / results[i].samples;
+            double bm = vmath_luminance(results[i].sum[0], results[i].sum[1], results[i].sum[2]) /
+                        results[i].samples;
             uint32_t nb = ++s->batches[p];
             double d = bm - s->bmean[p];
             s->bmean[p] += d / nb;
@@ -602,7 +649,8 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
             pv[p] = s->film->pixels[p].count >= 2 ? film_variance_of_mean(s->film, p) : INFINITY;
             break;
         case SCHED_ADAPTIVE_RELERR:
-            pv[p] = nb >= 2 ? t_factor(s->t_table, 0.95, nb - 1) * se / (fabs(s->bmean[p]) + SCHED_RELERR_EPS)
+            pv[p] = nb >= 2 ? t_factor(s->t_table, 0.95, nb - 1) * se /
+                                  (fabs(s->bmean[p]) + SCHED_RELERR_EPS)
                             : INFINITY;
             break;
         default:
@@ -631,14 +679,46 @@ static const uint8_t save_magic[8] = {'V', 'B', 'S', 'C', 'H', 'E', 'D', '\n'};
 /* The fingerprint: what a restored scheduler must share with the saved one
  * (settings first, so a mismatch names the setting, not what it derives). */
 enum {
-    FP_WIDTH, FP_HEIGHT, FP_SPP, FP_GRANULARITY, FP_ADAPTIVE, FP_UNIFORM, FP_HAS_FLAGS, FP_FLAGS,
-    FP_RANGE_PIXELS, FP_RANDOM_SELECTION, FP_DILATE, FP_SEED, FP_TARGET_ERROR, FP_CONFIDENCE,
-    FP_TARGET_SHARE, FP_PIXELS, FP_LAYERS, FP_RANGES, FP_PIXEL_BYTES, FP_COUNT
+    FP_WIDTH,
+    FP_HEIGHT,
+    FP_SPP,
+    FP_GRANULARITY,
+    FP_ADAPTIVE,
+    FP_UNIFORM,
+    FP_HAS_FLAGS,
+    FP_FLAGS,
+    FP_RANGE_PIXELS,
+    FP_RANDOM_SELECTION,
+    FP_DILATE,
+    FP_SEED,
+    FP_TARGET_ERROR,
+    FP_CONFIDENCE,
+    FP_TARGET_SHARE,
+    FP_PIXELS,
+    FP_LAYERS,
+    FP_RANGES,
+    FP_PIXEL_BYTES,
+    FP_COUNT
 };
-static const char *const fp_names[FP_COUNT] = {
-    "width", "height", "spp", "granularity", "adaptive", "uniform layers", "flag sequence (present)",
-    "flag sequence", "range_pixels", "random_selection", "dilate", "seed", "target_error", "confidence",
-    "target_share", "pixels", "layers", "ranges", "film pixel size"};
+static const char *const fp_names[FP_COUNT] = {"width",
+                                               "height",
+                                               "spp",
+                                               "granularity",
+                                               "adaptive",
+                                               "uniform layers",
+                                               "flag sequence (present)",
+                                               "flag sequence",
+                                               "range_pixels",
+                                               "random_selection",
+                                               "dilate",
+                                               "seed",
+                                               "target_error",
+                                               "confidence",
+                                               "target_share",
+                                               "pixels",
+                                               "layers",
+                                               "ranges",
+                                               "film pixel size"};
 
 static uint64_t f64_bits(double x)
 {
@@ -772,7 +852,16 @@ static int put_section(saver_t *w, const char *tag, const void *data, size_t byt
 }
 
 /* Counters, in this order in the "counters" section. */
-enum { CT_COMPLETE, CT_CONVERGED, CT_STOPPED, CT_SAMPLES, CT_PIXEL_LAYERS, CT_SKIPPED, CT_NONFINITE, CT_COUNT };
+enum {
+    CT_COMPLETE,
+    CT_CONVERGED,
+    CT_STOPPED,
+    CT_SAMPLES,
+    CT_PIXEL_LAYERS,
+    CT_SKIPPED,
+    CT_NONFINITE,
+    CT_COUNT
+};
 
 int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
 {
@@ -783,10 +872,11 @@ int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
     uint32_t vc[2] = {SCHED_SAVE_VERSION, FP_COUNT};
     uint64_t fp[FP_COUNT];
     fingerprint(s, fp);
-    const uint64_t ct[CT_COUNT] = {s->complete, s->converged, (uint64_t)s->stopped_on_target, s->samples_done,
-                                   s->pixel_layers, s->skipped, s->nonfinite};
-    if (put(&w, save_magic, sizeof save_magic) || put(&w, vc, sizeof vc) || put(&w, fp, sizeof fp) ||
-        put_section(&w, "counters", ct, sizeof ct) ||
+    const uint64_t ct[CT_COUNT] = {s->complete,     s->converged,    (uint64_t)s->stopped_on_target,
+                                   s->samples_done, s->pixel_layers, s->skipped,
+                                   s->nonfinite};
+    if (put(&w, save_magic, sizeof save_magic) || put(&w, vc, sizeof vc) ||
+        put(&w, fp, sizeof fp) || put_section(&w, "counters", ct, sizeof ct) ||
         put_section(&w, "film", s->film->pixels, n * sizeof(film_pixel_t)) ||
         put_section(&w, "member", s->member, member_bytes(s)) ||
         put_section(&w, "decided", s->decided, s->layers) ||
@@ -814,8 +904,7 @@ int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
         put_section(&w, "conv1", s->conv_flight[1], n) ||
         put_section(&w, "batches", s->batches, n * sizeof(uint32_t)) ||
         put_section(&w, "bmean", s->bmean, n * sizeof(double)) ||
-        put_section(&w, "bm2", s->bm2, n * sizeof(double)) ||
-        put_head(&w, "end", sizeof(uint64_t)))
+        put_section(&w, "bm2", s->bm2, n * sizeof(double)) || put_head(&w, "end", sizeof(uint64_t)))
         return w.rc;
     uint64_t sum = ck_final(&w.ck);
     return put(&w, &sum, sizeof sum);
@@ -857,14 +946,15 @@ static int get_head(loader_t *r, const char *tag, size_t bytes, char *err, size_
     }
     memcpy(&n, h + 8, 8);
     if (n != bytes) {
-        snprintf(err, errlen, "checkpoint: section \"%s\" holds %llu bytes, this config needs %zu", tag,
-                 (unsigned long long)n, bytes);
+        snprintf(err, errlen, "checkpoint: section \"%s\" holds %llu bytes, this config needs %zu",
+                 tag, (unsigned long long)n, bytes);
         return -1;
     }
     return 0;
 }
 
-static int get_section(loader_t *r, const char *tag, void *data, size_t bytes, char *err, size_t errlen)
+static int get_section(loader_t *r, const char *tag, void *data, size_t bytes, char *err,
+                       size_t errlen)
 {
     if (get_head(r, tag, bytes, err, errlen))
         return -1;
@@ -874,8 +964,8 @@ static int get_section(loader_t *r, const char *tag, void *data, size_t bytes, c
 /* Reads the stream into s (made by sched_new for the caller's config, so
  * every size comes from the config, none from the stream). The checksum is
  * returned, not compared: the consistency checks name a problem better. */
-static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *sum_computed, char *err,
-                       size_t errlen)
+static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *sum_computed,
+                       char *err, size_t errlen)
 {
     const size_t cells = (size_t)s->layers * s->ranges, n = s->npix;
     uint8_t magic[8];
@@ -890,13 +980,13 @@ static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *su
     if (get(r, vc, sizeof vc, "header", err, errlen))
         return -1;
     if (vc[0] != SCHED_SAVE_VERSION) {
-        snprintf(err, errlen, "checkpoint: format version %u, this build reads version %u only", vc[0],
-                 SCHED_SAVE_VERSION);
+        snprintf(err, errlen, "checkpoint: format version %u, this build reads version %u only",
+                 vc[0], SCHED_SAVE_VERSION);
         return -1;
     }
     if (vc[1] != FP_COUNT) {
-        snprintf(err, errlen, "checkpoint: %u config fingerprint fields, format version %u has %u", vc[1],
-                 SCHED_SAVE_VERSION, FP_COUNT);
+        snprintf(err, errlen, "checkpoint: %u config fingerprint fields, format version %u has %u",
+                 vc[1], SCHED_SAVE_VERSION, FP_COUNT);
         return -1;
     }
     if (get(r, fp, sizeof fp, "header", err, errlen))
@@ -909,19 +999,25 @@ static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *su
             double a, b;
             memcpy(&a, &fp[i], sizeof a);
             memcpy(&b, &want[i], sizeof b);
-            snprintf(err, errlen, "checkpoint: the saved job's config differs in %s (saved %.17g, this config %.17g)",
-                     fp_names[i], a, b);
+            snprintf(
+                err, errlen,
+                "checkpoint: the saved job's config differs in %s (saved %.17g, this config %.17g)",
+                fp_names[i], a, b);
         } else {
-            snprintf(err, errlen, "checkpoint: the saved job's config differs in %s (saved %llu, this config %llu)",
-                     fp_names[i], (unsigned long long)fp[i], (unsigned long long)want[i]);
+            snprintf(
+                err, errlen,
+                "checkpoint: the saved job's config differs in %s (saved %llu, this config %llu)",
+                fp_names[i], (unsigned long long)fp[i], (unsigned long long)want[i]);
         }
         return -1;
     }
     if (get_section(r, "counters", ct, sizeof ct, err, errlen))
         return -1;
     if (ct[CT_COMPLETE] > s->layers || ct[CT_STOPPED] > 1) {
-        snprintf(err, errlen, "checkpoint: counters out of range (%llu layers complete of %u, stopped %llu)",
-                 (unsigned long long)ct[CT_COMPLETE], s->layers, (unsigned long long)ct[CT_STOPPED]);
+        snprintf(err, errlen,
+                 "checkpoint: counters out of range (%llu layers complete of %u, stopped %llu)",
+                 (unsigned long long)ct[CT_COMPLETE], s->layers,
+                 (unsigned long long)ct[CT_STOPPED]);
         return -1;
     }
     s->complete = (uint32_t)ct[CT_COMPLETE];
@@ -975,8 +1071,10 @@ static int check_cells(const sched_t *s, uint32_t *decided_out, char *err, size_
     /* saved outstanding tasks come back ready, so never ST_OUT */
     for (size_t c = 0; c < cells; c++)
         if (s->state[c] != ST_WAITING && s->state[c] != ST_READY && s->state[c] != ST_DONE) {
-            snprintf(err, errlen, "checkpoint: cell state %u at layer %zu, range %zu is not waiting, ready or done",
-                     s->state[c], c / R, c % R);
+            snprintf(
+                err, errlen,
+                "checkpoint: cell state %u at layer %zu, range %zu is not waiting, ready or done",
+                s->state[c], c / R, c % R);
             return -1;
         }
     /* decided layers are a prefix: the first two, then two past the complete ones */
@@ -985,7 +1083,8 @@ static int check_cells(const sched_t *s, uint32_t *decided_out, char *err, size_
         D++;
     for (uint32_t l = D; l < L; l++)
         if (s->decided[l] != 0) {
-            snprintf(err, errlen, "checkpoint: decided flag %u at layer %u after undecided layer %u",
+            snprintf(err, errlen,
+                     "checkpoint: decided flag %u at layer %u after undecided layer %u",
                      s->decided[l], l, D);
             return -1;
         }
@@ -995,7 +1094,8 @@ static int check_cells(const sched_t *s, uint32_t *decided_out, char *err, size_
         for (uint32_t r = 0; r < R; r++)
             done += s->state[(size_t)l * R + r] == ST_DONE;
         if (done != s->range_done[l]) {
-            snprintf(err, errlen, "checkpoint: layer %u has range_done %u but %u cells in state done", l,
+            snprintf(err, errlen,
+                     "checkpoint: layer %u has range_done %u but %u cells in state done", l,
                      s->range_done[l], done);
             return -1;
         }
@@ -1003,7 +1103,8 @@ static int check_cells(const sched_t *s, uint32_t *decided_out, char *err, size_
             complete = l;
     }
     if (s->complete != complete) {
-        snprintf(err, errlen, "checkpoint: %u layers complete, but the cell states say %u", s->complete, complete);
+        snprintf(err, errlen, "checkpoint: %u layers complete, but the cell states say %u",
+                 s->complete, complete);
         return -1;
     }
     uint64_t want_d = D == 0 ? 0 : (uint64_t)complete + 2 < L ? (uint64_t)complete + 2 : L;
@@ -1019,14 +1120,17 @@ static int check_cells(const sched_t *s, uint32_t *decided_out, char *err, size_
             uint8_t st = s->state[(size_t)l * R + r];
             int may = s->decided[l] && (l == 0 || s->state[(size_t)(l - 1) * R + r] == ST_DONE);
             if ((st != ST_WAITING) != may) {
-                snprintf(err, errlen, "checkpoint: cell state %s at layer %u, range %u contradicts rule 1 "
-                         "(layer %s, previous layer's cell %s)", state_name(st), l, r,
-                         s->decided[l] ? "decided" : "undecided",
+                snprintf(err, errlen,
+                         "checkpoint: cell state %s at layer %u, range %u contradicts rule 1 "
+                         "(layer %s, previous layer's cell %s)",
+                         state_name(st), l, r, s->decided[l] ? "decided" : "undecided",
                          l ? state_name(s->state[(size_t)(l - 1) * R + r]) : "none");
                 return -1;
             }
             if (st == ST_READY && range_members(s, l, r) == 0) {
-                snprintf(err, errlen, "checkpoint: cell state ready at layer %u, range %u, which has no pixels", l, r);
+                snprintf(err, errlen,
+                         "checkpoint: cell state ready at layer %u, range %u, which has no pixels",
+                         l, r);
                 return -1;
             }
         }
@@ -1063,14 +1167,18 @@ static int check_layers(const sched_t *s, uint32_t D, char *err, size_t errlen)
         return -1;
     }
     if (s->pixel_layers != pop || s->skipped != used - pop) {
-        snprintf(err, errlen, "checkpoint: pixel_layers %llu and skipped %llu, but the member bitmap holds %llu "
-                 "of %zu", (unsigned long long)s->pixel_layers, (unsigned long long)s->skipped,
+        snprintf(err, errlen,
+                 "checkpoint: pixel_layers %llu and skipped %llu, but the member bitmap holds %llu "
+                 "of %zu",
+                 (unsigned long long)s->pixel_layers, (unsigned long long)s->skipped,
                  (unsigned long long)pop, used);
         return -1;
     }
-    if (s->converged > s->npix || (s->cfg.target_error == 0 && (s->converged || s->stopped_on_target))) {
-        snprintf(err, errlen, "checkpoint: converged %llu / stopped %d (of %u pixels, target error %g)",
-                 (unsigned long long)s->converged, s->stopped_on_target, s->npix, s->cfg.target_error);
+    if (s->converged > s->npix ||
+        (s->cfg.target_error == 0 && (s->converged || s->stopped_on_target))) {
+        snprintf(
+            err, errlen, "checkpoint: converged %llu / stopped %d (of %u pixels, target error %g)",
+            (unsigned long long)s->converged, s->stopped_on_target, s->npix, s->cfg.target_error);
         return -1;
     }
     return 0;
@@ -1096,7 +1204,8 @@ static int check_pixels(const sched_t *s, uint32_t D, char *err, size_t errlen)
         for (uint32_t r = 0; r < R; r++) {
             if (s->state[(size_t)l * R + r] != ST_DONE)
                 continue;
-            uint32_t p0 = r * s->range_pixels, p1 = p0 + s->range_pixels < N ? p0 + s->range_pixels : N;
+            uint32_t p0 = r * s->range_pixels,
+                     p1 = p0 + s->range_pixels < N ? p0 + s->range_pixels : N;
             for (uint32_t p = p0; p < p1; p++)
                 if (is_member(s, l, p)) {
                     layers[p]++;
@@ -1108,24 +1217,28 @@ static int check_pixels(const sched_t *s, uint32_t D, char *err, size_t errlen)
     const int batch = s->cfg.adaptive == SCHED_ADAPTIVE_RELERR || s->cfg.target_error > 0;
     for (uint32_t p = 0; p < N; p++) {
         const film_pixel_t *fp = &s->film->pixels[p];
-        static const char *const names[8] = {"sum[0]", "sum[1]", "sum[2]", "comp[0]", "comp[1]", "comp[2]",
-                                             "lum_m2", "pvar"};
-        const double v[8] = {fp->sum[0], fp->sum[1], fp->sum[2], fp->comp[0], fp->comp[1], fp->comp[2],
-                             fp->lum_m2, fp->pvar};
+        static const char *const names[8] = {"sum[0]",  "sum[1]",  "sum[2]", "comp[0]",
+                                             "comp[1]", "comp[2]", "lum_m2", "pvar"};
+        const double v[8] = {fp->sum[0],  fp->sum[1],  fp->sum[2], fp->comp[0],
+                             fp->comp[1], fp->comp[2], fp->lum_m2, fp->pvar};
         for (int k = 0; k < 8; k++)
             if (!isfinite(v[k])) {
-                snprintf(err, errlen, "checkpoint: film pixel %u: %s is not finite (%g)", p, names[k], v[k]);
+                snprintf(err, errlen, "checkpoint: film pixel %u: %s is not finite (%g)", p,
+                         names[k], v[k]);
                 goto out;
             }
         if (fp->layers != layers[p]) {
-            snprintf(err, errlen, "checkpoint: film pixel %u merged %u layers, the cell states say %u", p,
+            snprintf(err, errlen,
+                     "checkpoint: film pixel %u merged %u layers, the cell states say %u", p,
                      fp->layers, layers[p]);
             goto out;
         }
         if (fp->count > samples[p] || fp->nonfinite != samples[p] - fp->count) {
-            snprintf(err, errlen, "checkpoint: film pixel %u holds %llu + %llu nonfinite samples, its layers %llu",
-                     p, (unsigned long long)fp->count, (unsigned long long)fp->nonfinite,
-                     (unsigned long long)samples[p]);
+            snprintf(
+                err, errlen,
+                "checkpoint: film pixel %u holds %llu + %llu nonfinite samples, its layers %llu", p,
+                (unsigned long long)fp->count, (unsigned long long)fp->nonfinite,
+                (unsigned long long)samples[p]);
             goto out;
         }
         total += samples[p];
@@ -1139,8 +1252,8 @@ static int check_pixels(const sched_t *s, uint32_t D, char *err, size_t errlen)
         const uint8_t c[3] = {s->conv_snapshot[p], s->conv_flight[0][p], s->conv_flight[1][p]};
         for (int k = 0; k < 3; k++)
             if (c[k] > (s->cfg.target_error > 0)) {
-                snprintf(err, errlen, "checkpoint: pixel %u: converged flag %u (target error %g)", p, c[k],
-                         s->cfg.target_error);
+                snprintf(err, errlen, "checkpoint: pixel %u: converged flag %u (target error %g)",
+                         p, c[k], s->cfg.target_error);
                 goto out;
             }
         /* what results in range can make: a mean of layer luminances in
@@ -1149,19 +1262,24 @@ static int check_pixels(const sched_t *s, uint32_t D, char *err, size_t errlen)
          * Anything else can turn the metrics NaN or infinite on the next
          * merge (Welford's update assumes them) */
         const uint32_t nb = s->batches[p];
-        if (batch ? nb > layers[p] || !(s->bmean[p] >= 0 && s->bmean[p] <= 2 * SCHED_MAX_RADIANCE) ||
-                        !(s->bm2[p] >= 0 && isfinite(s->bm2[p])) || (nb == 0 && s->bmean[p] != 0) ||
-                        (nb <= 1 && s->bm2[p] != 0)
-                  : nb != 0 || s->bmean[p] != 0 || s->bm2[p] != 0) {
-            snprintf(err, errlen, "checkpoint: pixel %u: batch statistics (%u batches of %u layers, mean %g, m2 %g)",
-                     p, s->batches[p], layers[p], s->bmean[p], s->bm2[p]);
+        if (batch
+                ? nb > layers[p] || !(s->bmean[p] >= 0 && s->bmean[p] <= 2 * SCHED_MAX_RADIANCE) ||
+                      !(s->bm2[p] >= 0 && isfinite(s->bm2[p])) || (nb == 0 && s->bmean[p] != 0) ||
+                      (nb <= 1 && s->bm2[p] != 0)
+                : nb != 0 || s->bmean[p] != 0 || s->bm2[p] != 0) {
+            snprintf(
+                err, errlen,
+                "checkpoint: pixel %u: batch statistics (%u batches of %u layers, mean %g, m2 %g)",
+                p, s->batches[p], layers[p], s->bmean[p], s->bm2[p]);
             goto out;
         }
     }
     if (total != s->samples_done || nonfinite != s->nonfinite) {
-        snprintf(err, errlen, "checkpoint: samples_done %llu and nonfinite %llu, but the film holds %llu and %llu",
-                 (unsigned long long)s->samples_done, (unsigned long long)s->nonfinite,
-                 (unsigned long long)total, (unsigned long long)nonfinite);
+        snprintf(
+            err, errlen,
+            "checkpoint: samples_done %llu and nonfinite %llu, but the film holds %llu and %llu",
+            (unsigned long long)s->samples_done, (unsigned long long)s->nonfinite,
+            (unsigned long long)total, (unsigned long long)nonfinite);
         goto out;
     }
     rc = 0;
@@ -1171,7 +1289,8 @@ out:
     return rc;
 }
 
-sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, char *err, size_t errlen)
+sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, char *err,
+                    size_t errlen)
 {
     sched_t *s = sched_new(cfg, err, errlen);
     if (!s)

@@ -64,8 +64,8 @@ const char *sched_adaptive_name(sched_adaptive_t a);
 
 typedef struct sched_config {
     uint32_t width, height;
-    uint32_t spp;            /* most samples per pixel */
-    uint32_t granularity;    /* G, samples per pixel per layer */
+    uint32_t spp;         /* most samples per pixel */
+    uint32_t granularity; /* G, samples per pixel per layer */
     sched_adaptive_t adaptive;
     uint32_t uniform_layers; /* flag sequence: layers below this never skip;
                                 UINT32_MAX: the default, half of the layers */
@@ -74,26 +74,26 @@ typedef struct sched_config {
                                 layer ('1': the skip rule applies), or NULL:
                                 uniform_layers decides. Copied by sched_new. */
     /* Options the thesis left open. */
-    int random_selection;    /* a pixel below the threshold still takes part
-                                with probability metric / threshold */
-    int dilate;              /* grow each layer's pixels by one (3 x 3) */
-    uint64_t seed;           /* for random selection */
+    int random_selection; /* a pixel below the threshold still takes part
+                             with probability metric / threshold */
+    int dilate;           /* grow each layer's pixels by one (3 x 3) */
+    uint64_t seed;        /* for random selection */
     /* Stopping on a confidence bound: a pixel stops once the t half-width
      * of its layers' means at `confidence` is <= target_error (mean + eps);
      * the job stops when target_share of the pixels have. 0: off. */
     double target_error;
-    double confidence;       /* 0: 0.95 */
-    double target_share;     /* 0: 1.0 */
+    double confidence;   /* 0: 0.95 */
+    double target_share; /* 0: 1.0 */
 } sched_config_t;
 
 typedef struct sched sched_t;
 
 /* A task handed out: owned by the scheduler until completed or requeued. */
 typedef struct sched_task {
-    uint64_t id;            /* 1 + layer * range_count + range: stable across runs */
+    uint64_t id; /* 1 + layer * range_count + range: stable across runs */
     uint32_t layer;
     uint32_t range;
-    uint32_t count;         /* pixels in records */
+    uint32_t count;               /* pixels in records */
     const tracer_task_t *records; /* with first_sample, sample_count and prior sums */
 } sched_task_t;
 
@@ -188,6 +188,7 @@ int sched_save(const sched_t *s, sched_write_fn write, void *ctx);
  * vs DONE cells, complete layers, decided flags consistent), film values
  * finite, counts that add up (samples_done equals the film's total, ...).
  * Garbage is never merged: NULL with a message naming what is wrong. */
-sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, char *err, size_t errlen);
+sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, char *err,
+                    size_t errlen);
 
 #endif

@@ -30,8 +30,8 @@ struct store {
     uint64_t next_id;
     uint32_t boots;
     pid_t bg_pid;
-    int bg_fd;         /* read end of the child's report pipe */
-    char *bg_buf;      /* what the child reported so far */
+    int bg_fd;    /* read end of the child's report pipe */
+    char *bg_buf; /* what the child reported so far */
     size_t bg_len, bg_cap;
     double bg_started, bg_fork_ms;
     store_bg_stats_t last;
@@ -49,7 +49,8 @@ store_bg_stats_t store_bg_last(const store_t *s)
     return s->last;
 }
 
-static void set_err(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+static void set_err(char *err, size_t errlen, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
 static void set_err(char *err, size_t errlen, const char *fmt, ...)
 {
     if (!err || !errlen)
@@ -325,13 +326,15 @@ int store_rec_install(store_rec_writer_t *w, int keep_prev)
         }
     }
     if (rename(w->tmp, w->path) != 0) {
-        snprintf(w->err, sizeof w->err, "cannot rename %.600s into place: %s", w->tmp, strerror(errno));
+        snprintf(w->err, sizeof w->err, "cannot rename %.600s into place: %s", w->tmp,
+                 strerror(errno));
         store_rec_abort(w);
         return -1;
     }
     w->tmp[0] = '\0';
     if (fsync_dir_of(w->path) < 0) {
-        snprintf(w->err, sizeof w->err, "cannot fsync the directory of %.600s: %s", w->path, strerror(errno));
+        snprintf(w->err, sizeof w->err, "cannot fsync the directory of %.600s: %s", w->path,
+                 strerror(errno));
         return -1;
     }
     return 0;
@@ -345,14 +348,16 @@ int store_rec_commit(store_rec_writer_t *w, int keep_prev)
 }
 
 /* Checks a whole record in memory; NULL when it is sound, else why not. */
-static const char *check_record(const uint8_t *all, uint64_t size, store_kind_t kind, char *why, size_t whylen)
+static const char *check_record(const uint8_t *all, uint64_t size, store_kind_t kind, char *why,
+                                size_t whylen)
 {
     if (size < STORE_HEADER_SIZE + STORE_TRAILER_SIZE || size > STORE_MAX_RECORD)
         return "torn (too short)";
     if (memcmp(all, store_magic, 8) != 0)
         return "not a vbrender state file (bad magic)";
     if (get_u32(all + 8) != STORE_FORMAT_VERSION) {
-        snprintf(why, whylen, "format version %u, this master reads %d", get_u32(all + 8), STORE_FORMAT_VERSION);
+        snprintf(why, whylen, "format version %u, this master reads %d", get_u32(all + 8),
+                 STORE_FORMAT_VERSION);
         return why;
     }
     if (get_u32(all + 12) != (uint32_t)kind)
@@ -369,8 +374,8 @@ static const char *check_record(const uint8_t *all, uint64_t size, store_kind_t 
     return NULL;
 }
 
-int store_rec_parse(const uint8_t *data, size_t size, store_kind_t kind, store_rec_t *rec, char *err,
-                    size_t errlen)
+int store_rec_parse(const uint8_t *data, size_t size, store_kind_t kind, store_rec_t *rec,
+                    char *err, size_t errlen)
 {
     memset(rec, 0, sizeof *rec);
     char buf[128];
@@ -395,7 +400,8 @@ int store_rec_load(const char *path, store_kind_t kind, store_rec_t *rec, char *
     memset(rec, 0, sizeof *rec);
     int fd = open(path, O_RDONLY | O_CLOEXEC);
     if (fd < 0) {
-        set_err(err, errlen, "%.600s: %s", path, errno == ENOENT ? "no such file" : strerror(errno));
+        set_err(err, errlen, "%.600s: %s", path,
+                errno == ENOENT ? "no such file" : strerror(errno));
         return -1;
     }
     struct stat st;
@@ -497,16 +503,22 @@ static int write_meta(store_t *s, char *err, size_t errlen)
     uint8_t body[12];
     put_u64(body, s->next_id);
     put_u32(body + 8, s->boots);
-    if (store_rec_begin(&w, path, STORE_KIND_META) < 0 || store_rec_write(&w, body, sizeof body) < 0 ||
-        store_rec_commit(&w, 0) < 0) {
+    if (store_rec_begin(&w, path, STORE_KIND_META) < 0 ||
+        store_rec_write(&w, body, sizeof body) < 0 || store_rec_commit(&w, 0) < 0) {
         set_err(err, errlen, "%.600s", w.err);
         return -1;
     }
     return 0;
 }
 
-const char *store_dir(const store_t *s) { return s->dir; }
-uint32_t store_boots(const store_t *s) { return s->boots; }
+const char *store_dir(const store_t *s)
+{
+    return s->dir;
+}
+uint32_t store_boots(const store_t *s)
+{
+    return s->boots;
+}
 
 void store_job_path(const store_t *s, uint64_t id, const char *name, char *out, size_t outlen)
 {
@@ -530,7 +542,9 @@ int store_job_remove(const store_t *s, uint64_t id, char *err, size_t errlen)
     store_job_path(s, id, NULL, path, sizeof path);
     DIR *d = opendir(path);
     if (!d)
-        return errno == ENOENT ? 0 : (set_err(err, errlen, "cannot open %.600s: %s", path, strerror(errno)), -1);
+        return errno == ENOENT
+                   ? 0
+                   : (set_err(err, errlen, "cannot open %.600s: %s", path, strerror(errno)), -1);
     struct dirent *e;
     int rc = 0;
     while ((e = readdir(d)) != NULL) {
@@ -622,7 +636,8 @@ store_t *store_open(const char *dir, char *err, size_t errlen)
     }
     s->bg_fd = -1;
     if (strlen(dir) == 0 || strlen(dir) >= sizeof s->dir - 64) {
-        set_err(err, errlen, "--state: a directory path of 1 to %zu characters", sizeof s->dir - 64);
+        set_err(err, errlen, "--state: a directory path of 1 to %zu characters",
+                sizeof s->dir - 64);
         free(s);
         return NULL;
     }
@@ -690,7 +705,10 @@ void store_close(store_t **sp)
 
 /* ---- background writer ---------------------------------------------------------- */
 
-int store_bg_running(const store_t *s) { return s->bg_pid > 0; }
+int store_bg_running(const store_t *s)
+{
+    return s->bg_pid > 0;
+}
 
 int store_bg_start(store_t *s, store_bg_fn fn, void *ctx, char *err, size_t errlen)
 {
@@ -802,8 +820,8 @@ int store_bg_poll(store_t *s, store_bg_report_fn on_report, void *ctx, int *exit
         return 0;
     s->last.runs++;
     s->last.wall_s = mono_s() - s->bg_started;
-    s->last.cpu_s = (double)ru.ru_utime.tv_sec + 1e-6 * (double)ru.ru_utime.tv_usec + (double)ru.ru_stime.tv_sec +
-                    1e-6 * (double)ru.ru_stime.tv_usec;
+    s->last.cpu_s = (double)ru.ru_utime.tv_sec + 1e-6 * (double)ru.ru_utime.tv_usec +
+                    (double)ru.ru_stime.tv_sec + 1e-6 * (double)ru.ru_stime.tv_usec;
     s->last.fork_ms = s->bg_fork_ms;
     drain(s);
     close(s->bg_fd);

@@ -101,7 +101,7 @@ void store_rec_abort(store_rec_writer_t *w);
 typedef struct store_rec {
     uint8_t *data; /* the payload */
     size_t size;
-    size_t pos;    /* for store_rec_read */
+    size_t pos; /* for store_rec_read */
 } store_rec_t;
 
 /* 0 with *rec filled; -1 with a message (missing: "no such file"; torn or
@@ -109,8 +109,8 @@ typedef struct store_rec {
 int store_rec_load(const char *path, store_kind_t kind, store_rec_t *rec, char *err, size_t errlen);
 /* The same checks on a record already in memory (data, size: a whole
  * file); rec->data is a copy of the payload. */
-int store_rec_parse(const uint8_t *data, size_t size, store_kind_t kind, store_rec_t *rec, char *err,
-                    size_t errlen);
+int store_rec_parse(const uint8_t *data, size_t size, store_kind_t kind, store_rec_t *rec,
+                    char *err, size_t errlen);
 /* Same signature as sched_read_fn: reads exactly len bytes, -1 if short. */
 int store_rec_read(void *rec, void *data, size_t len);
 void store_rec_free(store_rec_t *rec);

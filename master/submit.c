@@ -33,22 +33,29 @@ static int submit_sizes(const cJSON *meshes, const submit_frame_t *frames, int m
     msg->u.bundle.mesh_count = (uint32_t)mesh_count;
     uint64_t total = frames[0].size;
     int i = 0;
-    for (const cJSON *it = meshes ? meshes->child : NULL; it && i < mesh_count; it = it->next, i++) {
+    for (const cJSON *it = meshes ? meshes->child : NULL; it && i < mesh_count;
+         it = it->next, i++) {
         total += frames[1 + i].size;
         if (cJSON_IsString(it))
-            snprintf(msg->u.bundle.meshes[i].name, sizeof msg->u.bundle.meshes[i].name, "%s", it->valuestring);
-        msg->u.bundle.meshes[i].size = frames[1 + i].size > UINT32_MAX ? UINT32_MAX : (uint32_t)frames[1 + i].size;
+            snprintf(msg->u.bundle.meshes[i].name, sizeof msg->u.bundle.meshes[i].name, "%s",
+                     it->valuestring);
+        msg->u.bundle.meshes[i].size =
+            frames[1 + i].size > UINT32_MAX ? UINT32_MAX : (uint32_t)frames[1 + i].size;
     }
     size_t payload = proto_payload_size(msg);
     free(msg);
     if (limits && limits->max_bundle_bytes && total > limits->max_bundle_bytes) {
-        snprintf(err, errlen, "the scene and its meshes are %.1f MiB; this master takes at most %.0f MiB "
-                 "(--max-bundle-mib)", total / 1048576.0, limits->max_bundle_bytes / 1048576.0);
+        snprintf(err, errlen,
+                 "the scene and its meshes are %.1f MiB; this master takes at most %.0f MiB "
+                 "(--max-bundle-mib)",
+                 total / 1048576.0, limits->max_bundle_bytes / 1048576.0);
         return -1;
     }
     if (payload > PROTO_MAX_BUNDLE) {
-        snprintf(err, errlen, "the scene and its meshes make a %.1f MiB bundle; the protocol carries at most %u MiB",
-                 payload / 1048576.0, PROTO_MAX_BUNDLE >> 20);
+        snprintf(
+            err, errlen,
+            "the scene and its meshes make a %.1f MiB bundle; the protocol carries at most %u MiB",
+            payload / 1048576.0, PROTO_MAX_BUNDLE >> 20);
         return -1;
     }
     return 0;
@@ -56,15 +63,16 @@ static int submit_sizes(const cJSON *meshes, const submit_frame_t *frames, int m
 
 /* The image size and spp the job will have, from the scene JSON and the
  * request, checked against the caps before the scene is loaded. */
-static int submit_caps(const cJSON *req, const submit_frame_t *json, const submit_limits_t *limits, char *err,
-                       size_t errlen)
+static int submit_caps(const cJSON *req, const submit_frame_t *json, const submit_limits_t *limits,
+                       char *err, size_t errlen)
 {
     if (!limits)
         return 0;
     cJSON *scene = cJSON_ParseWithLength(json->data, json->size);
     const cJSON *cam = cJSON_GetObjectItemCaseSensitive(scene, "camera");
     const cJSON *render = cJSON_GetObjectItemCaseSensitive(scene, "render");
-    const cJSON *w = cJSON_GetObjectItemCaseSensitive(cam, "width"), *h = cJSON_GetObjectItemCaseSensitive(cam, "height");
+    const cJSON *w = cJSON_GetObjectItemCaseSensitive(cam, "width"),
+                *h = cJSON_GetObjectItemCaseSensitive(cam, "height");
     const cJSON *spp = cJSON_GetObjectItemCaseSensitive(req, "spp");
     if (!spp)
         spp = cJSON_GetObjectItemCaseSensitive(render, "spp");
@@ -73,20 +81,22 @@ static int submit_caps(const cJSON *req, const submit_frame_t *json, const submi
     cJSON_Delete(scene);
     /* a malformed scene is left to the full load, which names what is wrong */
     if (limits->max_pixels && pixels > (double)limits->max_pixels) {
-        snprintf(err, errlen, "the image has %.0f pixels; this master takes at most %llu (--max-pixels)", pixels,
+        snprintf(err, errlen,
+                 "the image has %.0f pixels; this master takes at most %llu (--max-pixels)", pixels,
                  (unsigned long long)limits->max_pixels);
         return -1;
     }
     if (limits->max_spp && n > limits->max_spp) {
-        snprintf(err, errlen, "%.0f samples per pixel; this master takes at most %u (--max-spp)", n, limits->max_spp);
+        snprintf(err, errlen, "%.0f samples per pixel; this master takes at most %u (--max-spp)", n,
+                 limits->max_spp);
         return -1;
     }
     return 0;
 }
 
 /* The mesh files: names checked, data copied. */
-static int submit_bundle(job_t *j, const cJSON *meshes, const submit_frame_t *frames, int mesh_count,
-                         scene_blob_t *blobs, char *err, size_t errlen)
+static int submit_bundle(job_t *j, const cJSON *meshes, const submit_frame_t *frames,
+                         int mesh_count, scene_blob_t *blobs, char *err, size_t errlen)
 {
     j->mesh_count = (uint32_t)mesh_count;
     j->mesh_names = calloc((size_t)mesh_count + 1, sizeof *j->mesh_names);
@@ -99,8 +109,11 @@ static int submit_bundle(job_t *j, const cJSON *meshes, const submit_frame_t *fr
     int i = 0;
     for (const cJSON *it = meshes ? meshes->child : NULL; it; it = it->next, i++) {
         if (!cJSON_IsString(it) || !submit_name_ok(it->valuestring)) {
-            snprintf(err, errlen, "meshes[%d]: a name of 1 to %d characters from A-Z a-z 0-9 . _ -, not starting "
-                     "with '.'", i, PROTO_MAX_NAME);
+            snprintf(
+                err, errlen,
+                "meshes[%d]: a name of 1 to %d characters from A-Z a-z 0-9 . _ -, not starting "
+                "with '.'",
+                i, PROTO_MAX_NAME);
             return -1;
         }
         size_t sz = frames[i].size;
@@ -130,7 +143,8 @@ static int submit_bundle(job_t *j, const cJSON *meshes, const submit_frame_t *fr
 
 /* The scene, loaded from the bundle as a worker will load it: its size and
  * render defaults. */
-static int submit_scene(job_t *j, const submit_frame_t *json, const scene_blob_t *blobs, char *err, size_t errlen)
+static int submit_scene(job_t *j, const submit_frame_t *json, const scene_blob_t *blobs, char *err,
+                        size_t errlen)
 {
     j->json_size = json->size;
     if (j->json_size > PROTO_MAX_SCENE_JSON) {
@@ -146,7 +160,8 @@ static int submit_scene(job_t *j, const submit_frame_t *json, const scene_blob_t
     j->json[j->json_size] = '\0';
     scene_t *scene = NULL;
     char serr[MASTER_ERR_LEN - 16];
-    if (scene_load_bundle(j->json, j->json_size, j->name, blobs, j->mesh_count, &scene, serr, sizeof serr) < 0) {
+    if (scene_load_bundle(j->json, j->json_size, j->name, blobs, j->mesh_count, &scene, serr,
+                          sizeof serr) < 0) {
         snprintf(err, errlen, "bad scene: %s", serr);
         return -1;
     }
@@ -161,7 +176,8 @@ static int submit_scene(job_t *j, const submit_frame_t *json, const scene_blob_t
 }
 
 /* An optional integer field in [lo, hi]: 0 (absent or set), -1 with a message. */
-static int int_field(const cJSON *req, const char *key, double lo, double hi, double *out, char *err, size_t errlen)
+static int int_field(const cJSON *req, const char *key, double lo, double hi, double *out,
+                     char *err, size_t errlen)
 {
     const cJSON *it = cJSON_GetObjectItemCaseSensitive(req, key);
     if (!it)
@@ -176,8 +192,8 @@ static int int_field(const cJSON *req, const char *key, double lo, double hi, do
 }
 
 /* An optional number in [lo, hi], or (lo, hi] when lo_open. */
-static int range_field(const cJSON *req, const char *key, double lo, double hi, int lo_open, double *out,
-                       char *err, size_t errlen)
+static int range_field(const cJSON *req, const char *key, double lo, double hi, int lo_open,
+                       double *out, char *err, size_t errlen)
 {
     const cJSON *it = cJSON_GetObjectItemCaseSensitive(req, key);
     if (!it)
@@ -223,7 +239,8 @@ static int submit_settings(job_t *j, const cJSON *req, char *err, size_t errlen)
     if ((it = cJSON_GetObjectItemCaseSensitive(req, "adaptive")) != NULL) {
         int a = cJSON_IsString(it) ? sched_adaptive_from_name(it->valuestring) : -1;
         if (a < 0) {
-            snprintf(err, errlen, "adaptive must be \"thesis\", \"variance\", \"relerr\" or \"none\"");
+            snprintf(err, errlen,
+                     "adaptive must be \"thesis\", \"variance\", \"relerr\" or \"none\"");
             return -1;
         }
         j->adaptive = (sched_adaptive_t)a;
@@ -249,12 +266,19 @@ static int submit_settings(job_t *j, const cJSON *req, char *err, size_t errlen)
     }
     const cJSON *rs = cJSON_GetObjectItemCaseSensitive(req, "random_selection");
     const cJSON *dl = cJSON_GetObjectItemCaseSensitive(req, "dilate");
-    j->sched_cfg = (sched_config_t){.width = j->width, .height = j->height, .spp = j->spp,
-                                    .granularity = j->granularity, .adaptive = j->adaptive,
-                                    .uniform_layers = (uint32_t)uniform, .flags = j->flags,
-                                    .random_selection = cJSON_IsTrue(rs), .dilate = cJSON_IsTrue(dl),
-                                    .seed = j->tracer.seed, .target_error = j->target_error,
-                                    .confidence = confidence, .target_share = share};
+    j->sched_cfg = (sched_config_t){.width = j->width,
+                                    .height = j->height,
+                                    .spp = j->spp,
+                                    .granularity = j->granularity,
+                                    .adaptive = j->adaptive,
+                                    .uniform_layers = (uint32_t)uniform,
+                                    .flags = j->flags,
+                                    .random_selection = cJSON_IsTrue(rs),
+                                    .dilate = cJSON_IsTrue(dl),
+                                    .seed = j->tracer.seed,
+                                    .target_error = j->target_error,
+                                    .confidence = confidence,
+                                    .target_share = share};
     char schederr[MASTER_ERR_LEN - 32];
     j->sched = sched_new(&j->sched_cfg, schederr, sizeof schederr);
     if (!j->sched) {
@@ -277,8 +301,9 @@ static int submit_reference(job_t *j, const submit_frame_t *frames, char *err, s
     size_t plane = (size_t)j->width * j->height * sizeof(float);
     for (int c = 0; c < 3; c++) {
         if (frames[c].size != plane) {
-            snprintf(err, errlen, "reference: channel %d has %zu bytes, a %ux%u image needs %zu (another size?)", c,
-                     frames[c].size, j->width, j->height, plane);
+            snprintf(err, errlen,
+                     "reference: channel %d has %zu bytes, a %ux%u image needs %zu (another size?)",
+                     c, frames[c].size, j->width, j->height, plane);
             return -1;
         }
         j->ref[c] = malloc(plane);
@@ -322,15 +347,16 @@ static int submit_request_id(job_t *j, const cJSON *req, char *err, size_t errle
     size_t n = v ? strlen(v) : 0;
     if (!v || n == 0 || n > MASTER_MAX_REQUEST_ID ||
         strspn(v, "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-") != n) {
-        snprintf(err, errlen, "request_id must be 1 to %d characters from A-Z a-z 0-9 _ -", MASTER_MAX_REQUEST_ID);
+        snprintf(err, errlen, "request_id must be 1 to %d characters from A-Z a-z 0-9 _ -",
+                 MASTER_MAX_REQUEST_ID);
         return -1;
     }
     memcpy(j->request_id, v, n + 1);
     return 0;
 }
 
-job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes, const submit_limits_t *limits,
-                    char *err, size_t errlen)
+job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes,
+                    const submit_limits_t *limits, char *err, size_t errlen)
 {
     if (nframes < 1) {
         snprintf(err, errlen, "submit needs the scene JSON as its second frame");
@@ -358,11 +384,13 @@ job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes,
         return NULL;
     }
     const cJSON *name = cJSON_GetObjectItemCaseSensitive(req, "name");
-    snprintf(j->name, sizeof j->name, "%s", cJSON_IsString(name) ? name->valuestring : "scene.json");
+    snprintf(j->name, sizeof j->name, "%s",
+             cJSON_IsString(name) ? name->valuestring : "scene.json");
     scene_blob_t blobs[PROTO_MAX_MESHES];
     if (submit_request_id(j, req, err, errlen) < 0 ||
         submit_bundle(j, meshes, frames + 1, mesh_count, blobs, err, errlen) < 0 ||
-        submit_scene(j, &frames[0], blobs, err, errlen) < 0 || submit_settings(j, req, err, errlen) < 0 ||
+        submit_scene(j, &frames[0], blobs, err, errlen) < 0 ||
+        submit_settings(j, req, err, errlen) < 0 ||
         (refspec && submit_reference(j, frames + 1 + mesh_count, err, errlen) < 0) ||
         submit_hash(j, err, errlen) < 0) {
         job_free(j);

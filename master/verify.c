@@ -42,25 +42,25 @@
 /* One copy of a task: free (slot 0, not answered), held by a worker (slot),
  * or answered (its result kept until the task is decided). */
 typedef struct vcopy {
-    uint32_t slot;        /* worker index + 1 while it holds the copy */
-    uint32_t attempt;     /* the attempt number it was sent with */
+    uint32_t slot;    /* worker index + 1 while it holds the copy */
+    uint32_t attempt; /* the attempt number it was sent with */
     int answered;
-    tracer_result_t *res; /* the answer, range-checked */
+    tracer_result_t *res;     /* the answer, range-checked */
     char who[MASTER_MAX_WHO]; /* identity of the worker it went to */
 } vcopy_t;
 
 typedef struct ventry {
-    uint64_t task;        /* 0: a free entry */
-    uint32_t count;       /* records of the task */
-    int queued;           /* in the queue of entries that need a copy sent */
+    uint64_t task;  /* 0: a free entry */
+    uint32_t count; /* records of the task */
+    int queued;     /* in the queue of entries that need a copy sent */
     uint32_t next_free;
     vcopy_t c[VERIFY_COPIES];
 } ventry_t;
 
 struct verify_job {
-    ventry_t *pool;       /* entries by index (holder[] names them) */
+    ventry_t *pool; /* entries by index (holder[] names them) */
     uint32_t cap, free_head;
-    uint32_t *queue;      /* entries that need a copy sent, oldest first */
+    uint32_t *queue; /* entries that need a copy sent, oldest first */
     uint32_t qlen, qcap;
 };
 typedef struct verify_job verify_job_t;
@@ -162,9 +162,9 @@ static int can_place(const ventry_t *e, const char **ids, uint32_t n)
 static int same_results(const tracer_result_t *a, const tracer_result_t *b, uint32_t count)
 {
     for (uint32_t i = 0; i < count; i++)
-        if (a[i].pixel != b[i].pixel || a[i].samples != b[i].samples || a[i].nonfinite != b[i].nonfinite ||
-            memcmp(a[i].sum, b[i].sum, sizeof a[i].sum) != 0 || memcmp(&a[i].lum_m2, &b[i].lum_m2, 8) != 0 ||
-            memcmp(&a[i].pvar, &b[i].pvar, 8) != 0)
+        if (a[i].pixel != b[i].pixel || a[i].samples != b[i].samples ||
+            a[i].nonfinite != b[i].nonfinite || memcmp(a[i].sum, b[i].sum, sizeof a[i].sum) != 0 ||
+            memcmp(&a[i].lum_m2, &b[i].lum_m2, 8) != 0 || memcmp(&a[i].pvar, &b[i].pvar, 8) != 0)
             return 0;
     return 1;
 }
@@ -277,19 +277,23 @@ static void entry_drop(master_t *m, job_t *j, uint32_t idx)
     entry_close(m, j, idx);
     j->reissued++;
     if (sched_requeue(j->sched, task) < 0)
-        master_log(m, "job %" PRIu64 " task %" PRIu64 ": the scheduler refused it back (out of memory?)", j->id,
-                   task);
+        master_log(
+            m, "job %" PRIu64 " task %" PRIu64 ": the scheduler refused it back (out of memory?)",
+            j->id, task);
 }
 
 /* Merges res for the entry's task and closes the entry. The job may end
  * here (job_merged): nothing of it may be touched after. */
-static void entry_merge(master_t *m, job_t *j, uint32_t idx, const tracer_result_t *res, int verified)
+static void entry_merge(master_t *m, job_t *j, uint32_t idx, const tracer_result_t *res,
+                        int verified)
 {
     ventry_t *e = &j->verify->pool[idx];
     char err[MASTER_ERR_LEN];
     if (sched_complete(j->sched, e->task, res, e->count, err, sizeof err) < 0) {
         /* checked when it arrived; the pixels it reads have not changed */
-        master_log(m, "job %" PRIu64 " task %" PRIu64 ": an agreed result did not merge (%s); issuing it again",
+        master_log(m,
+                   "job %" PRIu64 " task %" PRIu64
+                   ": an agreed result did not merge (%s); issuing it again",
                    j->id, e->task, err);
         entry_drop(m, j, idx);
         return;
@@ -307,14 +311,18 @@ static void entry_merge(master_t *m, job_t *j, uint32_t idx, const tracer_result
 /* Sends copy k of entry idx to w. SEND_OK: the copy is held by w. After
  * SEND_BAD_MESSAGE the job has failed and its state is gone; after
  * SEND_UNREACHABLE w is lost. */
-static int send_copy(master_t *m, job_t *j, uint32_t idx, int k, peer_t *w, proto_msg_t *msg, double now)
+static int send_copy(master_t *m, job_t *j, uint32_t idx, int k, peer_t *w, proto_msg_t *msg,
+                     double now)
 {
     uint64_t task = j->verify->pool[idx].task;
     sched_task_t t;
     if (sched_outstanding(j->sched, task, &t) < 0) {
-        master_log(m, "job %" PRIu64 " task %" PRIu64 ": being verified but not outstanding in the scheduler",
+        master_log(m,
+                   "job %" PRIu64 " task %" PRIu64
+                   ": being verified but not outstanding in the scheduler",
                    j->id, task);
-        job_finish(m, j, JOB_FAILED, "internal error: a verified task was lost (see the master's log)");
+        job_finish(m, j, JOB_FAILED,
+                   "internal error: a verified task was lost (see the master's log)");
         return SEND_BAD_MESSAGE;
     }
     uint32_t attempt;
@@ -332,7 +340,10 @@ static int send_copy(master_t *m, job_t *j, uint32_t idx, int k, peer_t *w, prot
     c->slot = slot;
     c->attempt = attempt;
     snprintf(c->who, sizeof c->who, "%s", peer_identity(w));
-    lease_t l = {.job = j->id, .task = task, .attempt = attempt, .slot = slot,
+    lease_t l = {.job = j->id,
+                 .task = task,
+                 .attempt = attempt,
+                 .slot = slot,
                  .deadline = now + m->cfg.lease_ms / 1000.0};
     if (lease_push(m->leases, &l) < 0)
         master_log(m, "job %" PRIu64 " task %" PRIu64 ": out of memory for a lease", j->id, task);
@@ -351,11 +362,13 @@ int verify_wanted(master_t *m, const job_t *j, uint64_t task_id)
     return share >= 1 || alive_identities(m, ids, 2) == 2;
 }
 
-int verify_start(master_t *m, job_t *j, const sched_task_t *t, peer_t *w, proto_msg_t *msg, double now)
+int verify_start(master_t *m, job_t *j, const sched_task_t *t, peer_t *w, proto_msg_t *msg,
+                 double now)
 {
     uint32_t idx = entry_new(j, t->id, t->count);
     if (idx == NO_ENTRY) {
-        master_log(m, "job %" PRIu64 " task %" PRIu64 ": out of memory to verify it; trying later", j->id, t->id);
+        master_log(m, "job %" PRIu64 " task %" PRIu64 ": out of memory to verify it; trying later",
+                   j->id, t->id);
         (void)sched_requeue(j->sched, t->id); /* just handed out: it takes it back */
         return -1;
     }
@@ -415,8 +428,8 @@ static void copy_failed(master_t *m, peer_t *w, job_t *j, uint32_t idx, int k, c
     ventry_t *e = &j->verify->pool[idx];
     e->c[k].slot = 0;
     j->failures++;
-    master_log_limited(m, "task-failed", "job %" PRIu64 " task %" PRIu64 " failed on %s: %s", j->id, e->task,
-                       w->host, text);
+    master_log_limited(m, "task-failed", "job %" PRIu64 " task %" PRIu64 " failed on %s: %s", j->id,
+                       e->task, w->host, text);
     if (j->failures >= MASTER_MAX_TASK_FAILURES) {
         char why[MASTER_ERR_LEN];
         snprintf(why, sizeof why, "workers failed %u tasks; last: %.400s", j->failures, text);
@@ -435,8 +448,8 @@ static void copy_refused(master_t *m, peer_t *w, job_t *j, uint32_t idx, int k, 
     e->c[k].slot = 0;
     m->malformed++;
     w->bad_results++;
-    master_log_limited(m, "bad-result", "job %" PRIu64 " task %" PRIu64 ": bad result from %s: %s", j->id, e->task,
-                       peer_identity(w), err);
+    master_log_limited(m, "bad-result", "job %" PRIu64 " task %" PRIu64 ": bad result from %s: %s",
+                       j->id, e->task, peer_identity(w), err);
     j->reissued++;
     enqueue(j->verify, idx);
     if (w->bad_results >= MASTER_MAX_BAD_RESULTS) {
@@ -449,16 +462,19 @@ static void copy_refused(master_t *m, peer_t *w, job_t *j, uint32_t idx, int k, 
 
 /* Two answers agree with each other and not with a third (answered copy
  * `odd`, or none): the task is merged and the odd worker quarantined. */
-static void agreed(master_t *m, job_t *j, uint32_t idx, int k, int other, int odd, const tracer_result_t *res)
+static void agreed(master_t *m, job_t *j, uint32_t idx, int k, int other, int odd,
+                   const tracer_result_t *res)
 {
     ventry_t *e = &j->verify->pool[idx];
     char liar[MASTER_MAX_WHO] = "", why[MASTER_ERR_LEN] = "";
     if (odd >= 0) {
         snprintf(liar, sizeof liar, "%s", e->c[odd].who);
-        snprintf(why, sizeof why, "its result for job %" PRIu64 " task %" PRIu64 " differs from those of %s and %s, "
-                 "which agree", j->id, e->task, e->c[k].who, e->c[other].who);
-        master_log(m, "job %" PRIu64 " task %" PRIu64 ": %s agrees with %s; %s differs", j->id, e->task,
-                   e->c[k].who, e->c[other].who, liar);
+        snprintf(why, sizeof why,
+                 "its result for job %" PRIu64 " task %" PRIu64 " differs from those of %s and %s, "
+                 "which agree",
+                 j->id, e->task, e->c[k].who, e->c[other].who);
+        master_log(m, "job %" PRIu64 " task %" PRIu64 ": %s agrees with %s; %s differs", j->id,
+                   e->task, e->c[k].who, e->c[other].who, liar);
         verify_note_quarantined(j, liar);
     }
     entry_merge(m, j, idx, res, 1); /* may end the job */
@@ -483,15 +499,18 @@ static void copy_answered(master_t *m, job_t *j, uint32_t idx, int k, const trac
             return;
         }
     if (n == 2) {
-        master_log(m, "job %" PRIu64 " task %" PRIu64 ": %s, %s and %s returned three different results; all "
-                   "dropped, the task is issued again", j->id, e->task, e->c[others[0]].who, e->c[others[1]].who,
-                   e->c[k].who);
+        master_log(m,
+                   "job %" PRIu64 " task %" PRIu64
+                   ": %s, %s and %s returned three different results; all "
+                   "dropped, the task is issued again",
+                   j->id, e->task, e->c[others[0]].who, e->c[others[1]].who, e->c[k].who);
         entry_drop(m, j, idx);
         return;
     }
     if (!(e->c[k].res = malloc(e->count * sizeof *res))) {
-        master_log(m, "job %" PRIu64 " task %" PRIu64 ": out of memory to keep a result; asking again", j->id,
-                   e->task);
+        master_log(m,
+                   "job %" PRIu64 " task %" PRIu64 ": out of memory to keep a result; asking again",
+                   j->id, e->task);
         enqueue(j->verify, idx);
         return;
     }
@@ -499,7 +518,9 @@ static void copy_answered(master_t *m, job_t *j, uint32_t idx, int k, const trac
     e->c[k].answered = 1;
     if (n == 1) {
         j->verify_mismatches++;
-        master_log(m, "job %" PRIu64 " task %" PRIu64 ": results of %s and %s differ; a third worker decides",
+        master_log(m,
+                   "job %" PRIu64 " task %" PRIu64
+                   ": results of %s and %s differ; a third worker decides",
                    j->id, e->task, e->c[others[0]].who, e->c[k].who);
     }
     const char *ids[VERIFY_COPIES + 1];
@@ -529,7 +550,8 @@ int verify_on_result(master_t *m, peer_t *w, job_t *j, const proto_msg_t *msg)
         return 0;
     }
     char err[MASTER_ERR_LEN];
-    if (sched_check(j->sched, e->task, msg->u.result.records, msg->u.result.count, err, sizeof err) < 0) {
+    if (sched_check(j->sched, e->task, msg->u.result.records, msg->u.result.count, err,
+                    sizeof err) < 0) {
         copy_refused(m, w, j, idx, k, err);
         return 0;
     }
@@ -546,8 +568,10 @@ void verify_lease_expired(master_t *m, job_t *j, size_t cell, const lease_t *l)
     ventry_t *e = &j->verify->pool[idx];
     for (int k = 0; k < VERIFY_COPIES; k++)
         if (e->c[k].slot == l->slot && e->c[k].attempt == l->attempt) {
-            master_log(m, "job %" PRIu64 " task %" PRIu64 ": lease of a copy ran out on %s; sending it again", j->id,
-                       l->task, m->workers[l->slot - 1].host);
+            master_log(m,
+                       "job %" PRIu64 " task %" PRIu64
+                       ": lease of a copy ran out on %s; sending it again",
+                       j->id, l->task, m->workers[l->slot - 1].host);
             release_copy(m, &e->c[k]); /* no credit back: it still works on it */
             j->reissued++;
             enqueue(j->verify, idx);
@@ -668,7 +692,8 @@ void verify_note_quarantined(job_t *j, const char *who)
 
 void verify_json(const job_t *j, cJSON *o)
 {
-    cJSON_AddNumberToObject(o, "tasks", (double)sched_layer_count(j->sched) * sched_range_count(j->sched));
+    cJSON_AddNumberToObject(o, "tasks",
+                            (double)sched_layer_count(j->sched) * sched_range_count(j->sched));
     cJSON_AddNumberToObject(o, "tasks_verified", (double)j->tasks_verified);
     cJSON_AddNumberToObject(o, "verify_mismatches", (double)j->verify_mismatches);
     cJSON_AddNumberToObject(o, "tasks_unverified", (double)j->tasks_unverified);
@@ -677,6 +702,7 @@ void verify_json(const job_t *j, cJSON *o)
         cJSON_AddItemToArray(q, cJSON_CreateString(j->quarantined[i]));
     if (j->verify_waiting) {
         cJSON_AddNumberToObject(o, "verify_waiting", j->verify_waiting);
-        cJSON_AddStringToObject(o, "waiting_for", j->verify_waiting_for >= 3 ? "a third worker" : "a second worker");
+        cJSON_AddStringToObject(o, "waiting_for",
+                                j->verify_waiting_for >= 3 ? "a third worker" : "a second worker");
     }
 }

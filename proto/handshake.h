@@ -28,12 +28,12 @@
 typedef struct handshake_monitor handshake_monitor_t;
 
 typedef enum {
-    HANDSHAKE_NONE = 0,   /* no event, or one that says nothing about the handshake */
-    HANDSHAKE_OK,         /* HANDSHAKE_SUCCEEDED */
-    HANDSHAKE_REFUSED,    /* the master's ZAP handler refused the key */
-    HANDSHAKE_MISMATCH,   /* one side uses CURVE, the other does not */
-    HANDSHAKE_CLOSED,     /* closed during the handshake, no reason given */
-    HANDSHAKE_PROTOCOL    /* another protocol error */
+    HANDSHAKE_NONE = 0, /* no event, or one that says nothing about the handshake */
+    HANDSHAKE_OK,       /* HANDSHAKE_SUCCEEDED */
+    HANDSHAKE_REFUSED,  /* the master's ZAP handler refused the key */
+    HANDSHAKE_MISMATCH, /* one side uses CURVE, the other does not */
+    HANDSHAKE_CLOSED,   /* closed during the handshake, no reason given */
+    HANDSHAKE_PROTOCOL  /* another protocol error */
 } handshake_result_t;
 
 /* Watches sock's handshakes (sock: the caller's, not yet connected, so no
@@ -50,12 +50,12 @@ void *handshake_monitor_socket(handshake_monitor_t *h);
  * none (or it is of no interest). A failure's description goes to msg:
  * what failed at endpoint and the likely cause; who ("client", "worker")
  * and curve (whether this side uses CURVE) shape the words. */
-handshake_result_t handshake_monitor_read(handshake_monitor_t *h, const char *endpoint, const char *who, int curve,
-                                          char *msg, size_t msglen);
+handshake_result_t handshake_monitor_read(handshake_monitor_t *h, const char *endpoint,
+                                          const char *who, int curve, char *msg, size_t msglen);
 
 /* The words alone, for an event already read: event and value as the
  * monitor gives them. */
-handshake_result_t handshake_describe(uint16_t event, uint32_t value, const char *endpoint, const char *who,
-                                      int curve, char *msg, size_t msglen);
+handshake_result_t handshake_describe(uint16_t event, uint32_t value, const char *endpoint,
+                                      const char *who, int curve, char *msg, size_t msglen);
 
 #endif

@@ -118,7 +118,8 @@ static uint32_t get_u32(const uint8_t *p)
 static uint64_t get_u64(const uint8_t *p)
 {
     return (uint64_t)p[0] | (uint64_t)p[1] << 8 | (uint64_t)p[2] << 16 | (uint64_t)p[3] << 24 |
-           (uint64_t)p[4] << 32 | (uint64_t)p[5] << 40 | (uint64_t)p[6] << 48 | (uint64_t)p[7] << 56;
+           (uint64_t)p[4] << 32 | (uint64_t)p[5] << 40 | (uint64_t)p[6] << 48 |
+           (uint64_t)p[7] << 56;
 }
 
 static double get_f64(const uint8_t *p)
@@ -249,12 +250,14 @@ static int check_result_count(uint32_t count, char *err, size_t errlen)
 static int check_task_record(const tracer_task_t *r, uint32_t i, char *err, size_t errlen)
 {
     if (r->sample_count < 1 || r->sample_count > TRACER_MAX_TASK_SAMPLES)
-        return fail(err, errlen, "TASK: record %" PRIu32 ": sample_count %" PRIu32
-                    " out of range 1..%d", i, r->sample_count, TRACER_MAX_TASK_SAMPLES);
+        return fail(err, errlen,
+                    "TASK: record %" PRIu32 ": sample_count %" PRIu32 " out of range 1..%d", i,
+                    r->sample_count, TRACER_MAX_TASK_SAMPLES);
     /* Sample indices are seeds; a range that wraps would reuse index 0. */
     if (r->first_sample > UINT64_MAX - r->sample_count)
-        return fail(err, errlen, "TASK: record %" PRIu32 ": first_sample %" PRIu64
-                    " + sample_count wraps", i, r->first_sample);
+        return fail(err, errlen,
+                    "TASK: record %" PRIu32 ": first_sample %" PRIu64 " + sample_count wraps", i,
+                    r->first_sample);
     for (int c = 0; c < 3; c++) {
         const char *why = f64_problem(r->prior_sum[c]);
         if (why)
@@ -269,11 +272,12 @@ static int check_result_record(const tracer_result_t *r, uint32_t i, char *err, 
      * samples, each either finite (in samples) or not (in nonfinite). */
     uint64_t taken = (uint64_t)r->samples + r->nonfinite;
     if (taken < 1 || taken > TRACER_MAX_TASK_SAMPLES)
-        return fail(err, errlen, "RESULT: record %" PRIu32 ": samples %" PRIu32 " + nonfinite %"
-                    PRIu32 " out of range 1..%d", i, r->samples, r->nonfinite,
-                    TRACER_MAX_TASK_SAMPLES);
-    static const char *const names[5] = { "sum[0]", "sum[1]", "sum[2]", "lum_m2", "pvar" };
-    const double v[5] = { r->sum[0], r->sum[1], r->sum[2], r->lum_m2, r->pvar };
+        return fail(err, errlen,
+                    "RESULT: record %" PRIu32 ": samples %" PRIu32 " + nonfinite %" PRIu32
+                    " out of range 1..%d",
+                    i, r->samples, r->nonfinite, TRACER_MAX_TASK_SAMPLES);
+    static const char *const names[5] = {"sum[0]", "sum[1]", "sum[2]", "lum_m2", "pvar"};
+    const double v[5] = {r->sum[0], r->sum[1], r->sum[2], r->lum_m2, r->pvar};
     for (int k = 0; k < 5; k++) {
         const char *why = f64_problem(v[k]);
         if (why)
@@ -424,7 +428,7 @@ static void write_payload(const proto_msg_t *msg, uint8_t *p)
     switch (msg->h.type) {
     case PROTO_HELLO: {
         /* NUL-padded: every byte after the id is 0, never stack garbage. */
-        uint8_t build[PROTO_BUILD_SIZE] = { 0 };
+        uint8_t build[PROTO_BUILD_SIZE] = {0};
         memcpy(build, msg->u.hello.build, strnlen(msg->u.hello.build, PROTO_BUILD_SIZE));
         p = put_u32(p, msg->u.hello.threads);
         put_bytes(p, build, sizeof build);
@@ -577,8 +581,9 @@ static int decode_bundle(const uint8_t *p, size_t n, proto_bundle_t *b, char *er
         return fail(err, errlen, "SCENE_BUNDLE: payload of %zu bytes exceeds %u", n,
                     PROTO_MAX_BUNDLE);
     if (n < BUNDLE_HEAD)
-        return fail(err, errlen, "SCENE_BUNDLE: payload is %zu bytes, shorter than the %d-byte head",
-                    n, BUNDLE_HEAD);
+        return fail(err, errlen,
+                    "SCENE_BUNDLE: payload is %zu bytes, shorter than the %d-byte head", n,
+                    BUNDLE_HEAD);
     memcpy(b->hash, p, PROTO_HASH_SIZE);
     b->json_size = get_u32(p + PROTO_HASH_SIZE);
     b->mesh_count = get_u32(p + PROTO_HASH_SIZE + 4);
@@ -599,8 +604,10 @@ static int decode_bundle(const uint8_t *p, size_t n, proto_bundle_t *b, char *er
     for (uint32_t i = 0; i < b->mesh_count; i++) {
         proto_mesh_file_t *m = &b->meshes[i];
         if (left < 2)
-            return fail(err, errlen, "SCENE_BUNDLE: mesh %" PRIu32 ": name_len cut off (%zu bytes "
-                        "left)", i, left);
+            return fail(err, errlen,
+                        "SCENE_BUNDLE: mesh %" PRIu32 ": name_len cut off (%zu bytes "
+                        "left)",
+                        i, left);
         size_t len = get_u16(q);
         q += 2;
         left -= 2;
@@ -609,8 +616,10 @@ static int decode_bundle(const uint8_t *p, size_t n, proto_bundle_t *b, char *er
                         "SCENE_BUNDLE: mesh %" PRIu32 ": name_len %zu out of range 1..%d", i, len,
                         PROTO_MAX_NAME);
         if (len > left)
-            return fail(err, errlen, "SCENE_BUNDLE: mesh %" PRIu32 ": name_len %zu exceeds the %zu "
-                        "bytes left", i, len, left);
+            return fail(err, errlen,
+                        "SCENE_BUNDLE: mesh %" PRIu32 ": name_len %zu exceeds the %zu "
+                        "bytes left",
+                        i, len, left);
         if (check_mesh_name((const char *)q, len, i, err, errlen) != 0)
             return -1;
         memcpy(m->name, q, len);
@@ -620,8 +629,8 @@ static int decode_bundle(const uint8_t *p, size_t n, proto_bundle_t *b, char *er
         q += len;
         left -= len;
         if (left < 4)
-            return fail(err, errlen, "SCENE_BUNDLE: mesh %" PRIu32 ": size cut off (%zu bytes left)",
-                        i, left);
+            return fail(err, errlen,
+                        "SCENE_BUNDLE: mesh %" PRIu32 ": size cut off (%zu bytes left)", i, left);
         m->size = get_u32(q);
         q += 4;
         left -= 4;
@@ -629,8 +638,10 @@ static int decode_bundle(const uint8_t *p, size_t n, proto_bundle_t *b, char *er
             return fail(err, errlen, "SCENE_BUNDLE: mesh %" PRIu32 ": size %" PRIu32 " exceeds %u",
                         i, m->size, PROTO_MAX_MESH_BYTES);
         if (m->size > left)
-            return fail(err, errlen, "SCENE_BUNDLE: mesh %" PRIu32 ": size %" PRIu32 " exceeds the "
-                        "%zu bytes left", i, m->size, left);
+            return fail(err, errlen,
+                        "SCENE_BUNDLE: mesh %" PRIu32 ": size %" PRIu32 " exceeds the "
+                        "%zu bytes left",
+                        i, m->size, left);
         m->data = q;
         q += m->size;
         left -= m->size;
@@ -717,8 +728,9 @@ static int decode_result(const uint8_t *p, size_t n, uint32_t capacity, proto_re
         r->pad_ = 0;
         uint32_t rsv = get_u32(q + 12);
         if (rsv != 0)
-            return fail(err, errlen, "RESULT: record %" PRIu32 ": reserved field is 0x%08" PRIx32
-                        ", must be 0", i, rsv);
+            return fail(err, errlen,
+                        "RESULT: record %" PRIu32 ": reserved field is 0x%08" PRIx32 ", must be 0",
+                        i, rsv);
         for (int c = 0; c < 3; c++)
             r->sum[c] = get_f64(q + 16 + 8 * c);
         r->lum_m2 = get_f64(q + 40);
@@ -759,8 +771,10 @@ int proto_decode(const uint8_t *header, size_t header_size, const uint8_t *paylo
     if (h.type < 1 || h.type > PROTO_TYPE_MAX)
         return fail(err, errlen, "header: unknown message type %u", (unsigned)h.type);
     if (h.payload_size != payload_size)
-        return fail(err, errlen, "header: payload_size %" PRIu32 " but the payload frame has %zu "
-                    "bytes", h.payload_size, payload_size);
+        return fail(err, errlen,
+                    "header: payload_size %" PRIu32 " but the payload frame has %zu "
+                    "bytes",
+                    h.payload_size, payload_size);
     if (payload_size > 0 && !payload)
         return fail(err, errlen, "payload: NULL with %zu bytes", payload_size);
     out->h = h;
@@ -811,8 +825,8 @@ int proto_decode(const uint8_t *header, size_t header_size, const uint8_t *paylo
 const char *proto_type_name(uint16_t type)
 {
     static const char *const names[PROTO_TYPE_MAX + 1] = {
-        "?",         "HELLO",     "WELCOME", "REFUSE",        "CREDIT", "SCENE_REQUEST",
-        "SCENE_BUNDLE", "TASK",   "RESULT",  "HEARTBEAT",     "BYE",    "TASK_FAILED",
+        "?",    "HELLO",  "WELCOME",   "REFUSE", "CREDIT",      "SCENE_REQUEST", "SCENE_BUNDLE",
+        "TASK", "RESULT", "HEARTBEAT", "BYE",    "TASK_FAILED",
     };
     return type <= PROTO_TYPE_MAX ? names[type] : "?";
 }

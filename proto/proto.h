@@ -19,19 +19,19 @@
 #define PROTO_MAGIC 0x50524256u /* "VBRP" read as little-endian bytes */
 #define PROTO_VERSION 1
 #define PROTO_HEADER_SIZE 32
-#define PROTO_HASH_SIZE 32      /* BLAKE2b-256 of a scene bundle */
-#define PROTO_BUILD_SIZE 32     /* build id: version + compiler + ISA, NUL-padded */
-#define PROTO_TEXT_MAX 1024     /* refusal and error texts */
+#define PROTO_HASH_SIZE 32  /* BLAKE2b-256 of a scene bundle */
+#define PROTO_BUILD_SIZE 32 /* build id: version + compiler + ISA, NUL-padded */
+#define PROTO_TEXT_MAX 1024 /* refusal and error texts */
 
 /* Limits that bound every allocation a peer can cause. */
-#define PROTO_MAX_TASK_PIXELS 65536       /* records in one task or result */
-#define PROTO_MAX_SCENE_JSON (64u << 20)  /* bytes of scene JSON in a bundle */
-#define PROTO_MAX_MESHES 64               /* mesh files in a bundle */
-#define PROTO_MAX_MESH_BYTES (1u << 30)   /* bytes of one mesh file */
-#define PROTO_MAX_BUNDLE (1536u << 20)    /* bytes of a whole bundle payload */
-#define PROTO_MAX_NAME 128                /* mesh file name in a bundle */
-#define PROTO_MAX_CREDIT 1024             /* tasks a worker may ask for at once */
-#define PROTO_CREDIT_PER_THREAD 2         /* what a worker asks for: tasks in flight per thread */
+#define PROTO_MAX_TASK_PIXELS 65536      /* records in one task or result */
+#define PROTO_MAX_SCENE_JSON (64u << 20) /* bytes of scene JSON in a bundle */
+#define PROTO_MAX_MESHES 64              /* mesh files in a bundle */
+#define PROTO_MAX_MESH_BYTES (1u << 30)  /* bytes of one mesh file */
+#define PROTO_MAX_BUNDLE (1536u << 20)   /* bytes of a whole bundle payload */
+#define PROTO_MAX_NAME 128               /* mesh file name in a bundle */
+#define PROTO_MAX_CREDIT 1024            /* tasks a worker may ask for at once */
+#define PROTO_CREDIT_PER_THREAD 2        /* what a worker asks for: tasks in flight per thread */
 #define PROTO_MAX_THREADS 4096
 
 #define PROTO_TASK_RECORD_SIZE 48
@@ -85,7 +85,7 @@ typedef struct proto_mesh_file {
 
 typedef struct proto_bundle {
     uint8_t hash[PROTO_HASH_SIZE];
-    const char *json;       /* points into the payload; NOT NUL-terminated */
+    const char *json; /* points into the payload; NOT NUL-terminated */
     uint32_t json_size;
     uint32_t mesh_count;
     proto_mesh_file_t meshes[PROTO_MAX_MESHES];
@@ -97,14 +97,14 @@ typedef struct proto_task {
     tracer_settings_t settings; /* seed, integrator, max_depth */
     uint32_t layer;
     uint32_t count;
-    tracer_task_t *records;     /* count records; decode: the caller's array */
+    tracer_task_t *records; /* count records; decode: the caller's array */
 } proto_task_t;
 
 typedef struct proto_result {
     uint64_t rays;
-    uint64_t busy_us;           /* worker time spent tracing this task */
+    uint64_t busy_us; /* worker time spent tracing this task */
     uint32_t count;
-    tracer_result_t *records;   /* count records; decode: the caller's array */
+    tracer_result_t *records; /* count records; decode: the caller's array */
 } proto_result_t;
 
 /* A decoded message. For TASK and RESULT, set records (and capacity) before

@@ -85,7 +85,8 @@ static void fake_results(const sched_task_t *t, tracer_result_t *r)
         r[i].pixel = k->pixel;
         r[i].samples = k->sample_count;
         for (int c = 0; c < 3; c++)
-            r[i].sum[c] = 0.25 * k->sample_count * (c + 1) + 1e-4 * k->pixel + 1e-6 * (double)(k->prior_count % 1000);
+            r[i].sum[c] = 0.25 * k->sample_count * (c + 1) + 1e-4 * k->pixel +
+                          1e-6 * (double)(k->prior_count % 1000);
         r[i].lum_m2 = 0.01 * k->sample_count;
         r[i].pvar = (double)((k->pixel * 7 + k->first_sample * 3) % 11);
     }
@@ -95,7 +96,8 @@ static void check_task(const sched_t *s, const sched_config_t *cfg, const sched_
 {
     const uint32_t npix = cfg->width * cfg->height;
     if (t->layer >= sched_layer_count(s) || t->range >= sched_range_count(s) ||
-        t->id != 1 + (uint64_t)t->layer * sched_range_count(s) + t->range || t->count < 1 || t->count > npix)
+        t->id != 1 + (uint64_t)t->layer * sched_range_count(s) + t->range || t->count < 1 ||
+        t->count > npix)
         abort();
     for (uint32_t i = 0; i < t->count; i++) {
         const tracer_task_t *k = &t->records[i];
@@ -195,7 +197,8 @@ static int run_one(const uint8_t *data, size_t size)
     const uint8_t *text;
     size_t len;
     cJSON *extras = NULL;
-    if (store_rec_read_block(&rec, &text, &len) == 0 && (extras = cJSON_ParseWithLength((const char *)text, len))) {
+    if (store_rec_read_block(&rec, &text, &len) == 0 &&
+        (extras = cJSON_ParseWithLength((const char *)text, len))) {
         out = 1;
         job_t *j = calloc(1, sizeof *j);
         if (!j)
@@ -224,7 +227,8 @@ static int run_one(const uint8_t *data, size_t size)
             store_rec_t again = {m.p, m.n, 0};
             sched_t *s2 = sched_load(&cfg, store_rec_read, &again, err, sizeof err);
             if (!s2 && plausible) {
-                fprintf(stderr, "fuzz_ckpt: a resumed scheduler's checkpoint does not load: %s\n", err);
+                fprintf(stderr, "fuzz_ckpt: a resumed scheduler's checkpoint does not load: %s\n",
+                        err);
                 abort();
             }
             sched_destroy(&s2);
@@ -258,15 +262,39 @@ static void put_le(unsigned char *p, uint64_t v, int bytes)
 static void mutate(fuzz_buf_t *b, uint64_t *s)
 {
     static const uint64_t words[] = {
-        0, 1, 2, 3, 4, 5, 6, 7, 15, 16, 0xFF, 0xFFFFFFFFu, UINT64_C(0xFFFFFFFFFFFFFFFF),
-        UINT64_C(0x7FF0000000000000) /* +Inf */, UINT64_C(0x7FF8000000000000) /* NaN */,
-        UINT64_C(0xFFF0000000000000) /* -Inf */, UINT64_C(0x3FF0000000000000) /* 1.0 */,
-        UINT64_C(0x8000000000000000) /* -0.0 */, UINT64_C(0xBFF0000000000000) /* -1.0 */,
+        0,
+        1,
+        2,
+        3,
+        4,
+        5,
+        6,
+        7,
+        15,
+        16,
+        0xFF,
+        0xFFFFFFFFu,
+        UINT64_C(0xFFFFFFFFFFFFFFFF),
+        UINT64_C(0x7FF0000000000000) /* +Inf */,
+        UINT64_C(0x7FF8000000000000) /* NaN */,
+        UINT64_C(0xFFF0000000000000) /* -Inf */,
+        UINT64_C(0x3FF0000000000000) /* 1.0 */,
+        UINT64_C(0x8000000000000000) /* -0.0 */,
+        UINT64_C(0xBFF0000000000000) /* -1.0 */,
     };
-    static const char *const numbers[] = {"0", "-1", "1e999", "1e20", "4294967296", "18446744073709551616",
-                                          "1e300", "0.5"};
-    static const char *const tokens[] = {"\"", ",", "[", "]", "{", "}", "null", "\"series\":[[1,2,3,4]],",
-                                         "\"rays\":", "\"seconds\":", "\"failures\":"};
+    static const char *const numbers[] = {
+        "0", "-1", "1e999", "1e20", "4294967296", "18446744073709551616", "1e300", "0.5"};
+    static const char *const tokens[] = {"\"",
+                                         ",",
+                                         "[",
+                                         "]",
+                                         "{",
+                                         "}",
+                                         "null",
+                                         "\"series\":[[1,2,3,4]],",
+                                         "\"rays\":",
+                                         "\"seconds\":",
+                                         "\"failures\":"};
     size_t n = b->n;
     unsigned kind = (unsigned)(fuzz_rnd(s) % 12);
     if (fuzz_mutate_shared(b, s, kind, tokens, sizeof tokens / sizeof tokens[0]))
@@ -300,8 +328,8 @@ static void mostly_fixed(fuzz_buf_t *b, uint64_t *s)
 
 int main(int argc, char **argv)
 {
-    static const fuzz_target_t target = {"fuzz_ckpt", run_one, mutate, mostly_fixed, {"counters read", "loaded"},
-                                         "-ckpt"};
+    static const fuzz_target_t target = {
+        "fuzz_ckpt", run_one, mutate, mostly_fixed, {"counters read", "loaded"}, "-ckpt"};
     return fuzz_main(argc, argv, &target);
 }
 

@@ -47,7 +47,8 @@ static const uint8_t *find_sep(const uint8_t *p, size_t n, const char *sep, size
 }
 
 /* Checks what submit_parse returned; any breach is a bug, so abort. */
-static void check_job(const job_t *j, const char *err, const cJSON *req, const submit_frame_t *f, int n)
+static void check_job(const job_t *j, const char *err, const cJSON *req, const submit_frame_t *f,
+                      int n)
 {
     if (!j) {
         if (err[0] == '\0')
@@ -55,15 +56,19 @@ static void check_job(const job_t *j, const char *err, const cJSON *req, const s
         return;
     }
     int ref = cJSON_GetObjectItemCaseSensitive(req, "reference") != NULL;
-    if (j->state != JOB_QUEUED || !j->sched || n < 1 || j->mesh_count != (uint32_t)(n - 1 - 3 * ref))
+    if (j->state != JOB_QUEUED || !j->sched || n < 1 ||
+        j->mesh_count != (uint32_t)(n - 1 - 3 * ref))
         abort();
-    if (j->json_size != f[0].size || memcmp(j->json, f[0].data, f[0].size) != 0 || j->json[j->json_size] != '\0')
+    if (j->json_size != f[0].size || memcmp(j->json, f[0].data, f[0].size) != 0 ||
+        j->json[j->json_size] != '\0')
         abort();
     for (uint32_t i = 0; i < j->mesh_count; i++) {
         const char *name = j->mesh_names[i];
-        if (name[0] == '\0' || strlen(name) > PROTO_MAX_NAME || strchr(name, '/') || strchr(name, '\\'))
+        if (name[0] == '\0' || strlen(name) > PROTO_MAX_NAME || strchr(name, '/') ||
+            strchr(name, '\\'))
             abort();
-        if (j->mesh_sizes[i] != f[1 + i].size || memcmp(j->mesh_data[i], f[1 + i].data, f[1 + i].size) != 0)
+        if (j->mesh_sizes[i] != f[1 + i].size ||
+            memcmp(j->mesh_data[i], f[1 + i].data, f[1 + i].size) != 0)
             abort();
     }
     size_t plane = (size_t)j->width * j->height * sizeof(float);
@@ -77,7 +82,8 @@ static void check_job(const job_t *j, const char *err, const cJSON *req, const s
         j->granularity > TRACER_MAX_TASK_SAMPLES || !(j->time_limit >= 0) || j->target_error < 0)
         abort();
     size_t n_rid = strlen(j->request_id);
-    if (strspn(j->request_id, "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-") != n_rid)
+    if (strspn(j->request_id, "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-") !=
+        n_rid)
         abort();
     size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
     for (size_t c = 0; c < cells; c++)
@@ -126,8 +132,8 @@ static int run_one(const uint8_t *data, size_t size)
             char err[MASTER_ERR_LEN];
             err[0] = '\0';
             /* the master's own caps too, small: their checks come first */
-            static const submit_limits_t limits = {.max_bundle_bytes = 1u << 20, .max_pixels = 64 * 64,
-                                                   .max_spp = 1u << 16};
+            static const submit_limits_t limits = {
+                .max_bundle_bytes = 1u << 20, .max_pixels = 64 * 64, .max_spp = 1u << 16};
             job_t *j = submit_parse(req, extra, nextra, &limits, err, sizeof err);
             check_job(j, err, req, extra, nextra);
             if (j)
@@ -156,17 +162,72 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 static void mutate(fuzz_buf_t *b, uint64_t *s)
 {
     static const char *const numbers[] = {
-        "0", "1", "2", "3", "-1", "-0", "0.5", "1.5", "1e999", "-1e999", "1e-400", "1e308", "64", "65", "4096",
-        "4097", "16384", "16385", "4294967295", "4294967296", "9007199254740992", "9007199254740993",
-        "18446744073709551616", "1e20", "0.999999", "0.9999999", "1000000", "1000001",
+        "0",
+        "1",
+        "2",
+        "3",
+        "-1",
+        "-0",
+        "0.5",
+        "1.5",
+        "1e999",
+        "-1e999",
+        "1e-400",
+        "1e308",
+        "64",
+        "65",
+        "4096",
+        "4097",
+        "16384",
+        "16385",
+        "4294967295",
+        "4294967296",
+        "9007199254740992",
+        "9007199254740993",
+        "18446744073709551616",
+        "1e20",
+        "0.999999",
+        "0.9999999",
+        "1000000",
+        "1000001",
     };
     static const char *const tokens[] = {
-        FUZZ_CTL_SEP, "\"", ",", ":", "{", "}", "[", "]", "null", "true", "false", "\"\"", "[]", "{}",
-        "\"cmd\":\"submit\",", "\"cmd\":\"status\",", "\"job\":", "\"meshes\":[\"m.obj\"],",
-        "\"reference\":true,", "\"request_id\":\"r-1\",", "\"flags\":\"0101\",", "\"adaptive\":\"relerr\",",
-        "\"adaptive\":\"none\",", "\"integrator\":\"naive\",", "\"target_error\":0.1,", "\"spp\":",
-        "\"granularity\":", "\"uniform_layers\":", "\"time_limit\":", "\"name\":", "\"a/b\"", "\"\\u0000\"",
-        "\"file\":\"tri.obj\"", "\"width\":", "\"height\":", "{\"type\":\"sphere\",\"material\":\"m\",",
+        FUZZ_CTL_SEP,
+        "\"",
+        ",",
+        ":",
+        "{",
+        "}",
+        "[",
+        "]",
+        "null",
+        "true",
+        "false",
+        "\"\"",
+        "[]",
+        "{}",
+        "\"cmd\":\"submit\",",
+        "\"cmd\":\"status\",",
+        "\"job\":",
+        "\"meshes\":[\"m.obj\"],",
+        "\"reference\":true,",
+        "\"request_id\":\"r-1\",",
+        "\"flags\":\"0101\",",
+        "\"adaptive\":\"relerr\",",
+        "\"adaptive\":\"none\",",
+        "\"integrator\":\"naive\",",
+        "\"target_error\":0.1,",
+        "\"spp\":",
+        "\"granularity\":",
+        "\"uniform_layers\":",
+        "\"time_limit\":",
+        "\"name\":",
+        "\"a/b\"",
+        "\"\\u0000\"",
+        "\"file\":\"tri.obj\"",
+        "\"width\":",
+        "\"height\":",
+        "{\"type\":\"sphere\",\"material\":\"m\",",
     };
     unsigned kind = (unsigned)(fuzz_rnd(s) % 9);
     if (fuzz_mutate_shared(b, s, kind, tokens, sizeof tokens / sizeof tokens[0]))
@@ -180,7 +241,8 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
 
 int main(int argc, char **argv)
 {
-    static const fuzz_target_t target = {"fuzz_ctl", run_one, mutate, NULL, {"with a job id", "submitted"}, "-ctl"};
+    static const fuzz_target_t target = {
+        "fuzz_ctl", run_one, mutate, NULL, {"with a job id", "submitted"}, "-ctl"};
     return fuzz_main(argc, argv, &target);
 }
 

@@ -101,13 +101,35 @@ static void put_le(unsigned char *p, uint64_t v, int bytes)
 static void mutate(fuzz_buf_t *b, uint64_t *s)
 {
     static const uint32_t words[] = {
-        0u, 1u, 2u, 3u, 4u, 7u, 8u, 15u, 16u, 17u, 31u, 32u, 0x7Fu, 0x80u, 0xFFu, 0xFFFFu, 65535u, 65536u,
-        0x7FFFFFFFu, 0x80000000u, 0xFFFFFFFFu, 0x7FC00000u /* NaN */, 0x7F800000u /* +Inf */,
+        0u,
+        1u,
+        2u,
+        3u,
+        4u,
+        7u,
+        8u,
+        15u,
+        16u,
+        17u,
+        31u,
+        32u,
+        0x7Fu,
+        0x80u,
+        0xFFu,
+        0xFFFFu,
+        65535u,
+        65536u,
+        0x7FFFFFFFu,
+        0x80000000u,
+        0xFFFFFFFFu,
+        0x7FC00000u /* NaN */,
+        0x7F800000u /* +Inf */,
     };
     /* attribute names and types (the NUL after each comes from the file) */
     static const char *const tokens[] = {
-        "channels", "chlist", "compression", "dataWindow", "box2i", "tiles", "tiledesc", "lineOrder",
-        "chunkCount", "type", "string", "int", "double", "float", "half", "R", "A",
+        "channels", "chlist",    "compression", "dataWindow", "box2i",  "tiles",
+        "tiledesc", "lineOrder", "chunkCount",  "type",       "string", "int",
+        "double",   "float",     "half",        "R",          "A",
     };
     size_t n = b->n;
     unsigned kind = (unsigned)(fuzz_rnd(s) % 9);
@@ -117,7 +139,8 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
     default: { /* an awkward 32-bit field: sizes, offsets, counts, box corners */
         if (n < 4)
             break;
-        put_le(b->d + fuzz_rnd_below(s, n - 3), words[fuzz_rnd_below(s, sizeof words / sizeof words[0])], 4);
+        put_le(b->d + fuzz_rnd_below(s, n - 3),
+               words[fuzz_rnd_below(s, sizeof words / sizeof words[0])], 4);
         break;
     }
     }

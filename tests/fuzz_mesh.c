@@ -15,12 +15,12 @@
  * a buffer of exactly its size so ASan sees any read past the end. Exit 0
  * when nothing crashed; the sanitizers turn memory errors into crashes.
  */
+#include <math.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <math.h>
 
 #include "mesh.h"
 
@@ -53,7 +53,7 @@ static void check_result(int r, const mesh_t *m, const char *err)
 /* Bit 0: loaded as PLY-named, bit 1: loaded as OBJ-named (for statistics). */
 static int run_one(const uint8_t *data, size_t size)
 {
-    static const char *const names[2] = { "fuzz.ply", "fuzz.obj" };
+    static const char *const names[2] = {"fuzz.ply", "fuzz.obj"};
     int loaded = 0;
     for (int i = 0; i < 2; i++) {
         char err[256];
@@ -83,18 +83,67 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 static void mutate(fuzz_buf_t *b, uint64_t *s)
 {
     static const char *const numbers[] = {
-        "nan", "-nan", "inf", "-inf", "-1", "0", "1", "2", "3", "-2147483648", "2147483647",
-        "4294967295", "4294967296", "18446744073709551615", "99999999999999999999999",
-        "1e39", "-1e400", "1e-400", "255", "256", "65535", "0x10", "1.5", "", "1/2/3", "-0",
+        "nan",
+        "-nan",
+        "inf",
+        "-inf",
+        "-1",
+        "0",
+        "1",
+        "2",
+        "3",
+        "-2147483648",
+        "2147483647",
+        "4294967295",
+        "4294967296",
+        "18446744073709551615",
+        "99999999999999999999999",
+        "1e39",
+        "-1e400",
+        "1e-400",
+        "255",
+        "256",
+        "65535",
+        "0x10",
+        "1.5",
+        "",
+        "1/2/3",
+        "-0",
     };
     static const uint32_t words[] = {
-        0u, 1u, 2u, 3u, 0x7Fu, 0x80u, 0xFFu, 0xFFFFu, 0x7FFFFFFFu, 0x80000000u, 0xFFFFFFFFu,
-        0x7FC00000u /* NaN */, 0x7F800000u /* +Inf */, 0x3F800000u /* 1.0f */,
+        0u,
+        1u,
+        2u,
+        3u,
+        0x7Fu,
+        0x80u,
+        0xFFu,
+        0xFFFFu,
+        0x7FFFFFFFu,
+        0x80000000u,
+        0xFFFFFFFFu,
+        0x7FC00000u /* NaN */,
+        0x7F800000u /* +Inf */,
+        0x3F800000u /* 1.0f */,
     };
     static const char *const tokens[] = {
-        "\n", "\r\n", " ", "\t", "/", "#", "f ", "v ", "\nf 1 2 3\n", "\nv 1 2 3\n",
-        "element edge 2\nproperty int a\n", "property list uint uint x\n",
-        "property float nx\n", "element face 3\n", "end_header\n", "comment c\n", "3 0 1 2\n",
+        "\n",
+        "\r\n",
+        " ",
+        "\t",
+        "/",
+        "#",
+        "f ",
+        "v ",
+        "\nf 1 2 3\n",
+        "\nv 1 2 3\n",
+        "element edge 2\nproperty int a\n",
+        "property list uint uint x\n",
+        "property float nx\n",
+        "element face 3\n",
+        "end_header\n",
+        "comment c\n",
+        "3 0 1 2\n",
     };
     size_t n = b->n;
     unsigned kind = (unsigned)(fuzz_rnd(s) % 9);
@@ -120,7 +169,8 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
 
 int main(int argc, char **argv)
 {
-    static const fuzz_target_t target = {"fuzz_mesh", run_one, mutate, NULL, {"as .ply", "as .obj"}, "-mesh"};
+    static const fuzz_target_t target = {"fuzz_mesh", run_one, mutate, NULL, {"as .ply", "as .obj"},
+                                         "-mesh"};
     return fuzz_main(argc, argv, &target);
 }
 

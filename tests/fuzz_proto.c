@@ -33,8 +33,8 @@
 #define FUZZ_CAPACITY 64
 
 /* Checks a decoded message; any breach is a bug, so abort. */
-static void check_result(int rc, const proto_msg_t *m, const char *err, const uint8_t *h,
-                         size_t hn, const uint8_t *p, size_t pn)
+static void check_result(int rc, const proto_msg_t *m, const char *err, const uint8_t *h, size_t hn,
+                         const uint8_t *p, size_t pn)
 {
     if (rc != 0) {
         if ((rc != -1 && rc != -2) || err[0] == '\0')
@@ -142,10 +142,11 @@ static void fix_payload_size(fuzz_buf_t *b, uint64_t *s)
 static void mutate(fuzz_buf_t *b, uint64_t *s)
 {
     static const uint32_t words[] = {
-        0u, 1u, 2u, 3u, 0x7Fu, 0x80u, 0xFFu, 0x100u, 0xFFFFu, 0x10000u, 0x10001u,
-        64u, 65u, 128u, 129u, 1024u, 1025u, 4096u, 4097u, 3600000u, 3600001u,
-        0x7FFFFFFFu, 0x80000000u, 0xFFFFFFFFu, 0x04000000u, 0x04000001u, 0x40000001u,
-        0x60000001u, PROTO_MAGIC, 2u, 12u,
+        0u,          1u,          2u,          3u,          0x7Fu,       0x80u,       0xFFu,
+        0x100u,      0xFFFFu,     0x10000u,    0x10001u,    64u,         65u,         128u,
+        129u,        1024u,       1025u,       4096u,       4097u,       3600000u,    3600001u,
+        0x7FFFFFFFu, 0x80000000u, 0xFFFFFFFFu, 0x04000000u, 0x04000001u, 0x40000001u, 0x60000001u,
+        PROTO_MAGIC, 2u,          12u,
     };
     static const uint64_t dwords[] = {
         UINT64_C(0x7FF8000000000000), /* NaN */
@@ -156,10 +157,9 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
         UINT64_C(0x8000000000000000), /* -0.0 */
         UINT64_C(0x7FEFFFFFFFFFFFFF), /* DBL_MAX */
         UINT64_C(0x0000000000000001), /* smallest subnormal */
-        UINT64_C(0xFFFFFFFFFFFFFFFF),
-        UINT64_C(0xFFFFFFFFFFFFF000),
+        UINT64_C(0xFFFFFFFFFFFFFFFF), UINT64_C(0xFFFFFFFFFFFFF000),
     };
-    static const char *const tokens[] = { "/", "\\", "..", ".", "\x7f", "a.obj", "\xc3\xa9" };
+    static const char *const tokens[] = {"/", "\\", "..", ".", "\x7f", "a.obj", "\xc3\xa9"};
     size_t n = b->n;
     unsigned kind = (unsigned)(fuzz_rnd(s) % 11);
     if (fuzz_mutate_shared(b, s, kind, tokens, sizeof tokens / sizeof tokens[0]))
@@ -168,7 +168,7 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
     case 6: /* another header length now and then */
         if (n)
             b->d[0] = (unsigned char)(fuzz_rnd(s) % 4 ? PROTO_HEADER_SIZE + fuzz_rnd_below(s, 3) - 1
-                                                 : fuzz_rnd(s));
+                                                      : fuzz_rnd(s));
         break;
     case 7:
     case 8: { /* an awkward u32 at a 4-byte-aligned field of either frame */
@@ -190,7 +190,7 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
         if (n < 3)
             break;
         size_t at = 1 + fuzz_rnd_below(s, n - 2);
-        static const uint16_t shorts[] = { 0, 1, 2, 11, 12, 128, 129, 0xFFFF };
+        static const uint16_t shorts[] = {0, 1, 2, 11, 12, 128, 129, 0xFFFF};
         put_le(b->d + at, shorts[fuzz_rnd_below(s, sizeof shorts / sizeof shorts[0])], 2);
         break;
     }
@@ -199,7 +199,8 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
 
 int main(int argc, char **argv)
 {
-    static const fuzz_target_t target = {"fuzz_proto", run_one, mutate, fix_payload_size, {"decoded", NULL}, "-proto"};
+    static const fuzz_target_t target = {"fuzz_proto",     run_one,           mutate,
+                                         fix_payload_size, {"decoded", NULL}, "-proto"};
     return fuzz_main(argc, argv, &target);
 }
 

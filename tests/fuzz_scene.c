@@ -26,18 +26,20 @@
 #include "scene.h"
 
 static const char tri_obj[] = "# one triangle\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
-static const char quad_ply[] = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
-                               "property float z\nproperty float nx\nproperty float ny\nproperty float nz\n"
-                               "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
-                               "0 0 0 0 0 1\n1 0 0 0 0 1\n1 1 0 0 0 1\n0 1 0 0 0 1\n4 0 1 2 3\n";
+static const char quad_ply[] =
+    "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+    "property float z\nproperty float nx\nproperty float ny\nproperty float nz\n"
+    "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+    "0 0 0 0 0 1\n1 0 0 0 0 1\n1 1 0 0 0 1\n0 1 0 0 0 1\n4 0 1 2 3\n";
 /* binary little endian: 3 float vertices, one uchar/uint triangle */
-static const unsigned char bin_ply[] = "ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
-                                       "property float x\nproperty float y\nproperty float z\n"
-                                       "element face 1\nproperty list uchar uint vertex_indices\nend_header\n"
-                                       "\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00"
-                                       "\x00\x00\x80\x3f\x00\x00\x00\x00\x00\x00\x00\x00"
-                                       "\x00\x00\x00\x00\x00\x00\x80\x3f\x00\x00\x00\x00"
-                                       "\x03\x00\x00\x00\x00\x01\x00\x00\x00\x02\x00\x00\x00";
+static const unsigned char bin_ply[] =
+    "ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+    "property float x\nproperty float y\nproperty float z\n"
+    "element face 1\nproperty list uchar uint vertex_indices\nend_header\n"
+    "\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00"
+    "\x00\x00\x80\x3f\x00\x00\x00\x00\x00\x00\x00\x00"
+    "\x00\x00\x00\x00\x00\x00\x80\x3f\x00\x00\x00\x00"
+    "\x03\x00\x00\x00\x00\x01\x00\x00\x00\x02\x00\x00\x00";
 
 /* Checks a result of scene_load_bundle; any breach is a bug, so abort. */
 static void check_result(int r, const scene_t *s, const char *err)
@@ -71,7 +73,8 @@ static void check_result(int r, const scene_t *s, const char *err)
     }
     double prev = 0;
     for (size_t l = 0; l < s->light_count; l++) {
-        if (s->light_tris[l] >= s->triangle_count || !(s->light_cdf[l] >= prev) || !(s->light_cdf[l] <= 1))
+        if (s->light_tris[l] >= s->triangle_count || !(s->light_cdf[l] >= prev) ||
+            !(s->light_cdf[l] <= 1))
             abort();
         prev = s->light_cdf[l];
     }
@@ -111,17 +114,48 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 static void mutate(fuzz_buf_t *b, uint64_t *s)
 {
     static const char *const numbers[] = {
-        "0", "1", "2", "7", "8", "-1", "-0", "0.5", "1e999", "-1e999", "1e-400", "1e30", "1e31", "1e-30",
-        "1e-31", "3e38", "3.5e38", "179.999", "180", "0.125", "8", "8.01", "16384", "16385", "8192",
-        "4294967295", "4294967296", "9007199254740993", "1000001", "1e300", "nan",
+        "0",       "1",     "2",      "7",       "8",          "-1",         "-0",
+        "0.5",     "1e999", "-1e999", "1e-400",  "1e30",       "1e31",       "1e-30",
+        "1e-31",   "3e38",  "3.5e38", "179.999", "180",        "0.125",      "8",
+        "8.01",    "16384", "16385",  "8192",    "4294967295", "4294967296", "9007199254740993",
+        "1000001", "1e300", "nan",
     };
     static const char *const tokens[] = {
-        "\"", ",", ":", "{", "}", "[", "]", "null", "true", "false", "\"\"", "[]", "{}", "[0,0,0]", "[1,1,1]",
-        "\"type\":\"sphere\",", "\"type\":\"mesh\",", "\"type\":\"triangles\",", "\"type\":\"quad\",",
-        "\"file\":\"tri.obj\",", "\"file\":\"quad.ply\",", "\"file\":\"bin.ply\",", "\"file\":\"nope.obj\",",
-        "\"transform\":{\"scale\":[1,-1,1]},", "\"rotate\":[0,90,0],", "\"subdivisions\":",
-        "\"type\":\"emitter\",", "\"type\":\"dielectric\",", "\"type\":\"mirror\",", "\"radiance\":",
-        "\"albedo\":", "\"ior\":", "\"indices\":[[0,1,2]],", "\"comment\":\"c\",", "\"albdo\":1,",
+        "\"",
+        ",",
+        ":",
+        "{",
+        "}",
+        "[",
+        "]",
+        "null",
+        "true",
+        "false",
+        "\"\"",
+        "[]",
+        "{}",
+        "[0,0,0]",
+        "[1,1,1]",
+        "\"type\":\"sphere\",",
+        "\"type\":\"mesh\",",
+        "\"type\":\"triangles\",",
+        "\"type\":\"quad\",",
+        "\"file\":\"tri.obj\",",
+        "\"file\":\"quad.ply\",",
+        "\"file\":\"bin.ply\",",
+        "\"file\":\"nope.obj\",",
+        "\"transform\":{\"scale\":[1,-1,1]},",
+        "\"rotate\":[0,90,0],",
+        "\"subdivisions\":",
+        "\"type\":\"emitter\",",
+        "\"type\":\"dielectric\",",
+        "\"type\":\"mirror\",",
+        "\"radiance\":",
+        "\"albedo\":",
+        "\"ior\":",
+        "\"indices\":[[0,1,2]],",
+        "\"comment\":\"c\",",
+        "\"albdo\":1,",
     };
     unsigned kind = (unsigned)(fuzz_rnd(s) % 9);
     if (fuzz_mutate_shared(b, s, kind, tokens, sizeof tokens / sizeof tokens[0]))
@@ -135,7 +169,8 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
 
 int main(int argc, char **argv)
 {
-    static const fuzz_target_t target = {"fuzz_scene", run_one, mutate, NULL, {"loaded", NULL}, "-scene"};
+    static const fuzz_target_t target = {"fuzz_scene", run_one,          mutate,
+                                         NULL,         {"loaded", NULL}, "-scene"};
     return fuzz_main(argc, argv, &target);
 }
 

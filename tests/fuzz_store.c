@@ -53,7 +53,8 @@ static int read_submit(store_rec_t *rec)
         const uint8_t *d;
         if (store_rec_read_block(rec, &d, &frames[i].size) < 0)
             return 0;
-        if (d < rec->data || frames[i].size > rec->size || d + frames[i].size > rec->data + rec->size)
+        if (d < rec->data || frames[i].size > rec->size ||
+            d + frames[i].size > rec->data + rec->size)
             abort();
         frames[i].data = d;
     }
@@ -81,7 +82,8 @@ static int read_checkpoint(store_rec_t *rec)
     const uint8_t *text;
     size_t len;
     cJSON *extras = NULL;
-    if (store_rec_read_block(rec, &text, &len) < 0 || !(extras = cJSON_ParseWithLength((const char *)text, len)))
+    if (store_rec_read_block(rec, &text, &len) < 0 ||
+        !(extras = cJSON_ParseWithLength((const char *)text, len)))
         return 0;
     job_t *j = calloc(1, sizeof *j);
     if (!j)
@@ -193,14 +195,32 @@ static void put_le(unsigned char *p, uint64_t v, int bytes)
 static void mutate(fuzz_buf_t *b, uint64_t *s)
 {
     static const uint64_t words[] = {
-        0, 1, 2, 3, 4, 8, 12, 0x7F, 0x80, 0xFF, 0xFFFF, 0x7FFFFFFF, 0x80000000u, 0xFFFFFFFFu,
-        UINT64_C(0x100000000), UINT64_C(0x7FFFFFFFFFFFFFFF), UINT64_C(0xFFFFFFFFFFFFFFFF),
-        UINT64_C(0x7FF0000000000000) /* +Inf */, UINT64_C(0x7FF8000000000000) /* NaN */,
+        0,
+        1,
+        2,
+        3,
+        4,
+        8,
+        12,
+        0x7F,
+        0x80,
+        0xFF,
+        0xFFFF,
+        0x7FFFFFFF,
+        0x80000000u,
+        0xFFFFFFFFu,
+        UINT64_C(0x100000000),
+        UINT64_C(0x7FFFFFFFFFFFFFFF),
+        UINT64_C(0xFFFFFFFFFFFFFFFF),
+        UINT64_C(0x7FF0000000000000) /* +Inf */,
+        UINT64_C(0x7FF8000000000000) /* NaN */,
     };
-    static const char *const numbers[] = {"0", "-1", "1e999", "1e20", "4294967296", "18446744073709551616",
-                                          "9007199254740993", "0.5", "-0"};
-    static const char *const tokens[] = {"\"", ",", "[", "]", "{", "}", "null", "\"state\":\"done\"",
-                                         "\"series\":[[1,2,3,4]]", "\"rays\":"};
+    static const char *const numbers[] = {
+        "0",   "-1", "1e999", "1e20", "4294967296", "18446744073709551616", "9007199254740993",
+        "0.5", "-0"};
+    static const char *const tokens[] = {
+        "\"",       ",", "[", "]", "{", "}", "null", "\"state\":\"done\"", "\"series\":[[1,2,3,4]]",
+        "\"rays\":"};
     size_t n = b->n;
     unsigned kind = (unsigned)(fuzz_rnd(s) % 11);
     if (fuzz_mutate_shared(b, s, kind, tokens, sizeof tokens / sizeof tokens[0]))
@@ -217,8 +237,8 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
         if (n < 9)
             break;
         int bytes = fuzz_rnd(s) & 1 ? 8 : 4;
-        put_le(b->d + 1 + fuzz_rnd_below(s, n - (size_t)bytes), words[fuzz_rnd_below(s, sizeof words / sizeof words[0])],
-               bytes);
+        put_le(b->d + 1 + fuzz_rnd_below(s, n - (size_t)bytes),
+               words[fuzz_rnd_below(s, sizeof words / sizeof words[0])], bytes);
         break;
     }
     }
@@ -226,7 +246,8 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
 
 int main(int argc, char **argv)
 {
-    static const fuzz_target_t target = {"fuzz_store", run_one, mutate, NULL, {"parsed", "decoded"}, "-store"};
+    static const fuzz_target_t target = {"fuzz_store",          run_one, mutate, NULL,
+                                         {"parsed", "decoded"}, "-store"};
     return fuzz_main(argc, argv, &target);
 }
 

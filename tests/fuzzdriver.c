@@ -79,7 +79,7 @@ static int load_corpus(const char *dir, corpus *c)
         char path[4096];
         if (snprintf(path, sizeof path, "%s/%s", dir, e->d_name) >= (int)sizeof path)
             continue;
-        input in = { NULL, NULL, 0 };
+        input in = {NULL, NULL, 0};
         if (read_file(path, &in.data, &in.size) != 0)
             continue; /* a subfolder or unreadable: not an input */
         size_t len = strlen(e->d_name) + 1;
@@ -177,7 +177,8 @@ void fuzz_dup_chunk(fuzz_buf_t *b, uint64_t *s)
     size_t n = b->n;
     if (!n)
         return;
-    size_t from = fuzz_rnd_below(s, n), len = 1 + fuzz_rnd_below(s, n - from < 256 ? n - from : 256);
+    size_t from = fuzz_rnd_below(s, n),
+           len = 1 + fuzz_rnd_below(s, n - from < 256 ? n - from : 256);
     unsigned char tmp[256];
     memcpy(tmp, b->d + from, len);
     fuzz_insert(b, fuzz_rnd_below(s, n + 1), tmp, len);
@@ -266,8 +267,9 @@ int fuzz_main(int argc, char **argv, const fuzz_target_t *t)
     for (size_t i = 0; i < c.n; i++) {
         int r = run_copy(t, c.v[i].data, c.v[i].size);
         printf("  %-28s %s\n", c.v[i].name,
-               r & 1 ? (t->outcomes[0] ? t->outcomes[0] : "accepted")
-                     : r & 2 ? (t->outcomes[1] ? t->outcomes[1] : "accepted") : "refused");
+               r & 1   ? (t->outcomes[0] ? t->outcomes[0] : "accepted")
+               : r & 2 ? (t->outcomes[1] ? t->outcomes[1] : "accepted")
+                       : "refused");
     }
     long long counts[2] = {0, 0};
     uint64_t seed = UINT64_C(0x9E3779B97F4A7C15);
@@ -286,8 +288,8 @@ int fuzz_main(int argc, char **argv, const fuzz_target_t *t)
         counts[0] += r & 1;
         counts[1] += (r >> 1) & 1;
     }
-    printf("%s: %zu corpus files in %s, %lld mutations (%lld %s", t->name, c.n, dir, iters, counts[0],
-           t->outcomes[0] ? t->outcomes[0] : "accepted");
+    printf("%s: %zu corpus files in %s, %lld mutations (%lld %s", t->name, c.n, dir, iters,
+           counts[0], t->outcomes[0] ? t->outcomes[0] : "accepted");
     if (t->outcomes[1])
         printf(", %lld %s", counts[1], t->outcomes[1]);
     printf("), no crash\n");
@@ -296,7 +298,8 @@ int fuzz_main(int argc, char **argv, const fuzz_target_t *t)
     return 0;
 }
 
-int fuzz_mutate_shared(fuzz_buf_t *b, uint64_t *s, unsigned kind, const char *const *tokens, size_t ntokens)
+int fuzz_mutate_shared(fuzz_buf_t *b, uint64_t *s, unsigned kind, const char *const *tokens,
+                       size_t ntokens)
 {
     if (kind <= 3)
         fuzz_mutate_bytes(b, s, kind, tokens, ntokens);

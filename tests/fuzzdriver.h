@@ -37,7 +37,8 @@ int fuzz_main(int argc, char **argv, const fuzz_target_t *t);
  * fuzz_mutate_bytes, with the target's tokens), 4 a chunk duplicated, 5 a
  * chunk deleted. Returns 1 when it handled kind, 0 for kinds of the
  * target's own (6 and up). */
-int fuzz_mutate_shared(fuzz_buf_t *b, uint64_t *s, unsigned kind, const char *const *tokens, size_t ntokens);
+int fuzz_mutate_shared(fuzz_buf_t *b, uint64_t *s, unsigned kind, const char *const *tokens,
+                       size_t ntokens);
 
 /* xorshift64*: small, fast and the same on every host. */
 uint64_t fuzz_rnd(uint64_t *s);

@@ -41,20 +41,39 @@ static inline void fuzz_ckpt_config(unsigned which, sched_config_t *c)
     memset(c, 0, sizeof *c);
     switch (which % FUZZ_CKPT_CONFIGS) {
     case 0:
-        *c = (sched_config_t){.width = 4, .height = 4, .spp = 24, .granularity = 4,
-                              .adaptive = SCHED_ADAPTIVE_THESIS, .uniform_layers = UINT32_MAX,
-                              .range_pixels = 4, .seed = 7};
+        *c = (sched_config_t){.width = 4,
+                              .height = 4,
+                              .spp = 24,
+                              .granularity = 4,
+                              .adaptive = SCHED_ADAPTIVE_THESIS,
+                              .uniform_layers = UINT32_MAX,
+                              .range_pixels = 4,
+                              .seed = 7};
         break;
     case 1:
-        *c = (sched_config_t){.width = 5, .height = 3, .spp = 20, .granularity = 2,
-                              .adaptive = SCHED_ADAPTIVE_RELERR, .uniform_layers = 2, .random_selection = 1,
-                              .dilate = 1, .seed = 3, .target_error = 0.05, .confidence = 0.9,
+        *c = (sched_config_t){.width = 5,
+                              .height = 3,
+                              .spp = 20,
+                              .granularity = 2,
+                              .adaptive = SCHED_ADAPTIVE_RELERR,
+                              .uniform_layers = 2,
+                              .random_selection = 1,
+                              .dilate = 1,
+                              .seed = 3,
+                              .target_error = 0.05,
+                              .confidence = 0.9,
                               .target_share = 0.8};
         break;
     default:
-        *c = (sched_config_t){.width = 3, .height = 2, .spp = 14, .granularity = 2,
-                              .adaptive = SCHED_ADAPTIVE_VARIANCE, .uniform_layers = UINT32_MAX,
-                              .range_pixels = 2, .flags = "0010110", .seed = 11};
+        *c = (sched_config_t){.width = 3,
+                              .height = 2,
+                              .spp = 14,
+                              .granularity = 2,
+                              .adaptive = SCHED_ADAPTIVE_VARIANCE,
+                              .uniform_layers = UINT32_MAX,
+                              .range_pixels = 2,
+                              .flags = "0010110",
+                              .seed = 11};
         break;
     }
 }
@@ -72,7 +91,8 @@ static inline void fuzz_put_le(uint8_t *p, uint64_t v, int bytes)
 
 /* Writes the sound record of kind holding payload[0..n) to out (n +
  * FUZZ_REC_HEADER + FUZZ_REC_TRAILER bytes). */
-static inline void fuzz_seal_record(store_kind_t kind, const uint8_t *payload, size_t n, uint8_t *out)
+static inline void fuzz_seal_record(store_kind_t kind, const uint8_t *payload, size_t n,
+                                    uint8_t *out)
 {
     static const uint8_t magic[8] = {'V', 'B', 'S', 'T', 'A', 'T', 'E', '\n'};
     memcpy(out, magic, 8);
@@ -133,7 +153,8 @@ static inline int fuzz_submit_too_big(const cJSON *req, const void *scene_json, 
     const cJSON *g = cJSON_GetObjectItemCaseSensitive(req, "granularity");
     if (!cJSON_IsNumber(spp))
         spp = cJSON_GetObjectItemCaseSensitive(render, "spp");
-    double pixels = (cJSON_IsNumber(w) ? w->valuedouble : 1) * (cJSON_IsNumber(h) ? h->valuedouble : 1);
+    double pixels =
+        (cJSON_IsNumber(w) ? w->valuedouble : 1) * (cJSON_IsNumber(h) ? h->valuedouble : 1);
     /* a granularity below 1 is refused whatever the spp */
     double gv = cJSON_IsNumber(g) ? (g->valuedouble >= 1 ? g->valuedouble : 1) : 32;
     double layers = (cJSON_IsNumber(spp) ? spp->valuedouble : 64) / gv;

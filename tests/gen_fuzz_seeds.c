@@ -89,7 +89,8 @@ static void emit(gen_t *g, const char *target, const char *name, const void *dat
         size_t have = 0;
         uint8_t *old = read_all(path, &have);
         if (!old || have != n || memcmp(old, data, n) != 0) {
-            fprintf(stderr, "gen_fuzz_seeds: %s %s\n", path, old ? "differs from what the writers make now" : "is missing");
+            fprintf(stderr, "gen_fuzz_seeds: %s %s\n", path,
+                    old ? "differs from what the writers make now" : "is missing");
             g->failed++;
         }
         free(old);
@@ -104,7 +105,8 @@ static void emit(gen_t *g, const char *target, const char *name, const void *dat
 }
 
 /* A seed of one leading byte, then bytes. */
-static void emit_k(gen_t *g, const char *target, const char *name, uint8_t k, const void *data, size_t n)
+static void emit_k(gen_t *g, const char *target, const char *name, uint8_t k, const void *data,
+                   size_t n)
 {
     uint8_t *buf = malloc(n + 1);
     if (!buf)
@@ -118,35 +120,44 @@ static void emit_k(gen_t *g, const char *target, const char *name, uint8_t k, co
 /* ---- scenes and requests ---------------------------------------------------------- */
 
 static const char scene_basic[] =
-    "{\"camera\": {\"position\": [0, 1, -4], \"look_at\": [0, 1, 0], \"fov\": 40, \"width\": 8, \"height\": 6},\n"
+    "{\"camera\": {\"position\": [0, 1, -4], \"look_at\": [0, 1, 0], \"fov\": 40, \"width\": 8, "
+    "\"height\": 6},\n"
     " \"render\": {\"spp\": 16, \"seed\": 5},\n"
     " \"materials\": {\"grey\": {\"type\": \"diffuse\", \"albedo\": [0.5, 0.5, 0.5]},\n"
     "   \"glass\": {\"type\": \"dielectric\", \"ior\": 1.5},\n"
     "   \"lamp\": {\"type\": \"emitter\", \"radiance\": [10, 10, 10]}},\n"
     " \"shapes\": [\n"
-    "  {\"type\": \"quad\", \"material\": \"grey\", \"vertices\": [[-2, 0, -2], [-2, 0, 2], [2, 0, 2], [2, 0, -2]]},\n"
-    "  {\"type\": \"sphere\", \"material\": \"glass\", \"center\": [0, 0.5, 0], \"radius\": 0.5, \"subdivisions\": 1},\n"
-    "  {\"type\": \"quad\", \"material\": \"lamp\", \"vertices\": [[-0.5, 3, -0.5], [0.5, 3, -0.5], [0.5, 3, 0.5], "
+    "  {\"type\": \"quad\", \"material\": \"grey\", \"vertices\": [[-2, 0, -2], [-2, 0, 2], [2, 0, "
+    "2], [2, 0, -2]]},\n"
+    "  {\"type\": \"sphere\", \"material\": \"glass\", \"center\": [0, 0.5, 0], \"radius\": 0.5, "
+    "\"subdivisions\": 1},\n"
+    "  {\"type\": \"quad\", \"material\": \"lamp\", \"vertices\": [[-0.5, 3, -0.5], [0.5, 3, "
+    "-0.5], [0.5, 3, 0.5], "
     "[-0.5, 3, 0.5]]}]}\n";
 
 static const char scene_mesh[] =
-    "{\"camera\": {\"position\": [0, 0, -3], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], \"fov\": 50, \"width\": 4, "
+    "{\"camera\": {\"position\": [0, 0, -3], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], \"fov\": "
+    "50, \"width\": 4, "
     "\"height\": 4},\n"
     " \"render\": {\"spp\": 8, \"integrator\": \"naive\", \"max_depth\": 3},\n"
     " \"materials\": {\"m\": {\"type\": \"mirror\", \"reflectance\": [0.9, 0.9, 0.9]},\n"
     "   \"lamp\": {\"type\": \"emitter\", \"radiance\": [4, 4, 4], \"albedo\": [0.1, 0.1, 0.1]}},\n"
     " \"shapes\": [\n"
-    "  {\"type\": \"mesh\", \"material\": \"m\", \"file\": \"tri.obj\", \"transform\": {\"scale\": [1, -1, 1], "
+    "  {\"type\": \"mesh\", \"material\": \"m\", \"file\": \"tri.obj\", \"transform\": {\"scale\": "
+    "[1, -1, 1], "
     "\"rotate\": [0, 30, 0], \"translate\": [0, 0, 1]}},\n"
-    "  {\"type\": \"mesh\", \"material\": \"lamp\", \"file\": \"quad.ply\", \"transform\": {\"scale\": 2}},\n"
-    "  {\"type\": \"triangles\", \"material\": \"m\", \"vertices\": [[0, 0, 2], [1, 0, 2], [0, 1, 2]], "
+    "  {\"type\": \"mesh\", \"material\": \"lamp\", \"file\": \"quad.ply\", \"transform\": "
+    "{\"scale\": 2}},\n"
+    "  {\"type\": \"triangles\", \"material\": \"m\", \"vertices\": [[0, 0, 2], [1, 0, 2], [0, 1, "
+    "2]], "
     "\"indices\": [[0, 1, 2]]}]}\n";
 
 static const char mesh_obj[] = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf -3 -1 -2\n";
-static const char mesh_ply[] = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
-                               "property float z\nproperty float nx\nproperty float ny\nproperty float nz\n"
-                               "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
-                               "0 0 0 0 0 -1\n1 0 0 0 0 -1\n1 1 0 0 0 -1\n0 1 0 0 0 -1\n4 0 3 2 1\n";
+static const char mesh_ply[] =
+    "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+    "property float z\nproperty float nx\nproperty float ny\nproperty float nz\n"
+    "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+    "0 0 0 0 0 -1\n1 0 0 0 0 -1\n1 1 0 0 0 -1\n0 1 0 0 0 -1\n4 0 3 2 1\n";
 
 typedef struct request {
     const char *name;
@@ -164,35 +175,56 @@ static int make_requests(request_t *r)
     for (int c = 0; c < 3; c++)
         for (int i = 0; i < 48; i++)
             ref_planes[c][i] = 0.01f * (float)(i + 16 * c);
-    const submit_frame_t basic = {scene_basic, sizeof scene_basic - 1}, mesh = {scene_mesh, sizeof scene_mesh - 1},
-                         obj = {mesh_obj, sizeof mesh_obj - 1}, ply = {mesh_ply, sizeof mesh_ply - 1};
+    const submit_frame_t basic = {scene_basic, sizeof scene_basic - 1},
+                         mesh = {scene_mesh, sizeof scene_mesh - 1},
+                         obj = {mesh_obj, sizeof mesh_obj - 1},
+                         ply = {mesh_ply, sizeof mesh_ply - 1};
     int n = 0;
-    r[n++] = (request_t){"submit-basic", "{\"cmd\":\"submit\",\"name\":\"basic.json\",\"spp\":8,\"granularity\":4}",
-                        1, {basic}, 1};
-    r[n++] = (request_t){"submit-meshes",
-                        "{\"cmd\":\"submit\",\"name\":\"mesh.json\",\"meshes\":[\"tri.obj\",\"quad.ply\"],"
-                        "\"request_id\":\"fuzz-seed_2\"}",
-                        3, {mesh, obj, ply}, 1};
+    r[n++] = (request_t){"submit-basic",
+                         "{\"cmd\":\"submit\",\"name\":\"basic.json\",\"spp\":8,\"granularity\":4}",
+                         1,
+                         {basic},
+                         1};
+    r[n++] = (request_t){
+        "submit-meshes",
+        "{\"cmd\":\"submit\",\"name\":\"mesh.json\",\"meshes\":[\"tri.obj\",\"quad.ply\"],"
+        "\"request_id\":\"fuzz-seed_2\"}",
+        3,
+        {mesh, obj, ply},
+        1};
     r[n++] = (request_t){"submit-reference",
-                        "{\"cmd\":\"submit\",\"reference\":true,\"spp\":4,\"granularity\":2,\"adaptive\":\"variance\"}",
-                        4,
-                        {basic,
-                         {ref_planes[0], sizeof ref_planes[0]},
-                         {ref_planes[1], sizeof ref_planes[1]},
-                         {ref_planes[2], sizeof ref_planes[2]}},
-                        1};
-    r[n++] = (request_t){"submit-options",
-                        "{\"cmd\":\"submit\",\"spp\":12,\"granularity\":2,\"adaptive\":\"relerr\",\"target_error\":0.05,"
-                        "\"confidence\":0.9,\"target_share\":0.8,\"uniform_layers\":2,\"random_selection\":true,"
-                        "\"dilate\":true,\"seed\":42,\"max_depth\":5,\"integrator\":\"naive\",\"time_limit\":30.5}",
-                        1, {basic}, 1};
+                         "{\"cmd\":\"submit\",\"reference\":true,\"spp\":4,\"granularity\":2,"
+                         "\"adaptive\":\"variance\"}",
+                         4,
+                         {basic,
+                          {ref_planes[0], sizeof ref_planes[0]},
+                          {ref_planes[1], sizeof ref_planes[1]},
+                          {ref_planes[2], sizeof ref_planes[2]}},
+                         1};
+    r[n++] = (request_t){
+        "submit-options",
+        "{\"cmd\":\"submit\",\"spp\":12,\"granularity\":2,\"adaptive\":\"relerr\",\"target_error\":"
+        "0.05,"
+        "\"confidence\":0.9,\"target_share\":0.8,\"uniform_layers\":2,\"random_selection\":true,"
+        "\"dilate\":true,\"seed\":42,\"max_depth\":5,\"integrator\":\"naive\",\"time_limit\":30.5}",
+        1,
+        {basic},
+        1};
     r[n++] = (request_t){"submit-flags",
-                        "{\"cmd\":\"submit\",\"spp\":8,\"granularity\":2,\"adaptive\":\"thesis\",\"flags\":\"0011\"}", 1,
-                        {basic}, 1};
-    r[n++] = (request_t){"submit-none", "{\"cmd\":\"submit\",\"adaptive\":\"none\",\"granularity\":1}", 1, {mesh}, 0};
+                         "{\"cmd\":\"submit\",\"spp\":8,\"granularity\":2,\"adaptive\":\"thesis\","
+                         "\"flags\":\"0011\"}",
+                         1,
+                         {basic},
+                         1};
+    r[n++] = (request_t){"submit-none",
+                         "{\"cmd\":\"submit\",\"adaptive\":\"none\",\"granularity\":1}",
+                         1,
+                         {mesh},
+                         0};
     r[n++] = (request_t){"submit-noscene", "{\"cmd\":\"submit\"}", 0, {{NULL, 0}}, 0};
     r[n++] = (request_t){"status", "{\"cmd\":\"status\",\"job\":3}", 0, {{NULL, 0}}, 0};
-    r[n++] = (request_t){"fetch", "{\"cmd\":\"fetch\",\"job\":9007199254740992}", 0, {{NULL, 0}}, 0};
+    r[n++] =
+        (request_t){"fetch", "{\"cmd\":\"fetch\",\"job\":9007199254740992}", 0, {{NULL, 0}}, 0};
     r[n++] = (request_t){"cancel", "{\"cmd\":\"cancel\",\"job\":1.5}", 0, {{NULL, 0}}, 0};
     r[n++] = (request_t){"delete", "{\"cmd\":\"delete\",\"job\":17}", 0, {{NULL, 0}}, 0};
     r[n++] = (request_t){"jobs", "{\"cmd\":\"jobs\"}", 0, {{NULL, 0}}, 0};
@@ -261,7 +293,8 @@ static uint8_t *commit_and_read(store_rec_writer_t *w, size_t *n)
 /* Emits a real record twice for fuzz_store: the whole file (K = kind) and
  * its payload (K = kind | 4, sealed by the target), after checking that
  * fuzz_seal_record makes the same file from that payload. */
-static void emit_record(gen_t *g, const char *name, store_kind_t kind, const uint8_t *file, size_t n)
+static void emit_record(gen_t *g, const char *name, store_kind_t kind, const uint8_t *file,
+                        size_t n)
 {
     static const char *const kinds[] = {"", "meta", "submit", "checkpoint", "final"};
     if (n < FUZZ_REC_HEADER + FUZZ_REC_TRAILER)
@@ -294,7 +327,8 @@ static void gen_meta(gen_t *g)
 {
     char err[512];
     store_t *s = store_open(g->tmp, err, sizeof err);
-    if (!s || store_take_job_id(s, err, sizeof err) != 1 || store_take_job_id(s, err, sizeof err) != 2)
+    if (!s || store_take_job_id(s, err, sizeof err) != 1 ||
+        store_take_job_id(s, err, sizeof err) != 2)
         die("store: %s", err);
     store_close(&s);
     char path[512];
@@ -354,10 +388,12 @@ static void fake_results(const sched_task_t *t, tracer_result_t *r)
         const tracer_task_t *k = &t->records[i];
         memset(&r[i], 0, sizeof r[i]);
         r[i].pixel = k->pixel;
-        r[i].samples = k->sample_count - (k->pixel == 1 && k->first_sample == 0); /* one NaN sample */
+        r[i].samples =
+            k->sample_count - (k->pixel == 1 && k->first_sample == 0); /* one NaN sample */
         r[i].nonfinite = k->sample_count - r[i].samples;
         for (int c = 0; c < 3; c++)
-            r[i].sum[c] = 0.25 * k->sample_count * (c + 1) + 1e-3 * k->prior_sum[c] + 1e-4 * k->pixel;
+            r[i].sum[c] =
+                0.25 * k->sample_count * (c + 1) + 1e-3 * k->prior_sum[c] + 1e-4 * k->pixel;
         r[i].lum_m2 = 0.01 * k->sample_count;
         r[i].pvar = (double)((k->pixel * 7 + k->first_sample * 3) % 11);
     }
@@ -394,7 +430,8 @@ static uint8_t *checkpoint_record(gen_t *g, const sched_t *s, const char *extras
     if (!w)
         die("out of memory");
     rec_begin(g, w, "checkpoint", STORE_KIND_CHECKPOINT);
-    if (store_rec_write_block(w, extras, strlen(extras)) < 0 || sched_save(s, store_rec_write, w) != 0)
+    if (store_rec_write_block(w, extras, strlen(extras)) < 0 ||
+        sched_save(s, store_rec_write, w) != 0)
         die("checkpoint: %s", w->err);
     uint8_t *data = commit_and_read(w, n);
     free(w);
@@ -434,7 +471,8 @@ static void gen_checkpoints(gen_t *g)
     } points[] = {{0, 0}, {3, 2}, {14, 1}, {1000000, 0}};
     static const char *const extras[] = {
         "{\"seconds\":0,\"rays\":0,\"busy_us\":0,\"reissued\":0,\"late_results\":0,\"failures\":0}",
-        "{\"seconds\":1.5,\"rays\":12345,\"busy_us\":2500000,\"reissued\":2,\"late_results\":1,\"failures\":1,"
+        "{\"seconds\":1.5,\"rays\":12345,\"busy_us\":2500000,\"reissued\":2,\"late_results\":1,"
+        "\"failures\":1,"
         "\"series\":[[0.5,96,0.25,0.125],[1,192,0.125,0.0625]]}",
     };
     for (unsigned c = 0; c < FUZZ_CKPT_CONFIGS; c++) {
@@ -499,8 +537,8 @@ typedef struct chan {
 /* An EXR that image_write_exr never writes (test_image.c's write_custom_exr,
  * smaller): channels of any type holding a ramp, any compression, scanline
  * or tiled (tiles of 4 x 4). */
-static int write_custom_exr(const char *path, int tiled, int w, int h, exr_compression_t comp, const chan_t *chs,
-                            int n)
+static int write_custom_exr(const char *path, int tiled, int w, int h, exr_compression_t comp,
+                            const chan_t *chs, int n)
 {
     uint8_t data[4][4 * 64 * 64];
     for (int c = 0; c < n; c++)
@@ -525,9 +563,11 @@ static int write_custom_exr(const char *path, int tiled, int w, int h, exr_compr
     if (!rv)
         rv = exr_initialize_required_attr_simple(ctx, part, w, h, comp);
     if (!rv && tiled)
-        rv = exr_set_tile_descriptor(ctx, part, tile, tile, EXR_TILE_ONE_LEVEL, EXR_TILE_ROUND_DOWN);
+        rv =
+            exr_set_tile_descriptor(ctx, part, tile, tile, EXR_TILE_ONE_LEVEL, EXR_TILE_ROUND_DOWN);
     for (int c = 0; !rv && c < n; c++)
-        rv = exr_add_channel(ctx, part, chs[c].name, chs[c].type, EXR_PERCEPTUALLY_LOGARITHMIC, 1, 1);
+        rv = exr_add_channel(ctx, part, chs[c].name, chs[c].type, EXR_PERCEPTUALLY_LOGARITHMIC, 1,
+                             1);
     if (!rv)
         rv = exr_attr_set_float(ctx, part, "fattr", 0.5f);
     if (!rv)
@@ -546,7 +586,8 @@ static int write_custom_exr(const char *path, int tiled, int w, int h, exr_compr
             rv = tiled ? exr_write_tile_chunk_info(ctx, part, x / tile, y / tile, 0, 0, &ci)
                        : exr_write_scanline_chunk_info(ctx, part, y, &ci);
             if (!rv)
-                rv = inited ? exr_encoding_update(ctx, part, &ci, &enc) : exr_encoding_initialize(ctx, part, &ci, &enc);
+                rv = inited ? exr_encoding_update(ctx, part, &ci, &enc)
+                            : exr_encoding_initialize(ctx, part, &ci, &enc);
             if (rv)
                 break;
             inited = 1;
@@ -596,7 +637,9 @@ static void gen_exr(gen_t *g)
     static const struct {
         int w, h, attrs;
         const char *chans[5];
-    } own[] = {{4, 3, 1, {"R", "G", "B", "samples", "variance"}}, {1, 1, 0, {"Y"}}, {7, 2, 1, {"R", "G", "B"}}};
+    } own[] = {{4, 3, 1, {"R", "G", "B", "samples", "variance"}},
+               {1, 1, 0, {"Y"}},
+               {7, 2, 1, {"R", "G", "B"}}};
     for (size_t i = 0; i < sizeof own / sizeof own[0]; i++) {
         image_t *img = image_new(own[i].w, own[i].h);
         for (int c = 0; c < 5 && own[i].chans[c]; c++) {
@@ -617,23 +660,31 @@ static void gen_exr(gen_t *g)
         snprintf(name, sizeof name, "own-%zu.exr", i);
         emit_exr_file(g, path, name);
     }
-    static const chan_t mixed[3] = {{"H", EXR_PIXEL_HALF}, {"U", EXR_PIXEL_UINT}, {"F", EXR_PIXEL_FLOAT}};
-    static const chan_t halfs[3] = {{"B", EXR_PIXEL_HALF}, {"G", EXR_PIXEL_HALF}, {"R", EXR_PIXEL_HALF}};
+    static const chan_t mixed[3] = {
+        {"H", EXR_PIXEL_HALF}, {"U", EXR_PIXEL_UINT}, {"F", EXR_PIXEL_FLOAT}};
+    static const chan_t halfs[3] = {
+        {"B", EXR_PIXEL_HALF}, {"G", EXR_PIXEL_HALF}, {"R", EXR_PIXEL_HALF}};
     static const struct {
         const char *name;
         int tiled, w, h;
         exr_compression_t comp;
         const chan_t *chs;
     } custom[] = {
-        {"none-mixed", 0, 5, 3, EXR_COMPRESSION_NONE, mixed},   {"rle-mixed", 0, 5, 3, EXR_COMPRESSION_RLE, mixed},
-        {"zips-mixed", 0, 5, 3, EXR_COMPRESSION_ZIPS, mixed},   {"zip-mixed", 0, 6, 20, EXR_COMPRESSION_ZIP, mixed},
-        {"piz-mixed", 0, 6, 5, EXR_COMPRESSION_PIZ, mixed},     {"pxr24-mixed", 0, 5, 3, EXR_COMPRESSION_PXR24, mixed},
-        {"b44-half", 0, 8, 8, EXR_COMPRESSION_B44, halfs},      {"b44a-half", 0, 8, 4, EXR_COMPRESSION_B44A, halfs},
+        {"none-mixed", 0, 5, 3, EXR_COMPRESSION_NONE, mixed},
+        {"rle-mixed", 0, 5, 3, EXR_COMPRESSION_RLE, mixed},
+        {"zips-mixed", 0, 5, 3, EXR_COMPRESSION_ZIPS, mixed},
+        {"zip-mixed", 0, 6, 20, EXR_COMPRESSION_ZIP, mixed},
+        {"piz-mixed", 0, 6, 5, EXR_COMPRESSION_PIZ, mixed},
+        {"pxr24-mixed", 0, 5, 3, EXR_COMPRESSION_PXR24, mixed},
+        {"b44-half", 0, 8, 8, EXR_COMPRESSION_B44, halfs},
+        {"b44a-half", 0, 8, 4, EXR_COMPRESSION_B44A, halfs},
         {"tiled-none", 1, 9, 7, EXR_COMPRESSION_NONE, mixed},
-        {"tiled-zip", 1, 6, 5, EXR_COMPRESSION_ZIP, mixed},     {"tiled-rle-half", 1, 4, 4, EXR_COMPRESSION_RLE, halfs},
+        {"tiled-zip", 1, 6, 5, EXR_COMPRESSION_ZIP, mixed},
+        {"tiled-rle-half", 1, 4, 4, EXR_COMPRESSION_RLE, halfs},
     };
     for (size_t i = 0; i < sizeof custom / sizeof custom[0]; i++) {
-        int rv = write_custom_exr(path, custom[i].tiled, custom[i].w, custom[i].h, custom[i].comp, custom[i].chs, 3);
+        int rv = write_custom_exr(path, custom[i].tiled, custom[i].w, custom[i].h, custom[i].comp,
+                                  custom[i].chs, 3);
         if (rv)
             die("%s: the OpenEXR library cannot write it (%d)", custom[i].name, rv);
         char name[64];
@@ -665,17 +716,25 @@ int main(int argc, char **argv)
     gen_meta(&g);
     for (int i = 0; i < 3; i++)
         gen_submit_record(&g, &req[i]);
-    gen_final(&g, "done", "{\"id\":2,\"state\":\"done\",\"scene\":\"basic.json\",\"request_id\":\"fuzz-seed_2\","
-                          "\"width\":8,\"height\":6,\"spp\":8,\"samples\":384,\"error_series\":[[0.5,96,0.25,0.125]]}");
-    gen_final(&g, "cancelled", "{\"id\":7,\"state\":\"cancelled\",\"scene\":\"mesh.json\",\"error\":\"cancelled by a client\"}");
+    gen_final(
+        &g, "done",
+        "{\"id\":2,\"state\":\"done\",\"scene\":\"basic.json\",\"request_id\":\"fuzz-seed_2\","
+        "\"width\":8,\"height\":6,\"spp\":8,\"samples\":384,\"error_series\":[[0.5,96,0.25,0.125]]"
+        "}");
+    gen_final(&g, "cancelled",
+              "{\"id\":7,\"state\":\"cancelled\",\"scene\":\"mesh.json\",\"error\":\"cancelled by "
+              "a client\"}");
     gen_checkpoints(&g);
     if (!g.check)
         gen_exr(&g);
     rmdir(g.tmp);
     if (g.check) {
         if (g.failed) {
-            fprintf(stderr, "gen_fuzz_seeds: %d of %d seed files are stale: run `make fuzz-seeds` and commit "
-                            "tests/data/fuzz-*\n", g.failed, g.compared);
+            fprintf(
+                stderr,
+                "gen_fuzz_seeds: %d of %d seed files are stale: run `make fuzz-seeds` and commit "
+                "tests/data/fuzz-*\n",
+                g.failed, g.compared);
             return 1;
         }
         printf("gen_fuzz_seeds: %d seed files as the writers make them\n", g.compared);

@@ -1,8 +1,8 @@
 /* test_adaptive.c - speed against error, end to end through the binary:
  * error tracking against a reference, stopping on a target error, and the
  * adaptive modes and options staying deterministic across worker counts. */
-#include <check.h>
 #include <cJSON.h>
+#include <check.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -61,7 +61,8 @@ START_TEST(test_reference_series)
     unlink(ejson);
     snprintf(args, sizeof args, "'%s' -o '%s' --spp 1024 --adaptive none --seed 99", scene, ref);
     render(args, out);
-    snprintf(args, sizeof args, "'%s' -o '%s' --spp 128 --granularity 8 --adaptive relerr --reference '%s'", scene,
+    snprintf(args, sizeof args,
+             "'%s' -o '%s' --spp 128 --granularity 8 --adaptive relerr --reference '%s'", scene,
              img, ref);
     render(args, out);
     cJSON *doc = read_json(ejson);
@@ -69,7 +70,8 @@ START_TEST(test_reference_series)
     int n = cJSON_GetArraySize(series);
     ck_assert_msg(n >= 2, "series has %d points", n);
     const cJSON *first = cJSON_GetArrayItem(series, 0), *last = cJSON_GetArrayItem(series, n - 1);
-    double rel0 = cJSON_GetArrayItem(first, 2)->valuedouble, rel1 = cJSON_GetArrayItem(last, 2)->valuedouble;
+    double rel0 = cJSON_GetArrayItem(first, 2)->valuedouble,
+           rel1 = cJSON_GetArrayItem(last, 2)->valuedouble;
     ck_assert_msg(rel1 < rel0, "relMSE did not fall: %g -> %g", rel0, rel1);
     /* samples and seconds never go backwards */
     for (int i = 1; i < n; i++) {
@@ -84,7 +86,8 @@ START_TEST(test_reference_series)
     double relmse = -1;
     const char *p = strstr(out, "relMSE ");
     ck_assert(p && sscanf(p, "relMSE %lf", &relmse) == 1);
-    ck_assert_msg(fabs(relmse - rel1) <= 1e-6 * rel1, "compare says %g, the series %g", relmse, rel1);
+    ck_assert_msg(fabs(relmse - rel1) <= 1e-6 * rel1, "compare says %g, the series %g", relmse,
+                  rel1);
     cJSON_Delete(doc);
     /* a reference of another size is refused by the master, with a reason */
     char other[1024];
@@ -96,8 +99,8 @@ START_TEST(test_reference_series)
     char err[256];
     ck_assert(image_write_exr(o, other, err, sizeof err) == 0);
     image_destroy(&o);
-    snprintf(cmd, sizeof cmd, "'%s' render '%s' -o '%s' --spp 8 --reference '%s' --progress none", tu_bin(), scene,
-             img, other);
+    snprintf(cmd, sizeof cmd, "'%s' render '%s' -o '%s' --spp 8 --reference '%s' --progress none",
+             tu_bin(), scene, img, other);
     ck_assert_int_eq(tu_run(cmd, out, OUTLEN), 1);
     ck_assert_msg(strstr(out, "reference") != NULL, "%s", out);
 }
@@ -109,7 +112,9 @@ START_TEST(test_target_error_stops_early)
     small_cornell(scene, sizeof scene);
     tu_tmp_path(img, sizeof img, "adaptive-target.exr");
     snprintf(args, sizeof args,
-             "'%s' -o '%s' --spp 4096 --granularity 16 --adaptive none --target-error 0.3 --confidence 0.9", scene, img);
+             "'%s' -o '%s' --spp 4096 --granularity 16 --adaptive none --target-error 0.3 "
+             "--confidence 0.9",
+             scene, img);
     render(args, out);
     image_t *im = NULL;
     char err[256];
@@ -133,7 +138,8 @@ static image_t *render_read(const char *scene, const char *name, const char *ext
 {
     char img[1024], out[OUTLEN], args[4096], err[256];
     tu_tmp_path(img, sizeof img, name);
-    snprintf(args, sizeof args, "'%s' -o '%s' --spp 96 --granularity 8 --uniform-layers 3 %s", scene, img, extra);
+    snprintf(args, sizeof args, "'%s' -o '%s' --spp 96 --granularity 8 --uniform-layers 3 %s",
+             scene, img, extra);
     render(args, out);
     image_t *im = NULL;
     ck_assert_msg(image_read_exr(img, &im, err, sizeof err) == 0, "%s", err);
@@ -153,9 +159,10 @@ START_TEST(test_modes_deterministic)
         snprintf(extra, sizeof extra, "%s --workers 3 --threads 3", modes[m]);
         image_t *b = render_read(scene, "adaptive-det-b.exr", extra);
         for (int c = 0; c < a->channel_count; c++)
-            ck_assert_msg(memcmp(image_channel(a, a->channel_names[c]), image_channel(b, a->channel_names[c]),
-                                 24 * 24 * sizeof(float)) == 0,
-                          "%s: channel %s differs between 1 and 3 workers", modes[m], a->channel_names[c]);
+            ck_assert_msg(
+                memcmp(image_channel(a, a->channel_names[c]), image_channel(b, a->channel_names[c]),
+                       24 * 24 * sizeof(float)) == 0,
+                "%s: channel %s differs between 1 and 3 workers", modes[m], a->channel_names[c]);
         /* and the mode really adapted: sample counts vary */
         const float *n = image_channel(a, "samples");
         int varies = 0;

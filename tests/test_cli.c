@@ -81,7 +81,8 @@ static const char *tiny_scene(char *path, size_t len, const char *name, int no_l
     size_t n = fread(text, 1, sizeof text / 2, f);
     fclose(f);
     text[n] = '\0';
-    replace_once(text, sizeof text, "\"width\": 256, \"height\": 256", "\"width\": 16, \"height\": 16");
+    replace_once(text, sizeof text, "\"width\": 256, \"height\": 256",
+                 "\"width\": 16, \"height\": 16");
     if (no_light)
         replace_once(text, sizeof text, "{\"type\": \"emitter\", \"radiance\": [17.0, 12.0, 4.0]}",
                      "{\"type\": \"diffuse\", \"albedo\": [0.5, 0.5, 0.5]}");
@@ -143,14 +144,22 @@ END_TEST
 START_TEST(bad_flag_values)
 {
     static const char *const cases[][2] = {
-        {"--spp 0", "--spp"},          {"--spp -3", "--spp"},
-        {"--spp abc", "--spp"},        {"--spp 4294967296", "--spp"},
-        {"--spp", "--spp"},            {"--threads 0", "--threads"},
-        {"--threads 999", "--threads"}, {"--threads 2x", "--threads"},
-        {"--integrator foo", "--integrator"}, {"--granularity 0", "--granularity"},
-        {"--granularity 4097", "--granularity"}, {"--seed x", "--seed"},
-        {"--seed -1", "--seed"},       {"--max-depth -1", "--max-depth"},
-        {"--progress loud", "--progress"}, {"-o", "-o"},
+        {"--spp 0", "--spp"},
+        {"--spp -3", "--spp"},
+        {"--spp abc", "--spp"},
+        {"--spp 4294967296", "--spp"},
+        {"--spp", "--spp"},
+        {"--threads 0", "--threads"},
+        {"--threads 999", "--threads"},
+        {"--threads 2x", "--threads"},
+        {"--integrator foo", "--integrator"},
+        {"--granularity 0", "--granularity"},
+        {"--granularity 4097", "--granularity"},
+        {"--seed x", "--seed"},
+        {"--seed -1", "--seed"},
+        {"--max-depth -1", "--max-depth"},
+        {"--progress loud", "--progress"},
+        {"-o", "-o"},
     };
     char scene[PATHLEN], args[CMDLEN];
     cornell_path(scene, sizeof scene);
@@ -194,13 +203,15 @@ START_TEST(unwritable_output)
 {
     char scene[PATHLEN], out[OUTLEN];
     tiny_scene(scene, sizeof scene, "cli-unwritable.json", 0);
-    int rc = run(out, sizeof out,
-                 "render '%s' -o /nonexistent-dir/x.exr --spp 1 --threads 2 --progress none", scene);
+    int rc =
+        run(out, sizeof out,
+            "render '%s' -o /nonexistent-dir/x.exr --spp 1 --threads 2 --progress none", scene);
     ck_assert_msg(rc == 1, "exit %d:\n%s", rc, out);
     ck_assert_msg(strstr(out, "/nonexistent-dir/x.exr") != NULL, "output lacks the path:\n%s", out);
     ck_assert_msg(strstr(out, "No such file or directory") != NULL, "output lacks why:\n%s", out);
     /* refused before rendering: no render summary was printed */
-    ck_assert_msg(strstr(out, "samples/s") == NULL, "rendered before checking the output:\n%s", out);
+    ck_assert_msg(strstr(out, "samples/s") == NULL, "rendered before checking the output:\n%s",
+                  out);
     /* an option where the file name belongs is a usage error, not a file name */
     rc = run(out, sizeof out, "render '%s' -o --spp 4", scene);
     ck_assert_msg(rc == 2 && strstr(out, "-o needs a file name") != NULL, "exit %d:\n%s", rc, out);
@@ -220,8 +231,10 @@ START_TEST(deterministic_exr)
         char name[64];
         snprintf(name, sizeof name, "cli-det-%d.exr", i);
         tu_tmp_path(exr[i], sizeof exr[i], name);
-        int rc = run(out, sizeof out, "render '%s' -o '%s' --spp 40 --granularity 16 --threads %d --seed 9 --progress none",
-                     scene, exr[i], threads[i]);
+        int rc = run(
+            out, sizeof out,
+            "render '%s' -o '%s' --spp 40 --granularity 16 --threads %d --seed 9 --progress none",
+            scene, exr[i], threads[i]);
         ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
         char err[512];
         ck_assert_msg(image_read_exr(exr[i], &img[i], err, sizeof err) == 0, "%s", err);
@@ -232,11 +245,12 @@ START_TEST(deterministic_exr)
             const float *a = image_channel(img[0], img[0]->channel_names[c]);
             const float *b = image_channel(img[i], img[0]->channel_names[c]);
             ck_assert_ptr_nonnull(b);
-            ck_assert_msg(memcmp(a, b, 16 * 16 * sizeof(float)) == 0, "run %d: channel %s differs", i,
-                          img[0]->channel_names[c]);
+            ck_assert_msg(memcmp(a, b, 16 * 16 * sizeof(float)) == 0, "run %d: channel %s differs",
+                          i, img[0]->channel_names[c]);
         }
         ck_assert_str_eq(image_attr(img[i], "vb.seed")->s, "9");
-        ck_assert(image_attr(img[i], "vb.total_samples")->d == image_attr(img[0], "vb.total_samples")->d);
+        ck_assert(image_attr(img[i], "vb.total_samples")->d ==
+                  image_attr(img[0], "vb.total_samples")->d);
     }
     for (int i = 0; i < 3; i++)
         image_destroy(&img[i]);
@@ -249,7 +263,8 @@ START_TEST(warning_printed)
     tiny_scene(scene, sizeof scene, "cli-dark.json", 1);
     tu_tmp_path(exr, sizeof exr, "cli-dark.exr");
     tu_tmp_path(png, sizeof png, "cli-dark.png");
-    int rc = run(out, sizeof out, "render '%s' -o '%s' --spp 1 --threads 1 --progress none", scene, exr);
+    int rc =
+        run(out, sizeof out, "render '%s' -o '%s' --spp 1 --threads 1 --progress none", scene, exr);
     ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
     ck_assert_msg(strstr(out, "warning") && strstr(out, "no light"), "no warning:\n%s", out);
     unlink(exr);
@@ -268,7 +283,8 @@ START_TEST(tiny_render)
     tu_tmp_path(png, sizeof png, "cli-tiny-out.png");
     unlink(exr);
     unlink(png);
-    int rc = run(out, sizeof out, "render '%s' -o '%s' --spp 4 --threads 2 --progress lines", scene, exr);
+    int rc = run(out, sizeof out, "render '%s' -o '%s' --spp 4 --threads 2 --progress lines", scene,
+                 exr);
     ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
     ck_assert_msg(file_exists(exr), "%s missing", exr);
     ck_assert_msg(file_exists(png), "%s missing", png);
@@ -383,7 +399,7 @@ struct fake_master {
     pthread_mutex_t lock;
     int count; /* requests received */
     char *json[FAKE_MAX];
-    int frames[FAKE_MAX];             /* frames after the JSON */
+    int frames[FAKE_MAX];              /* frames after the JSON */
     unsigned long long hash[FAKE_MAX]; /* FNV-1a over those frames */
 };
 
@@ -509,9 +525,9 @@ static int count_of(const char *text, const char *frag)
     return n;
 }
 
-static const char *running_job =
-    "{\"ok\": true, \"job\": {\"id\": 7, \"state\": \"running\", \"layers\": 4, \"layers_done\": 1, "
-    "\"samples\": 10, \"max_samples\": 40, \"seconds\": 0.5}}";
+static const char *running_job = "{\"ok\": true, \"job\": {\"id\": 7, \"state\": \"running\", "
+                                 "\"layers\": 4, \"layers_done\": 1, "
+                                 "\"samples\": 10, \"max_samples\": 40, \"seconds\": 0.5}}";
 
 /* drops the first request (a reply lost in a restart), answers the rest */
 static const char *script_submit(fake_master_t *f, int n, const char *json, double t)
@@ -528,7 +544,8 @@ static const char *script_restart(fake_master_t *f, int n, const char *json, dou
         return running_job;
     if (t < 1.8)
         return NULL;
-    return "{\"ok\": true, \"job\": {\"id\": 7, \"state\": \"done\", \"layers\": 4, \"layers_done\": 4, "
+    return "{\"ok\": true, \"job\": {\"id\": 7, \"state\": \"done\", \"layers\": 4, "
+           "\"layers_done\": 4, "
            "\"samples\": 40, \"max_samples\": 40, \"seconds\": 2.5, "
            "\"recovered\": \"checkpoint at 1 layers\"}}";
 }
@@ -557,8 +574,9 @@ static const char *script_delete(fake_master_t *f, int n, const char *json, doub
 static const char *script_notes(fake_master_t *f, int n, const char *json, double t)
 {
     (void)f, (void)n, (void)t;
-#define NOTED_JOB                                                                                    \
-    "{\"id\": 7, \"state\": \"running\", \"storage_error\": \"state/7.ckpt: No space left on device\", " \
+#define NOTED_JOB                                                                                  \
+    "{\"id\": 7, \"state\": \"running\", \"storage_error\": \"state/7.ckpt: No space left on "     \
+    "device\", "                                                                                   \
     "\"recovered\": \"checkpoint at 42 layers\"}"
     if (strstr(json, "\"jobs\""))
         return "{\"ok\": true, \"jobs\": [" NOTED_JOB ", {\"id\": 8, \"state\": \"queued\"}]}";
@@ -595,9 +613,12 @@ START_TEST(wait_unreachable)
     int rc = run(out, sizeof out, "wait 3 --master %s --timeout 2 --progress none", ep);
     double took = mono_now() - t0;
     ck_assert_msg(rc == 1, "exit %d:\n%s", rc, out);
-    ck_assert_msg(strstr(out, "unreachable for 2 s; job 3 may still be running"), "no timeout message:\n%s", out);
-    ck_assert_msg(count_of(out, "not answering; retrying (up to 2 s)") == 1, "want one outage line:\n%s", out);
-    ck_assert_msg(!strstr(out, "cancelled") && !strstr(out, "failed"), "reads as a job failure:\n%s", out);
+    ck_assert_msg(strstr(out, "unreachable for 2 s; job 3 may still be running"),
+                  "no timeout message:\n%s", out);
+    ck_assert_msg(count_of(out, "not answering; retrying (up to 2 s)") == 1,
+                  "want one outage line:\n%s", out);
+    ck_assert_msg(!strstr(out, "cancelled") && !strstr(out, "failed"),
+                  "reads as a job failure:\n%s", out);
     ck_assert_msg(took >= 1.5, "gave up after %.2f s, before --timeout", took);
 }
 END_TEST
@@ -656,12 +677,14 @@ START_TEST(wait_outlasts_restart)
     int rc = run(out, sizeof out, "wait 7 --master %s --timeout 10 --progress lines", f.endpoint);
     fake_stop(&f);
     ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
-    ck_assert_msg(count_of(out, "not answering; retrying (up to 10 s)") == 1, "want one outage line:\n%s", out);
+    ck_assert_msg(count_of(out, "not answering; retrying (up to 10 s)") == 1,
+                  "want one outage line:\n%s", out);
     ck_assert_msg(strstr(out, "done in") != NULL, "no end of progress:\n%s", out);
-    ck_assert_msg(strstr(out, "job 7: recovered from checkpoint at 1 layers") != NULL, "recovery not shown:\n%s", out);
+    ck_assert_msg(strstr(out, "job 7: recovered from checkpoint at 1 layers") != NULL,
+                  "recovery not shown:\n%s", out);
     for (int i = 0; i < f.count && i < FAKE_MAX; i++)
-        ck_assert_msg(strstr(f.json[i], "\"cmd\":\"status\"") && strstr(f.json[i], "\"job\":7"), "request %s",
-                      f.json[i]);
+        ck_assert_msg(strstr(f.json[i], "\"cmd\":\"status\"") && strstr(f.json[i], "\"job\":7"),
+                      "request %s", f.json[i]);
     ck_assert_msg(f.count >= 4, "only %d requests", f.count);
     fake_free(&f);
 }
@@ -675,7 +698,8 @@ START_TEST(wait_cancelled_fails)
     int rc = run(out, sizeof out, "wait 7 --master %s --progress none", f.endpoint);
     fake_stop(&f);
     ck_assert_msg(rc == 1, "exit %d:\n%s", rc, out);
-    ck_assert_msg(strstr(out, "job 7 cancelled: cancelled by a client") != NULL, "no reason:\n%s", out);
+    ck_assert_msg(strstr(out, "job 7 cancelled: cancelled by a client") != NULL, "no reason:\n%s",
+                  out);
     ck_assert_msg(strstr(out, "unreachable") == NULL, "reads as an outage:\n%s", out);
     fake_free(&f);
 }

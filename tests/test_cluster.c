@@ -42,7 +42,7 @@
 #define OUTLEN 16384
 #define CMDLEN 4096
 #define MAX_DAEMONS 32
-#define STOP_MS 5000      /* a daemon must exit this soon after SIGTERM */
+#define STOP_MS 5000 /* a daemon must exit this soon after SIGTERM */
 #define JOB_TIMEOUT_MS 60000
 
 /* Settings shared by a distributed run and its embedded reference. */
@@ -75,7 +75,8 @@ static const char *keep_scratch(const char *path)
 /* The CURVE keys ctl() uses (Z85), set by a test whose master has keys;
  * empty: none. The client runs get them through VBRENDER_KEY and
  * VBRENDER_MASTER_KEY, set by the same test. */
-static char ctl_public[KEYS_Z85_LEN + 1], ctl_secret[KEYS_Z85_LEN + 1], ctl_master[KEYS_Z85_LEN + 1];
+static char ctl_public[KEYS_Z85_LEN + 1], ctl_secret[KEYS_Z85_LEN + 1],
+    ctl_master[KEYS_Z85_LEN + 1];
 
 static void forget_client_keys(void)
 {
@@ -117,7 +118,8 @@ static const char *logs_tail(void)
     buf[0] = '\0';
     size_t each = daemon_count ? 5000 / (size_t)daemon_count : 0;
     for (int i = 0; i < daemon_count && n + 1 < sizeof buf; i++) {
-        n += (size_t)snprintf(buf + n, sizeof buf - n, "\n--- %s (%s) ---\n", daemons[i].name, daemons[i].log);
+        n += (size_t)snprintf(buf + n, sizeof buf - n, "\n--- %s (%s) ---\n", daemons[i].name,
+                              daemons[i].log);
         if (n >= sizeof buf)
             break;
         FILE *f = fopen(daemons[i].log, "rb");
@@ -246,8 +248,8 @@ static int stop_process(daemon_t *d, int sig, int timeout_ms)
         kill(pid, SIGKILL);
         waitpid(pid, &st, 0);
         d->pid = 0;
-        ck_abort_msg("%s (pid %ld) still running %d ms after signal %d\n%s", d->name, (long)pid, timeout_ms, sig,
-                     logs_tail());
+        ck_abort_msg("%s (pid %ld) still running %d ms after signal %d\n%s", d->name, (long)pid,
+                     timeout_ms, sig, logs_tail());
     }
     return st;
 }
@@ -258,8 +260,8 @@ static void stop_clean(daemon_t *d)
 {
     char why[64];
     int st = stop_process(d, SIGTERM, STOP_MS);
-    ck_assert_msg(st != -1 && WIFEXITED(st) && WEXITSTATUS(st) == 0, "%s: %s after SIGTERM\n%s", d->name,
-                  describe_status(st, why, sizeof why), logs_tail());
+    ck_assert_msg(st != -1 && WIFEXITED(st) && WEXITSTATUS(st) == 0, "%s: %s after SIGTERM\n%s",
+                  d->name, describe_status(st, why, sizeof why), logs_tail());
 }
 
 /* Stops every daemon still running, the last started first (workers before
@@ -389,11 +391,13 @@ static daemon_t *start_master_with(int *port, const char *name, const char *cons
         char log[4096];
         int st = 0, exited = 0;
         double end = now_ms() + 10000;
-        while (!strstr(read_log(m, log, sizeof log), "listening") && !(exited = reap(m, 0, &st)) && now_ms() < end)
+        while (!strstr(read_log(m, log, sizeof log), "listening") && !(exited = reap(m, 0, &st)) &&
+               now_ms() < end)
             sleep_ms(10);
         if (exited) {
             read_log(m, log, sizeof log);
-            ck_assert_msg(strstr(log, "cannot bind") != NULL, "the master exited at start:\n%s", logs_tail());
+            ck_assert_msg(strstr(log, "cannot bind") != NULL, "the master exited at start:\n%s",
+                          logs_tail());
             continue; /* port taken: next pair */
         }
         for (int tries = 0; tries < 50; tries++) {
@@ -403,7 +407,8 @@ static daemon_t *start_master_with(int *port, const char *name, const char *cons
             sleep_ms(100);
         }
         if (m->pid > 0)
-            ck_abort_msg("the master's control socket %s does not answer:\n%s\n%s", cep, out, logs_tail());
+            ck_abort_msg("the master's control socket %s does not answer:\n%s\n%s", cep, out,
+                         logs_tail());
     }
     ck_abort_msg("no free port pair for the master\n%s", logs_tail());
     return NULL;
@@ -526,8 +531,8 @@ static cJSON *wait_layers(int cport, unsigned long long job, int min_layers)
         if (jnum(st, "layers_done") >= min_layers || job_ended(st))
             return st;
         cJSON_Delete(st);
-        ck_assert_msg(now_ms() < end, "job %llu: no layer complete after %d ms\n%s", job, JOB_TIMEOUT_MS,
-                      logs_tail());
+        ck_assert_msg(now_ms() < end, "job %llu: no layer complete after %d ms\n%s", job,
+                      JOB_TIMEOUT_MS, logs_tail());
         sleep_ms(10);
     }
 }
@@ -541,7 +546,8 @@ static cJSON *wait_end(int cport, unsigned long long job)
         if (job_ended(st))
             return st;
         cJSON_Delete(st);
-        ck_assert_msg(now_ms() < end, "job %llu still running after %d ms\n%s", job, JOB_TIMEOUT_MS, logs_tail());
+        ck_assert_msg(now_ms() < end, "job %llu still running after %d ms\n%s", job, JOB_TIMEOUT_MS,
+                      logs_tail());
         sleep_ms(20);
     }
 }
@@ -592,7 +598,8 @@ static int outstanding_at(int cport, const char *host)
  * holds when the signal lands; otherwise they are thawed and it is asked
  * again. Either worker will do: which one the master feeds is its business.
  * Returns the index of the worker hit. */
-static int signal_holding_worker(int cport, unsigned long long job, daemon_t *d[2], const char *const host[2], int sig)
+static int signal_holding_worker(int cport, unsigned long long job, daemon_t *d[2],
+                                 const char *const host[2], int sig)
 {
     for (int tries = 0; tries < 300; tries++) {
         for (int k = 0; k < 2; k++)
@@ -608,8 +615,10 @@ static int signal_holding_worker(int cport, unsigned long long job, daemon_t *d[
         for (int k = 0; k < 2; k++)
             if (k != hit || sig != SIGKILL)
                 kill(d[k]->pid, SIGCONT);
-        ck_assert_msg(running, "job %llu ended before a worker could be hit mid-job (make the job longer)\n%s", job,
-                      logs_tail());
+        ck_assert_msg(
+            running,
+            "job %llu ended before a worker could be hit mid-job (make the job longer)\n%s", job,
+            logs_tail());
         if (hit >= 0)
             return hit;
         sleep_ms(10 + tries % 20);
@@ -621,10 +630,12 @@ static int signal_holding_worker(int cport, unsigned long long job, daemon_t *d[
 /* ---- client runs -------------------------------------------------------- */
 
 /* Submits through the client; returns the job id it printed. */
-static unsigned long long submit_in(const char *ns, int cport, const char *scene, const char *settings)
+static unsigned long long submit_in(const char *ns, int cport, const char *scene,
+                                    const char *settings)
 {
     char out[OUTLEN];
-    int rc = client_in(ns, out, sizeof out, "submit '%s' %s --master tcp://127.0.0.1:%d", scene, settings, cport);
+    int rc = client_in(ns, out, sizeof out, "submit '%s' %s --master tcp://127.0.0.1:%d", scene,
+                       settings, cport);
     ck_assert_msg(rc == 0, "submit: exit %d:\n%s\n%s", rc, out, logs_tail());
     size_t n = strlen(out);
     while (n > 0 && (out[n - 1] == '\n' || out[n - 1] == ' '))
@@ -645,19 +656,22 @@ static unsigned long long submit(int cport, const char *scene, const char *setti
 
 /* Waits for the job to be done (the client's wait must say so too) and
  * fetches its image to out_exr. */
-static void finish_and_fetch_in(const char *ns, int cport, unsigned long long job, const char *out_exr)
+static void finish_and_fetch_in(const char *ns, int cport, unsigned long long job,
+                                const char *out_exr)
 {
     char out[OUTLEN];
     if (!ns) {
         cJSON *st = wait_end(cport, job);
-        ck_assert_msg(state_is(st, "done"), "job %llu %s: %s\n%s", job, jstr(st, "state"), jstr(st, "error"),
-                      logs_tail());
+        ck_assert_msg(state_is(st, "done"), "job %llu %s: %s\n%s", job, jstr(st, "state"),
+                      jstr(st, "error"), logs_tail());
         cJSON_Delete(st);
     }
-    int rc = client_in(ns, out, sizeof out, "wait %llu --progress none --master tcp://127.0.0.1:%d", job, cport);
+    int rc = client_in(ns, out, sizeof out, "wait %llu --progress none --master tcp://127.0.0.1:%d",
+                       job, cport);
     ck_assert_msg(rc == 0, "wait %llu: exit %d:\n%s\n%s", job, rc, out, logs_tail());
     unlink(out_exr);
-    rc = client_in(ns, out, sizeof out, "fetch %llu -o '%s' --master tcp://127.0.0.1:%d", job, out_exr, cport);
+    rc = client_in(ns, out, sizeof out, "fetch %llu -o '%s' --master tcp://127.0.0.1:%d", job,
+                   out_exr, cport);
     ck_assert_msg(rc == 0, "fetch %llu: exit %d:\n%s\n%s", job, rc, out, logs_tail());
 }
 
@@ -667,12 +681,14 @@ static void finish_and_fetch(int cport, unsigned long long job, const char *out_
 }
 
 /* The embedded render (master and workers in the client's process). */
-static void render_embedded(const char *scene, const char *settings, int workers, const char *out_exr)
+static void render_embedded(const char *scene, const char *settings, int workers,
+                            const char *out_exr)
 {
     char out[OUTLEN];
     unlink(out_exr);
-    int rc = client(out, sizeof out, "render '%s' -o '%s' %s --workers %d --threads %d --progress none", scene,
-                    out_exr, settings, workers, workers);
+    int rc =
+        client(out, sizeof out, "render '%s' -o '%s' %s --workers %d --threads %d --progress none",
+               scene, out_exr, settings, workers, workers);
     ck_assert_msg(rc == 0, "embedded render: exit %d:\n%s", rc, out);
 }
 
@@ -692,10 +708,10 @@ static void compare_exr(const char *a, const char *b)
     char err[1024];
     ck_assert_msg(image_read_exr(a, &ia, err, sizeof err) == 0, "%s", err);
     ck_assert_msg(image_read_exr(b, &ib, err, sizeof err) == 0, "%s", err);
-    ck_assert_msg(ia->width == ib->width && ia->height == ib->height, "%s is %dx%d, %s is %dx%d", a, ia->width,
-                  ia->height, b, ib->width, ib->height);
-    ck_assert_msg(ia->channel_count == ib->channel_count, "%s has %d channels, %s %d", a, ia->channel_count, b,
-                  ib->channel_count);
+    ck_assert_msg(ia->width == ib->width && ia->height == ib->height, "%s is %dx%d, %s is %dx%d", a,
+                  ia->width, ia->height, b, ib->width, ib->height);
+    ck_assert_msg(ia->channel_count == ib->channel_count, "%s has %d channels, %s %d", a,
+                  ia->channel_count, b, ib->channel_count);
     static const char *const want[] = {"R", "G", "B", "samples", "variance"};
     for (size_t i = 0; i < sizeof want / sizeof want[0]; i++)
         ck_assert_msg(image_channel(ia, want[i]) != NULL, "%s lacks channel %s", a, want[i]);
@@ -708,8 +724,9 @@ static void compare_exr(const char *a, const char *b)
             size_t k = 0;
             while (k < npix && memcmp(&pa[k], &pb[k], sizeof(float)) == 0)
                 k++;
-            ck_abort_msg("channel %s differs at pixel (%zu, %zu): %.9g in %s, %.9g in %s", ia->channel_names[c],
-                         k % (size_t)ia->width, k / (size_t)ia->width, (double)pa[k], a, (double)pb[k], b);
+            ck_abort_msg("channel %s differs at pixel (%zu, %zu): %.9g in %s, %.9g in %s",
+                         ia->channel_names[c], k % (size_t)ia->width, k / (size_t)ia->width,
+                         (double)pa[k], a, (double)pb[k], b);
         }
     }
     image_destroy(&ia);
@@ -742,7 +759,8 @@ static const char *scene_file(char *path, size_t len, int size, const char *from
     replace_once(text, sizeof text, "\"width\": 256, \"height\": 256", dims);
     if (from)
         replace_once(text, sizeof text, from, to);
-    snprintf(name, sizeof name, "cluster-%ld-%d%s.json", (long)getpid(), size, from ? "-edited" : "");
+    snprintf(name, sizeof name, "cluster-%ld-%d%s.json", (long)getpid(), size,
+             from ? "-edited" : "");
     ck_assert_ptr_nonnull(tu_write_tmp(path, len, name, text));
     return keep_scratch(path);
 }
@@ -781,8 +799,10 @@ START_TEST(identical_pixels)
         if (m == 0)
             ck_assert_float_eq(lo, 128.0f);
         else
-            ck_assert_msg(lo < hi && lo >= 32.0f, "adaptive samples from %g to %g: expected skips after 2 "
-                          "uniform layers", (double)lo, (double)hi);
+            ck_assert_msg(lo < hi && lo >= 32.0f,
+                          "adaptive samples from %g to %g: expected skips after 2 "
+                          "uniform layers",
+                          (double)lo, (double)hi);
         image_destroy(&img);
     }
 
@@ -829,17 +849,19 @@ START_TEST(worker_killed)
     int port = slot_port(1);
     start_master(&port, "b-master");
     static const char *const hosts[2] = {"127.0.0.2", "127.0.0.3"};
-    daemon_t *w[2] = {start_worker(port, 1, "b-worker1", hosts[0]), start_worker(port, 1, "b-worker2", hosts[1])};
+    daemon_t *w[2] = {start_worker(port, 1, "b-worker1", hosts[0]),
+                      start_worker(port, 1, "b-worker2", hosts[1])};
     wait_workers(port + 1, 2);
     unsigned long long job = submit(port + 1, scene, LONG);
     cJSON_Delete(wait_layers(port + 1, job, 1));
     daemon_t *victim = w[signal_holding_worker(port + 1, job, w, hosts, SIGKILL)];
     int st = 0;
-    ck_assert_msg(reap(victim, STOP_MS, &st) && WIFSIGNALED(st) && WTERMSIG(st) == SIGKILL, "the victim lived on");
+    ck_assert_msg(reap(victim, STOP_MS, &st) && WIFSIGNALED(st) && WTERMSIG(st) == SIGKILL,
+                  "the victim lived on");
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "killed.exr"));
     cJSON *s = job_status(port + 1, job);
-    ck_assert_msg(jnum(s, "tasks_reissued") >= 1, "tasks_reissued %g after a kill -9\n%s", jnum(s, "tasks_reissued"),
-                  logs_tail());
+    ck_assert_msg(jnum(s, "tasks_reissued") >= 1, "tasks_reissued %g after a kill -9\n%s",
+                  jnum(s, "tasks_reissued"), logs_tail());
     cJSON_Delete(s);
     wait_workers(port + 1, 1);
     render_embedded(scene, LONG, 2, tmp(ref, sizeof ref, "killed-ref.exr"));
@@ -862,12 +884,14 @@ START_TEST(worker_joins)
     wait_workers(port + 1, 1);
     unsigned long long job = submit(port + 1, scene, settings);
     cJSON *st = wait_layers(port + 1, job, 1);
-    ck_assert_msg(state_is(st, "running"), "job %llu already %s: make it longer", job, jstr(st, "state"));
+    ck_assert_msg(state_is(st, "running"), "job %llu already %s: make it longer", job,
+                  jstr(st, "state"));
     cJSON_Delete(st);
     start_worker(port, 1, "c-late", "127.0.0.3");
     wait_workers(port + 1, 2);
     st = job_status(port + 1, job);
-    ck_assert_msg(state_is(st, "running"), "job %llu %s before the second worker joined: make it longer", job,
+    ck_assert_msg(state_is(st, "running"),
+                  "job %llu %s before the second worker joined: make it longer", job,
                   jstr(st, "state"));
     cJSON_Delete(st);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "joined.exr"));
@@ -892,8 +916,8 @@ START_TEST(worker_joins)
         if (strcmp(host, "127.0.0.3") == 0)
             late_done = tasks > 0;
     }
-    ck_assert_msg(rows == 2 && first_done && late_done, "want 2 workers with tasks done each:\n%s\n%s", out,
-                  logs_tail());
+    ck_assert_msg(rows == 2 && first_done && late_done,
+                  "want 2 workers with tasks done each:\n%s\n%s", out, logs_tail());
     stop_all_clean();
     remove_scratch();
 }
@@ -924,7 +948,8 @@ START_TEST(queued_jobs)
     image_t *a = NULL, *b = NULL;
     ck_assert_msg(image_read_exr(got[0], &a, err, sizeof err) == 0, "%s", err);
     ck_assert_msg(image_read_exr(got[1], &b, err, sizeof err) == 0, "%s", err);
-    ck_assert_msg(memcmp(image_channel(a, "R"), image_channel(b, "R"), (size_t)a->width * a->height * sizeof(float)) != 0,
+    ck_assert_msg(memcmp(image_channel(a, "R"), image_channel(b, "R"),
+                         (size_t)a->width * a->height * sizeof(float)) != 0,
                   "seeds 5 and 6 gave the same image");
     image_destroy(&a);
     image_destroy(&b);
@@ -944,12 +969,15 @@ START_TEST(cancel_job)
     start_master(&port, "e-master");
     start_worker(port, 1, "e-worker", NULL);
     /* about a minute of work: it can only end by the cancel */
-    unsigned long long job = submit(port + 1, scene, "--spp 16384 --granularity 16 --adaptive none");
+    unsigned long long job =
+        submit(port + 1, scene, "--spp 16384 --granularity 16 --adaptive none");
     cJSON_Delete(wait_layers(port + 1, job, 1));
     int rc = client(out, sizeof out, "cancel %llu --master tcp://127.0.0.1:%d", job, port + 1);
     ck_assert_msg(rc == 0, "cancel: exit %d:\n%s", rc, out);
-    rc = client(out, sizeof out, "wait %llu --progress none --master tcp://127.0.0.1:%d", job, port + 1);
-    ck_assert_msg(rc == 1 && strstr(out, "cancelled") != NULL, "wait on a cancelled job: exit %d:\n%s", rc, out);
+    rc = client(out, sizeof out, "wait %llu --progress none --master tcp://127.0.0.1:%d", job,
+                port + 1);
+    ck_assert_msg(rc == 1 && strstr(out, "cancelled") != NULL,
+                  "wait on a cancelled job: exit %d:\n%s", rc, out);
     rc = client(out, sizeof out, "status %llu --master tcp://127.0.0.1:%d", job, port + 1);
     ck_assert_msg(rc == 0 && strstr(out, "\"cancelled\"") != NULL, "status: exit %d:\n%s", rc, out);
     /* the master goes on: a small job completes, equal to its embedded twin */
@@ -959,7 +987,8 @@ START_TEST(cancel_job)
     compare_exr(ref, got);
     /* the cancelled job's partial image can still be fetched */
     unlink(got);
-    rc = client(out, sizeof out, "fetch %llu -o '%s' --master tcp://127.0.0.1:%d", job, got, port + 1);
+    rc = client(out, sizeof out, "fetch %llu -o '%s' --master tcp://127.0.0.1:%d", job, got,
+                port + 1);
     ck_assert_msg(rc == 0, "fetch of a cancelled job: exit %d:\n%s", rc, out);
     image_t *img = NULL;
     ck_assert_msg(image_read_exr(got, &img, err, sizeof err) == 0, "%s", err);
@@ -972,7 +1001,8 @@ START_TEST(cancel_job)
         hi = s[i] > hi ? s[i] : hi;
     }
     image_destroy(&img);
-    ck_assert_msg(total > 0 && hi < 16384, "cancelled image: %g samples, at most %g per pixel", total, hi);
+    ck_assert_msg(total > 0 && hi < 16384, "cancelled image: %g samples, at most %g per pixel",
+                  total, hi);
     stop_all_clean();
     remove_scratch();
 }
@@ -982,10 +1012,12 @@ END_TEST
 
 START_TEST(bad_scenes)
 {
-    char bad[PATHLEN], unknown[PATHLEN], good[PATHLEN], got[PATHLEN], ref[PATHLEN], out[OUTLEN], want[256];
+    char bad[PATHLEN], unknown[PATHLEN], good[PATHLEN], got[PATHLEN], ref[PATHLEN], out[OUTLEN],
+        want[256];
     char file[128];
     snprintf(file, sizeof file, "cluster-%ld-malformed.json", (long)getpid());
-    ck_assert_ptr_nonnull(keep_scratch(tu_write_tmp(bad, sizeof bad, file, "{\n  \"camera\": ,\n}\n")));
+    ck_assert_ptr_nonnull(
+        keep_scratch(tu_write_tmp(bad, sizeof bad, file, "{\n  \"camera\": ,\n}\n")));
     scene_file(unknown, sizeof unknown, 32, "\"material\": \"red\"", "\"material\": \"nosuch\"");
     scene_file(good, sizeof good, 32, NULL, NULL);
     int port = slot_port(5);
@@ -1004,12 +1036,14 @@ START_TEST(bad_scenes)
     ck_assert_int_gt(col, 0);
 
     rc = client(out, sizeof out, "submit '%s' --master tcp://127.0.0.1:%d", unknown, port + 1);
-    ck_assert_msg(rc == 1 && strstr(out, "nosuch") != NULL, "unknown material: exit %d:\n%s", rc, out);
+    ck_assert_msg(rc == 1 && strstr(out, "nosuch") != NULL, "unknown material: exit %d:\n%s", rc,
+                  out);
 
     assert_alive(m);
     cJSON *r = ctl(port + 1, "jobs", 0);
     ck_assert_ptr_nonnull(r);
-    ck_assert_msg(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(r, "jobs")) == 0, "a refused job was queued");
+    ck_assert_msg(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(r, "jobs")) == 0,
+                  "a refused job was queued");
     cJSON_Delete(r);
     unsigned long long job = submit(port + 1, good, SMALL);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "after-bad.exr"));
@@ -1044,7 +1078,8 @@ static void send_proto(void *sock, proto_msg_t *msg, int version, int bad_magic)
 /* Receives a VBRP message within the socket's receive timeout and decodes
  * it; 0 on success. From a ROUTER (id given) the routing identity comes
  * first and is copied to id (*id_len bytes, at most 256). */
-static int recv_proto(void *sock, uint8_t *id, size_t *id_len, proto_msg_t *msg, char *err, size_t errlen)
+static int recv_proto(void *sock, uint8_t *id, size_t *id_len, proto_msg_t *msg, char *err,
+                      size_t errlen)
 {
     int skip = id ? 1 : 0;
     zmq_msg_t f[3];
@@ -1067,8 +1102,8 @@ static int recv_proto(void *sock, uint8_t *id, size_t *id_len, proto_msg_t *msg,
             *id_len = zmq_msg_size(&f[0]) < 256 ? zmq_msg_size(&f[0]) : 256;
             memcpy(id, zmq_msg_data(&f[0]), *id_len);
         }
-        rc = proto_decode(zmq_msg_data(&f[skip]), zmq_msg_size(&f[skip]), zmq_msg_data(&f[skip + 1]),
-                          zmq_msg_size(&f[skip + 1]), msg, err, errlen);
+        rc = proto_decode(zmq_msg_data(&f[skip]), zmq_msg_size(&f[skip]),
+                          zmq_msg_data(&f[skip + 1]), zmq_msg_size(&f[skip + 1]), msg, err, errlen);
     } else if (n > 0) {
         snprintf(err, errlen, "%d frames%s", n, more ? " and more" : "");
     }
@@ -1125,7 +1160,8 @@ START_TEST(master_garbage)
     int rc = recv_proto(s, NULL, NULL, &reply, err, sizeof err);
     ck_assert_msg(rc == 0, "no readable reply to a version-2 HELLO: %s\n%s", err, logs_tail());
     ck_assert_msg(reply.h.type == PROTO_REFUSE && strstr(reply.u.text.text, "version 2") != NULL,
-                  "reply to a version-2 HELLO: %s \"%s\"", proto_type_name(reply.h.type), reply.u.text.text);
+                  "reply to a version-2 HELLO: %s \"%s\"", proto_type_name(reply.h.type),
+                  reply.u.text.text);
     /* this version, another build: refused too */
     memset(&msg, 0, sizeof msg);
     msg.h.type = PROTO_HELLO;
@@ -1133,16 +1169,18 @@ START_TEST(master_garbage)
     snprintf(msg.u.hello.build, sizeof msg.u.hello.build, "vbrender-p1-other-cc1");
     send_proto(s, &msg, -1, 0);
     rc = recv_proto(s, NULL, NULL, &reply, err, sizeof err);
-    ck_assert_msg(rc == 0 && reply.h.type == PROTO_REFUSE && strstr(reply.u.text.text, "build") != NULL,
-                  "reply to a HELLO of another build: rc %d %s \"%s\" %s", rc, proto_type_name(reply.h.type),
-                  reply.u.text.text, err);
+    ck_assert_msg(rc == 0 && reply.h.type == PROTO_REFUSE &&
+                      strstr(reply.u.text.text, "build") != NULL,
+                  "reply to a HELLO of another build: rc %d %s \"%s\" %s", rc,
+                  proto_type_name(reply.h.type), reply.u.text.text, err);
     /* a stranger's heartbeat: told to say HELLO first */
     memset(&msg, 0, sizeof msg);
     msg.h.type = PROTO_HEARTBEAT;
     send_proto(s, &msg, -1, 0);
     rc = recv_proto(s, NULL, NULL, &reply, err, sizeof err);
-    ck_assert_msg(rc == 0 && reply.h.type == PROTO_BYE, "reply to a stranger's heartbeat: rc %d %s %s", rc,
-                  proto_type_name(reply.h.type), err);
+    ck_assert_msg(rc == 0 && reply.h.type == PROTO_BYE,
+                  "reply to a stranger's heartbeat: rc %d %s %s", rc, proto_type_name(reply.h.type),
+                  err);
     /* an oversized frame: over the master's message size limit */
     size_t big = 8u << 20;
     uint8_t *huge = calloc(1, big);
@@ -1166,8 +1204,8 @@ START_TEST(master_garbage)
     int lines = 0;
     for (const char *p = log; (p = strstr(p, "dropped a malformed worker message")) != NULL; p++)
         lines++;
-    ck_assert_msg(lines > 0 && lines <= VBLOG_BURST, "%d malformed-message lines for 200 bad frames:\n%s", lines,
-                  logs_tail());
+    ck_assert_msg(lines > 0 && lines <= VBLOG_BURST,
+                  "%d malformed-message lines for 200 bad frames:\n%s", lines, logs_tail());
     /* and it still works, with the worker it had */
     wait_workers(port + 1, 1);
     unsigned long long job = submit(port + 1, scene, SMALL);
@@ -1206,8 +1244,9 @@ START_TEST(worker_refuses_version)
     size_t id_len = 0;
     proto_msg_t msg;
     int rc = recv_proto(r, id, &id_len, &msg, err, sizeof err);
-    ck_assert_msg(rc == 0 && msg.h.type == PROTO_HELLO, "the worker's first message: rc %d %s %s\n%s", rc,
-                  proto_type_name(msg.h.type), err, logs_tail());
+    ck_assert_msg(rc == 0 && msg.h.type == PROTO_HELLO,
+                  "the worker's first message: rc %d %s %s\n%s", rc, proto_type_name(msg.h.type),
+                  err, logs_tail());
     /* the answer, to the identity the HELLO came from: a WELCOME of version 99 */
     ck_assert_int_ge(zmq_send(r, id, id_len, ZMQ_SNDMORE), 0);
     memset(&msg, 0, sizeof msg);
@@ -1217,8 +1256,10 @@ START_TEST(worker_refuses_version)
     send_proto(r, &msg, 99, 0);
 
     int st = 0;
-    ck_assert_msg(reap(w, STOP_MS, &st), "the worker runs on after a version-99 answer\n%s", logs_tail());
-    ck_assert_msg(st != -1 && WIFEXITED(st) && WEXITSTATUS(st) == 1, "the worker ended with %s, want exit status 1\n%s",
+    ck_assert_msg(reap(w, STOP_MS, &st), "the worker runs on after a version-99 answer\n%s",
+                  logs_tail());
+    ck_assert_msg(st != -1 && WIFEXITED(st) && WEXITSTATUS(st) == 1,
+                  "the worker ended with %s, want exit status 1\n%s",
                   describe_status(st, why, sizeof why), logs_tail());
     read_log(w, log, sizeof log);
     ck_assert_msg(strstr(log, "99") != NULL, "the worker's log does not name version 99:\n%s", log);
@@ -1230,7 +1271,8 @@ START_TEST(worker_refuses_version)
             break;
         refused = msg.h.type == PROTO_REFUSE && strstr(msg.u.text.text, "99") != NULL;
     }
-    ck_assert_msg(refused, "no REFUSE naming version 99 from the worker (%s)\n%s", err, logs_tail());
+    ck_assert_msg(refused, "no REFUSE naming version 99 from the worker (%s)\n%s", err,
+                  logs_tail());
     zmq_close(r);
     zmq_ctx_term(ctx);
     remove_scratch();
@@ -1249,7 +1291,8 @@ START_TEST(sigterm)
     int port = slot_port(8);
     daemon_t *m = start_master(&port, "h-master");
     static const char *const hosts[2] = {"127.0.0.2", "127.0.0.3"};
-    daemon_t *w[2] = {start_worker(port, 1, "h-worker1", hosts[0]), start_worker(port, 1, "h-worker2", hosts[1])};
+    daemon_t *w[2] = {start_worker(port, 1, "h-worker1", hosts[0]),
+                      start_worker(port, 1, "h-worker2", hosts[1])};
     wait_workers(port + 1, 2);
     unsigned long long job = submit(port + 1, scene, LONG);
     cJSON_Delete(wait_layers(port + 1, job, 1));
@@ -1257,7 +1300,8 @@ START_TEST(sigterm)
     daemon_t *leaver = w[hit], *stayer = w[1 - hit];
     int st = 0;
     char why[64];
-    ck_assert_msg(reap(leaver, STOP_MS, &st), "the worker runs on %d ms after SIGTERM\n%s", STOP_MS, logs_tail());
+    ck_assert_msg(reap(leaver, STOP_MS, &st), "the worker runs on %d ms after SIGTERM\n%s", STOP_MS,
+                  logs_tail());
     ck_assert_msg(st != -1 && WIFEXITED(st) && WEXITSTATUS(st) == 0, "worker after SIGTERM: %s\n%s",
                   describe_status(st, why, sizeof why), logs_tail());
     /* it said BYE: the master drops it at once, not after a heartbeat timeout */
@@ -1329,21 +1373,32 @@ static int make_hosts(char *why, size_t whylen, char if_b[16])
                 netns_count = i + 1;
     }
     /* no veth pairs here (a failure leaves its reason in why): skip too */
-    if (!why[0] && sh(why, whylen, "ip -n '%s' link add %s type veth peer name %s netns '%s'", ns_m, if_ma,
-                      if_a, ns_a) == 0)
-        sh(why, whylen, "ip -n '%s' link add %s type veth peer name %s netns '%s'", ns_m, if_mb, if_b, ns_b);
+    if (!why[0] && sh(why, whylen, "ip -n '%s' link add %s type veth peer name %s netns '%s'", ns_m,
+                      if_ma, if_a, ns_a) == 0)
+        sh(why, whylen, "ip -n '%s' link add %s type veth peer name %s netns '%s'", ns_m, if_mb,
+           if_b, ns_b);
     if (why[0]) {
         netns_delete_all();
         return -1;
     }
     /* from here on a failure is a failure */
-    ck_assert_msg(sh(why, whylen, "ip -n '%s' addr add 10.200.1.1/24 dev %s && ip -n '%s' addr add 10.200.2.1/24 dev %s"
-                     " && ip -n '%s' link set lo up && ip -n '%s' link set %s up && ip -n '%s' link set %s up",
-                     ns_m, if_ma, ns_m, if_mb, ns_m, ns_m, if_ma, ns_m, if_mb) == 0, "%s", why);
-    ck_assert_msg(sh(why, whylen, "ip -n '%s' addr add 10.200.1.2/24 dev %s && ip -n '%s' link set lo up"
-                     " && ip -n '%s' link set %s up", ns_a, if_a, ns_a, ns_a, if_a) == 0, "%s", why);
-    ck_assert_msg(sh(why, whylen, "ip -n '%s' addr add 10.200.2.2/24 dev %s && ip -n '%s' link set lo up"
-                     " && ip -n '%s' link set %s up", ns_b, if_b, ns_b, ns_b, if_b) == 0, "%s", why);
+    ck_assert_msg(
+        sh(why, whylen,
+           "ip -n '%s' addr add 10.200.1.1/24 dev %s && ip -n '%s' addr add 10.200.2.1/24 dev %s"
+           " && ip -n '%s' link set lo up && ip -n '%s' link set %s up && ip -n '%s' link set %s "
+           "up",
+           ns_m, if_ma, ns_m, if_mb, ns_m, ns_m, if_ma, ns_m, if_mb) == 0,
+        "%s", why);
+    ck_assert_msg(sh(why, whylen,
+                     "ip -n '%s' addr add 10.200.1.2/24 dev %s && ip -n '%s' link set lo up"
+                     " && ip -n '%s' link set %s up",
+                     ns_a, if_a, ns_a, ns_a, if_a) == 0,
+                  "%s", why);
+    ck_assert_msg(sh(why, whylen,
+                     "ip -n '%s' addr add 10.200.2.2/24 dev %s && ip -n '%s' link set lo up"
+                     " && ip -n '%s' link set %s up",
+                     ns_b, if_b, ns_b, ns_b, if_b) == 0,
+                  "%s", why);
     return 0;
 }
 
@@ -1351,15 +1406,27 @@ static int make_hosts(char *why, size_t whylen, char if_b[16])
  * interface: --insecure, the namespaces reach nothing else) and a one-thread
  * worker in each worker namespace, named after tag; returns once the master
  * lists both. lease_ms NULL: the default. The control endpoint in cep. */
-static daemon_t *start_hosts_cluster(int port, const char *tag, const char *lease_ms, char *cep, size_t ceplen)
+static daemon_t *start_hosts_cluster(int port, const char *tag, const char *lease_ms, char *cep,
+                                     size_t ceplen)
 {
     char out[OUTLEN], bin[PATHLEN], wep[64], name[32];
     const char *ns_m = netns[0];
     snprintf(bin, sizeof bin, "%s/vbrender-master", bindir());
     snprintf(wep, sizeof wep, "tcp://*:%d", port);
     snprintf(cep, ceplen, "tcp://127.0.0.1:%d", port + 1);
-    const char *margs[] = {bin, "--workers", wep, "--control", cep, "--heartbeat-ms", "200", "--state", "none",
-                           "--insecure", lease_ms ? "--lease-ms" : NULL, lease_ms, NULL};
+    const char *margs[] = {bin,
+                           "--workers",
+                           wep,
+                           "--control",
+                           cep,
+                           "--heartbeat-ms",
+                           "200",
+                           "--state",
+                           "none",
+                           "--insecure",
+                           lease_ms ? "--lease-ms" : NULL,
+                           lease_ms,
+                           NULL};
     snprintf(name, sizeof name, "%s-master", tag);
     daemon_t *m = spawn(name, ns_m, margs);
     int ready = 0;
@@ -1405,13 +1472,15 @@ START_TEST(several_hosts)
     const int port = 7070; /* each namespace has its own ports */
     char cep[64];
     start_hosts_cluster(port, "i", NULL, cep, sizeof cep);
-    static const char *const settings = "--spp 128 --granularity 16 --adaptive thesis --uniform-layers 2 --seed 21";
+    static const char *const settings =
+        "--spp 128 --granularity 16 --adaptive thesis --uniform-layers 2 --seed 21";
     unsigned long long job = submit_in(ns_m, port + 1, scene, settings);
     finish_and_fetch_in(ns_m, port + 1, job, tmp(got, sizeof got, "hosts.exr"));
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "hosts-ref.exr"));
     compare_exr(ref, got);
     int rc = client_in(ns_m, out, sizeof out, "workers --master %s", cep);
-    ck_assert_msg(rc == 0 && strstr(out, "10.200.1.2") && strstr(out, "10.200.2.2"), "workers: exit %d:\n%s", rc, out);
+    ck_assert_msg(rc == 0 && strstr(out, "10.200.1.2") && strstr(out, "10.200.2.2"),
+                  "workers: exit %d:\n%s", rc, out);
     stop_all_clean();
     netns_delete_all();
     remove_scratch();
@@ -1450,8 +1519,8 @@ static daemon_t *start_durable(int *port, const char *name, const char *dir, con
     char wep[64], cep[64];
     snprintf(wep, sizeof wep, "tcp://127.0.0.1:%d", *port);
     snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", *port + 1);
-    const char *args[] = {bin, "--workers", wep, "--control", cep, "--heartbeat-ms", "200", "--state", dir,
-                          "--checkpoint-s", "0.2", NULL};
+    const char *args[] = {bin,   "--workers", wep, "--control",      cep,   "--heartbeat-ms",
+                          "200", "--state",   dir, "--checkpoint-s", "0.2", NULL};
     return spawn(name, NULL, args);
 }
 
@@ -1482,7 +1551,8 @@ START_TEST(master_crash)
                   fault_bin ? fault_bin : "unset");
     /* long enough on one thread that the third crash lands mid-job; half the
      * layers adaptive, so the scheduler's skip state is restored too */
-    static const char *const settings = "--spp 2048 --granularity 16 --adaptive thesis --uniform-layers 64 --seed 5";
+    static const char *const settings =
+        "--spp 2048 --granularity 16 --adaptive thesis --uniform-layers 64 --seed 5";
     char scene[PATHLEN], dir[PATHLEN], ref[PATHLEN], got[PATHLEN], got2[PATHLEN], log[65536];
     scene_file(scene, sizeof scene, 64, NULL, NULL);
     state_dir(dir, sizeof dir, "state-crash");
@@ -1500,21 +1570,29 @@ START_TEST(master_crash)
         char wep[64], cep[64];
         snprintf(wep, sizeof wep, "tcp://127.0.0.1:%d", port);
         snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
-        const char *args[] = {"env", "VB_FAULT_CRASH_BEFORE_RENAME=1", fault_bin, "--workers", wep, "--control", cep,
-                              "--heartbeat-ms", "200", "--state", dir, "--checkpoint-s", "0.2", NULL};
+        const char *args[] = {"env",     "VB_FAULT_CRASH_BEFORE_RENAME=1",
+                              fault_bin, "--workers",
+                              wep,       "--control",
+                              cep,       "--heartbeat-ms",
+                              "200",     "--state",
+                              dir,       "--checkpoint-s",
+                              "0.2",     NULL};
         m = spawn("j-master2b", NULL, args);
     }
     daemon_t *w = start_worker(port, 1, "j-worker", NULL);
     int st = 0;
-    ck_assert_msg(reap(m, 30000, &st), "the fault build did not crash at its first checkpoint\n%s", logs_tail());
+    ck_assert_msg(reap(m, 30000, &st), "the fault build did not crash at its first checkpoint\n%s",
+                  logs_tail());
     ck_assert_msg(WIFSIGNALED(st) && WTERMSIG(st) == SIGKILL, "fault build: %s\n%s",
                   describe_status(st, log, sizeof log), logs_tail());
-    ck_assert_msg(!file_exists(dir, job, "checkpoint"), "a checkpoint was renamed into place after all");
+    ck_assert_msg(!file_exists(dir, job, "checkpoint"),
+                  "a checkpoint was renamed into place after all");
 
     /* 3. mid-job, after checkpoints */
     m = start_durable(&port, "j-master3", dir, NULL);
     read_log(m, log, sizeof log);
-    ck_assert_msg(strstr(log, "1 job to resume"), "the restarted master did not find the job:\n%s", log);
+    ck_assert_msg(strstr(log, "1 job to resume"), "the restarted master did not find the job:\n%s",
+                  log);
     cJSON *s = wait_layers(port + 1, job, 8);
     ck_assert_msg(!job_ended(s), "the job ended before the third crash (make it longer)");
     cJSON_Delete(s);
@@ -1528,28 +1606,32 @@ START_TEST(master_crash)
              file_exists(dir, job, "checkpoint.prev")) &&
            now_ms() < end)
         sleep_ms(10);
-    ck_assert_msg(file_exists(dir, job, "checkpoint.prev"), "no new checkpoint within 10 s\n%s", logs_tail());
+    ck_assert_msg(file_exists(dir, job, "checkpoint.prev"), "no new checkpoint within 10 s\n%s",
+                  logs_tail());
     /* a client waiting on the job outlives the crash and the restart */
     char jobarg[32], cep[64];
     snprintf(jobarg, sizeof jobarg, "%llu", job);
     snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
-    const char *wargs[] = {tu_bin(), "wait", jobarg, "--progress", "none", "--timeout", "60", "--master", cep, NULL};
+    const char *wargs[] = {tu_bin(),    "wait", jobarg,     "--progress", "none",
+                           "--timeout", "60",   "--master", cep,          NULL};
     daemon_t *waiter = spawn("j-wait", NULL, wargs);
     sleep_ms(300);
     kill9(m);
     sleep_ms(500); /* long enough for the client to notice */
     m = start_durable(&port, "j-master4", dir, NULL);
     s = job_status(port + 1, job);
-    ck_assert_msg(strstr(jstr(s, "recovered"), "checkpoint at") != NULL, "status says recovered \"%s\"",
-                  jstr(s, "recovered"));
-    ck_assert_msg(jnum(s, "layers_done") >= 8 || job_ended(s), "resumed at %g layers, the checkpoint had >= 8",
-                  jnum(s, "layers_done"));
+    ck_assert_msg(strstr(jstr(s, "recovered"), "checkpoint at") != NULL,
+                  "status says recovered \"%s\"", jstr(s, "recovered"));
+    ck_assert_msg(jnum(s, "layers_done") >= 8 || job_ended(s),
+                  "resumed at %g layers, the checkpoint had >= 8", jnum(s, "layers_done"));
     cJSON_Delete(s);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "crash.exr"));
     int wst = 0;
-    ck_assert_msg(reap(waiter, 20000, &wst), "vbrender wait did not end with the job\n%s", logs_tail());
-    ck_assert_msg(WIFEXITED(wst) && WEXITSTATUS(wst) == 0, "vbrender wait across the restart: %s\n%s",
-                  describe_status(wst, log, sizeof log), logs_tail());
+    ck_assert_msg(reap(waiter, 20000, &wst), "vbrender wait did not end with the job\n%s",
+                  logs_tail());
+    ck_assert_msg(WIFEXITED(wst) && WEXITSTATUS(wst) == 0,
+                  "vbrender wait across the restart: %s\n%s", describe_status(wst, log, sizeof log),
+                  logs_tail());
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "crash-ref.exr"));
     compare_exr(ref, got);
     /* written by the background writer soon after the end */
@@ -1568,17 +1650,20 @@ START_TEST(master_crash)
     cJSON_Delete(s);
     char out[OUTLEN];
     unlink(tmp(got2, sizeof got2, "crash-again.exr"));
-    int rc = client(out, sizeof out, "fetch %llu -o '%s' --master tcp://127.0.0.1:%d", job, got2, port + 1);
+    int rc = client(out, sizeof out, "fetch %llu -o '%s' --master tcp://127.0.0.1:%d", job, got2,
+                    port + 1);
     ck_assert_msg(rc == 0, "fetch after restart: %s", out);
     compare_exr(ref, got2);
     unsigned long long next = submit(port + 1, scene, SMALL);
-    ck_assert_msg(next > job, "job id %llu after %llu: ids must increase across restarts", next, job);
+    ck_assert_msg(next > job, "job id %llu after %llu: ids must increase across restarts", next,
+                  job);
     cJSON_Delete(wait_end(port + 1, next));
     /* delete: gone from the list and from the disk */
     rc = client(out, sizeof out, "delete %llu --master tcp://127.0.0.1:%d", job, port + 1);
     ck_assert_msg(rc == 0, "delete: exit %d: %s", rc, out);
     cJSON *r = ctl(port + 1, "status", job);
-    ck_assert_msg(r && strstr(jstr(r, "error"), "no such job"), "a deleted job still answers status");
+    ck_assert_msg(r && strstr(jstr(r, "error"), "no such job"),
+                  "a deleted job still answers status");
     cJSON_Delete(r);
     end = now_ms() + 5000;
     while (file_exists(dir, job, "final") && now_ms() < end)
@@ -1608,7 +1693,8 @@ START_TEST(corrupt_checkpoint)
     double end = now_ms() + 10000;
     while (!file_exists(dir, job, "checkpoint.prev") && now_ms() < end)
         sleep_ms(20);
-    ck_assert_msg(file_exists(dir, job, "checkpoint.prev"), "no two checkpoints within 10 s\n%s", logs_tail());
+    ck_assert_msg(file_exists(dir, job, "checkpoint.prev"), "no two checkpoints within 10 s\n%s",
+                  logs_tail());
     /* freeze the worker so the job is still running when the master dies */
     kill(w->pid, SIGSTOP);
     cJSON *running = job_status(port + 1, job);
@@ -1629,9 +1715,11 @@ START_TEST(corrupt_checkpoint)
     fclose(f);
     m = start_durable(&port, "k-master2", dir, NULL);
     read_log(m, log, sizeof log);
-    ck_assert_msg(strstr(log, "checksum mismatch"), "the log does not report the corrupt checkpoint:\n%s", log);
+    ck_assert_msg(strstr(log, "checksum mismatch"),
+                  "the log does not report the corrupt checkpoint:\n%s", log);
     cJSON *s = job_status(port + 1, job);
-    ck_assert_msg(strstr(jstr(s, "recovered"), "checkpoint.prev") && strstr(jstr(s, "recovered"), "checksum"),
+    ck_assert_msg(strstr(jstr(s, "recovered"), "checkpoint.prev") &&
+                      strstr(jstr(s, "recovered"), "checksum"),
                   "status says recovered \"%s\"", jstr(s, "recovered"));
     cJSON_Delete(s);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "corrupt.exr"));
@@ -1652,7 +1740,8 @@ START_TEST(storage_failure)
     const char *fault_bin = getenv("VB_FAULT_MASTER");
     ck_assert_msg(fault_bin && access(fault_bin, X_OK) == 0, "VB_FAULT_MASTER is not built");
     static const char *const settings = "--spp 1024 --granularity 16 --adaptive none --seed 13";
-    char scene[PATHLEN], dir[PATHLEN], flag[PATHLEN], ref[PATHLEN], got[PATHLEN], out[OUTLEN], env[PATHLEN + 64];
+    char scene[PATHLEN], dir[PATHLEN], flag[PATHLEN], ref[PATHLEN], got[PATHLEN], out[OUTLEN],
+        env[PATHLEN + 64];
     scene_file(scene, sizeof scene, 48, NULL, NULL);
     state_dir(dir, sizeof dir, "state-full");
     ck_assert_int_eq(mkdir(dir, 0700), 0);
@@ -1663,17 +1752,20 @@ START_TEST(storage_failure)
     char wep[64], cep[64];
     snprintf(wep, sizeof wep, "tcp://127.0.0.1:%d", port);
     snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
-    const char *args[] = {"env", env, fault_bin, "--workers", wep, "--control", cep, "--heartbeat-ms", "200",
-                          "--state", dir, "--checkpoint-s", "0.2", NULL};
+    const char *args[] = {
+        "env", env,       fault_bin, "--workers",      wep,   "--control", cep, "--heartbeat-ms",
+        "200", "--state", dir,       "--checkpoint-s", "0.2", NULL};
     daemon_t *m = spawn("l-master", NULL, args);
     /* the disk is full: a submission is refused with the reason, no id */
     ck_assert_ptr_nonnull(tu_write_tmp(flag, sizeof flag, strrchr(flag, '/') + 1, "full"));
     int rc = 1;
-    for (int tries = 0; tries < 50 && (rc = client(out, sizeof out, "jobs --master %s", cep)) != 0; tries++)
+    for (int tries = 0; tries < 50 && (rc = client(out, sizeof out, "jobs --master %s", cep)) != 0;
+         tries++)
         sleep_ms(100);
     ck_assert_msg(rc == 0, "the fault master does not answer\n%s", logs_tail());
     rc = client(out, sizeof out, "submit '%s' %s --master %s", scene, settings, cep);
-    ck_assert_msg(rc != 0 && strstr(out, "No space left"), "submit on a full disk: exit %d:\n%s", rc, out);
+    ck_assert_msg(rc != 0 && strstr(out, "No space left"), "submit on a full disk: exit %d:\n%s",
+                  rc, out);
     /* room again: submitted; then full while it runs */
     unlink(flag);
     unsigned long long job = submit(port + 1, scene, settings);
@@ -1688,22 +1780,25 @@ START_TEST(storage_failure)
         cJSON_Delete(s);
         sleep_ms(50);
     }
-    ck_assert_msg(strstr(jstr(s, "storage_error"), "No space left"), "status shows no storage error: %s",
-                  jstr(s, "storage_error"));
+    ck_assert_msg(strstr(jstr(s, "storage_error"), "No space left"),
+                  "status shows no storage error: %s", jstr(s, "storage_error"));
     ck_assert_msg(state_is(s, "running"), "the job is %s while its writes fail", jstr(s, "state"));
     cJSON_Delete(s);
     assert_alive(m);
     char log[65536];
     read_log(m, log, sizeof log);
-    ck_assert_msg(strstr(log, "cannot write its state"), "the log does not report the failed write:\n%s", log);
+    ck_assert_msg(strstr(log, "cannot write its state"),
+                  "the log does not report the failed write:\n%s", log);
     unlink(flag);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "full.exr"));
     end = now_ms() + 10000;
     while (!file_exists(dir, job, "final") && now_ms() < end)
         sleep_ms(20);
-    ck_assert_msg(file_exists(dir, job, "final"), "the final record was not written once the disk had room");
+    ck_assert_msg(file_exists(dir, job, "final"),
+                  "the final record was not written once the disk had room");
     s = job_status(port + 1, job);
-    ck_assert_msg(strlen(jstr(s, "storage_error")) == 0, "storage error still shown: %s", jstr(s, "storage_error"));
+    ck_assert_msg(strlen(jstr(s, "storage_error")) == 0, "storage error still shown: %s",
+                  jstr(s, "storage_error"));
     cJSON_Delete(s);
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "full-ref.exr"));
     compare_exr(ref, got);
@@ -1840,10 +1935,11 @@ START_TEST(flood)
 #ifdef __SANITIZE_ADDRESS__
     /* ASan keeps freed memory in quarantine (256 MiB by default), so RSS
      * says nothing about the master here; the plain build checks it */
-    printf("SKIPPED: flood: the RSS bound under ASan (%ld KiB before, %ld KiB peak)\n", before, peak);
+    printf("SKIPPED: flood: the RSS bound under ASan (%ld KiB before, %ld KiB peak)\n", before,
+           peak);
 #else
-    ck_assert_msg(before > 0 && peak <= 2 * before, "master RSS %ld KiB before the flood, %ld KiB at its peak", before,
-                  peak);
+    ck_assert_msg(before > 0 && peak <= 2 * before,
+                  "master RSS %ld KiB before the flood, %ld KiB at its peak", before, peak);
 #endif
     for (int k = 0; k < 4; k++)
         zmq_close(socks[k]);
@@ -1852,10 +1948,12 @@ START_TEST(flood)
     ck_assert_ptr_nonnull(wl);
     double dropped = jnum(cJSON_GetObjectItemCaseSensitive(wl, "master"), "malformed_messages");
     cJSON_Delete(wl);
-    ck_assert_msg(dropped >= 1000000, "the master counted %.0f malformed messages of 1,100,000", dropped);
+    ck_assert_msg(dropped >= 1000000, "the master counted %.0f malformed messages of 1,100,000",
+                  dropped);
     struct stat lst;
     ck_assert_int_eq(stat(m->log, &lst), 0);
-    ck_assert_msg(lst.st_size < 64 * 1024, "the master wrote %lld bytes of log for the flood", (long long)lst.st_size);
+    ck_assert_msg(lst.st_size < 64 * 1024, "the master wrote %lld bytes of log for the flood",
+                  (long long)lst.st_size);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "flood.exr"));
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "flood-ref.exr"));
     compare_exr(ref, got);
@@ -1892,7 +1990,8 @@ static void nft_drop(const char *ns, const char *ifname, int lossy)
                      "ip netns exec '%s' nft 'add table inet vbfault; "
                      "add chain inet vbfault in { type filter hook input priority 0; }; "
                      "add chain inet vbfault out { type filter hook output priority 0; }; "
-                     "add rule inet vbfault in iifname \"%s\" %s; add rule inet vbfault out oifname \"%s\" %s'",
+                     "add rule inet vbfault in iifname \"%s\" %s; add rule inet vbfault out "
+                     "oifname \"%s\" %s'",
                      ns, ifname, what, ifname, what) == 0,
                   "nftables: %s", why);
 }
@@ -1900,7 +1999,8 @@ static void nft_drop(const char *ns, const char *ifname, int lossy)
 static void nft_heal(const char *ns)
 {
     char why[1024];
-    ck_assert_msg(sh(why, sizeof why, "ip netns exec '%s' nft delete table inet vbfault", ns) == 0, "%s", why);
+    ck_assert_msg(sh(why, sizeof why, "ip netns exec '%s' nft delete table inet vbfault", ns) == 0,
+                  "%s", why);
 }
 
 /* Master and worker A in their namespaces; worker B's link is cut for 10 s
@@ -1943,13 +2043,14 @@ static void net_fault(int lossy)
         sleep_ms(10000);
         nft_heal(ns_b);
     }
-    finish_and_fetch_in(ns_m, port + 1, job, tmp(got, sizeof got, lossy ? "lossy.exr" : "partition.exr"));
+    finish_and_fetch_in(ns_m, port + 1, job,
+                        tmp(got, sizeof got, lossy ? "lossy.exr" : "partition.exr"));
     cJSON *st = status_in(ns_m, cep, job);
     if (!lossy) {
-        ck_assert_msg(jnum(st, "tasks_reissued") > 0, "the cut-off worker's tasks were not issued again\n%s",
-                      logs_tail());
-        printf("partition: %.0f tasks issued again, %.0f late results dropped\n", jnum(st, "tasks_reissued"),
-               jnum(st, "late_results"));
+        ck_assert_msg(jnum(st, "tasks_reissued") > 0,
+                      "the cut-off worker's tasks were not issued again\n%s", logs_tail());
+        printf("partition: %.0f tasks issued again, %.0f late results dropped\n",
+               jnum(st, "tasks_reissued"), jnum(st, "late_results"));
         /* it rejoins */
         int back = 0;
         for (int tries = 0; tries < 200 && !back; tries++) {
@@ -1961,11 +2062,13 @@ static void net_fault(int lossy)
         ck_assert_msg(back, "the cut-off worker did not rejoin:\n%s\n%s", out, logs_tail());
         char log[65536];
         read_log(m, log, sizeof log);
-        ck_assert_msg(strstr(log, "10.200.2.2") && (strstr(log, "silent") || strstr(log, "lease ran out")),
+        ck_assert_msg(strstr(log, "10.200.2.2") &&
+                          (strstr(log, "silent") || strstr(log, "lease ran out")),
                       "the master did not drop the cut-off worker:\n%s", logs_tail());
     }
     cJSON_Delete(st);
-    render_embedded(scene, settings, 2, tmp(ref, sizeof ref, lossy ? "lossy-ref.exr" : "partition-ref.exr"));
+    render_embedded(scene, settings, 2,
+                    tmp(ref, sizeof ref, lossy ? "lossy-ref.exr" : "partition-ref.exr"));
     compare_exr(ref, got);
     if (lossy)
         nft_heal(ns_b);
@@ -1996,8 +2099,8 @@ START_TEST(big_submit)
     daemon_t *m = start_master(&port, "o-master");
     start_worker(port, 1, "o-worker", NULL);
     wait_workers(port + 1, 1);
-    unsigned long long job =
-        submit(port + 1, scene, "--spp 1048576 --granularity 1 --adaptive relerr --target-error 0.01");
+    unsigned long long job = submit(
+        port + 1, scene, "--spp 1048576 --granularity 1 --adaptive relerr --target-error 0.01");
     for (int i = 0; i < 20; i++) {
         double t0 = now_ms();
         cJSON *r = ctl(port + 1, "jobs", 0);
@@ -2044,8 +2147,8 @@ static int fake_recv(void *s, proto_msg_t *msg, tracer_task_t *recs)
         memset(msg, 0, sizeof *msg);
         msg->capacity = PROTO_MAX_TASK_PIXELS;
         msg->u.task.records = recs;
-        rc = proto_decode(zmq_msg_data(&f[0]), zmq_msg_size(&f[0]), zmq_msg_data(&f[1]), zmq_msg_size(&f[1]), msg,
-                          err, sizeof err);
+        rc = proto_decode(zmq_msg_data(&f[0]), zmq_msg_size(&f[0]), zmq_msg_data(&f[1]),
+                          zmq_msg_size(&f[1]), msg, err, sizeof err);
     }
     zmq_msg_close(&f[0]);
     zmq_msg_close(&f[1]);
@@ -2061,7 +2164,8 @@ static int fake_recv(void *s, proto_msg_t *msg, tracer_task_t *recs)
 START_TEST(lying_worker)
 {
     static const char *const settings = "--spp 256 --granularity 16 --adaptive none --seed 29";
-    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], log[65536], ep[96], build[PROTO_BUILD_SIZE + 1];
+    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], log[65536], ep[96],
+        build[PROTO_BUILD_SIZE + 1];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     int port = slot_port(13);
     daemon_t *m = start_master(&port, "r-master");
@@ -2081,8 +2185,8 @@ START_TEST(lying_worker)
     msg->u.hello.threads = 1;
     memcpy(msg->u.hello.build, build, sizeof msg->u.hello.build);
     fake_send(s, msg);
-    ck_assert_msg(fake_recv(s, msg, recs) == 0 && msg->h.type == PROTO_WELCOME, "no WELCOME for the fake\n%s",
-                  logs_tail());
+    ck_assert_msg(fake_recv(s, msg, recs) == 0 && msg->h.type == PROTO_WELCOME,
+                  "no WELCOME for the fake\n%s", logs_tail());
     /* forged credit: results of tasks it never held, then CREDIT again */
     for (int i = 0; i < 3000; i++) {
         memset(msg, 0, sizeof *msg);
@@ -2136,8 +2240,8 @@ START_TEST(lying_worker)
         lies++;
     }
     ck_assert_msg(quarantined, "the liar was not quarantined after %d lies\n%s", lies, logs_tail());
-    ck_assert_msg(most_held <= PROTO_CREDIT_PER_THREAD, "a 1-thread fake held %d tasks after forging credit",
-                  most_held);
+    ck_assert_msg(most_held <= PROTO_CREDIT_PER_THREAD,
+                  "a 1-thread fake held %d tasks after forging credit", most_held);
     /* it cannot come back */
     memset(msg, 0, sizeof *msg);
     msg->h.type = PROTO_HELLO;
@@ -2157,7 +2261,8 @@ START_TEST(lying_worker)
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "liar-ref.exr"));
     compare_exr(ref, got);
     read_log(m, log, sizeof log);
-    ck_assert_msg(strstr(log, "127.0.0.9 quarantined"), "the log does not name the quarantined worker:\n%s", log);
+    ck_assert_msg(strstr(log, "127.0.0.9 quarantined"),
+                  "the log does not name the quarantined worker:\n%s", log);
     stop_all_clean();
     remove_scratch();
 }
@@ -2166,8 +2271,8 @@ END_TEST
 /* A raw control request with binary frames (the client renames meshes, so
  * a test of the master's own checks needs this). The reply's "error", or
  * "" on success. */
-static void raw_submit(int cport, const char *json_req, const char *const *frames, const size_t *sizes, int n,
-                       char *err, size_t errlen)
+static void raw_submit(int cport, const char *json_req, const char *const *frames,
+                       const size_t *sizes, int n, char *err, size_t errlen)
 {
     void *ctx = zmq_ctx_new();
     void *s = zmq_socket(ctx, ZMQ_REQ);
@@ -2185,8 +2290,10 @@ static void raw_submit(int cport, const char *json_req, const char *const *frame
     ck_assert_msg(zmq_msg_recv(&r, s, 0) >= 0, "no reply to a raw submit");
     cJSON *body = cJSON_ParseWithLength(zmq_msg_data(&r), zmq_msg_size(&r));
     zmq_msg_close(&r);
-    snprintf(err, errlen, "%s", cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(body, "ok")) ? ""
-                                : jstr(body, "error")[0] ? jstr(body, "error") : "?");
+    snprintf(err, errlen, "%s",
+             cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(body, "ok")) ? ""
+             : jstr(body, "error")[0]                                   ? jstr(body, "error")
+                                                                        : "?");
     cJSON_Delete(body);
     zmq_close(s);
     zmq_ctx_term(ctx);
@@ -2199,11 +2306,23 @@ START_TEST(limits)
     char scene[PATHLEN], big[PATHLEN], out[OUTLEN], err[1024];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     int port = slot_port(14);
-    const char *extra[] = {"--state", "none", "--max-bundle-mib", "1", "--max-queued-per-client", "2",
-                           "--max-pixels", "1024", "--max-spp", "64", "--max-requests-per-s", "20", NULL};
+    const char *extra[] = {"--state",
+                           "none",
+                           "--max-bundle-mib",
+                           "1",
+                           "--max-queued-per-client",
+                           "2",
+                           "--max-pixels",
+                           "1024",
+                           "--max-spp",
+                           "64",
+                           "--max-requests-per-s",
+                           "20",
+                           NULL};
     daemon_t *m = start_master_with(&port, "s-master", extra);
     /* pixels and spp: 32x32 at 64 spp is in; 33x32 or 65 spp is out */
-    int rc = client(out, sizeof out, "submit '%s' --spp 65 --master tcp://127.0.0.1:%d", scene, port + 1);
+    int rc = client(out, sizeof out, "submit '%s' --spp 65 --master tcp://127.0.0.1:%d", scene,
+                    port + 1);
     ck_assert_msg(rc != 0 && strstr(out, "--max-spp"), "65 spp: exit %d: %s", rc, out);
     scene_file(big, sizeof big, 32, "\"width\": 32", "\"width\": 33");
     rc = client(out, sizeof out, "submit '%s' --spp 64 --master tcp://127.0.0.1:%d", big, port + 1);
@@ -2219,19 +2338,23 @@ START_TEST(limits)
     size_t sizes[2] = {jn, (1u << 20) - 4096 - jn};
     char *mesh = calloc(1, (1u << 20) + 1);
     const char *frames[2] = {json, mesh};
-    raw_submit(port + 1, "{\"cmd\":\"submit\",\"name\":\"a.json\",\"spp\":64,\"meshes\":[\"m.ply\"]}", frames, sizes,
-               2, err, sizeof err);
+    raw_submit(port + 1,
+               "{\"cmd\":\"submit\",\"name\":\"a.json\",\"spp\":64,\"meshes\":[\"m.ply\"]}", frames,
+               sizes, 2, err, sizeof err);
     ck_assert_msg(err[0] == '\0', "just under the bundle limit: %s", err);
     sizes[1] = (1u << 20) + 1 - jn;
-    raw_submit(port + 1, "{\"cmd\":\"submit\",\"name\":\"a.json\",\"spp\":64,\"meshes\":[\"m.ply\"]}", frames, sizes,
-               2, err, sizeof err);
+    raw_submit(port + 1,
+               "{\"cmd\":\"submit\",\"name\":\"a.json\",\"spp\":64,\"meshes\":[\"m.ply\"]}", frames,
+               sizes, 2, err, sizeof err);
     ck_assert_msg(strstr(err, "--max-bundle-mib") != NULL, "just over the bundle limit: %s", err);
     /* mesh names: the allowed set, and what is not in it */
-    static const char *const bad_names[] = {"..", ".hidden", "a/b", "a\\\\b", "tab\\there", "caf\\u00e9.ply", ""};
+    static const char *const bad_names[] = {"..",         ".hidden",        "a/b", "a\\\\b",
+                                            "tab\\there", "caf\\u00e9.ply", ""};
     sizes[1] = 16;
     for (size_t i = 0; i < sizeof bad_names / sizeof bad_names[0]; i++) {
         char req[256];
-        snprintf(req, sizeof req, "{\"cmd\":\"submit\",\"name\":\"a.json\",\"spp\":64,\"meshes\":[\"%s\"]}",
+        snprintf(req, sizeof req,
+                 "{\"cmd\":\"submit\",\"name\":\"a.json\",\"spp\":64,\"meshes\":[\"%s\"]}",
                  bad_names[i]);
         raw_submit(port + 1, req, frames, sizes, 2, err, sizeof err);
         ck_assert_msg(strstr(err, "meshes[0]") != NULL, "mesh name %s: %s", bad_names[i], err);
@@ -2242,10 +2365,13 @@ START_TEST(limits)
     /* queued per client: no worker, so jobs stay queued */
     submit(port + 1, scene, "--spp 64");
     submit(port + 1, scene, "--spp 64");
-    rc = client(out, sizeof out, "submit '%s' --spp 64 --master tcp://127.0.0.1:%d", scene, port + 1);
-    ck_assert_msg(rc != 0 && strstr(out, "--max-queued-per-client"), "third job: exit %d: %s", rc, out);
+    rc = client(out, sizeof out, "submit '%s' --spp 64 --master tcp://127.0.0.1:%d", scene,
+                port + 1);
+    ck_assert_msg(rc != 0 && strstr(out, "--max-queued-per-client"), "third job: exit %d: %s", rc,
+                  out);
     r = ctl(port + 1, "jobs", 0);
-    ck_assert_int_eq(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(r, "jobs")), 3); /* 1 cancelled */
+    ck_assert_int_eq(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(r, "jobs")),
+                     3); /* 1 cancelled */
     cJSON_Delete(r);
     /* requests per second: a burst of 40 is allowed, more is refused */
     int refused = 0;
@@ -2276,8 +2402,8 @@ START_TEST(limits)
     r = ctl(port + 1, "workers", 0);
     double limited = jnum(cJSON_GetObjectItemCaseSensitive(r, "master"), "rate_limited_requests");
     cJSON_Delete(r);
-    ck_assert_msg(limited >= 15 && limited <= 25, "%.0f of 60 requests in a burst refused; 20 expected (burst 40)",
-                  limited);
+    ck_assert_msg(limited >= 15 && limited <= 25,
+                  "%.0f of 60 requests in a burst refused; 20 expected (burst 40)", limited);
     ck_assert_int_gt(refused, 0); /* some replies came back */
     assert_alive(m);
     stop_all_clean();
@@ -2304,12 +2430,14 @@ static int selected_count(uint64_t seed, double tasks, double share)
 static daemon_t *start_liar(int port, const char *name, const char *src, int lie_every, int bit)
 {
     const char *bin = getenv("VB_FAULT_WORKER");
-    ck_assert_msg(bin && access(bin, X_OK) == 0, "VB_FAULT_WORKER (%s) is not built", bin ? bin : "unset");
+    ck_assert_msg(bin && access(bin, X_OK) == 0, "VB_FAULT_WORKER (%s) is not built",
+                  bin ? bin : "unset");
     char ep[128], every[48], flip[48];
     snprintf(ep, sizeof ep, "tcp://%s:0;127.0.0.1:%d", src, port);
     snprintf(every, sizeof every, "VB_FAULT_LIE_EVERY=%d", lie_every);
     snprintf(flip, sizeof flip, "VB_FAULT_LIE_BIT=%d", bit);
-    const char *args[] = {"env", every, flip, bin, "--master", ep, "--threads", "1", "--name", name, NULL};
+    const char *args[] = {"env",       every, flip,     bin,  "--master", ep,
+                          "--threads", "1",   "--name", name, NULL};
     return spawn(name, NULL, args);
 }
 
@@ -2347,37 +2475,44 @@ START_TEST(verify_liar)
     double end = now_ms() + 20000;
     for (;;) {
         st = job_status(port + 1, job);
-        if (strcmp(jstr(st, "waiting_for"), "a second worker") == 0 && jnum(st, "verify_waiting") > 0)
+        if (strcmp(jstr(st, "waiting_for"), "a second worker") == 0 &&
+            jnum(st, "verify_waiting") > 0)
             break;
-        ck_assert_msg(now_ms() < end, "the status never said it waits for a second worker\n%s", logs_tail());
+        ck_assert_msg(now_ms() < end, "the status never said it waits for a second worker\n%s",
+                      logs_tail());
         cJSON_Delete(st);
         sleep_ms(50);
     }
     ck_assert_msg(jnum(st, "samples") == 0 && jnum(st, "tasks_unverified") == 0,
-                  "share 1 merged %.0f samples, %.0f tasks unverified, with one worker", jnum(st, "samples"),
-                  jnum(st, "tasks_unverified"));
+                  "share 1 merged %.0f samples, %.0f tasks unverified, with one worker",
+                  jnum(st, "samples"), jnum(st, "tasks_unverified"));
     cJSON_Delete(st);
     start_worker(port, 1, "v-worker2", "127.0.0.3");
     daemon_t *liar = start_liar(port, "v-liar", "127.0.0.4", 3, 0);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "verify.exr"));
     st = job_status(port + 1, job);
     double tasks = jnum(st, "tasks");
-    ck_assert_msg(jnum(st, "tasks_verified") == tasks && tasks > 0 && jnum(st, "tasks_unverified") == 0,
-                  "%.0f of %.0f tasks verified, %.0f unverified\n%s", jnum(st, "tasks_verified"), tasks,
-                  jnum(st, "tasks_unverified"), logs_tail());
+    ck_assert_msg(jnum(st, "tasks_verified") == tasks && tasks > 0 &&
+                      jnum(st, "tasks_unverified") == 0,
+                  "%.0f of %.0f tasks verified, %.0f unverified\n%s", jnum(st, "tasks_verified"),
+                  tasks, jnum(st, "tasks_unverified"), logs_tail());
     ck_assert_msg(jnum(st, "verify_mismatches") >= 1, "no mismatch seen\n%s", logs_tail());
-    ck_assert_msg(names_quarantined(st, "127.0.0.4"), "the status does not name the liar\n%s", logs_tail());
+    ck_assert_msg(names_quarantined(st, "127.0.0.4"), "the status does not name the liar\n%s",
+                  logs_tail());
     ck_assert_msg(!names_quarantined(st, "127.0.0.2") && !names_quarantined(st, "127.0.0.3"),
                   "an honest worker was quarantined\n%s", logs_tail());
     cJSON_Delete(st);
     int status = 0;
     ck_assert_msg(reap(liar, 5000, &status) && WIFEXITED(status) && WEXITSTATUS(status) == 1,
-                  "the liar was not refused: %s\n%s", describe_status(status, why, sizeof why), logs_tail());
-    ck_assert_msg(strstr(read_log(liar, log, sizeof log), "fault injection: lying"), "the liar never lied:\n%s",
-                  log);
+                  "the liar was not refused: %s\n%s", describe_status(status, why, sizeof why),
+                  logs_tail());
+    ck_assert_msg(strstr(read_log(liar, log, sizeof log), "fault injection: lying"),
+                  "the liar never lied:\n%s", log);
     read_log(m, log, sizeof log);
-    ck_assert_msg(strstr(log, "worker 127.0.0.4 quarantined"), "the log does not name the liar:\n%s", log);
-    ck_assert_msg(!strstr(log, "worker 127.0.0.2 quarantined") && !strstr(log, "worker 127.0.0.3 quarantined"),
+    ck_assert_msg(strstr(log, "worker 127.0.0.4 quarantined"),
+                  "the log does not name the liar:\n%s", log);
+    ck_assert_msg(!strstr(log, "worker 127.0.0.2 quarantined") &&
+                      !strstr(log, "worker 127.0.0.3 quarantined"),
                   "an honest worker was quarantined:\n%s", log);
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "verify-ref.exr"));
     compare_exr(ref, got);
@@ -2401,21 +2536,26 @@ START_TEST(verify_no_majority)
     start_liar(port, "y-liar1", "127.0.0.3", 1, 0);
     start_liar(port, "y-liar2", "127.0.0.4", 1, 1);
     wait_workers(port + 1, 3);
-    unsigned long long job = submit(port + 1, scene, "--spp 64 --granularity 16 --adaptive none --seed 43");
+    unsigned long long job =
+        submit(port + 1, scene, "--spp 64 --granularity 16 --adaptive none --seed 43");
     double end = now_ms() + 20000;
     while (!strstr(read_log(m, log, sizeof log), "three different results")) {
-        ck_assert_msg(now_ms() < end, "no task was dropped for three different results\n%s", logs_tail());
+        ck_assert_msg(now_ms() < end, "no task was dropped for three different results\n%s",
+                      logs_tail());
         sleep_ms(50);
     }
     cJSON *st = job_status(port + 1, job);
-    ck_assert_msg(state_is(st, "running") && jnum(st, "samples") == 0 && jnum(st, "tasks_verified") == 0,
-                  "%s with %.0f samples, %.0f tasks verified, without a majority", jstr(st, "state"),
-                  jnum(st, "samples"), jnum(st, "tasks_verified"));
+    ck_assert_msg(state_is(st, "running") && jnum(st, "samples") == 0 &&
+                      jnum(st, "tasks_verified") == 0,
+                  "%s with %.0f samples, %.0f tasks verified, without a majority",
+                  jstr(st, "state"), jnum(st, "samples"), jnum(st, "tasks_verified"));
     ck_assert_msg(jnum(st, "verify_mismatches") >= 1 && jnum(st, "tasks_reissued") >= 1,
-                  "%.0f mismatches, %.0f tasks reissued", jnum(st, "verify_mismatches"), jnum(st, "tasks_reissued"));
+                  "%.0f mismatches, %.0f tasks reissued", jnum(st, "verify_mismatches"),
+                  jnum(st, "tasks_reissued"));
     ck_assert_int_eq(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(st, "quarantined")), 0);
     cJSON_Delete(st);
-    ck_assert_msg(!strstr(log, "quarantined"), "a worker was quarantined without a majority:\n%s", log);
+    ck_assert_msg(!strstr(log, "quarantined"), "a worker was quarantined without a majority:\n%s",
+                  log);
     cJSON *r = ctl(port + 1, "cancel", job);
     ck_assert_ptr_nonnull(r);
     cJSON_Delete(r);
@@ -2445,11 +2585,12 @@ START_TEST(verify_quarter)
     cJSON *st = job_status(port + 1, job);
     double tasks = jnum(st, "tasks"), verified = jnum(st, "tasks_verified");
     int chosen = selected_count(37, tasks, 0.25);
-    ck_assert_msg(verified > 0.15 * tasks && verified < 0.35 * tasks, "%.0f of %.0f tasks verified at share 0.25",
-                  verified, tasks);
+    ck_assert_msg(verified > 0.15 * tasks && verified < 0.35 * tasks,
+                  "%.0f of %.0f tasks verified at share 0.25", verified, tasks);
     /* a worker dropped meanwhile (a slow test machine) leaves some unverified */
-    ck_assert_msg(verified + jnum(st, "tasks_unverified") == chosen, "%.0f verified + %.0f unverified, %d chosen",
-                  verified, jnum(st, "tasks_unverified"), chosen);
+    ck_assert_msg(verified + jnum(st, "tasks_unverified") == chosen,
+                  "%.0f verified + %.0f unverified, %d chosen", verified,
+                  jnum(st, "tasks_unverified"), chosen);
     ck_assert_msg(jnum(st, "verify_mismatches") == 0, "%.0f mismatches between honest workers\n%s",
                   jnum(st, "verify_mismatches"), logs_tail());
     ck_assert_int_eq(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(st, "quarantined")), 0);
@@ -2478,7 +2619,8 @@ START_TEST(verify_one_worker)
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "one.exr"));
     cJSON *st = job_status(port + 1, job);
     int chosen = selected_count(41, jnum(st, "tasks"), 0.5);
-    ck_assert_msg(chosen > 0 && jnum(st, "tasks_unverified") == chosen && jnum(st, "tasks_verified") == 0,
+    ck_assert_msg(chosen > 0 && jnum(st, "tasks_unverified") == chosen &&
+                      jnum(st, "tasks_verified") == 0,
                   "%.0f unverified, %.0f verified, %d chosen\n%s", jnum(st, "tasks_unverified"),
                   jnum(st, "tasks_verified"), chosen, logs_tail());
     cJSON_Delete(st);
@@ -2488,7 +2630,6 @@ START_TEST(verify_one_worker)
     remove_scratch();
 }
 END_TEST
-
 
 /* ---- k. CURVE keys ------------------------------------------------------------------ */
 
@@ -2506,7 +2647,8 @@ static const char *key_dir(char *buf, size_t len)
     return buf;
 }
 
-static const char *key_path(char *buf, size_t len, const char *dir, const char *name, const char *ext)
+static const char *key_path(char *buf, size_t len, const char *dir, const char *name,
+                            const char *ext)
 {
     snprintf(buf, len, "%s/%s.%s", dir, name, ext);
     return buf;
@@ -2529,8 +2671,9 @@ static void keygen(const char *dir, const char *name, const char *list)
 static void public_key(const char *dir, const char *name, char out[KEYS_Z85_LEN + 1])
 {
     char path[PATHLEN + 64], err[1024];
-    ck_assert_msg(keys_load_public(key_path(path, sizeof path, dir, name, "pub"), out, err, sizeof err) == 0, "%s",
-                  err);
+    ck_assert_msg(
+        keys_load_public(key_path(path, sizeof path, dir, name, "pub"), out, err, sizeof err) == 0,
+        "%s", err);
 }
 
 /* The test talks to the master of DIR/master.pub with the key pair
@@ -2539,8 +2682,9 @@ static void use_client_keys(const char *dir, const char *name)
 {
     char key[PATHLEN + 64], master[PATHLEN + 64], err[1024];
     keys_pair_t k;
-    ck_assert_msg(keys_load_secret(key_path(key, sizeof key, dir, name, "key"), &k, err, sizeof err) == 0, "%s",
-                  err);
+    ck_assert_msg(
+        keys_load_secret(key_path(key, sizeof key, dir, name, "key"), &k, err, sizeof err) == 0,
+        "%s", err);
     memcpy(ctl_public, k.public_z85, sizeof ctl_public);
     memcpy(ctl_secret, k.secret_z85, sizeof ctl_secret);
     public_key(dir, "master", ctl_master);
@@ -2556,15 +2700,15 @@ static daemon_t *start_keyed_master(int *port, const char *name, const char *dir
     key_path(key, sizeof key, dir, "master", "key");
     snprintf(workers, sizeof workers, "%s/workers", dir);
     snprintf(clients, sizeof clients, "%s/clients", dir);
-    const char *extra[] = {"--state", "none", "--key", key, "--allow-workers", workers, "--allow-clients", clients,
-                           NULL};
+    const char *extra[] = {"--state",         "none",  "--key", key, "--allow-workers", workers,
+                           "--allow-clients", clients, NULL};
     return start_master_with(port, name, extra);
 }
 
 /* A one-thread worker with the key pair DIR/KEY.key, holding DIR/MASTER.pub
  * as the master's public key. */
-static daemon_t *start_keyed_worker(int port, const char *name, const char *src, const char *dir, const char *key,
-                                    const char *master)
+static daemon_t *start_keyed_worker(int port, const char *name, const char *src, const char *dir,
+                                    const char *key, const char *master)
 {
     char k[PATHLEN + 64], m[PATHLEN + 64];
     const char *extra[] = {"--key", key_path(k, sizeof k, dir, key, "key"), "--master-key",
@@ -2599,11 +2743,13 @@ START_TEST(curve_render)
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     int port = slot_port(12);
     daemon_t *m = start_keyed_master(&port, "k-master", dir);
-    ck_assert_msg(log_has(m, "CURVE on both sockets: 2 worker keys, 1 client key", 0), "%s", logs_tail());
+    ck_assert_msg(log_has(m, "CURVE on both sockets: 2 worker keys, 1 client key", 0), "%s",
+                  logs_tail());
     start_keyed_worker(port, "k-worker1", "127.0.0.2", dir, "w1", "master");
     start_keyed_worker(port, "k-worker2", "127.0.0.3", dir, "w2", "master");
     wait_workers(port + 1, 2);
-    static const char *const settings = "--spp 128 --granularity 16 --adaptive thesis --uniform-layers 2 --seed 31";
+    static const char *const settings =
+        "--spp 128 --granularity 16 --adaptive thesis --uniform-layers 2 --seed 31";
     unsigned long long job = submit(port + 1, scene, settings);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "curve.exr"));
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "curve-ref.exr"));
@@ -2630,10 +2776,12 @@ START_TEST(curve_unknown_worker)
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     int port = slot_port(13);
     daemon_t *m = start_keyed_master(&port, "l-master", dir);
-    daemon_t *stranger = start_keyed_worker(port, "l-stranger", "127.0.0.3", dir, "stranger", "master");
+    daemon_t *stranger =
+        start_keyed_worker(port, "l-stranger", "127.0.0.3", dir, "stranger", "master");
     start_keyed_worker(port, "l-good", "127.0.0.2", dir, "good", "master");
     snprintf(want, sizeof want, "refused worker key %s from 127.0.0.3", pub);
-    ck_assert_msg(log_has(m, want, 10000), "the master's log does not say '%s'\n%s", want, logs_tail());
+    ck_assert_msg(log_has(m, want, 10000), "the master's log does not say '%s'\n%s", want,
+                  logs_tail());
     ck_assert_msg(log_has(stranger, "refused this worker's key (not in its allow-list)", 10000),
                   "the refused worker does not say why\n%s", logs_tail());
     wait_workers(port + 1, 1);
@@ -2642,9 +2790,10 @@ START_TEST(curve_unknown_worker)
     cJSON *list = workers_list(port + 1);
     ck_assert_int_eq(cJSON_GetArraySize(list), 1);
     const cJSON *w = cJSON_GetArrayItem(list, 0);
-    ck_assert_msg(strcmp(jstr(w, "host"), "127.0.0.2") == 0 && jnum(w, "tasks_done") > 0,
-                  "want the admitted worker (127.0.0.2) to have done the job, got %s with %.0f tasks\n%s",
-                  jstr(w, "host"), jnum(w, "tasks_done"), logs_tail());
+    ck_assert_msg(
+        strcmp(jstr(w, "host"), "127.0.0.2") == 0 && jnum(w, "tasks_done") > 0,
+        "want the admitted worker (127.0.0.2) to have done the job, got %s with %.0f tasks\n%s",
+        jstr(w, "host"), jnum(w, "tasks_done"), logs_tail());
     cJSON_Delete(list);
     assert_alive(stranger); /* refused, not gone: it tries again with backoff */
     render_embedded(scene, SMALL, 1, tmp(ref, sizeof ref, "stranger-ref.exr"));
@@ -2688,23 +2837,28 @@ START_TEST(curve_refused_clients)
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         char keys[3 * PATHLEN] = "", k[PATHLEN + 64], mk[PATHLEN + 64];
         if (cases[i].key)
-            snprintf(keys, sizeof keys, "--key '%s' --master-key '%s'", key_path(k, sizeof k, dir, cases[i].key, "key"),
+            snprintf(keys, sizeof keys, "--key '%s' --master-key '%s'",
+                     key_path(k, sizeof k, dir, cases[i].key, "key"),
                      key_path(mk, sizeof mk, dir, cases[i].master, "pub"));
         else
             forget_client_keys(); /* the last case: none at all */
         int is_submit = strncmp(cases[i].cmd, "submit", 6) == 0;
         double t0 = now_ms();
-        int rc = client(out, sizeof out, "%s %s%s%s --master %s %s", cases[i].cmd, is_submit ? "'" : "",
-                        is_submit ? scene : "", is_submit ? "'" : "", ep, keys);
+        int rc =
+            client(out, sizeof out, "%s %s%s%s --master %s %s", cases[i].cmd, is_submit ? "'" : "",
+                   is_submit ? scene : "", is_submit ? "'" : "", ep, keys);
         double ms = now_ms() - t0;
-        ck_assert_msg(rc == 1 && ms < 5000 && strstr(out, cases[i].want), "%s with %s and %s: exit %d after %.0f ms, "
-                      "want 1 within 5000 ms saying '%s':\n%s\n%s", cases[i].cmd, cases[i].key ? cases[i].key : "no key",
-                      cases[i].master ? cases[i].master : "no master key", rc, ms, cases[i].want, out, logs_tail());
+        ck_assert_msg(rc == 1 && ms < 5000 && strstr(out, cases[i].want),
+                      "%s with %s and %s: exit %d after %.0f ms, "
+                      "want 1 within 5000 ms saying '%s':\n%s\n%s",
+                      cases[i].cmd, cases[i].key ? cases[i].key : "no key",
+                      cases[i].master ? cases[i].master : "no master key", rc, ms, cases[i].want,
+                      out, logs_tail());
     }
     use_client_keys(dir, "client");
     daemon_t *w = start_keyed_worker(port, "m-wrong-master-key", NULL, dir, "w", "stranger");
-    ck_assert_msg(log_has(w, wrong, 10000), "the worker holding the wrong master key does not say so\n%s",
-                  logs_tail());
+    ck_assert_msg(log_has(w, wrong, 10000),
+                  "the worker holding the wrong master key does not say so\n%s", logs_tail());
     cJSON *list = workers_list(port + 1);
     ck_assert_int_eq(cJSON_GetArraySize(list), 0);
     cJSON_Delete(list);
@@ -2731,7 +2885,9 @@ START_TEST(curve_key_mode)
     key_path(pub, sizeof pub, dir, "master", "pub");
 
     ck_assert_int_eq(chmod(key_path(key, sizeof key, dir, "client", "key"), 0644), 0);
-    int rc = client(out, sizeof out, "jobs --master tcp://127.0.0.1:%d --key '%s' --master-key '%s'", port + 1, key, pub);
+    int rc =
+        client(out, sizeof out, "jobs --master tcp://127.0.0.1:%d --key '%s' --master-key '%s'",
+               port + 1, key, pub);
     ck_assert_msg(rc == 1 && strstr(out, key) && strstr(out, "0644") && strstr(out, "too open"),
                   "client with a 0644 key: exit %d:\n%s", rc, out);
 
@@ -2739,10 +2895,13 @@ START_TEST(curve_key_mode)
     const char *wargs[] = {"--key", key, "--master-key", pub, NULL};
     daemon_t *w = start_worker_with(port, 1, "n-worker", NULL, wargs);
     int st = 0;
-    ck_assert_msg(reap(w, 5000, &st) && WIFEXITED(st) && WEXITSTATUS(st) == 1, "the worker with a 0604 key did not "
-                  "exit 1:\n%s", logs_tail());
+    ck_assert_msg(reap(w, 5000, &st) && WIFEXITED(st) && WEXITSTATUS(st) == 1,
+                  "the worker with a 0604 key did not "
+                  "exit 1:\n%s",
+                  logs_tail());
     read_log(w, log, sizeof log);
-    ck_assert_msg(strstr(log, key) && strstr(log, "0604"), "the worker does not name the key and its mode:\n%s", log);
+    ck_assert_msg(strstr(log, key) && strstr(log, "0604"),
+                  "the worker does not name the key and its mode:\n%s", log);
 
     ck_assert_int_eq(chmod(key_path(key, sizeof key, dir, "master", "key"), 0640), 0);
     snprintf(bin, sizeof bin, "%s/vbrender-master", bindir());
@@ -2750,13 +2909,16 @@ START_TEST(curve_key_mode)
     snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
     snprintf(workers, sizeof workers, "%s/workers", dir);
     snprintf(clients, sizeof clients, "%s/clients", dir);
-    const char *margs[] = {bin, "--workers", wep, "--control", cep, "--state", "none", "--key", key,
-                           "--allow-workers", workers, "--allow-clients", clients, NULL};
+    const char *margs[] = {bin,     "--workers", wep, "--control",       cep,     "--state",
+                           "none",  "--key",     key, "--allow-workers", workers, "--allow-clients",
+                           clients, NULL};
     daemon_t *m = spawn("n-master", NULL, margs);
-    ck_assert_msg(reap(m, 5000, &st) && WIFEXITED(st) && WEXITSTATUS(st) == 1, "the master with a 0640 key: %s\n%s",
-                  describe_status(st, why, sizeof why), logs_tail());
+    ck_assert_msg(reap(m, 5000, &st) && WIFEXITED(st) && WEXITSTATUS(st) == 1,
+                  "the master with a 0640 key: %s\n%s", describe_status(st, why, sizeof why),
+                  logs_tail());
     read_log(m, log, sizeof log);
-    ck_assert_msg(strstr(log, key) && strstr(log, "0640"), "the master does not name the key and its mode:\n%s", log);
+    ck_assert_msg(strstr(log, key) && strstr(log, "0640"),
+                  "the master does not name the key and its mode:\n%s", log);
     remove_state(dir);
     remove_scratch();
 }
@@ -2776,9 +2938,10 @@ START_TEST(insecure_bind)
         const char *args[] = {bin, "--workers", wep, "--control", cep, "--state", "none", NULL};
         daemon_t *m = spawn(side ? "o-refused-control" : "o-refused-workers", NULL, args);
         int st = 0;
-        ck_assert_msg(reap(m, 5000, &st) && WIFEXITED(st) && (WEXITSTATUS(st) == 1 || WEXITSTATUS(st) == 2),
-                      "a master binding %s without keys: %s\n%s", side ? cep : wep, describe_status(st, why, sizeof why),
-                      logs_tail());
+        ck_assert_msg(reap(m, 5000, &st) && WIFEXITED(st) &&
+                          (WEXITSTATUS(st) == 1 || WEXITSTATUS(st) == 2),
+                      "a master binding %s without keys: %s\n%s", side ? cep : wep,
+                      describe_status(st, why, sizeof why), logs_tail());
         read_log(m, log, sizeof log);
         ck_assert_msg(strstr(log, side ? cep : wep) && strstr(log, "--insecure"),
                       "the refusal does not name %s and --insecure:\n%s", side ? cep : wep, log);
@@ -2787,15 +2950,17 @@ START_TEST(insecure_bind)
         ck_assert_msg(attempt < 3, "no free port for the master\n%s", logs_tail());
         snprintf(wep, sizeof wep, "tcp://*:%d", port);
         snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
-        const char *args[] = {bin, "--workers", wep, "--control", cep, "--state", "none", "--insecure", NULL};
+        const char *args[] = {bin,       "--workers", wep,          "--control", cep,
+                              "--state", "none",      "--insecure", NULL};
         daemon_t *m = spawn("o-insecure", NULL, args);
         int st = 0, exited = 0;
         double end = now_ms() + 10000;
-        while (!strstr(read_log(m, log, sizeof log), "listening") && !(exited = reap(m, 0, &st)) && now_ms() < end)
+        while (!strstr(read_log(m, log, sizeof log), "listening") && !(exited = reap(m, 0, &st)) &&
+               now_ms() < end)
             sleep_ms(10);
         if (exited) {
-            ck_assert_msg(strstr(read_log(m, log, sizeof log), "cannot bind") != NULL, "--insecure master exited:\n%s",
-                          logs_tail());
+            ck_assert_msg(strstr(read_log(m, log, sizeof log), "cannot bind") != NULL,
+                          "--insecure master exited:\n%s", logs_tail());
             continue; /* port taken */
         }
         ck_assert_msg(log_has(m, "warning: --insecure", 2000) && log_has(m, wep, 0),
@@ -2814,7 +2979,8 @@ END_TEST
  * the image equals the embedded render. */
 START_TEST(curve_sighup)
 {
-    char dir[PATHLEN], scene[PATHLEN], ref[PATHLEN], got[PATHLEN], path[PATHLEN + 64], log[65536], why[64];
+    char dir[PATHLEN], scene[PATHLEN], ref[PATHLEN], got[PATHLEN], path[PATHLEN + 64], log[65536],
+        why[64];
     key_dir(dir, sizeof dir);
     keygen(dir, "master", NULL);
     keygen(dir, "w1", "workers");
@@ -2835,18 +3001,22 @@ START_TEST(curve_sighup)
     snprintf(path, sizeof path, "%s/workers/w2.pub", dir);
     ck_assert_int_eq(unlink(path), 0);
     ck_assert_int_eq(kill(m->pid, SIGHUP), 0);
-    ck_assert_msg(log_has(m, "allow-lists reloaded: 1 worker key", 5000), "no reload\n%s", logs_tail());
-    ck_assert_msg(log_has(m, "gone: key no longer allowed", 5000), "worker 2 was not dropped\n%s", logs_tail());
+    ck_assert_msg(log_has(m, "allow-lists reloaded: 1 worker key", 5000), "no reload\n%s",
+                  logs_tail());
+    ck_assert_msg(log_has(m, "gone: key no longer allowed", 5000), "worker 2 was not dropped\n%s",
+                  logs_tail());
     int status = 0;
     ck_assert_msg(reap(w2, 10000, &status) && WIFEXITED(status) && WEXITSTATUS(status) == 1,
-                  "the dropped worker: %s, want exit 1\n%s", describe_status(status, why, sizeof why), logs_tail());
+                  "the dropped worker: %s, want exit 1\n%s",
+                  describe_status(status, why, sizeof why), logs_tail());
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "sighup.exr"));
     /* dropped while the job ran */
     read_log(m, log, sizeof log);
     char done[64];
     snprintf(done, sizeof done, "job %llu done", job);
     const char *drop_at = strstr(log, "gone: key no longer allowed"), *done_at = strstr(log, done);
-    ck_assert_msg(drop_at && done_at && drop_at < done_at, "the worker was not dropped mid-job:\n%s", logs_tail());
+    ck_assert_msg(drop_at && done_at && drop_at < done_at,
+                  "the worker was not dropped mid-job:\n%s", logs_tail());
     cJSON *list = workers_list(port + 1);
     ck_assert_int_eq(cJSON_GetArraySize(list), 1);
     ck_assert_str_eq(jstr(cJSON_GetArrayItem(list, 0), "host"), "127.0.0.2");
@@ -2863,7 +3033,8 @@ END_TEST
  * an admin key sees every job and may act on it; readmit is admin-only. */
 START_TEST(curve_ownership)
 {
-    char dir[PATHLEN], scene[PATHLEN], out[OUTLEN], admins[PATHLEN + 16], cmd[3 * PATHLEN], got[PATHLEN];
+    char dir[PATHLEN], scene[PATHLEN], out[OUTLEN], admins[PATHLEN + 16], cmd[3 * PATHLEN],
+        got[PATHLEN];
     key_dir(dir, sizeof dir);
     keygen(dir, "master", NULL);
     keygen(dir, "w1", "workers");
@@ -2880,8 +3051,17 @@ START_TEST(curve_ownership)
     key_path(key, sizeof key, dir, "master", "key");
     snprintf(workers, sizeof workers, "%s/workers", dir);
     snprintf(clients, sizeof clients, "%s/clients", dir);
-    const char *extra[] = {"--state", "none", "--key", key, "--allow-workers", workers, "--allow-clients", clients,
-                           "--admin-clients", admins, NULL};
+    const char *extra[] = {"--state",
+                           "none",
+                           "--key",
+                           key,
+                           "--allow-workers",
+                           workers,
+                           "--allow-clients",
+                           clients,
+                           "--admin-clients",
+                           admins,
+                           NULL};
     use_client_keys(dir, "alice");
     start_master_with(&port, "t-master", extra);
     /* alice's job, queued (no worker yet) */
@@ -2895,13 +3075,14 @@ START_TEST(curve_ownership)
     static const char *const cmds[] = {"status", "cancel", "fetch", "delete"};
     for (size_t i = 0; i < 4; i++) {
         r = ctl(port + 1, cmds[i], job);
-        ck_assert_msg(r && strstr(jstr(r, "error"), "belongs to another client"), "bob's %s: %s", cmds[i],
-                      r ? jstr(r, "error") : "no reply");
+        ck_assert_msg(r && strstr(jstr(r, "error"), "belongs to another client"), "bob's %s: %s",
+                      cmds[i], r ? jstr(r, "error") : "no reply");
         cJSON_Delete(r);
     }
     int rc = client(out, sizeof out, "fetch %llu -o '%s' --master tcp://127.0.0.1:%d", job,
                     tmp(got, sizeof got, "bob.exr"), port + 1);
-    ck_assert_msg(rc != 0 && strstr(out, "another client"), "bob's fetch through the client: exit %d: %s", rc, out);
+    ck_assert_msg(rc != 0 && strstr(out, "another client"),
+                  "bob's fetch through the client: exit %d: %s", rc, out);
     r = cJSON_CreateObject();
     cJSON_Delete(r);
     /* the admin sees it and may act on it */
@@ -2918,12 +3099,12 @@ START_TEST(curve_ownership)
     ck_assert_msg(rc != 0 && strstr(out, "only an admin"), "alice's readmit: exit %d: %s", rc, out);
     use_client_keys(dir, "root");
     r = ctl(port + 1, "cancel", job);
-    ck_assert_msg(r && cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")), "the admin's cancel: %s",
-                  r ? jstr(r, "error") : "no reply");
+    ck_assert_msg(r && cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")),
+                  "the admin's cancel: %s", r ? jstr(r, "error") : "no reply");
     cJSON_Delete(r);
     r = ctl(port + 1, "delete", job);
-    ck_assert_msg(r && cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")), "the admin's delete: %s",
-                  r ? jstr(r, "error") : "no reply");
+    ck_assert_msg(r && cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")),
+                  "the admin's delete: %s", r ? jstr(r, "error") : "no reply");
     cJSON_Delete(r);
     stop_all_clean();
     remove_state(dir);
@@ -2940,22 +3121,37 @@ static Suite *cluster_suite(void)
         const char *name;
         const TTest *test;
     } cases[] = {
-        {"identical_pixels", identical_pixels}, {"worker_killed", worker_killed},
-        {"worker_joins", worker_joins},         {"queued_jobs", queued_jobs},
-        {"cancel", cancel_job},                 {"bad_scenes", bad_scenes},
-        {"garbage", master_garbage},            {"version", worker_refuses_version},
-        {"sigterm", sigterm},                   {"several_hosts", several_hosts},
-        {"master_crash", master_crash},         {"corrupt_checkpoint", corrupt_checkpoint},
-        {"storage_failure", storage_failure},   {"churn", churn},
-        {"flood", flood},                       {"partition", partition},
-        {"lossy_link", lossy_link},             {"big_submit", big_submit},
-        {"lying_worker", lying_worker},         {"limits", limits},
-        {"verify_liar", verify_liar},           {"verify_quarter", verify_quarter},
-        {"verify_one_worker", verify_one_worker}, {"verify_no_majority", verify_no_majority},
+        {"identical_pixels", identical_pixels},
+        {"worker_killed", worker_killed},
+        {"worker_joins", worker_joins},
+        {"queued_jobs", queued_jobs},
+        {"cancel", cancel_job},
+        {"bad_scenes", bad_scenes},
+        {"garbage", master_garbage},
+        {"version", worker_refuses_version},
+        {"sigterm", sigterm},
+        {"several_hosts", several_hosts},
+        {"master_crash", master_crash},
+        {"corrupt_checkpoint", corrupt_checkpoint},
+        {"storage_failure", storage_failure},
+        {"churn", churn},
+        {"flood", flood},
+        {"partition", partition},
+        {"lossy_link", lossy_link},
+        {"big_submit", big_submit},
+        {"lying_worker", lying_worker},
+        {"limits", limits},
+        {"verify_liar", verify_liar},
+        {"verify_quarter", verify_quarter},
+        {"verify_one_worker", verify_one_worker},
+        {"verify_no_majority", verify_no_majority},
         {"curve_render", curve_render},
-        {"curve_unknown_worker", curve_unknown_worker}, {"curve_refused_clients", curve_refused_clients},
-        {"curve_key_mode", curve_key_mode},     {"insecure_bind", insecure_bind},
-        {"curve_sighup", curve_sighup},         {"curve_ownership", curve_ownership},
+        {"curve_unknown_worker", curve_unknown_worker},
+        {"curve_refused_clients", curve_refused_clients},
+        {"curve_key_mode", curve_key_mode},
+        {"insecure_bind", insecure_bind},
+        {"curve_sighup", curve_sighup},
+        {"curve_ownership", curve_ownership},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         TCase *tc = tcase_create(cases[i].name);

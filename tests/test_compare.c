@@ -13,7 +13,8 @@
 static image_t *make(int w, int h, const float *rgb3)
 {
     image_t *img = image_new(w, h);
-    float *p[3] = {image_add_channel(img, "R"), image_add_channel(img, "G"), image_add_channel(img, "B")};
+    float *p[3] = {image_add_channel(img, "R"), image_add_channel(img, "G"),
+                   image_add_channel(img, "B")};
     for (int i = 0; i < w * h; i++)
         for (int c = 0; c < 3; c++)
             p[c][i] = rgb3[3 * i + c];
@@ -82,7 +83,8 @@ START_TEST(test_cli_compare)
     ck_assert(image_write_exr(r, pr, err, sizeof err) == 0);
     ck_assert(image_write_exr(small, ps, err, sizeof err) == 0);
     unlink(pm);
-    snprintf(cmd, sizeof cmd, "'%s' compare '%s' '%s' --threshold 0.5 --error-map '%s'", tu_bin(), pa, pr, pm);
+    snprintf(cmd, sizeof cmd, "'%s' compare '%s' '%s' --threshold 0.5 --error-map '%s'", tu_bin(),
+             pa, pr, pm);
     ck_assert_int_eq(tu_run(cmd, out, sizeof out), 0);
     double relmse = -1, rmse = -1;
     const char *p = strstr(out, "relMSE ");

@@ -37,7 +37,8 @@ START_TEST(test_chan_merge_matches_two_pass)
     rng_stream_t s = rng_stream(1, 0, 0);
     for (int i = 0; i < N; i++)
         for (int c = 0; c < 3; c++)
-            x[i][c] = 1e3 + rng_next_double(&s) * (c + 1); /* large offset: naive sums of squares would cancel */
+            x[i][c] = 1e3 + rng_next_double(&s) *
+                                (c + 1); /* large offset: naive sums of squares would cancel */
     /* exact two-pass reference */
     double mean = 0;
     for (int i = 0; i < N; i++)
@@ -60,7 +61,8 @@ START_TEST(test_chan_merge_matches_two_pass)
     ck_assert_uint_eq(at, N);
     ck_assert_uint_eq(f->pixels[1].count, N);
     ck_assert_uint_eq(f->pixels[1].layers, 8);
-    ck_assert_msg(fabs(f->pixels[1].lum_m2 - m2) <= 1e-9 * m2, "M2 %.15g vs %.15g", f->pixels[1].lum_m2, m2);
+    ck_assert_msg(fabs(f->pixels[1].lum_m2 - m2) <= 1e-9 * m2, "M2 %.15g vs %.15g",
+                  f->pixels[1].lum_m2, m2);
     double expect_var = m2 / ((double)N * (N - 1));
     ck_assert(fabs(film_variance_of_mean(f, 1) - expect_var) <= 1e-9 * expect_var);
     /* untouched pixel stays empty */
@@ -79,7 +81,7 @@ START_TEST(test_prior_and_nonfinite)
 {
     film_t *f = film_new(1, 1);
     double x[2][3] = {{1, 2, 3}, {3, 2, 1}};
-    tracer_result_t r = batch_result(0, (const double (*)[3])x, 2);
+    tracer_result_t r = batch_result(0, (const double(*)[3])x, 2);
     r.nonfinite = 3;
     film_merge(f, &r);
     tracer_task_t t = {.pixel = 0};
@@ -112,7 +114,8 @@ START_TEST(test_compensated_sum)
     double rgb[3];
     film_mean(f, 0, rgb);
     ck_assert_msg(fabs(rgb[0] - 0.1) <= 1e-15, "compensated mean off by %g", fabs(rgb[0] - 0.1));
-    ck_assert_msg(fabs(plain / 1e6 - 0.1) > 1e-13, "plain summation should drift (%g)", fabs(plain / 1e6 - 0.1));
+    ck_assert_msg(fabs(plain / 1e6 - 0.1) > 1e-13, "plain summation should drift (%g)",
+                  fabs(plain / 1e6 - 0.1));
     film_destroy(&f);
 }
 END_TEST
@@ -121,7 +124,7 @@ START_TEST(test_to_image)
 {
     film_t *f = film_new(3, 2);
     double x[4][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {1, 1, 1}};
-    tracer_result_t r = batch_result(4, (const double (*)[3])x, 4);
+    tracer_result_t r = batch_result(4, (const double(*)[3])x, 4);
     film_merge(f, &r);
     image_t *img = film_to_image(f);
     ck_assert(img != NULL);

@@ -130,11 +130,11 @@ static int write_custom_exr(const char *path, int tiled, int w, int h, exr_compr
     if (!rv)
         rv = exr_initialize_required_attr_simple(ctx, part, w, h, comp);
     if (!rv && tiled)
-        rv = exr_set_tile_descriptor(ctx, part, tile, tile, EXR_TILE_ONE_LEVEL,
-                                     EXR_TILE_ROUND_DOWN);
+        rv =
+            exr_set_tile_descriptor(ctx, part, tile, tile, EXR_TILE_ONE_LEVEL, EXR_TILE_ROUND_DOWN);
     for (int c = 0; !rv && c < n; c++)
-        rv = exr_add_channel(ctx, part, chs[c].name, chs[c].type, EXR_PERCEPTUALLY_LOGARITHMIC,
-                             1, 1);
+        rv = exr_add_channel(ctx, part, chs[c].name, chs[c].type, EXR_PERCEPTUALLY_LOGARITHMIC, 1,
+                             1);
     if (!rv)
         rv = exr_attr_set_float(ctx, part, "fattr", float_attr);
     if (!rv)
@@ -221,8 +221,8 @@ START_TEST(test_add_channel)
         ck_assert_uint_eq(bits_of(r[i]), 0);
     ck_assert_ptr_eq(image_channel(img, "R"), r);
     ck_assert_ptr_null(image_channel(img, "G"));
-    ck_assert_ptr_null(image_add_channel(img, "R"));  /* duplicate */
-    ck_assert_ptr_null(image_add_channel(img, ""));   /* empty */
+    ck_assert_ptr_null(image_add_channel(img, "R")); /* duplicate */
+    ck_assert_ptr_null(image_add_channel(img, ""));  /* empty */
     ck_assert_ptr_null(image_add_channel(img, NULL));
     char name[IMAGE_NAME_LEN + 1];
     memset(name, 'x', IMAGE_NAME_LEN);
@@ -290,12 +290,28 @@ END_TEST
 START_TEST(test_exr_roundtrip)
 {
     const int w = 37, h = 23;
-    static const char *const names[5] = { "R", "G", "B", "samples", "variance" };
+    static const char *const names[5] = {"R", "G", "B", "samples", "variance"};
     const float special[] = {
-        0.0f, -0.0f, 1.0f, -1.0f, 1e-30f, -1e-30f, 3e38f, -3e38f, 1e-40f /* denormal */,
-        0.1f, 1.0f / 3.0f, 65504.0f, 65520.0f /* beyond half */, 1.0009765625f + 1e-7f,
-        3.14159265f, 1e10f, 123456.789f, float_of(0x3f800001) /* 1 + 1ulp */,
-        INFINITY, -INFINITY,
+        0.0f,
+        -0.0f,
+        1.0f,
+        -1.0f,
+        1e-30f,
+        -1e-30f,
+        3e38f,
+        -3e38f,
+        1e-40f /* denormal */,
+        0.1f,
+        1.0f / 3.0f,
+        65504.0f,
+        65520.0f /* beyond half */,
+        1.0009765625f + 1e-7f,
+        3.14159265f,
+        1e10f,
+        123456.789f,
+        float_of(0x3f800001) /* 1 + 1ulp */,
+        INFINITY,
+        -INFINITY,
     };
     const int nspecial = (int)(sizeof special / sizeof special[0]);
     image_t *img = image_new(w, h);
@@ -328,8 +344,8 @@ START_TEST(test_exr_roundtrip)
         const float *b = image_channel(back, names[c]);
         ck_assert_msg(b != NULL, "channel %s missing", names[c]);
         for (int i = 0; i < w * h; i++)
-            ck_assert_msg(bits_of(a[i]) == bits_of(b[i]), "%s[%d]: %08x != %08x", names[c],
-                          i, (unsigned)bits_of(a[i]), (unsigned)bits_of(b[i]));
+            ck_assert_msg(bits_of(a[i]) == bits_of(b[i]), "%s[%d]: %08x != %08x", names[c], i,
+                          (unsigned)bits_of(a[i]), (unsigned)bits_of(b[i]));
     }
     ck_assert_int_eq(back->attr_count, 3);
     const image_attr_t *at = image_attr(back, "vb.scene");
@@ -353,7 +369,7 @@ END_TEST
 START_TEST(test_exr_channel_order)
 {
     /* Not alphabetical, mixed case: the file stores them sorted. */
-    static const char *const names[] = { "zeta", "R", "alpha", "B", "a", "G", "Z.depth" };
+    static const char *const names[] = {"zeta", "R", "alpha", "B", "a", "G", "Z.depth"};
     const int n = (int)(sizeof names / sizeof names[0]);
     const int w = 5, h = 33; /* more than two 16-line ZIP chunks, last one short */
     image_t *img = image_new(w, h);
@@ -372,8 +388,7 @@ START_TEST(test_exr_channel_order)
         const float *p = image_channel(back, names[c]);
         ck_assert_msg(p != NULL, "channel %s missing", names[c]);
         for (int i = 0; i < w * h; i++)
-            ck_assert_msg(p[i] == (float)(c * 1000 + i), "%s[%d] = %g", names[c], i,
-                          (double)p[i]);
+            ck_assert_msg(p[i] == (float)(c * 1000 + i), "%s[%d] = %g", names[c], i, (double)p[i]);
     }
     image_destroy(&back);
     image_destroy(&img);
@@ -464,9 +479,9 @@ START_TEST(test_exr_half_uint)
 {
     const int w = 7, h = 19;
     /* half bit patterns and their exact float values */
-    static const uint16_t hbits[] = { 0x0000, 0x3c00, 0xc000, 0x3800, 0x7bff, 0x0001, 0x3555 };
-    static const float hvals[] = { 0.0f, 1.0f, -2.0f, 0.5f, 65504.0f, 5.9604644775390625e-8f,
-                                   0.333251953125f };
+    static const uint16_t hbits[] = {0x0000, 0x3c00, 0xc000, 0x3800, 0x7bff, 0x0001, 0x3555};
+    static const float hvals[] = {
+        0.0f, 1.0f, -2.0f, 0.5f, 65504.0f, 5.9604644775390625e-8f, 0.333251953125f};
     uint16_t *hp = malloc(sizeof *hp * (size_t)(w * h));
     uint32_t *up = malloc(sizeof *up * (size_t)(w * h));
     float *fp = malloc(sizeof *fp * (size_t)(w * h));
@@ -475,8 +490,8 @@ START_TEST(test_exr_half_uint)
         up[i] = i == 5 ? 4000000000u : (uint32_t)(i * 3);
         fp[i] = -0.1f * (float)i;
     }
-    raw_chan_t chs[3] = { { "H", EXR_PIXEL_HALF, hp }, { "U", EXR_PIXEL_UINT, up },
-                          { "F", EXR_PIXEL_FLOAT, fp } };
+    raw_chan_t chs[3] = {
+        {"H", EXR_PIXEL_HALF, hp}, {"U", EXR_PIXEL_UINT, up}, {"F", EXR_PIXEL_FLOAT, fp}};
     char path[1024], err[512] = "";
     tu_tmp_path(path, sizeof path, "img_types.exr");
     ck_assert_int_eq(write_custom_exr(path, 0, w, h, EXR_COMPRESSION_ZIP, chs, 3, 0.75f), 0);
@@ -510,13 +525,13 @@ START_TEST(test_exr_tiled)
         fp[i] = (float)i + 0.25f;
         hp[i] = (uint16_t)(0x3c00 + (i % 1024)); /* 1 + k/1024 */
     }
-    raw_chan_t chs[2] = { { "Y", EXR_PIXEL_FLOAT, fp }, { "A", EXR_PIXEL_HALF, hp } };
+    raw_chan_t chs[2] = {{"Y", EXR_PIXEL_FLOAT, fp}, {"A", EXR_PIXEL_HALF, hp}};
     char path[1024], err[512] = "";
     tu_tmp_path(path, sizeof path, "img_tiled.exr");
     for (int comp = 0; comp < 2; comp++) {
         ck_assert_int_eq(write_custom_exr(path, 1, w, h,
-                                          comp ? EXR_COMPRESSION_ZIP : EXR_COMPRESSION_NONE,
-                                          chs, 2, 1.0f),
+                                          comp ? EXR_COMPRESSION_ZIP : EXR_COMPRESSION_NONE, chs, 2,
+                                          1.0f),
                          0);
         image_t *back = NULL;
         ck_assert_msg(image_read_exr(path, &back, err, sizeof err) == 0, "%s", err);
@@ -590,13 +605,13 @@ START_TEST(test_exr_truncated)
     ck_assert_int_gt(size, 1000);
     /* cut at several points: inside the data, just after the header, in
      * the header */
-    const long cuts[] = { size / 2, size - 1, size / 8, 40, 8 };
+    const long cuts[] = {size / 2, size - 1, size / 8, 40, 8};
     for (size_t k = 0; k < sizeof cuts / sizeof cuts[0]; k++) {
         ck_assert_int_eq(truncate(path, cuts[k]), 0);
         image_t *back = NULL;
         err[0] = '\0';
-        ck_assert_msg(image_read_exr(path, &back, err, sizeof err) == -1,
-                      "cut at %ld read fine", cuts[k]);
+        ck_assert_msg(image_read_exr(path, &back, err, sizeof err) == -1, "cut at %ld read fine",
+                      cuts[k]);
         ck_assert_ptr_null(back);
         ck_assert_msg(strstr(err, path) != NULL, "cut %ld: %s", cuts[k], err);
     }
@@ -644,9 +659,9 @@ END_TEST
 START_TEST(test_png_srgb)
 {
     const int w = 4, h = 2;
-    static const float R[8] = { 0.0f, 1.0f, 0.5f, 2.0f, 0.0031308f, 0.2f, -1.0f, 0.04f };
-    static const float G[8] = { 0.2f, 0.0f, 1.0f, 0.5f, 0.001f, 0.9f, 0.0031308f, 1e-6f };
-    static const float B[8] = { 0.5f, 0.2f, 0.0f, 1.0f, 3.0f, NAN, 0.75f, 0.018f };
+    static const float R[8] = {0.0f, 1.0f, 0.5f, 2.0f, 0.0031308f, 0.2f, -1.0f, 0.04f};
+    static const float G[8] = {0.2f, 0.0f, 1.0f, 0.5f, 0.001f, 0.9f, 0.0031308f, 1e-6f};
+    static const float B[8] = {0.5f, 0.2f, 0.0f, 1.0f, 3.0f, NAN, 0.75f, 0.018f};
     image_t *img = image_new(w, h);
     memcpy(image_add_channel(img, "R"), R, sizeof R);
     memcpy(image_add_channel(img, "G"), G, sizeof G);
@@ -662,7 +677,7 @@ START_TEST(test_png_srgb)
         ck_assert_int_eq(rw, w);
         ck_assert_int_eq(rh, h);
         for (int i = 0; i < w * h; i++) {
-            const float *planes[3] = { R, G, B };
+            const float *planes[3] = {R, G, B};
             for (int k = 0; k < 3; k++) {
                 double lin = (double)planes[k][i] * exposure;
                 ck_assert_msg(rgb[i * 3 + k] == srgb_byte(lin), "pass %d px %d ch %d: %d != %d",
@@ -671,13 +686,13 @@ START_TEST(test_png_srgb)
         }
         if (pass == 0) {
             /* hand-checked anchors of the curve */
-            ck_assert_int_eq(rgb[0 * 3], 0);    /* 0 */
-            ck_assert_int_eq(rgb[1 * 3], 255);  /* 1 */
-            ck_assert_int_eq(rgb[2 * 3], 188);  /* 0.5 -> 0.7354 */
-            ck_assert_int_eq(rgb[3 * 3], 255);  /* 2.0 clamps */
-            ck_assert_int_eq(rgb[4 * 3], 10);   /* 0.0031308 -> 0.04045 */
-            ck_assert_int_eq(rgb[5 * 3], 124);  /* 0.2 -> 0.4845 */
-            ck_assert_int_eq(rgb[6 * 3], 0);    /* negative clamps */
+            ck_assert_int_eq(rgb[0 * 3], 0);     /* 0 */
+            ck_assert_int_eq(rgb[1 * 3], 255);   /* 1 */
+            ck_assert_int_eq(rgb[2 * 3], 188);   /* 0.5 -> 0.7354 */
+            ck_assert_int_eq(rgb[3 * 3], 255);   /* 2.0 clamps */
+            ck_assert_int_eq(rgb[4 * 3], 10);    /* 0.0031308 -> 0.04045 */
+            ck_assert_int_eq(rgb[5 * 3], 124);   /* 0.2 -> 0.4845 */
+            ck_assert_int_eq(rgb[6 * 3], 0);     /* negative clamps */
             ck_assert_int_eq(rgb[5 * 3 + 2], 0); /* NaN -> 0 */
         }
         free(rgb);
@@ -715,17 +730,16 @@ START_TEST(test_png_heatmap)
 {
     const int w = 7, h = 1;
     /* lo = 10, hi = 50: t = -?, 0, 0.25, 0.5, 0.75, 1, >1 */
-    static const float v[7] = { -5.0f, 10.0f, 20.0f, 30.0f, 40.0f, 50.0f, 1000.0f };
+    static const float v[7] = {-5.0f, 10.0f, 20.0f, 30.0f, 40.0f, 50.0f, 1000.0f};
     static const unsigned char want[7][3] = {
-        { 0, 0, 0 }, { 0, 0, 0 }, { 0, 0, 255 }, { 255, 0, 0 },
-        { 255, 255, 0 }, { 255, 255, 255 }, { 255, 255, 255 },
+        {0, 0, 0},     {0, 0, 0},       {0, 0, 255},     {255, 0, 0},
+        {255, 255, 0}, {255, 255, 255}, {255, 255, 255},
     };
     image_t *img = image_new(w, h);
     memcpy(image_add_channel(img, "samples"), v, sizeof v);
     char path[1024], err[512] = "";
     tu_tmp_path(path, sizeof path, "img_heat.png");
-    ck_assert_msg(image_write_heatmap_png(img, "samples", 10.0f, 50.0f, path, err, sizeof err) ==
-                      0,
+    ck_assert_msg(image_write_heatmap_png(img, "samples", 10.0f, 50.0f, path, err, sizeof err) == 0,
                   "%s", err);
     int rw, rh;
     unsigned char *rgb = NULL;
@@ -734,8 +748,7 @@ START_TEST(test_png_heatmap)
     ck_assert_int_eq(rh, h);
     for (int i = 0; i < w; i++)
         for (int k = 0; k < 3; k++)
-            ck_assert_msg(rgb[i * 3 + k] == want[i][k], "px %d ch %d: %d", i, k,
-                          rgb[i * 3 + k]);
+            ck_assert_msg(rgb[i * 3 + k] == want[i][k], "px %d ch %d: %d", i, k, rgb[i * 3 + k]);
     free(rgb);
 
     /* halfway between blue (t=.25) and red (t=.5): t = .375 */
@@ -750,8 +763,7 @@ START_TEST(test_png_heatmap)
     free(rgb);
 
     /* hi <= lo: everything black */
-    ck_assert_int_eq(image_write_heatmap_png(img, "samples", 5.0f, 5.0f, path, err, sizeof err),
-                     0);
+    ck_assert_int_eq(image_write_heatmap_png(img, "samples", 5.0f, 5.0f, path, err, sizeof err), 0);
     ck_assert_int_eq(read_png_rgb(path, &rw, &rh, &rgb), 0);
     for (int i = 0; i < w * 3; i++)
         ck_assert_int_eq(rgb[i], 0);

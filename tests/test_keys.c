@@ -111,7 +111,8 @@ START_TEST(test_mode_refused)
         ck_assert_int_eq(keys_load_secret(path, &back, err, sizeof err), -1);
         char mode[16];
         snprintf(mode, sizeof mode, "0%03o", (unsigned)bad[i]);
-        ck_assert_msg(strstr(err, path) && strstr(err, mode) && strstr(err, "too open"), "mode %s: %s", mode, err);
+        ck_assert_msg(strstr(err, path) && strstr(err, mode) && strstr(err, "too open"),
+                      "mode %s: %s", mode, err);
         /* nothing of the key is handed out */
         ck_assert_str_eq(back.secret_z85, "");
     }
@@ -152,7 +153,8 @@ START_TEST(test_bad_z85)
 
     scratch_dir(dir, sizeof dir, "z85");
     /* .pub files */
-    static const char *const bad_pub[] = {"", "\n", "short\n", "########################################\n"};
+    static const char *const bad_pub[] = {"", "\n", "short\n",
+                                          "########################################\n"};
     for (size_t i = 0; i < sizeof bad_pub / sizeof bad_pub[0]; i++) {
         snprintf(path, sizeof path, "%s/bad%zu.pub", dir, i);
         write_file(path, bad_pub[i], 0644);
@@ -180,27 +182,31 @@ START_TEST(test_bad_z85)
     } cases[6];
     snprintf(cases[0].text, sizeof cases[0].text, "public %s\n", k.public_z85);
     cases[0].what = "not a key pair file";
-    snprintf(cases[1].text, sizeof cases[1].text, "public %s\nsecret %.39s\n", k.public_z85, k.secret_z85);
+    snprintf(cases[1].text, sizeof cases[1].text, "public %s\nsecret %.39s\n", k.public_z85,
+             k.secret_z85);
     cases[1].what = "line 2";
-    snprintf(cases[2].text, sizeof cases[2].text, "public %s\nsecret %s\n", other.public_z85, k.secret_z85);
+    snprintf(cases[2].text, sizeof cases[2].text, "public %s\nsecret %s\n", other.public_z85,
+             k.secret_z85);
     cases[2].what = "not the one its secret key gives";
     snprintf(cases[3].text, sizeof cases[3].text, "# c\n\nkey %s\n", k.secret_z85);
     cases[3].what = "line 3";
-    snprintf(cases[4].text, sizeof cases[4].text, "public %s\npublic %s\nsecret %s\n", k.public_z85, k.public_z85,
-             k.secret_z85);
+    snprintf(cases[4].text, sizeof cases[4].text, "public %s\npublic %s\nsecret %s\n", k.public_z85,
+             k.public_z85, k.secret_z85);
     cases[4].what = "a second key";
-    snprintf(cases[5].text, sizeof cases[5].text, "public %s\nsecret %s\n", k.public_z85, "########################################");
+    snprintf(cases[5].text, sizeof cases[5].text, "public %s\nsecret %s\n", k.public_z85,
+             "########################################");
     cases[5].what = "line 2";
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         snprintf(path, sizeof path, "%s/bad%zu.key", dir, i);
         write_file(path, cases[i].text, 0600);
         ck_assert_int_eq(keys_load_secret(path, &back, err, sizeof err), -1);
-        ck_assert_msg(strstr(err, path) && strstr(err, cases[i].what), "case %zu: want '%s' in: %s", i, cases[i].what,
-                      err);
+        ck_assert_msg(strstr(err, path) && strstr(err, cases[i].what), "case %zu: want '%s' in: %s",
+                      i, cases[i].what, err);
     }
     /* comments, blank lines, CR LF and the order of the lines are free */
     snprintf(path, sizeof path, "%s/ok.key", dir);
-    snprintf(text, sizeof text, "# mine\r\n\r\nsecret %s\r\n  \npublic   %s  \n", k.secret_z85, k.public_z85);
+    snprintf(text, sizeof text, "# mine\r\n\r\nsecret %s\r\n  \npublic   %s  \n", k.secret_z85,
+             k.public_z85);
     write_file(path, text, 0600);
     ck_assert_msg(keys_load_secret(path, &back, err, sizeof err) == 0, "%s", err);
     ck_assert_str_eq(back.public_z85, k.public_z85);
@@ -217,7 +223,8 @@ START_TEST(test_directory)
     for (int i = 0; i < 3; i++) {
         ck_assert_int_eq(keys_generate(&k[i], err, sizeof err), 0);
         snprintf(base, sizeof base, "%s/%s", dir, names[i]);
-        ck_assert_int_eq(keys_write(base, &k[i], err, sizeof err), 0); /* the .key beside it is skipped */
+        ck_assert_int_eq(keys_write(base, &k[i], err, sizeof err),
+                         0); /* the .key beside it is skipped */
     }
     ck_assert_int_eq(keys_generate(&outsider, err, sizeof err), 0);
     /* not .pub: skipped, whatever is inside */

@@ -9,8 +9,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
 #include <time.h>
+#include <unistd.h>
 
 #include "mesh.h"
 #include "testutil.h"
@@ -133,8 +133,8 @@ static void check_pos(const mesh_t *m, size_t v, float x, float y, float z)
     ck_assert_uint_lt(v, m->vertex_count);
     const float *p = m->positions + 3 * v;
     ck_assert_msg(p[0] == x && p[1] == y && p[2] == z,
-                  "vertex %zu is (%.9g %.9g %.9g), expected (%.9g %.9g %.9g)", v, p[0], p[1],
-                  p[2], x, y, z);
+                  "vertex %zu is (%.9g %.9g %.9g), expected (%.9g %.9g %.9g)", v, p[0], p[1], p[2],
+                  x, y, z);
 }
 
 static void check_all_in_range(const mesh_t *m)
@@ -216,8 +216,8 @@ START_TEST(shared_cornell_obj_negative_indices)
         check_tri(m, 2 * k, 4 * k, 4 * k + 1, 4 * k + 2);
         check_tri(m, 2 * k + 1, 4 * k, 4 * k + 2, 4 * k + 3);
     }
-    check_pos(m, 0, -1.01f, 0.00f, 0.99f);  /* floor, first v line */
-    check_pos(m, 71, 0.23f, 1.98f, 0.16f);  /* light, last v line (tab separated) */
+    check_pos(m, 0, -1.01f, 0.00f, 0.99f); /* floor, first v line */
+    check_pos(m, 71, 0.23f, 1.98f, 0.16f); /* light, last v line (tab separated) */
     mesh_destroy(&m);
 }
 END_TEST
@@ -261,10 +261,10 @@ END_TEST
 
 /* Five vertices, a quad and a triangle: triangles (0 1 2) (0 2 3) (3 2 4). */
 static const float ref_pos[5][3] = {
-    { 0.0f, 0.0f, 0.0f }, { 1.0f, 0.0f, 0.0f }, { 1.0f, 1.0f, 0.0f },
-    { 0.0f, 1.0f, 0.0f }, { 0.5f, 1.5f, -0.25f },
+    {0.0f, 0.0f, 0.0f}, {1.0f, 0.0f, 0.0f},   {1.0f, 1.0f, 0.0f},
+    {0.0f, 1.0f, 0.0f}, {0.5f, 1.5f, -0.25f},
 };
-static const uint32_t ref_tri[3][3] = { { 0, 1, 2 }, { 0, 2, 3 }, { 3, 2, 4 } };
+static const uint32_t ref_tri[3][3] = {{0, 1, 2}, {0, 2, 3}, {3, 2, 4}};
 
 static void check_ref(const mesh_t *m)
 {
@@ -278,18 +278,18 @@ static void check_ref(const mesh_t *m)
 
 START_TEST(same_mesh_ascii_ply)
 {
-    mesh_t *m = load_text_ok("eq_ascii.ply",
-                             "ply\n"
-                             "format ascii 1.0\n"
-                             "comment the reference mesh\n"
-                             "obj_info whatever\n"
-                             "element vertex 5\n"
-                             "property float x\nproperty float y\nproperty float z\n"
-                             "element face 2\n"
-                             "property list uchar int vertex_indices\n"
-                             "end_header\n"
-                             "0 0 0\n1 0 0\n1 1 0\n0 1 0\n0.5 1.5 -0.25\n"
-                             "4 0 1 2 3\n3 3 2 4\n");
+    mesh_t *m =
+        load_text_ok("eq_ascii.ply", "ply\n"
+                                     "format ascii 1.0\n"
+                                     "comment the reference mesh\n"
+                                     "obj_info whatever\n"
+                                     "element vertex 5\n"
+                                     "property float x\nproperty float y\nproperty float z\n"
+                                     "element face 2\n"
+                                     "property list uchar int vertex_indices\n"
+                                     "end_header\n"
+                                     "0 0 0\n1 0 0\n1 1 0\n0 1 0\n0.5 1.5 -0.25\n"
+                                     "4 0 1 2 3\n3 3 2 4\n");
     check_ref(m);
     ck_assert_ptr_null(m->normals);
     mesh_destroy(&m);
@@ -298,7 +298,7 @@ END_TEST
 
 START_TEST(same_mesh_binary_le)
 {
-    bytes b = { .n = 0 };
+    bytes b = {.n = 0};
     put_text(&b, "ply\nformat binary_little_endian 1.0\nelement vertex 5\n"
                  "property float32 x\nproperty float32 y\nproperty float32 z\n"
                  "element face 2\nproperty list uint8 int32 vertex_indices\nend_header\n");
@@ -323,7 +323,7 @@ END_TEST
  * vertex property, a ushort count with uint indices named vertex_index. */
 START_TEST(same_mesh_binary_be)
 {
-    bytes b = { .n = 0 };
+    bytes b = {.n = 0};
     put_text(&b, "ply\nformat binary_big_endian 1.0\nelement vertex 5\n"
                  "property double x\nproperty uchar red\nproperty float64 y\n"
                  "property double z\n"
@@ -352,17 +352,16 @@ START_TEST(same_mesh_obj)
 {
     /* CRLF, comments, every face-vertex form, a relative index, a w
      * coordinate and statements that must be ignored. */
-    mesh_t *m = load_text_ok("eq.obj",
-                             "# reference mesh\r\n"
-                             "mtllib none.mtl\r\n"
-                             "o thing\r\ng group\r\ns off\r\nusemtl red\r\n"
-                             "v 0 0 0\r\nv 1 0 0 1.0\r\nv 1 1 0 0.2 0.3 0.4\r\n"
-                             "v\t0 1 0\r\n"
-                             "vt 0 0\r\nvn 0 0 1\r\n"
-                             "f 1/1 2//1 3/1/1 -1   # quad, last one relative\r\n"
-                             "l 1 2\r\np 3\r\n"
-                             "v 0.5 1.5 -0.25\r\n"
-                             "f 4 -3 5\r\n");
+    mesh_t *m = load_text_ok("eq.obj", "# reference mesh\r\n"
+                                       "mtllib none.mtl\r\n"
+                                       "o thing\r\ng group\r\ns off\r\nusemtl red\r\n"
+                                       "v 0 0 0\r\nv 1 0 0 1.0\r\nv 1 1 0 0.2 0.3 0.4\r\n"
+                                       "v\t0 1 0\r\n"
+                                       "vt 0 0\r\nvn 0 0 1\r\n"
+                                       "f 1/1 2//1 3/1/1 -1   # quad, last one relative\r\n"
+                                       "l 1 2\r\np 3\r\n"
+                                       "v 0.5 1.5 -0.25\r\n"
+                                       "f 4 -3 5\r\n");
     check_ref(m);
     ck_assert_ptr_null(m->normals);
     mesh_destroy(&m);
@@ -382,12 +381,11 @@ END_TEST
 START_TEST(ascii_numbers_exact)
 {
     /* Text must give the correctly rounded float, as strtod does. */
-    mesh_t *m = load_text_ok("exact.obj",
-                             "v 0.1 -2.5e-3 123456.789\n"
-                             "v 1e-40 3.4028234e38 0.30000000000000004441\n"
-                             "v +7 .5 1.\n"
-                             "v 3.40282347e+38 -3.40282347e+38 -0\n"
-                             "f 1 2 3\n");
+    mesh_t *m = load_text_ok("exact.obj", "v 0.1 -2.5e-3 123456.789\n"
+                                          "v 1e-40 3.4028234e38 0.30000000000000004441\n"
+                                          "v +7 .5 1.\n"
+                                          "v 3.40282347e+38 -3.40282347e+38 -0\n"
+                                          "f 1 2 3\n");
     check_pos(m, 0, (float)strtod("0.1", NULL), (float)strtod("-2.5e-3", NULL),
               (float)strtod("123456.789", NULL));
     check_pos(m, 1, (float)strtod("1e-40", NULL), (float)strtod("3.4028234e38", NULL),
@@ -404,14 +402,13 @@ END_TEST
 
 START_TEST(fan_quad_and_pentagon)
 {
-    mesh_t *m = load_text_ok("fan.ply",
-                             "ply\nformat ascii 1.0\nelement vertex 6\n"
-                             "property float x\nproperty float y\nproperty float z\n"
-                             "element face 2\nproperty list uchar uint vertex_indices\n"
-                             "end_header\n"
-                             "0 0 0\n1 0 0\n1 1 0\n0 1 0\n-1 0.5 0\n2 2 2\n"
-                             "4 0 1 2 3\n"
-                             "5 5 0 1 2 3\n");
+    mesh_t *m = load_text_ok("fan.ply", "ply\nformat ascii 1.0\nelement vertex 6\n"
+                                        "property float x\nproperty float y\nproperty float z\n"
+                                        "element face 2\nproperty list uchar uint vertex_indices\n"
+                                        "end_header\n"
+                                        "0 0 0\n1 0 0\n1 1 0\n0 1 0\n-1 0.5 0\n2 2 2\n"
+                                        "4 0 1 2 3\n"
+                                        "5 5 0 1 2 3\n");
     ck_assert_uint_eq(m->triangle_count, 2 + 3);
     check_tri(m, 0, 0, 1, 2);
     check_tri(m, 1, 0, 2, 3);
@@ -475,7 +472,7 @@ END_TEST
 
 static void skip_binary(int big, const char *name)
 {
-    bytes b = { .n = 0 };
+    bytes b = {.n = 0};
     char head[2048];
     snprintf(head, sizeof head, skip_header, big ? "binary_big_endian" : "binary_little_endian");
     put_text(&b, head);
@@ -485,7 +482,7 @@ static void skip_binary(int big, const char *name)
     for (int i = 0; i < 3; i++)
         put_f32(&b, 0.25f, big);
     /* vertices: x, list<int16>, y, short, z, uint */
-    const float xyz[4][3] = { { 0, 1, 0 }, { 1, 0, 0 }, { 1, 1, 2 }, { 0, 0, 1 } };
+    const float xyz[4][3] = {{0, 1, 0}, {1, 0, 0}, {1, 1, 2}, {0, 0, 1}};
     for (int v = 0; v < 4; v++) {
         put_f32(&b, xyz[v][0], big);
         put_uint(&b, (unsigned)v, 1, big);
@@ -544,18 +541,18 @@ START_TEST(normals_normalised_and_zero_repaired)
 {
     /* Vertex 3 has a zero normal: it gets the normal of the triangles that
      * use it, (0 0 1) here; vertex 4 is used by nothing: (0 0 1) too. */
-    mesh_t *m = load_text_ok("normals.ply",
-                             "ply\nformat ascii 1.0\nelement vertex 5\n"
-                             "property float x\nproperty float y\nproperty float z\n"
-                             "property float nx\nproperty float ny\nproperty float nz\n"
-                             "element face 2\nproperty list uchar int vertex_indices\n"
-                             "end_header\n"
-                             "0 0 0  3 0 4\n"
-                             "1 0 0  0 -2 0\n"
-                             "1 1 0  1e-30 0 0\n"
-                             "0 1 0  0 0 0\n"
-                             "9 9 9  0 -0 0\n"
-                             "3 0 1 2\n3 0 2 3\n");
+    mesh_t *m =
+        load_text_ok("normals.ply", "ply\nformat ascii 1.0\nelement vertex 5\n"
+                                    "property float x\nproperty float y\nproperty float z\n"
+                                    "property float nx\nproperty float ny\nproperty float nz\n"
+                                    "element face 2\nproperty list uchar int vertex_indices\n"
+                                    "end_header\n"
+                                    "0 0 0  3 0 4\n"
+                                    "1 0 0  0 -2 0\n"
+                                    "1 1 0  1e-30 0 0\n"
+                                    "0 1 0  0 0 0\n"
+                                    "9 9 9  0 -0 0\n"
+                                    "3 0 1 2\n3 0 2 3\n");
     check_unit_normals(m);
     const float *n = m->normals;
     ck_assert_float_eq(n[0], 0.6f);
@@ -572,13 +569,13 @@ END_TEST
 
 START_TEST(partial_normals_ignored)
 {
-    mesh_t *m = load_text_ok("partial.ply",
-                             "ply\nformat ascii 1.0\nelement vertex 3\n"
-                             "property float x\nproperty float y\nproperty float z\n"
-                             "property float nx\n"
-                             "element face 1\nproperty list uchar int vertex_indices\n"
-                             "end_header\n"
-                             "0 0 0 1\n1 0 0 1\n0 1 0 1\n3 0 1 2\n");
+    mesh_t *m =
+        load_text_ok("partial.ply", "ply\nformat ascii 1.0\nelement vertex 3\n"
+                                    "property float x\nproperty float y\nproperty float z\n"
+                                    "property float nx\n"
+                                    "element face 1\nproperty list uchar int vertex_indices\n"
+                                    "end_header\n"
+                                    "0 0 0 1\n1 0 0 1\n0 1 0 1\n3 0 1 2\n");
     ck_assert_ptr_null(m->normals);
     ck_assert_uint_eq(m->triangle_count, 1);
     mesh_destroy(&m);
@@ -590,25 +587,27 @@ START_TEST(load_buffer_and_destroy)
     static const char obj[] = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
     char err[ERRLEN];
     mesh_t *m = NULL;
-    ck_assert_int_eq(mesh_load_buffer("mem.OBJ", (const unsigned char *)obj, strlen(obj), &m,
-                                      err, sizeof err), 0);
+    ck_assert_int_eq(
+        mesh_load_buffer("mem.OBJ", (const unsigned char *)obj, strlen(obj), &m, err, sizeof err),
+        0);
     ck_assert_uint_eq(m->triangle_count, 1);
     mesh_destroy(&m);
     ck_assert_ptr_null(m);
-    mesh_destroy(&m);   /* *m == NULL */
+    mesh_destroy(&m); /* *m == NULL */
     mesh_destroy(NULL);
     /* The same bytes under a name that is not .obj: no format to pick. */
     m = (mesh_t *)&err;
-    ck_assert_int_eq(mesh_load_buffer("mem.txt", (const unsigned char *)obj, strlen(obj), &m,
-                                      err, sizeof err), -1);
+    ck_assert_int_eq(
+        mesh_load_buffer("mem.txt", (const unsigned char *)obj, strlen(obj), &m, err, sizeof err),
+        -1);
     ck_assert_ptr_null(m);
     ck_assert_ptr_nonnull(strstr(err, "mem.txt"));
     ck_assert_ptr_nonnull(strstr(err, "unsupported format"));
     /* A tiny error buffer is cut, not overrun. */
     char small[8];
     memset(small, 'x', sizeof small);
-    ck_assert_int_eq(mesh_load_buffer("a_long_name.ply", (const unsigned char *)"ply\n", 4, &m,
-                                      small, 5), -1);
+    ck_assert_int_eq(
+        mesh_load_buffer("a_long_name.ply", (const unsigned char *)"ply\n", 4, &m, small, 5), -1);
     ck_assert_int_eq(small[4], '\0');
     ck_assert_int_eq(small[5], 'x');
 }
@@ -616,9 +615,9 @@ END_TEST
 
 /* ---- errors: one test per class ----------------------------------------- */
 
-#define PLY_XYZ_HEAD(fmt, nv, nf)                                                  \
-    "ply\nformat " fmt " 1.0\nelement vertex " #nv "\n"                             \
-    "property float x\nproperty float y\nproperty float z\n"                        \
+#define PLY_XYZ_HEAD(fmt, nv, nf)                                                                  \
+    "ply\nformat " fmt " 1.0\nelement vertex " #nv "\n"                                            \
+    "property float x\nproperty float y\nproperty float z\n"                                       \
     "element face " #nf "\nproperty list uchar int vertex_indices\nend_header\n"
 /* PLY_XYZ_HEAD is 9 lines, so the data starts on line 10. The values are
  * padded so that the up-front count check passes and the fault is found
@@ -627,8 +626,8 @@ END_TEST
 
 START_TEST(err_malformed_header)
 {
-    expect_fail_text("bad_head.ply", "ply\nformat ascii 1.0\nelement vertex many\n",
-                     "line 3", "malformed header");
+    expect_fail_text("bad_head.ply", "ply\nformat ascii 1.0\nelement vertex many\n", "line 3",
+                     "malformed header");
     expect_fail_text("bad_head2.ply",
                      "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"
                      "property quaternion y\nend_header\n",
@@ -669,8 +668,7 @@ START_TEST(err_huge_count_small_file)
                      "0123456789abcdef",
                      "vertex count", "line 3");
     expect_fail_text("huge_face.ply",
-                     PLY_XYZ_HEAD("ascii", 3, 9000000000000000000)
-                     "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+                     PLY_XYZ_HEAD("ascii", 3, 9000000000000000000) "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
                      "face count", "line 7");
     /* Counts past 64 bits do not parse. */
     expect_fail_text("huge_parse.ply",
@@ -684,7 +682,7 @@ END_TEST
 
 START_TEST(err_truncated_binary)
 {
-    bytes b = { .n = 0 };
+    bytes b = {.n = 0};
     put_text(&b, PLY_XYZ_HEAD("binary_little_endian", 3, 2));
     for (int i = 0; i < 9; i++)
         put_f32(&b, (float)i, 0);
@@ -706,17 +704,18 @@ START_TEST(err_truncated_ascii)
 {
     expect_fail_text("trunc_a.ply", PLY_XYZ_HEAD("ascii", 3, 1) "0.0 0.0 0.0\n1.0 0.0 0.0\n0.0 1",
                      "truncated", "line 12");
-    expect_fail_text("trunc_b.ply", PLY_XYZ_HEAD("ascii", 3, 1) V3 "4 0 1 2",
-                     "truncated", "line 13");
+    expect_fail_text("trunc_b.ply", PLY_XYZ_HEAD("ascii", 3, 1) V3 "4 0 1 2", "truncated",
+                     "line 13");
     /* Too short for the counts at all: found before anything is read. */
-    expect_fail_text("trunc_c.ply", PLY_XYZ_HEAD("ascii", 3, 1) "0 0 0\n1 0 0\n0 1",
-                     "truncated", "line 3: element vertex count 3");
+    expect_fail_text("trunc_c.ply", PLY_XYZ_HEAD("ascii", 3, 1) "0 0 0\n1 0 0\n0 1", "truncated",
+                     "line 3: element vertex count 3");
 }
 END_TEST
 
 START_TEST(err_too_few_values_on_line)
 {
-    expect_fail_text("few.ply", PLY_XYZ_HEAD("ascii", 3, 1) "0.0 0.0 0.0\n1.0 0.0\n0.0 1.0 0.0\n3 0 1 2\n",
+    expect_fail_text("few.ply",
+                     PLY_XYZ_HEAD("ascii", 3, 1) "0.0 0.0 0.0\n1.0 0.0\n0.0 1.0 0.0\n3 0 1 2\n",
                      "line 11", "fewer values");
     expect_fail_text("many.ply", PLY_XYZ_HEAD("ascii", 3, 1) "0 0 0\n1 0 0 7\n0 1 0\n3 0 1 2\n",
                      "line 11", "more values");
@@ -725,13 +724,11 @@ END_TEST
 
 START_TEST(err_index_out_of_range)
 {
-    expect_fail_text("range.ply",
-                     PLY_XYZ_HEAD("ascii", 3, 2) V3 "3 0 1 2\n3 0 1 3\n",
+    expect_fail_text("range.ply", PLY_XYZ_HEAD("ascii", 3, 2) V3 "3 0 1 2\n3 0 1 3\n",
                      "line 14: face 1, index 2", "vertex 3 is out of range");
-    expect_fail_text("neg.ply",
-                     PLY_XYZ_HEAD("ascii", 3, 1) V3 "3 0 -1 2\n",
-                     "line 13", "out of range");
-    bytes b = { .n = 0 };
+    expect_fail_text("neg.ply", PLY_XYZ_HEAD("ascii", 3, 1) V3 "3 0 -1 2\n", "line 13",
+                     "out of range");
+    bytes b = {.n = 0};
     put_text(&b, PLY_XYZ_HEAD("binary_big_endian", 3, 1));
     for (int i = 0; i < 9; i++)
         put_f32(&b, 0.0f, 1);
@@ -740,12 +737,12 @@ START_TEST(err_index_out_of_range)
     put_uint(&b, 1000, 4, 1);
     put_uint(&b, 2, 4, 1);
     expect_fail_bytes("range_be.ply", &b, "face 0, index 1", "vertex 1000 is out of range");
-    expect_fail_text("range.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n",
-                     "line 5", "index 3: vertex 4 is out of range");
-    expect_fail_text("range_rel.obj", "v 0 0 0\nv 1 0 0\nf -1 -2 -3\nv 0 1 0\n",
-                     "line 3", "relative index -3");
-    expect_fail_text("zero.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 0 3\n",
-                     "line 4", "index 2: 0 is not a valid index");
+    expect_fail_text("range.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n", "line 5",
+                     "index 3: vertex 4 is out of range");
+    expect_fail_text("range_rel.obj", "v 0 0 0\nv 1 0 0\nf -1 -2 -3\nv 0 1 0\n", "line 3",
+                     "relative index -3");
+    expect_fail_text("zero.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 0 3\n", "line 4",
+                     "index 2: 0 is not a valid index");
 }
 END_TEST
 
@@ -753,9 +750,8 @@ START_TEST(err_nan_coordinate)
 {
     expect_fail_text("nan.ply", PLY_XYZ_HEAD("ascii", 3, 1) "0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n",
                      "line 11", "vertex 1: y coordinate is NaN");
-    expect_fail_text("inf.obj", "v 0 0 0\nv 1 0 0\nv 0 1e39 0\nf 1 2 3\n",
-                     "line 3", "not finite");
-    bytes b = { .n = 0 };
+    expect_fail_text("inf.obj", "v 0 0 0\nv 1 0 0\nv 0 1e39 0\nf 1 2 3\n", "line 3", "not finite");
+    bytes b = {.n = 0};
     put_text(&b, PLY_XYZ_HEAD("binary_little_endian", 3, 1));
     for (int i = 0; i < 9; i++)
         put_f32(&b, i == 8 ? NAN : 0.0f, 0);
@@ -776,8 +772,8 @@ START_TEST(err_bad_number)
 {
     expect_fail_text("num.ply", PLY_XYZ_HEAD("ascii", 3, 1) "0 0 0\n1.2.3 0 0\n0 1 0\n3 0 1 2\n",
                      "line 11", "bad number \"1.2.3\"");
-    expect_fail_text("num_idx.ply", PLY_XYZ_HEAD("ascii", 3, 1) V3 "3 0 1x 2\n",
-                     "line 13", "bad number");
+    expect_fail_text("num_idx.ply", PLY_XYZ_HEAD("ascii", 3, 1) V3 "3 0 1x 2\n", "line 13",
+                     "bad number");
     expect_fail_text("num.obj", "v 0 0 0\nv 1 zero 0\n", "line 2", "bad number \"zero\"");
     expect_fail_text("num_f.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3a\n", "line 4",
                      "bad vertex \"3a\"");
@@ -787,10 +783,9 @@ END_TEST
 
 START_TEST(err_face_too_small)
 {
-    expect_fail_text("two.ply", PLY_XYZ_HEAD("ascii", 3, 1) V3 "2 0 1\n",
-                     "line 13", "face 0 has 2 vertices");
-    expect_fail_text("two.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", "line 4",
-                     "has 2 vertices");
+    expect_fail_text("two.ply", PLY_XYZ_HEAD("ascii", 3, 1) V3 "2 0 1\n", "line 13",
+                     "face 0 has 2 vertices");
+    expect_fail_text("two.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", "line 4", "has 2 vertices");
 }
 END_TEST
 
@@ -798,7 +793,7 @@ START_TEST(err_size_overflow)
 {
     /* A skipped list claiming 2^32-1 int items: count * size must not wrap
      * or be trusted. */
-    bytes b = { .n = 0 };
+    bytes b = {.n = 0};
     put_text(&b, "ply\nformat binary_little_endian 1.0\n"
                  "element junk 1\nproperty list uint int stuff\n"
                  "element vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
@@ -840,8 +835,8 @@ START_TEST(err_no_triangles)
                      "property float x\nproperty float y\nproperty float z\n"
                      "end_header\n0 0 0\n",
                      "no triangles", NULL);
-    expect_fail_text("points.obj", "# only points\nv 0 0 0\nv 1 0 0\np 1 2\n",
-                     "no triangles", NULL);
+    expect_fail_text("points.obj", "# only points\nv 0 0 0\nv 1 0 0\np 1 2\n", "no triangles",
+                     NULL);
     expect_fail_text("empty.obj", "", "no triangles", NULL);
 }
 END_TEST

@@ -12,9 +12,9 @@
  * re-encodes to the same bytes (one message, one encoding).
  */
 #include <check.h>
-#include <sodium.h>
 #include <float.h>
 #include <math.h>
+#include <sodium.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -79,7 +79,7 @@ static vec_t load_vec(const char *name)
     tu_root_path(path, sizeof path, rel);
     FILE *f = fopen(path, "rb");
     ck_assert_msg(f != NULL, "cannot open %s", path);
-    vec_t v = { NULL, NULL, 0, 0 };
+    vec_t v = {NULL, NULL, 0, 0};
     static char line[1 << 16];
     int frames = 0;
     while (fgets(line, sizeof line, f)) {
@@ -391,28 +391,28 @@ static const struct {
     int rc;
     const char *msg; /* must appear in the error */
 } invalid_vectors[] = {
-    { "bad_magic.hex", -1, "header: bad magic 0x50524257" },
-    { "wrong_version.hex", -2, "peer speaks protocol version 2, this build speaks 1" },
-    { "unknown_type.hex", -1, "unknown message type 12" },
-    { "short_header.hex", -1, "header: 31 bytes" },
-    { "size_mismatch.hex", -1, "payload_size 8 but the payload frame has 4 bytes" },
-    { "credit_zero.hex", -1, "CREDIT: credit 0 out of range" },
-    { "hello_bad_build.hex", -1, "HELLO: build id byte 8 is 0x07" },
-    { "text_with_nul.hex", -1, "BYE: text byte 1 is NUL" },
-    { "count_over_limit.hex", -1, "TASK: count 70000 exceeds 65536" },
-    { "truncated_record.hex", -1, "TASK: payload is 128 bytes, 2 records need 152" },
-    { "bad_integrator.hex", -1, "TASK: integrator 2 is neither" },
-    { "reserved_set.hex", -1, "TASK: reserved byte 1 is 0x01" },
-    { "task_zero_samples.hex", -1, "TASK: record 0: sample_count 0 out of range" },
-    { "task_inf_prior.hex", -1, "TASK: record 0: prior_sum[0] is infinite" },
-    { "nan_in_record.hex", -1, "RESULT: record 1: pvar is NaN" },
-    { "result_negative.hex", -1, "RESULT: record 0: sum[2] is negative" },
-    { "result_reserved.hex", -1, "RESULT: record 0: reserved field is 0x00000005" },
-    { "result_zero_samples.hex", -1, "RESULT: record 0: samples 0 + nonfinite 0 out of range" },
-    { "duplicate_mesh_name.hex", -1, "mesh 1: duplicate name \"quad.obj\"" },
-    { "name_with_slash.hex", -1, "mesh 0: name contains '/'" },
-    { "name_dotdot.hex", -1, "mesh 0: name \"..\" is not a file name" },
-    { "bundle_trailing.hex", -1, "1 bytes left over after the last mesh" },
+    {"bad_magic.hex", -1, "header: bad magic 0x50524257"},
+    {"wrong_version.hex", -2, "peer speaks protocol version 2, this build speaks 1"},
+    {"unknown_type.hex", -1, "unknown message type 12"},
+    {"short_header.hex", -1, "header: 31 bytes"},
+    {"size_mismatch.hex", -1, "payload_size 8 but the payload frame has 4 bytes"},
+    {"credit_zero.hex", -1, "CREDIT: credit 0 out of range"},
+    {"hello_bad_build.hex", -1, "HELLO: build id byte 8 is 0x07"},
+    {"text_with_nul.hex", -1, "BYE: text byte 1 is NUL"},
+    {"count_over_limit.hex", -1, "TASK: count 70000 exceeds 65536"},
+    {"truncated_record.hex", -1, "TASK: payload is 128 bytes, 2 records need 152"},
+    {"bad_integrator.hex", -1, "TASK: integrator 2 is neither"},
+    {"reserved_set.hex", -1, "TASK: reserved byte 1 is 0x01"},
+    {"task_zero_samples.hex", -1, "TASK: record 0: sample_count 0 out of range"},
+    {"task_inf_prior.hex", -1, "TASK: record 0: prior_sum[0] is infinite"},
+    {"nan_in_record.hex", -1, "RESULT: record 1: pvar is NaN"},
+    {"result_negative.hex", -1, "RESULT: record 0: sum[2] is negative"},
+    {"result_reserved.hex", -1, "RESULT: record 0: reserved field is 0x00000005"},
+    {"result_zero_samples.hex", -1, "RESULT: record 0: samples 0 + nonfinite 0 out of range"},
+    {"duplicate_mesh_name.hex", -1, "mesh 1: duplicate name \"quad.obj\""},
+    {"name_with_slash.hex", -1, "mesh 0: name contains '/'"},
+    {"name_dotdot.hex", -1, "mesh 0: name \"..\" is not a file name"},
+    {"bundle_trailing.hex", -1, "1 bytes left over after the last mesh"},
 };
 
 START_TEST(vec_invalid)
@@ -471,9 +471,9 @@ START_TEST(rt_hello)
 {
     proto_msg_t *m = msg_new(PROTO_HELLO);
     rx_t *r = rx_new(1);
-    const uint32_t threads[2] = { 1, PROTO_MAX_THREADS };
+    const uint32_t threads[2] = {1, PROTO_MAX_THREADS};
     /* 32 characters: no NUL on the wire at all */
-    const char *builds[3] = { "x", "0123456789abcdefghijklmnopqrstuv", " ~printable edges~ " };
+    const char *builds[3] = {"x", "0123456789abcdefghijklmnopqrstuv", " ~printable edges~ "};
     for (int i = 0; i < 2; i++)
         for (int k = 0; k < 3; k++) {
             m->u.hello.threads = threads[i];
@@ -491,7 +491,7 @@ START_TEST(rt_welcome_credit_request_heartbeat)
 {
     proto_msg_t *m = msg_new(PROTO_WELCOME);
     rx_t *r = rx_new(1);
-    const uint32_t ms[2] = { 1, 3600000 };
+    const uint32_t ms[2] = {1, 3600000};
     for (int i = 0; i < 2; i++) {
         m->u.welcome.heartbeat_ms = ms[i];
         m->u.welcome.lease_ms = ms[1 - i];
@@ -500,7 +500,7 @@ START_TEST(rt_welcome_credit_request_heartbeat)
         ck_assert_uint_eq(r->m.u.welcome.lease_ms, ms[1 - i]);
     }
     m->h.type = PROTO_CREDIT;
-    const uint32_t credits[2] = { 1, PROTO_MAX_CREDIT };
+    const uint32_t credits[2] = {1, PROTO_MAX_CREDIT};
     for (int i = 0; i < 2; i++) {
         m->u.credit = credits[i];
         free(round_trip(m, r, 1));
@@ -520,7 +520,7 @@ END_TEST
 
 START_TEST(rt_text)
 {
-    const uint16_t types[3] = { PROTO_REFUSE, PROTO_BYE, PROTO_TASK_FAILED };
+    const uint16_t types[3] = {PROTO_REFUSE, PROTO_BYE, PROTO_TASK_FAILED};
     proto_msg_t *m = msg_new(PROTO_REFUSE);
     rx_t *r = rx_new(1);
     for (int t = 0; t < 3; t++) {
@@ -563,7 +563,7 @@ START_TEST(rt_bundle_max_meshes)
     proto_msg_t *m = msg_new(PROTO_SCENE_BUNDLE);
     rx_t *r = rx_new(1);
     static const char json[] = "{\"camera\":{}}";
-    static const uint8_t data[3] = { 0, 0xff, 7 };
+    static const uint8_t data[3] = {0, 0xff, 7};
     proto_bundle_t *b = &m->u.bundle;
     b->json = json;
     b->json_size = (uint32_t)strlen(json);
@@ -608,7 +608,7 @@ START_TEST(rt_task_edges)
     m->u.task.settings.max_depth = UINT32_MAX;
     m->u.task.layer = UINT32_MAX;
     m->u.task.records = recs;
-    static const double sums[5] = { 0.0, -0.0, 5e-324, DBL_MAX, 1.0 };
+    static const double sums[5] = {0.0, -0.0, 5e-324, DBL_MAX, 1.0};
     for (uint32_t i = 0; i < n; i++) {
         recs[i].pixel = UINT32_MAX - i;
         recs[i].sample_count = 1 + i % TRACER_MAX_TASK_SAMPLES;
@@ -617,7 +617,7 @@ START_TEST(rt_task_edges)
         for (int c = 0; c < 3; c++)
             recs[i].prior_sum[c] = sums[(i + (uint32_t)c) % 5];
     }
-    const uint32_t counts[2] = { 1, n };
+    const uint32_t counts[2] = {1, n};
     for (int k = 0; k < 2; k++) {
         m->u.task.count = counts[k];
         free(round_trip(m, r, counts[k])); /* capacity exactly the count */
@@ -654,7 +654,7 @@ START_TEST(rt_result_edges)
     ck_assert_uint_eq(r->m.u.result.rays, UINT64_MAX);
     ck_assert_uint_eq(r->m.u.result.busy_us, UINT64_MAX - 1);
 
-    static const double vals[5] = { 0.0, -0.0, 5e-324, DBL_MAX, 0.5 };
+    static const double vals[5] = {0.0, -0.0, 5e-324, DBL_MAX, 0.5};
     for (uint32_t i = 0; i < n; i++) {
         recs[i].pixel = i * 7919u;
         recs[i].samples = i % (TRACER_MAX_TASK_SAMPLES + 1);
@@ -743,7 +743,7 @@ START_TEST(enc_rejects_bundle)
 {
     proto_msg_t *m = msg_new(PROTO_SCENE_BUNDLE);
     proto_bundle_t *b = &m->u.bundle;
-    static const uint8_t data[1] = { 1 };
+    static const uint8_t data[1] = {1};
     b->json_size = 1;
     expect_encode_fails(m, 256, "SCENE_BUNDLE: json is NULL");
     b->json = "{";
@@ -763,13 +763,13 @@ START_TEST(enc_rejects_bundle)
         const char *name;
         const char *want;
     } bad_names[] = {
-        { "", "mesh 1: name_len 0 out of range" },
-        { ".", "mesh 1: name \".\" is not a file name" },
-        { "..", "mesh 1: name \"..\" is not a file name" },
-        { "d/a.obj", "mesh 1: name contains '/'" },
-        { "d\\a.obj", "mesh 1: name contains '\\'" },
-        { "a\x7f", "mesh 1: name byte 1 is 0x7f" },
-        { "\xc3\xa9.obj", "mesh 1: name byte 0 is 0xc3" },
+        {"", "mesh 1: name_len 0 out of range"},
+        {".", "mesh 1: name \".\" is not a file name"},
+        {"..", "mesh 1: name \"..\" is not a file name"},
+        {"d/a.obj", "mesh 1: name contains '/'"},
+        {"d\\a.obj", "mesh 1: name contains '\\'"},
+        {"a\x7f", "mesh 1: name byte 1 is 0x7f"},
+        {"\xc3\xa9.obj", "mesh 1: name byte 0 is 0xc3"},
     };
     for (size_t i = 0; i < sizeof bad_names / sizeof bad_names[0]; i++) {
         snprintf(b->meshes[1].name, sizeof b->meshes[1].name, "%s", bad_names[i].name);
@@ -801,7 +801,7 @@ END_TEST
 START_TEST(enc_rejects_task_result)
 {
     proto_msg_t *m = msg_new(PROTO_TASK);
-    tracer_task_t t = { 1, 1, 0, 0, { 0, 0, 0 } };
+    tracer_task_t t = {1, 1, 0, 0, {0, 0, 0}};
     m->u.task.count = 1;
     expect_encode_fails(m, 256, "TASK: records is NULL");
     m->u.task.records = &t;
@@ -832,7 +832,7 @@ START_TEST(enc_rejects_task_result)
 
     memset(m, 0, sizeof *m);
     m->h.type = PROTO_RESULT;
-    tracer_result_t r = { 1, 1, 0, 0, { 0, 0, 0 }, 0, 0 };
+    tracer_result_t r = {1, 1, 0, 0, {0, 0, 0}, 0, 0};
     m->u.result.count = 1;
     expect_encode_fails(m, 256, "RESULT: records is NULL");
     m->u.result.records = &r;
@@ -888,9 +888,9 @@ static void set_payload_size(uint8_t *h, uint32_t n)
 
 START_TEST(truncated_payloads)
 {
-    static const char *const files[] = { "task.hex", "result.hex", "scene_bundle.hex",
-                                         "hello.hex", "welcome.hex", "refuse.hex",
-                                         "credit.hex", "scene_request.hex" };
+    static const char *const files[] = {"task.hex",   "result.hex",       "scene_bundle.hex",
+                                        "hello.hex",  "welcome.hex",      "refuse.hex",
+                                        "credit.hex", "scene_request.hex"};
     for (size_t f = 0; f < sizeof files / sizeof files[0]; f++) {
         vec_t v = load_vec(files[f]);
         uint8_t h[PROTO_HEADER_SIZE];
@@ -930,7 +930,7 @@ START_TEST(truncated_header)
         expect_refused(h, len, v.p, v.pn, VEC_CAP, "header", len);
         free(h);
     }
-    uint8_t longer[PROTO_HEADER_SIZE + 1] = { 0 };
+    uint8_t longer[PROTO_HEADER_SIZE + 1] = {0};
     memcpy(longer, v.h, PROTO_HEADER_SIZE);
     expect_refused(longer, sizeof longer, v.p, v.pn, VEC_CAP, "header", sizeof longer);
     expect_refused(NULL, 0, v.p, v.pn, VEC_CAP, "NULL header", 0);
@@ -1033,11 +1033,11 @@ END_TEST
 
 START_TEST(every_byte_of_every_vector)
 {
-    static const char *const files[] = { "hello.hex",  "welcome.hex",   "refuse.hex",
-                                         "credit.hex", "scene_request.hex", "scene_bundle.hex",
-                                         "task.hex",   "result.hex",    "heartbeat.hex",
-                                         "bye.hex",    "task_failed.hex" };
-    static const uint8_t values[] = { 0x00, 0x01, 0x2f, 0x7f, 0x80, 0xf0, 0xff };
+    static const char *const files[] = {"hello.hex",  "welcome.hex",       "refuse.hex",
+                                        "credit.hex", "scene_request.hex", "scene_bundle.hex",
+                                        "task.hex",   "result.hex",        "heartbeat.hex",
+                                        "bye.hex",    "task_failed.hex"};
+    static const uint8_t values[] = {0x00, 0x01, 0x2f, 0x7f, 0x80, 0xf0, 0xff};
     rx_t *r = rx_new(VEC_CAP);
     for (size_t f = 0; f < sizeof files / sizeof files[0]; f++) {
         vec_t v = load_vec(files[f]);
@@ -1067,7 +1067,7 @@ START_TEST(version_refusal)
     vec_t v = load_vec("hello.hex");
     char err[256];
     rx_t *r = rx_new(1);
-    const uint16_t versions[3] = { 0, 2, 0xffff };
+    const uint16_t versions[3] = {0, 2, 0xffff};
     for (int i = 0; i < 3; i++) {
         v.h[4] = (uint8_t)versions[i];
         v.h[5] = (uint8_t)(versions[i] >> 8);
@@ -1093,9 +1093,9 @@ END_TEST
 
 START_TEST(type_names)
 {
-    static const char *const want[] = { "?",        "HELLO",        "WELCOME",     "REFUSE",
-                                        "CREDIT",   "SCENE_REQUEST", "SCENE_BUNDLE", "TASK",
-                                        "RESULT",   "HEARTBEAT",    "BYE",         "TASK_FAILED" };
+    static const char *const want[] = {"?",      "HELLO",         "WELCOME",      "REFUSE",
+                                       "CREDIT", "SCENE_REQUEST", "SCENE_BUNDLE", "TASK",
+                                       "RESULT", "HEARTBEAT",     "BYE",          "TASK_FAILED"};
     for (uint16_t t = 0; t <= PROTO_TYPE_MAX; t++)
         ck_assert_str_eq(proto_type_name(t), want[t]);
     ck_assert_str_eq(proto_type_name(PROTO_TYPE_MAX + 1), "?");
@@ -1128,7 +1128,9 @@ START_TEST(build_id)
     proto_msg_t *m = msg_new(PROTO_HELLO);
     rx_t *r = rx_new(1);
     m->u.hello.threads = 8;
-    proto_build_id("sse\x01" "4.2-and-more-and-more-and-more", m->u.hello.build);
+    proto_build_id("sse\x01"
+                   "4.2-and-more-and-more-and-more",
+                   m->u.hello.build);
     free(round_trip(m, r, 1));
     ck_assert_str_eq(r->m.u.hello.build, m->u.hello.build);
     rx_free(r);

@@ -129,8 +129,11 @@ START_TEST(test_independence)
     const struct {
         const char *what;
         pair_fn f;
-    } cases[] = {{"dimensions", dims_pair}, {"samples", samples_pair}, {"pixels", pixels_pair},
-                 {"seeds", seeds_pair},     {"layers", layers_pair}};
+    } cases[] = {{"dimensions", dims_pair},
+                 {"samples", samples_pair},
+                 {"pixels", pixels_pair},
+                 {"seeds", seeds_pair},
+                 {"layers", layers_pair}};
     for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++) {
         double chi2 = pair_chi2(cases[c].f, 256000);
         ck_assert_msg(chi2 < chi2_limit(256), "%s: 2D chi2 %.1f", cases[c].what, chi2);

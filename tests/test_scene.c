@@ -19,17 +19,17 @@
 
 /* ---- helpers ------------------------------------------------------------ */
 
-#define CAM_OK                                                                                   \
-    "\"camera\": {\"position\": [0, 0, -5], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], "          \
+#define CAM_OK                                                                                     \
+    "\"camera\": {\"position\": [0, 0, -5], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], "           \
     "\"fov\": 40, \"width\": 32, \"height\": 24}"
-#define MATS_OK                                                                                  \
+#define MATS_OK                                                                                    \
     "\"materials\": {\"white\": {\"type\": \"diffuse\", \"albedo\": [0.5, 0.5, 0.5]}, "            \
     "\"light\": {\"type\": \"emitter\", \"radiance\": [4, 4, 4]}}"
-#define QUAD_WHITE                                                                               \
-    "{\"type\": \"quad\", \"material\": \"white\", \"vertices\": [[0, 0, 0], [1, 0, 0], "         \
+#define QUAD_WHITE                                                                                 \
+    "{\"type\": \"quad\", \"material\": \"white\", \"vertices\": [[0, 0, 0], [1, 0, 0], "          \
     "[1, 1, 0], [0, 1, 0]]}"
-#define QUAD_LIGHT                                                                               \
-    "{\"type\": \"quad\", \"material\": \"light\", \"vertices\": [[0, 3, 0], [0, 3, 1], "         \
+#define QUAD_LIGHT                                                                                 \
+    "{\"type\": \"quad\", \"material\": \"light\", \"vertices\": [[0, 3, 0], [0, 3, 1], "          \
     "[1, 3, 1], [1, 3, 0]]}"
 #define SHAPES_OK "\"shapes\": [" QUAD_WHITE ", " QUAD_LIGHT "]"
 
@@ -242,7 +242,8 @@ START_TEST(bad_malformed_json)
     const char *json = "{\n  \"camera\": {\"fov\": 40},\n  \"render\": {\"spp\": ,},\n}\n";
     char err[ERRLEN] = "";
     scene_t *s = (scene_t *)(uintptr_t)1;
-    ck_assert_int_eq(scene_load_string(json, strlen(json), "bad.json", NULL, &s, err, sizeof err), -1);
+    ck_assert_int_eq(scene_load_string(json, strlen(json), "bad.json", NULL, &s, err, sizeof err),
+                     -1);
     ck_assert_ptr_null(s);
     ck_assert_msg(strncmp(err, "bad.json:3:", 11) == 0, "want bad.json:3:COL, got: %s", err);
     int line = 0, col = 0;
@@ -334,7 +335,8 @@ END_TEST
 START_TEST(bad_shape_type)
 {
     char buf[TEXTLEN];
-    const char *shapes = "\"shapes\": [" QUAD_LIGHT ", {\"type\": \"cube\", \"material\": \"white\"}]";
+    const char *shapes =
+        "\"shapes\": [" QUAD_LIGHT ", {\"type\": \"cube\", \"material\": \"white\"}]";
     expect_fail(build(buf, sizeof buf, CAM_OK, NULL, MATS_OK, shapes), "stype.json", "shapes[1]",
                 "unknown shape type", "cube");
 }
@@ -367,7 +369,8 @@ START_TEST(bad_mesh_malformed)
                          "\"material\": \"white\", \"file\": \"scene-broken.ply\"}]";
     build(buf, sizeof buf, CAM_OK, NULL, MATS_OK, shapes);
     tmp_dir(dir, sizeof dir);
-    expect_fail_base(buf, strlen(buf), "mbad.json", dir, "shapes[2].file", "scene-broken.ply", NULL);
+    expect_fail_base(buf, strlen(buf), "mbad.json", dir, "shapes[2].file", "scene-broken.ply",
+                     NULL);
 }
 END_TEST
 
@@ -379,12 +382,14 @@ START_TEST(bad_triangle_index)
                          "\"indices\": [[0, 1, 2], [0, 1, 3]]}]";
     expect_fail(build(buf, sizeof buf, CAM_OK, NULL, MATS_OK, shapes), "idx.json",
                 "shapes[1].indices[1]", "out of range", NULL);
-    const char *neg = "\"shapes\": [{\"type\": \"triangles\", \"material\": \"white\", "
-                      "\"vertices\": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], \"indices\": [[0, -1, 2]]}]";
+    const char *neg =
+        "\"shapes\": [{\"type\": \"triangles\", \"material\": \"white\", "
+        "\"vertices\": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], \"indices\": [[0, -1, 2]]}]";
     expect_fail(build(buf, sizeof buf, CAM_OK, NULL, MATS_OK, neg), "neg.json",
                 "shapes[0].indices[0]", "out of range", NULL);
-    const char *frac = "\"shapes\": [{\"type\": \"triangles\", \"material\": \"white\", "
-                       "\"vertices\": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], \"indices\": [[0, 1.5, 2]]}]";
+    const char *frac =
+        "\"shapes\": [{\"type\": \"triangles\", \"material\": \"white\", "
+        "\"vertices\": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], \"indices\": [[0, 1.5, 2]]}]";
     expect_fail(build(buf, sizeof buf, CAM_OK, NULL, MATS_OK, frac), "frac.json",
                 "shapes[0].indices[0]", "integer", NULL);
 }
@@ -393,8 +398,9 @@ END_TEST
 START_TEST(bad_nonfinite)
 {
     char buf[TEXTLEN];
-    const char *shapes = "\"shapes\": [" QUAD_LIGHT ", {\"type\": \"quad\", \"material\": "
-                         "\"white\", \"vertices\": [[0, 0, 0], [1e999, 0, 0], [1, 1, 0], [0, 1, 0]]}]";
+    const char *shapes =
+        "\"shapes\": [" QUAD_LIGHT ", {\"type\": \"quad\", \"material\": "
+        "\"white\", \"vertices\": [[0, 0, 0], [1e999, 0, 0], [1, 1, 0], [0, 1, 0]]}]";
     expect_fail(build(buf, sizeof buf, CAM_OK, NULL, MATS_OK, shapes), "infq.json",
                 "shapes[1].vertices[1]", "finite", NULL);
     const char *cam = "\"camera\": {\"position\": [0, -1e999, -5], \"look_at\": [0, 0, 0], "
@@ -440,7 +446,8 @@ static void resolution_fail(const char *w, const char *h, const char *path, cons
     char cam[512], buf[TEXTLEN], name[64];
     snprintf(cam, sizeof cam,
              "\"camera\": {\"position\": [0, 0, -5], \"look_at\": [0, 0, 0], \"fov\": 40, "
-             "\"width\": %s, \"height\": %s}", w, h);
+             "\"width\": %s, \"height\": %s}",
+             w, h);
     snprintf(name, sizeof name, "res-%sx%s.json", w, h);
     expect_fail(build(buf, sizeof buf, cam, NULL, MATS_OK, SHAPES_OK), name, path, word, NULL);
 }
@@ -458,7 +465,8 @@ START_TEST(bad_resolution)
     char cam[512], buf[TEXTLEN];
     snprintf(cam, sizeof cam,
              "\"camera\": {\"position\": [0, 0, -5], \"look_at\": [0, 0, 0], \"fov\": 40, "
-             "\"width\": %d, \"height\": %u}", SCENE_MAX_SIDE, SCENE_MAX_PIXELS / SCENE_MAX_SIDE);
+             "\"width\": %d, \"height\": %u}",
+             SCENE_MAX_SIDE, SCENE_MAX_PIXELS / SCENE_MAX_SIDE);
     scene_t *s = load_ok(build(buf, sizeof buf, cam, NULL, MATS_OK, SHAPES_OK), "max.json");
     ck_assert_int_eq(s->camera.width, SCENE_MAX_SIDE);
     scene_destroy(&s);
@@ -520,9 +528,10 @@ END_TEST
 START_TEST(bad_scale_zero)
 {
     char buf[TEXTLEN];
-    const char *shapes = "\"shapes\": [" QUAD_LIGHT ", {\"type\": \"quad\", \"material\": \"white\", "
-                         "\"vertices\": [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], "
-                         "\"transform\": {\"scale\": [1, 0, 1]}}]";
+    const char *shapes =
+        "\"shapes\": [" QUAD_LIGHT ", {\"type\": \"quad\", \"material\": \"white\", "
+        "\"vertices\": [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], "
+        "\"transform\": {\"scale\": [1, 0, 1]}}]";
     expect_fail(build(buf, sizeof buf, CAM_OK, NULL, MATS_OK, shapes), "scale.json",
                 "shapes[1].transform", "scale", "non-zero");
     const char *s0 = "\"shapes\": [" QUAD_LIGHT ", {\"type\": \"quad\", \"material\": \"white\", "
@@ -569,19 +578,22 @@ END_TEST
  * its sampling pdf is refused, not traced into NaN pixels. */
 START_TEST(bad_light_scale)
 {
-    const char *tiny =
-        "{\"camera\":{\"position\":[0,0,-5],\"look_at\":[0,0,0],\"width\":8,\"height\":8,\"fov\":40},"
-        "\"materials\":{\"l\":{\"type\":\"emitter\",\"radiance\":[1,1,1]},\"w\":{\"type\":\"diffuse\",\"albedo\":[0.5,0.5,0.5]}},"
-        "\"shapes\":[{\"type\":\"quad\",\"material\":\"w\",\"vertices\":[[-1,-1,0],[1,-1,0],[1,1,0],[-1,1,0]]},"
-        "{\"type\":\"quad\",\"material\":\"l\",\"transform\":{\"scale\":1e-20},"
-        "\"vertices\":[[-1,-1,-1],[-1,1,-1],[1,1,-1],[1,-1,-1]]}]}";
+    const char *tiny = "{\"camera\":{\"position\":[0,0,-5],\"look_at\":[0,0,0],\"width\":8,"
+                       "\"height\":8,\"fov\":40},"
+                       "\"materials\":{\"l\":{\"type\":\"emitter\",\"radiance\":[1,1,1]},\"w\":{"
+                       "\"type\":\"diffuse\",\"albedo\":[0.5,0.5,0.5]}},"
+                       "\"shapes\":[{\"type\":\"quad\",\"material\":\"w\",\"vertices\":[[-1,-1,0],["
+                       "1,-1,0],[1,1,0],[-1,1,0]]},"
+                       "{\"type\":\"quad\",\"material\":\"l\",\"transform\":{\"scale\":1e-20},"
+                       "\"vertices\":[[-1,-1,-1],[-1,1,-1],[1,1,-1],[1,-1,-1]]}]}";
     expect_fail(tiny, "tiny-light", "shapes", "single-precision", NULL);
-    const char *unequal =
-        "{\"camera\":{\"position\":[0,0,-5],\"look_at\":[0,0,0],\"width\":8,\"height\":8,\"fov\":40},"
-        "\"materials\":{\"l\":{\"type\":\"emitter\",\"radiance\":[1,1,1]}},"
-        "\"shapes\":[{\"type\":\"quad\",\"material\":\"l\",\"vertices\":[[-1,-1,0],[-1,1,0],[1,1,0],[1,-1,0]]},"
-        "{\"type\":\"quad\",\"material\":\"l\",\"transform\":{\"scale\":1e25},"
-        "\"vertices\":[[-1,-1,-1],[-1,1,-1],[1,1,-1],[1,-1,-1]]}]}";
+    const char *unequal = "{\"camera\":{\"position\":[0,0,-5],\"look_at\":[0,0,0],\"width\":8,"
+                          "\"height\":8,\"fov\":40},"
+                          "\"materials\":{\"l\":{\"type\":\"emitter\",\"radiance\":[1,1,1]}},"
+                          "\"shapes\":[{\"type\":\"quad\",\"material\":\"l\",\"vertices\":[[-1,-1,"
+                          "0],[-1,1,0],[1,1,0],[1,-1,0]]},"
+                          "{\"type\":\"quad\",\"material\":\"l\",\"transform\":{\"scale\":1e25},"
+                          "\"vertices\":[[-1,-1,-1],[-1,1,-1],[1,1,-1],[1,-1,-1]]}]}";
     expect_fail(unequal, "unequal-lights", "shapes", "single-precision", NULL);
 }
 END_TEST
@@ -614,7 +626,8 @@ END_TEST
 START_TEST(warn_no_light)
 {
     char buf[TEXTLEN];
-    const char *mats = "\"materials\": {\"white\": {\"type\": \"diffuse\", \"albedo\": [0.5, 0.5, 0.5]}}";
+    const char *mats =
+        "\"materials\": {\"white\": {\"type\": \"diffuse\", \"albedo\": [0.5, 0.5, 0.5]}}";
     scene_t *s = load_ok(build(buf, sizeof buf, CAM_OK, NULL, mats, "\"shapes\": [" QUAD_WHITE "]"),
                          "dark.json");
     ck_assert(has_warning(s, "no light"));
@@ -640,7 +653,8 @@ START_TEST(warn_unknown_field)
     char json[TEXTLEN + 64];
     build(buf, sizeof buf, CAM_OK, NULL, mats, SHAPES_OK);
     /* "comment" and "name" are ignored quietly; "extra" is not */
-    int w = snprintf(json, sizeof json, "{\"comment\": \"c\", \"name\": \"n\", \"extra\": 1,%s", buf + 1);
+    int w = snprintf(json, sizeof json, "{\"comment\": \"c\", \"name\": \"n\", \"extra\": 1,%s",
+                     buf + 1);
     ck_assert_uint_lt((size_t)w, sizeof json);
     scene_t *s = load_ok(json, "typo.json");
     ck_assert_int_eq(s->warning_count, 2);
@@ -803,7 +817,8 @@ static void check_sphere(const scene_t *s, size_t first, size_t ntri, const doub
             const float *n = s->normals + 3 * s->indices[3 * t + k];
             double d[3] = {p[0] - c[0], p[1] - c[1], p[2] - c[2]};
             double dist = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-            ck_assert_msg(fabs(dist - r) <= 1e-5 * r, "vertex at distance %.9g, radius %g", dist, r);
+            ck_assert_msg(fabs(dist - r) <= 1e-5 * r, "vertex at distance %.9g, radius %g", dist,
+                          r);
             /* vertex normal = (p - c) / r */
             for (int i = 0; i < 3; i++) {
                 ck_assert_msg(fabs(n[i] - d[i] / dist) < 1e-5, "vertex normal off");
@@ -866,8 +881,8 @@ START_TEST(feature_sphere)
                 "shapes[0].subdivisions", "out of range", NULL);
     const char *rad = "\"shapes\": [{\"type\": \"sphere\", \"material\": \"light\", \"center\": "
                       "[0, 0, 0], \"radius\": 0}]";
-    expect_fail(build(buf, sizeof buf, CAM_OK, NULL, MATS_OK, rad), "rad0.json",
-                "shapes[0].radius", "out of range", NULL);
+    expect_fail(build(buf, sizeof buf, CAM_OK, NULL, MATS_OK, rad), "rad0.json", "shapes[0].radius",
+                "out of range", NULL);
 }
 END_TEST
 
@@ -876,7 +891,8 @@ START_TEST(feature_materials)
     char buf[TEXTLEN];
     const char *mats =
         "\"materials\": {\"white\": {\"type\": \"diffuse\", \"albedo\": [0.5, 0.25, 0.125]}, "
-        "\"light\": {\"type\": \"emitter\", \"radiance\": [3, 2, 1], \"albedo\": [0.75, 0.5, 0.25]}, "
+        "\"light\": {\"type\": \"emitter\", \"radiance\": [3, 2, 1], \"albedo\": [0.75, 0.5, "
+        "0.25]}, "
         "\"dark\": {\"type\": \"emitter\", \"radiance\": [1, 1, 1]}, "
         "\"chrome\": {\"type\": \"mirror\"}, \"glass\": {\"type\": \"dielectric\", \"ior\": 1.33}, "
         "\"crown\": {\"type\": \"dielectric\"}}";
@@ -951,14 +967,14 @@ START_TEST(fuzz_mutations)
     char *orig = read_text(tu_root_path(path, sizeof path, "scenes/cornell-box.json"), &len);
     ck_assert_uint_gt(len, 100);
     static const char alphabet[] = "{}[]\",:-+.eE0123456789 \n\\tnfu";
-    static const char *const numbers[] = {"0", "-1", "1e999", "-1e999", "1e-320", "0.5", "2",
-                                          "3", "7", "8", "1e30", "16384", "4294967296", "-0",
-                                          "100000", "1.5", "180"};
-    static const char *const words[] = {"quad", "triangles", "mesh", "sphere", "diffuse",
-                                        "emitter", "mirror", "dielectric", "white", "light",
-                                        "camera", "shapes", "materials", "render", "type",
-                                        "vertices", "indices", "transform", "scale", "rotate",
-                                        "albedo", "radiance", "naive", "", "\\u0000"};
+    static const char *const numbers[] = {"0",          "-1", "1e999",  "-1e999", "1e-320", "0.5",
+                                          "2",          "3",  "7",      "8",      "1e30",   "16384",
+                                          "4294967296", "-0", "100000", "1.5",    "180"};
+    static const char *const words[] = {"quad",     "triangles", "mesh",       "sphere", "diffuse",
+                                        "emitter",  "mirror",    "dielectric", "white",  "light",
+                                        "camera",   "shapes",    "materials",  "render", "type",
+                                        "vertices", "indices",   "transform",  "scale",  "rotate",
+                                        "albedo",   "radiance",  "naive",      "",       "\\u0000"};
     rng_state = 0x243f6a8885a308d3ull;
     int ok = 0, bad = 0;
     for (int iter = 0; iter < 2000; iter++) {
@@ -991,7 +1007,8 @@ START_TEST(fuzz_mutations)
                 break;
             case 4: /* the next number becomes another, often a bad one */
             case 5:
-                n = replace_token(t, n, cap, at, 0, numbers[rnd(sizeof numbers / sizeof numbers[0])]);
+                n = replace_token(t, n, cap, at, 0,
+                                  numbers[rnd(sizeof numbers / sizeof numbers[0])]);
                 break;
             case 6: /* the next string becomes another name the loader knows */
                 n = replace_token(t, n, cap, at, 1, words[rnd(sizeof words / sizeof words[0])]);

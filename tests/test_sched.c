@@ -22,7 +22,8 @@ static void fake_results(const sched_task_t *t, tracer_result_t *r, const double
         r[i].samples = k->sample_count;
         for (int c = 0; c < 3; c++)
             r[i].sum[c] = 0.25 * k->sample_count * (c + 1) + 1e-3 * k->prior_sum[c] +
-                          1e-6 * (double)k->prior_count + 1e-4 * k->pixel + 1e-5 * (double)k->first_sample;
+                          1e-6 * (double)k->prior_count + 1e-4 * k->pixel +
+                          1e-5 * (double)k->first_sample;
         r[i].lum_m2 = 0.01 * k->sample_count;
         r[i].pvar = pvar_by_pixel ? pvar_by_pixel[k->pixel]
                                   : (double)((k->pixel * 7 + k->first_sample * 3) % 11);
@@ -32,8 +33,13 @@ static void fake_results(const sched_task_t *t, tracer_result_t *r, const double
 static sched_t *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t g, sched_adaptive_t a,
                      uint32_t uniform, uint32_t range)
 {
-    sched_config_t c = {.width = w, .height = h, .spp = spp, .granularity = g, .adaptive = a,
-                        .uniform_layers = uniform, .range_pixels = range};
+    sched_config_t c = {.width = w,
+                        .height = h,
+                        .spp = spp,
+                        .granularity = g,
+                        .adaptive = a,
+                        .uniform_layers = uniform,
+                        .range_pixels = range};
     char err[256];
     sched_t *s = sched_new(&c, err, sizeof err);
     ck_assert_msg(s != NULL, "%s", err);
@@ -55,7 +61,8 @@ static void run_layer(sched_t *s, uint32_t layer, const double *pvar)
     }
     for (int i = 0; i < n; i++) {
         fake_results(&held[i], r, pvar);
-        ck_assert_msg(sched_complete(s, held[i].id, r, held[i].count, err, sizeof err) == 0, "%s", err);
+        ck_assert_msg(sched_complete(s, held[i].id, r, held[i].count, err, sizeof err) == 0, "%s",
+                      err);
     }
 }
 
@@ -176,7 +183,9 @@ static film_t *simulate(sched_adaptive_t a, uint64_t order_seed, int workers, ui
             ck_assert(sched_requeue(s, inflight[pick].id) == 0);
         } else {
             fake_results(&inflight[pick], r, NULL);
-            ck_assert_msg(sched_complete(s, inflight[pick].id, r, inflight[pick].count, err, sizeof err) == 0, "%s", err);
+            ck_assert_msg(
+                sched_complete(s, inflight[pick].id, r, inflight[pick].count, err, sizeof err) == 0,
+                "%s", err);
         }
         inflight[pick] = inflight[--n];
     }
@@ -215,8 +224,14 @@ START_TEST(test_flag_sequence)
 {
     char err[256];
     /* 6 layers; the rule applies at layers 2 and 4 only */
-    sched_config_t c = {.width = 4, .height = 1, .spp = 12, .granularity = 2, .adaptive = SCHED_ADAPTIVE_THESIS,
-                        .uniform_layers = UINT32_MAX, .range_pixels = 2, .flags = "001010"};
+    sched_config_t c = {.width = 4,
+                        .height = 1,
+                        .spp = 12,
+                        .granularity = 2,
+                        .adaptive = SCHED_ADAPTIVE_THESIS,
+                        .uniform_layers = UINT32_MAX,
+                        .range_pixels = 2,
+                        .flags = "001010"};
     sched_t *s = sched_new(&c, err, sizeof err);
     ck_assert_msg(s != NULL, "%s", err);
     ck_assert_uint_eq(sched_uniform_layers(s), 2);
@@ -274,9 +289,16 @@ static double steady_or_noisy(uint32_t p, uint32_t layer)
 START_TEST(test_target_error_stops)
 {
     char err[256];
-    sched_config_t c = {.width = 16, .height = 1, .spp = 64, .granularity = 4, .adaptive = SCHED_ADAPTIVE_NONE,
-                        .uniform_layers = UINT32_MAX, .range_pixels = 4, .target_error = 0.05,
-                        .confidence = 0.95, .target_share = 1.0};
+    sched_config_t c = {.width = 16,
+                        .height = 1,
+                        .spp = 64,
+                        .granularity = 4,
+                        .adaptive = SCHED_ADAPTIVE_NONE,
+                        .uniform_layers = UINT32_MAX,
+                        .range_pixels = 4,
+                        .target_error = 0.05,
+                        .confidence = 0.95,
+                        .target_share = 1.0};
     sched_t *s = sched_new(&c, err, sizeof err);
     ck_assert_msg(s != NULL, "%s", err);
     run_all(s, steady_or_noisy, 4);
@@ -288,7 +310,8 @@ START_TEST(test_target_error_stops)
         if (p < 8)
             ck_assert_msg(f->pixels[p].count <= 4u * (SCHED_TARGET_MIN_LAYERS + 2) &&
                               f->pixels[p].count >= 4u * SCHED_TARGET_MIN_LAYERS,
-                          "steady pixel %u took %llu samples", p, (unsigned long long)f->pixels[p].count);
+                          "steady pixel %u took %llu samples", p,
+                          (unsigned long long)f->pixels[p].count);
         else
             ck_assert_uint_eq(f->pixels[p].count, 64);
     }
@@ -311,8 +334,13 @@ START_TEST(test_relerr_and_variance_modes)
 {
     char err[256];
     for (int mode = SCHED_ADAPTIVE_VARIANCE; mode <= SCHED_ADAPTIVE_RELERR; mode++) {
-        sched_config_t c = {.width = 16, .height = 1, .spp = 64, .granularity = 4, .adaptive = (sched_adaptive_t)mode,
-                            .uniform_layers = 4, .range_pixels = 4};
+        sched_config_t c = {.width = 16,
+                            .height = 1,
+                            .spp = 64,
+                            .granularity = 4,
+                            .adaptive = (sched_adaptive_t)mode,
+                            .uniform_layers = 4,
+                            .range_pixels = 4};
         sched_t *s = sched_new(&c, err, sizeof err);
         ck_assert_msg(s != NULL, "%s", err);
         run_all(s, steady_or_noisy, 4);
@@ -341,8 +369,14 @@ START_TEST(test_dilation)
 {
     char err[256];
     for (int dil = 0; dil < 2; dil++) {
-        sched_config_t c = {.width = 5, .height = 5, .spp = 16, .granularity = 4, .adaptive = SCHED_ADAPTIVE_VARIANCE,
-                            .uniform_layers = 2, .range_pixels = 25, .dilate = dil};
+        sched_config_t c = {.width = 5,
+                            .height = 5,
+                            .spp = 16,
+                            .granularity = 4,
+                            .adaptive = SCHED_ADAPTIVE_VARIANCE,
+                            .uniform_layers = 2,
+                            .range_pixels = 25,
+                            .dilate = dil};
         sched_t *s = sched_new(&c, err, sizeof err);
         ck_assert_msg(s != NULL, "%s", err);
         run_all(s, one_hot, 4);
@@ -370,8 +404,15 @@ START_TEST(test_random_selection)
     char err[256];
     uint64_t counts[2][64];
     for (int run = 0; run < 2; run++) {
-        sched_config_t c = {.width = 64, .height = 1, .spp = 64, .granularity = 4, .adaptive = SCHED_ADAPTIVE_THESIS,
-                            .uniform_layers = 2, .range_pixels = 16, .random_selection = 1, .seed = 77};
+        sched_config_t c = {.width = 64,
+                            .height = 1,
+                            .spp = 64,
+                            .granularity = 4,
+                            .adaptive = SCHED_ADAPTIVE_THESIS,
+                            .uniform_layers = 2,
+                            .range_pixels = 16,
+                            .random_selection = 1,
+                            .seed = 77};
         sched_t *s = sched_new(&c, err, sizeof err);
         run_all(s, steady_or_noisy, 4);
         for (uint32_t p = 0; p < 64; p++)
@@ -391,7 +432,11 @@ END_TEST
 START_TEST(test_bad_configs)
 {
     char err[256];
-    sched_config_t c = {.width = 0, .height = 4, .spp = 8, .granularity = 2, .adaptive = SCHED_ADAPTIVE_NONE,
+    sched_config_t c = {.width = 0,
+                        .height = 4,
+                        .spp = 8,
+                        .granularity = 2,
+                        .adaptive = SCHED_ADAPTIVE_NONE,
                         .uniform_layers = UINT32_MAX};
     ck_assert(sched_new(&c, err, sizeof err) == NULL);
     c.width = 4;
@@ -426,9 +471,9 @@ START_TEST(test_results_range_checked)
         double v;
         const char *want;
     } bad[] = {
-        {0, NAN, "out of range"},     {0, INFINITY, "out of range"}, {0, -1.0, "out of range"},
+        {0, NAN, "out of range"},     {0, INFINITY, "out of range"},  {0, -1.0, "out of range"},
         {0, 1.7e308, "out of range"}, {0, 32 * 2e30, "out of range"}, {1, -0.5, "out of range"},
-        {1, NAN, "out of range"},     {2, INFINITY, "out of range"}, {3, 0, "implausible"},
+        {1, NAN, "out of range"},     {2, INFINITY, "out of range"},  {3, 0, "implausible"},
         {4, 1.0, "out of range"},
     };
     for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
@@ -457,7 +502,8 @@ START_TEST(test_results_range_checked)
             r[1].sum[0] = bad[k].v;
             break;
         }
-        ck_assert_msg(sched_complete(s, t.id, r, t.count, err, sizeof err) == -1, "case %zu accepted", k);
+        ck_assert_msg(sched_complete(s, t.id, r, t.count, err, sizeof err) == -1,
+                      "case %zu accepted", k);
         ck_assert_msg(strstr(err, bad[k].want) != NULL, "case %zu: %s", k, err);
         ck_assert_uint_eq(sched_samples_done(s), 0);
     }
@@ -542,9 +588,14 @@ START_TEST(test_many_layers_new_is_cheap)
     for (int i = 0; i < 20; i++) {
         /* 2^25 samples in layers of 32: 2^20 layers of one pixel; relerr and a
          * target error read both t tables */
-        sched_config_t c = {.width = 1, .height = 1, .spp = 1u << 25, .granularity = 32,
+        sched_config_t c = {.width = 1,
+                            .height = 1,
+                            .spp = 1u << 25,
+                            .granularity = 32,
                             .adaptive = i % 2 ? SCHED_ADAPTIVE_RELERR : SCHED_ADAPTIVE_THESIS,
-                            .uniform_layers = UINT32_MAX, .target_error = 0.01, .confidence = 0.99};
+                            .uniform_layers = UINT32_MAX,
+                            .target_error = 0.01,
+                            .confidence = 0.99};
         sched_t *s = sched_new(&c, err, sizeof err);
         ck_assert_msg(s != NULL, "%s", err);
         ck_assert_uint_eq(sched_layer_count(s), 1u << 20);
@@ -611,7 +662,8 @@ static membuf_t save_mem(const sched_t *s)
 }
 
 /* Loads from the first len bytes of b. */
-static sched_t *load_mem(const sched_config_t *c, const membuf_t *b, size_t len, char *err, size_t errlen)
+static sched_t *load_mem(const sched_config_t *c, const membuf_t *b, size_t len, char *err,
+                         size_t errlen)
 {
     membuf_t r = {b->data, len, len, 0};
     return sched_load(c, mem_read, &r, err, errlen);
@@ -669,7 +721,8 @@ static int sim_step(sim_t *m)
     } else {
         ck_assert_uint_le(m->inflight[pick].count, 64);
         hashed_results(&m->inflight[pick], r);
-        ck_assert_msg(sched_complete(m->s, m->inflight[pick].id, r, m->inflight[pick].count, err, sizeof err) == 0,
+        ck_assert_msg(sched_complete(m->s, m->inflight[pick].id, r, m->inflight[pick].count, err,
+                                     sizeof err) == 0,
                       "%s", err);
     }
     m->inflight[pick] = m->inflight[--m->n];
@@ -707,7 +760,8 @@ static void assert_same_job(const sched_t *a, const sched_t *b, const char *what
     ck_assert_uint_eq(sched_layers_complete(a), sched_layers_complete(b));
     for (uint32_t l = 0; l < sched_layer_count(a); l++) {
         double ta = sched_threshold(a, l), tb = sched_threshold(b, l);
-        ck_assert_msg(memcmp(&ta, &tb, sizeof ta) == 0, "%s: threshold of layer %u differs", what, l);
+        ck_assert_msg(memcmp(&ta, &tb, sizeof ta) == 0, "%s: threshold of layer %u differs", what,
+                      l);
         for (uint32_t p = 0; p < n; p++)
             ck_assert_int_eq(sched_pixel_in_layer(a, l, p), sched_pixel_in_layer(b, l, p));
     }
@@ -726,15 +780,17 @@ static const ckpt_case_t ckpt_cases[] = {
     {"relerr", {CK_BASE, .adaptive = SCHED_ADAPTIVE_RELERR, .uniform_layers = 3}},
     /* more uniform layers: relerr alone would skip the steady pixels before
      * they have the layers to converge */
-    {"relerr, target error", {CK_BASE, .adaptive = SCHED_ADAPTIVE_RELERR, .uniform_layers = 6, .target_error = 0.05}},
+    {"relerr, target error",
+     {CK_BASE, .adaptive = SCHED_ADAPTIVE_RELERR, .uniform_layers = 6, .target_error = 0.05}},
     {"uniform, target error stops the job",
-     {CK_BASE, .adaptive = SCHED_ADAPTIVE_NONE, .uniform_layers = 3, .target_error = 0.05, .confidence = 0.9,
-      .target_share = 0.5}},
+     {CK_BASE, .adaptive = SCHED_ADAPTIVE_NONE, .uniform_layers = 3, .target_error = 0.05,
+      .confidence = 0.9, .target_share = 0.5}},
     {"thesis, random selection, dilation",
-     {CK_BASE, .adaptive = SCHED_ADAPTIVE_THESIS, .uniform_layers = 3, .random_selection = 1, .dilate = 1,
-      .seed = 1234}},
-    {"variance, flag sequence", {CK_BASE, .adaptive = SCHED_ADAPTIVE_VARIANCE, .uniform_layers = UINT32_MAX,
-                                   .flags = "001101011011"}},
+     {CK_BASE, .adaptive = SCHED_ADAPTIVE_THESIS, .uniform_layers = 3, .random_selection = 1,
+      .dilate = 1, .seed = 1234}},
+    {"variance, flag sequence",
+     {CK_BASE, .adaptive = SCHED_ADAPTIVE_VARIANCE, .uniform_layers = UINT32_MAX,
+      .flags = "001101011011"}},
 };
 
 /* THE property of checkpoints: a job saved after any event (tasks out,
@@ -808,7 +864,8 @@ static uint8_t *find_section(const membuf_t *b, const char *tag, size_t *len)
 }
 
 /* Loads a copy of b changed by one byte at off (to v); must fail naming `want`. */
-static void expect_refused(const sched_config_t *c, const membuf_t *b, size_t off, uint8_t v, const char *want)
+static void expect_refused(const sched_config_t *c, const membuf_t *b, size_t off, uint8_t v,
+                           const char *want)
 {
     char err[256] = "";
     membuf_t m = {malloc(b->len), b->len, b->len, 0};
@@ -888,7 +945,8 @@ START_TEST(test_checkpoint_refuses_garbage)
     expect_refused(&c, &b, (size_t)(dec - b.data) + n - 1, 1, "decided");
     /* a film sum that is not finite: NaN, then +inf (top bytes of a double) */
     uint8_t *film = find_section(&b, "film", &n);
-    size_t sum1 = (size_t)(film - b.data) + 5 * sizeof(film_pixel_t) + offsetof(film_pixel_t, sum) + 8;
+    size_t sum1 =
+        (size_t)(film - b.data) + 5 * sizeof(film_pixel_t) + offsetof(film_pixel_t, sum) + 8;
     double nan = NAN, inf = INFINITY;
     membuf_t m = {malloc(b.len), b.len, b.len, 0};
     memcpy(m.data, b.data, b.len);
@@ -934,7 +992,8 @@ END_TEST
  * then NaN (the square root of a negative M2, or of one that Welford's
  * update drove negative), or its M2 overflowed on the next merge, and
  * every later checkpoint was refused for it. Such values are refused. */
-static void expect_batch_refused(const sched_config_t *c, const membuf_t *b, const char *tag, double v)
+static void expect_batch_refused(const sched_config_t *c, const membuf_t *b, const char *tag,
+                                 double v)
 {
     char err[256] = "";
     membuf_t m = {malloc(b->len), b->len, b->len, 0};

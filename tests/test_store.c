@@ -33,7 +33,8 @@ static void rm_rf(const char *dir)
     tu_run(cmd, out, sizeof out);
 }
 
-static void write_rec(const char *path, store_kind_t kind, const void *data, size_t len, int keep_prev)
+static void write_rec(const char *path, store_kind_t kind, const void *data, size_t len,
+                      int keep_prev)
 {
     store_rec_writer_t *w = malloc(sizeof *w);
     ck_assert_ptr_nonnull(w);
@@ -76,7 +77,8 @@ START_TEST(record_round_trip)
         data[i] = (uint8_t)(i * 131 + 7);
     write_rec(path, STORE_KIND_CHECKPOINT, data, sizeof data, 0);
     store_rec_t rec;
-    ck_assert_msg(store_rec_load(path, STORE_KIND_CHECKPOINT, &rec, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(store_rec_load(path, STORE_KIND_CHECKPOINT, &rec, err, sizeof err) == 0, "%s",
+                  err);
     ck_assert_uint_eq(rec.size, sizeof data);
     ck_assert_int_eq(memcmp(rec.data, data, sizeof data), 0);
     uint8_t first[10];

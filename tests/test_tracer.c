@@ -7,8 +7,8 @@
  * that biases the estimate by more than the noise fails; an unlucky seed
  * essentially never does (5 sigma: 6e-7 per comparison).
  */
-#include <check.h>
 #include <cJSON.h>
+#include <check.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -153,23 +153,27 @@ static void assert_films_agree(const film_t *a, const film_t *b, int blocks, dou
 static void furnace_box(char *buf, size_t len, const char *material_json, const char *extra_shapes,
                         const char *camera_json)
 {
-    snprintf(buf, len,
-             "{\"camera\": %s,"
-             "\"materials\": {\"f\": %s, \"glass\": {\"type\": \"dielectric\", \"ior\": 1.5},"
-             "  \"mirror\": {\"type\": \"mirror\"}},"
-             "\"shapes\": ["
-             "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,-1,-1],[-1,-1,1],[1,-1,1],[1,-1,-1]]},"
-             "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,1,-1],[1,1,-1],[1,1,1],[-1,1,1]]},"
-             "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,-1,-1],[-1,1,-1],[-1,1,1],[-1,-1,1]]},"
-             "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[1,-1,-1],[1,-1,1],[1,1,1],[1,1,-1]]},"
-             "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,-1,-1],[1,-1,-1],[1,1,-1],[-1,1,-1]]},"
-             "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,-1,1],[-1,1,1],[1,1,1],[1,-1,1]]}"
-             "%s]}",
-             camera_json, material_json, extra_shapes);
+    snprintf(
+        buf, len,
+        "{\"camera\": %s,"
+        "\"materials\": {\"f\": %s, \"glass\": {\"type\": \"dielectric\", \"ior\": 1.5},"
+        "  \"mirror\": {\"type\": \"mirror\"}},"
+        "\"shapes\": ["
+        "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,-1,-1],[-1,-1,1],[1,-1,1],[1,-1,-"
+        "1]]},"
+        "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,1,-1],[1,1,-1],[1,1,1],[-1,1,1]]},"
+        "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,-1,-1],[-1,1,-1],[-1,1,1],[-1,-1,"
+        "1]]},"
+        "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[1,-1,-1],[1,-1,1],[1,1,1],[1,1,-1]]},"
+        "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,-1,-1],[1,-1,-1],[1,1,-1],[-1,1,-"
+        "1]]},"
+        "{\"type\":\"quad\",\"material\":\"f\",\"vertices\":[[-1,-1,1],[-1,1,1],[1,1,1],[1,-1,1]]}"
+        "%s]}",
+        camera_json, material_json, extra_shapes);
 }
 
-static const char *const inside_camera =
-    "{\"position\":[0,0,0],\"look_at\":[0,0,1],\"up\":[0,1,0],\"fov\":90,\"width\":16,\"height\":16}";
+static const char *const inside_camera = "{\"position\":[0,0,0],\"look_at\":[0,0,1],\"up\":[0,1,0],"
+                                         "\"fov\":90,\"width\":16,\"height\":16}";
 
 /* ---- furnaces --------------------------------------------------------- */
 
@@ -178,7 +182,8 @@ static const char *const inside_camera =
 static void furnace_case(scene_integrator_t integ, double a, uint32_t spp)
 {
     char mat[256], json[4096];
-    snprintf(mat, sizeof mat, "{\"type\":\"emitter\",\"radiance\":[1,0.5,0.25],\"albedo\":[%g,%g,%g]}", a, a, a);
+    snprintf(mat, sizeof mat,
+             "{\"type\":\"emitter\",\"radiance\":[1,0.5,0.25],\"albedo\":[%g,%g,%g]}", a, a, a);
     furnace_box(json, sizeof json, mat, "", inside_camera);
     scene_t *s = load_text(json);
     ck_assert_uint_eq(s->light_count, 12);
@@ -204,13 +209,22 @@ static void furnace_case(scene_integrator_t integ, double a, uint32_t spp)
     scene_destroy(&s);
 }
 
-START_TEST(test_furnace_path) { furnace_case(SCENE_INTEGRATOR_PATH, 0.5, 64); }
+START_TEST(test_furnace_path)
+{
+    furnace_case(SCENE_INTEGRATOR_PATH, 0.5, 64);
+}
 END_TEST
 
-START_TEST(test_furnace_path_bright) { furnace_case(SCENE_INTEGRATOR_PATH, 0.9, 64); }
+START_TEST(test_furnace_path_bright)
+{
+    furnace_case(SCENE_INTEGRATOR_PATH, 0.9, 64);
+}
 END_TEST
 
-START_TEST(test_furnace_naive) { furnace_case(SCENE_INTEGRATOR_NAIVE, 0.5, 64); }
+START_TEST(test_furnace_naive)
+{
+    furnace_case(SCENE_INTEGRATOR_NAIVE, 0.5, 64);
+}
 END_TEST
 
 /* A black-body box of radiance Le around a lossless glass or mirror sphere:
@@ -220,10 +234,12 @@ static void specular_furnace(const char *material)
 {
     char extra[256], json[4096];
     snprintf(extra, sizeof extra,
-             ",{\"type\":\"sphere\",\"material\":\"%s\",\"center\":[0,0,0.2],\"radius\":0.5,\"subdivisions\":4}",
+             ",{\"type\":\"sphere\",\"material\":\"%s\",\"center\":[0,0,0.2],\"radius\":0.5,"
+             "\"subdivisions\":4}",
              material);
     furnace_box(json, sizeof json, "{\"type\":\"emitter\",\"radiance\":[0.75,0.75,0.75]}", extra,
-                "{\"position\":[0,0,-0.9],\"look_at\":[0,0,0.2],\"up\":[0,1,0],\"fov\":50,\"width\":16,\"height\":16}");
+                "{\"position\":[0,0,-0.9],\"look_at\":[0,0,0.2],\"up\":[0,1,0],\"fov\":50,"
+                "\"width\":16,\"height\":16}");
     scene_t *s = load_text(json);
     for (int integ = 0; integ < 2; integ++) {
         film_t *f = render(s, 3, (scene_integrator_t)integ, 32, 2, 32);
@@ -237,10 +253,16 @@ static void specular_furnace(const char *material)
     scene_destroy(&s);
 }
 
-START_TEST(test_glass_furnace) { specular_furnace("glass"); }
+START_TEST(test_glass_furnace)
+{
+    specular_furnace("glass");
+}
 END_TEST
 
-START_TEST(test_mirror_furnace) { specular_furnace("mirror"); }
+START_TEST(test_mirror_furnace)
+{
+    specular_furnace("mirror");
+}
 END_TEST
 
 /* ---- analytic direct lighting ---------------------------------------- */
@@ -283,8 +305,10 @@ static void direct_case(scene_integrator_t integ, uint32_t spp)
         "\"materials\":{\"floor\":{\"type\":\"diffuse\",\"albedo\":[0.5,0.5,0.5]},"
         "\"light\":{\"type\":\"emitter\",\"radiance\":[1,1,1]}},"
         "\"shapes\":["
-        "{\"type\":\"quad\",\"material\":\"floor\",\"vertices\":[[-50,0,-50],[-50,0,50],[50,0,50],[50,0,-50]]},"
-        "{\"type\":\"quad\",\"material\":\"light\",\"vertices\":[[-0.5,1,-0.5],[0.5,1,-0.5],[0.5,1,0.5],[-0.5,1,0.5]]}]}";
+        "{\"type\":\"quad\",\"material\":\"floor\",\"vertices\":[[-50,0,-50],[-50,0,50],[50,0,50],["
+        "50,0,-50]]},"
+        "{\"type\":\"quad\",\"material\":\"light\",\"vertices\":[[-0.5,1,-0.5],[0.5,1,-0.5],[0.5,1,"
+        "0.5],[-0.5,1,0.5]]}]}";
     scene_t *s_ = load_text(json);
     film_t *f = render(s_, 11, integ, spp, 2, 32);
     assert_all_finite(f);
@@ -293,16 +317,22 @@ static void direct_case(scene_integrator_t integ, uint32_t spp)
      * irradiance varies by less than 1e-5 relative. */
     double expect = rho * Le * square_form_factor(s, h);
     ck_assert_msg(fabs(r.mean - expect) <= NSIGMA * sqrt(r.var) + 1e-5 * expect,
-                  "direct light (%s): %.7f vs exact %.7f (sigma %.3g)", scene_integrator_name(integ),
-                  r.mean, expect, sqrt(r.var));
+                  "direct light (%s): %.7f vs exact %.7f (sigma %.3g)",
+                  scene_integrator_name(integ), r.mean, expect, sqrt(r.var));
     film_destroy(&f);
     scene_destroy(&s_);
 }
 
-START_TEST(test_direct_light_path) { direct_case(SCENE_INTEGRATOR_PATH, 256); }
+START_TEST(test_direct_light_path)
+{
+    direct_case(SCENE_INTEGRATOR_PATH, 256);
+}
 END_TEST
 
-START_TEST(test_direct_light_naive) { direct_case(SCENE_INTEGRATOR_NAIVE, 1024); }
+START_TEST(test_direct_light_naive)
+{
+    direct_case(SCENE_INTEGRATOR_NAIVE, 1024);
+}
 END_TEST
 
 /* ---- the Cornell box -------------------------------------------------- */
@@ -317,8 +347,8 @@ START_TEST(test_path_and_naive_agree_cornell)
     assert_films_agree(p, n, 4, 0.0, "path vs naive");
     /* and the whole image, tighter */
     region_stat_t rp = region(p, 0, 0, 32, 32), rn = region(n, 0, 0, 32, 32);
-    ck_assert_msg(fabs(rp.mean - rn.mean) <= NSIGMA * sqrt(rp.var + rn.var), "%.6f vs %.6f", rp.mean,
-                  rn.mean);
+    ck_assert_msg(fabs(rp.mean - rn.mean) <= NSIGMA * sqrt(rp.var + rn.var), "%.6f vs %.6f",
+                  rp.mean, rn.mean);
     /* MIS must be worth something: the path integrator's variance is lower */
     ck_assert_msg(rp.var * 64 < rn.var * 256, "path variance per sample is not below naive's");
     film_destroy(&p);
@@ -346,8 +376,8 @@ START_TEST(test_cornell_red_wall_on_left)
         }
     /* a mirrored camera would swap them: red dominates the left, green the right */
     ck_assert_msg(left[0] > 2 * left[1] && right[1] > 1.3 * right[0] && left[0] > 2 * right[0],
-                  "left (%g %g %g) should be red, right (%g %g %g) green", left[0], left[1], left[2],
-                  right[0], right[1], right[2]);
+                  "left (%g %g %g) should be red, right (%g %g %g) green", left[0], left[1],
+                  left[2], right[0], right[1], right[2]);
     film_destroy(&f);
     scene_destroy(&s);
 }
@@ -439,7 +469,10 @@ START_TEST(test_pvar_matches_definition)
     ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
     ck_assert(tracer_new(dev, s, &t, err, sizeof err) == 0);
     tracer_settings_t st = {9, SCENE_INTEGRATOR_PATH, 0};
-    tracer_task_t task = {.pixel = 120, .sample_count = 32, .first_sample = 32, .prior_count = 32,
+    tracer_task_t task = {.pixel = 120,
+                          .sample_count = 32,
+                          .first_sample = 32,
+                          .prior_count = 32,
                           .prior_sum = {4.0, 3.0, 2.0}};
     tracer_result_t r;
     ck_assert(tracer_trace(t, &st, &task, 1, &r, NULL, err, sizeof err) == 0);
@@ -456,7 +489,8 @@ START_TEST(test_pvar_matches_definition)
     double pvar = 0;
     for (int i = 0; i < 31; i++)
         pvar += (P[i] - P[31]) * (P[i] - P[31]);
-    ck_assert_msg(fabs(r.pvar - pvar) <= 1e-9 * (pvar + 1e-30), "pvar %.12g vs %.12g", r.pvar, pvar);
+    ck_assert_msg(fabs(r.pvar - pvar) <= 1e-9 * (pvar + 1e-30), "pvar %.12g vs %.12g", r.pvar,
+                  pvar);
     for (int c = 0; c < 3; c++)
         ck_assert(fabs(r.sum[c] - sum[c]) <= 1e-12 * (fabs(sum[c]) + 1));
     tracer_destroy(&t);
@@ -482,10 +516,13 @@ static film_t *cornell_transformed(double k, double t, int size, uint32_t spp)
     cJSON *root = cornell_json(size);
     cJSON *cam = cJSON_GetObjectItem(root, "camera");
     cJSON *c;
-    cJSON_ArrayForEach(c, cJSON_GetObjectItem(cam, "position")) cJSON_SetNumberValue(c, c->valuedouble * k + t);
-    cJSON_ArrayForEach(c, cJSON_GetObjectItem(cam, "look_at")) cJSON_SetNumberValue(c, c->valuedouble * k + t);
+    cJSON_ArrayForEach(c, cJSON_GetObjectItem(cam, "position"))
+        cJSON_SetNumberValue(c, c->valuedouble * k + t);
+    cJSON_ArrayForEach(c, cJSON_GetObjectItem(cam, "look_at"))
+        cJSON_SetNumberValue(c, c->valuedouble * k + t);
     cJSON *sh;
-    cJSON_ArrayForEach(sh, cJSON_GetObjectItem(root, "shapes")) transform_points(cJSON_GetObjectItem(sh, "vertices"), k, t);
+    cJSON_ArrayForEach(sh, cJSON_GetObjectItem(root, "shapes"))
+        transform_points(cJSON_GetObjectItem(sh, "vertices"), k, t);
     scene_t *s = load_json(root);
     cJSON_Delete(root);
     film_t *f = render(s, 1, SCENE_INTEGRATOR_PATH, spp, 2, 32);
@@ -515,14 +552,16 @@ END_TEST
  * rho * Le * F with F = 1 - 3e-8; acne would darken it. */
 START_TEST(test_grazing_camera)
 {
-    const char *json =
-        "{\"camera\":{\"position\":[0,0.01,0],\"look_at\":[0,-0.00872654,1],\"up\":[0,1,0],\"fov\":0.4,"
-        "\"width\":16,\"height\":16},"
-        "\"materials\":{\"floor\":{\"type\":\"diffuse\",\"albedo\":[0.5,0.5,0.5]},"
-        "\"sky\":{\"type\":\"emitter\",\"radiance\":[1,1,1]}},"
-        "\"shapes\":["
-        "{\"type\":\"quad\",\"material\":\"floor\",\"vertices\":[[-5000,0,-5000],[-5000,0,5000],[5000,0,5000],[5000,0,-5000]]},"
-        "{\"type\":\"quad\",\"material\":\"sky\",\"vertices\":[[-5000,1,-5000],[5000,1,-5000],[5000,1,5000],[-5000,1,5000]]}]}";
+    const char *json = "{\"camera\":{\"position\":[0,0.01,0],\"look_at\":[0,-0.00872654,1],\"up\":["
+                       "0,1,0],\"fov\":0.4,"
+                       "\"width\":16,\"height\":16},"
+                       "\"materials\":{\"floor\":{\"type\":\"diffuse\",\"albedo\":[0.5,0.5,0.5]},"
+                       "\"sky\":{\"type\":\"emitter\",\"radiance\":[1,1,1]}},"
+                       "\"shapes\":["
+                       "{\"type\":\"quad\",\"material\":\"floor\",\"vertices\":[[-5000,0,-5000],[-"
+                       "5000,0,5000],[5000,0,5000],[5000,0,-5000]]},"
+                       "{\"type\":\"quad\",\"material\":\"sky\",\"vertices\":[[-5000,1,-5000],["
+                       "5000,1,-5000],[5000,1,5000],[-5000,1,5000]]}]}";
     scene_t *s = load_text(json);
     for (int integ = 0; integ < 2; integ++) {
         film_t *f = render(s, 5, (scene_integrator_t)integ, 64, 2, 32);
@@ -530,8 +569,9 @@ START_TEST(test_grazing_camera)
         region_stat_t r = region(f, 0, 0, 16, 16);
         double expect = 0.5 * square_form_factor(5000, 1);
         ck_assert_msg(fabs(r.mean - expect) <= NSIGMA * sqrt(r.var) + 1e-6,
-                      "grazing (%s): %.7f vs %.7f, sigma %.3g", scene_integrator_name((scene_integrator_t)integ),
-                      r.mean, expect, sqrt(r.var));
+                      "grazing (%s): %.7f vs %.7f, sigma %.3g",
+                      scene_integrator_name((scene_integrator_t)integ), r.mean, expect,
+                      sqrt(r.var));
         for (int i = 0; i < 256; i++) {
             double rgb[3];
             film_mean(f, (uint32_t)i, rgb);
@@ -552,7 +592,8 @@ START_TEST(test_slivers_and_degenerates)
     cJSON *shapes = cJSON_GetObjectItem(root, "shapes");
     cJSON_DeleteItemFromArray(shapes, 0); /* the floor quad */
     const int n = 3000, degenerate = 5;
-    const double v0[3] = {552.8, 0, 0}, v1[3] = {0, 0, 0}, v2[3] = {0, 0, 559.2}, v3[3] = {549.6, 0, 559.2};
+    const double v0[3] = {552.8, 0, 0}, v1[3] = {0, 0, 0}, v2[3] = {0, 0, 559.2},
+                 v3[3] = {549.6, 0, 559.2};
     cJSON *sh = cJSON_CreateObject();
     cJSON_AddStringToObject(sh, "type", "triangles");
     cJSON_AddStringToObject(sh, "material", "white");
@@ -614,7 +655,9 @@ START_TEST(test_tiny_bright_light)
     cJSON *shapes = cJSON_GetObjectItem(root, "shapes");
     cJSON *lq = cJSON_GetArrayItem(shapes, cJSON_GetArraySize(shapes) - 1);
     double cx = 278, cz = 279.5, hw = 0.065, hd = 0.0525;
-    double q[4][3] = {{cx + hw, 548.7, cz - hd}, {cx + hw, 548.7, cz + hd}, {cx - hw, 548.7, cz + hd},
+    double q[4][3] = {{cx + hw, 548.7, cz - hd},
+                      {cx + hw, 548.7, cz + hd},
+                      {cx - hw, 548.7, cz + hd},
                       {cx - hw, 548.7, cz - hd}};
     cJSON *verts = cJSON_CreateArray();
     for (int i = 0; i < 4; i++)
@@ -629,7 +672,8 @@ START_TEST(test_tiny_bright_light)
     assert_all_finite(b);
     /* below the light's row: the ceiling pixels may see the light itself */
     region_stat_t ra = region(a, 0, 8, 32, 32), rb = region(b, 0, 8, 32, 32);
-    ck_assert_msg(fabs(ra.mean - rb.mean) <= NSIGMA * sqrt(ra.var + rb.var), "%.6g vs %.6g", ra.mean, rb.mean);
+    ck_assert_msg(fabs(ra.mean - rb.mean) <= NSIGMA * sqrt(ra.var + rb.var), "%.6g vs %.6g",
+                  ra.mean, rb.mean);
     film_t *ref = cornell_transformed(1.0, 0.0, 32, 64);
     region_stat_t rr = region(ref, 0, 8, 32, 32);
     /* a point light and a 13 cm one light the box almost alike: within 3 % */
@@ -648,15 +692,18 @@ END_TEST
  * must agree. */
 START_TEST(test_glass_caustic)
 {
-    const char *json =
-        "{\"camera\":{\"position\":[0,3,-5],\"look_at\":[0,0.6,0],\"up\":[0,1,0],\"fov\":35,\"width\":16,\"height\":16},"
-        "\"materials\":{\"floor\":{\"type\":\"diffuse\",\"albedo\":[0.7,0.7,0.7]},"
-        "\"glass\":{\"type\":\"dielectric\",\"ior\":1.5},"
-        "\"light\":{\"type\":\"emitter\",\"radiance\":[20,20,20]}},"
-        "\"shapes\":["
-        "{\"type\":\"quad\",\"material\":\"floor\",\"vertices\":[[-4,0,-4],[-4,0,4],[4,0,4],[4,0,-4]]},"
-        "{\"type\":\"sphere\",\"material\":\"glass\",\"center\":[0,1.2,0],\"radius\":0.7,\"subdivisions\":4},"
-        "{\"type\":\"quad\",\"material\":\"light\",\"vertices\":[[-0.5,5,-0.5],[0.5,5,-0.5],[0.5,5,0.5],[-0.5,5,0.5]]}]}";
+    const char *json = "{\"camera\":{\"position\":[0,3,-5],\"look_at\":[0,0.6,0],\"up\":[0,1,0],"
+                       "\"fov\":35,\"width\":16,\"height\":16},"
+                       "\"materials\":{\"floor\":{\"type\":\"diffuse\",\"albedo\":[0.7,0.7,0.7]},"
+                       "\"glass\":{\"type\":\"dielectric\",\"ior\":1.5},"
+                       "\"light\":{\"type\":\"emitter\",\"radiance\":[20,20,20]}},"
+                       "\"shapes\":["
+                       "{\"type\":\"quad\",\"material\":\"floor\",\"vertices\":[[-4,0,-4],[-4,0,4],"
+                       "[4,0,4],[4,0,-4]]},"
+                       "{\"type\":\"sphere\",\"material\":\"glass\",\"center\":[0,1.2,0],"
+                       "\"radius\":0.7,\"subdivisions\":4},"
+                       "{\"type\":\"quad\",\"material\":\"light\",\"vertices\":[[-0.5,5,-0.5],[0.5,"
+                       "5,-0.5],[0.5,5,0.5],[-0.5,5,0.5]]}]}";
     scene_t *s = load_text(json);
     film_t *p = render(s, 1, SCENE_INTEGRATOR_PATH, 256, 2, 32);
     film_t *n = render(s, 2, SCENE_INTEGRATOR_NAIVE, 1024, 2, 32);
@@ -676,7 +723,8 @@ START_TEST(test_million_constant_samples)
 {
     char json[4096];
     furnace_box(json, sizeof json, "{\"type\":\"emitter\",\"radiance\":[0.1,0.7,3.3]}", "",
-                "{\"position\":[0,0,0],\"look_at\":[0,0,1],\"up\":[0,1,0],\"fov\":60,\"width\":1,\"height\":1}");
+                "{\"position\":[0,0,0],\"look_at\":[0,0,1],\"up\":[0,1,0],\"fov\":60,\"width\":1,"
+                "\"height\":1}");
     scene_t *s = load_text(json);
     tracer_t *t = NULL;
     tracer_device_t *dev = NULL;
@@ -688,8 +736,10 @@ START_TEST(test_million_constant_samples)
     const uint32_t per = TRACER_MAX_TASK_SAMPLES;
     const uint64_t total = 1000000;
     for (uint64_t first = 0; first < total; first += per) {
-        tracer_task_t task = {.pixel = 0, .first_sample = first,
-                              .sample_count = (uint32_t)(total - first < per ? total - first : per)};
+        tracer_task_t task = {.pixel = 0,
+                              .first_sample = first,
+                              .sample_count =
+                                  (uint32_t)(total - first < per ? total - first : per)};
         film_prior(f, &task);
         tracer_result_t r;
         ck_assert(tracer_trace(t, &st, &task, 1, &r, NULL, err, sizeof err) == 0);
@@ -700,8 +750,8 @@ START_TEST(test_million_constant_samples)
     film_mean(f, 0, rgb);
     const double expect[3] = {(float)0.1, (float)0.7, (float)3.3};
     for (int c = 0; c < 3; c++)
-        ck_assert_msg(fabs(rgb[c] - expect[c]) <= 1e-12 * expect[c], "channel %d: %.17g vs %.17g", c,
-                      rgb[c], expect[c]);
+        ck_assert_msg(fabs(rgb[c] - expect[c]) <= 1e-12 * expect[c], "channel %d: %.17g vs %.17g",
+                      c, rgb[c], expect[c]);
     ck_assert(film_variance_of_mean(f, 0) <= 1e-24);
     film_destroy(&f);
     tracer_destroy(&t);

@@ -53,12 +53,14 @@ START_TEST(test_escape)
 {
     FILE *f = tmpfile();
     ck_assert_ptr_nonnull(f);
-    put(f, "job %s queued", "evil\n2026-01-01T00:00:00.000Z master: fake\x1b[31m a\\b \x7f caf\xc3\xa9");
+    put(f, "job %s queued",
+        "evil\n2026-01-01T00:00:00.000Z master: fake\x1b[31m a\\b \x7f caf\xc3\xa9");
     char *out = slurp(f);
     ck_assert_uint_eq(count(out, "\n"), 1);
     ck_assert_int_eq(out[strlen(out) - 1], '\n');
-    ck_assert_ptr_nonnull(strstr(out, "Z master: job evil\\x0a2026-01-01T00:00:00.000Z master: fake\\x1b[31m "
-                                      "a\\\\b \\x7f caf\xc3\xa9 queued\n"));
+    ck_assert_ptr_nonnull(
+        strstr(out, "Z master: job evil\\x0a2026-01-01T00:00:00.000Z master: fake\\x1b[31m "
+                    "a\\\\b \\x7f caf\xc3\xa9 queued\n"));
     /* the stamp: 2026-11-23T14:53:46.051Z */
     ck_assert_uint_ge(strlen(out), 25);
     ck_assert_int_eq(out[4], '-');
@@ -93,7 +95,8 @@ START_TEST(test_burst_and_summary)
     vblog_limiter_flush(&l, f, "master", t0 + VBLOG_WINDOW_S);
     out = slurp(f);
     ck_assert_uint_eq(count(out, "\n"), VBLOG_BURST + 1);
-    ck_assert_ptr_nonnull(strstr(out, "Z master: 990 more like this in the last 10 s: bad message 999\n"));
+    ck_assert_ptr_nonnull(
+        strstr(out, "Z master: 990 more like this in the last 10 s: bad message 999\n"));
     free(out);
     /* summarised once only */
     vblog_limiter_flush(&l, f, "master", t0 + 3 * VBLOG_WINDOW_S);
@@ -196,7 +199,8 @@ START_TEST(test_more_keys_than_slots)
     ck_assert_uint_eq(count(out, "2 more like this in the last 10 s: "), NKEYS);
     for (int k = 0; k < NKEYS; k++) {
         char want[128 + sizeof keys]; /* GCC bounds keys[k] by the whole array */
-        snprintf(want, sizeof want, "master: 2 more like this in the last 10 s: %s line %d\n", keys[k], PER - 1);
+        snprintf(want, sizeof want, "master: 2 more like this in the last 10 s: %s line %d\n",
+                 keys[k], PER - 1);
         ck_assert_msg(strstr(out, want) != NULL, "no summary for %s", keys[k]);
     }
     free(out);

@@ -26,7 +26,8 @@ START_TEST(test_same_seed_same_tasks)
     int differ = 0;
     for (uint64_t id = 1; id <= IDS; id++)
         differ += verify_selected(7, id, 0.3) != verify_selected(8, id, 0.3);
-    ck_assert_msg(differ > IDS / 5, "seeds 7 and 8 choose sets that differ in only %d of %d ids", differ, IDS);
+    ck_assert_msg(differ > IDS / 5, "seeds 7 and 8 choose sets that differ in only %d of %d ids",
+                  differ, IDS);
 }
 END_TEST
 

@@ -88,13 +88,15 @@ int main(int argc, char **argv)
             errno = 0;
             long t = v ? strtol(v, &end, 10) : 0;
             if (!v || errno || *end || t < 1 || t > 4096) {
-                fprintf(stderr, "vbrender-worker: --threads needs 1..4096 (got '%s')\n", v ? v : "");
+                fprintf(stderr, "vbrender-worker: --threads needs 1..4096 (got '%s')\n",
+                        v ? v : "");
                 return 2;
             }
             cfg.threads = (int)t;
             i++;
         } else {
-            fprintf(stderr, "vbrender-worker: unknown or incomplete option '%s'\n%s", argv[i], usage);
+            fprintf(stderr, "vbrender-worker: unknown or incomplete option '%s'\n%s", argv[i],
+                    usage);
             return 2;
         }
     }

@@ -21,9 +21,9 @@
 
 #include "handshake.h"
 #include "proto.h"
-#include "vblog.h"
 #include "scene.h"
 #include "tracer.h"
+#include "vblog.h"
 
 typedef struct scene_entry {
     uint8_t hash[PROTO_HASH_SIZE];
@@ -60,7 +60,7 @@ struct worker {
     worker_config_t cfg;
     char name[64];
     void *sock;
-    void *wake;            /* PULL: render threads say "done" */
+    void *wake; /* PULL: render threads say "done" */
     char wake_endpoint[64];
     wthread_t *threads;
     pthread_mutex_t lock;
@@ -146,8 +146,8 @@ static void *render_main(void *arg)
 
         double t0 = now_s();
         tracer_stats_t st = {0, 0};
-        if (tracer_trace(t->scene->tracer, &t->settings, t->records, t->count, t->results, &st, t->error,
-                         sizeof t->error) < 0)
+        if (tracer_trace(t->scene->tracer, &t->settings, t->records, t->count, t->results, &st,
+                         t->error, sizeof t->error) < 0)
             t->failed = 1;
         t->rays = st.rays;
         t->busy_us = (uint64_t)((now_s() - t0) * 1e6);
@@ -230,8 +230,8 @@ static void maybe_lie(worker_t *w, wtask_t *t)
     memcpy(&bits, &t->results[0].sum[0], sizeof bits);
     bits ^= (uint64_t)1 << (w->lie_bit & 31);
     memcpy(&t->results[0].sum[0], &bits, sizeof bits);
-    logf_(w, "fault injection: lying about job %" PRIu64 " task %" PRIu64 " attempt %u", t->job, t->task,
-          t->attempt);
+    logf_(w, "fault injection: lying about job %" PRIu64 " task %" PRIu64 " attempt %u", t->job,
+          t->task, t->attempt);
 #else
     (void)w;
     (void)t;
@@ -347,7 +347,8 @@ static void on_bundle(worker_t *w, proto_msg_t *msg)
         blobs[i].size = b->meshes[i].size;
     }
     double t0 = now_s();
-    if (ok && scene_load_bundle(b->json, b->json_size, "scene", blobs, b->mesh_count, &e->scene, err, sizeof err) < 0)
+    if (ok && scene_load_bundle(b->json, b->json_size, "scene", blobs, b->mesh_count, &e->scene,
+                                err, sizeof err) < 0)
         ok = 0;
     if (ok && tracer_new(w->device, e->scene, &e->tracer, err, sizeof err) < 0) {
         scene_destroy(&e->scene);
@@ -355,8 +356,8 @@ static void on_bundle(worker_t *w, proto_msg_t *msg)
     }
     e->requested = 0;
     if (ok)
-        logf_(w, "scene loaded in %.2f s: %zu triangles (%s)", now_s() - t0, e->scene->triangle_count,
-              tracer_isa(e->tracer));
+        logf_(w, "scene loaded in %.2f s: %zu triangles (%s)", now_s() - t0,
+              e->scene->triangle_count, tracer_isa(e->tracer));
     else
         logf_(w, "scene failed to load: %s", err);
     /* release the tasks that waited for it */
@@ -513,8 +514,8 @@ static void handle_message(worker_t *w)
     msg->capacity = PROTO_MAX_TASK_PIXELS;
     msg->u.task.records = w->decode_records;
     char err[256];
-    int rc = proto_decode(zmq_msg_data(&f[0]), zmq_msg_size(&f[0]), zmq_msg_data(&f[1]), zmq_msg_size(&f[1]),
-                          msg, err, sizeof err);
+    int rc = proto_decode(zmq_msg_data(&f[0]), zmq_msg_size(&f[0]), zmq_msg_data(&f[1]),
+                          zmq_msg_size(&f[1]), msg, err, sizeof err);
     if (rc == -2) {
         logf_(w, "the master speaks another protocol: %s", err);
         send_simple(w, PROTO_REFUSE, err);
@@ -583,9 +584,12 @@ static int open_master_socket(worker_t *w, char *err, size_t errlen)
     zmq_setsockopt(w->sock, ZMQ_RECONNECT_IVL, &ivl, sizeof ivl);
     zmq_setsockopt(w->sock, ZMQ_RECONNECT_IVL_MAX, &ivl_max, sizeof ivl_max);
     zmq_setsockopt(w->sock, ZMQ_MAXMSGSIZE, &max_msg, sizeof max_msg);
-    if (w->curve && (zmq_setsockopt(w->sock, ZMQ_CURVE_SERVERKEY, w->cfg.master_key, strlen(w->cfg.master_key)) < 0 ||
-                     zmq_setsockopt(w->sock, ZMQ_CURVE_PUBLICKEY, w->cfg.public_key, strlen(w->cfg.public_key)) < 0 ||
-                     zmq_setsockopt(w->sock, ZMQ_CURVE_SECRETKEY, w->cfg.secret_key, strlen(w->cfg.secret_key)) < 0)) {
+    if (w->curve && (zmq_setsockopt(w->sock, ZMQ_CURVE_SERVERKEY, w->cfg.master_key,
+                                    strlen(w->cfg.master_key)) < 0 ||
+                     zmq_setsockopt(w->sock, ZMQ_CURVE_PUBLICKEY, w->cfg.public_key,
+                                    strlen(w->cfg.public_key)) < 0 ||
+                     zmq_setsockopt(w->sock, ZMQ_CURVE_SECRETKEY, w->cfg.secret_key,
+                                    strlen(w->cfg.secret_key)) < 0)) {
         snprintf(err, errlen, "cannot set the CURVE keys: %s", zmq_strerror(errno));
         zmq_close(w->sock);
         w->sock = NULL;
@@ -598,7 +602,8 @@ static int open_master_socket(worker_t *w, char *err, size_t errlen)
         return -1;
     }
     if (zmq_connect(w->sock, w->cfg.master_endpoint) < 0) {
-        snprintf(err, errlen, "cannot connect to %s: %s", w->cfg.master_endpoint, zmq_strerror(errno));
+        snprintf(err, errlen, "cannot connect to %s: %s", w->cfg.master_endpoint,
+                 zmq_strerror(errno));
         handshake_monitor_destroy(&w->mon);
         zmq_close(w->sock);
         w->sock = NULL;
@@ -623,9 +628,8 @@ static void on_handshake_events(worker_t *w, double now)
 {
     char msg[768];
     handshake_result_t r;
-    while (w->mon &&
-           (r = handshake_monitor_read(w->mon, w->cfg.master_endpoint, "worker", w->curve, msg, sizeof msg)) !=
-               HANDSHAKE_NONE) {
+    while (w->mon && (r = handshake_monitor_read(w->mon, w->cfg.master_endpoint, "worker", w->curve,
+                                                 msg, sizeof msg)) != HANDSHAKE_NONE) {
         if (r == HANDSHAKE_OK) {
             if (w->handshake_backoff > 1.0)
                 logf_(w, "%s", msg);
@@ -713,8 +717,10 @@ worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
     if (w->curve) {
         const char *k[3] = {cfg->public_key, cfg->secret_key, cfg->master_key};
         for (int i = 0; i < 3; i++)
-            if (!k[i] || (size_t)snprintf(w->keys[i], sizeof w->keys[i], "%s", k[i]) >= sizeof w->keys[i]) {
-                snprintf(err, errlen, "CURVE needs this worker's key pair and the master's public key (Z85)");
+            if (!k[i] ||
+                (size_t)snprintf(w->keys[i], sizeof w->keys[i], "%s", k[i]) >= sizeof w->keys[i]) {
+                snprintf(err, errlen,
+                         "CURVE needs this worker's key pair and the master's public key (Z85)");
                 worker_destroy(&w);
                 return NULL;
             }
@@ -746,8 +752,10 @@ int worker_run(worker_t *w, const atomic_int *stop)
     send_hello(w);
     while (!(stop && atomic_load(stop)) && !w->refused) {
         /* wake always; the master's socket and its monitor while open */
-        zmq_pollitem_t items[3] = {{w->wake, 0, ZMQ_POLLIN, 0}, {w->sock, 0, ZMQ_POLLIN, 0},
-                                   {w->sock ? handshake_monitor_socket(w->mon) : NULL, 0, ZMQ_POLLIN, 0}};
+        zmq_pollitem_t items[3] = {
+            {w->wake, 0, ZMQ_POLLIN, 0},
+            {w->sock, 0, ZMQ_POLLIN, 0},
+            {w->sock ? handshake_monitor_socket(w->mon) : NULL, 0, ZMQ_POLLIN, 0}};
         if (zmq_poll(items, w->sock ? 3 : 1, 50) < 0 && errno != EINTR)
             break;
         if (items[0].revents & ZMQ_POLLIN) {

@@ -24,18 +24,18 @@
 typedef struct worker worker_t;
 
 typedef struct worker_config {
-    void *zmq_ctx;               /* not owned */
-    const char *master_endpoint; /* e.g. tcp://host:7070 or inproc://workers */
-    int threads;                 /* render threads, >= 1 */
-    int cache_scenes;            /* scenes kept loaded; 0: 4 */
-    FILE *log;                   /* NULL: silent */
-    const char *name;            /* for log lines */
+    void *zmq_ctx;                /* not owned */
+    const char *master_endpoint;  /* e.g. tcp://host:7070 or inproc://workers */
+    int threads;                  /* render threads, >= 1 */
+    int cache_scenes;             /* scenes kept loaded; 0: 4 */
+    FILE *log;                    /* NULL: silent */
+    const char *name;             /* for log lines */
     struct tracer_device *device; /* the process's Embree device, shared; NULL:
                                      the worker makes (and owns) its own */
     /* CURVE (keys.h, Z85): all three, or none for a master without keys */
-    const char *public_key;       /* this worker's key pair */
+    const char *public_key; /* this worker's key pair */
     const char *secret_key;
-    const char *master_key;       /* the master's public key */
+    const char *master_key; /* the master's public key */
 } worker_config_t;
 
 worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen);

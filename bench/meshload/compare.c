@@ -33,8 +33,8 @@ typedef struct result {
     int ok;
     double best_s;
     size_t vertices, triangles;
-    size_t non_finite;   /* positions that are NaN/Inf */
-    size_t bad_indices;  /* indices >= vertex count */
+    size_t non_finite;  /* positions that are NaN/Inf */
+    size_t bad_indices; /* indices >= vertex count */
     char msg[400];
 } result;
 
@@ -156,8 +156,8 @@ int main(int argc, char **argv)
     }
     aiEnableVerboseLogging(0);
     if (!broken) {
-        printf("%-22s %8s  %-7s %9s %9s %9s %10s %10s\n", "file", "size MB", "reader",
-               "best s", "Mtri/s", "peak MB", "vertices", "triangles");
+        printf("%-22s %8s  %-7s %9s %9s %9s %10s %10s\n", "file", "size MB", "reader", "best s",
+               "Mtri/s", "peak MB", "vertices", "triangles");
     }
     for (int a = first; a < argc; a++) {
         struct stat st;
@@ -186,8 +186,8 @@ int main(int argc, char **argv)
                 continue;
             }
             printf("%-22s %8.1f  %-7s %9.3f %9.2f %9.0f %10zu %10zu\n", base(argv[a]), mb, who,
-                   r.best_s, (double)r.triangles / r.best_s / 1e6, (double)rss / 1024.0,
-                   r.vertices, r.triangles);
+                   r.best_s, (double)r.triangles / r.best_s / 1e6, (double)rss / 1024.0, r.vertices,
+                   r.triangles);
         }
     }
     return 0;

@@ -30,8 +30,9 @@ static void vertex(int i, int j, float p[3])
 static void cell(int i, int j, uint32_t t[6])
 {
     uint32_t a = (uint32_t)(j * NU + i), b = (uint32_t)(j * NU + (i + 1) % NU);
-    uint32_t c = (uint32_t)(((j + 1) % NV) * NU + (i + 1) % NU), d = (uint32_t)(((j + 1) % NV) * NU + i);
-    uint32_t v[6] = { a, b, c, a, c, d };
+    uint32_t c = (uint32_t)(((j + 1) % NV) * NU + (i + 1) % NU),
+             d = (uint32_t)(((j + 1) % NV) * NU + i);
+    uint32_t v[6] = {a, b, c, a, c, d};
     memcpy(t, v, sizeof v);
 }
 
@@ -49,8 +50,8 @@ static FILE *open_out(const char *dir, const char *name)
 
 static void put_u32le(FILE *f, uint32_t v)
 {
-    unsigned char b[4] = { (unsigned char)v, (unsigned char)(v >> 8), (unsigned char)(v >> 16),
-                           (unsigned char)(v >> 24) };
+    unsigned char b[4] = {(unsigned char)v, (unsigned char)(v >> 8), (unsigned char)(v >> 16),
+                          (unsigned char)(v >> 24)};
     fwrite(b, 1, 4, f);
 }
 
@@ -100,7 +101,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "gen_mesh: write error\n");
         return 1;
     }
-    printf("gen_mesh: %ld vertices, %ld triangles -> %s/torus_1m_{le.ply,ascii.ply,.obj}\n",
-           nverts, ntris, argv[1]);
+    printf("gen_mesh: %ld vertices, %ld triangles -> %s/torus_1m_{le.ply,ascii.ply,.obj}\n", nverts,
+           ntris, argv[1]);
     return 0;
 }
