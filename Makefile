@@ -14,6 +14,8 @@
 #   make bench   deps, build, core, distributed, durable and verification
 #                benchmarks (bench/results/)
 #   make bench-error   the error study: adaptive modes against uniform and Mitsuba 3
+#   make format        clang-format every tracked C file in place
+#   make format-check  fail if any tracked C file differs from clang-format's output
 
 BUILD    ?= build
 SAN      ?= 0
@@ -22,7 +24,7 @@ BIN       = bin
 
 DEB_PACKAGES = build-essential pkg-config libembree-dev libzmq3-dev \
                libopenexr-dev libcjson-dev check libsubunit-dev libpng-dev \
-               libsodium-dev nftables clang libclang-rt-14-dev
+               libsodium-dev nftables clang libclang-rt-14-dev clang-format
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 # Determinism: no -ffast-math, no FMA contraction, no -march=native (the same
@@ -101,7 +103,7 @@ BENCH_BIN = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 # Keep intermediate objects: deleting them only forces rebuilds.
 .SECONDARY:
 
-.PHONY: all deps check test test-asan test-tsan tsan-run demo bench bench-error clean fuzz fuzz-short fuzz-build fuzz-seeds
+.PHONY: format format-check all deps check test test-asan test-tsan tsan-run demo bench bench-error clean fuzz fuzz-short fuzz-build fuzz-seeds
 all: $(BIN)/vbrender $(DAEMONS) $(CORE_LIB) $(NET_LIB)
 
 deps:
@@ -113,6 +115,14 @@ deps:
 	  $(SUDO) apt-get update -qq && \
 	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends $$missing; \
 	else echo "make deps: all packages present"; fi
+
+
+# Style is enforced, not suggested: .ci/run fails on any difference.
+FORMAT_FILES = $(shell git ls-files '*.c' '*.h' 2>/dev/null)
+format: deps
+	clang-format -i $(FORMAT_FILES)
+format-check: deps
+	@clang-format --dry-run --Werror $(FORMAT_FILES) && echo "format-check: $(words $(FORMAT_FILES)) files match .clang-format"
 
 $(BUILD)/%.o: %.c
 	@mkdir -p $(dir $@)
