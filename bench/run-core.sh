@@ -2,8 +2,8 @@
 # run-core.sh - the core benchmark ("make bench"): bench_core on the Cornell
 # box and the Happy Buddha at 1 and 2 threads, the Mitsuba 3 peer on the
 # Cornell box at the same spp and thread counts, all merged into
-# bench/results/core.json; then prints the table and refreshes README.md's
-# block through bench/update-readme.py.
+# bench/results/core.json; then prints the table and refreshes bench/RESULTS.md's
+# block through bench/update-results.py.
 #
 # Spp per scene is chosen so a 2-thread render takes >= 3 s on a 2-core
 # machine of 2020s vintage (1-thread renders take twice that); best of 3.
@@ -209,5 +209,5 @@ os.replace(tmp, dest)
 print(f"run-core.sh: wrote {dest} ({result['bench_seconds']:.0f} s)", file=sys.stderr)
 PY
 
-# 4. Table on stdout, and README.md's block when its markers exist.
-python3 bench/update-readme.py
+# 4. Table on stdout, and bench/RESULTS.md's block when its markers exist.
+python3 bench/update-results.py

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # run-distributed.sh - the distributed-system benchmark (issue 3, section 6),
 # written to bench/results/distributed.json; prints the tables and refreshes
-# README.md's bench:distributed block (bench/update-readme-distributed.py).
+# bench/RESULTS.md's bench:distributed block (bench/update-results-distributed.py).
 #
 #   1. Throughput and load balance (thesis tables 5.2-5.13): the Cornell box
 #      and the Happy Buddha, 256x256, uniform and adaptive (thesis), on 1
@@ -465,5 +465,5 @@ os.replace(tmp, dest)
 print(f"run-distributed.sh: wrote {dest} ({result['bench_seconds']:.0f} s)", file=sys.stderr)
 PY
 
-# 5. Tables on stdout, and README.md's block when its markers exist.
-python3 bench/update-readme-distributed.py
+# 5. Tables on stdout, and bench/RESULTS.md's block when its markers exist.
+python3 bench/update-results-distributed.py

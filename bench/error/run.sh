@@ -5,7 +5,7 @@
 #
 # Needs bin/vbrender (make all). Settings come from the environment
 # (VB_STUDY_QUICK=1 for a ~3-minute smoke run; the rest in bench/error/study.py).
-# Writes bench/results/error.json, bench/results/error/*.png and the README
+# Writes bench/results/error.json, bench/results/error/*.png and the bench/RESULTS.md
 # section between <!-- bench:error:begin --> and <!-- bench:error:end -->.
 set -euo pipefail
 

@@ -20,7 +20,7 @@ matplotlib). Steps:
     `study.py --only options` runs this part alone on top of bench/results/error.json.
  4. Mitsuba 3 peer on the Cornell box: agreement of high-count renders with our
     reference, then time to equal relMSE (2 threads each).
- 5. bench/results/error.json, PNG plots under bench/results/error/, the README
+ 5. bench/results/error.json, PNG plots under bench/results/error/, the bench/RESULTS.md
     section between <!-- bench:error:begin/end -->, tables printed.
 
 Errors are reported "reference-corrected": the relMSE (MSE) against the reference
@@ -992,7 +992,7 @@ def tables(R):
 
 
 def update_readme(md):
-    path = os.path.join(ROOT, "README.md")
+    path = os.path.join(ROOT, "bench", "RESULTS.md")
     with open(path) as f:
         text = f.read()
     b, e = "<!-- bench:error:begin -->", "<!-- bench:error:end -->"
@@ -1004,7 +1004,7 @@ def update_readme(md):
         anchor = "<!-- bench:distributed:end -->" if "<!-- bench:distributed:end -->" in text \
             else "<!-- bench:core:end -->"
         if anchor not in text:
-            log("README: no anchor marker; section not written")
+            log("bench/RESULTS.md: no anchor marker; section not written")
             return
         i = text.index(anchor) + len(anchor)
         text = text[:i] + "\n\n" + block + text[i:]

@@ -1,13 +1,13 @@
 #!/usr/bin/env python3
-"""Print the core benchmark table and put it into README.md.
+"""Print the core benchmark table and put it into bench/RESULTS.md.
 
 Reads bench/results/*.json, takes the file(s) with "benchmark": "core" (the
 newest by date if there are several), prints a markdown table to stdout and
 rewrites the block between <!-- bench:core:begin --> and
-<!-- bench:core:end --> in README.md. If README.md or the markers are
+<!-- bench:core:end --> in bench/RESULTS.md. If that file or the markers are
 missing it says so and leaves every file alone. Standard library only.
 
-    bench/update-readme.py [--results DIR] [--readme FILE]
+    bench/update-results.py [--results DIR] [--readme FILE]
 """
 import argparse
 import glob
@@ -35,7 +35,7 @@ def load_core(results_dir):
             with open(path) as f:
                 data = json.load(f)
         except (OSError, ValueError) as e:
-            print(f"update-readme.py: skipping {path}: {e}", file=sys.stderr)
+            print(f"update-results.py: skipping {path}: {e}", file=sys.stderr)
             continue
         if isinstance(data, dict) and data.get("benchmark") == "core":
             if best is None or data.get("date", "") > best.get("date", ""):
@@ -99,12 +99,12 @@ def table(core):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--results", default=os.path.join(ROOT, "bench", "results"))
-    ap.add_argument("--readme", default=os.path.join(ROOT, "README.md"))
+    ap.add_argument("--readme", default=os.path.join(ROOT, "bench", "RESULTS.md"))
     a = ap.parse_args()
 
     core = load_core(a.results)
     if core is None:
-        print(f"update-readme.py: no core results in {a.results} (run 'make bench')", file=sys.stderr)
+        print(f"update-results.py: no core results in {a.results} (run 'make bench')", file=sys.stderr)
         return 1
     text = table(core)
     print(text)
@@ -113,11 +113,11 @@ def main():
         with open(a.readme) as f:
             readme = f.read()
     except FileNotFoundError:
-        print(f"update-readme.py: {a.readme} does not exist; README not updated", file=sys.stderr)
+        print(f"update-results.py: {a.readme} does not exist; results page not updated", file=sys.stderr)
         return 0
     i, j = readme.find(BEGIN), readme.find(END)
     if i < 0 or j < 0 or j < i:
-        print(f"update-readme.py: {a.readme} has no {BEGIN} ... {END} block; README not updated",
+        print(f"update-results.py: {a.readme} has no {BEGIN} ... {END} block; results page not updated",
               file=sys.stderr)
         return 0
     new = readme[:i + len(BEGIN)] + "\n" + text + "\n" + readme[j:]
@@ -126,7 +126,7 @@ def main():
         with open(tmp, "w") as f:
             f.write(new)
         os.replace(tmp, a.readme)
-        print(f"update-readme.py: updated {a.readme}", file=sys.stderr)
+        print(f"update-results.py: updated {a.readme}", file=sys.stderr)
     return 0
 
 

@@ -1,13 +1,13 @@
 #!/usr/bin/env python3
-"""Print the distributed benchmark's tables and put them into README.md.
+"""Print the distributed benchmark's tables and put them into bench/RESULTS.md.
 
 Reads bench/results/*.json, takes the file(s) with "benchmark":
 "distributed" (the newest by date if there are several), prints markdown to
 stdout and rewrites the block between <!-- bench:distributed:begin --> and
-<!-- bench:distributed:end --> in README.md. If README.md or the markers are
+<!-- bench:distributed:end --> in bench/RESULTS.md. If that file or the markers are
 missing it says so and leaves every file alone. Standard library only.
 
-    bench/update-readme-distributed.py [--results DIR] [--readme FILE]
+    bench/update-results-distributed.py [--results DIR] [--readme FILE]
 """
 import argparse
 import glob
@@ -51,7 +51,7 @@ def load(results_dir):
             with open(path) as f:
                 data = json.load(f)
         except (OSError, ValueError) as e:
-            print(f"update-readme-distributed.py: skipping {path}: {e}", file=sys.stderr)
+            print(f"update-results-distributed.py: skipping {path}: {e}", file=sys.stderr)
             continue
         if isinstance(data, dict) and data.get("benchmark") == "distributed":
             if best is None or data.get("date", "") > best.get("date", ""):
@@ -224,12 +224,12 @@ def text(d):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--results", default=os.path.join(ROOT, "bench", "results"))
-    ap.add_argument("--readme", default=os.path.join(ROOT, "README.md"))
+    ap.add_argument("--readme", default=os.path.join(ROOT, "bench", "RESULTS.md"))
     a = ap.parse_args()
 
     d = load(a.results)
     if d is None:
-        print(f"update-readme-distributed.py: no distributed results in {a.results} (run bench/run-distributed.sh)",
+        print(f"update-results-distributed.py: no distributed results in {a.results} (run bench/run-distributed.sh)",
               file=sys.stderr)
         return 1
     body = text(d)
@@ -239,11 +239,11 @@ def main():
         with open(a.readme) as f:
             readme = f.read()
     except FileNotFoundError:
-        print(f"update-readme-distributed.py: {a.readme} does not exist; README not updated", file=sys.stderr)
+        print(f"update-results-distributed.py: {a.readme} does not exist; results page not updated", file=sys.stderr)
         return 0
     i, j = readme.find(BEGIN), readme.find(END)
     if i < 0 or j < 0 or j < i:
-        print(f"update-readme-distributed.py: {a.readme} has no {BEGIN} ... {END} block; README not updated",
+        print(f"update-results-distributed.py: {a.readme} has no {BEGIN} ... {END} block; results page not updated",
               file=sys.stderr)
         return 0
     new = readme[:i + len(BEGIN)] + "\n" + body + "\n" + readme[j:]
@@ -252,7 +252,7 @@ def main():
         with open(tmp, "w") as f:
             f.write(new)
         os.replace(tmp, a.readme)
-        print(f"update-readme-distributed.py: updated {a.readme}", file=sys.stderr)
+        print(f"update-results-distributed.py: updated {a.readme}", file=sys.stderr)
     return 0
 
 
