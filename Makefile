@@ -202,6 +202,7 @@ FUZZ_N    = 20000
 FUZZ_RUNS = $(foreach f,$(FUZZ_BIN),$(f):$(or $(FUZZ_N_$(notdir $(f))),$(FUZZ_N)))
 
 test: $(BIN)/vbrender $(DAEMONS) $(TEST_BIN) $(FUZZ_BIN) $(FAULT_MASTER) $(FAULT_WORKER) $(SEEDS_BIN)
+	@tests/check-docs.sh
 	@mkdir -p $(BUILD)/test-out
 	@TMPDIR=$(abspath $(BUILD)/test-out) $(SEEDS_BIN) --check tests/data
 	@$(TEST_ENV) VB_TMP=$(abspath $(BUILD)/test-out) tests/run-suites.sh $(TEST_BIN) -- $(FUZZ_RUNS)
