@@ -7,6 +7,13 @@
 #include <string.h>
 #include <time.h>
 
+/* A batch of pixels one thread takes at a time: about RENDER_BATCH_SAMPLES
+ * samples, clamped to a pixel count range. */
+#define RENDER_BATCH_SAMPLES 4096
+#define RENDER_BATCH_MIN_PIXELS 16
+#define RENDER_BATCH_MAX_PIXELS 1024
+#define RENDER_PROGRESS_MS 100 /* how often the progress line is redrawn */
+
 typedef struct job {
     const tracer_t *tracer;
     film_t *film;
@@ -118,10 +125,8 @@ static void *worker_main(void *argp)
     return NULL;
 }
 
-int render_run(const tracer_t *tracer, film_t *film, const render_settings_t *s,
-               render_summary_t *summary, char *err, size_t errlen)
+static int check_settings(const render_settings_t *s, char *err, size_t errlen)
 {
-    memset(summary, 0, sizeof *summary);
     if (s->spp == 0) {
         snprintf(err, errlen, "spp must be at least 1");
         return -1;
@@ -134,87 +139,120 @@ int render_run(const tracer_t *tracer, film_t *film, const render_settings_t *s,
         snprintf(err, errlen, "threads must be 1..%d", RENDER_MAX_THREADS);
         return -1;
     }
-    job_t job;
-    memset(&job, 0, sizeof job);
-    job.tracer = tracer;
-    job.film = film;
-    job.s = s;
-    job.layers = (uint32_t)(((uint64_t)s->spp + s->granularity - 1) / s->granularity);
-    job.npix = (size_t)film->width * (size_t)film->height;
+    return 0;
+}
+
+static void job_init(job_t *job, const tracer_t *tracer, film_t *film, const render_settings_t *s)
+{
+    memset(job, 0, sizeof *job);
+    job->tracer = tracer;
+    job->film = film;
+    job->s = s;
+    job->layers = (uint32_t)(((uint64_t)s->spp + s->granularity - 1) / s->granularity);
+    job->npix = (size_t)film->width * (size_t)film->height;
     /* A batch of about 4096 samples: a few milliseconds of work, small
      * enough that the layer's tail is short, large enough to amortise. */
-    size_t bp = 4096 / (s->granularity < s->spp ? s->granularity : s->spp);
-    job.batch_pixels = bp < 16 ? 16 : bp > 1024 ? 1024 : bp;
-    job.batch_count = (job.npix + job.batch_pixels - 1) / job.batch_pixels;
-    atomic_init(&job.next_batch, 0);
-    atomic_init(&job.samples, 0);
-    atomic_init(&job.rays, 0);
-    atomic_init(&job.running, s->threads);
-    atomic_init(&job.failed, 0);
-    pthread_mutex_init(&job.err_lock, NULL);
-    pthread_mutex_init(&job.gate_lock, NULL);
-    pthread_cond_init(&job.gate, NULL);
-    pthread_cond_init(&job.finished, NULL);
+    size_t bp = RENDER_BATCH_SAMPLES / (s->granularity < s->spp ? s->granularity : s->spp);
+    job->batch_pixels = bp < RENDER_BATCH_MIN_PIXELS   ? RENDER_BATCH_MIN_PIXELS
+                        : bp > RENDER_BATCH_MAX_PIXELS ? RENDER_BATCH_MAX_PIXELS
+                                                       : bp;
+    job->batch_count = (job->npix + job->batch_pixels - 1) / job->batch_pixels;
+    atomic_init(&job->next_batch, 0);
+    atomic_init(&job->samples, 0);
+    atomic_init(&job->rays, 0);
+    atomic_init(&job->running, s->threads);
+    atomic_init(&job->failed, 0);
+    pthread_mutex_init(&job->err_lock, NULL);
+    pthread_mutex_init(&job->gate_lock, NULL);
+    pthread_cond_init(&job->gate, NULL);
+    pthread_cond_init(&job->finished, NULL);
+}
 
-    pthread_t threads[RENDER_MAX_THREADS];
-    worker_arg_t args[RENDER_MAX_THREADS];
-    double t0 = now_seconds();
+static void job_cleanup(job_t *job)
+{
+    pthread_barrier_destroy(&job->barrier);
+    pthread_mutex_destroy(&job->err_lock);
+    pthread_mutex_destroy(&job->gate_lock);
+    pthread_cond_destroy(&job->gate);
+    pthread_cond_destroy(&job->finished);
+}
+
+/* Starts the threads, then opens the gate once the barrier is sized to the
+ * threads that did start. Returns how many started. */
+static int start_threads(job_t *job, pthread_t *threads, worker_arg_t *args)
+{
     int started = 0;
-    for (int i = 0; i < s->threads; i++) {
-        args[i].job = &job;
+    for (int i = 0; i < job->s->threads; i++) {
+        args[i].job = job;
         args[i].index = i;
         if (pthread_create(&threads[i], NULL, worker_main, &args[i]) != 0)
             break;
         started++;
     }
     /* Fewer threads than asked (resource limits) still render correctly. */
-    atomic_store(&job.running, started);
-    pthread_barrier_init(&job.barrier, NULL, (unsigned)(started ? started : 1));
-    pthread_mutex_lock(&job.gate_lock);
-    job.gate_open = 1;
-    pthread_cond_broadcast(&job.gate);
-    pthread_mutex_unlock(&job.gate_lock);
+    atomic_store(&job->running, started);
+    pthread_barrier_init(&job->barrier, NULL, (unsigned)(started ? started : 1));
+    pthread_mutex_lock(&job->gate_lock);
+    job->gate_open = 1;
+    pthread_cond_broadcast(&job->gate);
+    pthread_mutex_unlock(&job->gate_lock);
     if (started == 0) {
-        atomic_store(&job.failed, 1);
-        snprintf(job.err, sizeof job.err, "cannot start any render thread");
+        atomic_store(&job->failed, 1);
+        snprintf(job->err, sizeof job->err, "cannot start any render thread");
     }
+    return started;
+}
 
-    const double total = (double)s->spp * (double)job.npix;
-    progress_t *prog =
-        s->progress_out ? progress_new(s->progress_out, s->progress, "render") : NULL;
+/* Shows progress until the last thread ends: wakes every
+ * RENDER_PROGRESS_MS, or at once when the last worker signals. */
+static void monitor(job_t *job, progress_t *prog, double t0)
+{
+    const double total = (double)job->s->spp * (double)job->npix;
     for (;;) {
-        /* Wake every 100 ms for progress, or at once when the last worker ends. */
         struct timespec until;
         clock_gettime(CLOCK_REALTIME, &until);
-        until.tv_nsec += 100 * 1000 * 1000;
+        until.tv_nsec += RENDER_PROGRESS_MS * 1000L * 1000L;
         if (until.tv_nsec >= 1000000000L) {
             until.tv_sec++;
             until.tv_nsec -= 1000000000L;
         }
-        pthread_mutex_lock(&job.gate_lock);
-        if (atomic_load(&job.running) > 0)
-            pthread_cond_timedwait(&job.finished, &job.gate_lock, &until);
-        int left = atomic_load(&job.running);
-        pthread_mutex_unlock(&job.gate_lock);
+        pthread_mutex_lock(&job->gate_lock);
+        if (atomic_load(&job->running) > 0)
+            pthread_cond_timedwait(&job->finished, &job->gate_lock, &until);
+        int left = atomic_load(&job->running);
+        pthread_mutex_unlock(&job->gate_lock);
         if (left == 0)
-            break;
-        double done = (double)atomic_load(&job.samples), el = now_seconds() - t0;
+            return;
+        double done = (double)atomic_load(&job->samples), el = now_seconds() - t0;
         char detail[160], a[32], b[32];
         double rate = el > 0 ? done / el : 0;
         double eta = rate > 0 ? (total - done) / rate : 0;
         snprintf(detail, sizeof detail, "%s samples/s, %s rays/s, ETA %.0fs",
                  render_si(rate, a, sizeof a),
-                 render_si((double)atomic_load(&job.rays) / (el > 0 ? el : 1), b, sizeof b), eta);
+                 render_si((double)atomic_load(&job->rays) / (el > 0 ? el : 1), b, sizeof b), eta);
         progress_update(prog, done / total, detail);
     }
+}
+
+int render_run(const tracer_t *tracer, film_t *film, const render_settings_t *s,
+               render_summary_t *summary, char *err, size_t errlen)
+{
+    memset(summary, 0, sizeof *summary);
+    if (check_settings(s, err, errlen) < 0)
+        return -1;
+    job_t job;
+    job_init(&job, tracer, film, s);
+    pthread_t threads[RENDER_MAX_THREADS];
+    worker_arg_t args[RENDER_MAX_THREADS];
+    double t0 = now_seconds();
+    int started = start_threads(&job, threads, args);
+    progress_t *prog =
+        s->progress_out ? progress_new(s->progress_out, s->progress, "render") : NULL;
+    monitor(&job, prog, t0);
     for (int i = 0; i < started; i++)
         pthread_join(threads[i], NULL);
     double elapsed = now_seconds() - t0;
-    pthread_barrier_destroy(&job.barrier);
-    pthread_mutex_destroy(&job.err_lock);
-    pthread_mutex_destroy(&job.gate_lock);
-    pthread_cond_destroy(&job.gate);
-    pthread_cond_destroy(&job.finished);
+    job_cleanup(&job);
 
     summary->seconds = elapsed;
     summary->samples = atomic_load(&job.samples);
