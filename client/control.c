@@ -370,23 +370,42 @@ static int new_request_id(char out[33], char *err, size_t errlen)
     return 0;
 }
 
-unsigned long long control_submit(control_t *c, const char *scene_path, const cJSON *settings,
-                                  const image_t *reference, control_retry_t *retry, char *err,
-                                  size_t errlen)
+/* The frames of a submit request: [0] the scene JSON, then one per mesh
+ * file, then the reference's R, G, B planes (borrowed, not freed). */
+typedef struct submit_frames {
+    void *frames[PROTO_MAX_MESHES + 4];
+    size_t sizes[PROTO_MAX_MESHES + 4];
+    int count;
+    int owned;         /* frames[1..owned-1] are ours to free */
+    int json_is_cjson; /* frames[0] came from cJSON_Print (else from read_all) */
+} submit_frames_t;
+
+static void submit_frames_free(submit_frames_t *fr)
 {
-    char request_id[33];
-    if (new_request_id(request_id, err, errlen) < 0)
-        return 0;
-    size_t size = 0;
-    unsigned char *text = read_all(scene_path, &size, err, errlen);
-    if (!text)
-        return 0;
-    cJSON *scene = cJSON_ParseWithLength((const char *)text, size);
-    free(text);
-    if (!scene) {
-        /* the master would say the same with a line number: let it */
-        scene = NULL;
-    }
+    for (int i = 1; i < fr->owned; i++)
+        free(fr->frames[i]);
+    if (fr->json_is_cjson)
+        cJSON_free(fr->frames[0]);
+    else
+        free(fr->frames[0]);
+}
+
+/* A mesh file's bundle name: meshN plus its extension in lower case (the
+ * extension tells OBJ from PLY). */
+static void bundle_name(int mesh, const char *file, char *out, size_t len)
+{
+    const char *ext = strrchr(file, '.');
+    char lower[16] = "";
+    for (int k = 0; ext && ext[k] && k < 15; k++)
+        lower[k] = (char)tolower((unsigned char)ext[k]), lower[k + 1] = '\0';
+    snprintf(out, len, "mesh%d%s", mesh, lower);
+}
+
+/* Reads every mesh file the scene's shapes name (relative to the scene's
+ * folder), adds it as a frame and rewrites its "file" to its bundle name. */
+static int bundle_meshes(cJSON *scene, const char *scene_path, cJSON *names, submit_frames_t *fr,
+                         char *err, size_t errlen)
+{
     char dir[4096];
     snprintf(dir, sizeof dir, "%s", scene_path);
     char *slash = strrchr(dir, '/');
@@ -394,22 +413,6 @@ unsigned long long control_submit(control_t *c, const char *scene_path, const cJ
         *slash = '\0';
     else
         snprintf(dir, sizeof dir, ".");
-    const char *base = strrchr(scene_path, '/');
-    base = base ? base + 1 : scene_path;
-
-    void *frames[PROTO_MAX_MESHES + 4];
-    size_t sizes[PROTO_MAX_MESHES + 4];
-    int nframes = 1, mesh_frames = 1;
-    unsigned long long job = 0;
-    cJSON *req = cJSON_CreateObject();
-    cJSON_AddStringToObject(req, "cmd", "submit");
-    cJSON_AddStringToObject(req, "name", base);
-    /* a retried submit after a lost reply names the job it meant */
-    cJSON_AddStringToObject(req, "request_id", request_id);
-    cJSON *names = cJSON_AddArrayToObject(req, "meshes");
-    for (const cJSON *it = settings ? settings->child : NULL; it; it = it->next)
-        cJSON_AddItemToObject(req, it->string, cJSON_Duplicate(it, 1));
-    char *json_text = NULL;
     const cJSON *shapes = scene ? cJSON_GetObjectItemCaseSensitive(scene, "shapes") : NULL;
     if (!cJSON_IsArray(shapes))
         shapes = NULL;
@@ -424,76 +427,116 @@ unsigned long long control_submit(control_t *c, const char *scene_path, const cJ
             continue;
         if (mesh == PROTO_MAX_MESHES) {
             snprintf(err, errlen, "%s: more than %d mesh files", scene_path, PROTO_MAX_MESHES);
-            goto done;
+            return -1;
         }
-        char path[8192];
+        char path[8192], merr[1024], name[64];
         if (file->valuestring[0] == '/')
             snprintf(path, sizeof path, "%s", file->valuestring);
         else
             snprintf(path, sizeof path, "%s/%s", dir, file->valuestring);
-        char merr[1024];
-        unsigned char *data = read_all(path, &sizes[nframes], merr, sizeof merr);
+        unsigned char *data = read_all(path, &fr->sizes[fr->count], merr, sizeof merr);
         if (!data) {
             snprintf(err, errlen, "%s: mesh of shapes: %s", scene_path, merr);
-            goto done;
+            return -1;
         }
-        frames[nframes++] = data;
-        /* keep the extension: it tells OBJ from PLY */
-        const char *ext = strrchr(file->valuestring, '.');
-        char bundle_name[64], lower[16] = "";
-        for (int k = 0; ext && ext[k] && k < 15; k++)
-            lower[k] = (char)tolower((unsigned char)ext[k]), lower[k + 1] = '\0';
-        snprintf(bundle_name, sizeof bundle_name, "mesh%d%s", mesh++, lower);
-        cJSON_SetValuestring(file, bundle_name);
-        cJSON_AddItemToArray(names, cJSON_CreateString(bundle_name));
+        fr->frames[fr->count++] = data;
+        fr->owned = fr->count;
+        bundle_name(mesh++, file->valuestring, name, sizeof name);
+        cJSON_SetValuestring(file, name);
+        cJSON_AddItemToArray(names, cJSON_CreateString(name));
     }
+    return 0;
+}
+
+/* Frame 0: the rewritten scene, or the file's text as it is when it does
+ * not parse (the master's own error then names the line). */
+static int scene_frame(const cJSON *scene, const char *scene_path, submit_frames_t *fr, char *err,
+                       size_t errlen)
+{
     if (scene) {
-        json_text = cJSON_PrintUnformatted(scene);
-        frames[0] = json_text;
-        sizes[0] = json_text ? strlen(json_text) : 0;
-    } else {
-        /* send the text as it is, for the master's own parse error */
-        frames[0] = read_all(scene_path, &sizes[0], err, errlen);
-        if (!frames[0])
-            goto done;
-        json_text = frames[0];
+        fr->frames[0] = cJSON_PrintUnformatted(scene);
+        fr->sizes[0] = fr->frames[0] ? strlen(fr->frames[0]) : 0;
+        fr->json_is_cjson = 1;
+        return 0;
     }
-    mesh_frames = nframes;
-    if (reference) {
-        const char *names[3] = {"R", "G", "B"};
-        cJSON *r = cJSON_AddObjectToObject(req, "reference");
-        cJSON_AddNumberToObject(r, "width", reference->width);
-        cJSON_AddNumberToObject(r, "height", reference->height);
-        for (int k = 0; k < 3; k++) {
-            float *plane = image_channel(reference, names[k]);
-            if (!plane) {
-                snprintf(err, errlen, "the reference has no channel %s", names[k]);
-                goto done;
-            }
-            frames[nframes] = plane;
-            sizes[nframes++] = (size_t)reference->width * reference->height * sizeof(float);
+    fr->frames[0] = read_all(scene_path, &fr->sizes[0], err, errlen);
+    return fr->frames[0] ? 0 : -1;
+}
+
+static int reference_frames(cJSON *req, const image_t *reference, submit_frames_t *fr, char *err,
+                            size_t errlen)
+{
+    const char *names[3] = {"R", "G", "B"};
+    cJSON *r = cJSON_AddObjectToObject(req, "reference");
+    cJSON_AddNumberToObject(r, "width", reference->width);
+    cJSON_AddNumberToObject(r, "height", reference->height);
+    for (int k = 0; k < 3; k++) {
+        float *plane = image_channel(reference, names[k]);
+        if (!plane) {
+            snprintf(err, errlen, "the reference has no channel %s", names[k]);
+            return -1;
         }
+        fr->frames[fr->count] = plane;
+        fr->sizes[fr->count++] = (size_t)reference->width * reference->height * sizeof(float);
     }
-    cJSON *reply = control_request_retry(c, req, (const void *const *)frames, sizes, nframes, retry,
-                                         err, errlen);
-    if (reply) {
-        const cJSON *ok = cJSON_GetObjectItemCaseSensitive(reply, "ok");
-        const cJSON *id = cJSON_GetObjectItemCaseSensitive(reply, "job");
-        const cJSON *e = cJSON_GetObjectItemCaseSensitive(reply, "error");
-        if (cJSON_IsTrue(ok) && cJSON_IsNumber(id))
-            job = (unsigned long long)id->valuedouble;
-        else
-            snprintf(err, errlen, "%s",
-                     cJSON_IsString(e) ? e->valuestring : "the master refused the job");
+    return 0;
+}
+
+static unsigned long long reply_job(const cJSON *reply, char *err, size_t errlen)
+{
+    const cJSON *ok = cJSON_GetObjectItemCaseSensitive(reply, "ok");
+    const cJSON *id = cJSON_GetObjectItemCaseSensitive(reply, "job");
+    const cJSON *e = cJSON_GetObjectItemCaseSensitive(reply, "error");
+    if (cJSON_IsTrue(ok) && cJSON_IsNumber(id))
+        return (unsigned long long)id->valuedouble;
+    snprintf(err, errlen, "%s", cJSON_IsString(e) ? e->valuestring : "the master refused the job");
+    return 0;
+}
+
+static cJSON *submit_request(const char *scene_path, const cJSON *settings, const char *request_id)
+{
+    const char *base = strrchr(scene_path, '/');
+    base = base ? base + 1 : scene_path;
+    cJSON *req = cJSON_CreateObject();
+    cJSON_AddStringToObject(req, "cmd", "submit");
+    cJSON_AddStringToObject(req, "name", base);
+    /* a retried submit after a lost reply names the job it meant */
+    cJSON_AddStringToObject(req, "request_id", request_id);
+    cJSON_AddArrayToObject(req, "meshes");
+    for (const cJSON *it = settings ? settings->child : NULL; it; it = it->next)
+        cJSON_AddItemToObject(req, it->string, cJSON_Duplicate(it, 1));
+    return req;
+}
+
+unsigned long long control_submit(control_t *c, const char *scene_path, const cJSON *settings,
+                                  const image_t *reference, control_retry_t *retry, char *err,
+                                  size_t errlen)
+{
+    char request_id[33];
+    if (new_request_id(request_id, err, errlen) < 0)
+        return 0;
+    size_t size = 0;
+    unsigned char *text = read_all(scene_path, &size, err, errlen);
+    if (!text)
+        return 0;
+    /* a scene that does not parse goes as it is: the master says the same
+     * with a line number */
+    cJSON *scene = cJSON_ParseWithLength((const char *)text, size);
+    free(text);
+    cJSON *req = submit_request(scene_path, settings, request_id);
+    submit_frames_t fr = {.count = 1, .owned = 1};
+    unsigned long long job = 0;
+    if (bundle_meshes(scene, scene_path, cJSON_GetObjectItemCaseSensitive(req, "meshes"), &fr, err,
+                      errlen) == 0 &&
+        scene_frame(scene, scene_path, &fr, err, errlen) == 0 &&
+        (!reference || reference_frames(req, reference, &fr, err, errlen) == 0)) {
+        cJSON *reply = control_request_retry(c, req, (const void *const *)fr.frames, fr.sizes,
+                                             fr.count, retry, err, errlen);
+        if (reply)
+            job = reply_job(reply, err, errlen);
         cJSON_Delete(reply);
     }
-done:
-    for (int i = 1; i < (reference ? mesh_frames : nframes); i++)
-        free(frames[i]);
-    if (scene)
-        cJSON_free(json_text);
-    else
-        free(json_text);
+    submit_frames_free(&fr);
     cJSON_Delete(scene);
     cJSON_Delete(req);
     return job;
