@@ -700,16 +700,275 @@ static double render_once(const tracer_t *tr, const scene_t *s, scene_integrator
     return sum->seconds;
 }
 
+/* Our renderer's figures: best of the timed renders, and the ray mix. */
+typedef struct ours {
+    double times[MAX_RUNS], utils[MAX_RUNS], best, best_util;
+    int nruns;
+    uint64_t samples, rays, nonfinite;
+    double sps, rps, rays_per_sample, ext_per_sample, f_ext;
+    long rss_render;
+} ours_t;
+
+/* Renders until `runs` runs, and up to EXTRA_RUNS more while none ran
+ * undisturbed; then a small naive render for the extension-ray fraction:
+ * the naive integrator traces the same extension rays (same path-length
+ * distribution) and no shadow rays, so 8 spp give the fraction to 3 digits. */
+static int measure_ours(const tracer_t *tr, const scene_t *s, const args_t *a, ours_t *o)
+{
+    const int threads = (int)a->threads, runs = (int)a->runs;
+    memset(o, 0, sizeof *o);
+    o->best = INFINITY;
+    render_summary_t sum;
+    while (o->nruns < runs || (o->best_util < UNDISTURBED && o->nruns < runs + EXTRA_RUNS)) {
+        double util;
+        double t =
+            render_once(tr, s, SCENE_INTEGRATOR_PATH, (uint32_t)a->spp, threads, &sum, &util);
+        if (t < 0)
+            return -1;
+        o->times[o->nruns] = t;
+        o->utils[o->nruns] = util;
+        if (t < o->best) {
+            o->best = t;
+            o->best_util = util;
+        }
+        o->samples = sum.samples;
+        o->rays = sum.rays;
+        o->nonfinite = sum.nonfinite;
+        fprintf(stderr, "  render %d: %.3f s, CPU %.0f%% of %d core(s)%s\n", o->nruns, t,
+                100 * util, threads,
+                util < UNDISTURBED ? " (disturbed: another process had the CPU)" : "");
+        o->nruns++;
+    }
+    render_summary_t nsum;
+    double nutil;
+    if (render_once(tr, s, SCENE_INTEGRATOR_NAIVE, 8, threads, &nsum, &nutil) < 0)
+        return -1;
+    o->rss_render = peak_rss_kb();
+    o->sps = (double)o->samples / o->best;
+    o->rps = (double)o->rays / o->best;
+    o->rays_per_sample = (double)o->rays / (double)o->samples;
+    o->ext_per_sample = (double)nsum.rays / (double)nsum.samples;
+    if (o->ext_per_sample > o->rays_per_sample)
+        o->ext_per_sample = o->rays_per_sample;
+    o->f_ext = o->ext_per_sample / o->rays_per_sample;
+    fprintf(
+        stderr,
+        "  ours: %.3f s best, %.3f M samples/s, %.3f M rays/s, %.3f rays/sample (%.3f extension)\n",
+        o->best, o->sps / 1e6, o->rps / 1e6, o->rays_per_sample, o->ext_per_sample);
+    return 0;
+}
+
+/* Raw Embree on two ray distributions; dist[0] ("path") also on a BVH
+ * without ROBUST (into *fast). */
+typedef struct raw {
+    dist_result_t dist[2], fast;
+    int runs;
+    long rss_total;
+} raw_t;
+
+static void print_dist(const char *name, double tgen, const dist_result_t *d)
+{
+    fprintf(stderr,
+            "  raw %s (%.1f s to build): extension %.3f M rays/s (%.0f%% hit), shadow %.3f M "
+            "rays/s (%zu rays, %.0f%% occluded), our mix %.3f M rays/s; CPU %.0f%% / %.0f%%%s\n",
+            name, tgen, d->ext.rays_per_second / 1e6, 100 * d->ext.hit_fraction,
+            d->sh.rays_per_second / 1e6, d->sh.rays, 100 * d->sh.hit_fraction, d->mix / 1e6,
+            100 * d->ext.utilization, 100 * d->sh.utilization,
+            d->ext.utilization < UNDISTURBED || d->sh.utilization < UNDISTURBED ? " (disturbed)"
+                                                                                : "");
+}
+
+static void set_mix(dist_result_t *d, double f_ext)
+{
+    d->mix = mix_rate(f_ext, d->ext.rays_per_second, d->sh.rays_per_second);
+    d->mix_5050 = mix_rate(0.5, d->ext.rays_per_second, d->sh.rays_per_second);
+}
+
+/* One distribution (k = 0 path rays, 1 area rays) on the ROBUST BVH, and
+ * for k = 0 also on the fast one. */
+static int measure_dist(const scene_t *s, const args_t *a, int k, const embree_t *e,
+                        const embree_t *efast, double f_ext, raw_t *r)
+{
+    const int threads = (int)a->threads;
+    batch_t ext, sh;
+    if (batch_init(&ext, a->rays) < 0 || batch_init(&sh, a->rays) < 0) {
+        fprintf(stderr, "bench_core: out of memory for %" PRIu64 " rays\n", a->rays);
+        return -1;
+    }
+    double t0 = now_seconds();
+    if (k == 0)
+        build_path_batch(s, e, s->seed + 1000, &ext, &sh);
+    else if (build_area_batch(s, s->seed + 2000, &ext, &sh) < 0) {
+        fprintf(stderr, "bench_core: out of memory\n");
+        return -1;
+    }
+    double tgen = now_seconds() - t0;
+    dist_result_t *d = &r->dist[k];
+    if (raw_time(e, &ext, 0, threads, r->runs, &d->ext) < 0 ||
+        raw_time(e, &sh, 1, threads, r->runs, &d->sh) < 0 ||
+        (k == 0 && (raw_time(efast, &ext, 0, threads, r->runs, &r->fast.ext) < 0 ||
+                    raw_time(efast, &sh, 1, threads, r->runs, &r->fast.sh) < 0))) {
+        fprintf(stderr, "bench_core: cannot start threads\n");
+        return -1;
+    }
+    set_mix(d, f_ext);
+    print_dist(k == 0 ? "path" : "area", tgen, d);
+    if (k == 0) {
+        set_mix(&r->fast, f_ext);
+        fprintf(stderr,
+                "  raw path, BVH without ROBUST: extension %.3f M rays/s, shadow %.3f M rays/s, "
+                "our mix %.3f M rays/s\n",
+                r->fast.ext.rays_per_second / 1e6, r->fast.sh.rays_per_second / 1e6,
+                r->fast.mix / 1e6);
+    }
+    batch_free(&ext);
+    batch_free(&sh);
+    return 0;
+}
+
+/* Raw Embree, after the renders so the batches do not count in the
+ * renderer's peak memory. */
+static int measure_raw(const scene_t *s, const args_t *a, double f_ext, raw_t *r)
+{
+    memset(r, 0, sizeof *r);
+    r->runs = (int)a->runs > RAW_MIN_RUNS ? (int)a->runs : RAW_MIN_RUNS;
+    embree_t e, efast;
+    memset(&e, 0, sizeof e);
+    memset(&efast, 0, sizeof efast);
+    int rc = 0;
+    if (embree_build(s, &e, 1) < 0 || embree_build(s, &efast, 0) < 0) {
+        fprintf(stderr, "bench_core: cannot build the Embree scene\n");
+        rc = -1;
+    }
+    for (int k = 0; k < 2 && rc == 0; k++)
+        rc = measure_dist(s, a, k, &e, &efast, f_ext, r);
+    r->rss_total = peak_rss_kb();
+    embree_free(&e);
+    embree_free(&efast);
+    return rc;
+}
+
+static cJSON *ours_json(const ours_t *o, const args_t *a, const scene_t *s, int threads)
+{
+    cJSON *j = cJSON_CreateObject();
+    cJSON_AddStringToObject(j, "integrator", "path");
+    cJSON_AddNumberToObject(j, "spp", (double)a->spp);
+    cJSON_AddNumberToObject(j, "granularity", RENDER_DEFAULT_GRANULARITY);
+    cJSON_AddNumberToObject(j, "seed", (double)s->seed);
+    cJSON_AddItemToObject(j, "seconds_all", cJSON_CreateDoubleArray(o->times, o->nruns));
+    cJSON_AddItemToObject(j, "cpu_utilization_all", cJSON_CreateDoubleArray(o->utils, o->nruns));
+    cJSON_AddNumberToObject(j, "seconds_best", o->best);
+    cJSON_AddNumberToObject(j, "cpu_utilization", o->best_util);
+    cJSON_AddNumberToObject(j, "samples", (double)o->samples);
+    cJSON_AddNumberToObject(j, "rays", (double)o->rays);
+    cJSON_AddNumberToObject(j, "nonfinite", (double)o->nonfinite);
+    cJSON_AddNumberToObject(j, "samples_per_second", o->sps);
+    cJSON_AddNumberToObject(j, "samples_per_second_per_core", o->sps / threads);
+    cJSON_AddNumberToObject(j, "rays_per_second", o->rps);
+    cJSON_AddNumberToObject(j, "rays_per_second_per_core", o->rps / threads);
+    cJSON_AddNumberToObject(j, "rays_per_sample", o->rays_per_sample);
+    cJSON_AddNumberToObject(j, "extension_rays_per_sample", o->ext_per_sample);
+    cJSON_AddNumberToObject(j, "shadow_rays_per_sample", o->rays_per_sample - o->ext_per_sample);
+    cJSON_AddNumberToObject(j, "extension_fraction", o->f_ext);
+    cJSON_AddStringToObject(j, "mix_method",
+                            "extension rays/sample from a naive-integrator render "
+                            "at 8 spp; shadow = path - naive");
+    return j;
+}
+
+static cJSON *raw_embree_json(const raw_t *r, const args_t *a, int threads)
+{
+    cJSON *j = cJSON_CreateObject();
+    cJSON_AddNumberToObject(j, "rays_per_batch", (double)a->rays);
+    cJSON_AddNumberToObject(j, "runs", r->runs);
+    cJSON_AddItemToObject(
+        j, "path",
+        dist_json(&r->dist[0], threads,
+                  "rays of diffuse random walks from the camera, as the path integrator "
+                  "traces them (camera, bounce and next-event shadow rays)"));
+    cJSON_AddItemToObject(j, "area",
+                          dist_json(&r->dist[1], threads,
+                                    "origins uniform by area on non-black-emitter triangles, "
+                                    "cosine directions about the winding normal; shadow rays to "
+                                    "uniform light points where both sides face each other"));
+    cJSON_AddItemToObject(j, "path_not_robust",
+                          dist_json(&r->fast, threads,
+                                    "the path rays on a BVH built without RTC_SCENE_FLAG_ROBUST "
+                                    "(reference: what the flag costs)"));
+    return j;
+}
+
+static int write_json(const char *path, const args_t *a, const char *name, const scene_t *s,
+                      const tracer_t *tr, const ours_t *o, const raw_t *r, int disturbed)
+{
+    const int threads = (int)a->threads;
+    const double rps = o->rps;
+    cJSON *root = cJSON_CreateObject();
+    cJSON_AddStringToObject(root, "scene", a->scene);
+    cJSON_AddStringToObject(root, "scene_name", name);
+    cJSON_AddNumberToObject(root, "triangles", (double)s->triangle_count);
+    cJSON_AddNumberToObject(root, "lights", (double)s->light_count);
+    cJSON_AddNumberToObject(root, "width", s->camera.width);
+    cJSON_AddNumberToObject(root, "height", s->camera.height);
+    cJSON_AddNumberToObject(root, "threads", threads);
+    cJSON_AddStringToObject(root, "isa", tracer_isa(tr));
+    cJSON_AddStringToObject(root, "embree_version", RTC_VERSION_STRING);
+    cJSON_AddBoolToObject(root, "disturbed", disturbed);
+    cJSON_AddItemToObject(root, "ours", ours_json(o, a, s, threads));
+    cJSON_AddItemToObject(root, "raw_embree", raw_embree_json(r, a, threads));
+    cJSON_AddNumberToObject(root, "ratio_ours_over_raw",
+                            r->dist[0].mix > 0 ? rps / r->dist[0].mix : 0.0);
+    cJSON_AddNumberToObject(root, "ratio_ours_over_raw_area",
+                            r->dist[1].mix > 0 ? rps / r->dist[1].mix : 0.0);
+    cJSON_AddNumberToObject(root, "ratio_ours_over_raw_5050",
+                            r->dist[0].mix_5050 > 0 ? rps / r->dist[0].mix_5050 : 0.0);
+    cJSON_AddNumberToObject(root, "peak_rss_kb_render", (double)o->rss_render);
+    cJSON_AddNumberToObject(root, "peak_rss_kb_total", (double)r->rss_total);
+    cJSON_AddNumberToObject(root, "pixels", (double)s->camera.width * (double)s->camera.height);
+
+    char *text = cJSON_Print(root);
+    FILE *f = fopen(path, "w");
+    int bad = !text || !f || fputs(text, f) < 0 || fputc('\n', f) == EOF;
+    if (f && fclose(f) != 0)
+        bad = 1;
+    cJSON_free(text);
+    cJSON_Delete(root);
+    if (bad) {
+        fprintf(stderr, "bench_core: cannot write %s: %s\n", path, strerror(errno));
+        return -1;
+    }
+    return 0;
+}
+
+static int run(const args_t *a, const char *name, const scene_t *s, const tracer_t *tr)
+{
+    const int threads = (int)a->threads;
+    ours_t o;
+    raw_t r;
+    if (measure_ours(tr, s, a, &o) < 0 || measure_raw(s, a, o.f_ext, &r) < 0)
+        return 1;
+    const dist_result_t *d = &r.dist[0];
+    const int disturbed = o.best_util < UNDISTURBED || d->ext.utilization < UNDISTURBED ||
+                          d->sh.utilization < UNDISTURBED;
+    printf("%-12s T=%d  ours %.3f M samples/s/core, %.3f M rays/s/core | raw Embree (path rays) "
+           "ext %.3f / shadow %.3f M rays/s/core, mix %.3f | ours/raw %.3f | peak %.1f MiB%s\n",
+           name, threads, o.sps / threads / 1e6, o.rps / threads / 1e6,
+           d->ext.rays_per_second / threads / 1e6, d->sh.rays_per_second / threads / 1e6,
+           d->mix / threads / 1e6, d->mix > 0 ? o.rps / d->mix : 0.0, (double)o.rss_render / 1024.0,
+           disturbed ? " | DISTURBED" : "");
+    if (a->json && write_json(a->json, a, name, s, tr, &o, &r, disturbed) < 0)
+        return 1;
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     args_t a;
     int rc = parse_args(argc, argv, &a);
     if (rc)
         return rc == 1 ? 0 : rc;
-    const int threads = (int)a.threads, runs = (int)a.runs;
     char err[1024], name[256];
     base_name(a.scene, name, sizeof name);
-
     scene_t *s = NULL;
     if (scene_load(a.scene, &s, err, sizeof err) < 0) {
         fprintf(stderr, "bench_core: %s\n", err);
@@ -724,206 +983,12 @@ int main(int argc, char **argv)
         scene_destroy(&s);
         return 1;
     }
-    const uint64_t npix = (uint64_t)s->camera.width * (uint64_t)s->camera.height;
     fprintf(stderr, "bench_core: %s: %zu triangles, %zu lights, %dx%d, %d thread(s), %s\n", name,
-            s->triangle_count, s->light_count, s->camera.width, s->camera.height, threads,
+            s->triangle_count, s->light_count, s->camera.width, s->camera.height, (int)a.threads,
             tracer_isa(tr));
-
-    /* 1. Our renderer. */
-    render_summary_t sum;
-    double times[MAX_RUNS], utils[MAX_RUNS], best = INFINITY, best_util = 0;
-    uint64_t samples = 0, rays = 0, nonfinite = 0;
-    int nruns = 0;
-    while (nruns < runs || (best_util < UNDISTURBED && nruns < runs + EXTRA_RUNS)) {
-        double util;
-        double t = render_once(tr, s, SCENE_INTEGRATOR_PATH, (uint32_t)a.spp, threads, &sum, &util);
-        if (t < 0)
-            return 1;
-        times[nruns] = t;
-        utils[nruns] = util;
-        if (t < best) {
-            best = t;
-            best_util = util;
-        }
-        samples = sum.samples;
-        rays = sum.rays;
-        nonfinite = sum.nonfinite;
-        fprintf(stderr, "  render %d: %.3f s, CPU %.0f%% of %d core(s)%s\n", nruns, t, 100 * util,
-                threads, util < UNDISTURBED ? " (disturbed: another process had the CPU)" : "");
-        nruns++;
-    }
-    /* The ray mix: the naive integrator traces the same extension rays
-     * (same path-length distribution) and no shadow rays. A small render is
-     * enough for the fraction to 3 digits. */
-    render_summary_t nsum;
-    const uint32_t mix_spp = 8;
-    double nutil;
-    if (render_once(tr, s, SCENE_INTEGRATOR_NAIVE, mix_spp, threads, &nsum, &nutil) < 0)
-        return 1;
-    const long rss_render = peak_rss_kb();
-    const double sps = (double)samples / best, rps = (double)rays / best;
-    const double rays_per_sample = (double)rays / (double)samples;
-    double ext_per_sample = (double)nsum.rays / (double)nsum.samples;
-    if (ext_per_sample > rays_per_sample)
-        ext_per_sample = rays_per_sample;
-    const double f_ext = ext_per_sample / rays_per_sample;
-    fprintf(
-        stderr,
-        "  ours: %.3f s best, %.3f M samples/s, %.3f M rays/s, %.3f rays/sample (%.3f extension)\n",
-        best, sps / 1e6, rps / 1e6, rays_per_sample, ext_per_sample);
-
-    /* 2. Raw Embree, after the renders so the batches do not count in the
-     * renderer's peak memory. */
-    embree_t e, efast;
-    memset(&e, 0, sizeof e);
-    memset(&efast, 0, sizeof efast);
-    if (embree_build(s, &e, 1) < 0 || embree_build(s, &efast, 0) < 0) {
-        fprintf(stderr, "bench_core: cannot build the Embree scene\n");
-        return 1;
-    }
-    const int raw_runs = runs > RAW_MIN_RUNS ? runs : RAW_MIN_RUNS;
-    dist_result_t dist[2], fast;
-    memset(&fast, 0, sizeof fast);
-    const char *dist_name[2] = {"path", "area"};
-    memset(dist, 0, sizeof dist);
-    for (int k = 0; k < 2; k++) {
-        batch_t ext, sh;
-        if (batch_init(&ext, a.rays) < 0 || batch_init(&sh, a.rays) < 0) {
-            fprintf(stderr, "bench_core: out of memory for %" PRIu64 " rays\n", a.rays);
-            return 1;
-        }
-        double t0 = now_seconds();
-        if (k == 0)
-            build_path_batch(s, &e, s->seed + 1000, &ext, &sh);
-        else if (build_area_batch(s, s->seed + 2000, &ext, &sh) < 0) {
-            fprintf(stderr, "bench_core: out of memory\n");
-            return 1;
-        }
-        double tgen = now_seconds() - t0;
-        if (raw_time(&e, &ext, 0, threads, raw_runs, &dist[k].ext) < 0 ||
-            raw_time(&e, &sh, 1, threads, raw_runs, &dist[k].sh) < 0 ||
-            (k == 0 && (raw_time(&efast, &ext, 0, threads, raw_runs, &fast.ext) < 0 ||
-                        raw_time(&efast, &sh, 1, threads, raw_runs, &fast.sh) < 0))) {
-            fprintf(stderr, "bench_core: cannot start threads\n");
-            return 1;
-        }
-        dist[k].mix = mix_rate(f_ext, dist[k].ext.rays_per_second, dist[k].sh.rays_per_second);
-        dist[k].mix_5050 = mix_rate(0.5, dist[k].ext.rays_per_second, dist[k].sh.rays_per_second);
-        fprintf(
-            stderr,
-            "  raw %s (%.1f s to build): extension %.3f M rays/s (%.0f%% hit), shadow %.3f M "
-            "rays/s (%zu rays, %.0f%% occluded), our mix %.3f M rays/s; CPU %.0f%% / %.0f%%%s\n",
-            dist_name[k], tgen, dist[k].ext.rays_per_second / 1e6, 100 * dist[k].ext.hit_fraction,
-            dist[k].sh.rays_per_second / 1e6, dist[k].sh.rays, 100 * dist[k].sh.hit_fraction,
-            dist[k].mix / 1e6, 100 * dist[k].ext.utilization, 100 * dist[k].sh.utilization,
-            dist[k].ext.utilization < UNDISTURBED || dist[k].sh.utilization < UNDISTURBED
-                ? " (disturbed)"
-                : "");
-        if (k == 0) {
-            fast.mix = mix_rate(f_ext, fast.ext.rays_per_second, fast.sh.rays_per_second);
-            fast.mix_5050 = mix_rate(0.5, fast.ext.rays_per_second, fast.sh.rays_per_second);
-            fprintf(
-                stderr,
-                "  raw path, BVH without ROBUST: extension %.3f M rays/s, shadow %.3f M rays/s, "
-                "our mix %.3f M rays/s\n",
-                fast.ext.rays_per_second / 1e6, fast.sh.rays_per_second / 1e6, fast.mix / 1e6);
-        }
-        batch_free(&ext);
-        batch_free(&sh);
-    }
-    const long rss_total = peak_rss_kb();
-    const int disturbed = best_util < UNDISTURBED || dist[0].ext.utilization < UNDISTURBED ||
-                          dist[0].sh.utilization < UNDISTURBED;
-
-    printf("%-12s T=%d  ours %.3f M samples/s/core, %.3f M rays/s/core | raw Embree (path rays) "
-           "ext %.3f / shadow %.3f M rays/s/core, mix %.3f | ours/raw %.3f | peak %.1f MiB%s\n",
-           name, threads, sps / threads / 1e6, rps / threads / 1e6,
-           dist[0].ext.rays_per_second / threads / 1e6, dist[0].sh.rays_per_second / threads / 1e6,
-           dist[0].mix / threads / 1e6, dist[0].mix > 0 ? rps / dist[0].mix : 0.0,
-           (double)rss_render / 1024.0, disturbed ? " | DISTURBED" : "");
-
-    if (a.json) {
-        cJSON *root = cJSON_CreateObject();
-        cJSON_AddStringToObject(root, "scene", a.scene);
-        cJSON_AddStringToObject(root, "scene_name", name);
-        cJSON_AddNumberToObject(root, "triangles", (double)s->triangle_count);
-        cJSON_AddNumberToObject(root, "lights", (double)s->light_count);
-        cJSON_AddNumberToObject(root, "width", s->camera.width);
-        cJSON_AddNumberToObject(root, "height", s->camera.height);
-        cJSON_AddNumberToObject(root, "threads", threads);
-        cJSON_AddStringToObject(root, "isa", tracer_isa(tr));
-        cJSON_AddStringToObject(root, "embree_version", RTC_VERSION_STRING);
-        cJSON_AddBoolToObject(root, "disturbed", disturbed);
-
-        cJSON *o = cJSON_AddObjectToObject(root, "ours");
-        cJSON_AddStringToObject(o, "integrator", "path");
-        cJSON_AddNumberToObject(o, "spp", (double)a.spp);
-        cJSON_AddNumberToObject(o, "granularity", RENDER_DEFAULT_GRANULARITY);
-        cJSON_AddNumberToObject(o, "seed", (double)s->seed);
-        cJSON_AddItemToObject(o, "seconds_all", cJSON_CreateDoubleArray(times, nruns));
-        cJSON_AddItemToObject(o, "cpu_utilization_all", cJSON_CreateDoubleArray(utils, nruns));
-        cJSON_AddNumberToObject(o, "seconds_best", best);
-        cJSON_AddNumberToObject(o, "cpu_utilization", best_util);
-        cJSON_AddNumberToObject(o, "samples", (double)samples);
-        cJSON_AddNumberToObject(o, "rays", (double)rays);
-        cJSON_AddNumberToObject(o, "nonfinite", (double)nonfinite);
-        cJSON_AddNumberToObject(o, "samples_per_second", sps);
-        cJSON_AddNumberToObject(o, "samples_per_second_per_core", sps / threads);
-        cJSON_AddNumberToObject(o, "rays_per_second", rps);
-        cJSON_AddNumberToObject(o, "rays_per_second_per_core", rps / threads);
-        cJSON_AddNumberToObject(o, "rays_per_sample", rays_per_sample);
-        cJSON_AddNumberToObject(o, "extension_rays_per_sample", ext_per_sample);
-        cJSON_AddNumberToObject(o, "shadow_rays_per_sample", rays_per_sample - ext_per_sample);
-        cJSON_AddNumberToObject(o, "extension_fraction", f_ext);
-        cJSON_AddStringToObject(o, "mix_method",
-                                "extension rays/sample from a naive-integrator render "
-                                "at 8 spp; shadow = path - naive");
-
-        cJSON *r = cJSON_AddObjectToObject(root, "raw_embree");
-        cJSON_AddNumberToObject(r, "rays_per_batch", (double)a.rays);
-        cJSON_AddNumberToObject(r, "runs", raw_runs);
-        cJSON_AddItemToObject(
-            r, "path",
-            dist_json(&dist[0], threads,
-                      "rays of diffuse random walks from the camera, as the path integrator "
-                      "traces them (camera, bounce and next-event shadow rays)"));
-        cJSON_AddItemToObject(
-            r, "area",
-            dist_json(&dist[1], threads,
-                      "origins uniform by area on non-black-emitter triangles, cosine "
-                      "directions about the winding normal; shadow rays to uniform light "
-                      "points where both sides face each other"));
-        cJSON_AddItemToObject(
-            r, "path_not_robust",
-            dist_json(&fast, threads,
-                      "the path rays on a BVH built without RTC_SCENE_FLAG_ROBUST "
-                      "(reference: what the flag costs)"));
-        cJSON_AddNumberToObject(root, "ratio_ours_over_raw",
-                                dist[0].mix > 0 ? rps / dist[0].mix : 0.0);
-        cJSON_AddNumberToObject(root, "ratio_ours_over_raw_area",
-                                dist[1].mix > 0 ? rps / dist[1].mix : 0.0);
-        cJSON_AddNumberToObject(root, "ratio_ours_over_raw_5050",
-                                dist[0].mix_5050 > 0 ? rps / dist[0].mix_5050 : 0.0);
-        cJSON_AddNumberToObject(root, "peak_rss_kb_render", (double)rss_render);
-        cJSON_AddNumberToObject(root, "peak_rss_kb_total", (double)rss_total);
-        cJSON_AddNumberToObject(root, "pixels", (double)npix);
-
-        char *text = cJSON_Print(root);
-        FILE *f = fopen(a.json, "w");
-        int bad = !text || !f || fputs(text, f) < 0 || fputc('\n', f) == EOF;
-        if (f && fclose(f) != 0)
-            bad = 1;
-        cJSON_free(text);
-        cJSON_Delete(root);
-        if (bad) {
-            fprintf(stderr, "bench_core: cannot write %s: %s\n", a.json, strerror(errno));
-            return 1;
-        }
-    }
-    embree_free(&e);
-    embree_free(&efast);
+    rc = run(&a, name, s, tr);
     tracer_destroy(&tr);
     tracer_device_destroy(&dev);
     scene_destroy(&s);
-    return 0;
+    return rc;
 }
