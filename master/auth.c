@@ -12,6 +12,7 @@
 #include <zmq.h>
 
 #include "keys.h"
+#include "vberr.h"
 #include "vblog.h"
 
 #define ZAP_ENDPOINT "inproc://zeromq.zap.01"
@@ -108,7 +109,7 @@ int auth_is_admin(auth_t *a, const char *user_id)
 int auth_reload(auth_t *a, char *msg, size_t msglen)
 {
     auth_lists_t fresh;
-    char err[1024];
+    char err[VB_ERR_LEN];
     if (lists_load(a, &fresh, err, sizeof err) < 0) {
         snprintf(msg, msglen, "%s", err);
         return -1;

@@ -61,7 +61,7 @@ int master_peer_is_admin(master_t *m, zmq_msg_t *frame)
  * their next message arrives (master_peer_allowed). */
 static void reload_keys(master_t *m)
 {
-    char msg[MASTER_ERR_LEN];
+    char msg[VB_ERR_LEN];
     if (!m->auth)
         master_log(m,
                    "reload asked for, but this master runs without --key: no allow-lists to read");

@@ -41,10 +41,11 @@
 #include "sched.h"
 #include "store.h"
 #include "tracer.h"
+#include "vberr.h"
 #include "vblog.h"
 
-/* One size for every error message buffer in the master. */
-#define MASTER_ERR_LEN 1024
+/* The old name of VB_ERR_LEN (vberr.h), kept while files still use it. */
+#define MASTER_ERR_LEN VB_ERR_LEN
 
 #define MASTER_MAX_WORKERS 4096
 #define MASTER_MAX_IDENTITY 255
@@ -99,7 +100,7 @@ typedef struct peer {
 typedef struct job {
     uint64_t id;
     job_state_t state;
-    char error[MASTER_ERR_LEN];
+    char error[VB_ERR_LEN];
     char name[128];
     char request_id[MASTER_MAX_REQUEST_ID + 1];
     char owner[128]; /* the client that submitted it: its key, or its address without keys */
@@ -141,8 +142,8 @@ typedef struct job {
     double last_ckpt;
     int in_write;      /* in the background write under way: PERSIST_* */
     int final_durable; /* image and final status are on disk */
-    char storage_error[MASTER_ERR_LEN];
-    char recovered[MASTER_ERR_LEN];
+    char storage_error[VB_ERR_LEN];
+    char recovered[VB_ERR_LEN];
     char *summary; /* status of an ended job whose film is freed, as
                       JSON text: a tenth of the memory of its tree */
     /* verification by replication (verify.c) */
@@ -177,7 +178,7 @@ struct master {
     uint32_t attempt_base; /* first attempt number of this boot */
     uint64_t *doomed;      /* job ids to remove from the store */
     size_t doomed_n, doomed_cap;
-    char storage_error[MASTER_ERR_LEN];
+    char storage_error[VB_ERR_LEN];
     struct ctl_bucket *buckets; /* request rate per control connection */
     char (*quarantine)[128];    /* workers refused: key, or address without keys */
     size_t quarantine_n, quarantine_cap;

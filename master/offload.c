@@ -61,7 +61,9 @@ static void do_submit(offload_t *o, offload_item_t *it)
         return;
     snprintf(j->owner, sizeof j->owner, "%s", it->owner);
     if (o->store) {
-        char err[OFFLOAD_ERR_LEN - 64];
+        /* shorter than it->err by the prefix added below, so the message
+         * always fits whole */
+        char err[VB_ERR_LEN - 64];
         if (persist_submission(o->store, j, frames[0].data, frames[0].size, frames + 1,
                                it->nframes - 1, err, sizeof err) < 0) {
             snprintf(it->err, sizeof it->err, "the master cannot store the job: %s", err);

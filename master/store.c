@@ -649,7 +649,7 @@ store_t *store_open(const char *dir, char *err, size_t errlen)
         free(s);
         return NULL;
     }
-    char path[4096], lerr[512];
+    char path[4096], lerr[VB_ERR_LEN];
     snprintf(path, sizeof path, "%s/meta", s->dir);
     store_rec_t rec;
     s->next_id = 1;
