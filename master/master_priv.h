@@ -183,6 +183,7 @@ struct master {
     char (*quarantine)[128];    /* workers refused: key, or address without keys */
     size_t quarantine_n, quarantine_cap;
     uint64_t malformed, dropped_late, rate_limited;
+    uint64_t requeue_refused; /* tasks the scheduler would not take back (job_requeue) */
     /* background writes of checkpoints only (not final images): what they
      * cost, for the benchmark and the dashboard */
     int bg_final; /* the write under way includes a final image */
@@ -237,6 +238,9 @@ void job_delete(master_t *m, job_t *j);
 void job_retention(master_t *m);
 /* Takes a task back from its holder and hands it to the scheduler again. */
 void job_reissue(master_t *m, job_t *j, size_t cell);
+/* Hands a task the scheduler gave out (and nobody holds now) back to it;
+ * a refusal is logged and counted in m->requeue_refused. */
+void job_requeue(master_t *m, job_t *j, uint64_t task);
 /* After a merge: finishes the job when the scheduler is done, else adds a
  * point to its error series per finished layer. */
 void job_merged(master_t *m, job_t *j);

@@ -453,26 +453,26 @@ static void complete_range(sched_t *s, uint32_t layer, uint32_t range)
     }
 }
 
-static int start(sched_t *s)
+static void start(sched_t *s)
 {
     if (s->layers > 0 && !s->decided[0]) {
         decide_layer(s, 0);
         decide_layer(s, 1);
     }
-    return 0;
 }
 
 int sched_next(sched_t *s, sched_task_t *out)
 {
     start(s);
     uint64_t id;
-    if (s->rq_len > 0) {
+    const int from_requeued = s->rq_len > 0;
+    if (from_requeued) {
         id = s->requeued[--s->rq_len];
     } else if (s->q_head != s->q_tail) {
         id = s->queue[s->q_head];
         s->q_head = (s->q_head + 1) % s->q_cap;
     } else {
-        return s->complete == s->layers ? -1 : 0;
+        return s->complete == s->layers ? SCHED_NEXT_ALL_ISSUED : SCHED_NEXT_NONE_READY;
     }
     uint32_t layer = (uint32_t)((id - 1) / s->ranges), range = (uint32_t)((id - 1) % s->ranges);
     size_t cell = (size_t)layer * s->ranges + range;
@@ -483,9 +483,12 @@ int sched_next(sched_t *s, sched_task_t *out)
         uint32_t n = range_members(s, layer, range);
         tracer_task_t *rec = calloc(n, sizeof *rec);
         if (!rec) {
-            /* Put it back: the caller retries later. */
-            s->requeued[s->rq_len++] = id;
-            return 0;
+            /* Put it back where it came from: the caller retries later. */
+            if (from_requeued)
+                s->rq_len++;
+            else
+                s->q_head = (s->q_head + s->q_cap - 1) % s->q_cap;
+            return SCHED_NEXT_NONE_READY;
         }
         uint64_t first = (uint64_t)layer * s->cfg.granularity;
         uint32_t take = (uint32_t)(s->cfg.spp - first < s->cfg.granularity ? s->cfg.spp - first
@@ -509,60 +512,61 @@ int sched_next(sched_t *s, sched_task_t *out)
     out->range = range;
     out->count = s->out_count[cell];
     out->records = s->out[cell];
-    return 1;
+    return SCHED_NEXT_TASK;
 }
 
-static int lookup(const sched_t *s, uint64_t id, size_t *cell)
+/* SCHED_OK and the task's cell if it is handed out, else SCHED_NOT_OUTSTANDING. */
+static sched_status_t lookup(const sched_t *s, uint64_t id, size_t *cell)
 {
     if (id == 0 || id > (uint64_t)s->layers * s->ranges)
-        return -1;
+        return SCHED_NOT_OUTSTANDING;
     *cell = (size_t)(id - 1);
-    return s->state[*cell] == ST_OUT && s->out[*cell] ? 0 : -1;
+    return s->state[*cell] == ST_OUT && s->out[*cell] ? SCHED_OK : SCHED_NOT_OUTSTANDING;
 }
 
 int sched_requeue(sched_t *s, uint64_t task_id)
 {
     size_t cell;
-    if (lookup(s, task_id, &cell) < 0)
-        return -1;
+    if (lookup(s, task_id, &cell) != SCHED_OK)
+        return SCHED_NOT_OUTSTANDING;
     if (s->rq_len == s->rq_cap) {
         uint64_t *n = realloc(s->requeued, 2 * s->rq_cap * sizeof(uint64_t));
         if (!n)
-            return -1;
+            return SCHED_NO_MEMORY;
         s->requeued = n;
         s->rq_cap *= 2;
     }
     s->state[cell] = ST_READY;
     s->requeued[s->rq_len++] = task_id;
-    return 0;
+    return SCHED_OK;
 }
 
 int sched_outstanding(const sched_t *s, uint64_t task_id, sched_task_t *out)
 {
     size_t cell;
-    if (lookup(s, task_id, &cell) < 0)
-        return -1;
+    if (lookup(s, task_id, &cell) != SCHED_OK)
+        return SCHED_NOT_OUTSTANDING;
     out->id = task_id;
     out->layer = (uint32_t)(cell / s->ranges);
     out->range = (uint32_t)(cell % s->ranges);
     out->count = s->out_count[cell];
     out->records = s->out[cell];
-    return 0;
+    return SCHED_OK;
 }
 
 int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count,
                 char *err, size_t errlen)
 {
     size_t cell;
-    if (lookup(s, task_id, &cell) < 0) {
+    if (lookup(s, task_id, &cell) != SCHED_OK) {
         snprintf(err, errlen, "task %llu is not outstanding", (unsigned long long)task_id);
-        return -2;
+        return SCHED_NOT_OUTSTANDING;
     }
     const tracer_task_t *rec = s->out[cell];
     if (count != s->out_count[cell]) {
         snprintf(err, errlen, "task %llu: %u results for %u pixels", (unsigned long long)task_id,
                  count, s->out_count[cell]);
-        return -1;
+        return SCHED_BAD_RESULT;
     }
     /* Check everything before merging anything: a bad result changes nothing,
      * and no merge may make the film non-finite. */
@@ -576,7 +580,7 @@ int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *resul
                      "expected pixel %u with %u",
                      (unsigned long long)task_id, i, r->pixel, r->samples, r->nonfinite,
                      rec[i].pixel, rec[i].sample_count);
-            return -1;
+            return SCHED_BAD_RESULT;
         }
         /* radiance is never negative; sums of no samples are zero */
         const double n = r->samples, cap = SCHED_MAX_RADIANCE;
@@ -590,7 +594,7 @@ int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *resul
                      "eq. 4.1 %g%s",
                      (unsigned long long)task_id, i, r->pixel, r->sum[0], r->sum[1], r->sum[2],
                      r->lum_m2, r->pvar, bad ? "" : " (the merge would overflow the film)");
-            return -1;
+            return SCHED_BAD_RESULT;
         }
         nonfinite += r->nonfinite;
         taken += rec[i].sample_count;
@@ -601,16 +605,16 @@ int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *resul
         snprintf(err, errlen, "task %llu: %llu of %llu samples NaN/Inf: implausible",
                  (unsigned long long)task_id, (unsigned long long)nonfinite,
                  (unsigned long long)taken);
-        return -1;
+        return SCHED_BAD_RESULT;
     }
-    return 0;
+    return SCHED_OK;
 }
 
 int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count,
                    char *err, size_t errlen)
 {
-    int rc = sched_check(s, task_id, results, count, err, errlen);
-    if (rc < 0)
+    sched_status_t rc = sched_check(s, task_id, results, count, err, errlen);
+    if (rc != SCHED_OK)
         return rc;
     const size_t cell = (size_t)(task_id - 1);
     const tracer_task_t *rec = s->out[cell];
@@ -665,7 +669,7 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
     s->out[cell] = NULL;
     s->out_count[cell] = 0;
     complete_range(s, layer, range);
-    return 0;
+    return SCHED_OK;
 }
 
 /* ---- checkpoints ---------------------------------------------------------- */
