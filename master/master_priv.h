@@ -67,6 +67,18 @@
  * entry in the job's verify state (worker slots stay below it). */
 #define MASTER_VERIFY_HOLDER 0x80000000u
 #define MASTER_MAX_WHO 64 /* peer_identity: a key or an address, with its NUL */
+/* A worker silent this many heartbeats is lost (the default timeout). */
+#define MASTER_TIMEOUT_HEARTBEATS 5
+/* Attempt numbers of boot b start at (b & MASK) << SHIFT: a million
+ * attempts a boot before one could equal a late result's of the boot before. */
+#define MASTER_ATTEMPT_BOOT_MASK 0xfffu
+#define MASTER_ATTEMPT_BOOT_SHIFT 20
+/* The largest message a worker may send: a RESULT for the most pixels (the
+ * header, 24 bytes of fixed fields, the records) and room to spare. */
+#define MASTER_MAX_WORKER_MSG                                                                      \
+    ((int64_t)PROTO_HEADER_SIZE + 24 + (int64_t)PROTO_RESULT_RECORD_SIZE * PROTO_MAX_TASK_PIXELS + \
+     4096)
+#define MASTER_KEYS_TEXT 256 /* auth_describe's summary of the allow-lists, for one log line */
 
 typedef enum { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_FAILED, JOB_CANCELLED } job_state_t;
 extern const char *const job_state_names[];
