@@ -16,8 +16,9 @@
 #include "vblog.h"
 
 #define ZAP_ENDPOINT "inproc://zeromq.zap.01"
-#define ZAP_MAX_FRAMES 8  /* RFC 27: six, and one credential frame for CURVE */
-#define ZAP_FLUSH_MS 1000 /* the handler wakes this often to flush log summaries */
+#define ZAP_MAX_FRAMES 8       /* RFC 27: six, and one credential frame for CURVE */
+#define ZAP_FLUSH_MS 1000      /* the handler wakes this often to flush log summaries */
+#define ZAP_CURVE_KEY_BYTES 32 /* a CURVE credential frame: the client's public key, binary */
 
 /* The allow-lists, swapped whole on reload. */
 typedef struct auth_lists {
@@ -207,11 +208,12 @@ static void handle_request(auth_t *a)
     if (extra || n < 6 || !frame_is(f, n, 0, "1.0")) {
         /* only libzmq asks here; answer anyway, or the handshake would hang */
         reply(a, f, n, "500", "malformed ZAP request", "");
-    } else if (!frame_is(f, n, 5, "CURVE") || n != 7 || zmq_msg_size(&f[6]) != 32) {
+    } else if (!frame_is(f, n, 5, "CURVE") || n != 7 ||
+               zmq_msg_size(&f[6]) != ZAP_CURVE_KEY_BYTES) {
         reply(a, f, n, "400", "CURVE required", "");
         refusal(a, "zap-mechanism", "refused a peer at %s: not a CURVE handshake", address);
     } else {
-        zmq_z85_encode(key, zmq_msg_data(&f[6]), 32);
+        zmq_z85_encode(key, zmq_msg_data(&f[6]), ZAP_CURVE_KEY_BYTES);
         pthread_mutex_lock(&a->lock);
         int ok = admitted(&a->lists, domain, key);
         pthread_mutex_unlock(&a->lock);
@@ -399,7 +401,8 @@ int auth_endpoint_is_local(const char *ep)
     /* an IPv4 literal in 127/8; anything else (a name, *, an interface) may
      * reach beyond this host */
     struct in_addr in;
-    return inet_pton(AF_INET, name, &in) == 1 && (ntohl(in.s_addr) >> 24) == 127;
+    return inet_pton(AF_INET, name, &in) == 1 &&
+           (ntohl(in.s_addr) >> IN_CLASSA_NSHIFT) == IN_LOOPBACKNET;
 }
 
 int auth_check_bind(const char *endpoint, int insecure, char *err, size_t errlen)

@@ -119,6 +119,10 @@ double job_seconds(const job_t *j, double now)
     return j->run_before + (j->finished ? j->finished : now) - j->started;
 }
 
+/* compare_planes' threshold for its "above" share, which the series does
+ * not keep (only relMSE and RMSE): any value gives the same series. */
+#define JOB_EVAL_THRESHOLD 0.05
+
 /* Appends the current error against the reference to the job's series. */
 void job_eval_error(job_t *j, double now)
 {
@@ -133,7 +137,8 @@ void job_eval_error(job_t *j, double now)
             j->cur[c][i] = (float)rgb[c];
     }
     compare_result_t r;
-    compare_planes((const float *const *)j->cur, (const float *const *)j->ref, n, NULL, 0.05, &r);
+    compare_planes((const float *const *)j->cur, (const float *const *)j->ref, n, NULL,
+                   JOB_EVAL_THRESHOLD, &r);
     if (j->series_n == j->series_cap) {
         size_t cap = j->series_cap ? 2 * j->series_cap : 64;
         double *ns = realloc(j->series, cap * 4 * sizeof(double));

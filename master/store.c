@@ -24,6 +24,11 @@ static const char store_magic[8] = {'V', 'B', 'S', 'T', 'A', 'T', 'E', '\n'};
 /* A record larger than this is refused on load (a torn length field must
  * not make us allocate the address space). */
 #define STORE_MAX_RECORD ((uint64_t)8 << 30)
+/* The background writer's report buffer: its first size, and the room a
+ * read wants (it grows by doubling). */
+#define STORE_BG_BUF0 8192
+#define STORE_BG_READ_ROOM 4096
+#define STORE_BG_WAIT_US 2000 /* store_bg_wait polls the child this often */
 
 struct store {
     char dir[2048];
@@ -793,8 +798,8 @@ void store_bg_report(int fd, uint64_t id, const char *error)
 static void drain(store_t *s)
 {
     for (;;) {
-        if (s->bg_cap - s->bg_len < 4096) {
-            size_t cap = s->bg_cap ? 2 * s->bg_cap : 8192;
+        if (s->bg_cap - s->bg_len < STORE_BG_READ_ROOM) {
+            size_t cap = s->bg_cap ? 2 * s->bg_cap : STORE_BG_BUF0;
             char *nb = realloc(s->bg_buf, cap);
             if (!nb)
                 return;
@@ -863,6 +868,6 @@ void store_bg_wait(store_t *s, store_bg_report_fn on_report, void *ctx)
     while (s->bg_pid > 0) {
         if (store_bg_poll(s, on_report, ctx, NULL))
             break;
-        usleep(2000);
+        usleep(STORE_BG_WAIT_US);
     }
 }
