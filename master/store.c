@@ -20,7 +20,10 @@
 
 static const char store_magic[8] = {'V', 'B', 'S', 'T', 'A', 'T', 'E', '\n'};
 #define STORE_HEADER_SIZE 16
-#define STORE_TRAILER_SIZE (8 + 32)
+#define STORE_SUM_SIZE 32 /* the checksum, 256 bits */
+#define STORE_TRAILER_SIZE (8 + STORE_SUM_SIZE)
+/* check_record's reasons: short texts of its own, not a passed-on message */
+#define STORE_REASON_LEN 128
 /* A record larger than this is refused on load (a torn length field must
  * not make us allocate the address space). */
 #define STORE_MAX_RECORD ((uint64_t)8 << 30)
@@ -380,12 +383,12 @@ static const char *check_record(const uint8_t *all, uint64_t size, store_kind_t 
         return "a record of another kind";
     if (get_u64(all + size - STORE_TRAILER_SIZE) != size - STORE_HEADER_SIZE - STORE_TRAILER_SIZE)
         return "torn (length mismatch)";
-    uint8_t hash[32];
+    uint8_t hash[STORE_SUM_SIZE];
     store_sum_t c;
     store_sum_init(&c);
-    store_sum_update(&c, all, (size_t)(size - 32));
+    store_sum_update(&c, all, (size_t)(size - STORE_SUM_SIZE));
     store_sum_final(&c, hash);
-    if (memcmp(hash, all + size - 32, 32) != 0)
+    if (memcmp(hash, all + size - STORE_SUM_SIZE, STORE_SUM_SIZE) != 0)
         return "corrupt (checksum mismatch)";
     return NULL;
 }
@@ -394,7 +397,7 @@ int store_rec_parse(const uint8_t *data, size_t size, store_kind_t kind, store_r
                     char *err, size_t errlen)
 {
     memset(rec, 0, sizeof *rec);
-    char buf[128];
+    char buf[STORE_REASON_LEN];
     const char *why = check_record(data, size, kind, buf, sizeof buf);
     if (why) {
         set_err(err, errlen, "%s", why);
@@ -448,7 +451,7 @@ int store_rec_load(const char *path, store_kind_t kind, store_rec_t *rec, char *
         got += (size_t)n;
     }
     close_quietly(fd);
-    char buf[128];
+    char buf[STORE_REASON_LEN];
     const char *why = got != size ? "short read" : check_record(all, size, kind, buf, sizeof buf);
     if (why) {
         set_err(err, errlen, "%.600s: %s", path, why);
