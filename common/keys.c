@@ -41,7 +41,8 @@ int keys_generate(keys_pair_t *out, char *err, size_t errlen)
 /* ---- files ------------------------------------------------------------------------- */
 
 /* Reads a small regular file into buf (terminated). With secret set, the
- * file must be private to its owner. */
+ * file must be private to its owner. Its close is unchecked: a descriptor
+ * only read from loses nothing. */
 static int read_small(const char *path, int secret, char *buf, size_t cap, char *err, size_t errlen)
 {
     int fd = open(path, O_RDONLY | O_CLOEXEC);
@@ -205,15 +206,18 @@ static int write_new(const char *path, mode_t mode, const char *text, char *err,
         ok = w > 0;
         done += w > 0 ? (size_t)w : 0;
     }
+    /* On a failure the close and unlink are unchecked: the write failed
+     * and says so, and a partial file left behind is refused on load as
+     * malformed, and keeps keys_write from overwriting it. */
     if (!ok || fsync(fd) != 0) {
         snprintf(err, errlen, "%s: cannot write: %s", path, strerror(errno));
-        close(fd);
-        unlink(path);
+        (void)close(fd);
+        (void)unlink(path);
         return -1;
     }
     if (close(fd) != 0) {
         snprintf(err, errlen, "%s: cannot write: %s", path, strerror(errno));
-        unlink(path);
+        (void)unlink(path);
         return -1;
     }
     return 0;
@@ -246,7 +250,12 @@ int keys_write(const char *base, const keys_pair_t *k, char *err, size_t errlen)
         return -1;
     snprintf(text, sizeof text, "%s\n", k->public_z85);
     if (write_new(pub_path, 0644, text, err, errlen) < 0) {
-        unlink(key_path);
+        /* both or neither: a key pair left without its .pub is said */
+        if (unlink(key_path) != 0) {
+            size_t used = strlen(err);
+            snprintf(err + used, errlen - used, "; and %s is left (cannot remove it: %s)", key_path,
+                     strerror(errno));
+        }
         return -1;
     }
     return 0;

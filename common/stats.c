@@ -5,15 +5,26 @@
 
 #include <math.h>
 
+/* Lentz's method: the floor that keeps a denominator off zero, the
+ * relative change that ends the fraction, and the most terms taken. */
+#define STATS_CF_TINY 1e-300
+#define STATS_CF_EPS 1e-15
+#define STATS_CF_MAX_TERMS 300
+/* The quantile's bisection: the largest t tried, the most halvings, and
+ * the relative width that ends it. */
+#define STATS_T_MAX 1e12
+#define STATS_BISECT_STEPS 200
+#define STATS_BISECT_REL_WIDTH 1e-12
+
 static double beta_cf(double a, double b, double x)
 {
-    const double tiny = 1e-300, eps = 1e-15;
+    const double tiny = STATS_CF_TINY, eps = STATS_CF_EPS;
     double qab = a + b, qap = a + 1, qam = a - 1, c = 1, d = 1 - qab * x / qap;
     if (fabs(d) < tiny)
         d = tiny;
     d = 1 / d;
     double h = d;
-    for (int m = 1; m <= 300; m++) {
+    for (int m = 1; m <= STATS_CF_MAX_TERMS; m++) {
         int m2 = 2 * m;
         double aa = m * (b - m) * x / ((qam + m2) * (a + m2));
         d = 1 + aa * d;
@@ -63,9 +74,9 @@ double stats_t_cdf(double t, double dof)
 double stats_t_two_sided(double confidence, double dof)
 {
     double target = 0.5 + confidence / 2, lo = 0, hi = 1;
-    while (stats_t_cdf(hi, dof) < target && hi < 1e12)
+    while (stats_t_cdf(hi, dof) < target && hi < STATS_T_MAX)
         hi *= 2;
-    for (int i = 0; i < 200 && hi - lo > 1e-12 * hi; i++) {
+    for (int i = 0; i < STATS_BISECT_STEPS && hi - lo > STATS_BISECT_REL_WIDTH * hi; i++) {
         double mid = 0.5 * (lo + hi);
         if (stats_t_cdf(mid, dof) < target)
             lo = mid;

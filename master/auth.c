@@ -12,11 +12,13 @@
 #include <zmq.h>
 
 #include "keys.h"
+#include "vberr.h"
 #include "vblog.h"
 
 #define ZAP_ENDPOINT "inproc://zeromq.zap.01"
-#define ZAP_MAX_FRAMES 8  /* RFC 27: six, and one credential frame for CURVE */
-#define ZAP_FLUSH_MS 1000 /* the handler wakes this often to flush log summaries */
+#define ZAP_MAX_FRAMES 8       /* RFC 27: six, and one credential frame for CURVE */
+#define ZAP_FLUSH_MS 1000      /* the handler wakes this often to flush log summaries */
+#define ZAP_CURVE_KEY_BYTES 32 /* a CURVE credential frame: the client's public key, binary */
 
 /* The allow-lists, swapped whole on reload. */
 typedef struct auth_lists {
@@ -108,7 +110,7 @@ int auth_is_admin(auth_t *a, const char *user_id)
 int auth_reload(auth_t *a, char *msg, size_t msglen)
 {
     auth_lists_t fresh;
-    char err[1024];
+    char err[VB_ERR_LEN];
     if (lists_load(a, &fresh, err, sizeof err) < 0) {
         snprintf(msg, msglen, "%s", err);
         return -1;
@@ -165,7 +167,9 @@ static int frame_is(zmq_msg_t *f, int n, int i, const char *text)
 static void reply(auth_t *a, zmq_msg_t *f, int n, const char *code, const char *text,
                   const char *user_id)
 {
-    /* RFC 27: version, request id, status code, status text, user id, metadata */
+    /* RFC 27: version, request id, status code, status text, user id, metadata.
+     * The sends are unchecked: the reply goes over inproc to libzmq itself,
+     * and fails only while the context terminates, when no handshake waits. */
     zmq_send(a->zap, "1.0", 3, ZMQ_SNDMORE);
     if (n > 1)
         zmq_send(a->zap, zmq_msg_data(&f[1]), zmq_msg_size(&f[1]), ZMQ_SNDMORE);
@@ -204,11 +208,12 @@ static void handle_request(auth_t *a)
     if (extra || n < 6 || !frame_is(f, n, 0, "1.0")) {
         /* only libzmq asks here; answer anyway, or the handshake would hang */
         reply(a, f, n, "500", "malformed ZAP request", "");
-    } else if (!frame_is(f, n, 5, "CURVE") || n != 7 || zmq_msg_size(&f[6]) != 32) {
+    } else if (!frame_is(f, n, 5, "CURVE") || n != 7 ||
+               zmq_msg_size(&f[6]) != ZAP_CURVE_KEY_BYTES) {
         reply(a, f, n, "400", "CURVE required", "");
         refusal(a, "zap-mechanism", "refused a peer at %s: not a CURVE handshake", address);
     } else {
-        zmq_z85_encode(key, zmq_msg_data(&f[6]), 32);
+        zmq_z85_encode(key, zmq_msg_data(&f[6]), ZAP_CURVE_KEY_BYTES);
         pthread_mutex_lock(&a->lock);
         int ok = admitted(&a->lists, domain, key);
         pthread_mutex_unlock(&a->lock);
@@ -304,6 +309,8 @@ auth_t *auth_new(const auth_config_t *cfg, char *err, size_t errlen)
         auth_destroy(&a);
         return NULL;
     }
+    /* LINGER is valid on every socket type: these cannot fail, and a
+     * linger left at its default would only delay auth_destroy */
     int zero = 0;
     zmq_setsockopt(a->zap, ZMQ_LINGER, &zero, sizeof zero);
     zmq_setsockopt(a->stop_rx, ZMQ_LINGER, &zero, sizeof zero);
@@ -336,6 +343,9 @@ void auth_destroy(auth_t **ap)
         return;
     auth_t *a = *ap;
     if (a->started) {
+        /* a blocking send to a connected inproc PAIR: it returns once
+         * queued, and fails only while the context terminates, which
+         * also ends the thread's poll */
         zmq_send(a->stop_tx, "", 0, 0);
         pthread_join(a->thread, NULL);
     }
@@ -391,7 +401,8 @@ int auth_endpoint_is_local(const char *ep)
     /* an IPv4 literal in 127/8; anything else (a name, *, an interface) may
      * reach beyond this host */
     struct in_addr in;
-    return inet_pton(AF_INET, name, &in) == 1 && (ntohl(in.s_addr) >> 24) == 127;
+    return inet_pton(AF_INET, name, &in) == 1 &&
+           (ntohl(in.s_addr) >> IN_CLASSA_NSHIFT) == IN_LOOPBACKNET;
 }
 
 int auth_check_bind(const char *endpoint, int insecure, char *err, size_t errlen)

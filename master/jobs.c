@@ -119,6 +119,10 @@ double job_seconds(const job_t *j, double now)
     return j->run_before + (j->finished ? j->finished : now) - j->started;
 }
 
+/* compare_planes' threshold for its "above" share, which the series does
+ * not keep (only relMSE and RMSE): any value gives the same series. */
+#define JOB_EVAL_THRESHOLD 0.05
+
 /* Appends the current error against the reference to the job's series. */
 void job_eval_error(job_t *j, double now)
 {
@@ -133,7 +137,8 @@ void job_eval_error(job_t *j, double now)
             j->cur[c][i] = (float)rgb[c];
     }
     compare_result_t r;
-    compare_planes((const float *const *)j->cur, (const float *const *)j->ref, n, NULL, 0.05, &r);
+    compare_planes((const float *const *)j->cur, (const float *const *)j->ref, n, NULL,
+                   JOB_EVAL_THRESHOLD, &r);
     if (j->series_n == j->series_cap) {
         size_t cap = j->series_cap ? 2 * j->series_cap : 64;
         double *ns = realloc(j->series, cap * 4 * sizeof(double));
@@ -178,11 +183,21 @@ void job_reissue(master_t *m, job_t *j, size_t cell)
     j->holder[cell] = 0;
     j->outstanding--;
     j->reissued++;
-    /* The task was handed out, so the scheduler holds it as outstanding and
-     * takes it back; a refusal would be a bug in our bookkeeping. */
-    if (sched_requeue(j->sched, (uint64_t)cell + 1) < 0)
-        master_log(m, "job %" PRIu64 " task %zu: the scheduler refused it back (out of memory?)",
-                   j->id, cell + 1);
+    job_requeue(m, j, (uint64_t)cell + 1);
+}
+
+void job_requeue(master_t *m, job_t *j, uint64_t task)
+{
+    sched_status_t rc = sched_requeue(j->sched, task);
+    if (rc == SCHED_OK)
+        return;
+    /* The scheduler holds the task as handed out until it takes it back: a
+     * refusal leaves it out with no holder and no lease, so it is never
+     * issued again and the job cannot finish. */
+    m->requeue_refused++;
+    master_log(
+        m, "job %" PRIu64 " task %" PRIu64 ": the scheduler refused it back: %s", j->id, task,
+        rc == SCHED_NO_MEMORY ? "out of memory" : "it was not outstanding (a bookkeeping bug)");
 }
 
 void job_merged(master_t *m, job_t *j)

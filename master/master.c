@@ -61,7 +61,7 @@ int master_peer_is_admin(master_t *m, zmq_msg_t *frame)
  * their next message arrives (master_peer_allowed). */
 static void reload_keys(master_t *m)
 {
-    char msg[MASTER_ERR_LEN];
+    char msg[VB_ERR_LEN];
     if (!m->auth)
         master_log(m,
                    "reload asked for, but this master runs without --key: no allow-lists to read");
@@ -141,6 +141,36 @@ static int secure_socket(master_t *m, void *sock, const char *domain, char *err,
     return m->auth ? auth_secure_socket(m->auth, sock, domain, err, errlen) : 0;
 }
 
+/* A socket option that must hold: the message-size limits guard the
+ * decoder, and peers.c relies on ROUTER_MANDATORY to see a lost worker. */
+static int set_option(void *sock, const char *sock_name, int option, const char *option_name,
+                      const void *value, size_t size, char *err, size_t errlen)
+{
+    if (zmq_setsockopt(sock, option, value, size) == 0)
+        return 0;
+    snprintf(err, errlen, "cannot set %s on the %s socket: %s", option_name, sock_name,
+             zmq_strerror(errno));
+    return -1;
+}
+
+static int set_options(master_t *m, char *err, size_t errlen)
+{
+    int zero = 0, one = 1, hwm = MASTER_CONTROL_HWM;
+    int64_t max_worker_msg = MASTER_MAX_WORKER_MSG, max_control = MASTER_CONTROL_MAX_BYTES;
+    void *w = m->workers_sock, *c = m->control_sock;
+    if (set_option(w, "worker", ZMQ_LINGER, "LINGER", &zero, sizeof zero, err, errlen) < 0 ||
+        set_option(c, "control", ZMQ_LINGER, "LINGER", &zero, sizeof zero, err, errlen) < 0 ||
+        set_option(w, "worker", ZMQ_ROUTER_MANDATORY, "ROUTER_MANDATORY", &one, sizeof one, err,
+                   errlen) < 0 ||
+        set_option(w, "worker", ZMQ_MAXMSGSIZE, "MAXMSGSIZE", &max_worker_msg,
+                   sizeof max_worker_msg, err, errlen) < 0 ||
+        set_option(c, "control", ZMQ_MAXMSGSIZE, "MAXMSGSIZE", &max_control, sizeof max_control,
+                   err, errlen) < 0)
+        return -1;
+    /* replies a client does not read are dropped past a few, not queued */
+    return set_option(c, "control", ZMQ_SNDHWM, "SNDHWM", &hwm, sizeof hwm, err, errlen);
+}
+
 static int open_sockets(master_t *m, char *err, size_t errlen)
 {
     const master_config_t *cfg = &m->cfg;
@@ -150,17 +180,8 @@ static int open_sockets(master_t *m, char *err, size_t errlen)
         snprintf(err, errlen, "cannot create sockets: %s", zmq_strerror(errno));
         return -1;
     }
-    int zero = 0, one = 1, hwm = MASTER_CONTROL_HWM;
-    int64_t max_worker_msg = (int64_t)PROTO_HEADER_SIZE + 24 +
-                             (int64_t)PROTO_RESULT_RECORD_SIZE * PROTO_MAX_TASK_PIXELS + 4096;
-    int64_t max_control = MASTER_CONTROL_MAX_BYTES;
-    zmq_setsockopt(m->workers_sock, ZMQ_LINGER, &zero, sizeof zero);
-    zmq_setsockopt(m->control_sock, ZMQ_LINGER, &zero, sizeof zero);
-    zmq_setsockopt(m->workers_sock, ZMQ_ROUTER_MANDATORY, &one, sizeof one);
-    zmq_setsockopt(m->workers_sock, ZMQ_MAXMSGSIZE, &max_worker_msg, sizeof max_worker_msg);
-    zmq_setsockopt(m->control_sock, ZMQ_MAXMSGSIZE, &max_control, sizeof max_control);
-    /* replies a client does not read are dropped past a few, not queued */
-    zmq_setsockopt(m->control_sock, ZMQ_SNDHWM, &hwm, sizeof hwm);
+    if (set_options(m, err, errlen) < 0)
+        return -1;
     if (secure_socket(m, m->workers_sock, AUTH_DOMAIN_WORKERS, err, errlen) < 0 ||
         secure_socket(m, m->control_sock, AUTH_DOMAIN_CONTROL, err, errlen) < 0)
         return -1;
@@ -177,6 +198,89 @@ static int open_sockets(master_t *m, char *err, size_t errlen)
     return 0;
 }
 
+/* A zero in the config means "the default". */
+static void apply_defaults(master_config_t *c)
+{
+    if (!c->heartbeat_ms)
+        c->heartbeat_ms = MASTER_DEFAULT_HEARTBEAT_MS;
+    if (!c->lease_ms)
+        c->lease_ms = MASTER_DEFAULT_LEASE_MS;
+    if (!c->worker_timeout_ms)
+        c->worker_timeout_ms = MASTER_TIMEOUT_HEARTBEATS * c->heartbeat_ms;
+    if (!(c->checkpoint_s > 0))
+        c->checkpoint_s = MASTER_DEFAULT_CHECKPOINT_S;
+    if (!c->keep_finished)
+        c->keep_finished = MASTER_DEFAULT_KEEP_FINISHED;
+    if (!c->max_bundle_mib)
+        c->max_bundle_mib = MASTER_DEFAULT_MAX_BUNDLE_MIB;
+    if (!c->max_queued_per_client)
+        c->max_queued_per_client = MASTER_DEFAULT_MAX_QUEUED_PER_CLIENT;
+    if (!c->max_pixels)
+        c->max_pixels = MASTER_DEFAULT_MAX_PIXELS;
+    if (!c->max_spp)
+        c->max_spp = MASTER_DEFAULT_MAX_SPP;
+    if (!c->max_requests_per_s)
+        c->max_requests_per_s = MASTER_DEFAULT_MAX_REQUESTS_PER_S;
+}
+
+/* The state directory, if any, and the offload thread that writes to it. */
+static int open_state(master_t *m, char *err, size_t errlen)
+{
+    if (m->cfg.state_dir) {
+        if (!(m->store = store_open(m->cfg.state_dir, err, errlen)))
+            return -1;
+        /* attempts of this boot never equal a late result's from the last */
+        m->attempt_base = (store_boots(m->store) & MASTER_ATTEMPT_BOOT_MASK)
+                          << MASTER_ATTEMPT_BOOT_SHIFT;
+    }
+    submit_limits_t limits = {.max_bundle_bytes = (uint64_t)m->cfg.max_bundle_mib << 20,
+                              .max_pixels = m->cfg.max_pixels,
+                              .max_spp = m->cfg.max_spp};
+    m->offload = offload_new(m->store, &limits, err, errlen);
+    return m->offload ? 0 : -1;
+}
+
+/* With a secret key, the ZAP handler: before the sockets bind, as ZeroMQ
+ * admits every key without one. */
+static int start_auth(master_t *m, char *err, size_t errlen)
+{
+    const master_config_t *cfg = &m->cfg;
+    if (!cfg->curve_secret_key)
+        return 0;
+    auth_config_t ac = {cfg->zmq_ctx,           cfg->curve_secret_key,  cfg->allow_workers_dir,
+                        cfg->allow_clients_dir, cfg->admin_clients_dir, cfg->log};
+    if (!(m->auth = auth_new(&ac, err, errlen)))
+        return -1;
+    m->cfg.curve_secret_key = NULL; /* the caller's; auth keeps its own copy */
+    return 0;
+}
+
+/* Says where the master listens and who may reach it. */
+static void log_listening(master_t *m)
+{
+    const master_config_t *cfg = &m->cfg;
+    master_log(m, "listening: workers %s, control %s, build %s", cfg->worker_endpoint,
+               cfg->control_endpoint, m->build);
+    if (m->auth) {
+        char keys[MASTER_KEYS_TEXT];
+        auth_describe(m->auth, keys, sizeof keys);
+        master_log(m, "CURVE on both sockets: %s", keys);
+        return;
+    }
+    int wl = auth_endpoint_is_local(cfg->worker_endpoint),
+        cl = auth_endpoint_is_local(cfg->control_endpoint);
+    if (!wl || !cl)
+        master_log(m,
+                   "warning: --insecure: no CURVE keys, so anyone who can reach %s%s%s may %s, "
+                   "and the "
+                   "traffic is not encrypted",
+                   wl ? "" : cfg->worker_endpoint, !wl && !cl ? " or " : "",
+                   cl ? "" : cfg->control_endpoint,
+                   !wl && !cl ? "pose as a worker or submit jobs"
+                   : !wl      ? "pose as a worker"
+                              : "submit jobs");
+}
+
 master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
 {
     if (sodium_init() < 0) {
@@ -189,16 +293,7 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
         return NULL;
     }
     m->cfg = *cfg;
-    if (!m->cfg.heartbeat_ms)
-        m->cfg.heartbeat_ms = MASTER_DEFAULT_HEARTBEAT_MS;
-    if (!m->cfg.lease_ms)
-        m->cfg.lease_ms = MASTER_DEFAULT_LEASE_MS;
-    if (!m->cfg.worker_timeout_ms)
-        m->cfg.worker_timeout_ms = 5 * m->cfg.heartbeat_ms;
-    if (!(m->cfg.checkpoint_s > 0))
-        m->cfg.checkpoint_s = MASTER_DEFAULT_CHECKPOINT_S;
-    if (!m->cfg.keep_finished)
-        m->cfg.keep_finished = MASTER_DEFAULT_KEEP_FINISHED;
+    apply_defaults(&m->cfg);
     m->workers = calloc(MASTER_MAX_WORKERS, sizeof *m->workers);
     m->results = malloc(PROTO_MAX_TASK_PIXELS * sizeof *m->results);
     m->leases = lease_queue_new();
@@ -218,65 +313,12 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
     /* The build id pins the ISA: a worker on another ISA could trace other bits. */
     __builtin_cpu_init();
     proto_build_id(__builtin_cpu_supports("avx2") ? "avx2" : "sse4.2", m->build);
-    if (cfg->state_dir) {
-        if (!(m->store = store_open(cfg->state_dir, err, errlen))) {
-            master_destroy(&m);
-            return NULL;
-        }
-        /* attempts of this boot never equal a late result's from the last */
-        m->attempt_base = (store_boots(m->store) & 0xfff) << 20;
-    }
-    if (!m->cfg.max_bundle_mib)
-        m->cfg.max_bundle_mib = MASTER_DEFAULT_MAX_BUNDLE_MIB;
-    if (!m->cfg.max_queued_per_client)
-        m->cfg.max_queued_per_client = MASTER_DEFAULT_MAX_QUEUED_PER_CLIENT;
-    if (!m->cfg.max_pixels)
-        m->cfg.max_pixels = MASTER_DEFAULT_MAX_PIXELS;
-    if (!m->cfg.max_spp)
-        m->cfg.max_spp = MASTER_DEFAULT_MAX_SPP;
-    if (!m->cfg.max_requests_per_s)
-        m->cfg.max_requests_per_s = MASTER_DEFAULT_MAX_REQUESTS_PER_S;
-    submit_limits_t limits = {.max_bundle_bytes = (uint64_t)m->cfg.max_bundle_mib << 20,
-                              .max_pixels = m->cfg.max_pixels,
-                              .max_spp = m->cfg.max_spp};
-    if (!(m->offload = offload_new(m->store, &limits, err, errlen))) {
+    if (open_state(m, err, errlen) < 0 || start_auth(m, err, errlen) < 0 ||
+        open_sockets(m, err, errlen) < 0) {
         master_destroy(&m);
         return NULL;
     }
-    if (cfg->curve_secret_key) {
-        /* before the sockets bind: ZeroMQ admits every key without a handler */
-        auth_config_t ac = {cfg->zmq_ctx,           cfg->curve_secret_key,  cfg->allow_workers_dir,
-                            cfg->allow_clients_dir, cfg->admin_clients_dir, cfg->log};
-        if (!(m->auth = auth_new(&ac, err, errlen))) {
-            master_destroy(&m);
-            return NULL;
-        }
-        m->cfg.curve_secret_key = NULL; /* the caller's; auth keeps its own copy */
-    }
-    if (open_sockets(m, err, errlen) < 0) {
-        master_destroy(&m);
-        return NULL;
-    }
-    master_log(m, "listening: workers %s, control %s, build %s", cfg->worker_endpoint,
-               cfg->control_endpoint, m->build);
-    if (m->auth) {
-        char keys[256];
-        auth_describe(m->auth, keys, sizeof keys);
-        master_log(m, "CURVE on both sockets: %s", keys);
-    } else {
-        int wl = auth_endpoint_is_local(cfg->worker_endpoint),
-            cl = auth_endpoint_is_local(cfg->control_endpoint);
-        if (!wl || !cl)
-            master_log(m,
-                       "warning: --insecure: no CURVE keys, so anyone who can reach %s%s%s may %s, "
-                       "and the "
-                       "traffic is not encrypted",
-                       wl ? "" : cfg->worker_endpoint, !wl && !cl ? " or " : "",
-                       cl ? "" : cfg->control_endpoint,
-                       !wl && !cl ? "pose as a worker or submit jobs"
-                       : !wl      ? "pose as a worker"
-                                  : "submit jobs");
-    }
+    log_listening(m);
     if (m->store)
         persist_recover(m);
     return m;
@@ -298,6 +340,7 @@ int master_run(master_t *m, const atomic_int *stop)
             peer_handle_message(m);
             int ev = 0;
             size_t sz = sizeof ev;
+            /* unchecked: on a failure ev stays 0 and the batch ends here */
             zmq_getsockopt(m->workers_sock, ZMQ_EVENTS, &ev, &sz);
             if (!(ev & ZMQ_POLLIN))
                 break;

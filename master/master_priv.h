@@ -41,10 +41,11 @@
 #include "sched.h"
 #include "store.h"
 #include "tracer.h"
+#include "vberr.h"
 #include "vblog.h"
 
-/* One size for every error message buffer in the master. */
-#define MASTER_ERR_LEN 1024
+/* The old name of VB_ERR_LEN (vberr.h), kept while files still use it. */
+#define MASTER_ERR_LEN VB_ERR_LEN
 
 #define MASTER_MAX_WORKERS 4096
 #define MASTER_MAX_IDENTITY 255
@@ -66,6 +67,18 @@
  * entry in the job's verify state (worker slots stay below it). */
 #define MASTER_VERIFY_HOLDER 0x80000000u
 #define MASTER_MAX_WHO 64 /* peer_identity: a key or an address, with its NUL */
+/* A worker silent this many heartbeats is lost (the default timeout). */
+#define MASTER_TIMEOUT_HEARTBEATS 5
+/* Attempt numbers of boot b start at (b & MASK) << SHIFT: a million
+ * attempts a boot before one could equal a late result's of the boot before. */
+#define MASTER_ATTEMPT_BOOT_MASK 0xfffu
+#define MASTER_ATTEMPT_BOOT_SHIFT 20
+/* The largest message a worker may send: a RESULT for the most pixels (the
+ * header, 24 bytes of fixed fields, the records) and room to spare. */
+#define MASTER_MAX_WORKER_MSG                                                                      \
+    ((int64_t)PROTO_HEADER_SIZE + 24 + (int64_t)PROTO_RESULT_RECORD_SIZE * PROTO_MAX_TASK_PIXELS + \
+     4096)
+#define MASTER_KEYS_TEXT 256 /* auth_describe's summary of the allow-lists, for one log line */
 
 typedef enum { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_FAILED, JOB_CANCELLED } job_state_t;
 extern const char *const job_state_names[];
@@ -99,7 +112,7 @@ typedef struct peer {
 typedef struct job {
     uint64_t id;
     job_state_t state;
-    char error[MASTER_ERR_LEN];
+    char error[VB_ERR_LEN];
     char name[128];
     char request_id[MASTER_MAX_REQUEST_ID + 1];
     char owner[128]; /* the client that submitted it: its key, or its address without keys */
@@ -141,8 +154,8 @@ typedef struct job {
     double last_ckpt;
     int in_write;      /* in the background write under way: PERSIST_* */
     int final_durable; /* image and final status are on disk */
-    char storage_error[MASTER_ERR_LEN];
-    char recovered[MASTER_ERR_LEN];
+    char storage_error[VB_ERR_LEN];
+    char recovered[VB_ERR_LEN];
     char *summary; /* status of an ended job whose film is freed, as
                       JSON text: a tenth of the memory of its tree */
     /* verification by replication (verify.c) */
@@ -177,11 +190,12 @@ struct master {
     uint32_t attempt_base; /* first attempt number of this boot */
     uint64_t *doomed;      /* job ids to remove from the store */
     size_t doomed_n, doomed_cap;
-    char storage_error[MASTER_ERR_LEN];
+    char storage_error[VB_ERR_LEN];
     struct ctl_bucket *buckets; /* request rate per control connection */
     char (*quarantine)[128];    /* workers refused: key, or address without keys */
     size_t quarantine_n, quarantine_cap;
     uint64_t malformed, dropped_late, rate_limited;
+    uint64_t requeue_refused; /* tasks the scheduler would not take back (job_requeue) */
     /* background writes of checkpoints only (not final images): what they
      * cost, for the benchmark and the dashboard */
     int bg_final; /* the write under way includes a final image */
@@ -236,6 +250,9 @@ void job_delete(master_t *m, job_t *j);
 void job_retention(master_t *m);
 /* Takes a task back from its holder and hands it to the scheduler again. */
 void job_reissue(master_t *m, job_t *j, size_t cell);
+/* Hands a task the scheduler gave out (and nobody holds now) back to it;
+ * a refusal is logged and counted in m->requeue_refused. */
+void job_requeue(master_t *m, job_t *j, uint64_t task);
 /* After a merge: finishes the job when the scheduler is done, else adds a
  * point to its error series per finished layer. */
 void job_merged(master_t *m, job_t *j);

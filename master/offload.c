@@ -61,7 +61,9 @@ static void do_submit(offload_t *o, offload_item_t *it)
         return;
     snprintf(j->owner, sizeof j->owner, "%s", it->owner);
     if (o->store) {
-        char err[OFFLOAD_ERR_LEN - 64];
+        /* shorter than it->err by the prefix added below, so the message
+         * always fits whole */
+        char err[VB_ERR_LEN - 64];
         if (persist_submission(o->store, j, frames[0].data, frames[0].size, frames + 1,
                                it->nframes - 1, err, sizeof err) < 0) {
             snprintf(it->err, sizeof it->err, "the master cannot store the job: %s", err);
@@ -124,9 +126,10 @@ offload_t *offload_new(store_t *store, const submit_limits_t *limits, char *err,
     }
     o->pipe_r = p[0];
     o->pipe_w = p[1];
+    /* fcntl on a pipe just made fails only with EBADF: unchecked */
     for (int i = 0; i < 2; i++) {
-        fcntl(p[i], F_SETFL, fcntl(p[i], F_GETFL) | O_NONBLOCK);
-        fcntl(p[i], F_SETFD, FD_CLOEXEC);
+        (void)fcntl(p[i], F_SETFL, fcntl(p[i], F_GETFL) | O_NONBLOCK);
+        (void)fcntl(p[i], F_SETFD, FD_CLOEXEC);
     }
     pthread_mutex_init(&o->lock, NULL);
     pthread_cond_init(&o->cond, NULL);
@@ -162,10 +165,11 @@ void offload_destroy(offload_t **op)
     }
     free_list(o->todo);
     free_list(o->done);
+    /* the wake-up pipe carries no data: nothing is lost if a close fails */
     if (o->pipe_r >= 0)
-        close(o->pipe_r);
+        (void)close(o->pipe_r);
     if (o->pipe_w >= 0)
-        close(o->pipe_w);
+        (void)close(o->pipe_w);
     pthread_mutex_destroy(&o->lock);
     pthread_cond_destroy(&o->cond);
     free(o);

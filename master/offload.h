@@ -23,9 +23,9 @@
 #include "image.h"
 #include "proto.h"
 #include "store.h"
+#include "vberr.h"
 
 #define OFFLOAD_MAX_FRAMES (PROTO_MAX_MESHES + 4)
-#define OFFLOAD_ERR_LEN 1024
 
 typedef enum {
     OFFLOAD_SUBMIT = 1,
@@ -48,7 +48,7 @@ typedef struct offload_item {
     /* results */
     struct job *job; /* submit: the new job (with its id when stored) */
     image_t *image;  /* fetch */
-    char err[OFFLOAD_ERR_LEN];
+    char err[VB_ERR_LEN];
     char owner[128]; /* submit: the client the job will belong to */
     struct offload_item *next;
 } offload_item_t;

@@ -240,7 +240,7 @@ static job_t *next_task(master_t *m, sched_task_t *t, double now)
         }
         if (j->state != JOB_RUNNING || j->stopped_issuing || verify_saturated(j))
             continue;
-        if (sched_next(j->sched, t) == 1)
+        if (sched_next(j->sched, t) == SCHED_NEXT_TASK)
             return j;
     }
     return NULL;
@@ -286,7 +286,7 @@ static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t **msg, d
     if (!j)
         return 0;
     if (!*msg && !(*msg = malloc(sizeof **msg))) {
-        (void)sched_requeue(j->sched, t.id); /* just handed out: it takes it back */
+        job_requeue(m, j, t.id); /* just handed out: it takes it back */
         return -1;
     }
     if (verify_wanted(m, j, t.id))
@@ -295,12 +295,12 @@ static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t **msg, d
     uint32_t attempt;
     int rc = peer_send_task(m, w, j, &t, *msg, &attempt);
     if (rc == SEND_BAD_MESSAGE) {
-        (void)sched_requeue(j->sched, t.id);
+        job_requeue(m, j, t.id);
         job_finish(m, j, JOB_FAILED, "a task of this job cannot be encoded (see the master's log)");
         return 1;
     }
     if (rc == SEND_UNREACHABLE) {
-        (void)sched_requeue(j->sched, t.id);
+        job_requeue(m, j, t.id);
         peer_lost(m, w, "unreachable");
         return 1;
     }
@@ -368,7 +368,7 @@ static void on_task_failed(master_t *m, peer_t *w, job_t *j, size_t c, const cha
         job_finish(m, j, JOB_FAILED, why);
     } else {
         j->reissued++;
-        (void)sched_requeue(j->sched, (uint64_t)c + 1); /* outstanding until now: taken back */
+        job_requeue(m, j, (uint64_t)c + 1); /* outstanding until now: taken back */
     }
 }
 
@@ -435,7 +435,7 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
                            "job %" PRIu64 " task %" PRIu64 ": bad result from %s: %s", j->id, id,
                            peer_identity(w), err);
         j->reissued++;
-        (void)sched_requeue(j->sched, id); /* still outstanding: nothing was merged */
+        job_requeue(m, j, id); /* still outstanding: nothing was merged */
         if (w->bad_results >= MASTER_MAX_BAD_RESULTS) {
             char why[MASTER_ERR_LEN];
             snprintf(why, sizeof why, "%u results refused; the last: %.700s", w->bad_results, err);

@@ -19,6 +19,15 @@
 
 enum { ST_WAITING = 0, ST_READY, ST_OUT, ST_DONE };
 
+#define SCHED_TASK_SAMPLES 32768                 /* samples a task aims at (range_pixels 0) */
+#define SCHED_MIN_RANGES 64                      /* ... but at least this many ranges */
+#define SCHED_MAX_PIXELS (1u << 28)              /* width x height */
+#define SCHED_MAX_MEMBER_BYTES ((size_t)1 << 30) /* the membership bitmap, layers x pixels */
+#define SCHED_MAX_CELLS ((size_t)1 << 26)        /* layers x ranges */
+#define SCHED_REQUEUE_CAP0 64                    /* requeued ids before the stack grows */
+#define SCHED_RELERR_CONFIDENCE 0.95             /* relerr's half-width (sched.h) */
+#define SCHED_DEFAULT_CONFIDENCE 0.95            /* the target's when its config says 0 */
+
 struct sched {
     sched_config_t cfg;
     char *flags; /* copy of cfg.flags, or NULL */
@@ -68,6 +77,14 @@ static inline void set_member(sched_t *s, uint32_t layer, uint32_t pixel)
     s->member[bit >> 3] |= (uint8_t)(1u << (bit & 7));
 }
 
+/* Samples a pixel takes in layer l: G, or what is left of spp in the last. */
+static uint32_t layer_samples(const sched_t *s, uint32_t layer)
+{
+    uint64_t first = (uint64_t)layer * s->cfg.granularity;
+    return (uint32_t)(s->cfg.spp - first < s->cfg.granularity ? s->cfg.spp - first
+                                                              : s->cfg.granularity);
+}
+
 static uint32_t range_members(const sched_t *s, uint32_t layer, uint32_t range)
 {
     uint32_t p0 = range * s->range_pixels, p1 = p0 + s->range_pixels, n = 0;
@@ -78,46 +95,48 @@ static uint32_t range_members(const sched_t *s, uint32_t layer, uint32_t range)
     return n;
 }
 
-sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
+/* The config's own consistency, before anything is derived from it. */
+static int check_config(const sched_config_t *cfg, char *err, size_t errlen)
 {
     if (cfg->width == 0 || cfg->height == 0 || cfg->spp == 0) {
         snprintf(err, errlen, "image size and spp must be positive");
-        return NULL;
+        return -1;
     }
     if (cfg->granularity == 0 || cfg->granularity > TRACER_MAX_TASK_SAMPLES) {
         snprintf(err, errlen, "granularity must be 1..%d", TRACER_MAX_TASK_SAMPLES);
-        return NULL;
+        return -1;
     }
     if (cfg->target_error < 0 || !isfinite(cfg->target_error) || cfg->confidence < 0 ||
         cfg->confidence >= 1 || cfg->target_share < 0 || cfg->target_share > 1) {
         snprintf(err, errlen,
                  "target error must be >= 0, confidence in (0, 1), target share in (0, 1]");
-        return NULL;
+        return -1;
     }
     if (cfg->adaptive == SCHED_ADAPTIVE_THESIS && cfg->granularity < 2) {
         snprintf(err, errlen, "adaptive sampling needs granularity >= 2 (eq. 4.1 is 0 for G = 1)");
-        return NULL;
+        return -1;
     }
-    if ((uint64_t)cfg->width * cfg->height > (1u << 28)) {
+    if ((uint64_t)cfg->width * cfg->height > SCHED_MAX_PIXELS) {
         snprintf(err, errlen, "image too large");
-        return NULL;
+        return -1;
     }
-    sched_t *s = calloc(1, sizeof *s);
-    if (!s) {
-        snprintf(err, errlen, "out of memory");
-        return NULL;
-    }
-    s->cfg = *cfg;
+    return 0;
+}
+
+/* Pixels, layers, the range partition and the uniform layers, from s->cfg. */
+static void derive_sizes(sched_t *s)
+{
+    const sched_config_t *cfg = &s->cfg;
     s->npix = cfg->width * cfg->height;
     s->layers = (uint32_t)(((uint64_t)cfg->spp + cfg->granularity - 1) / cfg->granularity);
-    /* About 32k samples a task: tens of milliseconds on one core; but at
-     * least 64 ranges, so a small image still spreads over many workers.
-     * The partition does not change a pixel's result: each pixel merges its
-     * layers in order whatever range it sits in. */
+    /* About SCHED_TASK_SAMPLES a task: tens of milliseconds on one core; but
+     * at least SCHED_MIN_RANGES ranges, so a small image still spreads over
+     * many workers. The partition does not change a pixel's result: each
+     * pixel merges its layers in order whatever range it sits in. */
     uint32_t rp = cfg->range_pixels;
     if (!rp) {
-        rp = 32768 / cfg->granularity;
-        uint32_t spread = (s->npix + 63) / 64;
+        rp = SCHED_TASK_SAMPLES / cfg->granularity;
+        uint32_t spread = (s->npix + SCHED_MIN_RANGES - 1) / SCHED_MIN_RANGES;
         rp = rp < spread ? rp : spread;
     }
     s->range_pixels = rp < 1 ? 1 : rp;
@@ -125,40 +144,43 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
     s->uniform = cfg->adaptive == SCHED_ADAPTIVE_NONE ? s->layers
                  : cfg->uniform_layers == UINT32_MAX  ? s->layers / 2
                                                       : cfg->uniform_layers;
-    if (cfg->flags) {
-        size_t n = strlen(cfg->flags);
-        if (n != s->layers || strspn(cfg->flags, "01") != n) {
-            snprintf(err, errlen,
-                     "flag sequence must be %u characters of 0 and 1 (one per layer), got %zu",
-                     s->layers, n);
-            free(s);
-            return NULL;
-        }
-        if (cfg->adaptive == SCHED_ADAPTIVE_NONE) {
-            snprintf(err, errlen, "a flag sequence needs adaptive sampling");
-            free(s);
-            return NULL;
-        }
-        s->flags = malloc(n + 1);
-        if (!s->flags) {
-            snprintf(err, errlen, "out of memory");
-            free(s);
-            return NULL;
-        }
-        memcpy(s->flags, cfg->flags, n + 1);
-        s->cfg.flags = s->flags;
-        /* uniform_layers reports the leading run of zeros */
-        s->uniform = (uint32_t)strspn(cfg->flags, "0");
+}
+
+/* Checks and copies the flag sequence, if any (s->cfg.flags then points at
+ * the copy). */
+static int copy_flags(sched_t *s, char *err, size_t errlen)
+{
+    const char *flags = s->cfg.flags;
+    if (!flags)
+        return 0;
+    size_t n = strlen(flags);
+    if (n != s->layers || strspn(flags, "01") != n) {
+        snprintf(err, errlen,
+                 "flag sequence must be %u characters of 0 and 1 (one per layer), got %zu",
+                 s->layers, n);
+        return -1;
     }
-    size_t cells = (size_t)s->layers * s->ranges;
-    size_t member_bytes = ((size_t)s->layers * s->npix + 7) / 8;
-    if (member_bytes > ((size_t)1 << 30) || cells > ((size_t)1 << 26)) {
-        snprintf(err, errlen, "too many layers x pixels (%u layers of %u pixels)", s->layers,
-                 s->npix);
-        free(s);
-        return NULL;
+    if (s->cfg.adaptive == SCHED_ADAPTIVE_NONE) {
+        snprintf(err, errlen, "a flag sequence needs adaptive sampling");
+        return -1;
     }
-    s->film = film_new((int)cfg->width, (int)cfg->height);
+    s->flags = malloc(n + 1);
+    if (!s->flags) {
+        snprintf(err, errlen, "out of memory");
+        return -1;
+    }
+    memcpy(s->flags, flags, n + 1);
+    s->cfg.flags = s->flags;
+    /* uniform_layers reports the leading run of zeros */
+    s->uniform = (uint32_t)strspn(flags, "0");
+    return 0;
+}
+
+/* Every per-layer, per-cell and per-pixel table, zeroed; -1 if any is
+ * missing (sched_destroy frees the rest). */
+static int alloc_tables(sched_t *s, size_t cells, size_t member_bytes)
+{
+    s->film = film_new((int)s->cfg.width, (int)s->cfg.height);
     s->member = calloc(member_bytes, 1);
     s->decided = calloc(s->layers, 1);
     s->threshold = calloc(s->layers, sizeof(double));
@@ -176,20 +198,50 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
     s->scratch = calloc(s->npix, 1);
     s->t_table = calloc((size_t)s->layers + 1, sizeof(double));
     s->t_target = calloc((size_t)s->layers + 1, sizeof(double));
-    if (s->cfg.confidence <= 0)
-        s->cfg.confidence = 0.95;
-    if (s->cfg.target_share <= 0)
-        s->cfg.target_share = 1.0;
     s->out = calloc(cells, sizeof(tracer_task_t *));
     s->out_count = calloc(cells, sizeof(uint32_t));
     s->q_cap = cells + 1;
     s->queue = malloc(s->q_cap * sizeof(uint64_t));
-    s->rq_cap = 64;
+    s->rq_cap = SCHED_REQUEUE_CAP0;
     s->requeued = malloc(s->rq_cap * sizeof(uint64_t));
-    if (!s->film || !s->member || !s->decided || !s->threshold || !s->state || !s->range_done ||
-        !s->var_snapshot || !s->pvar_flight[0] || !s->pvar_flight[1] || !s->out || !s->out_count ||
-        !s->conv_snapshot || !s->conv_flight[0] || !s->conv_flight[1] || !s->batches || !s->bmean ||
-        !s->bm2 || !s->scratch || !s->t_table || !s->t_target || !s->queue || !s->requeued) {
+    return !s->film || !s->member || !s->decided || !s->threshold || !s->state || !s->range_done ||
+                   !s->var_snapshot || !s->pvar_flight[0] || !s->pvar_flight[1] || !s->out ||
+                   !s->out_count || !s->conv_snapshot || !s->conv_flight[0] || !s->conv_flight[1] ||
+                   !s->batches || !s->bmean || !s->bm2 || !s->scratch || !s->t_table ||
+                   !s->t_target || !s->queue || !s->requeued
+               ? -1
+               : 0;
+}
+
+sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
+{
+    if (check_config(cfg, err, errlen) < 0)
+        return NULL;
+    sched_t *s = calloc(1, sizeof *s);
+    if (!s) {
+        snprintf(err, errlen, "out of memory");
+        return NULL;
+    }
+    s->cfg = *cfg;
+    derive_sizes(s);
+    if (copy_flags(s, err, errlen) < 0) {
+        free(s);
+        return NULL;
+    }
+    size_t cells = (size_t)s->layers * s->ranges;
+    size_t member_bytes = ((size_t)s->layers * s->npix + 7) / 8;
+    if (member_bytes > SCHED_MAX_MEMBER_BYTES || cells > SCHED_MAX_CELLS) {
+        snprintf(err, errlen, "too many layers x pixels (%u layers of %u pixels)", s->layers,
+                 s->npix);
+        free(s->flags);
+        free(s);
+        return NULL;
+    }
+    if (s->cfg.confidence <= 0)
+        s->cfg.confidence = SCHED_DEFAULT_CONFIDENCE;
+    if (s->cfg.target_share <= 0)
+        s->cfg.target_share = 1.0;
+    if (alloc_tables(s, cells, member_bytes) < 0) {
         snprintf(err, errlen, "out of memory");
         sched_destroy(&s);
         return NULL;
@@ -453,26 +505,26 @@ static void complete_range(sched_t *s, uint32_t layer, uint32_t range)
     }
 }
 
-static int start(sched_t *s)
+static void start(sched_t *s)
 {
     if (s->layers > 0 && !s->decided[0]) {
         decide_layer(s, 0);
         decide_layer(s, 1);
     }
-    return 0;
 }
 
 int sched_next(sched_t *s, sched_task_t *out)
 {
     start(s);
     uint64_t id;
-    if (s->rq_len > 0) {
+    const int from_requeued = s->rq_len > 0;
+    if (from_requeued) {
         id = s->requeued[--s->rq_len];
     } else if (s->q_head != s->q_tail) {
         id = s->queue[s->q_head];
         s->q_head = (s->q_head + 1) % s->q_cap;
     } else {
-        return s->complete == s->layers ? -1 : 0;
+        return s->complete == s->layers ? SCHED_NEXT_ALL_ISSUED : SCHED_NEXT_NONE_READY;
     }
     uint32_t layer = (uint32_t)((id - 1) / s->ranges), range = (uint32_t)((id - 1) % s->ranges);
     size_t cell = (size_t)layer * s->ranges + range;
@@ -483,13 +535,15 @@ int sched_next(sched_t *s, sched_task_t *out)
         uint32_t n = range_members(s, layer, range);
         tracer_task_t *rec = calloc(n, sizeof *rec);
         if (!rec) {
-            /* Put it back: the caller retries later. */
-            s->requeued[s->rq_len++] = id;
-            return 0;
+            /* Put it back where it came from: the caller retries later. */
+            if (from_requeued)
+                s->rq_len++;
+            else
+                s->q_head = (s->q_head + s->q_cap - 1) % s->q_cap;
+            return SCHED_NEXT_NONE_READY;
         }
         uint64_t first = (uint64_t)layer * s->cfg.granularity;
-        uint32_t take = (uint32_t)(s->cfg.spp - first < s->cfg.granularity ? s->cfg.spp - first
-                                                                           : s->cfg.granularity);
+        uint32_t take = layer_samples(s, layer);
         uint32_t k = 0;
         for (uint32_t p = p0; p < p1; p++) {
             if (!is_member(s, layer, p))
@@ -509,60 +563,61 @@ int sched_next(sched_t *s, sched_task_t *out)
     out->range = range;
     out->count = s->out_count[cell];
     out->records = s->out[cell];
-    return 1;
+    return SCHED_NEXT_TASK;
 }
 
-static int lookup(const sched_t *s, uint64_t id, size_t *cell)
+/* SCHED_OK and the task's cell if it is handed out, else SCHED_NOT_OUTSTANDING. */
+static sched_status_t lookup(const sched_t *s, uint64_t id, size_t *cell)
 {
     if (id == 0 || id > (uint64_t)s->layers * s->ranges)
-        return -1;
+        return SCHED_NOT_OUTSTANDING;
     *cell = (size_t)(id - 1);
-    return s->state[*cell] == ST_OUT && s->out[*cell] ? 0 : -1;
+    return s->state[*cell] == ST_OUT && s->out[*cell] ? SCHED_OK : SCHED_NOT_OUTSTANDING;
 }
 
 int sched_requeue(sched_t *s, uint64_t task_id)
 {
     size_t cell;
-    if (lookup(s, task_id, &cell) < 0)
-        return -1;
+    if (lookup(s, task_id, &cell) != SCHED_OK)
+        return SCHED_NOT_OUTSTANDING;
     if (s->rq_len == s->rq_cap) {
         uint64_t *n = realloc(s->requeued, 2 * s->rq_cap * sizeof(uint64_t));
         if (!n)
-            return -1;
+            return SCHED_NO_MEMORY;
         s->requeued = n;
         s->rq_cap *= 2;
     }
     s->state[cell] = ST_READY;
     s->requeued[s->rq_len++] = task_id;
-    return 0;
+    return SCHED_OK;
 }
 
 int sched_outstanding(const sched_t *s, uint64_t task_id, sched_task_t *out)
 {
     size_t cell;
-    if (lookup(s, task_id, &cell) < 0)
-        return -1;
+    if (lookup(s, task_id, &cell) != SCHED_OK)
+        return SCHED_NOT_OUTSTANDING;
     out->id = task_id;
     out->layer = (uint32_t)(cell / s->ranges);
     out->range = (uint32_t)(cell % s->ranges);
     out->count = s->out_count[cell];
     out->records = s->out[cell];
-    return 0;
+    return SCHED_OK;
 }
 
 int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count,
                 char *err, size_t errlen)
 {
     size_t cell;
-    if (lookup(s, task_id, &cell) < 0) {
+    if (lookup(s, task_id, &cell) != SCHED_OK) {
         snprintf(err, errlen, "task %llu is not outstanding", (unsigned long long)task_id);
-        return -2;
+        return SCHED_NOT_OUTSTANDING;
     }
     const tracer_task_t *rec = s->out[cell];
     if (count != s->out_count[cell]) {
         snprintf(err, errlen, "task %llu: %u results for %u pixels", (unsigned long long)task_id,
                  count, s->out_count[cell]);
-        return -1;
+        return SCHED_BAD_RESULT;
     }
     /* Check everything before merging anything: a bad result changes nothing,
      * and no merge may make the film non-finite. */
@@ -576,7 +631,7 @@ int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *resul
                      "expected pixel %u with %u",
                      (unsigned long long)task_id, i, r->pixel, r->samples, r->nonfinite,
                      rec[i].pixel, rec[i].sample_count);
-            return -1;
+            return SCHED_BAD_RESULT;
         }
         /* radiance is never negative; sums of no samples are zero */
         const double n = r->samples, cap = SCHED_MAX_RADIANCE;
@@ -590,7 +645,7 @@ int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *resul
                      "eq. 4.1 %g%s",
                      (unsigned long long)task_id, i, r->pixel, r->sum[0], r->sum[1], r->sum[2],
                      r->lum_m2, r->pvar, bad ? "" : " (the merge would overflow the film)");
-            return -1;
+            return SCHED_BAD_RESULT;
         }
         nonfinite += r->nonfinite;
         taken += rec[i].sample_count;
@@ -601,16 +656,16 @@ int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *resul
         snprintf(err, errlen, "task %llu: %llu of %llu samples NaN/Inf: implausible",
                  (unsigned long long)task_id, (unsigned long long)nonfinite,
                  (unsigned long long)taken);
-        return -1;
+        return SCHED_BAD_RESULT;
     }
-    return 0;
+    return SCHED_OK;
 }
 
 int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count,
                    char *err, size_t errlen)
 {
-    int rc = sched_check(s, task_id, results, count, err, errlen);
-    if (rc < 0)
+    sched_status_t rc = sched_check(s, task_id, results, count, err, errlen);
+    if (rc != SCHED_OK)
         return rc;
     const size_t cell = (size_t)(task_id - 1);
     const tracer_task_t *rec = s->out[cell];
@@ -649,7 +704,7 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
             pv[p] = s->film->pixels[p].count >= 2 ? film_variance_of_mean(s->film, p) : INFINITY;
             break;
         case SCHED_ADAPTIVE_RELERR:
-            pv[p] = nb >= 2 ? t_factor(s->t_table, 0.95, nb - 1) * se /
+            pv[p] = nb >= 2 ? t_factor(s->t_table, SCHED_RELERR_CONFIDENCE, nb - 1) * se /
                                   (fabs(s->bmean[p]) + SCHED_RELERR_EPS)
                             : INFINITY;
             break;
@@ -665,7 +720,7 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
     s->out[cell] = NULL;
     s->out_count[cell] = 0;
     complete_range(s, layer, range);
-    return 0;
+    return SCHED_OK;
 }
 
 /* ---- checkpoints ---------------------------------------------------------- */
@@ -1184,23 +1239,13 @@ static int check_layers(const sched_t *s, uint32_t D, char *err, size_t errlen)
     return 0;
 }
 
-/* The film against the cells that were merged into it, and the per-pixel
- * statistics. */
-static int check_pixels(const sched_t *s, uint32_t D, char *err, size_t errlen)
+/* What the done cells of layers < D merged: per pixel, the layers it took
+ * part in and their samples. */
+static void count_merged(const sched_t *s, uint32_t D, uint32_t *layers, uint64_t *samples)
 {
     const uint32_t N = s->npix, R = s->ranges;
-    uint32_t *layers = calloc(N, sizeof *layers);
-    uint64_t *samples = calloc(N, sizeof *samples);
-    int rc = -1;
-    if (!layers || !samples) {
-        snprintf(err, errlen, "out of memory");
-        goto out;
-    }
-    /* what the done cells merged: each member pixel one layer of `take` samples */
     for (uint32_t l = 0; l < D; l++) {
-        uint64_t first = (uint64_t)l * s->cfg.granularity;
-        uint32_t take = (uint32_t)(s->cfg.spp - first < s->cfg.granularity ? s->cfg.spp - first
-                                                                           : s->cfg.granularity);
+        uint32_t take = layer_samples(s, l);
         for (uint32_t r = 0; r < R; r++) {
             if (s->state[(size_t)l * R + r] != ST_DONE)
                 continue;
@@ -1213,66 +1258,94 @@ static int check_pixels(const sched_t *s, uint32_t D, char *err, size_t errlen)
                 }
         }
     }
-    uint64_t total = 0, nonfinite = 0;
+}
+
+/* Film pixel p: finite sums, and the layers and samples its cells merged. */
+static int check_film_pixel(const sched_t *s, uint32_t p, uint32_t layers, uint64_t samples,
+                            char *err, size_t errlen)
+{
+    const film_pixel_t *fp = &s->film->pixels[p];
+    static const char *const names[8] = {"sum[0]",  "sum[1]",  "sum[2]", "comp[0]",
+                                         "comp[1]", "comp[2]", "lum_m2", "pvar"};
+    const double v[8] = {fp->sum[0],  fp->sum[1],  fp->sum[2], fp->comp[0],
+                         fp->comp[1], fp->comp[2], fp->lum_m2, fp->pvar};
+    for (int k = 0; k < 8; k++)
+        if (!isfinite(v[k])) {
+            snprintf(err, errlen, "checkpoint: film pixel %u: %s is not finite (%g)", p, names[k],
+                     v[k]);
+            return -1;
+        }
+    if (fp->layers != layers) {
+        snprintf(err, errlen, "checkpoint: film pixel %u merged %u layers, the cell states say %u",
+                 p, fp->layers, layers);
+        return -1;
+    }
+    if (fp->count > samples || fp->nonfinite != samples - fp->count) {
+        snprintf(err, errlen,
+                 "checkpoint: film pixel %u holds %llu + %llu nonfinite samples, its layers %llu",
+                 p, (unsigned long long)fp->count, (unsigned long long)fp->nonfinite,
+                 (unsigned long long)samples);
+        return -1;
+    }
+    return 0;
+}
+
+/* Pixel p's adaptive metrics, converged flags and batch statistics. */
+static int check_pixel_stats(const sched_t *s, uint32_t p, uint32_t layers, char *err,
+                             size_t errlen)
+{
+    const double m[3] = {s->var_snapshot[p], s->pvar_flight[0][p], s->pvar_flight[1][p]};
+    for (int k = 0; k < 3; k++)
+        if (isnan(m[k]) || m[k] == -INFINITY) {
+            snprintf(err, errlen, "checkpoint: pixel %u: adaptive metric %g", p, m[k]);
+            return -1;
+        }
+    const uint8_t c[3] = {s->conv_snapshot[p], s->conv_flight[0][p], s->conv_flight[1][p]};
+    for (int k = 0; k < 3; k++)
+        if (c[k] > (s->cfg.target_error > 0)) {
+            snprintf(err, errlen, "checkpoint: pixel %u: converged flag %u (target error %g)", p,
+                     c[k], s->cfg.target_error);
+            return -1;
+        }
+    /* what results in range can make: a mean of layer luminances in
+     * [0, SCHED_MAX_RADIANCE] (2x: rounding), a sum of squares >= 0,
+     * both 0 before the first batch and the sum still 0 after it.
+     * Anything else can turn the metrics NaN or infinite on the next
+     * merge (Welford's update assumes them) */
     const int batch = s->cfg.adaptive == SCHED_ADAPTIVE_RELERR || s->cfg.target_error > 0;
+    const uint32_t nb = s->batches[p];
+    if (batch ? nb > layers || !(s->bmean[p] >= 0 && s->bmean[p] <= 2 * SCHED_MAX_RADIANCE) ||
+                    !(s->bm2[p] >= 0 && isfinite(s->bm2[p])) || (nb == 0 && s->bmean[p] != 0) ||
+                    (nb <= 1 && s->bm2[p] != 0)
+              : nb != 0 || s->bmean[p] != 0 || s->bm2[p] != 0) {
+        snprintf(err, errlen,
+                 "checkpoint: pixel %u: batch statistics (%u batches of %u layers, mean %g, m2 %g)",
+                 p, s->batches[p], layers, s->bmean[p], s->bm2[p]);
+        return -1;
+    }
+    return 0;
+}
+
+/* The film against the cells that were merged into it, and the per-pixel
+ * statistics. */
+static int check_pixels(const sched_t *s, uint32_t D, char *err, size_t errlen)
+{
+    const uint32_t N = s->npix;
+    uint32_t *layers = calloc(N, sizeof *layers);
+    uint64_t *samples = calloc(N, sizeof *samples);
+    int rc = -1;
+    if (!layers || !samples) {
+        snprintf(err, errlen, "out of memory");
+        goto out;
+    }
+    count_merged(s, D, layers, samples);
+    uint64_t total = 0, nonfinite = 0;
     for (uint32_t p = 0; p < N; p++) {
-        const film_pixel_t *fp = &s->film->pixels[p];
-        static const char *const names[8] = {"sum[0]",  "sum[1]",  "sum[2]", "comp[0]",
-                                             "comp[1]", "comp[2]", "lum_m2", "pvar"};
-        const double v[8] = {fp->sum[0],  fp->sum[1],  fp->sum[2], fp->comp[0],
-                             fp->comp[1], fp->comp[2], fp->lum_m2, fp->pvar};
-        for (int k = 0; k < 8; k++)
-            if (!isfinite(v[k])) {
-                snprintf(err, errlen, "checkpoint: film pixel %u: %s is not finite (%g)", p,
-                         names[k], v[k]);
-                goto out;
-            }
-        if (fp->layers != layers[p]) {
-            snprintf(err, errlen,
-                     "checkpoint: film pixel %u merged %u layers, the cell states say %u", p,
-                     fp->layers, layers[p]);
+        if (check_film_pixel(s, p, layers[p], samples[p], err, errlen) < 0 ||
+            check_pixel_stats(s, p, layers[p], err, errlen) < 0)
             goto out;
-        }
-        if (fp->count > samples[p] || fp->nonfinite != samples[p] - fp->count) {
-            snprintf(
-                err, errlen,
-                "checkpoint: film pixel %u holds %llu + %llu nonfinite samples, its layers %llu", p,
-                (unsigned long long)fp->count, (unsigned long long)fp->nonfinite,
-                (unsigned long long)samples[p]);
-            goto out;
-        }
         total += samples[p];
-        nonfinite += fp->nonfinite;
-        const double m[3] = {s->var_snapshot[p], s->pvar_flight[0][p], s->pvar_flight[1][p]};
-        for (int k = 0; k < 3; k++)
-            if (isnan(m[k]) || m[k] == -INFINITY) {
-                snprintf(err, errlen, "checkpoint: pixel %u: adaptive metric %g", p, m[k]);
-                goto out;
-            }
-        const uint8_t c[3] = {s->conv_snapshot[p], s->conv_flight[0][p], s->conv_flight[1][p]};
-        for (int k = 0; k < 3; k++)
-            if (c[k] > (s->cfg.target_error > 0)) {
-                snprintf(err, errlen, "checkpoint: pixel %u: converged flag %u (target error %g)",
-                         p, c[k], s->cfg.target_error);
-                goto out;
-            }
-        /* what results in range can make: a mean of layer luminances in
-         * [0, SCHED_MAX_RADIANCE] (2x: rounding), a sum of squares >= 0,
-         * both 0 before the first batch and the sum still 0 after it.
-         * Anything else can turn the metrics NaN or infinite on the next
-         * merge (Welford's update assumes them) */
-        const uint32_t nb = s->batches[p];
-        if (batch
-                ? nb > layers[p] || !(s->bmean[p] >= 0 && s->bmean[p] <= 2 * SCHED_MAX_RADIANCE) ||
-                      !(s->bm2[p] >= 0 && isfinite(s->bm2[p])) || (nb == 0 && s->bmean[p] != 0) ||
-                      (nb <= 1 && s->bm2[p] != 0)
-                : nb != 0 || s->bmean[p] != 0 || s->bm2[p] != 0) {
-            snprintf(
-                err, errlen,
-                "checkpoint: pixel %u: batch statistics (%u batches of %u layers, mean %g, m2 %g)",
-                p, s->batches[p], layers[p], s->bmean[p], s->bm2[p]);
-            goto out;
-        }
+        nonfinite += s->film->pixels[p].nonfinite;
     }
     if (total != s->samples_done || nonfinite != s->nonfinite) {
         snprintf(

@@ -88,6 +88,23 @@ typedef struct sched_config {
 
 typedef struct sched sched_t;
 
+/* What sched_requeue, sched_outstanding, sched_check and sched_complete
+ * return: 0, or one of these (negative, so `< 0` still means "failed"). */
+typedef enum {
+    SCHED_OK = 0,
+    SCHED_BAD_RESULT = -1,      /* a result that fails the checks; nothing merged */
+    SCHED_NOT_OUTSTANDING = -2, /* the task is not handed out: never issued,
+                                   requeued, or already completed */
+    SCHED_NO_MEMORY = -3        /* the task is still handed out, unchanged */
+} sched_status_t;
+
+/* What sched_next returns. */
+typedef enum {
+    SCHED_NEXT_TASK = 1,        /* *out is a task now handed out */
+    SCHED_NEXT_NONE_READY = 0,  /* none ready now (waiting on results), or out of memory */
+    SCHED_NEXT_ALL_ISSUED = -1, /* every task has been handed out or completed */
+} sched_next_t;
+
 /* A task handed out: owned by the scheduler until completed or requeued. */
 typedef struct sched_task {
     uint64_t id; /* 1 + layer * range_count + range: stable across runs */
@@ -107,20 +124,24 @@ uint32_t sched_uniform_layers(const sched_t *s);
 uint32_t sched_range_count(const sched_t *s);
 
 /* The next ready task (requeued ones first, then in (layer, range) order).
- * Returns 1 and fills *out, 0 when none is ready now, -1 when every task
- * has been handed out or completed. */
+ * Returns SCHED_NEXT_TASK and fills *out, SCHED_NEXT_NONE_READY when none
+ * is ready now, SCHED_NEXT_ALL_ISSUED when every task has been handed out
+ * or completed. */
 int sched_next(sched_t *s, sched_task_t *out);
 
-/* Puts a handed-out task back (its worker died or its lease ran out). */
+/* Puts a handed-out task back (its worker died or its lease ran out):
+ * SCHED_OK, SCHED_NOT_OUTSTANDING, or SCHED_NO_MEMORY (the task stays
+ * handed out: a caller that drops it then stalls the job). */
 int sched_requeue(sched_t *s, uint64_t task_id);
 
 /* Completes a handed-out task with its results (records in the task's pixel
  * order). Checks count, pixels and sample counts against the task, and
  * every value's range (finite, non-negative, at most SCHED_MAX_RADIANCE per
  * sample, zero sums for no samples, at most half the samples NaN/Inf, and
- * no merge that would make the film non-finite); -1 with a message and
- * nothing merged if anything is off; -2 if the task is not
- * outstanding (already completed, or never issued). */
+ * no merge that would make the film non-finite); SCHED_BAD_RESULT with a
+ * message and nothing merged if anything is off; SCHED_NOT_OUTSTANDING
+ * (with a message) if the task is not outstanding (already completed, or
+ * never issued). SCHED_OK when merged. */
 int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count,
                    char *err, size_t errlen);
 
@@ -133,8 +154,8 @@ int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *resul
                 char *err, size_t errlen);
 
 /* A handed-out task, as sched_next gave it (records included), to send the
- * same task to another worker: 0 and *out, or -1 if the task is not
- * outstanding (never issued, requeued, or completed). The records stay
+ * same task to another worker: SCHED_OK and *out, or SCHED_NOT_OUTSTANDING
+ * (never issued, requeued, or completed). The records stay
  * valid until it is completed or requeued. */
 int sched_outstanding(const sched_t *s, uint64_t task_id, sched_task_t *out);
 

@@ -20,10 +20,18 @@
 
 static const char store_magic[8] = {'V', 'B', 'S', 'T', 'A', 'T', 'E', '\n'};
 #define STORE_HEADER_SIZE 16
-#define STORE_TRAILER_SIZE (8 + 32)
+#define STORE_SUM_SIZE 32 /* the checksum, 256 bits */
+#define STORE_TRAILER_SIZE (8 + STORE_SUM_SIZE)
+/* check_record's reasons: short texts of its own, not a passed-on message */
+#define STORE_REASON_LEN 128
 /* A record larger than this is refused on load (a torn length field must
  * not make us allocate the address space). */
 #define STORE_MAX_RECORD ((uint64_t)8 << 30)
+/* The background writer's report buffer: its first size, and the room a
+ * read wants (it grows by doubling). */
+#define STORE_BG_BUF0 8192
+#define STORE_BG_READ_ROOM 4096
+#define STORE_BG_WAIT_US 2000 /* store_bg_wait polls the child this often */
 
 struct store {
     char dir[2048];
@@ -154,6 +162,14 @@ void store_sum_final(const store_sum_t *c0, uint8_t out[32])
 
 /* ---- crash-safe records ------------------------------------------------------ */
 
+/* close(2) where its result cannot matter: a descriptor only read from, a
+ * pipe end, or one abandoned after a failure that is already reported.
+ * (The close of a record just written is checked: store_rec_finish.) */
+static void close_quietly(int fd)
+{
+    (void)close(fd);
+}
+
 static int write_all(int fd, const void *data, size_t len)
 {
     const uint8_t *p = data;
@@ -182,7 +198,7 @@ static int fsync_dir_of(const char *path)
     if (fd < 0)
         return -1;
     int rc = fsync(fd);
-    close(fd);
+    close_quietly(fd);
     /* some file systems cannot fsync a directory; the rename still holds */
     return rc == 0 || errno == EINVAL || errno == EROFS ? 0 : -1;
 }
@@ -222,7 +238,7 @@ static int raw_write(store_rec_writer_t *w, const void *data, size_t len)
         p += n;
         len -= n;
         if (w->buffered == sizeof w->buf)
-            flush_buf(w);
+            flush_buf(w); /* a failure sets w->failed, which ends the loop */
     }
     return w->failed ? -1 : 0;
 }
@@ -273,11 +289,14 @@ int store_rec_write_block(store_rec_writer_t *w, const void *data, size_t len)
 void store_rec_abort(store_rec_writer_t *w)
 {
     if (w->fd >= 0) {
-        close(w->fd);
+        close_quietly(w->fd);
         w->fd = -1;
     }
+    /* Unchecked: the write has failed and says so; a temporary file left
+     * behind in a job's directory is removed at the next start
+     * (store_job_clean), and is never read as a record. */
     if (w->tmp[0])
-        unlink(w->tmp);
+        (void)unlink(w->tmp);
     w->failed = 1;
 }
 
@@ -364,12 +383,12 @@ static const char *check_record(const uint8_t *all, uint64_t size, store_kind_t 
         return "a record of another kind";
     if (get_u64(all + size - STORE_TRAILER_SIZE) != size - STORE_HEADER_SIZE - STORE_TRAILER_SIZE)
         return "torn (length mismatch)";
-    uint8_t hash[32];
+    uint8_t hash[STORE_SUM_SIZE];
     store_sum_t c;
     store_sum_init(&c);
-    store_sum_update(&c, all, (size_t)(size - 32));
+    store_sum_update(&c, all, (size_t)(size - STORE_SUM_SIZE));
     store_sum_final(&c, hash);
-    if (memcmp(hash, all + size - 32, 32) != 0)
+    if (memcmp(hash, all + size - STORE_SUM_SIZE, STORE_SUM_SIZE) != 0)
         return "corrupt (checksum mismatch)";
     return NULL;
 }
@@ -378,7 +397,7 @@ int store_rec_parse(const uint8_t *data, size_t size, store_kind_t kind, store_r
                     char *err, size_t errlen)
 {
     memset(rec, 0, sizeof *rec);
-    char buf[128];
+    char buf[STORE_REASON_LEN];
     const char *why = check_record(data, size, kind, buf, sizeof buf);
     if (why) {
         set_err(err, errlen, "%s", why);
@@ -407,19 +426,19 @@ int store_rec_load(const char *path, store_kind_t kind, store_rec_t *rec, char *
     struct stat st;
     if (fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
         set_err(err, errlen, "%.600s: not a regular file", path);
-        close(fd);
+        close_quietly(fd);
         return -1;
     }
     uint64_t size = (uint64_t)st.st_size;
     if (size < STORE_HEADER_SIZE + STORE_TRAILER_SIZE || size > STORE_MAX_RECORD) {
         set_err(err, errlen, "%.600s: torn (%" PRIu64 " bytes)", path, size);
-        close(fd);
+        close_quietly(fd);
         return -1;
     }
     uint8_t *all = malloc(size);
     if (!all) {
         set_err(err, errlen, "%.600s: out of memory (%" PRIu64 " bytes)", path, size);
-        close(fd);
+        close_quietly(fd);
         return -1;
     }
     size_t got = 0;
@@ -431,8 +450,8 @@ int store_rec_load(const char *path, store_kind_t kind, store_rec_t *rec, char *
             break;
         got += (size_t)n;
     }
-    close(fd);
-    char buf[128];
+    close_quietly(fd);
+    char buf[STORE_REASON_LEN];
     const char *why = got != size ? "short read" : check_record(all, size, kind, buf, sizeof buf);
     if (why) {
         set_err(err, errlen, "%.600s: %s", path, why);
@@ -533,7 +552,11 @@ int store_job_dir(const store_t *s, uint64_t id, char *err, size_t errlen)
         set_err(err, errlen, "cannot create %.600s: %s", path, strerror(errno));
         return -1;
     }
-    return fsync_dir_of(path);
+    if (fsync_dir_of(path) < 0) {
+        set_err(err, errlen, "cannot fsync the directory of %.600s: %s", path, strerror(errno));
+        return -1;
+    }
+    return 0;
 }
 
 int store_job_remove(const store_t *s, uint64_t id, char *err, size_t errlen)
@@ -562,8 +585,12 @@ int store_job_remove(const store_t *s, uint64_t id, char *err, size_t errlen)
         set_err(err, errlen, "cannot remove %.600s: %s", path, strerror(errno));
         rc = -1;
     }
-    if (rc == 0)
-        fsync_dir_of(path);
+    if (rc == 0 && fsync_dir_of(path) < 0) {
+        /* removed, but a crash may bring the job back at the next start */
+        set_err(err, errlen, "removed %.600s, but cannot fsync its parent directory: %s", path,
+                strerror(errno));
+        rc = -1;
+    }
     return rc;
 }
 
@@ -579,7 +606,7 @@ void store_job_clean(const store_t *s, uint64_t id)
         if (strstr(e->d_name, ".tmp.")) {
             char f[4096 + 260];
             snprintf(f, sizeof f, "%s/%s", path, e->d_name);
-            unlink(f);
+            (void)unlink(f); /* best effort: one left is tried again at the next start */
         }
     closedir(d);
 }
@@ -649,7 +676,7 @@ store_t *store_open(const char *dir, char *err, size_t errlen)
         free(s);
         return NULL;
     }
-    char path[4096], lerr[512];
+    char path[4096], lerr[VB_ERR_LEN];
     snprintf(path, sizeof path, "%s/meta", s->dir);
     store_rec_t rec;
     s->next_id = 1;
@@ -721,29 +748,30 @@ int store_bg_start(store_t *s, store_bg_fn fn, void *ctx, char *err, size_t errl
         set_err(err, errlen, "pipe: %.600s", strerror(errno));
         return -1;
     }
-    fcntl(p[0], F_SETFD, FD_CLOEXEC);
+    /* fcntl on a pipe just made fails only with EBADF: unchecked here and below */
+    (void)fcntl(p[0], F_SETFD, FD_CLOEXEC);
     fflush(NULL); /* nothing buffered is written twice */
     double t0 = mono_s();
     pid_t pid = fork();
     if (pid < 0) {
         set_err(err, errlen, "fork: %.600s", strerror(errno));
-        close(p[0]);
-        close(p[1]);
+        close_quietly(p[0]);
+        close_quietly(p[1]);
         return -1;
     }
     if (pid == 0) {
-        close(p[0]);
+        close_quietly(p[0]);
         /* the child must not take the master's signals as its own stop */
         signal(SIGTERM, SIG_DFL);
         signal(SIGINT, SIG_IGN);
         int rc = fn(ctx, p[1]);
-        close(p[1]);
+        close_quietly(p[1]);
         _exit(rc);
     }
     s->bg_fork_ms = (mono_s() - t0) * 1e3;
     s->bg_started = t0;
-    close(p[1]);
-    fcntl(p[0], F_SETFL, fcntl(p[0], F_GETFL) | O_NONBLOCK);
+    close_quietly(p[1]);
+    (void)fcntl(p[0], F_SETFL, fcntl(p[0], F_GETFL) | O_NONBLOCK);
     s->bg_pid = pid;
     s->bg_fd = p[0];
     s->bg_len = 0;
@@ -752,7 +780,9 @@ int store_bg_start(store_t *s, store_bg_fn fn, void *ctx, char *err, size_t errl
 
 void store_bg_report(int fd, uint64_t id, const char *error)
 {
-    char line[1024];
+    /* the id and " error " before a whole message; under PIPE_BUF (4096),
+     * so a line is one atomic write */
+    char line[VB_ERR_LEN + 32];
     int n = error ? snprintf(line, sizeof line, "%" PRIu64 " error %s", id, error)
                   : snprintf(line, sizeof line, "%" PRIu64 " ok", id);
     if (n < 0)
@@ -763,14 +793,16 @@ void store_bg_report(int fd, uint64_t id, const char *error)
         if (line[i] == '\n')
             line[i] = ' ';
     line[n++] = '\n';
+    /* Unchecked: the child has nobody else to tell. A job whose line does
+     * not arrive counts as not written (store_bg_poll), which is the truth. */
     (void)write_all(fd, line, (size_t)n);
 }
 
 static void drain(store_t *s)
 {
     for (;;) {
-        if (s->bg_cap - s->bg_len < 4096) {
-            size_t cap = s->bg_cap ? 2 * s->bg_cap : 8192;
+        if (s->bg_cap - s->bg_len < STORE_BG_READ_ROOM) {
+            size_t cap = s->bg_cap ? 2 * s->bg_cap : STORE_BG_BUF0;
             char *nb = realloc(s->bg_buf, cap);
             if (!nb)
                 return;
@@ -824,7 +856,7 @@ int store_bg_poll(store_t *s, store_bg_report_fn on_report, void *ctx, int *exit
                     (double)ru.ru_stime.tv_sec + 1e-6 * (double)ru.ru_stime.tv_usec;
     s->last.fork_ms = s->bg_fork_ms;
     drain(s);
-    close(s->bg_fd);
+    close_quietly(s->bg_fd);
     s->bg_fd = -1;
     s->bg_pid = 0;
     if (exit_status)
@@ -839,6 +871,6 @@ void store_bg_wait(store_t *s, store_bg_report_fn on_report, void *ctx)
     while (s->bg_pid > 0) {
         if (store_bg_poll(s, on_report, ctx, NULL))
             break;
-        usleep(2000);
+        usleep(STORE_BG_WAIT_US);
     }
 }

@@ -32,6 +32,8 @@
 #include <stdio.h>
 #include <sys/types.h>
 
+#include "vberr.h"
+
 #define STORE_FORMAT_VERSION 1
 
 /* What a record holds (the header's kind: a file of one kind is never read
@@ -83,7 +85,7 @@ typedef struct store_rec_writer {
     size_t buffered;
     uint8_t buf[1 << 16];
     char tmp[4096], path[4096];
-    char err[1024];
+    char err[VB_ERR_LEN];
 } store_rec_writer_t;
 
 int store_rec_begin(store_rec_writer_t *w, const char *path, store_kind_t kind);

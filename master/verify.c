@@ -276,10 +276,7 @@ static void entry_drop(master_t *m, job_t *j, uint32_t idx)
     uint64_t task = j->verify->pool[idx].task;
     entry_close(m, j, idx);
     j->reissued++;
-    if (sched_requeue(j->sched, task) < 0)
-        master_log(
-            m, "job %" PRIu64 " task %" PRIu64 ": the scheduler refused it back (out of memory?)",
-            j->id, task);
+    job_requeue(m, j, task);
 }
 
 /* Merges res for the entry's task and closes the entry. The job may end
@@ -288,8 +285,8 @@ static void entry_merge(master_t *m, job_t *j, uint32_t idx, const tracer_result
                         int verified)
 {
     ventry_t *e = &j->verify->pool[idx];
-    char err[MASTER_ERR_LEN];
-    if (sched_complete(j->sched, e->task, res, e->count, err, sizeof err) < 0) {
+    char err[VB_ERR_LEN];
+    if (sched_complete(j->sched, e->task, res, e->count, err, sizeof err) != SCHED_OK) {
         /* checked when it arrived; the pixels it reads have not changed */
         master_log(m,
                    "job %" PRIu64 " task %" PRIu64
@@ -316,7 +313,7 @@ static int send_copy(master_t *m, job_t *j, uint32_t idx, int k, peer_t *w, prot
 {
     uint64_t task = j->verify->pool[idx].task;
     sched_task_t t;
-    if (sched_outstanding(j->sched, task, &t) < 0) {
+    if (sched_outstanding(j->sched, task, &t) != SCHED_OK) {
         master_log(m,
                    "job %" PRIu64 " task %" PRIu64
                    ": being verified but not outstanding in the scheduler",
@@ -369,7 +366,7 @@ int verify_start(master_t *m, job_t *j, const sched_task_t *t, peer_t *w, proto_
     if (idx == NO_ENTRY) {
         master_log(m, "job %" PRIu64 " task %" PRIu64 ": out of memory to verify it; trying later",
                    j->id, t->id);
-        (void)sched_requeue(j->sched, t->id); /* just handed out: it takes it back */
+        job_requeue(m, j, t->id); /* just handed out: it takes it back */
         return -1;
     }
     j->holder[t->id - 1] = MASTER_VERIFY_HOLDER | idx;
@@ -431,7 +428,7 @@ static void copy_failed(master_t *m, peer_t *w, job_t *j, uint32_t idx, int k, c
     master_log_limited(m, "task-failed", "job %" PRIu64 " task %" PRIu64 " failed on %s: %s", j->id,
                        e->task, w->host, text);
     if (j->failures >= MASTER_MAX_TASK_FAILURES) {
-        char why[MASTER_ERR_LEN];
+        char why[VB_ERR_LEN];
         snprintf(why, sizeof why, "workers failed %u tasks; last: %.400s", j->failures, text);
         job_finish(m, j, JOB_FAILED, why);
         return;
@@ -453,7 +450,7 @@ static void copy_refused(master_t *m, peer_t *w, job_t *j, uint32_t idx, int k, 
     j->reissued++;
     enqueue(j->verify, idx);
     if (w->bad_results >= MASTER_MAX_BAD_RESULTS) {
-        char why[MASTER_ERR_LEN];
+        char why[VB_ERR_LEN];
         snprintf(why, sizeof why, "%u results refused; the last: %.700s", w->bad_results, err);
         verify_note_quarantined(j, peer_identity(w));
         peer_quarantine(m, w, why);
@@ -466,7 +463,7 @@ static void agreed(master_t *m, job_t *j, uint32_t idx, int k, int other, int od
                    const tracer_result_t *res)
 {
     ventry_t *e = &j->verify->pool[idx];
-    char liar[MASTER_MAX_WHO] = "", why[MASTER_ERR_LEN] = "";
+    char liar[MASTER_MAX_WHO] = "", why[VB_ERR_LEN] = "";
     if (odd >= 0) {
         snprintf(liar, sizeof liar, "%s", e->c[odd].who);
         snprintf(why, sizeof why,
@@ -549,9 +546,9 @@ int verify_on_result(master_t *m, peer_t *w, job_t *j, const proto_msg_t *msg)
         copy_failed(m, w, j, idx, k, msg->u.text.text);
         return 0;
     }
-    char err[MASTER_ERR_LEN];
+    char err[VB_ERR_LEN];
     if (sched_check(j->sched, e->task, msg->u.result.records, msg->u.result.count, err,
-                    sizeof err) < 0) {
+                    sizeof err) != SCHED_OK) {
         copy_refused(m, w, j, idx, k, err);
         return 0;
     }

@@ -122,15 +122,15 @@ static void drive(sched_t *s, const sched_config_t *cfg, uint64_t seed, int plau
         if (nheld < HELD_MAX && r % 4 != 0) {
             sched_task_t t;
             int rc = sched_next(s, &t);
-            if (rc == 1) {
+            if (rc == SCHED_NEXT_TASK) {
                 check_task(s, cfg, &t);
                 held[nheld++] = t;
                 continue;
             }
-            if (rc != 0 && rc != -1)
+            if (rc != SCHED_NEXT_NONE_READY && rc != SCHED_NEXT_ALL_ISSUED)
                 abort();
             if (nheld == 0) {
-                if (rc == 0)
+                if (rc == SCHED_NEXT_NONE_READY)
                     abort(); /* nothing ready, nothing out: the job would wait forever */
                 break;       /* every task handed out or done */
             }
@@ -139,18 +139,19 @@ static void drive(sched_t *s, const sched_config_t *cfg, uint64_t seed, int plau
             continue;
         int k = (int)((r >> 8) % (uint64_t)nheld);
         if ((r >> 16) % 5 == 0) {
-            if (sched_requeue(s, held[k].id) != 0)
+            if (sched_requeue(s, held[k].id) != SCHED_OK)
                 abort();
         } else {
             if (held[k].count > sizeof res / sizeof res[0])
                 abort();
             fake_results(&held[k], res);
             int rc = sched_complete(s, held[k].id, res, held[k].count, err, sizeof err);
-            if (rc != 0 && plausible) {
+            if (rc != SCHED_OK && plausible) {
                 fprintf(stderr, "fuzz_ckpt: a restored scheduler refuses a good result: %s\n", err);
                 abort();
             }
-            if (rc != 0 && (rc != -1 || sched_requeue(s, held[k].id) != 0))
+            if (rc != SCHED_OK &&
+                (rc != SCHED_BAD_RESULT || sched_requeue(s, held[k].id) != SCHED_OK))
                 abort();
         }
         held[k] = held[--nheld];

@@ -408,18 +408,18 @@ static void run_tasks(sched_t *s, int complete, int out)
     int done = 0;
     while (done < complete) {
         int n = 0;
-        while (n < 2 && sched_next(s, &held[n]) == 1)
+        while (n < 2 && sched_next(s, &held[n]) == SCHED_NEXT_TASK)
             n++;
         if (n == 0)
             return; /* finished */
         for (int i = 0; i < n; i++) {
             fake_results(&held[i], res);
-            if (sched_complete(s, held[i].id, res, held[i].count, err, sizeof err) != 0)
+            if (sched_complete(s, held[i].id, res, held[i].count, err, sizeof err) != SCHED_OK)
                 die("sched_complete: %s", err);
             done++;
         }
     }
-    for (int i = 0; i < out && sched_next(s, &held[0]) == 1; i++)
+    for (int i = 0; i < out && sched_next(s, &held[0]) == SCHED_NEXT_TASK; i++)
         ;
 }
 

@@ -101,7 +101,7 @@ START_TEST(test_procedure2_by_hand)
     run_layer(s, 4, l4);
     ck_assert(sched_done(s));
     sched_task_t t;
-    ck_assert_int_eq(sched_next(s, &t), -1);
+    ck_assert_int_eq(sched_next(s, &t), SCHED_NEXT_ALL_ISSUED);
     const film_t *f = sched_film(s);
     const uint64_t want_samples[4] = {6, 6, 8, 8};
     for (int p = 0; p < 4; p++)
@@ -123,7 +123,7 @@ START_TEST(test_dependencies_and_priors)
     ck_assert_int_eq(sched_next(s, &b), 1);
     ck_assert_uint_eq(a.layer, 0);
     ck_assert_uint_eq(b.layer, 0);
-    ck_assert_int_eq(sched_next(s, &c), 0); /* layer 1 waits */
+    ck_assert_int_eq(sched_next(s, &c), SCHED_NEXT_NONE_READY); /* layer 1 waits */
     tracer_result_t r[4];
     char err[256];
     fake_results(&b, r, NULL);
@@ -134,26 +134,26 @@ START_TEST(test_dependencies_and_priors)
     ck_assert_uint_eq(c.records[0].first_sample, 2);
     ck_assert_uint_eq(c.records[0].prior_count, 2);
     ck_assert(c.records[0].prior_sum[0] == r[0].sum[0]);
-    ck_assert_int_eq(sched_next(s, &c), 0);
+    ck_assert_int_eq(sched_next(s, &c), SCHED_NEXT_NONE_READY);
     /* duplicate and unknown completions are refused, nothing merged */
-    ck_assert_int_eq(sched_complete(s, b.id, r, b.count, err, sizeof err), -2);
-    ck_assert_int_eq(sched_complete(s, 999, r, 1, err, sizeof err), -2);
+    ck_assert_int_eq(sched_complete(s, b.id, r, b.count, err, sizeof err), SCHED_NOT_OUTSTANDING);
+    ck_assert_int_eq(sched_complete(s, 999, r, 1, err, sizeof err), SCHED_NOT_OUTSTANDING);
     /* a result with the wrong pixel or count is refused, and the task stays out */
     fake_results(&a, r, NULL);
     r[2].pixel = 7;
-    ck_assert_int_eq(sched_complete(s, a.id, r, a.count, err, sizeof err), -1);
+    ck_assert_int_eq(sched_complete(s, a.id, r, a.count, err, sizeof err), SCHED_BAD_RESULT);
     ck_assert_msg(strstr(err, "pixel") != NULL, "%s", err);
-    ck_assert_int_eq(sched_complete(s, a.id, r, a.count - 1, err, sizeof err), -1);
+    ck_assert_int_eq(sched_complete(s, a.id, r, a.count - 1, err, sizeof err), SCHED_BAD_RESULT);
     fake_results(&a, r, NULL);
     r[1].samples = 1;
-    ck_assert_int_eq(sched_complete(s, a.id, r, a.count, err, sizeof err), -1);
+    ck_assert_int_eq(sched_complete(s, a.id, r, a.count, err, sizeof err), SCHED_BAD_RESULT);
     ck_assert_uint_eq(sched_film(s)->pixels[a.records[0].pixel].count, 0);
     /* requeue gives the same task back first */
     ck_assert_int_eq(sched_requeue(s, a.id), 0);
     sched_task_t again;
     ck_assert_int_eq(sched_next(s, &again), 1);
     ck_assert_uint_eq(again.id, a.id);
-    ck_assert_int_eq(sched_requeue(s, 12345), -1);
+    ck_assert_int_eq(sched_requeue(s, 12345), SCHED_NOT_OUTSTANDING);
     sched_destroy(&s);
 }
 END_TEST
@@ -265,7 +265,7 @@ static void run_all(sched_t *s, lum_fn f, uint32_t g)
     tracer_result_t r[64];
     char err[256];
     int rc;
-    while ((rc = sched_next(s, &t)) != -1) {
+    while ((rc = sched_next(s, &t)) != SCHED_NEXT_ALL_ISSUED) {
         ck_assert_int_eq(rc, 1); /* one at a time: always something ready */
         for (uint32_t i = 0; i < t.count; i++) {
             memset(&r[i], 0, sizeof r[i]);
@@ -502,7 +502,7 @@ START_TEST(test_results_range_checked)
             r[1].sum[0] = bad[k].v;
             break;
         }
-        ck_assert_msg(sched_complete(s, t.id, r, t.count, err, sizeof err) == -1,
+        ck_assert_msg(sched_complete(s, t.id, r, t.count, err, sizeof err) == SCHED_BAD_RESULT,
                       "case %zu accepted", k);
         ck_assert_msg(strstr(err, bad[k].want) != NULL, "case %zu: %s", k, err);
         ck_assert_uint_eq(sched_samples_done(s), 0);
@@ -538,7 +538,8 @@ START_TEST(test_outstanding_and_check)
     sched_task_t a, b, again;
     tracer_result_t r[4];
     char err[256];
-    ck_assert_int_eq(sched_outstanding(s, 1, &again), -1); /* nothing issued yet */
+    ck_assert_int_eq(sched_outstanding(s, 1, &again),
+                     SCHED_NOT_OUTSTANDING); /* nothing issued yet */
     ck_assert_int_eq(sched_next(s, &a), 1);
     ck_assert_int_eq(sched_next(s, &b), 1);
     ck_assert_int_eq(sched_outstanding(s, a.id, &again), 0);
@@ -547,22 +548,22 @@ START_TEST(test_outstanding_and_check)
     ck_assert_uint_eq(again.range, a.range);
     ck_assert_uint_eq(again.count, a.count);
     ck_assert_ptr_eq(again.records, a.records);
-    ck_assert_int_eq(sched_outstanding(s, 0, &again), -1);
-    ck_assert_int_eq(sched_outstanding(s, 12345, &again), -1);
+    ck_assert_int_eq(sched_outstanding(s, 0, &again), SCHED_NOT_OUTSTANDING);
+    ck_assert_int_eq(sched_outstanding(s, 12345, &again), SCHED_NOT_OUTSTANDING);
     /* judged, not merged */
     fake_results(&a, r, NULL);
     ck_assert_msg(sched_check(s, a.id, r, a.count, err, sizeof err) == 0, "%s", err);
     ck_assert_uint_eq(sched_samples_done(s), 0);
     ck_assert_int_eq(sched_outstanding(s, a.id, &again), 0);
     r[1].sum[0] = -1.0;
-    ck_assert_int_eq(sched_check(s, a.id, r, a.count, err, sizeof err), -1);
+    ck_assert_int_eq(sched_check(s, a.id, r, a.count, err, sizeof err), SCHED_BAD_RESULT);
     ck_assert_msg(strstr(err, "out of range") != NULL, "%s", err);
-    ck_assert_int_eq(sched_check(s, a.id, r, a.count + 1, err, sizeof err), -1);
+    ck_assert_int_eq(sched_check(s, a.id, r, a.count + 1, err, sizeof err), SCHED_BAD_RESULT);
     /* requeued: not outstanding until issued again, then the same records */
     ck_assert_int_eq(sched_requeue(s, b.id), 0);
-    ck_assert_int_eq(sched_outstanding(s, b.id, &again), -1);
+    ck_assert_int_eq(sched_outstanding(s, b.id, &again), SCHED_NOT_OUTSTANDING);
     fake_results(&b, r, NULL);
-    ck_assert_int_eq(sched_check(s, b.id, r, b.count, err, sizeof err), -2);
+    ck_assert_int_eq(sched_check(s, b.id, r, b.count, err, sizeof err), SCHED_NOT_OUTSTANDING);
     ck_assert_int_eq(sched_next(s, &again), 1);
     ck_assert_uint_eq(again.id, b.id);
     ck_assert_int_eq(sched_outstanding(s, b.id, &again), 0);
@@ -570,8 +571,8 @@ START_TEST(test_outstanding_and_check)
     /* completed: gone */
     fake_results(&a, r, NULL);
     ck_assert_msg(sched_complete(s, a.id, r, a.count, err, sizeof err) == 0, "%s", err);
-    ck_assert_int_eq(sched_outstanding(s, a.id, &again), -1);
-    ck_assert_int_eq(sched_check(s, a.id, r, a.count, err, sizeof err), -2);
+    ck_assert_int_eq(sched_outstanding(s, a.id, &again), SCHED_NOT_OUTSTANDING);
+    ck_assert_int_eq(sched_check(s, a.id, r, a.count, err, sizeof err), SCHED_NOT_OUTSTANDING);
     ck_assert_uint_eq(sched_samples_done(s), 2 * 32);
     sched_destroy(&s);
 }
