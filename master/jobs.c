@@ -193,8 +193,11 @@ void job_requeue(master_t *m, job_t *j, uint64_t task)
         return;
     /* The scheduler holds the task as handed out until it takes it back: a
      * refusal leaves it out with no holder and no lease, so it is never
-     * issued again and the job cannot finish. */
+     * issued again and the job cannot finish. The job fails at the next
+     * tick (job_clocks) with its image so far kept, rather than hang; not
+     * here, since callers still hold the job. */
     m->requeue_refused++;
+    j->requeue_refused = 1;
     master_log(
         m, "job %" PRIu64 " task %" PRIu64 ": the scheduler refused it back: %s", j->id, task,
         rc == SCHED_NO_MEMORY ? "out of memory" : "it was not outstanding (a bookkeeping bug)");

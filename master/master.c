@@ -113,6 +113,12 @@ static void job_clocks(master_t *m, double now)
             job_finish(m, j, JOB_DONE, "time limit reached");
             continue;
         }
+        if (j->requeue_refused) {
+            job_finish(m, j, JOB_FAILED,
+                       "the scheduler could not take a task back (out of memory); "
+                       "the image so far is kept");
+            continue;
+        }
         if (j->ref[0] && (now - j->last_eval >= MASTER_EVAL_S ||
                           sched_layers_complete(j->sched) != j->last_eval_layers))
             job_eval_error(j, now);

@@ -138,6 +138,7 @@ typedef struct job {
     uint32_t *holder;  /* per task id - 1: worker slot + 1, 0 none (calloc'd:
                           no O(tasks) work at submit) */
     uint32_t outstanding, reissued, failures;
+    int requeue_refused; /* a task the scheduler would not take back: fail at the next tick */
     double submitted, started, finished;
     double run_before; /* seconds run before the last restart */
     uint64_t rays, busy_us, late_results;
