@@ -217,6 +217,87 @@ static int parse_render(loader_t *L, const cJSON *root)
 
 /* ---- materials ---------------------------------------------------------- */
 
+/* The fields of a material by its type, into *m, and its albedo (or
+ * reflectance) into v, still to be range-checked. */
+static int parse_material_fields(loader_t *L, const cJSON *it, const char *p, material_t *m,
+                                 double v[3])
+{
+    switch (m->type) {
+    case MATERIAL_DIFFUSE: {
+        static const char *const keys[] = {"type", "albedo", NULL};
+        check_keys(L, it, p, keys);
+        return get_vec3(L, it, "albedo", p, 1, v);
+    }
+    case MATERIAL_MIRROR: {
+        static const char *const keys[] = {"type", "reflectance", NULL};
+        check_keys(L, it, p, keys);
+        return get_vec3(L, it, "reflectance", p, 0, v);
+    }
+    case MATERIAL_EMITTER: {
+        static const char *const keys[] = {"type", "radiance", "albedo", NULL};
+        check_keys(L, it, p, keys);
+        double rad[3];
+        if (get_vec3(L, it, "radiance", p, 1, rad) < 0)
+            return -1;
+        for (int k = 0; k < 3; k++)
+            if (rad[k] < 0 || rad[k] > 1e30)
+                return fail(L, p, "radiance must be between 0 and 1e30");
+        m->radiance = to_vec3(rad);
+        /* a light's own surface may also reflect diffusely (default: black) */
+        v[0] = v[1] = v[2] = 0;
+        return get_vec3(L, it, "albedo", p, 0, v);
+    }
+    case MATERIAL_DIELECTRIC: {
+        static const char *const keys[] = {"type", "ior", NULL};
+        check_keys(L, it, p, keys);
+        double ior = 1.5;
+        if (get_number(L, it, "ior", p, 0, 1.0 / 8, 8.0, &ior) < 0)
+            return -1;
+        m->ior = (float)ior;
+        return 0;
+    }
+    }
+    return 0;
+}
+
+/* One "name": {material} entry, appended to the scene's table (room for it
+ * is allocated). */
+static int parse_material(loader_t *L, const cJSON *it)
+{
+    char p[PATH_LEN];
+    snprintf(p, sizeof p, "materials.%s", it->string);
+    if (strlen(it->string) == 0 || strlen(it->string) >= MATERIAL_NAME_LEN)
+        return fail(L, p, "material name must be 1 to %d characters", MATERIAL_NAME_LEN - 1);
+    for (size_t j = 0; j < L->s->material_count; j++)
+        if (strcmp(L->s->materials[j].name, it->string) == 0)
+            return fail(L, p, "material defined twice");
+    if (!cJSON_IsObject(it))
+        return fail(L, p, "expected an object with a \"type\"");
+    const cJSON *type = cJSON_GetObjectItemCaseSensitive(it, "type");
+    if (!cJSON_IsString(type))
+        return fail(L, p, "missing \"type\" (diffuse, emitter, mirror or dielectric)");
+    int t = material_type_from_name(type->valuestring);
+    if (t < 0)
+        return fail(
+            L, p, "unknown material type \"%s\" (expected diffuse, emitter, mirror or dielectric)",
+            type->valuestring);
+    material_t *m = &L->s->materials[L->s->material_count];
+    memcpy(m->name, it->string, strlen(it->string) + 1);
+    m->type = (material_type_t)t;
+    double v[3] = {1, 1, 1};
+    if (parse_material_fields(L, it, p, m, v) < 0)
+        return -1;
+    if (m->type != MATERIAL_DIELECTRIC)
+        for (int k = 0; k < 3; k++)
+            if (v[k] < 0 || v[k] > 1)
+                return fail(L, p,
+                            "%s components must be in [0, 1] (got %g): more would create energy",
+                            m->type == MATERIAL_MIRROR ? "reflectance" : "albedo", v[k]);
+    m->albedo = to_vec3(v);
+    L->s->material_count++;
+    return 0;
+}
+
 static int parse_materials(loader_t *L, const cJSON *root)
 {
     const cJSON *mats = cJSON_GetObjectItemCaseSensitive(root, "materials");
@@ -230,79 +311,9 @@ static int parse_materials(loader_t *L, const cJSON *root)
     L->s->materials = calloc((size_t)n, sizeof(material_t));
     if (!L->s->materials)
         return fail(L, "materials", "out of memory");
-    for (const cJSON *it = mats->child; it; it = it->next) {
-        char p[PATH_LEN];
-        snprintf(p, sizeof p, "materials.%s", it->string);
-        if (strlen(it->string) == 0 || strlen(it->string) >= MATERIAL_NAME_LEN)
-            return fail(L, p, "material name must be 1 to %d characters", MATERIAL_NAME_LEN - 1);
-        for (size_t j = 0; j < L->s->material_count; j++)
-            if (strcmp(L->s->materials[j].name, it->string) == 0)
-                return fail(L, p, "material defined twice");
-        if (!cJSON_IsObject(it))
-            return fail(L, p, "expected an object with a \"type\"");
-        const cJSON *type = cJSON_GetObjectItemCaseSensitive(it, "type");
-        if (!cJSON_IsString(type))
-            return fail(L, p, "missing \"type\" (diffuse, emitter, mirror or dielectric)");
-        int t = material_type_from_name(type->valuestring);
-        if (t < 0)
-            return fail(
-                L, p,
-                "unknown material type \"%s\" (expected diffuse, emitter, mirror or dielectric)",
-                type->valuestring);
-        material_t *m = &L->s->materials[L->s->material_count];
-        memcpy(m->name, it->string, strlen(it->string) + 1);
-        m->type = (material_type_t)t;
-        double v[3] = {1, 1, 1};
-        switch (m->type) {
-        case MATERIAL_DIFFUSE: {
-            static const char *const keys[] = {"type", "albedo", NULL};
-            check_keys(L, it, p, keys);
-            if (get_vec3(L, it, "albedo", p, 1, v) < 0)
-                return -1;
-            break;
-        }
-        case MATERIAL_MIRROR: {
-            static const char *const keys[] = {"type", "reflectance", NULL};
-            check_keys(L, it, p, keys);
-            if (get_vec3(L, it, "reflectance", p, 0, v) < 0)
-                return -1;
-            break;
-        }
-        case MATERIAL_EMITTER: {
-            static const char *const keys[] = {"type", "radiance", "albedo", NULL};
-            check_keys(L, it, p, keys);
-            double rad[3];
-            if (get_vec3(L, it, "radiance", p, 1, rad) < 0)
-                return -1;
-            for (int k = 0; k < 3; k++)
-                if (rad[k] < 0 || rad[k] > 1e30)
-                    return fail(L, p, "radiance must be between 0 and 1e30");
-            m->radiance = to_vec3(rad);
-            /* a light's own surface may also reflect diffusely (default: black) */
-            v[0] = v[1] = v[2] = 0;
-            if (get_vec3(L, it, "albedo", p, 0, v) < 0)
-                return -1;
-            break;
-        }
-        case MATERIAL_DIELECTRIC: {
-            static const char *const keys[] = {"type", "ior", NULL};
-            check_keys(L, it, p, keys);
-            double ior = 1.5;
-            if (get_number(L, it, "ior", p, 0, 1.0 / 8, 8.0, &ior) < 0)
-                return -1;
-            m->ior = (float)ior;
-            break;
-        }
-        }
-        if (m->type != MATERIAL_DIELECTRIC)
-            for (int k = 0; k < 3; k++)
-                if (v[k] < 0 || v[k] > 1)
-                    return fail(
-                        L, p, "%s components must be in [0, 1] (got %g): more would create energy",
-                        m->type == MATERIAL_MIRROR ? "reflectance" : "albedo", v[k]);
-        m->albedo = to_vec3(v);
-        L->s->material_count++;
-    }
+    for (const cJSON *it = mats->child; it; it = it->next)
+        if (parse_material(L, it) < 0)
+            return -1;
     return 0;
 }
 
@@ -722,10 +733,11 @@ static int parse_shapes(loader_t *L, const cJSON *root)
 
 /* ---- finishing: normals, degenerate triangles, lights ------------------ */
 
-static int finish(loader_t *L)
+/* Hands the loader's arrays to the scene, so scene_destroy frees them on
+ * any error from here on. */
+static void hand_over_arrays(loader_t *L)
 {
     scene_t *s = L->s;
-    /* Hand the arrays over first, so scene_destroy frees them on any error. */
     s->positions = L->pos;
     s->normals = L->nrm;
     s->vertex_count = L->nv;
@@ -733,37 +745,46 @@ static int finish(loader_t *L)
     s->tri_material = L->mat;
     L->pos = L->nrm = NULL;
     L->idx = L->mat = NULL;
-    size_t nt = L->nt;
-    if (nt == 0)
-        return fail(L, "shapes", "no triangles: the scene is empty");
-    s->tri_normal = malloc(nt * sizeof(vec3_t));
-    s->tri_smooth = calloc(nt, 1);
-    s->tri_light_pdf = calloc(nt, sizeof(float));
-    double *power = calloc(nt, sizeof(double));
-    if (!s->tri_normal || !s->tri_smooth || !s->tri_light_pdf || !power) {
-        free(power);
-        return fail(L, NULL, "out of memory for %zu triangles", nt);
+}
+
+/* The geometric normal of triangle v (unnormalised) and its length, from
+ * the float positions the tracer will see, in double. 0 when the triangle
+ * has no area there (it could only produce NaNs), else 1. */
+static int face_normal(const scene_t *s, const uint32_t *v, double n[3], double *len)
+{
+    double p[3][3];
+    for (int k = 0; k < 3; k++)
+        for (int d = 0; d < 3; d++)
+            p[k][d] = s->positions[3 * v[k] + d];
+    double e1[3], e2[3];
+    for (int d = 0; d < 3; d++) {
+        e1[d] = p[1][d] - p[0][d];
+        e2[d] = p[2][d] - p[0][d];
     }
-    /* Normals from the float positions the tracer will see, in double; a
-     * triangle with no area there is dropped (it could only produce NaNs). */
-    size_t kept = 0, lights = 0;
-    double total_power = 0;
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    *len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    return (*len > 0) && isfinite(*len) && isfinite((float)(n[0] / *len));
+}
+
+/* Light power of the triangles kept, filled by keep_triangles. */
+typedef struct light_sum {
+    double *power; /* per kept triangle; 0 when not a light */
+    double total;
+    size_t lights;
+} light_sum_t;
+
+/* Drops degenerate triangles (compacting indices and materials) and gives
+ * the kept ones their normal, smooth flag and light power. Returns how many
+ * are kept. */
+static size_t keep_triangles(scene_t *s, size_t nt, light_sum_t *ls)
+{
+    size_t kept = 0;
     for (size_t t = 0; t < nt; t++) {
         const uint32_t *v = s->indices + 3 * t;
-        double p[3][3];
-        for (int k = 0; k < 3; k++)
-            for (int d = 0; d < 3; d++)
-                p[k][d] = s->positions[3 * v[k] + d];
-        double e1[3], e2[3], n[3];
-        for (int d = 0; d < 3; d++) {
-            e1[d] = p[1][d] - p[0][d];
-            e2[d] = p[2][d] - p[0][d];
-        }
-        n[0] = e1[1] * e2[2] - e1[2] * e2[1];
-        n[1] = e1[2] * e2[0] - e1[0] * e2[2];
-        n[2] = e1[0] * e2[1] - e1[1] * e2[0];
-        double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-        if (!(len > 0) || !isfinite(len) || !isfinite((float)(n[0] / len))) {
+        double n[3], len;
+        if (!face_normal(s, v, n, &len)) {
             s->dropped_degenerate++;
             continue;
         }
@@ -783,63 +804,87 @@ static int finish(loader_t *L)
         if (m->type == MATERIAL_EMITTER) {
             double lum = vmath_luminance(m->radiance.x, m->radiance.y, m->radiance.z);
             if (lum > 0) {
-                power[kept] = 0.5 * len * lum;
-                total_power += power[kept];
-                lights++;
+                ls->power[kept] = 0.5 * len * lum;
+                ls->total += ls->power[kept];
+                ls->lights++;
             }
         }
         kept++;
     }
-    if (s->dropped_degenerate)
-        warn(s, "%s: dropped %zu degenerate (zero-area) triangle%s", L->name, s->dropped_degenerate,
-             s->dropped_degenerate == 1 ? "" : "s");
-    s->triangle_count = kept;
-    if (kept == 0) {
-        free(power);
-        return fail(L, "shapes", "no triangles left: all %zu are degenerate", nt);
-    }
-    if (lights == 0 || !(total_power > 0) || !isfinite(total_power)) {
-        free(power);
-        if (lights && !isfinite(total_power))
-            return fail(L, "materials", "total light power overflows");
-        warn(s,
-             "%s: the scene has no light (no emitter with radiance > 0): the image will be black",
-             L->name);
-        return 0;
-    }
-    s->light_tris = malloc(lights * sizeof(uint32_t));
-    s->light_cdf = malloc(lights * sizeof(double));
-    if (!s->light_tris || !s->light_cdf) {
-        free(power);
+    return kept;
+}
+
+/* The light list, its power CDF and each light triangle's area pdf. */
+static int build_light_cdf(loader_t *L, const light_sum_t *ls)
+{
+    scene_t *s = L->s;
+    s->light_tris = malloc(ls->lights * sizeof(uint32_t));
+    s->light_cdf = malloc(ls->lights * sizeof(double));
+    if (!s->light_tris || !s->light_cdf)
         return fail(L, NULL, "out of memory for lights");
-    }
     double acc = 0;
-    for (size_t t = 0; t < kept; t++) {
-        if (power[t] <= 0)
+    for (size_t t = 0; t < s->triangle_count; t++) {
+        if (ls->power[t] <= 0)
             continue;
-        acc += power[t];
+        acc += ls->power[t];
         s->light_tris[s->light_count] = (uint32_t)t;
-        s->light_cdf[s->light_count++] = acc / total_power;
+        s->light_cdf[s->light_count++] = acc / ls->total;
         /* pdf per unit area of picking a point on t: (power / total) / area */
         const material_t *m = &s->materials[s->tri_material[t]];
-        double pdf = vmath_luminance(m->radiance.x, m->radiance.y, m->radiance.z) / total_power;
+        double pdf = vmath_luminance(m->radiance.x, m->radiance.y, m->radiance.z) / ls->total;
         s->tri_light_pdf[t] = (float)pdf;
         /* The tracer divides by this in single precision: lights whose
          * sizes differ by ~1e19 (or a light of area ~1e-38) cannot be
          * sampled there, and a wrong pdf would poison the image. */
         if (!(s->tri_light_pdf[t] > 0.0f) || !isfinite(s->tri_light_pdf[t]) ||
             !(s->light_cdf[s->light_count - 1] >
-              (s->light_count > 1 ? s->light_cdf[s->light_count - 2] : 0.0))) {
-            free(power);
+              (s->light_count > 1 ? s->light_cdf[s->light_count - 2] : 0.0)))
             return fail(L, "shapes",
                         "light sizes out of single-precision range (light triangle %zu "
                         "has area pdf %g): rescale the scene",
                         t, pdf);
-        }
     }
     s->light_cdf[s->light_count - 1] = 1.0;
-    free(power);
     return 0;
+}
+
+/* Normals, degenerate triangles and lights, once every shape is in. */
+static int finish(loader_t *L)
+{
+    scene_t *s = L->s;
+    hand_over_arrays(L);
+    size_t nt = L->nt;
+    if (nt == 0)
+        return fail(L, "shapes", "no triangles: the scene is empty");
+    s->tri_normal = malloc(nt * sizeof(vec3_t));
+    s->tri_smooth = calloc(nt, 1);
+    s->tri_light_pdf = calloc(nt, sizeof(float));
+    light_sum_t ls = {calloc(nt, sizeof(double)), 0, 0};
+    if (!s->tri_normal || !s->tri_smooth || !s->tri_light_pdf || !ls.power) {
+        free(ls.power);
+        return fail(L, NULL, "out of memory for %zu triangles", nt);
+    }
+    size_t kept = keep_triangles(s, nt, &ls);
+    if (s->dropped_degenerate)
+        warn(s, "%s: dropped %zu degenerate (zero-area) triangle%s", L->name, s->dropped_degenerate,
+             s->dropped_degenerate == 1 ? "" : "s");
+    s->triangle_count = kept;
+    int rc = 0;
+    if (kept == 0) {
+        rc = fail(L, "shapes", "no triangles left: all %zu are degenerate", nt);
+    } else if (ls.lights == 0 || !(ls.total > 0) || !isfinite(ls.total)) {
+        if (ls.lights && !isfinite(ls.total))
+            rc = fail(L, "materials", "total light power overflows");
+        else
+            warn(s,
+                 "%s: the scene has no light (no emitter with radiance > 0): the image will be "
+                 "black",
+                 L->name);
+    } else {
+        rc = build_light_cdf(L, &ls);
+    }
+    free(ls.power);
+    return rc;
 }
 
 /* Line and column of a byte offset, for malformed-JSON messages. */
