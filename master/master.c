@@ -194,7 +194,7 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
     if (!m->cfg.lease_ms)
         m->cfg.lease_ms = MASTER_DEFAULT_LEASE_MS;
     if (!m->cfg.worker_timeout_ms)
-        m->cfg.worker_timeout_ms = 5 * m->cfg.heartbeat_ms;
+        m->cfg.worker_timeout_ms = MASTER_DEFAULT_WORKER_TIMEOUT_HEARTBEATS * m->cfg.heartbeat_ms;
     if (!(m->cfg.checkpoint_s > 0))
         m->cfg.checkpoint_s = MASTER_DEFAULT_CHECKPOINT_S;
     if (!m->cfg.keep_finished)

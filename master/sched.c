@@ -13,6 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "defaults.h"
 #include "rng.h"
 #include "stats.h"
 #include "vmath.h"
@@ -177,9 +178,9 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
     s->t_table = calloc((size_t)s->layers + 1, sizeof(double));
     s->t_target = calloc((size_t)s->layers + 1, sizeof(double));
     if (s->cfg.confidence <= 0)
-        s->cfg.confidence = 0.95;
+        s->cfg.confidence = JOB_DEFAULT_CONFIDENCE;
     if (s->cfg.target_share <= 0)
-        s->cfg.target_share = 1.0;
+        s->cfg.target_share = JOB_DEFAULT_TARGET_SHARE;
     s->out = calloc(cells, sizeof(tracer_task_t *));
     s->out_count = calloc(cells, sizeof(uint32_t));
     s->q_cap = cells + 1;
