@@ -35,19 +35,17 @@
 
 #include "compare.h"
 #include "control.h"
+#include "defaults.h"
 #include "image.h"
 #include "keys.h"
 #include "master.h"
 #include "progress.h"
 #include "render.h"
 #include "sched.h"
+#include "settings.h"
 #include "worker.h"
 
-#define DEFAULT_MASTER "tcp://localhost:7071"
-#define DEFAULT_TIMEOUT_S 300.0  /* submit, wait: how long a master may stay away */
-#define REQUEST_TIMEOUT_MS 10000 /* a request to a master (one try) */
-
-static const char usage_text[] =
+static const char usage_head[] =
     "usage: vbrender COMMAND ...\n"
     "\n"
     "  render SCENE.json [-o OUT.exr] [settings] [--workers N] [--threads T]\n"
@@ -70,37 +68,32 @@ static const char usage_text[] =
     "        error of A against REF: relMSE, RMSE, mean abs. relative error, max,\n"
     "        share of pixels with relative error above E (default 0.05)\n"
     "\n"
-    "settings (render and submit):\n"
-    "  --spp N                 most samples per pixel (default: the scene's)\n"
-    "  --granularity G         samples per pixel per layer (default 32)\n"
-    "  --adaptive MODE         thesis (eq. 4.1, default), variance (of the pixel mean),\n"
-    "                          relerr (t-bound of layer means over mean) or none (uniform)\n"
-    "  --random-selection      pixels below the threshold still run with probability m/T\n"
-    "  --dilate                also sample the neighbours of selected pixels\n"
-    "  --target-error E        stop a pixel when its confidence half-width <= E x mean,\n"
-    "  --confidence C          at confidence C (default 0.95); the job stops when\n"
-    "  --target-share S        a share S of the pixels have (default 1)\n"
+    "settings (render and submit):\n";
+
+/* After the settings' lines, which come from their table (settings.h). */
+static const char usage_tail[] =
     "  --reference REF.exr     track the error against REF over time and samples\n"
     "                          (OUT.error.json beside the image)\n"
-    "  --uniform-layers K      layers before the skip rule applies (default: half)\n"
-    "  --flags 0011...         the thesis's flag sequence: 1 where a layer applies the\n"
-    "                          skip rule, one per layer (overrides --uniform-layers)\n"
-    "  --seed S                random seed (default: the scene's)\n"
-    "  --time-limit SECONDS    stop issuing work after this long\n"
-    "  --integrator path|naive path: NEE + MIS (default); naive: light only when hit\n"
-    "  --max-depth D           most path segments (default 0: unlimited)\n"
     "\n"
     "other options:\n"
-    "  --master EP             control endpoint (default " DEFAULT_MASTER ")\n"
+    "  --master EP             control endpoint (default " CLIENT_DEFAULT_MASTER ")\n"
     "  --key FILE              this client's key pair, for a master that uses CURVE\n"
     "                          keys (default: $VBRENDER_KEY)\n"
     "  --master-key FILE       that master's public key (default: $VBRENDER_MASTER_KEY)\n"
     "  --timeout SECONDS       submit, wait: while the master does not answer (say it\n"
-    "                          restarts), ask again for this long (default 300)\n"
-    "  --workers N             render: local workers (default 1)\n"
+    "                          restarts), ask again for this long "
+    "(default " CLIENT_DEFAULT_TIMEOUT_S_TEXT ")\n"
+    "  --workers N             render: local workers (default " CLIENT_DEFAULT_WORKERS_TEXT ")\n"
     "  --threads T             render: threads in all (default: all cores)\n"
     "  --progress MODE         auto, bar, lines or none (default auto)\n"
     "  -h, --help              this text\n";
+
+static void print_usage(FILE *f)
+{
+    fputs(usage_head, f);
+    settings_usage(f);
+    fputs(usage_tail, f);
+}
 
 static int usage_error(const char *fmt, const char *arg)
 {
@@ -141,153 +134,114 @@ typedef struct args {
     const char *reference; /* --reference REF.exr */
     const char *master;
     const char *key_file, *master_key_file; /* --key, --master-key */
-    cJSON *settings;                        /* submit fields */
+    cJSON *settings;                        /* submit fields (settings.h) */
     double timeout_s;                       /* --timeout */
     uint64_t workers, threads;
     progress_mode_t progress;
     int have_workers, have_threads;
 } args_t;
 
+/* What a command's arguments may hold besides --master, --key,
+ * --master-key and --progress (parse_args's allow_* arguments). */
+enum {
+    ALLOW_SETTINGS = 1, /* job settings, --reference, --workers, --threads */
+    ALLOW_OUTPUT = 2,   /* -o OUT.exr */
+    ALLOW_TIMEOUT = 4   /* --timeout S */
+};
+
+/* usage_error's message, and -2 for parse_option's caller. */
+static int option_error(const char *fmt, const char *arg)
+{
+    usage_error(fmt, arg);
+    return -2;
+}
+
+/* One of the client's own options (a job setting is not one): the number
+ * of words it takes after o (0 or 1), -1 if o is none of them, or -2 after
+ * a usage message. */
+static int parse_option(const char *o, const char *v, args_t *a, unsigned allow)
+{
+    static const char *const progress_names[] = {"auto", "bar", "lines", "none"};
+    int settings = (allow & ALLOW_SETTINGS) != 0;
+    if ((allow & ALLOW_OUTPUT) && (strcmp(o, "-o") == 0 || strcmp(o, "--output") == 0)) {
+        if (!v || v[0] == '-')
+            return option_error("%s needs a file name", o);
+        a->output = v;
+    } else if (strcmp(o, "--master") == 0) {
+        if (!v || !*v)
+            return option_error(
+                "%s needs an endpoint such as tcp://host:" MASTER_DEFAULT_CONTROL_PORT, o);
+        a->master = v;
+    } else if (strcmp(o, "--key") == 0 || strcmp(o, "--master-key") == 0) {
+        if (!v || !*v)
+            return option_error("%s needs a file name", o);
+        *(strcmp(o, "--key") == 0 ? &a->key_file : &a->master_key_file) = v;
+    } else if ((allow & ALLOW_TIMEOUT) && strcmp(o, "--timeout") == 0) {
+        char *end;
+        errno = 0;
+        double t = v ? strtod(v, &end) : -1;
+        if (!v || errno || *end || !(t > 0) || !(t <= 1e9))
+            return option_error("--timeout needs a number of seconds > 0 (got '%s')", v ? v : "");
+        a->timeout_s = t;
+    } else if (strcmp(o, "--progress") == 0) {
+        int m = 0;
+        while (m < 4 && (!v || strcmp(v, progress_names[m]) != 0))
+            m++;
+        if (m == 4)
+            return option_error("--progress must be auto, bar, lines or none (got '%s')",
+                                v ? v : "");
+        a->progress = (progress_mode_t)m;
+    } else if (settings && strcmp(o, "--workers") == 0) {
+        if (parse_u64(v, 1, 64, &a->workers) < 0)
+            return option_error("--workers needs an integer from 1 to 64 (got '%s')", v ? v : "");
+        a->have_workers = 1;
+    } else if (settings && strcmp(o, "--threads") == 0) {
+        if (parse_u64(v, 1, RENDER_MAX_THREADS, &a->threads) < 0)
+            return option_error("--threads needs an integer from 1 to 256 (got '%s')", v ? v : "");
+        a->have_threads = 1;
+    } else if (settings && strcmp(o, "--reference") == 0) {
+        if (!v || v[0] == '-')
+            return option_error("%s", "--reference needs an EXR file");
+        a->reference = v;
+    } else {
+        return -1;
+    }
+    return 1;
+}
+
+/* argv into a; the job settings (with ALLOW_SETTINGS) through their table
+ * (settings.h). 0, or the exit status after a usage message. */
 static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int allow_output,
                       int allow_timeout)
 {
+    unsigned allow = (allow_settings ? ALLOW_SETTINGS : 0) | (allow_output ? ALLOW_OUTPUT : 0) |
+                     (allow_timeout ? ALLOW_TIMEOUT : 0);
     a->settings = cJSON_CreateObject();
-    a->master = DEFAULT_MASTER;
-    a->timeout_s = DEFAULT_TIMEOUT_S;
-    a->workers = 1;
+    a->master = CLIENT_DEFAULT_MASTER;
+    a->timeout_s = CLIENT_DEFAULT_TIMEOUT_S;
+    a->workers = CLIENT_DEFAULT_WORKERS;
     long cores = sysconf(_SC_NPROCESSORS_ONLN);
     a->threads = cores > 0 ? (uint64_t)cores : 1;
     a->progress = PROGRESS_AUTO;
     for (int i = 0; i < argc; i++) {
         const char *o = argv[i];
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
-        uint64_t n;
-        int takes = 1;
-        if (allow_output && (strcmp(o, "-o") == 0 || strcmp(o, "--output") == 0)) {
-            if (!v || v[0] == '-')
-                return usage_error("%s needs a file name", o);
-            a->output = v;
-        } else if (strcmp(o, "--master") == 0) {
-            if (!v || !*v)
-                return usage_error("%s needs an endpoint such as tcp://host:7071", o);
-            a->master = v;
-        } else if (strcmp(o, "--key") == 0 || strcmp(o, "--master-key") == 0) {
-            if (!v || !*v)
-                return usage_error("%s needs a file name", o);
-            if (strcmp(o, "--key") == 0)
-                a->key_file = v;
-            else
-                a->master_key_file = v;
-        } else if (allow_timeout && strcmp(o, "--timeout") == 0) {
-            char *end;
-            errno = 0;
-            double t = v ? strtod(v, &end) : -1;
-            if (!v || errno || *end || !(t > 0) || !(t <= 1e9))
-                return usage_error("--timeout needs a number of seconds > 0 (got '%s')",
-                                   v ? v : "");
-            a->timeout_s = t;
-        } else if (strcmp(o, "--progress") == 0) {
-            if (v && strcmp(v, "auto") == 0)
-                a->progress = PROGRESS_AUTO;
-            else if (v && strcmp(v, "bar") == 0)
-                a->progress = PROGRESS_BAR;
-            else if (v && strcmp(v, "lines") == 0)
-                a->progress = PROGRESS_LINES;
-            else if (v && strcmp(v, "none") == 0)
-                a->progress = PROGRESS_NONE;
-            else
-                return usage_error("--progress must be auto, bar, lines or none (got '%s')",
-                                   v ? v : "");
-        } else if (allow_settings && strcmp(o, "--workers") == 0) {
-            if (parse_u64(v, 1, 64, &a->workers) < 0)
-                return usage_error("--workers needs an integer from 1 to 64 (got '%s')",
-                                   v ? v : "");
-            a->have_workers = 1;
-        } else if (allow_settings && strcmp(o, "--threads") == 0) {
-            if (parse_u64(v, 1, RENDER_MAX_THREADS, &a->threads) < 0)
-                return usage_error("--threads needs an integer from 1 to 256 (got '%s')",
-                                   v ? v : "");
-            a->have_threads = 1;
-        } else if (allow_settings && strcmp(o, "--spp") == 0) {
-            if (parse_u64(v, 1, UINT32_MAX, &n) < 0)
-                return usage_error("--spp needs an integer from 1 to 4294967295 (got '%s')",
-                                   v ? v : "");
-            cJSON_AddNumberToObject(a->settings, "spp", (double)n);
-        } else if (allow_settings && strcmp(o, "--granularity") == 0) {
-            if (parse_u64(v, 1, TRACER_MAX_TASK_SAMPLES, &n) < 0)
-                return usage_error("--granularity needs an integer from 1 to 4096 (got '%s')",
-                                   v ? v : "");
-            cJSON_AddNumberToObject(a->settings, "granularity", (double)n);
-        } else if (allow_settings && strcmp(o, "--uniform-layers") == 0) {
-            if (parse_u64(v, 0, 1000000, &n) < 0)
-                return usage_error("--uniform-layers needs an integer from 0 to 1000000 (got '%s')",
-                                   v ? v : "");
-            cJSON_AddNumberToObject(a->settings, "uniform_layers", (double)n);
-        } else if (allow_settings && strcmp(o, "--flags") == 0) {
-            if (!v || !*v || strspn(v, "01") != strlen(v))
-                return usage_error("--flags needs a sequence of 0 and 1, one per layer (got '%s')",
-                                   v ? v : "");
-            cJSON_AddStringToObject(a->settings, "flags", v);
-        } else if (allow_settings && strcmp(o, "--seed") == 0) {
-            if (parse_u64(v, 0, 9007199254740992ULL, &n) < 0)
-                return usage_error("--seed needs an integer from 0 to 2^53 (got '%s')", v ? v : "");
-            cJSON_AddNumberToObject(a->settings, "seed", (double)n);
-        } else if (allow_settings && strcmp(o, "--max-depth") == 0) {
-            if (parse_u64(v, 0, 1000000, &n) < 0)
-                return usage_error("--max-depth needs an integer from 0 to 1000000 (got '%s')",
-                                   v ? v : "");
-            cJSON_AddNumberToObject(a->settings, "max_depth", (double)n);
-        } else if (allow_settings && strcmp(o, "--time-limit") == 0) {
-            char *end;
-            errno = 0;
-            double t = v ? strtod(v, &end) : -1;
-            if (!v || errno || *end || !(t > 0) || !isfinite(t))
-                return usage_error("--time-limit needs a number of seconds > 0 (got '%s')",
-                                   v ? v : "");
-            cJSON_AddNumberToObject(a->settings, "time_limit", t);
-        } else if (allow_settings && strcmp(o, "--adaptive") == 0) {
-            if (!v || sched_adaptive_from_name(v) < 0)
-                return usage_error("--adaptive must be thesis, variance, relerr or none (got '%s')",
-                                   v ? v : "");
-            cJSON_AddStringToObject(a->settings, "adaptive", v);
-        } else if (allow_settings &&
-                   (strcmp(o, "--target-error") == 0 || strcmp(o, "--confidence") == 0 ||
-                    strcmp(o, "--target-share") == 0)) {
-            char *end;
-            errno = 0;
-            double t = v ? strtod(v, &end) : -1;
-            int conf = strcmp(o, "--confidence") == 0;
-            if (!v || errno || *end || !(t > 0) || !isfinite(t) || (conf && !(t < 1)) ||
-                (strcmp(o, "--target-share") == 0 && t > 1))
-                return usage_error(conf ? "--confidence needs a probability in (0, 1) (got '%s')"
-                                        : "%s needs a positive number (a share: at most 1)",
-                                   conf ? (v ? v : "") : o);
-            cJSON_AddNumberToObject(a->settings,
-                                    conf          ? "confidence"
-                                    : o[9] == 'e' ? "target_error"
-                                                  : "target_share",
-                                    t);
-        } else if (allow_settings && strcmp(o, "--random-selection") == 0) {
-            cJSON_AddTrueToObject(a->settings, "random_selection");
-            takes = 0;
-        } else if (allow_settings && strcmp(o, "--dilate") == 0) {
-            cJSON_AddTrueToObject(a->settings, "dilate");
-            takes = 0;
-        } else if (allow_settings && strcmp(o, "--reference") == 0) {
-            if (!v || v[0] == '-')
-                return usage_error("%s", "--reference needs an EXR file");
-            a->reference = v;
-        } else if (allow_settings && strcmp(o, "--integrator") == 0) {
-            if (!v || scene_integrator_from_name(v) < 0)
-                return usage_error("--integrator must be path or naive (got '%s')", v ? v : "");
-            cJSON_AddStringToObject(a->settings, "integrator", v);
-        } else if (o[0] == '-' && o[1] != '\0') {
-            return usage_error("unknown option '%s'", o);
-        } else {
-            takes = 0;
+        char err[256];
+        int takes =
+            (allow & ALLOW_SETTINGS) ? settings_parse_flag(o, v, a->settings, err, sizeof err) : -1;
+        if (takes == -2)
+            return usage_error("%s", err);
+        if (takes == -1)
+            takes = parse_option(o, v, a, allow);
+        if (takes == -2)
+            return 2;
+        if (takes == -1) {
+            if (o[0] == '-' && o[1] != '\0')
+                return usage_error("unknown option '%s'", o);
             if (a->positional)
                 return usage_error("unexpected argument '%s'", o);
             a->positional = o;
+            takes = 0;
         }
         i += takes;
     }
@@ -663,7 +617,7 @@ static int cmd_render(int argc, char **argv)
         fprintf(stderr, "vbrender: %s\n", err);
         goto done;
     }
-    c = control_new(ctx, cep, 600000, err, sizeof err);
+    c = control_new(ctx, cep, CLIENT_EMBEDDED_TIMEOUT_MS, err, sizeof err);
     /* in-process: a lost reply is a bug, not a restart; no retries */
     unsigned long long id =
         c ? control_submit(c, a.positional, a.settings, ref, NULL, err, sizeof err) : 0;
@@ -746,179 +700,242 @@ static int load_client_keys(const args_t *a, keys_pair_t *mine, char master[KEYS
     return 1;
 }
 
-static int simple_command(const char *cmd, int argc, char **argv)
+/* ---- the commands' work, once connected: each prints its own messages and
+ * returns the exit status ------------------------------------------------------------- */
+
+static int run_submit(control_t *c, const char *cmd, const args_t *a, unsigned long long job)
 {
-    args_t a;
-    memset(&a, 0, sizeof a);
-    int is_fetch = strcmp(cmd, "fetch") == 0;
-    int is_submit = strcmp(cmd, "submit") == 0;
-    int is_wait = strcmp(cmd, "wait") == 0;
-    int is_delete = strcmp(cmd, "delete") == 0;
-    int is_readmit = strcmp(cmd, "readmit") == 0;
-    int rc = parse_args(argc, argv, &a, is_submit, is_fetch, is_submit || is_wait);
-    if (rc) {
-        cJSON_Delete(a.settings);
-        return rc;
-    }
-    unsigned long long job = 0;
-    int needs_job = is_wait || is_fetch || is_delete || strcmp(cmd, "cancel") == 0;
-    if (is_submit && !a.positional)
-        rc = usage_error("%s", "submit needs a scene file: vbrender submit SCENE.json");
-    else if ((needs_job || (strcmp(cmd, "status") == 0 && a.positional)) &&
-             (!a.positional || parse_job_id(a.positional, &job) < 0))
-        rc = usage_error("%s needs a job id (a positive integer)", cmd);
-    else if (is_readmit && !a.positional)
-        rc =
-            usage_error("%s", "readmit needs a worker: its key (Z85), or its address without keys");
-    else if (!needs_job && !is_submit && !is_readmit && strcmp(cmd, "status") != 0 && a.positional)
-        rc = usage_error("unexpected argument '%s'", a.positional);
-    else if (is_fetch && !a.output)
-        rc = usage_error("%s", "fetch needs -o OUT.exr");
-    if (rc) {
-        cJSON_Delete(a.settings);
-        return rc;
-    }
-    if (is_fetch && check_writable(a.output) < 0) {
-        cJSON_Delete(a.settings);
+    (void)cmd, (void)job;
+    char err[2048];
+    image_t *ref = NULL;
+    if (a->reference && image_read_exr(a->reference, &ref, err, sizeof err) < 0) {
+        fprintf(stderr, "vbrender: %s\n", err);
         return 1;
     }
-    keys_pair_t mine;
-    char master_key[KEYS_Z85_LEN + 1];
-    int have_keys = load_client_keys(&a, &mine, master_key, &rc);
-    if (have_keys < 0) {
-        cJSON_Delete(a.settings);
-        return rc;
+    control_retry_t retry = {a->timeout_s, say_outage, NULL, 0};
+    unsigned long long id =
+        control_submit(c, a->positional, a->settings, ref, &retry, err, sizeof err);
+    image_destroy(&ref);
+    if (!id) {
+        if (retry.unreachable) /* some try may have reached it */
+            fprintf(stderr, "vbrender: %s; the job may have been queued (see 'vbrender jobs')\n",
+                    err);
+        else
+            fprintf(stderr, "vbrender: %s\n", err);
+        return 1;
     }
+    printf("%llu\n", id);
+    return 0;
+}
+
+static int run_wait(control_t *c, const char *cmd, const args_t *a, unsigned long long job)
+{
+    (void)cmd;
+    char err[2048];
+    cJSON *st = wait_job(c, job, a->progress, a->timeout_s, err, sizeof err);
+    if (!st) {
+        fprintf(stderr, "vbrender: %s\n", err);
+        return 1;
+    }
+    print_summary(st, 0, 0);
+    int rc = strcmp(jstr(st, "state"), "done") == 0 ? 0 : 1;
+    if (rc)
+        fprintf(stderr, "vbrender: job %llu %s: %s\n", job, jstr(st, "state"),
+                *jstr(st, "error") ? jstr(st, "error") : "no reason given");
+    cJSON_Delete(st);
+    return rc;
+}
+
+static int run_fetch(control_t *c, const char *cmd, const args_t *a, unsigned long long job)
+{
+    (void)cmd;
+    char err[2048];
+    cJSON *st = NULL;
+    image_t *img = control_fetch(c, job, &st, err, sizeof err);
+    int rc = 0;
+    if (!img || write_outputs(img, st, a->output, err, sizeof err) < 0) {
+        fprintf(stderr, "vbrender: %s\n", err);
+        rc = 1;
+    }
+    image_destroy(&img);
+    cJSON_Delete(st);
+    return rc;
+}
+
+static void print_workers(const cJSON *list)
+{
+    printf("%-24s %7s %12s %12s %10s\n", "host", "threads", "rays/s", "tasks done", "busy s");
+    const cJSON *w;
+    cJSON_ArrayForEach(w, list)
+    {
+        char r[32];
+        printf("%-24s %7.0f %12s %12.0f %10.1f\n", jstr(w, "host"), jnum(w, "threads"),
+               render_si(jnum(w, "rays_per_second"), r, sizeof r), jnum(w, "tasks_done"),
+               jnum(w, "busy_seconds"));
+    }
+}
+
+static void print_jobs(const cJSON *list)
+{
+    printf("%6s %-10s %-24s %9s %8s %12s %9s\n", "job", "state", "scene", "size", "layers",
+           "samples", "seconds");
+    const cJSON *j;
+    cJSON_ArrayForEach(j, list)
+    {
+        char size[32], layers[32], s[32];
+        snprintf(size, sizeof size, "%.0fx%.0f", jnum(j, "width"), jnum(j, "height"));
+        snprintf(layers, sizeof layers, "%.0f/%.0f", jnum(j, "layers_done"), jnum(j, "layers"));
+        printf("%6.0f %-10s %-24s %9s %8s %12s %9.2f\n", jnum(j, "id"), jstr(j, "state"),
+               jstr(j, "scene"), size, layers, render_si(jnum(j, "samples"), s, sizeof s),
+               jnum(j, "seconds"));
+        /* a durable master's notes on the job's state files, under its row */
+        if (*jstr(j, "storage_error"))
+            printf("%6s storage error: %s\n", "", jstr(j, "storage_error"));
+        if (*jstr(j, "recovered"))
+            printf("%6s recovered from %s\n", "", jstr(j, "recovered"));
+    }
+}
+
+/* One job: its status as JSON on stdout, for people and scripts, and its
+ * notes in words on stderr, so stdout stays JSON. */
+static void print_job(const cJSON *st, unsigned long long job)
+{
+    char *text = cJSON_Print(st);
+    printf("%s\n", text ? text : "{}");
+    cJSON_free(text);
+    if (*jstr(st, "storage_error"))
+        fprintf(stderr, "vbrender: job %llu: storage error: %s\n", job, jstr(st, "storage_error"));
+    if (*jstr(st, "recovered"))
+        fprintf(stderr, "vbrender: job %llu: recovered from %s\n", job, jstr(st, "recovered"));
+}
+
+/* status, jobs, workers, cancel, delete, readmit: one request, one reply. */
+static int run_request(control_t *c, const char *cmd, const args_t *a, unsigned long long job)
+{
+    char err[2048];
+    cJSON *req = cJSON_CreateObject();
+    cJSON_AddStringToObject(req, "cmd", strcmp(cmd, "status") == 0 && !job ? "jobs" : cmd);
+    if (job)
+        cJSON_AddNumberToObject(req, "job", (double)job);
+    if (strcmp(cmd, "readmit") == 0)
+        cJSON_AddStringToObject(req, "worker", a->positional);
+    cJSON *reply = control_request(c, req, NULL, NULL, 0, err, sizeof err);
+    cJSON_Delete(req);
+    if (!reply || !cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(reply, "ok"))) {
+        fprintf(stderr, "vbrender: %s\n", reply ? jstr(reply, "error") : err);
+        cJSON_Delete(reply);
+        return 1;
+    }
+    const cJSON *list =
+        cJSON_GetObjectItemCaseSensitive(reply, strcmp(cmd, "workers") == 0 ? "workers" : "jobs");
+    const cJSON *deleted = cJSON_GetObjectItemCaseSensitive(reply, "deleted");
+    if (strcmp(cmd, "readmit") == 0)
+        printf("readmitted %s\n", a->positional);
+    else if (strcmp(cmd, "delete") == 0)
+        printf("deleted job %llu\n",
+               cJSON_IsNumber(deleted) ? (unsigned long long)deleted->valuedouble : job);
+    else if (strcmp(cmd, "workers") == 0)
+        print_workers(list);
+    else if (list)
+        print_jobs(list);
+    else
+        print_job(cJSON_GetObjectItemCaseSensitive(reply, "job"), job);
+    cJSON_Delete(reply);
+    return 0;
+}
+
+/* ---- the command table ------------------------------------------------------------ */
+
+enum {
+    TAKES_SCENE = 1,   /* a scene file (required) */
+    TAKES_JOB = 2,     /* a job id (required) */
+    TAKES_OPT_JOB = 4, /* a job id or nothing */
+    TAKES_WORKER = 8   /* a worker's key or address (required) */
+};
+
+typedef struct command {
+    const char *name;
+    unsigned takes;      /* TAKES_*: its positional argument */
+    unsigned allow;      /* ALLOW_*: its options */
+    const char *missing; /* TAKES_SCENE, TAKES_WORKER: the message when it is missing */
+    int (*run)(control_t *c, const char *cmd, const args_t *a, unsigned long long job);
+} command_t;
+
+static const command_t commands[] = {
+    {"submit", TAKES_SCENE, ALLOW_SETTINGS | ALLOW_TIMEOUT,
+     "submit needs a scene file: vbrender submit SCENE.json", run_submit},
+    {"status", TAKES_OPT_JOB, 0, NULL, run_request},
+    {"wait", TAKES_JOB, ALLOW_TIMEOUT, NULL, run_wait},
+    {"fetch", TAKES_JOB, ALLOW_OUTPUT, NULL, run_fetch},
+    {"cancel", TAKES_JOB, 0, NULL, run_request},
+    {"delete", TAKES_JOB, 0, NULL, run_request},
+    {"jobs", 0, 0, NULL, run_request},
+    {"workers", 0, 0, NULL, run_request},
+    {"readmit", TAKES_WORKER, 0,
+     "readmit needs a worker: its key (Z85), or its address without keys", run_request},
+};
+
+/* The positional argument and -o against what the command takes: 0, or
+ * the exit status after a usage message. */
+static int check_command_args(const command_t *d, const args_t *a, unsigned long long *job)
+{
+    const char *p = a->positional;
+    if ((d->takes & (TAKES_SCENE | TAKES_WORKER)) && !p)
+        return usage_error("%s", d->missing);
+    if (((d->takes & TAKES_JOB) || ((d->takes & TAKES_OPT_JOB) && p)) &&
+        (!p || parse_job_id(p, job) < 0))
+        return usage_error("%s needs a job id (a positive integer)", d->name);
+    if (!d->takes && p)
+        return usage_error("unexpected argument '%s'", p);
+    if ((d->allow & ALLOW_OUTPUT) && !a->output)
+        return usage_error("%s needs -o OUT.exr", d->name);
+    return 0;
+}
+
+/* Connects to the master (with the keys, if any) and runs the command. */
+static int connect_and_run(const command_t *d, const args_t *a, unsigned long long job)
+{
+    keys_pair_t mine;
+    char master_key[KEYS_Z85_LEN + 1], err[2048];
+    int rc = 1;
+    int have_keys = load_client_keys(a, &mine, master_key, &rc);
+    if (have_keys < 0)
+        return rc;
     control_keys_t keys = {mine.public_z85, mine.secret_z85, master_key};
     void *ctx = zmq_ctx_new();
-    char err[2048];
-    control_t *c = control_new_with_keys(ctx, a.master, REQUEST_TIMEOUT_MS,
+    control_t *c = control_new_with_keys(ctx, a->master, CLIENT_REQUEST_TIMEOUT_MS,
                                          have_keys ? &keys : NULL, err, sizeof err);
     if (have_keys)
         explicit_bzero(&mine, sizeof mine); /* control keeps its own copy */
-    rc = 1;
-    if (!c) {
+    if (!c)
         fprintf(stderr, "vbrender: %s\n", err);
-        goto done;
-    }
-    if (is_submit) {
-        image_t *ref = NULL;
-        if (a.reference && image_read_exr(a.reference, &ref, err, sizeof err) < 0) {
-            fprintf(stderr, "vbrender: %s\n", err);
-            goto done;
-        }
-        control_retry_t retry = {a.timeout_s, say_outage, NULL, 0};
-        unsigned long long id =
-            control_submit(c, a.positional, a.settings, ref, &retry, err, sizeof err);
-        image_destroy(&ref);
-        if (!id) {
-            if (retry.unreachable) /* some try may have reached it */
-                fprintf(stderr,
-                        "vbrender: %s; the job may have been queued (see 'vbrender jobs')\n", err);
-            else
-                fprintf(stderr, "vbrender: %s\n", err);
-            goto done;
-        }
-        printf("%llu\n", id);
-        rc = 0;
-    } else if (is_wait) {
-        cJSON *st = wait_job(c, job, a.progress, a.timeout_s, err, sizeof err);
-        if (!st) {
-            fprintf(stderr, "vbrender: %s\n", err);
-            goto done;
-        }
-        print_summary(st, 0, 0);
-        rc = strcmp(jstr(st, "state"), "done") == 0 ? 0 : 1;
-        if (rc)
-            fprintf(stderr, "vbrender: job %llu %s: %s\n", job, jstr(st, "state"),
-                    *jstr(st, "error") ? jstr(st, "error") : "no reason given");
-        cJSON_Delete(st);
-    } else if (is_fetch) {
-        cJSON *st = NULL;
-        image_t *img = control_fetch(c, job, &st, err, sizeof err);
-        if (!img || write_outputs(img, st, a.output, err, sizeof err) < 0)
-            fprintf(stderr, "vbrender: %s\n", err);
-        else
-            rc = 0;
-        image_destroy(&img);
-        cJSON_Delete(st);
-    } else {
-        cJSON *req = cJSON_CreateObject();
-        cJSON_AddStringToObject(req, "cmd", strcmp(cmd, "status") == 0 && !job ? "jobs" : cmd);
-        if (job)
-            cJSON_AddNumberToObject(req, "job", (double)job);
-        if (is_readmit)
-            cJSON_AddStringToObject(req, "worker", a.positional);
-        cJSON *reply = control_request(c, req, NULL, NULL, 0, err, sizeof err);
-        cJSON_Delete(req);
-        if (!reply) {
-            fprintf(stderr, "vbrender: %s\n", err);
-            goto done;
-        }
-        if (!cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(reply, "ok"))) {
-            fprintf(stderr, "vbrender: %s\n", jstr(reply, "error"));
-            cJSON_Delete(reply);
-            goto done;
-        }
-        const cJSON *list = cJSON_GetObjectItemCaseSensitive(
-            reply, strcmp(cmd, "workers") == 0 ? "workers" : "jobs");
-        if (is_readmit) {
-            printf("readmitted %s\n", a.positional);
-        } else if (is_delete) {
-            const cJSON *d = cJSON_GetObjectItemCaseSensitive(reply, "deleted");
-            printf("deleted job %llu\n",
-                   cJSON_IsNumber(d) ? (unsigned long long)d->valuedouble : job);
-        } else if (strcmp(cmd, "workers") == 0) {
-            printf("%-24s %7s %12s %12s %10s\n", "host", "threads", "rays/s", "tasks done",
-                   "busy s");
-            const cJSON *w;
-            cJSON_ArrayForEach(w, list)
-            {
-                char r[32];
-                printf("%-24s %7.0f %12s %12.0f %10.1f\n", jstr(w, "host"), jnum(w, "threads"),
-                       render_si(jnum(w, "rays_per_second"), r, sizeof r), jnum(w, "tasks_done"),
-                       jnum(w, "busy_seconds"));
-            }
-        } else if (list) {
-            printf("%6s %-10s %-24s %9s %8s %12s %9s\n", "job", "state", "scene", "size", "layers",
-                   "samples", "seconds");
-            const cJSON *j;
-            cJSON_ArrayForEach(j, list)
-            {
-                char size[32], layers[32], s[32];
-                snprintf(size, sizeof size, "%.0fx%.0f", jnum(j, "width"), jnum(j, "height"));
-                snprintf(layers, sizeof layers, "%.0f/%.0f", jnum(j, "layers_done"),
-                         jnum(j, "layers"));
-                printf("%6.0f %-10s %-24s %9s %8s %12s %9.2f\n", jnum(j, "id"), jstr(j, "state"),
-                       jstr(j, "scene"), size, layers, render_si(jnum(j, "samples"), s, sizeof s),
-                       jnum(j, "seconds"));
-                /* a durable master's notes on the job's state files, under its row */
-                if (*jstr(j, "storage_error"))
-                    printf("%6s storage error: %s\n", "", jstr(j, "storage_error"));
-                if (*jstr(j, "recovered"))
-                    printf("%6s recovered from %s\n", "", jstr(j, "recovered"));
-            }
-        } else {
-            /* one job: its status as JSON, for people and scripts */
-            const cJSON *st = cJSON_GetObjectItemCaseSensitive(reply, "job");
-            char *text = cJSON_Print(st);
-            printf("%s\n", text ? text : "{}");
-            cJSON_free(text);
-            /* and in words on stderr, so stdout stays JSON */
-            if (*jstr(st, "storage_error"))
-                fprintf(stderr, "vbrender: job %llu: storage error: %s\n", job,
-                        jstr(st, "storage_error"));
-            if (*jstr(st, "recovered"))
-                fprintf(stderr, "vbrender: job %llu: recovered from %s\n", job,
-                        jstr(st, "recovered"));
-        }
-        cJSON_Delete(reply);
-        rc = 0;
-    }
-done:
+    else
+        rc = d->run(c, d->name, a, job);
     control_destroy(&c);
-    cJSON_Delete(a.settings);
     zmq_ctx_term(ctx);
+    return rc;
+}
+
+static int simple_command(const char *cmd, int argc, char **argv)
+{
+    const command_t *d = NULL;
+    for (size_t i = 0; !d && i < sizeof commands / sizeof commands[0]; i++)
+        if (strcmp(cmd, commands[i].name) == 0)
+            d = &commands[i];
+    if (!d)
+        return usage_error("unknown command '%s'", cmd);
+    args_t a;
+    memset(&a, 0, sizeof a);
+    unsigned long long job = 0;
+    int rc = parse_args(argc, argv, &a, (d->allow & ALLOW_SETTINGS) != 0,
+                        (d->allow & ALLOW_OUTPUT) != 0, (d->allow & ALLOW_TIMEOUT) != 0);
+    if (!rc)
+        rc = check_command_args(d, &a, &job);
+    if (!rc && (d->allow & ALLOW_OUTPUT) && check_writable(a.output) < 0)
+        rc = 1;
+    if (!rc)
+        rc = connect_and_run(d, &a, job);
+    cJSON_Delete(a.settings);
     return rc;
 }
 
@@ -1011,17 +1028,17 @@ int main(int argc, char **argv)
 {
     signal(SIGPIPE, SIG_IGN);
     if (argc < 2) {
-        fputs(usage_text, stderr);
+        print_usage(stderr);
         return 2;
     }
     if (strcmp(argv[1], "-h") == 0 || strcmp(argv[1], "--help") == 0 ||
         strcmp(argv[1], "help") == 0) {
-        fputs(usage_text, stdout);
+        print_usage(stdout);
         return 0;
     }
     for (int i = 2; i < argc; i++)
         if (strcmp(argv[i], "-h") == 0 || strcmp(argv[i], "--help") == 0) {
-            fputs(usage_text, stdout);
+            print_usage(stdout);
             return 0;
         }
     if (strcmp(argv[1], "render") == 0)
@@ -1030,10 +1047,8 @@ int main(int argc, char **argv)
         return cmd_compare(argc - 2, argv + 2);
     if (strcmp(argv[1], "keygen") == 0)
         return cmd_keygen(argc - 2, argv + 2);
-    static const char *const commands[] = {"submit", "status", "wait",    "fetch",  "cancel",
-                                           "delete", "jobs",   "workers", "readmit"};
     for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
-        if (strcmp(argv[1], commands[i]) == 0)
+        if (strcmp(argv[1], commands[i].name) == 0)
             return simple_command(argv[1], argc - 2, argv + 2);
     fprintf(stderr, "vbrender: unknown command '%s' (run 'vbrender --help')\n", argv[1]);
     return 2;

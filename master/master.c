@@ -212,7 +212,7 @@ static void apply_defaults(master_config_t *c)
     if (!c->lease_ms)
         c->lease_ms = MASTER_DEFAULT_LEASE_MS;
     if (!c->worker_timeout_ms)
-        c->worker_timeout_ms = MASTER_TIMEOUT_HEARTBEATS * c->heartbeat_ms;
+        c->worker_timeout_ms = MASTER_DEFAULT_WORKER_TIMEOUT_HEARTBEATS * c->heartbeat_ms;
     if (!(c->checkpoint_s > 0))
         c->checkpoint_s = MASTER_DEFAULT_CHECKPOINT_S;
     if (!c->keep_finished)

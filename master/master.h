@@ -14,29 +14,18 @@
 #include <stdint.h>
 #include <stdio.h>
 
-typedef struct master master_t;
+#include "defaults.h" /* MASTER_DEFAULT_*: what a zeroed config field means */
 
-#define MASTER_DEFAULT_WORKERS "tcp://*:7070"
-#define MASTER_DEFAULT_CONTROL "tcp://*:7071"
-#define MASTER_DEFAULT_STATE "vbrender-state"
-#define MASTER_DEFAULT_CHECKPOINT_S 10.0
-#define MASTER_DEFAULT_KEEP_FINISHED 1000
-#define MASTER_DEFAULT_HEARTBEAT_MS 1000
-#define MASTER_DEFAULT_LEASE_MS 60000
-#define MASTER_DEFAULT_MAX_BUNDLE_MIB 1024
-#define MASTER_DEFAULT_MAX_QUEUED_PER_CLIENT 100
-#define MASTER_DEFAULT_MAX_PIXELS (8192u * 8192u)
-#define MASTER_DEFAULT_MAX_SPP (1u << 20)
-#define MASTER_DEFAULT_MAX_REQUESTS_PER_S 100
-#define MASTER_DEFAULT_VERIFY_SHARE 0.01 /* the daemon's; 0 in a zeroed config */
+typedef struct master master_t;
 
 typedef struct master_config {
     void *zmq_ctx;                /* the ZeroMQ context to use (not owned) */
     const char *worker_endpoint;  /* e.g. tcp port 7070 on every interface, or inproc */
     const char *control_endpoint; /* e.g. tcp port 7071, or inproc */
-    uint32_t heartbeat_ms;        /* 0: 1000 */
-    uint32_t lease_ms;            /* 0: 60000; a task unanswered this long is issued again */
-    uint32_t worker_timeout_ms;   /* 0: 5 heartbeats; a silent worker is dropped */
+    uint32_t heartbeat_ms;        /* 0: MASTER_DEFAULT_HEARTBEAT_MS */
+    uint32_t lease_ms;            /* 0: MASTER_DEFAULT_LEASE_MS; a task unanswered
+                                     this long is issued again */
+    uint32_t worker_timeout_ms;   /* 0: MASTER_DEFAULT_WORKER_TIMEOUT_HEARTBEATS beats */
     int allow_shutdown;           /* accept the "shutdown" control command */
     const char *state_dir;        /* durable state (store.h); NULL: in memory only */
     double checkpoint_s;          /* 0: MASTER_DEFAULT_CHECKPOINT_S */

@@ -67,8 +67,6 @@
  * entry in the job's verify state (worker slots stay below it). */
 #define MASTER_VERIFY_HOLDER 0x80000000u
 #define MASTER_MAX_WHO 64 /* peer_identity: a key or an address, with its NUL */
-/* A worker silent this many heartbeats is lost (the default timeout). */
-#define MASTER_TIMEOUT_HEARTBEATS 5
 /* Attempt numbers of boot b start at (b & MASK) << SHIFT: a million
  * attempts a boot before one could equal a late result's of the boot before. */
 #define MASTER_ATTEMPT_BOOT_MASK 0xfffu

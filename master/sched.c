@@ -13,6 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "defaults.h"
 #include "rng.h"
 #include "stats.h"
 #include "vmath.h"
@@ -26,7 +27,6 @@ enum { ST_WAITING = 0, ST_READY, ST_OUT, ST_DONE };
 #define SCHED_MAX_CELLS ((size_t)1 << 26)        /* layers x ranges */
 #define SCHED_REQUEUE_CAP0 64                    /* requeued ids before the stack grows */
 #define SCHED_RELERR_CONFIDENCE 0.95             /* relerr's half-width (sched.h) */
-#define SCHED_DEFAULT_CONFIDENCE 0.95            /* the target's when its config says 0 */
 
 struct sched {
     sched_config_t cfg;
@@ -238,9 +238,9 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
         return NULL;
     }
     if (s->cfg.confidence <= 0)
-        s->cfg.confidence = SCHED_DEFAULT_CONFIDENCE;
+        s->cfg.confidence = JOB_DEFAULT_CONFIDENCE;
     if (s->cfg.target_share <= 0)
-        s->cfg.target_share = 1.0;
+        s->cfg.target_share = JOB_DEFAULT_TARGET_SHARE;
     if (alloc_tables(s, cells, member_bytes) < 0) {
         snprintf(err, errlen, "out of memory");
         sched_destroy(&s);

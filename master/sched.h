@@ -82,7 +82,7 @@ typedef struct sched_config {
      * of its layers' means at `confidence` is <= target_error (mean + eps);
      * the job stops when target_share of the pixels have. 0: off. */
     double target_error;
-    double confidence;   /* 0: 0.95 */
+    double confidence;   /* 0: JOB_DEFAULT_CONFIDENCE (0.95) */
     double target_share; /* 0: 1.0 */
 } sched_config_t;
 

@@ -3,12 +3,12 @@
  * hash. A bad submission fails here, at the client, and never reaches a
  * worker. A stored submission (persist.c) goes through the same steps, so a
  * recovered job is exactly the job that was submitted. */
-#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "master_priv.h"
 #include "scene.h"
+#include "settings.h"
 
 int submit_name_ok(const char *name)
 {
@@ -175,110 +175,44 @@ static int submit_scene(job_t *j, const submit_frame_t *json, const scene_blob_t
     return 0;
 }
 
-/* An optional integer field in [lo, hi]: 0 (absent or set), -1 with a message. */
-static int int_field(const cJSON *req, const char *key, double lo, double hi, double *out,
-                     char *err, size_t errlen)
-{
-    const cJSON *it = cJSON_GetObjectItemCaseSensitive(req, key);
-    if (!it)
-        return 0;
-    double v = cJSON_IsNumber(it) ? it->valuedouble : NAN;
-    if (!(v >= lo && v <= hi) || v != floor(v)) {
-        snprintf(err, errlen, "%s must be an integer from %.0f to %.0f", key, lo, hi);
-        return -1;
-    }
-    *out = v;
-    return 0;
-}
-
-/* An optional number in [lo, hi], or (lo, hi] when lo_open. */
-static int range_field(const cJSON *req, const char *key, double lo, double hi, int lo_open,
-                       double *out, char *err, size_t errlen)
-{
-    const cJSON *it = cJSON_GetObjectItemCaseSensitive(req, key);
-    if (!it)
-        return 0;
-    double v = cJSON_IsNumber(it) ? it->valuedouble : NAN;
-    if (!(v >= lo && v <= hi) || (lo_open && v == lo)) {
-        snprintf(err, errlen, "%s must be in %s%g, %g]", key, lo_open ? "(" : "[", lo, hi);
-        return -1;
-    }
-    *out = v;
-    return 0;
-}
-
-/* The job's settings over the scene's defaults, and the scheduler. */
+/* The job's settings over the scene's defaults (checked against the
+ * settings table, settings.h), and the scheduler. */
 static int submit_settings(job_t *j, const cJSON *req, char *err, size_t errlen)
 {
-    double spp = j->spp, g = 32, seed = (double)j->tracer.seed, depth = j->tracer.max_depth;
-    double uniform = UINT32_MAX, target = 0, confidence = 0.95, share = 1.0;
-    if (int_field(req, "spp", 1, 4294967295.0, &spp, err, errlen) < 0 ||
-        int_field(req, "granularity", 1, TRACER_MAX_TASK_SAMPLES, &g, err, errlen) < 0 ||
-        int_field(req, "seed", 0, 9007199254740992.0, &seed, err, errlen) < 0 ||
-        int_field(req, "max_depth", 0, 1000000, &depth, err, errlen) < 0 ||
-        int_field(req, "uniform_layers", 0, 4294967294.0, &uniform, err, errlen) < 0 ||
-        range_field(req, "target_error", 0, 1e6, 1, &target, err, errlen) < 0 ||
-        range_field(req, "confidence", 0, 0.999999, 1, &confidence, err, errlen) < 0 ||
-        range_field(req, "target_share", 0, 1, 1, &share, err, errlen) < 0)
+    if (settings_check_request(req, err, errlen) < 0)
         return -1;
-    /* seed: a JSON number holds integers exactly up to 2^53 only */
-    j->spp = (uint32_t)spp;
-    j->granularity = (uint32_t)g;
-    j->tracer.seed = (uint64_t)seed;
-    j->tracer.max_depth = (uint32_t)depth;
-    j->target_error = target;
-    j->adaptive = SCHED_ADAPTIVE_THESIS;
-    const cJSON *it;
-    if ((it = cJSON_GetObjectItemCaseSensitive(req, "time_limit")) != NULL) {
-        if (!cJSON_IsNumber(it) || !(it->valuedouble >= 0) || !isfinite(it->valuedouble)) {
-            snprintf(err, errlen, "time_limit must be a number of seconds >= 0");
-            return -1;
-        }
-        j->time_limit = it->valuedouble;
+    /* seed: a JSON number holds integers exactly up to 2^53 only (the table's limit) */
+    j->spp = (uint32_t)settings_number(req, "spp", j->spp);
+    j->granularity = (uint32_t)settings_number(req, "granularity", JOB_DEFAULT_GRANULARITY);
+    j->tracer.seed = (uint64_t)settings_number(req, "seed", (double)j->tracer.seed);
+    j->tracer.max_depth = (uint32_t)settings_number(req, "max_depth", j->tracer.max_depth);
+    j->target_error = settings_number(req, "target_error", JOB_DEFAULT_TARGET_ERROR);
+    j->time_limit = settings_number(req, "time_limit", JOB_DEFAULT_TIME_LIMIT);
+    /* the names are the table's choices, which these know (test_settings) */
+    j->adaptive = (sched_adaptive_t)sched_adaptive_from_name(
+        settings_string(req, "adaptive", JOB_DEFAULT_ADAPTIVE));
+    j->tracer.integrator = (scene_integrator_t)scene_integrator_from_name(
+        settings_string(req, "integrator", scene_integrator_name(j->tracer.integrator)));
+    const char *flags = settings_string(req, "flags", NULL);
+    if (flags && !(j->flags = strdup(flags))) {
+        snprintf(err, errlen, "out of memory");
+        return -1;
     }
-    if ((it = cJSON_GetObjectItemCaseSensitive(req, "adaptive")) != NULL) {
-        int a = cJSON_IsString(it) ? sched_adaptive_from_name(it->valuestring) : -1;
-        if (a < 0) {
-            snprintf(err, errlen,
-                     "adaptive must be \"thesis\", \"variance\", \"relerr\" or \"none\"");
-            return -1;
-        }
-        j->adaptive = (sched_adaptive_t)a;
-    }
-    if ((it = cJSON_GetObjectItemCaseSensitive(req, "integrator")) != NULL) {
-        int in = cJSON_IsString(it) ? scene_integrator_from_name(it->valuestring) : -1;
-        if (in < 0) {
-            snprintf(err, errlen, "integrator must be \"path\" or \"naive\"");
-            return -1;
-        }
-        j->tracer.integrator = (scene_integrator_t)in;
-    }
-    if ((it = cJSON_GetObjectItemCaseSensitive(req, "flags")) != NULL) {
-        if (!cJSON_IsString(it)) {
-            snprintf(err, errlen, "flags must be a string of 0 and 1, one per layer");
-            return -1;
-        }
-        j->flags = strdup(it->valuestring);
-        if (!j->flags) {
-            snprintf(err, errlen, "out of memory");
-            return -1;
-        }
-    }
-    const cJSON *rs = cJSON_GetObjectItemCaseSensitive(req, "random_selection");
-    const cJSON *dl = cJSON_GetObjectItemCaseSensitive(req, "dilate");
-    j->sched_cfg = (sched_config_t){.width = j->width,
-                                    .height = j->height,
-                                    .spp = j->spp,
-                                    .granularity = j->granularity,
-                                    .adaptive = j->adaptive,
-                                    .uniform_layers = (uint32_t)uniform,
-                                    .flags = j->flags,
-                                    .random_selection = cJSON_IsTrue(rs),
-                                    .dilate = cJSON_IsTrue(dl),
-                                    .seed = j->tracer.seed,
-                                    .target_error = j->target_error,
-                                    .confidence = confidence,
-                                    .target_share = share};
+    j->sched_cfg = (sched_config_t){
+        .width = j->width,
+        .height = j->height,
+        .spp = j->spp,
+        .granularity = j->granularity,
+        .adaptive = j->adaptive,
+        /* absent: UINT32_MAX, the scheduler's "half" */
+        .uniform_layers = (uint32_t)settings_number(req, "uniform_layers", UINT32_MAX),
+        .flags = j->flags,
+        .random_selection = settings_switch(req, "random_selection"),
+        .dilate = settings_switch(req, "dilate"),
+        .seed = j->tracer.seed,
+        .target_error = j->target_error,
+        .confidence = settings_number(req, "confidence", JOB_DEFAULT_CONFIDENCE),
+        .target_share = settings_number(req, "target_share", JOB_DEFAULT_TARGET_SHARE)};
     char schederr[MASTER_ERR_LEN - 32];
     j->sched = sched_new(&j->sched_cfg, schederr, sizeof schederr);
     if (!j->sched) {

@@ -18,6 +18,7 @@
 #include <unistd.h>
 #include <zmq.h>
 
+#include "defaults.h"
 #include "keys.h"
 #include "worker.h"
 
@@ -46,7 +47,8 @@ static void *wait_for_signal(void *arg)
 }
 
 static const char usage[] =
-    "usage: vbrender-worker --master tcp://HOST:7070 [--threads N] [--name NAME]\n"
+    "usage: vbrender-worker --master tcp://HOST:" MASTER_DEFAULT_WORKER_PORT
+    " [--threads N] [--name NAME]\n"
     "                       [--key worker.key --master-key master.pub]\n"
     "  --master ENDPOINT   the master's worker endpoint\n"
     "  --threads N         render threads (default: all cores)\n"
