@@ -278,21 +278,17 @@ int peer_send_task(master_t *m, peer_t *w, job_t *j, const sched_task_t *t, prot
 /* Hands worker w (index i) a new task, sent once or, when chosen, as the
  * first copy of a verified task: 1 if one was taken from a scheduler, 0 if
  * none is ready, -1 when out of memory. */
-static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t **msg, double now)
+static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t *msg, double now)
 {
     sched_task_t t;
     job_t *j = next_task(m, &t, now);
     if (!j)
         return 0;
-    if (!*msg && !(*msg = malloc(sizeof **msg))) {
-        (void)sched_requeue(j->sched, t.id); /* just handed out: it takes it back */
-        return -1;
-    }
     if (verify_wanted(m, j, t.id))
-        return verify_start(m, j, &t, w, *msg, now);
+        return verify_start(m, j, &t, w, msg, now);
     size_t c = (size_t)(t.id - 1);
     uint32_t attempt;
-    int rc = peer_send_task(m, w, j, &t, *msg, &attempt);
+    int rc = peer_send_task(m, w, j, &t, msg, &attempt);
     if (rc == SEND_BAD_MESSAGE) {
         (void)sched_requeue(j->sched, t.id);
         job_finish(m, j, JOB_FAILED, "a task of this job cannot be encoded (see the master's log)");
@@ -326,7 +322,7 @@ static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t **msg, d
 void dispatch(master_t *m)
 {
     double now = master_now();
-    proto_msg_t *msg = NULL;
+    proto_msg_t msg; /* scratch for every task sent */
     uint32_t from = m->rr, first_miss = UINT32_MAX;
     for (;;) {
         uint32_t i = 0;
@@ -348,7 +344,6 @@ void dispatch(master_t *m)
             first_miss = i;
         }
     }
-    free(msg);
 }
 
 /* ---- worker messages ------------------------------------------------------------- */
