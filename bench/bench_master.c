@@ -63,6 +63,7 @@
 #include <unistd.h>
 #include <zmq.h>
 
+#include "frames.h"
 #include "keys.h"
 #include "master.h"
 #include "proto.h"
@@ -253,8 +254,9 @@ static void *synth_main(void *arg)
     tracer_result_t *res_rec = malloc(PROTO_MAX_TASK_PIXELS * sizeof *res_rec);
     uint8_t *payload = malloc(result_cap > task_cap ? result_cap : task_cap);
     proto_msg_t *in = malloc(sizeof *in), *out = malloc(sizeof *out);
+    proto_records_t *recs = calloc(1, sizeof *recs);
     void *sock = zmq_socket(s->ctx, ZMQ_DEALER);
-    if (!task_rec || !res_rec || !payload || !in || !out || !sock) {
+    if (!task_rec || !res_rec || !payload || !in || !out || !recs || !sock) {
         snprintf(s->error, sizeof s->error, "out of memory or no socket");
         s->failed = 1;
         goto done;
@@ -301,29 +303,21 @@ static void *synth_main(void *arg)
             continue;
         }
         for (;;) {
-            zmq_msg_t hf, pf;
-            zmq_msg_init(&hf);
-            if (zmq_msg_recv(&hf, sock, ZMQ_DONTWAIT) < 0) {
-                zmq_msg_close(&hf);
+            proto_frames_t fr;
+            proto_recv_result_t got = proto_recv(sock, &fr, 2, SIZE_MAX, ZMQ_DONTWAIT);
+            if (got == PROTO_RECV_NONE)
                 break;
-            }
-            zmq_msg_init(&pf);
-            int two = zmq_msg_more(&hf) && zmq_msg_recv(&pf, sock, 0) >= 0 && !zmq_msg_more(&pf);
-            if (!two) {
+            if (got != PROTO_RECV_OK || fr.count != 2) {
                 snprintf(s->error, sizeof s->error, "master sent a message that is not two frames");
                 s->failed = 1;
-                zmq_msg_close(&hf);
-                zmq_msg_close(&pf);
+                proto_frames_close(&fr);
                 break;
             }
-            s->bytes_in += zmq_msg_size(&hf) + zmq_msg_size(&pf);
-            memset(in, 0, sizeof *in);
-            in->capacity = PROTO_MAX_TASK_PIXELS;
-            in->u.task.records = task_rec;
-            int drc = proto_decode(zmq_msg_data(&hf), zmq_msg_size(&hf), zmq_msg_data(&pf),
-                                   zmq_msg_size(&pf), in, s->error, sizeof s->error);
-            zmq_msg_close(&hf);
-            zmq_msg_close(&pf);
+            s->bytes_in += fr.bytes;
+            recs->tasks = task_rec;
+            recs->task_capacity = PROTO_MAX_TASK_PIXELS;
+            int drc = proto_frames_decode(&fr, 0, in, recs, s->error, sizeof s->error);
+            proto_frames_close(&fr);
             if (drc < 0) {
                 s->failed = 1;
                 break;
@@ -378,7 +372,7 @@ static void *synth_main(void *arg)
     if (!s->failed) {
         memset(out, 0, sizeof *out);
         out->h.type = PROTO_BYE;
-        snprintf(out->u.text.text, sizeof out->u.text.text, "benchmark over");
+        out->u.text.text = "benchmark over";
         synth_send(s, sock, out, payload, result_cap);
     }
 done:
@@ -389,6 +383,7 @@ done:
     free(payload);
     free(in);
     free(out);
+    free(recs);
     return NULL;
 }
 

@@ -10,6 +10,7 @@
 #include <time.h>
 #include <zmq.h>
 
+#include "frames.h"
 #include "handshake.h"
 #include "proto.h"
 
@@ -17,10 +18,9 @@ struct control {
     void *ctx;
     void *sock;
     char endpoint[256];
-    int timeout_ms; /* the most a try waits to send and for the reply */
-    int lost;       /* the last request got no answer in time */
-    zmq_msg_t extra[16];
-    int nextra;
+    int timeout_ms;           /* the most a try waits to send and for the reply */
+    int lost;                 /* the last request got no answer in time */
+    proto_frames_t reply;     /* the last reply, [json][binary...], until drop_extra */
     int curve;                /* the socket is a CURVE client */
     char keys[3][64];         /* public, secret, master: Z85 */
     handshake_monitor_t *mon; /* sock's handshakes */
@@ -36,11 +36,18 @@ static double now_seconds(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
+/* The most binary parts a reply may carry: a fetched image's channels. */
+#define CONTROL_MAX_EXTRA 16
+
 static void drop_extra(control_t *c)
 {
-    for (int i = 0; i < c->nextra; i++)
-        zmq_msg_close(&c->extra[i]);
-    c->nextra = 0;
+    proto_frames_close(&c->reply);
+}
+
+/* The binary parts after the reply's JSON. */
+static int extra_count(const control_t *c)
+{
+    return c->reply.count > 1 ? c->reply.count - 1 : 0;
 }
 
 static void close_socket(control_t *c)
@@ -213,8 +220,8 @@ static cJSON *request_once(control_t *c, const cJSON *req, const void *const *fr
     if (!ready)
         errno = EAGAIN;
     cJSON_free(text);
-    for (int i = 0; rc >= 0 && i < nframes; i++)
-        rc = zmq_send(c->sock, frames[i], sizes[i], i + 1 < nframes ? ZMQ_SNDMORE : 0);
+    if (rc >= 0 && nframes > 0)
+        rc = proto_send(c->sock, frames, sizes, (size_t)nframes, 0);
     if (rc < 0) {
         int e = errno;
         if (e == EAGAIN) {
@@ -233,32 +240,18 @@ static cJSON *request_once(control_t *c, const cJSON *req, const void *const *fr
         close_socket(c);
         return NULL;
     }
-    zmq_msg_t reply;
-    zmq_msg_init(&reply);
-    if (!ready || zmq_msg_recv(&reply, c->sock, ZMQ_DONTWAIT) < 0) {
+    /* parts past the limit are dropped: fetch_image then finds the
+     * channels do not match and says the reply is malformed */
+    if (!ready || proto_recv(c->sock, &c->reply, 1 + CONTROL_MAX_EXTRA, SIZE_MAX, ZMQ_DONTWAIT) ==
+                      PROTO_RECV_NONE) {
         snprintf(err, errlen, "no answer from the master at %s within %.1f s (is it running?)",
                  c->endpoint, timeout_ms / 1000.0);
-        zmq_msg_close(&reply);
         c->lost = 1;
         reopen_socket(c);
         return NULL;
     }
-    int more = zmq_msg_more(&reply);
-    cJSON *body = cJSON_ParseWithLength(zmq_msg_data(&reply), zmq_msg_size(&reply));
-    zmq_msg_close(&reply);
-    while (more) {
-        zmq_msg_t f;
-        zmq_msg_init(&f);
-        if (zmq_msg_recv(&f, c->sock, 0) < 0) {
-            zmq_msg_close(&f);
-            break;
-        }
-        more = zmq_msg_more(&f);
-        if (c->nextra < (int)(sizeof c->extra / sizeof c->extra[0]))
-            c->extra[c->nextra++] = f;
-        else
-            zmq_msg_close(&f);
-    }
+    cJSON *body =
+        cJSON_ParseWithLength(zmq_msg_data(&c->reply.part[0]), zmq_msg_size(&c->reply.part[0]));
     if (!body)
         snprintf(err, errlen, "the master's reply is not JSON");
     return body;
@@ -565,7 +558,7 @@ image_t *control_fetch(control_t *c, unsigned long long job, cJSON **job_status,
     const cJSON *w = cJSON_GetObjectItemCaseSensitive(st, "width"),
                 *h = cJSON_GetObjectItemCaseSensitive(st, "height");
     int n = cJSON_GetArraySize(ch);
-    if (!cJSON_IsNumber(w) || !cJSON_IsNumber(h) || n != c->nextra) {
+    if (!cJSON_IsNumber(w) || !cJSON_IsNumber(h) || n != extra_count(c)) {
         snprintf(err, errlen, "the master's image reply is malformed");
         goto done;
     }
@@ -574,12 +567,12 @@ image_t *control_fetch(control_t *c, unsigned long long job, cJSON **job_status,
     for (int i = 0; img && i < n; i++) {
         const cJSON *name = cJSON_GetArrayItem(ch, i);
         float *dst = cJSON_IsString(name) ? image_add_channel(img, name->valuestring) : NULL;
-        if (!dst || zmq_msg_size(&c->extra[i]) != plane) {
+        if (!dst || zmq_msg_size(&c->reply.part[1 + i]) != plane) {
             snprintf(err, errlen, "the master's image reply is malformed (channel %d)", i);
             image_destroy(&img);
             break;
         }
-        memcpy(dst, zmq_msg_data(&c->extra[i]), plane);
+        memcpy(dst, zmq_msg_data(&c->reply.part[1 + i]), plane);
     }
     if (img)
         *job_status = cJSON_Duplicate(st, 1);

@@ -7,6 +7,7 @@
 #include <string.h>
 
 #include "film.h"
+#include "frames.h"
 #include "master_priv.h"
 
 /* A request being answered. */
@@ -482,29 +483,18 @@ static cJSON *answer(ctl_req_t *r, int overflow)
 
 void ctl_handle_message(master_t *m)
 {
-    zmq_msg_t frames[PROTO_MAX_MESHES + 4];
-    int n = 0, more = 1, overflow = 0;
-    while (more) {
-        zmq_msg_t f;
-        zmq_msg_init(&f);
-        if (zmq_msg_recv(&f, m->control_sock, ZMQ_DONTWAIT) < 0) {
-            zmq_msg_close(&f);
-            break;
-        }
-        more = zmq_msg_more(&f);
-        if (n < (int)(sizeof frames / sizeof frames[0]))
-            frames[n++] = f;
-        else {
-            zmq_msg_close(&f);
-            overflow = 1;
-        }
-    }
+    /* each part is bounded by the socket's ZMQ_MAXMSGSIZE and their number
+     * here; submit checks the bundle's total itself */
+    proto_frames_t fr;
+    int overflow = proto_recv(m->control_sock, &fr, PROTO_FRAMES_MAX, SIZE_MAX, ZMQ_DONTWAIT) ==
+                   PROTO_RECV_TOO_MANY;
+    zmq_msg_t *frames = fr.part;
+    int n = fr.count;
     /* [identity][empty][json][binary...] as a REQ socket sends them */
     if (n < 3 || zmq_msg_size(&frames[1]) != 0) {
         m->malformed++;
         master_log_limited(m, "control-malformed", "dropped a malformed control message");
-        for (int i = 0; i < n; i++)
-            zmq_msg_close(&frames[i]);
+        proto_frames_close(&fr);
         return;
     }
     if (!master_peer_allowed(m, AUTH_DOMAIN_CONTROL, &frames[2])) {
@@ -515,8 +505,7 @@ void ctl_handle_message(master_t *m)
         cJSON *b = error_body("this client's key is no longer allowed by the master");
         reply_json(m, &frames[0], b, 0);
         cJSON_Delete(b);
-        for (int i = 0; i < n; i++)
-            zmq_msg_close(&frames[i]);
+        proto_frames_close(&fr);
         return;
     }
     cJSON *req = cJSON_ParseWithLength(zmq_msg_data(&frames[2]), zmq_msg_size(&frames[2]));
@@ -543,6 +532,5 @@ void ctl_handle_message(master_t *m)
         cJSON_Delete(b);
     }
     cJSON_Delete(req);
-    for (int i = 0; i < n; i++)
-        zmq_msg_close(&frames[i]);
+    proto_frames_close(&fr);
 }

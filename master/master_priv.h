@@ -318,8 +318,8 @@ int verify_start(master_t *m, job_t *j, const sched_task_t *t, peer_t *w, proto_
                  double now);
 /* Sends w a copy some verified task waits for, if w may run one (another
  * worker than those with a copy): 1 if something was sent or tried, 0 if
- * none fits, -1 when out of memory. *msg: scratch, allocated when needed. */
-int verify_dispatch_copy(master_t *m, peer_t *w, proto_msg_t **msg, double now);
+ * none fits. msg: the caller's scratch message. */
+int verify_dispatch_copy(master_t *m, peer_t *w, proto_msg_t *msg, double now);
 /* Whether any job has copies waiting for a worker. */
 int verify_copies_waiting(const master_t *m);
 /* Whether the job takes no new tasks for now (MASTER_VERIFY_MAX_QUEUED). */

@@ -11,7 +11,12 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "frames.h"
 #include "master_priv.h"
+
+/* All a worker may send in one message: its routing id (at most 255 bytes),
+ * a header and the largest RESULT. ZMQ_MAXMSGSIZE bounds each part alone. */
+#define WORKER_MSG_MAX_BYTES (256 + PROTO_HEADER_SIZE + PROTO_MAX_RESULT_PAYLOAD)
 
 /* ---- sending ------------------------------------------------------------------ */
 
@@ -41,9 +46,9 @@ static long encode(master_t *m, proto_msg_t *msg, uint8_t header[PROTO_HEADER_SI
 
 static int send_frames(master_t *m, const uint8_t *id, size_t id_len, const uint8_t *header, long n)
 {
-    if (zmq_send(m->workers_sock, id, id_len, ZMQ_SNDMORE | ZMQ_DONTWAIT) < 0 ||
-        zmq_send(m->workers_sock, header, PROTO_HEADER_SIZE, ZMQ_SNDMORE | ZMQ_DONTWAIT) < 0 ||
-        zmq_send(m->workers_sock, m->payload, (size_t)n, ZMQ_DONTWAIT) < 0)
+    const void *parts[3] = {id, header, m->payload};
+    const size_t sizes[3] = {id_len, PROTO_HEADER_SIZE, (size_t)n};
+    if (proto_send(m->workers_sock, parts, sizes, 3, ZMQ_DONTWAIT) < 0)
         return SEND_UNREACHABLE;
     return SEND_OK;
 }
@@ -76,10 +81,9 @@ static void send_raw_to(master_t *m, const uint8_t *id, size_t id_len, proto_msg
 
 static void send_text(master_t *m, const uint8_t *id, size_t id_len, int type, const char *text)
 {
-    proto_msg_t msg;
-    memset(&msg, 0, sizeof msg);
-    msg.h.type = (uint16_t)type;
-    snprintf(msg.u.text.text, sizeof msg.u.text.text, "%s", text);
+    char cut[PROTO_TEXT_MAX + 1]; /* a longer text is cut, not refused */
+    snprintf(cut, sizeof cut, "%s", text);
+    proto_msg_t msg = {.h.type = (uint16_t)type, .u.text.text = cut};
     send_raw_to(m, id, id_len, &msg);
 }
 
@@ -128,9 +132,7 @@ void peer_heartbeats(master_t *m, double now)
             continue;
         }
         if (now - w->last_sent >= m->cfg.heartbeat_ms / 1000.0) {
-            proto_msg_t hb;
-            memset(&hb, 0, sizeof hb);
-            hb.h.type = PROTO_HEARTBEAT;
+            proto_msg_t hb = {.h.type = PROTO_HEARTBEAT};
             if (peer_send(m, w, &hb) == SEND_UNREACHABLE)
                 peer_lost(m, w, "unreachable");
         }
@@ -142,10 +144,7 @@ void peer_say_bye_all(master_t *m)
     /* so workers reconnect rather than wait out a timeout */
     for (uint32_t i = 0; i < m->worker_count; i++)
         if (m->workers[i].alive) {
-            proto_msg_t bye;
-            memset(&bye, 0, sizeof bye);
-            bye.h.type = PROTO_BYE;
-            snprintf(bye.u.text.text, sizeof bye.u.text.text, "master stopping");
+            proto_msg_t bye = {.h.type = PROTO_BYE, .u.text.text = "master stopping"};
             (void)peer_send(m, &m->workers[i], &bye); /* leaving anyway */
         }
 }
@@ -272,28 +271,24 @@ int peer_send_task(master_t *m, peer_t *w, job_t *j, const sched_task_t *t, prot
     msg->u.task.settings = j->tracer;
     msg->u.task.layer = t->layer;
     msg->u.task.count = t->count;
-    msg->u.task.records = (tracer_task_t *)t->records;
+    msg->u.task.records = t->records;
     return peer_send(m, w, msg);
 }
 
 /* Hands worker w (index i) a new task, sent once or, when chosen, as the
  * first copy of a verified task: 1 if one was taken from a scheduler, 0 if
  * none is ready, -1 when out of memory. */
-static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t **msg, double now)
+static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t *msg, double now)
 {
     sched_task_t t;
     job_t *j = next_task(m, &t, now);
     if (!j)
         return 0;
-    if (!*msg && !(*msg = malloc(sizeof **msg))) {
-        job_requeue(m, j, t.id); /* just handed out: it takes it back */
-        return -1;
-    }
     if (verify_wanted(m, j, t.id))
-        return verify_start(m, j, &t, w, *msg, now);
+        return verify_start(m, j, &t, w, msg, now);
     size_t c = (size_t)(t.id - 1);
     uint32_t attempt;
-    int rc = peer_send_task(m, w, j, &t, *msg, &attempt);
+    int rc = peer_send_task(m, w, j, &t, msg, &attempt);
     if (rc == SEND_BAD_MESSAGE) {
         job_requeue(m, j, t.id);
         job_finish(m, j, JOB_FAILED, "a task of this job cannot be encoded (see the master's log)");
@@ -327,7 +322,7 @@ static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t **msg, d
 void dispatch(master_t *m)
 {
     double now = master_now();
-    proto_msg_t *msg = NULL;
+    proto_msg_t msg; /* scratch for every task sent */
     uint32_t from = m->rr, first_miss = UINT32_MAX;
     for (;;) {
         uint32_t i = 0;
@@ -349,7 +344,6 @@ void dispatch(master_t *m)
             first_miss = i;
         }
     }
-    free(msg);
 }
 
 /* ---- worker messages ------------------------------------------------------------- */
@@ -525,54 +519,27 @@ static void on_scene_request(master_t *m, peer_t *w, proto_msg_t *msg)
         master_log_limited(m, "unknown-scene", "worker %s asked for an unknown scene", w->host);
         return;
     }
-    proto_msg_t *b = calloc(1, sizeof *b);
-    if (!b)
+    proto_mesh_file_t *meshes = calloc(PROTO_MAX_MESHES, sizeof *meshes);
+    if (!meshes)
         return;
-    b->h.type = PROTO_SCENE_BUNDLE;
-    b->h.job = j->id;
-    memcpy(b->u.bundle.hash, j->hash, PROTO_HASH_SIZE);
-    b->u.bundle.json = j->json;
-    b->u.bundle.json_size = (uint32_t)j->json_size;
-    b->u.bundle.mesh_count = j->mesh_count;
+    proto_msg_t b = {.h.type = PROTO_SCENE_BUNDLE, .h.job = j->id};
+    memcpy(b.u.bundle.hash, j->hash, PROTO_HASH_SIZE);
+    b.u.bundle.json = j->json;
+    b.u.bundle.json_size = (uint32_t)j->json_size;
+    b.u.bundle.mesh_count = j->mesh_count;
+    b.u.bundle.meshes = meshes;
     for (uint32_t i = 0; i < j->mesh_count; i++) {
-        memcpy(b->u.bundle.meshes[i].name, j->mesh_names[i], sizeof b->u.bundle.meshes[i].name);
-        b->u.bundle.meshes[i].data = j->mesh_data[i];
-        b->u.bundle.meshes[i].size = j->mesh_sizes[i];
+        memcpy(meshes[i].name, j->mesh_names[i], sizeof meshes[i].name);
+        meshes[i].data = j->mesh_data[i];
+        meshes[i].size = j->mesh_sizes[i];
     }
-    int rc = peer_send(m, w, b);
-    free(b);
+    int rc = peer_send(m, w, &b);
+    free(meshes);
     if (rc == SEND_BAD_MESSAGE)
         job_finish(m, j, JOB_FAILED,
                    "its scene bundle cannot be encoded for workers (see the master's log)");
     else if (rc == SEND_UNREACHABLE)
         peer_lost(m, w, "unreachable");
-}
-
-/* Receives one message of [identity][header][payload]; the frame count in
- * *n (4 for too many). */
-static void recv_frames(master_t *m, zmq_msg_t frames[3], int *n, char *host, size_t hostlen)
-{
-    int more = 1;
-    *n = 0;
-    while (more) {
-        zmq_msg_t f;
-        zmq_msg_init(&f);
-        if (zmq_msg_recv(&f, m->workers_sock, ZMQ_DONTWAIT) < 0) {
-            zmq_msg_close(&f);
-            break;
-        }
-        more = zmq_msg_more(&f);
-        if (*n < 3) {
-            if (*n == 1) {
-                const char *peer = zmq_msg_gets(&f, "Peer-Address");
-                snprintf(host, hostlen, "%s", peer ? peer : "local");
-            }
-            frames[(*n)++] = f;
-        } else {
-            zmq_msg_close(&f);
-            *n = 4; /* too many frames */
-        }
-    }
 }
 
 static void on_message(master_t *m, const uint8_t *id, size_t id_len, proto_msg_t *msg)
@@ -621,36 +588,45 @@ static void on_message(master_t *m, const uint8_t *id, size_t id_len, proto_msg_
     }
 }
 
+/* A message that is not [identity][header][payload]: counted, dropped. */
+static int frames_malformed(master_t *m, const proto_frames_t *fr, proto_recv_result_t rc)
+{
+    if (rc == PROTO_RECV_OK && fr->count == 3)
+        return 0;
+    m->malformed++;
+    if (rc == PROTO_RECV_TOO_BIG)
+        master_log_limited(m, "frames", "dropped a worker message of %zu bytes", fr->bytes);
+    else
+        master_log_limited(m, "frames", "dropped a worker message with %s frames",
+                           rc == PROTO_RECV_TOO_MANY ? "too many" : "too few");
+    return 1;
+}
+
 void peer_handle_message(master_t *m)
 {
-    zmq_msg_t frames[3];
-    int n;
-    char host[64] = "?";
-    recv_frames(m, frames, &n, host, sizeof host);
-    if (n != 3) {
-        m->malformed++;
-        master_log_limited(m, "frames", "dropped a worker message with %s frames",
-                           n > 3 ? "too many" : "too few");
-        for (int i = 0; i < (n < 3 ? n : 3); i++)
-            zmq_msg_close(&frames[i]);
+    proto_frames_t fr;
+    proto_recv_result_t got =
+        proto_recv(m->workers_sock, &fr, 3, WORKER_MSG_MAX_BYTES, ZMQ_DONTWAIT);
+    if (frames_malformed(m, &fr, got)) {
+        proto_frames_close(&fr);
         return;
     }
-    const uint8_t *id = zmq_msg_data(&frames[0]);
-    size_t id_len = zmq_msg_size(&frames[0]);
-    proto_msg_t *msg = calloc(1, sizeof *msg);
-    if (!msg)
-        goto out;
-    msg->capacity = PROTO_MAX_TASK_PIXELS;
-    msg->u.result.records = m->results;
+    char host[64];
+    const char *peer = zmq_msg_gets(&fr.part[1], "Peer-Address");
+    snprintf(host, sizeof host, "%s", peer ? peer : "local");
+    const uint8_t *id = zmq_msg_data(&fr.part[0]);
+    size_t id_len = zmq_msg_size(&fr.part[0]);
+    /* results only: a worker sends no bundle or task, so none is stored */
+    proto_records_t recs = {.results = m->results, .result_capacity = PROTO_MAX_TASK_PIXELS};
+    proto_msg_t msg;
     char err[MASTER_ERR_LEN];
-    int rc = proto_decode(zmq_msg_data(&frames[1]), zmq_msg_size(&frames[1]),
-                          zmq_msg_data(&frames[2]), zmq_msg_size(&frames[2]), msg, err, sizeof err);
-    if (!master_peer_allowed(m, AUTH_DOMAIN_WORKERS, &frames[1])) {
+    int rc = proto_frames_decode(&fr, 1, &msg, &recs, err, sizeof err);
+    if (!master_peer_allowed(m, AUTH_DOMAIN_WORKERS, &fr.part[1])) {
         /* its key left --allow-workers (SIGHUP) while it was connected */
         peer_t *w = find_peer(m, id, id_len);
         master_log_limited(m, "worker-key-revoked",
                            "refused a message from worker %s: key %s no longer allowed", host,
-                           master_peer_key(&frames[1]));
+                           master_peer_key(&fr.part[1]));
         if (w)
             peer_lost(m, w, "key no longer allowed");
         send_text(m, id, id_len, PROTO_REFUSE,
@@ -666,14 +642,11 @@ void peer_handle_message(master_t *m)
         master_log_limited(m, "malformed",
                            "dropped a malformed worker message (%" PRIu64 " so far): %s",
                            m->malformed, err);
-    } else if (msg->h.type == PROTO_HELLO) {
-        const char *key = zmq_msg_gets(&frames[1], "User-Id");
-        on_hello(m, id, id_len, host, key, msg);
+    } else if (msg.h.type == PROTO_HELLO) {
+        const char *key = zmq_msg_gets(&fr.part[1], "User-Id");
+        on_hello(m, id, id_len, host, key, &msg);
     } else {
-        on_message(m, id, id_len, msg);
+        on_message(m, id, id_len, &msg);
     }
-out:
-    free(msg);
-    for (int i = 0; i < 3; i++)
-        zmq_msg_close(&frames[i]);
+    proto_frames_close(&fr);
 }

@@ -22,12 +22,13 @@ int submit_name_ok(const char *name)
 static int submit_sizes(const cJSON *meshes, const submit_frame_t *frames, int mesh_count,
                         const submit_limits_t *limits, char *err, size_t errlen)
 {
-    proto_msg_t *msg = calloc(1, sizeof *msg);
-    if (!msg) {
+    proto_msg_t bundle = {.h.type = PROTO_SCENE_BUNDLE}, *msg = &bundle;
+    proto_mesh_file_t *files = calloc(PROTO_MAX_MESHES, sizeof *files);
+    if (!files) {
         snprintf(err, errlen, "out of memory");
         return -1;
     }
-    msg->h.type = PROTO_SCENE_BUNDLE;
+    msg->u.bundle.meshes = files;
     msg->u.bundle.json = frames[0].data;
     msg->u.bundle.json_size = frames[0].size > UINT32_MAX ? UINT32_MAX : (uint32_t)frames[0].size;
     msg->u.bundle.mesh_count = (uint32_t)mesh_count;
@@ -37,13 +38,11 @@ static int submit_sizes(const cJSON *meshes, const submit_frame_t *frames, int m
          it = it->next, i++) {
         total += frames[1 + i].size;
         if (cJSON_IsString(it))
-            snprintf(msg->u.bundle.meshes[i].name, sizeof msg->u.bundle.meshes[i].name, "%s",
-                     it->valuestring);
-        msg->u.bundle.meshes[i].size =
-            frames[1 + i].size > UINT32_MAX ? UINT32_MAX : (uint32_t)frames[1 + i].size;
+            snprintf(files[i].name, sizeof files[i].name, "%s", it->valuestring);
+        files[i].size = frames[1 + i].size > UINT32_MAX ? UINT32_MAX : (uint32_t)frames[1 + i].size;
     }
     size_t payload = proto_payload_size(msg);
-    free(msg);
+    free(files);
     if (limits && limits->max_bundle_bytes && total > limits->max_bundle_bytes) {
         snprintf(err, errlen,
                  "the scene and its meshes are %.1f MiB; this master takes at most %.0f MiB "
@@ -254,21 +253,23 @@ static int submit_reference(job_t *j, const submit_frame_t *frames, char *err, s
 /* The bundle's content hash: what workers cache scenes by. */
 static int submit_hash(job_t *j, char *err, size_t errlen)
 {
-    proto_bundle_t *view = calloc(1, sizeof *view);
-    if (!view) {
+    proto_bundle_t bundle = {0}, *view = &bundle;
+    proto_mesh_file_t *meshes = calloc(PROTO_MAX_MESHES, sizeof *meshes);
+    if (!meshes) {
         snprintf(err, errlen, "out of memory");
         return -1;
     }
+    view->meshes = meshes;
     view->json = j->json;
     view->json_size = (uint32_t)j->json_size;
     view->mesh_count = j->mesh_count;
     for (uint32_t k = 0; k < j->mesh_count; k++) {
-        memcpy(view->meshes[k].name, j->mesh_names[k], sizeof view->meshes[k].name);
-        view->meshes[k].data = j->mesh_data[k];
-        view->meshes[k].size = j->mesh_sizes[k];
+        memcpy(meshes[k].name, j->mesh_names[k], sizeof meshes[k].name);
+        meshes[k].data = j->mesh_data[k];
+        meshes[k].size = j->mesh_sizes[k];
     }
     proto_bundle_hash(view, j->hash);
-    free(view);
+    free(meshes);
     return 0;
 }
 

@@ -376,7 +376,7 @@ int verify_start(master_t *m, job_t *j, const sched_task_t *t, peer_t *w, proto_
     return 1;
 }
 
-int verify_dispatch_copy(master_t *m, peer_t *w, proto_msg_t **msg, double now)
+int verify_dispatch_copy(master_t *m, peer_t *w, proto_msg_t *msg, double now)
 {
     const char *who = peer_identity(w);
     for (job_t *j = m->jobs; j; j = j->next) {
@@ -394,9 +394,7 @@ int verify_dispatch_copy(master_t *m, peer_t *w, proto_msg_t **msg, double now)
                 q++;
                 continue;
             }
-            if (!*msg && !(*msg = malloc(sizeof **msg)))
-                return -1;
-            int rc = send_copy(m, j, idx, free_copy(e), w, *msg, now);
+            int rc = send_copy(m, j, idx, free_copy(e), w, msg, now);
             if (rc == SEND_OK && !needs_copy(&v->pool[idx]))
                 queue_remove_at(v, q);
             return 1;

@@ -8,6 +8,8 @@
 #include <string.h>
 #include <zmq.h>
 
+#include "frames.h"
+
 #define WATCHED                                                                                    \
     (ZMQ_EVENT_HANDSHAKE_SUCCEEDED | ZMQ_EVENT_HANDSHAKE_FAILED_AUTH |                             \
      ZMQ_EVENT_HANDSHAKE_FAILED_PROTOCOL | ZMQ_EVENT_HANDSHAKE_FAILED_NO_DETAIL)
@@ -138,26 +140,19 @@ handshake_result_t handshake_describe(uint16_t event, uint32_t value, const char
 handshake_result_t handshake_monitor_read(handshake_monitor_t *h, const char *endpoint,
                                           const char *who, int curve, char *msg, size_t msglen)
 {
-    zmq_msg_t a, b;
-    zmq_msg_init(&a);
-    if (zmq_msg_recv(&a, h->pair, ZMQ_DONTWAIT) < 0) {
-        zmq_msg_close(&a);
-        return HANDSHAKE_NONE;
-    }
     /* two frames: 6 bytes (u16 event, u32 value, native order), the endpoint */
-    int more = zmq_msg_more(&a);
-    zmq_msg_init(&b);
-    if (more)
-        zmq_msg_recv(&b, h->pair, 0);
+    proto_frames_t fr;
+    if (proto_recv(h->pair, &fr, 2, SIZE_MAX, ZMQ_DONTWAIT) == PROTO_RECV_NONE)
+        return HANDSHAKE_NONE;
     handshake_result_t r = HANDSHAKE_NONE;
-    if (zmq_msg_size(&a) == 6) {
+    zmq_msg_t *a = &fr.part[0];
+    if (zmq_msg_size(a) == 6) {
         uint16_t event;
         uint32_t value;
-        memcpy(&event, zmq_msg_data(&a), 2);
-        memcpy(&value, (const uint8_t *)zmq_msg_data(&a) + 2, 4);
+        memcpy(&event, zmq_msg_data(a), 2);
+        memcpy(&value, (const uint8_t *)zmq_msg_data(a) + 2, 4);
         r = handshake_describe(event, value, endpoint, who, curve, msg, msglen);
     }
-    zmq_msg_close(&a);
-    zmq_msg_close(&b);
+    proto_frames_close(&fr);
     return r;
 }

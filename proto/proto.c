@@ -28,6 +28,9 @@
 #define BUNDLE_HEAD (PROTO_HASH_SIZE + 8)
 #define TASK_HEAD (PROTO_HASH_SIZE + 8 + 1 + 3 + 4 + 4 + 4)
 #define RESULT_HEAD 24
+_Static_assert(PROTO_MAX_RESULT_PAYLOAD ==
+                   RESULT_HEAD + (size_t)PROTO_RESULT_RECORD_SIZE * PROTO_MAX_TASK_PIXELS,
+               "proto.h and proto.c agree on a RESULT's head");
 #define MESH_HEAD 6 /* name_len u16 + size u32, around the name */
 #define WELCOME_MAX_MS 3600000u
 
@@ -48,6 +51,9 @@ static int fail(char *err, size_t errlen, const char *fmt, ...)
     }
     return -1;
 }
+
+/* The message is a stack value; what made it large lives in proto_records_t. */
+_Static_assert(sizeof(proto_msg_t) <= 512, "proto_msg_t must stay small enough for the stack");
 
 /* ---- little-endian bytes ------------------------------------------------ */
 
@@ -288,6 +294,13 @@ static int check_result_record(const tracer_result_t *r, uint32_t i, char *err, 
 
 /* ---- sizes ---------------------------------------------------------------- */
 
+/* A text's length, up to one byte past the limit so that check_msg sees
+ * one too long; NULL is the empty text. */
+static size_t text_len(const char *text)
+{
+    return text ? strnlen(text, PROTO_TEXT_MAX + 1) : 0;
+}
+
 size_t proto_payload_size(const proto_msg_t *msg)
 {
     if (!msg)
@@ -300,16 +313,17 @@ size_t proto_payload_size(const proto_msg_t *msg)
     case PROTO_REFUSE:
     case PROTO_BYE:
     case PROTO_TASK_FAILED:
-        return TEXT_HEAD + strnlen(msg->u.text.text, sizeof msg->u.text.text);
+        return TEXT_HEAD + text_len(msg->u.text.text);
     case PROTO_CREDIT:
         return CREDIT_SIZE;
     case PROTO_SCENE_REQUEST:
         return PROTO_HASH_SIZE;
     case PROTO_SCENE_BUNDLE: {
-        /* Counts are clamped so an invalid message cannot index past the
-         * array; proto_encode refuses such a message anyway. */
+        /* Files past the limit (or without an array) are not read: the
+         * caller's array need not hold them, and proto_encode refuses such
+         * a message anyway. */
         const proto_bundle_t *b = &msg->u.bundle;
-        uint32_t n = b->mesh_count < PROTO_MAX_MESHES ? b->mesh_count : PROTO_MAX_MESHES;
+        uint32_t n = b->meshes && b->mesh_count <= PROTO_MAX_MESHES ? b->mesh_count : 0;
         uint64_t size = (uint64_t)BUNDLE_HEAD + b->json_size;
         for (uint32_t i = 0; i < n; i++)
             size += MESH_HEAD + strnlen(b->meshes[i].name, sizeof b->meshes[i].name) +
@@ -339,6 +353,8 @@ static int check_bundle(const proto_bundle_t *b, char *err, size_t errlen)
     if (b->mesh_count > PROTO_MAX_MESHES)
         return fail(err, errlen, "SCENE_BUNDLE: mesh_count %" PRIu32 " exceeds %d", b->mesh_count,
                     PROTO_MAX_MESHES);
+    if (b->mesh_count > 0 && !b->meshes)
+        return fail(err, errlen, "SCENE_BUNDLE: meshes is NULL");
     uint64_t total = (uint64_t)BUNDLE_HEAD + b->json_size;
     for (uint32_t i = 0; i < b->mesh_count; i++) {
         const proto_mesh_file_t *m = &b->meshes[i];
@@ -371,7 +387,7 @@ static int check_msg(const proto_msg_t *msg, char *err, size_t errlen)
     case PROTO_REFUSE:
     case PROTO_BYE:
     case PROTO_TASK_FAILED:
-        if (strnlen(msg->u.text.text, sizeof msg->u.text.text) > PROTO_TEXT_MAX)
+        if (text_len(msg->u.text.text) > PROTO_TEXT_MAX)
             return fail(err, errlen, "%s: text longer than %d bytes", proto_type_name(type),
                         PROTO_TEXT_MAX);
         return 0;
@@ -423,92 +439,114 @@ static void write_header(const proto_header_t *h, uint32_t payload_size,
     put_u32(p, payload_size);
 }
 
+static void write_hello(const proto_hello_t *h, uint8_t *p)
+{
+    /* NUL-padded: every byte after the id is 0, never stack garbage. */
+    uint8_t build[PROTO_BUILD_SIZE] = {0};
+    memcpy(build, h->build, strnlen(h->build, PROTO_BUILD_SIZE));
+    p = put_u32(p, h->threads);
+    put_bytes(p, build, sizeof build);
+}
+
+static void write_welcome(const proto_welcome_t *w, uint8_t *p)
+{
+    p = put_u32(p, w->heartbeat_ms);
+    put_u32(p, w->lease_ms);
+}
+
+static void write_text(const proto_text_t *t, uint8_t *p)
+{
+    size_t n = text_len(t->text); /* check_msg: at most PROTO_TEXT_MAX */
+    p = put_u32(p, (uint32_t)n);
+    put_bytes(p, t->text, n);
+}
+
+static void write_bundle(const proto_bundle_t *b, uint8_t *p)
+{
+    p = put_bytes(p, b->hash, PROTO_HASH_SIZE);
+    p = put_u32(p, b->json_size);
+    p = put_u32(p, b->mesh_count);
+    p = put_bytes(p, b->json, b->json_size);
+    for (uint32_t i = 0; i < b->mesh_count; i++) {
+        const proto_mesh_file_t *m = &b->meshes[i];
+        size_t len = strnlen(m->name, PROTO_MAX_NAME);
+        p = put_u16(p, (uint16_t)len);
+        p = put_bytes(p, m->name, len);
+        p = put_u32(p, m->size);
+        p = put_bytes(p, m->data, m->size);
+    }
+}
+
+static void write_task(const proto_task_t *t, uint8_t *p)
+{
+    p = put_bytes(p, t->scene_hash, PROTO_HASH_SIZE);
+    p = put_u64(p, t->settings.seed);
+    p = put_u8(p, (uint8_t)t->settings.integrator);
+    for (int i = 0; i < 3; i++)
+        p = put_u8(p, 0);
+    p = put_u32(p, t->settings.max_depth);
+    p = put_u32(p, t->layer);
+    p = put_u32(p, t->count);
+    for (uint32_t i = 0; i < t->count; i++) {
+        const tracer_task_t *r = &t->records[i];
+        p = put_u32(p, r->pixel);
+        p = put_u32(p, r->sample_count);
+        p = put_u64(p, r->first_sample);
+        p = put_u64(p, r->prior_count);
+        for (int c = 0; c < 3; c++)
+            p = put_f64(p, r->prior_sum[c]);
+    }
+}
+
+static void write_result(const proto_result_t *res, uint8_t *p)
+{
+    p = put_u64(p, res->rays);
+    p = put_u64(p, res->busy_us);
+    p = put_u32(p, res->count);
+    p = put_u32(p, 0);
+    for (uint32_t i = 0; i < res->count; i++) {
+        const tracer_result_t *r = &res->records[i];
+        p = put_u32(p, r->pixel);
+        p = put_u32(p, r->samples);
+        p = put_u32(p, r->nonfinite);
+        /* pad_ is the struct's, not the protocol's: reserved goes out 0. */
+        p = put_u32(p, 0);
+        for (int c = 0; c < 3; c++)
+            p = put_f64(p, r->sum[c]);
+        p = put_f64(p, r->lum_m2);
+        p = put_f64(p, r->pvar);
+    }
+}
+
 static void write_payload(const proto_msg_t *msg, uint8_t *p)
 {
     switch (msg->h.type) {
-    case PROTO_HELLO: {
-        /* NUL-padded: every byte after the id is 0, never stack garbage. */
-        uint8_t build[PROTO_BUILD_SIZE] = {0};
-        memcpy(build, msg->u.hello.build, strnlen(msg->u.hello.build, PROTO_BUILD_SIZE));
-        p = put_u32(p, msg->u.hello.threads);
-        put_bytes(p, build, sizeof build);
+    case PROTO_HELLO:
+        write_hello(&msg->u.hello, p);
         break;
-    }
     case PROTO_WELCOME:
-        p = put_u32(p, msg->u.welcome.heartbeat_ms);
-        put_u32(p, msg->u.welcome.lease_ms);
+        write_welcome(&msg->u.welcome, p);
         break;
     case PROTO_REFUSE:
     case PROTO_BYE:
-    case PROTO_TASK_FAILED: {
-        size_t n = strnlen(msg->u.text.text, PROTO_TEXT_MAX);
-        p = put_u32(p, (uint32_t)n);
-        put_bytes(p, msg->u.text.text, n);
+    case PROTO_TASK_FAILED:
+        write_text(&msg->u.text, p);
         break;
-    }
     case PROTO_CREDIT:
         put_u32(p, msg->u.credit);
         break;
     case PROTO_SCENE_REQUEST:
         put_bytes(p, msg->u.scene_hash, PROTO_HASH_SIZE);
         break;
-    case PROTO_SCENE_BUNDLE: {
-        const proto_bundle_t *b = &msg->u.bundle;
-        p = put_bytes(p, b->hash, PROTO_HASH_SIZE);
-        p = put_u32(p, b->json_size);
-        p = put_u32(p, b->mesh_count);
-        p = put_bytes(p, b->json, b->json_size);
-        for (uint32_t i = 0; i < b->mesh_count; i++) {
-            const proto_mesh_file_t *m = &b->meshes[i];
-            size_t len = strnlen(m->name, PROTO_MAX_NAME);
-            p = put_u16(p, (uint16_t)len);
-            p = put_bytes(p, m->name, len);
-            p = put_u32(p, m->size);
-            p = put_bytes(p, m->data, m->size);
-        }
+    case PROTO_SCENE_BUNDLE:
+        write_bundle(&msg->u.bundle, p);
         break;
-    }
-    case PROTO_TASK: {
-        const proto_task_t *t = &msg->u.task;
-        p = put_bytes(p, t->scene_hash, PROTO_HASH_SIZE);
-        p = put_u64(p, t->settings.seed);
-        p = put_u8(p, (uint8_t)t->settings.integrator);
-        for (int i = 0; i < 3; i++)
-            p = put_u8(p, 0);
-        p = put_u32(p, t->settings.max_depth);
-        p = put_u32(p, t->layer);
-        p = put_u32(p, t->count);
-        for (uint32_t i = 0; i < t->count; i++) {
-            const tracer_task_t *r = &t->records[i];
-            p = put_u32(p, r->pixel);
-            p = put_u32(p, r->sample_count);
-            p = put_u64(p, r->first_sample);
-            p = put_u64(p, r->prior_count);
-            for (int c = 0; c < 3; c++)
-                p = put_f64(p, r->prior_sum[c]);
-        }
+    case PROTO_TASK:
+        write_task(&msg->u.task, p);
         break;
-    }
-    case PROTO_RESULT: {
-        const proto_result_t *res = &msg->u.result;
-        p = put_u64(p, res->rays);
-        p = put_u64(p, res->busy_us);
-        p = put_u32(p, res->count);
-        p = put_u32(p, 0);
-        for (uint32_t i = 0; i < res->count; i++) {
-            const tracer_result_t *r = &res->records[i];
-            p = put_u32(p, r->pixel);
-            p = put_u32(p, r->samples);
-            p = put_u32(p, r->nonfinite);
-            /* pad_ is the struct's, not the protocol's: reserved goes out 0. */
-            p = put_u32(p, 0);
-            for (int c = 0; c < 3; c++)
-                p = put_f64(p, r->sum[c]);
-            p = put_f64(p, r->lum_m2);
-            p = put_f64(p, r->pvar);
-        }
+    case PROTO_RESULT:
+        write_result(&msg->u.result, p);
         break;
-    }
     default: /* HEARTBEAT: nothing */
         break;
     }
@@ -555,10 +593,12 @@ static int decode_hello(const uint8_t *p, size_t n, proto_hello_t *h, char *err,
     return check_hello(h, err, errlen);
 }
 
-static int decode_text(uint16_t type, const uint8_t *p, size_t n, proto_text_t *t, char *err,
-                       size_t errlen)
+static int decode_text(uint16_t type, const uint8_t *p, size_t n, proto_records_t *recs,
+                       proto_text_t *t, char *err, size_t errlen)
 {
     const char *name = proto_type_name(type);
+    if (!recs)
+        return fail(err, errlen, "%s: no text buffer (recs is NULL)", name);
     if (n < TEXT_HEAD)
         return fail(err, errlen, "%s: payload is %zu bytes, shorter than text_len", name, n);
     uint32_t len = get_u32(p);
@@ -570,12 +610,60 @@ static int decode_text(uint16_t type, const uint8_t *p, size_t n, proto_text_t *
     for (uint32_t i = 0; i < len; i++)
         if (p[TEXT_HEAD + i] == 0)
             return fail(err, errlen, "%s: text byte %" PRIu32 " is NUL", name, i);
-    memcpy(t->text, p + TEXT_HEAD, len);
-    t->text[len] = '\0';
+    memcpy(recs->text, p + TEXT_HEAD, len);
+    recs->text[len] = '\0';
+    t->text = recs->text;
     return 0;
 }
 
-static int decode_bundle(const uint8_t *p, size_t n, proto_bundle_t *b, char *err, size_t errlen)
+/* Mesh i of a bundle from *q (with *left bytes after it) into meshes[i]; q
+ * and left move past it. meshes[0..i-1] are the files before it. */
+static int decode_mesh(const uint8_t **q, size_t *left, uint32_t i, proto_mesh_file_t *meshes,
+                       char *err, size_t errlen)
+{
+    proto_mesh_file_t *m = &meshes[i];
+    if (*left < 2)
+        return fail(err, errlen,
+                    "SCENE_BUNDLE: mesh %" PRIu32 ": name_len cut off (%zu bytes left)", i, *left);
+    size_t len = get_u16(*q);
+    *q += 2;
+    *left -= 2;
+    if (len < 1 || len > PROTO_MAX_NAME)
+        return fail(err, errlen, "SCENE_BUNDLE: mesh %" PRIu32 ": name_len %zu out of range 1..%d",
+                    i, len, PROTO_MAX_NAME);
+    if (len > *left)
+        return fail(err, errlen,
+                    "SCENE_BUNDLE: mesh %" PRIu32 ": name_len %zu exceeds the %zu bytes left", i,
+                    len, *left);
+    if (check_mesh_name((const char *)*q, len, i, err, errlen) != 0)
+        return -1;
+    memcpy(m->name, *q, len);
+    m->name[len] = '\0';
+    if (check_mesh_unique(meshes, i, err, errlen) != 0)
+        return -1;
+    *q += len;
+    *left -= len;
+    if (*left < 4)
+        return fail(err, errlen, "SCENE_BUNDLE: mesh %" PRIu32 ": size cut off (%zu bytes left)", i,
+                    *left);
+    m->size = get_u32(*q);
+    *q += 4;
+    *left -= 4;
+    if (m->size > PROTO_MAX_MESH_BYTES)
+        return fail(err, errlen, "SCENE_BUNDLE: mesh %" PRIu32 ": size %" PRIu32 " exceeds %u", i,
+                    m->size, PROTO_MAX_MESH_BYTES);
+    if (m->size > *left)
+        return fail(err, errlen,
+                    "SCENE_BUNDLE: mesh %" PRIu32 ": size %" PRIu32 " exceeds the %zu bytes left",
+                    i, m->size, *left);
+    m->data = *q;
+    *q += m->size;
+    *left -= m->size;
+    return 0;
+}
+
+static int decode_bundle(const uint8_t *p, size_t n, proto_records_t *recs, proto_bundle_t *b,
+                         char *err, size_t errlen)
 {
     if (n > PROTO_MAX_BUNDLE)
         return fail(err, errlen, "SCENE_BUNDLE: payload of %zu bytes exceeds %u", n,
@@ -593,6 +681,11 @@ static int decode_bundle(const uint8_t *p, size_t n, proto_bundle_t *b, char *er
     if (b->mesh_count > PROTO_MAX_MESHES)
         return fail(err, errlen, "SCENE_BUNDLE: mesh_count %" PRIu32 " exceeds %d", b->mesh_count,
                     PROTO_MAX_MESHES);
+    uint32_t capacity = recs && recs->meshes ? recs->mesh_capacity : 0;
+    if (b->mesh_count > capacity)
+        return fail(err, errlen,
+                    "SCENE_BUNDLE: mesh_count %" PRIu32 " exceeds the receive capacity %" PRIu32,
+                    b->mesh_count, capacity);
     const uint8_t *q = p + BUNDLE_HEAD;
     size_t left = n - BUNDLE_HEAD;
     if (b->json_size > left)
@@ -601,59 +694,19 @@ static int decode_bundle(const uint8_t *p, size_t n, proto_bundle_t *b, char *er
     b->json = (const char *)q;
     q += b->json_size;
     left -= b->json_size;
-    for (uint32_t i = 0; i < b->mesh_count; i++) {
-        proto_mesh_file_t *m = &b->meshes[i];
-        if (left < 2)
-            return fail(err, errlen,
-                        "SCENE_BUNDLE: mesh %" PRIu32 ": name_len cut off (%zu bytes "
-                        "left)",
-                        i, left);
-        size_t len = get_u16(q);
-        q += 2;
-        left -= 2;
-        if (len < 1 || len > PROTO_MAX_NAME)
-            return fail(err, errlen,
-                        "SCENE_BUNDLE: mesh %" PRIu32 ": name_len %zu out of range 1..%d", i, len,
-                        PROTO_MAX_NAME);
-        if (len > left)
-            return fail(err, errlen,
-                        "SCENE_BUNDLE: mesh %" PRIu32 ": name_len %zu exceeds the %zu "
-                        "bytes left",
-                        i, len, left);
-        if (check_mesh_name((const char *)q, len, i, err, errlen) != 0)
+    for (uint32_t i = 0; i < b->mesh_count; i++)
+        if (decode_mesh(&q, &left, i, recs->meshes, err, errlen) != 0)
             return -1;
-        memcpy(m->name, q, len);
-        m->name[len] = '\0';
-        if (check_mesh_unique(b->meshes, i, err, errlen) != 0)
-            return -1;
-        q += len;
-        left -= len;
-        if (left < 4)
-            return fail(err, errlen,
-                        "SCENE_BUNDLE: mesh %" PRIu32 ": size cut off (%zu bytes left)", i, left);
-        m->size = get_u32(q);
-        q += 4;
-        left -= 4;
-        if (m->size > PROTO_MAX_MESH_BYTES)
-            return fail(err, errlen, "SCENE_BUNDLE: mesh %" PRIu32 ": size %" PRIu32 " exceeds %u",
-                        i, m->size, PROTO_MAX_MESH_BYTES);
-        if (m->size > left)
-            return fail(err, errlen,
-                        "SCENE_BUNDLE: mesh %" PRIu32 ": size %" PRIu32 " exceeds the "
-                        "%zu bytes left",
-                        i, m->size, left);
-        m->data = q;
-        q += m->size;
-        left -= m->size;
-    }
+    b->meshes = b->mesh_count > 0 ? recs->meshes : NULL;
     if (left != 0)
         return fail(err, errlen, "SCENE_BUNDLE: %zu bytes left over after the last mesh", left);
     return 0;
 }
 
-static int decode_task(const uint8_t *p, size_t n, uint32_t capacity, proto_task_t *t, char *err,
-                       size_t errlen)
+static int decode_task(const uint8_t *p, size_t n, proto_records_t *recs, proto_task_t *t,
+                       char *err, size_t errlen)
 {
+    uint32_t capacity = recs ? recs->task_capacity : 0;
     if (n < TASK_HEAD)
         return fail(err, errlen, "TASK: payload is %zu bytes, shorter than the %d-byte head", n,
                     TASK_HEAD);
@@ -679,11 +732,11 @@ static int decode_task(const uint8_t *p, size_t n, uint32_t capacity, proto_task
     if (n != want)
         return fail(err, errlen, "TASK: payload is %zu bytes, %" PRIu32 " records need %zu", n,
                     t->count, want);
-    if (!t->records)
-        return fail(err, errlen, "TASK: no record buffer (u.task.records is NULL)");
+    if (!recs || !recs->tasks)
+        return fail(err, errlen, "TASK: no record buffer (recs->tasks is NULL)");
     q = p + TASK_HEAD;
     for (uint32_t i = 0; i < t->count; i++, q += PROTO_TASK_RECORD_SIZE) {
-        tracer_task_t *r = &t->records[i];
+        tracer_task_t *r = &recs->tasks[i];
         r->pixel = get_u32(q);
         r->sample_count = get_u32(q + 4);
         r->first_sample = get_u64(q + 8);
@@ -693,12 +746,14 @@ static int decode_task(const uint8_t *p, size_t n, uint32_t capacity, proto_task
         if (check_task_record(r, i, err, errlen) != 0)
             return -1;
     }
+    t->records = recs->tasks;
     return 0;
 }
 
-static int decode_result(const uint8_t *p, size_t n, uint32_t capacity, proto_result_t *res,
+static int decode_result(const uint8_t *p, size_t n, proto_records_t *recs, proto_result_t *res,
                          char *err, size_t errlen)
 {
+    uint32_t capacity = recs ? recs->result_capacity : 0;
     if (n < RESULT_HEAD)
         return fail(err, errlen, "RESULT: payload is %zu bytes, shorter than the %d-byte head", n,
                     RESULT_HEAD);
@@ -717,11 +772,13 @@ static int decode_result(const uint8_t *p, size_t n, uint32_t capacity, proto_re
     if (n != want)
         return fail(err, errlen, "RESULT: payload is %zu bytes, %" PRIu32 " records need %zu", n,
                     res->count, want);
-    if (res->count > 0 && !res->records)
-        return fail(err, errlen, "RESULT: no record buffer (u.result.records is NULL)");
+    if (res->count == 0)
+        return 0;
+    if (!recs || !recs->results)
+        return fail(err, errlen, "RESULT: no record buffer (recs->results is NULL)");
     const uint8_t *q = p + RESULT_HEAD;
     for (uint32_t i = 0; i < res->count; i++, q += PROTO_RESULT_RECORD_SIZE) {
-        tracer_result_t *r = &res->records[i];
+        tracer_result_t *r = &recs->results[i];
         r->pixel = get_u32(q);
         r->samples = get_u32(q + 4);
         r->nonfinite = get_u32(q + 8);
@@ -738,14 +795,15 @@ static int decode_result(const uint8_t *p, size_t n, uint32_t capacity, proto_re
         if (check_result_record(r, i, err, errlen) != 0)
             return -1;
     }
+    res->records = recs->results;
     return 0;
 }
 
-int proto_decode(const uint8_t *header, size_t header_size, const uint8_t *payload,
-                 size_t payload_size, proto_msg_t *out, char *err, size_t errlen)
+/* The header frame into *h, checked against the payload frame's size: 0,
+ * -1 or -2 (another version) as proto_decode. */
+static int decode_header(const uint8_t *header, size_t header_size, size_t payload_size,
+                         proto_header_t *h, char *err, size_t errlen)
 {
-    if (!out)
-        return fail(err, errlen, "proto_decode: no output message");
     if (!header || header_size != PROTO_HEADER_SIZE)
         return fail(err, errlen, "header: %zu bytes, expected %d", header ? header_size : 0,
                     PROTO_HEADER_SIZE);
@@ -761,20 +819,35 @@ int proto_decode(const uint8_t *header, size_t header_size, const uint8_t *paylo
              (unsigned)version, PROTO_VERSION);
         return -2;
     }
-    proto_header_t h;
-    h.version = version;
-    h.type = get_u16(header + 6);
-    h.job = get_u64(header + 8);
-    h.task = get_u64(header + 16);
-    h.attempt = get_u32(header + 24);
-    h.payload_size = get_u32(header + 28);
-    if (h.type < 1 || h.type > PROTO_TYPE_MAX)
-        return fail(err, errlen, "header: unknown message type %u", (unsigned)h.type);
-    if (h.payload_size != payload_size)
+    h->version = version;
+    h->type = get_u16(header + 6);
+    h->job = get_u64(header + 8);
+    h->task = get_u64(header + 16);
+    h->attempt = get_u32(header + 24);
+    h->payload_size = get_u32(header + 28);
+    if (h->type < 1 || h->type > PROTO_TYPE_MAX)
+        return fail(err, errlen, "header: unknown message type %u", (unsigned)h->type);
+    if (h->payload_size != payload_size)
         return fail(err, errlen,
                     "header: payload_size %" PRIu32 " but the payload frame has %zu "
                     "bytes",
-                    h.payload_size, payload_size);
+                    h->payload_size, payload_size);
+    return 0;
+}
+
+int proto_decode(const uint8_t *header, size_t header_size, const uint8_t *payload,
+                 size_t payload_size, proto_msg_t *out, proto_records_t *recs, char *err,
+                 size_t errlen)
+{
+    if (!out)
+        return fail(err, errlen, "proto_decode: no output message");
+    /* Every pointer in *out is set below, from this payload and recs, or
+     * is NULL: none from an earlier message can be read as this one's. */
+    memset(out, 0, sizeof *out);
+    proto_header_t h;
+    int rc = decode_header(header, header_size, payload_size, &h, err, errlen);
+    if (rc != 0)
+        return rc;
     if (payload_size > 0 && !payload)
         return fail(err, errlen, "payload: NULL with %zu bytes", payload_size);
     out->h = h;
@@ -802,11 +875,11 @@ int proto_decode(const uint8_t *header, size_t header_size, const uint8_t *paylo
         memcpy(out->u.scene_hash, p, PROTO_HASH_SIZE);
         return 0;
     case PROTO_SCENE_BUNDLE:
-        return decode_bundle(p, n, &out->u.bundle, err, errlen);
+        return decode_bundle(p, n, recs, &out->u.bundle, err, errlen);
     case PROTO_TASK:
-        return decode_task(p, n, out->capacity, &out->u.task, err, errlen);
+        return decode_task(p, n, recs, &out->u.task, err, errlen);
     case PROTO_RESULT:
-        return decode_result(p, n, out->capacity, &out->u.result, err, errlen);
+        return decode_result(p, n, recs, &out->u.result, err, errlen);
     case PROTO_HEARTBEAT:
         if (n != 0)
             return fail(err, errlen, "HEARTBEAT: payload is %zu bytes, expected 0", n);
@@ -814,7 +887,7 @@ int proto_decode(const uint8_t *header, size_t header_size, const uint8_t *paylo
     case PROTO_REFUSE:
     case PROTO_BYE:
     case PROTO_TASK_FAILED:
-        return decode_text(h.type, p, n, &out->u.text, err, errlen);
+        return decode_text(h.type, p, n, recs, &out->u.text, err, errlen);
     default: /* unreachable: the type was range-checked above */
         return fail(err, errlen, "header: unknown message type %u", (unsigned)h.type);
     }

@@ -36,6 +36,9 @@
 
 #define PROTO_TASK_RECORD_SIZE 48
 #define PROTO_RESULT_RECORD_SIZE 56
+/* The largest payload a worker sends: a RESULT of PROTO_MAX_TASK_PIXELS
+ * records after its 24-byte head. */
+#define PROTO_MAX_RESULT_PAYLOAD (24 + (size_t)PROTO_RESULT_RECORD_SIZE * PROTO_MAX_TASK_PIXELS)
 
 typedef enum proto_type {
     PROTO_HELLO = 1,         /* worker -> master: threads, build id, ISA */
@@ -74,7 +77,9 @@ typedef struct proto_welcome {
 } proto_welcome_t;
 
 typedef struct proto_text {
-    char text[PROTO_TEXT_MAX + 1]; /* REFUSE, BYE, TASK_FAILED: UTF-8, NUL-terminated */
+    /* REFUSE, BYE, TASK_FAILED: UTF-8, NUL-terminated, at most PROTO_TEXT_MAX
+     * bytes (NULL: empty). Encode: the caller's string; decode: recs->text. */
+    const char *text;
 } proto_text_t;
 
 typedef struct proto_mesh_file {
@@ -88,7 +93,7 @@ typedef struct proto_bundle {
     const char *json; /* points into the payload; NOT NUL-terminated */
     uint32_t json_size;
     uint32_t mesh_count;
-    proto_mesh_file_t meshes[PROTO_MAX_MESHES];
+    const proto_mesh_file_t *meshes; /* mesh_count files; decode: recs->meshes */
 } proto_bundle_t;
 
 /* A task: one layer of G samples for a batch of pixels. */
@@ -97,29 +102,24 @@ typedef struct proto_task {
     tracer_settings_t settings; /* seed, integrator, max_depth */
     uint32_t layer;
     uint32_t count;
-    tracer_task_t *records; /* count records; decode: the caller's array */
+    const tracer_task_t *records; /* count records; decode: recs->tasks */
 } proto_task_t;
 
 typedef struct proto_result {
     uint64_t rays;
     uint64_t busy_us; /* worker time spent tracing this task */
     uint32_t count;
-    tracer_result_t *records; /* count records; decode: the caller's array */
+    const tracer_result_t *records; /* count records; decode: recs->results */
 } proto_result_t;
 
-/* A decoded message. For TASK and RESULT, set records (and capacity) before
- * decoding: the decoder fills at most `capacity` records and refuses more.
- * Clarification (proto.c): u.task.records and u.result.records are two
- * union members at different offsets, and a decode may overwrite the union.
- * So before EVERY decode: zero the message, set capacity, then set the
- * records pointer of each record type this side accepts (the two pointers
- * do not overlap each other, so both may be set). A TASK or RESULT whose
- * pointer is NULL is refused ("no record buffer"); a pointer left over from
- * another message type would be trusted. The encoder ignores capacity, and
- * sends a result's pad_ as 0. */
+/* A message: its header and the fields of its type. Small (about 100
+ * bytes), so it lives on the stack. Its variable-length parts (records,
+ * mesh files, text) are pointers: to encode, the caller points them at its
+ * own data; a decode sets them itself, into the proto_records_t it is
+ * given, and clears everything else first, so nothing from an earlier
+ * message survives into the next. The encoder sends a result's pad_ as 0. */
 typedef struct proto_msg {
     proto_header_t h;
-    uint32_t capacity;
     union {
         proto_hello_t hello;
         proto_welcome_t welcome;
@@ -132,6 +132,22 @@ typedef struct proto_msg {
     } u;
 } proto_msg_t;
 
+/* Where proto_decode puts a message's variable-length parts: the caller's
+ * buffers, each with its capacity, apart from the message so that no
+ * decode can overwrite them. A buffer left NULL (or a capacity of 0)
+ * refuses messages that need it: a TASK with no tasks, a RESULT with
+ * records but no results, a SCENE_BUNDLE with more mesh files than
+ * mesh_capacity. Texts are copied into text, which every side has. */
+typedef struct proto_records {
+    tracer_task_t *tasks;
+    uint32_t task_capacity;
+    tracer_result_t *results;
+    uint32_t result_capacity;
+    proto_mesh_file_t *meshes;
+    uint32_t mesh_capacity;
+    char text[PROTO_TEXT_MAX + 1];
+} proto_records_t;
+
 /* The size the payload of msg will take. */
 size_t proto_payload_size(const proto_msg_t *msg);
 
@@ -142,14 +158,18 @@ size_t proto_payload_size(const proto_msg_t *msg);
 long proto_encode(const proto_msg_t *msg, uint8_t header[PROTO_HEADER_SIZE], uint8_t *payload,
                   size_t cap, char *err, size_t errlen);
 
-/* Decodes the two frames. Checks magic, version (a peer with another version
+/* Decodes the two frames into *out (cleared first) and the caller's
+ * buffers in *recs (which may be NULL when no message with records, files
+ * or text is wanted). Checks magic, version (a peer with another version
  * gets -2 so the caller can send a REFUSE saying so), type, the payload size
- * against the header and the type's layout, every count against its limit,
- * every enum and every string. Returns 0, -1 (malformed) or -2 (version).
- * On failure *out and the records may be partly written. A bundle's json
- * and data point into payload: valid only while payload is. */
+ * against the header and the type's layout, every count against its limit
+ * and recs' capacity, every enum and every string. Returns 0, -1
+ * (malformed) or -2 (version). On failure *out and *recs may be partly
+ * written. A bundle's json and data point into payload: valid only while
+ * payload is; every other pointer in *out points into *recs. */
 int proto_decode(const uint8_t *header, size_t header_size, const uint8_t *payload,
-                 size_t payload_size, proto_msg_t *out, char *err, size_t errlen);
+                 size_t payload_size, proto_msg_t *out, proto_records_t *recs, char *err,
+                 size_t errlen);
 
 /* "TASK", "RESULT", ... ("?" for unknown values). */
 const char *proto_type_name(uint16_t type);

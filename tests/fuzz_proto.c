@@ -33,8 +33,8 @@
 #define FUZZ_CAPACITY 64
 
 /* Checks a decoded message; any breach is a bug, so abort. */
-static void check_result(int rc, const proto_msg_t *m, const char *err, const uint8_t *h, size_t hn,
-                         const uint8_t *p, size_t pn)
+static void check_result(int rc, const proto_msg_t *m, const proto_records_t *recs, const char *err,
+                         const uint8_t *h, size_t hn, const uint8_t *p, size_t pn)
 {
     if (rc != 0) {
         if ((rc != -1 && rc != -2) || err[0] == '\0')
@@ -43,7 +43,11 @@ static void check_result(int rc, const proto_msg_t *m, const char *err, const ui
     }
     if (hn != PROTO_HEADER_SIZE || m->h.payload_size != pn || m->h.version != PROTO_VERSION)
         abort();
-    if (m->h.type == PROTO_TASK && (m->u.task.count < 1 || m->u.task.count > FUZZ_CAPACITY))
+    if (m->h.type == PROTO_TASK && (m->u.task.count < 1 || m->u.task.count > FUZZ_CAPACITY ||
+                                    m->u.task.records != recs->tasks))
+        abort();
+    /* every other pointer lands in the caller's buffers, never elsewhere */
+    if (m->h.type == PROTO_RESULT && m->u.result.count > 0 && m->u.result.records != recs->results)
         abort();
     if (m->h.type == PROTO_RESULT && m->u.result.count > FUZZ_CAPACITY)
         abort();
@@ -88,19 +92,25 @@ static int run_one(const uint8_t *data, size_t size)
     uint8_t *h = malloc(hn ? hn : 1), *p = malloc(pn ? pn : 1);
     tracer_task_t *tasks = calloc(FUZZ_CAPACITY, sizeof *tasks);
     tracer_result_t *results = calloc(FUZZ_CAPACITY, sizeof *results);
-    proto_msg_t *m = calloc(1, sizeof *m);
-    if (!h || !p || !tasks || !results || !m)
+    proto_mesh_file_t *meshes = calloc(PROTO_MAX_MESHES, sizeof *meshes);
+    proto_records_t *recs = calloc(1, sizeof *recs);
+    if (!h || !p || !tasks || !results || !meshes || !recs)
         abort();
     memcpy(h, data + 1, hn);
     memcpy(p, data + 1 + hn, pn);
-    m->capacity = FUZZ_CAPACITY;
-    m->u.result.records = results;
-    m->u.task.records = tasks;
+    *recs = (proto_records_t){.tasks = tasks,
+                              .task_capacity = FUZZ_CAPACITY,
+                              .results = results,
+                              .result_capacity = FUZZ_CAPACITY,
+                              .meshes = meshes,
+                              .mesh_capacity = PROTO_MAX_MESHES};
+    proto_msg_t m;
     char err[256];
     err[0] = '\0';
-    int rc = proto_decode(h, hn, p, pn, m, err, sizeof err);
-    check_result(rc, m, err, h, hn, p, pn);
-    free(m);
+    int rc = proto_decode(h, hn, p, pn, &m, recs, err, sizeof err);
+    check_result(rc, &m, recs, err, h, hn, p, pn);
+    free(recs);
+    free(meshes);
     free(results);
     free(tasks);
     free(p);

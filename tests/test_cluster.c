@@ -32,6 +32,7 @@
 #include <unistd.h>
 #include <zmq.h>
 
+#include "frames.h"
 #include "image.h"
 #include "keys.h"
 #include "proto.h"
@@ -1076,39 +1077,28 @@ static void send_proto(void *sock, proto_msg_t *msg, int version, int bad_magic)
 }
 
 /* Receives a VBRP message within the socket's receive timeout and decodes
- * it; 0 on success. From a ROUTER (id given) the routing identity comes
- * first and is copied to id (*id_len bytes, at most 256). */
-static int recv_proto(void *sock, uint8_t *id, size_t *id_len, proto_msg_t *msg, char *err,
-                      size_t errlen)
+ * it (a text into recs); 0 on success. From a ROUTER (id given) the routing
+ * identity comes first and is copied to id (*id_len bytes, at most 256). */
+static int recv_proto(void *sock, uint8_t *id, size_t *id_len, proto_msg_t *msg,
+                      proto_records_t *recs, char *err, size_t errlen)
 {
     int skip = id ? 1 : 0;
-    zmq_msg_t f[3];
-    int n = 0, more = 1;
-    for (int i = 0; i < 3; i++)
-        zmq_msg_init(&f[i]);
-    snprintf(err, errlen, "?");
-    while (more && n < 3) {
-        if (zmq_msg_recv(&f[n], sock, 0) < 0) {
-            snprintf(err, errlen, "nothing received: %s", zmq_strerror(errno));
-            break;
-        }
-        more = zmq_msg_more(&f[n]);
-        n++;
-    }
+    proto_frames_t fr;
+    proto_recv_result_t got = proto_recv(sock, &fr, skip + 2, SIZE_MAX, 0);
     int rc = -1;
     memset(msg, 0, sizeof *msg);
-    if (n == skip + 2 && !more) {
+    if (got == PROTO_RECV_NONE) {
+        snprintf(err, errlen, "nothing received: %s", zmq_strerror(errno));
+    } else if (got == PROTO_RECV_OK && fr.count == skip + 2) {
         if (id) {
-            *id_len = zmq_msg_size(&f[0]) < 256 ? zmq_msg_size(&f[0]) : 256;
-            memcpy(id, zmq_msg_data(&f[0]), *id_len);
+            *id_len = zmq_msg_size(&fr.part[0]) < 256 ? zmq_msg_size(&fr.part[0]) : 256;
+            memcpy(id, zmq_msg_data(&fr.part[0]), *id_len);
         }
-        rc = proto_decode(zmq_msg_data(&f[skip]), zmq_msg_size(&f[skip]),
-                          zmq_msg_data(&f[skip + 1]), zmq_msg_size(&f[skip + 1]), msg, err, errlen);
-    } else if (n > 0) {
-        snprintf(err, errlen, "%d frames%s", n, more ? " and more" : "");
+        rc = proto_frames_decode(&fr, skip, msg, recs, err, errlen);
+    } else {
+        snprintf(err, errlen, "%d frames%s", fr.count, fr.dropped ? " and more" : "");
     }
-    for (int i = 0; i < 3; i++)
-        zmq_msg_close(&f[i]);
+    proto_frames_close(&fr);
     return rc;
 }
 
@@ -1157,7 +1147,8 @@ START_TEST(master_garbage)
     snprintf(msg.u.hello.build, sizeof msg.u.hello.build, "vbrender-p2-avx2-gcc99");
     send_proto(s, &msg, 2, 0);
     proto_msg_t reply;
-    int rc = recv_proto(s, NULL, NULL, &reply, err, sizeof err);
+    proto_records_t text_buf = {0};
+    int rc = recv_proto(s, NULL, NULL, &reply, &text_buf, err, sizeof err);
     ck_assert_msg(rc == 0, "no readable reply to a version-2 HELLO: %s\n%s", err, logs_tail());
     ck_assert_msg(reply.h.type == PROTO_REFUSE && strstr(reply.u.text.text, "version 2") != NULL,
                   "reply to a version-2 HELLO: %s \"%s\"", proto_type_name(reply.h.type),
@@ -1168,7 +1159,7 @@ START_TEST(master_garbage)
     msg.u.hello.threads = 1;
     snprintf(msg.u.hello.build, sizeof msg.u.hello.build, "vbrender-p1-other-cc1");
     send_proto(s, &msg, -1, 0);
-    rc = recv_proto(s, NULL, NULL, &reply, err, sizeof err);
+    rc = recv_proto(s, NULL, NULL, &reply, &text_buf, err, sizeof err);
     ck_assert_msg(rc == 0 && reply.h.type == PROTO_REFUSE &&
                       strstr(reply.u.text.text, "build") != NULL,
                   "reply to a HELLO of another build: rc %d %s \"%s\" %s", rc,
@@ -1177,7 +1168,7 @@ START_TEST(master_garbage)
     memset(&msg, 0, sizeof msg);
     msg.h.type = PROTO_HEARTBEAT;
     send_proto(s, &msg, -1, 0);
-    rc = recv_proto(s, NULL, NULL, &reply, err, sizeof err);
+    rc = recv_proto(s, NULL, NULL, &reply, &text_buf, err, sizeof err);
     ck_assert_msg(rc == 0 && reply.h.type == PROTO_BYE,
                   "reply to a stranger's heartbeat: rc %d %s %s", rc, proto_type_name(reply.h.type),
                   err);
@@ -1243,7 +1234,8 @@ START_TEST(worker_refuses_version)
     uint8_t id[256];
     size_t id_len = 0;
     proto_msg_t msg;
-    int rc = recv_proto(r, id, &id_len, &msg, err, sizeof err);
+    proto_records_t text_buf = {0};
+    int rc = recv_proto(r, id, &id_len, &msg, &text_buf, err, sizeof err);
     ck_assert_msg(rc == 0 && msg.h.type == PROTO_HELLO,
                   "the worker's first message: rc %d %s %s\n%s", rc, proto_type_name(msg.h.type),
                   err, logs_tail());
@@ -1267,7 +1259,7 @@ START_TEST(worker_refuses_version)
      * before that, a HELLO again for instance, is skipped) */
     int refused = 0;
     for (int i = 0; i < 20 && !refused; i++) {
-        if (recv_proto(r, id, &id_len, &msg, err, sizeof err) != 0)
+        if (recv_proto(r, id, &id_len, &msg, &text_buf, err, sizeof err) != 0)
             break;
         refused = msg.h.type == PROTO_REFUSE && strstr(msg.u.text.text, "99") != NULL;
     }
@@ -2135,24 +2127,12 @@ static void fake_send(void *s, proto_msg_t *msg)
     free(payload);
 }
 
-/* Receives one message (records into recs); 0, or -1 on timeout/garbage. */
-static int fake_recv(void *s, proto_msg_t *msg, tracer_task_t *recs)
+/* Receives one message (records and text into recs); 0, or -1 on
+ * timeout/garbage. */
+static int fake_recv(void *s, proto_msg_t *msg, proto_records_t *recs)
 {
-    zmq_msg_t f[2];
-    zmq_msg_init(&f[0]);
-    zmq_msg_init(&f[1]);
-    int rc = -1;
-    if (zmq_msg_recv(&f[0], s, 0) >= 0 && zmq_msg_more(&f[0]) && zmq_msg_recv(&f[1], s, 0) >= 0) {
-        char err[256];
-        memset(msg, 0, sizeof *msg);
-        msg->capacity = PROTO_MAX_TASK_PIXELS;
-        msg->u.task.records = recs;
-        rc = proto_decode(zmq_msg_data(&f[0]), zmq_msg_size(&f[0]), zmq_msg_data(&f[1]),
-                          zmq_msg_size(&f[1]), msg, err, sizeof err);
-    }
-    zmq_msg_close(&f[0]);
-    zmq_msg_close(&f[1]);
-    return rc;
+    char err[256];
+    return recv_proto(s, NULL, NULL, msg, recs, err, sizeof err);
 }
 
 /* A worker that connects from 127.0.0.9 and answers every task with sums
@@ -2181,11 +2161,14 @@ START_TEST(lying_worker)
     proto_msg_t *msg = calloc(1, sizeof *msg);
     tracer_task_t *recs = calloc(PROTO_MAX_TASK_PIXELS, sizeof *recs);
     tracer_result_t *res = calloc(PROTO_MAX_TASK_PIXELS, sizeof *res);
+    proto_records_t *rx = calloc(1, sizeof *rx);
+    rx->tasks = recs;
+    rx->task_capacity = PROTO_MAX_TASK_PIXELS;
     msg->h.type = PROTO_HELLO;
     msg->u.hello.threads = 1;
     memcpy(msg->u.hello.build, build, sizeof msg->u.hello.build);
     fake_send(s, msg);
-    ck_assert_msg(fake_recv(s, msg, recs) == 0 && msg->h.type == PROTO_WELCOME,
+    ck_assert_msg(fake_recv(s, msg, rx) == 0 && msg->h.type == PROTO_WELCOME,
                   "no WELCOME for the fake\n%s", logs_tail());
     /* forged credit: results of tasks it never held, then CREDIT again */
     for (int i = 0; i < 3000; i++) {
@@ -2212,7 +2195,7 @@ START_TEST(lying_worker)
     while (!quarantined && now_ms() < end) {
         int held = outstanding_at(port + 1, "127.0.0.9");
         most_held = held > most_held ? held : most_held;
-        if (fake_recv(s, msg, recs) < 0)
+        if (fake_recv(s, msg, rx) < 0)
             continue;
         if (msg->h.type == PROTO_REFUSE) {
             quarantined = strstr(msg->u.text.text, "quarantined") != NULL;
@@ -2250,11 +2233,12 @@ START_TEST(lying_worker)
     fake_send(s, msg);
     int refused = 0;
     for (int i = 0; i < 20 && !refused; i++)
-        refused = fake_recv(s, msg, recs) == 0 && msg->h.type == PROTO_REFUSE;
+        refused = fake_recv(s, msg, rx) == 0 && msg->h.type == PROTO_REFUSE;
     ck_assert_msg(refused, "a quarantined worker was let in again");
     zmq_close(s);
     zmq_ctx_term(ctx);
     free(msg);
+    free(rx);
     free(recs);
     free(res);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "liar.exr"));

@@ -105,11 +105,13 @@ static void free_vec(vec_t *v)
     free(v->p);
 }
 
-/* A message ready to receive anything: zeroed, both record buffers set. */
+/* A message and buffers ready to receive anything. */
 typedef struct rx {
     proto_msg_t m;
+    proto_records_t recs;
     tracer_task_t *tasks;
     tracer_result_t *results;
+    proto_mesh_file_t meshes[PROTO_MAX_MESHES];
 } rx_t;
 
 static rx_t *rx_new(uint32_t capacity)
@@ -124,10 +126,15 @@ static rx_t *rx_new(uint32_t capacity)
 
 static void rx_reset(rx_t *r, uint32_t capacity)
 {
-    memset(&r->m, 0, sizeof r->m);
-    r->m.capacity = capacity;
-    r->m.u.result.records = r->results;
-    r->m.u.task.records = r->tasks;
+    /* garbage in the message: the decoder must not trust any of it */
+    memset(&r->m, 0xa5, sizeof r->m);
+    memset(&r->recs, 0, sizeof r->recs);
+    r->recs.tasks = r->tasks;
+    r->recs.task_capacity = capacity;
+    r->recs.results = r->results;
+    r->recs.result_capacity = capacity;
+    r->recs.meshes = r->meshes;
+    r->recs.mesh_capacity = PROTO_MAX_MESHES;
 }
 
 static void rx_free(rx_t *r)
@@ -142,7 +149,7 @@ static int decode(rx_t *r, uint32_t capacity, const uint8_t *h, size_t hn, const
 {
     rx_reset(r, capacity);
     err[0] = '\0';
-    return proto_decode(h, hn, p, pn, &r->m, err, errlen);
+    return proto_decode(h, hn, p, pn, &r->m, &r->recs, err, errlen);
 }
 
 /* Encodes msg and checks it gives exactly h and p. */
@@ -523,19 +530,21 @@ START_TEST(rt_text)
     const uint16_t types[3] = {PROTO_REFUSE, PROTO_BYE, PROTO_TASK_FAILED};
     proto_msg_t *m = msg_new(PROTO_REFUSE);
     rx_t *r = rx_new(1);
+    char text[PROTO_TEXT_MAX + 1];
+    m->u.text.text = text;
     for (int t = 0; t < 3; t++) {
         m->h.type = types[t];
-        m->u.text.text[0] = '\0';
+        text[0] = '\0';
         free(round_trip(m, r, 1));
         ck_assert_str_eq(r->m.u.text.text, "");
         ck_assert_uint_eq(r->m.h.payload_size, 4);
         /* the longest text, with every non-NUL byte value (UTF-8 or not) */
         for (int i = 0; i < PROTO_TEXT_MAX; i++)
-            m->u.text.text[i] = (char)(1 + i % 255);
-        m->u.text.text[PROTO_TEXT_MAX] = '\0';
+            text[i] = (char)(1 + i % 255);
+        text[PROTO_TEXT_MAX] = '\0';
         free(round_trip(m, r, 1));
         ck_assert_uint_eq(r->m.h.payload_size, 4 + PROTO_TEXT_MAX);
-        ck_assert(memcmp(r->m.u.text.text, m->u.text.text, PROTO_TEXT_MAX + 1) == 0);
+        ck_assert(memcmp(r->m.u.text.text, text, PROTO_TEXT_MAX + 1) == 0);
     }
     rx_free(r);
     free(m);
@@ -564,23 +573,26 @@ START_TEST(rt_bundle_max_meshes)
     rx_t *r = rx_new(1);
     static const char json[] = "{\"camera\":{}}";
     static const uint8_t data[3] = {0, 0xff, 7};
+    static proto_mesh_file_t meshes[PROTO_MAX_MESHES];
     proto_bundle_t *b = &m->u.bundle;
     b->json = json;
     b->json_size = (uint32_t)strlen(json);
     b->mesh_count = PROTO_MAX_MESHES;
+    b->meshes = meshes;
     for (uint32_t i = 0; i < PROTO_MAX_MESHES; i++) {
         /* the longest names, distinct only in their first characters */
-        memset(b->meshes[i].name, 'n', PROTO_MAX_NAME);
-        b->meshes[i].name[0] = (char)('0' + i / 10);
-        b->meshes[i].name[1] = (char)('0' + i % 10);
-        b->meshes[i].name[PROTO_MAX_NAME] = '\0';
-        b->meshes[i].data = data;
-        b->meshes[i].size = i % 4; /* 0..3 bytes; size 0 too */
-        if (b->meshes[i].size == 0)
-            b->meshes[i].data = NULL;
+        memset(meshes[i].name, 'n', PROTO_MAX_NAME);
+        meshes[i].name[0] = (char)('0' + i / 10);
+        meshes[i].name[1] = (char)('0' + i % 10);
+        meshes[i].name[PROTO_MAX_NAME] = '\0';
+        meshes[i].data = data;
+        meshes[i].size = i % 4; /* 0..3 bytes; size 0 too */
+        if (meshes[i].size == 0)
+            meshes[i].data = NULL;
     }
     uint8_t *buf = round_trip(m, r, 1);
     const proto_bundle_t *d = &r->m.u.bundle;
+    ck_assert_ptr_eq(d->meshes, r->meshes); /* the caller's buffer */
     ck_assert_uint_eq(d->mesh_count, PROTO_MAX_MESHES);
     ck_assert(memcmp(d->json, json, strlen(json)) == 0);
     for (uint32_t i = 0; i < PROTO_MAX_MESHES; i++) {
@@ -731,9 +743,11 @@ START_TEST(enc_rejects_fields)
     expect_encode_fails(m, 256, "CREDIT: credit 1025");
 
     m->h.type = PROTO_TASK_FAILED;
-    memset(m->u.text.text, 'x', sizeof m->u.text.text); /* 1025 bytes, no NUL */
+    char text[PROTO_TEXT_MAX + 1];
+    memset(text, 'x', sizeof text); /* 1025 bytes, no NUL */
+    m->u.text.text = text;
     expect_encode_fails(m, 256, "TASK_FAILED: text longer than 1024");
-    snprintf(m->u.text.text, sizeof m->u.text.text, "abc");
+    snprintf(text, sizeof text, "abc");
     expect_encode_fails(m, 6, "TASK_FAILED: payload needs 7 bytes, the buffer has 6");
     free(m);
 }
@@ -743,6 +757,8 @@ START_TEST(enc_rejects_bundle)
 {
     proto_msg_t *m = msg_new(PROTO_SCENE_BUNDLE);
     proto_bundle_t *b = &m->u.bundle;
+    proto_mesh_file_t meshes[2];
+    memset(meshes, 0, sizeof meshes);
     static const uint8_t data[1] = {1};
     b->json_size = 1;
     expect_encode_fails(m, 256, "SCENE_BUNDLE: json is NULL");
@@ -753,10 +769,12 @@ START_TEST(enc_rejects_bundle)
     b->mesh_count = PROTO_MAX_MESHES + 1;
     expect_encode_fails(m, 256, "mesh_count 65 exceeds 64");
     b->mesh_count = 2;
-    snprintf(b->meshes[0].name, sizeof b->meshes[0].name, "a.obj");
-    b->meshes[0].data = data;
-    b->meshes[0].size = 1;
-    b->meshes[1] = b->meshes[0];
+    expect_encode_fails(m, 256, "SCENE_BUNDLE: meshes is NULL");
+    b->meshes = meshes;
+    snprintf(meshes[0].name, sizeof meshes[0].name, "a.obj");
+    meshes[0].data = data;
+    meshes[0].size = 1;
+    meshes[1] = meshes[0];
     expect_encode_fails(m, 256, "mesh 1: duplicate name \"a.obj\" (also mesh 0)");
 
     static const struct {
@@ -772,27 +790,27 @@ START_TEST(enc_rejects_bundle)
         {"\xc3\xa9.obj", "mesh 1: name byte 0 is 0xc3"},
     };
     for (size_t i = 0; i < sizeof bad_names / sizeof bad_names[0]; i++) {
-        snprintf(b->meshes[1].name, sizeof b->meshes[1].name, "%s", bad_names[i].name);
+        snprintf(meshes[1].name, sizeof meshes[1].name, "%s", bad_names[i].name);
         expect_encode_fails(m, 256, bad_names[i].want);
     }
-    memset(b->meshes[1].name, 'n', sizeof b->meshes[1].name); /* 129 bytes, no NUL */
+    memset(meshes[1].name, 'n', sizeof meshes[1].name); /* 129 bytes, no NUL */
     expect_encode_fails(m, 256, "mesh 1: name_len 129 out of range");
     /* "..." and ".a" are plain file names */
-    snprintf(b->meshes[1].name, sizeof b->meshes[1].name, "...");
+    snprintf(meshes[1].name, sizeof meshes[1].name, "...");
     uint8_t hdr[PROTO_HEADER_SIZE], buf[256];
     char err[256];
     ck_assert_int_gt(proto_encode(m, hdr, buf, sizeof buf, err, sizeof err), 0);
 
-    b->meshes[1].size = 2;
-    b->meshes[1].data = NULL;
+    meshes[1].size = 2;
+    meshes[1].data = NULL;
     expect_encode_fails(m, 256, "mesh 1: data is NULL");
-    b->meshes[1].data = data;
-    b->meshes[1].size = PROTO_MAX_MESH_BYTES + 1;
+    meshes[1].data = data;
+    meshes[1].size = PROTO_MAX_MESH_BYTES + 1;
     expect_encode_fails(m, 256, "mesh 1: size 1073741825 exceeds 1073741824");
     /* Each mesh under its limit, the sum over the bundle's: refused before
      * anything reads the (absent) data. */
-    b->meshes[0].size = PROTO_MAX_MESH_BYTES;
-    b->meshes[1].size = PROTO_MAX_MESH_BYTES;
+    meshes[0].size = PROTO_MAX_MESH_BYTES;
+    meshes[1].size = PROTO_MAX_MESH_BYTES;
     expect_encode_fails(m, 256, "exceeds 1610612736");
     free(m);
 }
@@ -938,6 +956,47 @@ START_TEST(truncated_header)
 }
 END_TEST
 
+/* Record buffers are the caller's, apart from the message: a decode sets
+ * every pointer in the message itself, so none left from an earlier
+ * message (of another type) is trusted. */
+START_TEST(no_leftover_pointers)
+{
+    ck_assert_uint_le(sizeof(proto_msg_t), 512);
+    char err[256];
+    vec_t task = load_vec("task.hex"), result = load_vec("result.hex");
+    rx_t *r = rx_new(2);
+    ck_assert_int_eq(decode(r, 2, task.h, task.hn, task.p, task.pn, err, sizeof err), 0);
+    ck_assert_ptr_eq(r->m.u.task.records, r->tasks);
+    /* a RESULT next, with only a task buffer: refused, although the
+     * message still holds the TASK's pointer */
+    r->recs.results = NULL;
+    ck_assert_int_eq(
+        proto_decode(result.h, result.hn, result.p, result.pn, &r->m, &r->recs, err, sizeof err),
+        -1);
+    ck_assert(strstr(err, "RESULT: no record buffer") != NULL);
+    /* and with one, the records land there and nowhere else */
+    r->recs.results = r->results;
+    ck_assert_int_eq(
+        proto_decode(result.h, result.hn, result.p, result.pn, &r->m, &r->recs, err, sizeof err),
+        0);
+    ck_assert_ptr_eq(r->m.u.result.records, r->results);
+    /* no buffers at all: records and texts are refused, fixed types pass */
+    ck_assert_int_eq(proto_decode(task.h, task.hn, task.p, task.pn, &r->m, NULL, err, sizeof err),
+                     -1);
+    ck_assert_str_eq(err, "TASK: count 2 exceeds the receive capacity 0");
+    free_vec(&task);
+    free_vec(&result);
+    vec_t bye = load_vec("bye.hex"), credit = load_vec("credit.hex");
+    ck_assert_int_eq(proto_decode(bye.h, bye.hn, bye.p, bye.pn, &r->m, NULL, err, sizeof err), -1);
+    ck_assert(strstr(err, "BYE: no text buffer") != NULL);
+    ck_assert_int_eq(
+        proto_decode(credit.h, credit.hn, credit.p, credit.pn, &r->m, NULL, err, sizeof err), 0);
+    free_vec(&bye);
+    free_vec(&credit);
+    rx_free(r);
+}
+END_TEST
+
 START_TEST(over_capacity)
 {
     char err[256];
@@ -948,8 +1007,8 @@ START_TEST(over_capacity)
     ck_assert_int_eq(decode(r, 2, v.h, v.hn, v.p, v.pn, err, sizeof err), 0);
     /* a capacity without a buffer */
     rx_reset(r, 2);
-    r->m.u.task.records = NULL;
-    ck_assert_int_eq(proto_decode(v.h, v.hn, v.p, v.pn, &r->m, err, sizeof err), -1);
+    r->recs.tasks = NULL;
+    ck_assert_int_eq(proto_decode(v.h, v.hn, v.p, v.pn, &r->m, &r->recs, err, sizeof err), -1);
     ck_assert(strstr(err, "TASK: no record buffer") != NULL);
     free_vec(&v);
 
@@ -957,8 +1016,8 @@ START_TEST(over_capacity)
     ck_assert_int_eq(decode(r, 0, v.h, v.hn, v.p, v.pn, err, sizeof err), -1);
     ck_assert_str_eq(err, "RESULT: count 2 exceeds the receive capacity 0");
     rx_reset(r, 2);
-    r->m.u.result.records = NULL;
-    ck_assert_int_eq(proto_decode(v.h, v.hn, v.p, v.pn, &r->m, err, sizeof err), -1);
+    r->recs.results = NULL;
+    ck_assert_int_eq(proto_decode(v.h, v.hn, v.p, v.pn, &r->m, &r->recs, err, sizeof err), -1);
     ck_assert(strstr(err, "RESULT: no record buffer") != NULL);
     free_vec(&v);
     rx_free(r);
@@ -1081,11 +1140,11 @@ START_TEST(version_refusal)
     v.h[0] ^= 1;
     ck_assert_int_eq(decode(r, 1, v.h, v.hn, v.p, v.pn, err, sizeof err), -1);
     /* no message buffer: still refused, nothing written */
-    ck_assert_int_eq(proto_decode(v.h, v.hn, v.p, v.pn, &r->m, NULL, 0), -1);
+    ck_assert_int_eq(proto_decode(v.h, v.hn, v.p, v.pn, &r->m, &r->recs, NULL, 0), -1);
     err[0] = 'x';
-    ck_assert_int_eq(proto_decode(v.h, v.hn, v.p, v.pn, &r->m, err, 0), -1);
+    ck_assert_int_eq(proto_decode(v.h, v.hn, v.p, v.pn, &r->m, &r->recs, err, 0), -1);
     ck_assert_int_eq(err[0], 'x');
-    ck_assert_int_eq(proto_decode(v.h, v.hn, v.p, v.pn, NULL, err, sizeof err), -1);
+    ck_assert_int_eq(proto_decode(v.h, v.hn, v.p, v.pn, NULL, &r->recs, err, sizeof err), -1);
     rx_free(r);
     free_vec(&v);
 }
@@ -1151,7 +1210,7 @@ START_TEST(payload_sizes)
     m->h.type = PROTO_SCENE_REQUEST;
     ck_assert_uint_eq(proto_payload_size(m), 32);
     m->h.type = PROTO_BYE;
-    snprintf(m->u.text.text, sizeof m->u.text.text, "hello");
+    m->u.text.text = "hello";
     ck_assert_uint_eq(proto_payload_size(m), 9);
     m->h.type = PROTO_TASK;
     m->u.task.count = 3;
@@ -1164,8 +1223,8 @@ START_TEST(payload_sizes)
     m->h.type = PROTO_SCENE_BUNDLE;
     m->u.bundle.json_size = 10;
     m->u.bundle.mesh_count = 1;
-    snprintf(m->u.bundle.meshes[0].name, sizeof m->u.bundle.meshes[0].name, "a.ply");
-    m->u.bundle.meshes[0].size = 7;
+    proto_mesh_file_t mesh = {.name = "a.ply", .size = 7};
+    m->u.bundle.meshes = &mesh;
     ck_assert_uint_eq(proto_payload_size(m), 40 + 10 + 2 + 5 + 4 + 7);
     m->u.bundle.mesh_count = 1000; /* invalid, but no read past the array */
     ck_assert_uint_ge(proto_payload_size(m), 40 + 10);
@@ -1182,34 +1241,26 @@ END_TEST
 START_TEST(test_bundle_hash)
 {
     ck_assert(sodium_init() >= 0);
-    static proto_bundle_t b;
-    memset(&b, 0, sizeof b);
-    b.json = "{\"a\":1}";
-    b.json_size = 7;
-    b.mesh_count = 1;
-    snprintf(b.meshes[0].name, sizeof b.meshes[0].name, "mesh0.ply");
-    b.meshes[0].data = (const uint8_t *)"ply\nxyz";
-    b.meshes[0].size = 7;
+    proto_mesh_file_t mesh = {.name = "mesh0.ply", .data = (const uint8_t *)"ply\nxyz", .size = 7};
+    proto_bundle_t b = {.json = "{\"a\":1}", .json_size = 7, .mesh_count = 1, .meshes = &mesh};
     uint8_t h[PROTO_HASH_SIZE];
     proto_bundle_hash(&b, h);
     char hex[2 * PROTO_HASH_SIZE + 1];
     for (int i = 0; i < PROTO_HASH_SIZE; i++)
         snprintf(hex + 2 * i, 3, "%02x", h[i]);
     ck_assert_str_eq(hex, "e16cccef6855f8a82a0a51a363d7649808baacd49cab7cffb903430067cc184c");
-    static proto_bundle_t empty;
-    memset(&empty, 0, sizeof empty);
-    empty.json = "{}";
-    empty.json_size = 2;
+    proto_bundle_t empty = {.json = "{}", .json_size = 2};
     proto_bundle_hash(&empty, h);
     for (int i = 0; i < PROTO_HASH_SIZE; i++)
         snprintf(hex + 2 * i, 3, "%02x", h[i]);
     ck_assert_str_eq(hex, "376b7bb907c1489aca4a1b2d71b8c5175b37b0f48d1dae633d70e7bb326dea1d");
     /* "{\"a\":1}m" + "esh0.ply" is not "{\"a\":1}" + "mesh0.ply" */
-    static proto_bundle_t shifted;
-    shifted = b;
+    proto_mesh_file_t shifted_mesh = mesh;
+    snprintf(shifted_mesh.name, sizeof shifted_mesh.name, "esh0.ply");
+    proto_bundle_t shifted = b;
     shifted.json = "{\"a\":1}m";
     shifted.json_size = 8;
-    snprintf(shifted.meshes[0].name, sizeof shifted.meshes[0].name, "esh0.ply");
+    shifted.meshes = &shifted_mesh;
     uint8_t h2[PROTO_HASH_SIZE];
     proto_bundle_hash(&b, h);
     proto_bundle_hash(&shifted, h2);
@@ -1256,6 +1307,7 @@ static Suite *proto_suite(void)
     tcase_add_test(tc, truncated_payloads);
     tcase_add_test(tc, truncated_header);
     tcase_add_test(tc, over_capacity);
+    tcase_add_test(tc, no_leftover_pointers);
     tcase_add_test(tc, random_frames);
     tcase_add_test(tc, every_byte_of_every_vector);
     tcase_add_test(tc, version_refusal);

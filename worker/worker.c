@@ -19,6 +19,7 @@
 #include <time.h>
 #include <zmq.h>
 
+#include "frames.h"
 #include "handshake.h"
 #include "proto.h"
 #include "scene.h"
@@ -78,7 +79,8 @@ struct worker {
     char build[PROTO_BUILD_SIZE + 1];
     uint8_t *payload;
     size_t payload_cap;
-    tracer_task_t *decode_records;
+    tracer_task_t *decode_records;    /* decode buffers: a TASK's records, */
+    proto_mesh_file_t *decode_meshes; /* a SCENE_BUNDLE's files */
     int refused;
     int curve;                /* keys given: the socket is a CURVE client */
     handshake_monitor_t *mon; /* sock's handshakes */
@@ -188,9 +190,9 @@ static int send_msg(worker_t *w, proto_msg_t *msg)
         logf_(w, "cannot encode %s: %s", proto_type_name(msg->h.type), err);
         return -1;
     }
-    if (zmq_send(w->sock, header, PROTO_HEADER_SIZE, ZMQ_SNDMORE | ZMQ_DONTWAIT) < 0)
-        return -1;
-    if (zmq_send(w->sock, w->payload ? w->payload : (uint8_t *)"", (size_t)n, ZMQ_DONTWAIT) < 0)
+    const void *parts[2] = {header, w->payload};
+    const size_t sizes[2] = {PROTO_HEADER_SIZE, (size_t)n};
+    if (proto_send(w->sock, parts, sizes, 2, ZMQ_DONTWAIT) < 0)
         return -1;
     w->last_sent = now_s();
     return 0;
@@ -198,19 +200,15 @@ static int send_msg(worker_t *w, proto_msg_t *msg)
 
 static void send_simple(worker_t *w, proto_type_t type, const char *text)
 {
-    proto_msg_t msg;
-    memset(&msg, 0, sizeof msg);
-    msg.h.type = (uint16_t)type;
-    if (text)
-        snprintf(msg.u.text.text, sizeof msg.u.text.text, "%s", text);
+    char cut[PROTO_TEXT_MAX + 1]; /* a longer text is cut, not refused */
+    snprintf(cut, sizeof cut, "%s", text ? text : "");
+    proto_msg_t msg = {.h.type = (uint16_t)type, .u.text.text = cut};
     send_msg(w, &msg);
 }
 
 static void send_hello(worker_t *w)
 {
-    proto_msg_t msg;
-    memset(&msg, 0, sizeof msg);
-    msg.h.type = PROTO_HELLO;
+    proto_msg_t msg = {.h.type = PROTO_HELLO};
     msg.u.hello.threads = (uint32_t)w->cfg.threads;
     memcpy(msg.u.hello.build, w->build, sizeof msg.u.hello.build);
     send_msg(w, &msg);
@@ -242,25 +240,21 @@ static void report(worker_t *w, wtask_t *t)
 {
     if (t->generation != w->generation || !w->welcomed)
         return; /* from an earlier connection: the master has moved on */
-    proto_msg_t *msg = calloc(1, sizeof *msg);
-    if (!msg)
-        return;
-    msg->h.job = t->job;
-    msg->h.task = t->task;
-    msg->h.attempt = t->attempt;
+    proto_msg_t msg = {.h = {.job = t->job, .task = t->task, .attempt = t->attempt}};
+    char text[PROTO_TEXT_MAX + 1];
     if (t->failed) {
-        msg->h.type = PROTO_TASK_FAILED;
-        snprintf(msg->u.text.text, sizeof msg->u.text.text, "%s: %s", w->name, t->error);
+        msg.h.type = PROTO_TASK_FAILED;
+        snprintf(text, sizeof text, "%s: %s", w->name, t->error);
+        msg.u.text.text = text;
     } else {
         maybe_lie(w, t);
-        msg->h.type = PROTO_RESULT;
-        msg->u.result.rays = t->rays;
-        msg->u.result.busy_us = t->busy_us;
-        msg->u.result.count = t->count;
-        msg->u.result.records = t->results;
+        msg.h.type = PROTO_RESULT;
+        msg.u.result.rays = t->rays;
+        msg.u.result.busy_us = t->busy_us;
+        msg.u.result.count = t->count;
+        msg.u.result.records = t->results;
     }
-    send_msg(w, msg);
-    free(msg);
+    send_msg(w, &msg);
 }
 
 static void drain_done(worker_t *w)
@@ -328,7 +322,7 @@ static void enqueue(worker_t *w, wtask_t *t)
     pthread_mutex_unlock(&w->lock);
 }
 
-static void on_bundle(worker_t *w, proto_msg_t *msg)
+static void on_bundle(worker_t *w, const proto_msg_t *msg)
 {
     const proto_bundle_t *b = &msg->u.bundle;
     scene_entry_t *e = find_scene(w, b->hash);
@@ -391,7 +385,7 @@ static void on_bundle(worker_t *w, proto_msg_t *msg)
     evict(w);
 }
 
-static void on_task(worker_t *w, proto_msg_t *msg)
+static void on_task(worker_t *w, const proto_msg_t *msg)
 {
     wtask_t *t = calloc(1, sizeof *t);
     uint32_t n = msg->u.task.count;
@@ -403,11 +397,10 @@ static void on_task(worker_t *w, proto_msg_t *msg)
         if (t) {
             task_free(t);
         }
-        proto_msg_t f;
-        memset(&f, 0, sizeof f);
-        f.h = msg->h;
+        char text[PROTO_TEXT_MAX + 1];
+        snprintf(text, sizeof text, "%s: out of memory", w->name);
+        proto_msg_t f = {.h = msg->h, .u.text.text = text};
         f.h.type = PROTO_TASK_FAILED;
-        snprintf(f.u.text.text, sizeof f.u.text.text, "%s: out of memory", w->name);
         send_msg(w, &f);
         return;
     }
@@ -439,10 +432,7 @@ static void on_task(worker_t *w, proto_msg_t *msg)
     t->next = w->waiting;
     w->waiting = t;
     if (!e->requested) {
-        proto_msg_t req;
-        memset(&req, 0, sizeof req);
-        req.h.type = PROTO_SCENE_REQUEST;
-        req.h.job = msg->h.job;
+        proto_msg_t req = {.h.type = PROTO_SCENE_REQUEST, .h.job = msg->h.job};
         memcpy(req.u.scene_hash, e->hash, PROTO_HASH_SIZE);
         send_msg(w, &req);
         e->requested = 1;
@@ -483,63 +473,26 @@ static void start_over(worker_t *w, const char *why)
     send_hello(w);
 }
 
-static void handle_message(worker_t *w)
+static void on_welcome(worker_t *w, const proto_msg_t *msg)
 {
-    zmq_msg_t f[2];
-    int n = 0, more = 1;
-    while (more) {
-        zmq_msg_t x;
-        zmq_msg_init(&x);
-        if (zmq_msg_recv(&x, w->sock, ZMQ_DONTWAIT) < 0) {
-            zmq_msg_close(&x);
-            break;
-        }
-        more = zmq_msg_more(&x);
-        if (n < 2)
-            f[n++] = x;
-        else {
-            zmq_msg_close(&x);
-            n = 3;
-        }
-    }
-    if (n != 2) {
-        logf_(w, "dropped a malformed message from the master");
-        for (int i = 0; i < (n < 2 ? n : 2); i++)
-            zmq_msg_close(&f[i]);
+    if (w->welcomed)
         return;
-    }
-    proto_msg_t *msg = calloc(1, sizeof *msg);
-    if (!msg)
-        goto out;
-    msg->capacity = PROTO_MAX_TASK_PIXELS;
-    msg->u.task.records = w->decode_records;
-    char err[256];
-    int rc = proto_decode(zmq_msg_data(&f[0]), zmq_msg_size(&f[0]), zmq_msg_data(&f[1]),
-                          zmq_msg_size(&f[1]), msg, err, sizeof err);
-    if (rc == -2) {
-        logf_(w, "the master speaks another protocol: %s", err);
-        send_simple(w, PROTO_REFUSE, err);
-        w->refused = 1;
-        goto out;
-    }
-    if (rc < 0) {
-        logf_(w, "dropped a malformed message from the master: %s", err);
-        goto out;
-    }
+    w->welcomed = 1;
+    w->heartbeat_ms = msg->u.welcome.heartbeat_ms;
+    uint32_t want = (uint32_t)(PROTO_CREDIT_PER_THREAD * w->cfg.threads);
+    proto_msg_t c = {.h.type = PROTO_CREDIT,
+                     .u.credit = want > PROTO_MAX_CREDIT ? PROTO_MAX_CREDIT : want};
+    send_msg(w, &c);
+    logf_(w, "connected to %s with %d threads", w->cfg.master_endpoint, w->cfg.threads);
+}
+
+/* A message from the master, decoded. */
+static void on_message(worker_t *w, const proto_msg_t *msg)
+{
     w->last_from_master = now_s();
     switch (msg->h.type) {
     case PROTO_WELCOME:
-        if (!w->welcomed) {
-            w->welcomed = 1;
-            w->heartbeat_ms = msg->u.welcome.heartbeat_ms;
-            proto_msg_t c;
-            memset(&c, 0, sizeof c);
-            c.h.type = PROTO_CREDIT;
-            uint32_t want = (uint32_t)(PROTO_CREDIT_PER_THREAD * w->cfg.threads);
-            c.u.credit = want > PROTO_MAX_CREDIT ? PROTO_MAX_CREDIT : want;
-            send_msg(w, &c);
-            logf_(w, "connected to %s with %d threads", w->cfg.master_endpoint, w->cfg.threads);
-        }
+        on_welcome(w, msg);
         break;
     case PROTO_REFUSE:
         logf_(w, "refused by the master: %s", msg->u.text.text);
@@ -561,10 +514,36 @@ static void handle_message(worker_t *w)
         logf_(w, "dropped an out-of-protocol %s from the master", proto_type_name(msg->h.type));
         break;
     }
-out:
-    free(msg);
-    for (int i = 0; i < 2; i++)
-        zmq_msg_close(&f[i]);
+}
+
+/* Receives [header][payload] from the master: a bundle at most. */
+static void handle_message(worker_t *w)
+{
+    proto_frames_t fr;
+    proto_recv_result_t got =
+        proto_recv(w->sock, &fr, 2, PROTO_HEADER_SIZE + (size_t)PROTO_MAX_BUNDLE, ZMQ_DONTWAIT);
+    if (got != PROTO_RECV_OK || fr.count != 2) {
+        logf_(w, "dropped a malformed message from the master");
+        proto_frames_close(&fr);
+        return;
+    }
+    proto_records_t recs = {.tasks = w->decode_records,
+                            .task_capacity = PROTO_MAX_TASK_PIXELS,
+                            .meshes = w->decode_meshes,
+                            .mesh_capacity = PROTO_MAX_MESHES};
+    proto_msg_t msg;
+    char err[256];
+    int rc = proto_frames_decode(&fr, 0, &msg, &recs, err, sizeof err);
+    if (rc == -2) {
+        logf_(w, "the master speaks another protocol: %s", err);
+        send_simple(w, PROTO_REFUSE, err);
+        w->refused = 1;
+    } else if (rc < 0) {
+        logf_(w, "dropped a malformed message from the master: %s", err);
+    } else {
+        on_message(w, &msg);
+    }
+    proto_frames_close(&fr);
 }
 
 /* ---- the socket to the master ------------------------------------------------------ */
@@ -662,6 +641,26 @@ static void reopen_if_due(worker_t *w, double now)
 
 /* ---- lifecycle -------------------------------------------------------------------- */
 
+/* The CURVE keys, copied: cfg's strings need not outlive worker_new. */
+static int copy_keys(worker_t *w, const worker_config_t *cfg, char *err, size_t errlen)
+{
+    w->curve = cfg->public_key || cfg->secret_key || cfg->master_key;
+    if (!w->curve)
+        return 0;
+    const char *k[3] = {cfg->public_key, cfg->secret_key, cfg->master_key};
+    for (int i = 0; i < 3; i++)
+        if (!k[i] ||
+            (size_t)snprintf(w->keys[i], sizeof w->keys[i], "%s", k[i]) >= sizeof w->keys[i]) {
+            snprintf(err, errlen,
+                     "CURVE needs this worker's key pair and the master's public key (Z85)");
+            return -1;
+        }
+    w->cfg.public_key = w->keys[0];
+    w->cfg.secret_key = w->keys[1];
+    w->cfg.master_key = w->keys[2];
+    return 0;
+}
+
 worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
 {
     if (cfg->threads < 1 || cfg->threads > PROTO_MAX_THREADS) {
@@ -688,8 +687,9 @@ worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
     pthread_mutex_init(&w->lock, NULL);
     pthread_cond_init(&w->cond, NULL);
     w->decode_records = malloc(PROTO_MAX_TASK_PIXELS * sizeof *w->decode_records);
+    w->decode_meshes = malloc(PROTO_MAX_MESHES * sizeof *w->decode_meshes);
     w->threads = calloc((size_t)cfg->threads, sizeof *w->threads);
-    if (!w->decode_records || !w->threads) {
+    if (!w->decode_records || !w->decode_meshes || !w->threads) {
         snprintf(err, errlen, "out of memory");
         worker_destroy(&w);
         return NULL;
@@ -713,20 +713,9 @@ worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
     }
     int zero = 0;
     zmq_setsockopt(w->wake, ZMQ_LINGER, &zero, sizeof zero);
-    w->curve = cfg->public_key || cfg->secret_key || cfg->master_key;
-    if (w->curve) {
-        const char *k[3] = {cfg->public_key, cfg->secret_key, cfg->master_key};
-        for (int i = 0; i < 3; i++)
-            if (!k[i] ||
-                (size_t)snprintf(w->keys[i], sizeof w->keys[i], "%s", k[i]) >= sizeof w->keys[i]) {
-                snprintf(err, errlen,
-                         "CURVE needs this worker's key pair and the master's public key (Z85)");
-                worker_destroy(&w);
-                return NULL;
-            }
-        w->cfg.public_key = w->keys[0];
-        w->cfg.secret_key = w->keys[1];
-        w->cfg.master_key = w->keys[2];
+    if (copy_keys(w, cfg, err, errlen) < 0) {
+        worker_destroy(&w);
+        return NULL;
     }
     w->handshake_backoff = 1.0;
     if (open_master_socket(w, err, errlen) < 0) {
@@ -848,6 +837,7 @@ void worker_destroy(worker_t **wp)
     explicit_bzero(w->keys, sizeof w->keys);
     free(w->threads);
     free(w->decode_records);
+    free(w->decode_meshes);
     free(w->payload);
     free(w);
     *wp = NULL;
