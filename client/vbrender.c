@@ -14,7 +14,9 @@
  * of a distributed run with the same settings.
  *
  * Exit status: 0 done, 1 the work failed (bad scene, job failed or
- * cancelled, I/O, no master), 2 bad usage.
+ * cancelled, I/O, no master), 2 bad usage, 130 render interrupted (the
+ * first SIGINT or SIGTERM cancels the job and writes the image so far,
+ * marked partial in its header; a second exits at once).
  *
  * `submit` and `wait` outlast a master restart: while the master does not
  * answer they ask again (a submit with the same request id, so the job is
@@ -40,9 +42,11 @@
 #include "keys.h"
 #include "master.h"
 #include "progress.h"
+#include "proto.h"
 #include "render.h"
 #include "sched.h"
 #include "settings.h"
+#include "vblog.h"
 #include "worker.h"
 
 static const char usage_head[] =
@@ -86,7 +90,13 @@ static const char usage_tail[] =
     "  --workers N             render: local workers (default " CLIENT_DEFAULT_WORKERS_TEXT ")\n"
     "  --threads T             render: threads in all (default: all cores)\n"
     "  --progress MODE         auto, bar, lines or none (default auto)\n"
-    "  -h, --help              this text\n";
+    "  --log-level LEVEL       render: the embedded master's and workers' log lines on\n"
+    "                          stderr at error, warn, info or debug (default: none;\n"
+    "                          with $VB_LOG set, info)\n"
+    "  --version               the build id\n"
+    "  -h, --help              this text\n"
+    "Ctrl-C during render cancels the job and writes the image so far (its header\n"
+    "marked partial: vb.partial) and exits 130; a second Ctrl-C exits at once.\n";
 
 static void print_usage(FILE *f)
 {
@@ -351,9 +361,11 @@ static void show_job_notes(wait_view_t *v, unsigned long long job, const cJSON *
 
 /* Polls status until the job ends; returns the final status, or NULL with
  * a message (one saying the job may still run when the master stayed away
- * for timeout_s; timeout_s <= 0: no retries). */
-static cJSON *wait_job(control_t *c, unsigned long long job, progress_mode_t mode, double timeout_s,
-                       char *err, size_t errlen)
+ * for timeout_s; timeout_s <= 0: no retries). When *interrupts becomes
+ * non-zero (interrupts may be NULL) it stops polling and returns the last
+ * status, the job not ended (NULL if none came yet). */
+static cJSON *watch_job(control_t *c, unsigned long long job, progress_mode_t mode,
+                        double timeout_s, const atomic_int *interrupts, char *err, size_t errlen)
 {
     char label[32];
     snprintf(label, sizeof label, "job %llu", job);
@@ -366,7 +378,12 @@ static cJSON *wait_job(control_t *c, unsigned long long job, progress_mode_t mod
     cJSON_AddStringToObject(req, "cmd", "status");
     cJSON_AddNumberToObject(req, "job", (double)job);
     cJSON *st = NULL;
+    int interrupted = 0;
     for (;;) {
+        if (interrupts && atomic_load(interrupts)) {
+            interrupted = 1;
+            break;
+        }
         /* status is safe to ask again: a restarted master answers it anew */
         cJSON *reply = control_request_retry(c, req, NULL, NULL, 0, &retry, err, errlen);
         if (!reply) {
@@ -406,11 +423,17 @@ static cJSON *wait_job(control_t *c, unsigned long long job, progress_mode_t mod
     view_break(&view);
     progress_destroy(&view.prog);
     cJSON_Delete(req);
-    if (st && !job_ended(st)) {
+    if (st && !job_ended(st) && !interrupted) {
         cJSON_Delete(st);
         st = NULL;
     }
     return st;
+}
+
+static cJSON *wait_job(control_t *c, unsigned long long job, progress_mode_t mode, double timeout_s,
+                       char *err, size_t errlen)
+{
+    return watch_job(c, job, mode, timeout_s, NULL, err, errlen);
 }
 
 /* Writes OUT.exr, OUT.png and OUT-samples.png from a fetched image. */
@@ -527,146 +550,296 @@ static void *worker_thread(void *arg)
     return NULL;
 }
 
-static int cmd_render(int argc, char **argv)
+/* The master and workers of one embedded render, over inproc. */
+typedef struct embedded {
+    void *ctx;
+    embedded_master_t em;
+    embedded_worker_t *ew;
+    uint64_t workers;        /* in ew */
+    tracer_device_t *device; /* one Embree device for all the workers */
+    control_t *c;
+} embedded_t;
+
+/* Starts the master and a->workers workers sharing a->threads, and a
+ * control connection to the master: 0, or -1 with a message (either way
+ * embedded_stop cleans up). log_level 0: the master and workers are silent
+ * unless VB_LOG is set. */
+static int embedded_start(embedded_t *e, const args_t *a, int log_level, char *err, size_t errlen)
 {
-    args_t a;
-    memset(&a, 0, sizeof a);
-    int rc = parse_args(argc, argv, &a, 1, 1, 0);
-    if (rc || !a.positional) {
-        cJSON_Delete(a.settings);
+    static const char wep[] = "inproc://vbrender-workers", cep[] = "inproc://vbrender-control";
+    memset(e, 0, sizeof *e);
+    e->ctx = zmq_ctx_new();
+    master_config_t mc;
+    memset(&mc, 0, sizeof mc);
+    mc.zmq_ctx = e->ctx;
+    mc.worker_endpoint = wep;
+    mc.control_endpoint = cep;
+    mc.allow_shutdown = 1;
+    mc.log = getenv("VB_LOG") || log_level ? stderr : NULL;
+    mc.log_level = log_level;
+    if (!(e->ew = calloc(a->workers, sizeof *e->ew))) {
+        snprintf(err, errlen, "out of memory");
+        return -1;
+    }
+    e->workers = a->workers;
+    if (!(e->em.m = master_new(&mc, err, errlen)))
+        return -1;
+    pthread_create(&e->em.thread, NULL, master_thread, &e->em);
+    if (tracer_device_new(&e->device, err, errlen) < 0)
+        return -1;
+    int per = (int)(a->threads / a->workers), extra = (int)(a->threads % a->workers);
+    for (uint64_t i = 0; i < a->workers; i++) {
+        char name[32];
+        snprintf(name, sizeof name, "worker-%llu", (unsigned long long)i + 1);
+        worker_config_t wc = {.zmq_ctx = e->ctx,
+                              .master_endpoint = wep,
+                              .threads = per + ((int)i < extra ? 1 : 0),
+                              .log = mc.log,
+                              .log_level = log_level,
+                              .name = name,
+                              .device = e->device};
+        if (!(e->ew[i].w = worker_new(&wc, err, errlen)))
+            return -1;
+        pthread_create(&e->ew[i].thread, NULL, worker_thread, &e->ew[i]);
+        e->ew[i].started = 1;
+    }
+    /* in-process: a lost reply is a bug, not a restart; no retries */
+    e->c = control_new(e->ctx, cep, CLIENT_EMBEDDED_TIMEOUT_MS, err, errlen);
+    return e->c ? 0 : -1;
+}
+
+/* Stops and frees what embedded_start started; a worker first finishes the
+ * task it traces. */
+static void embedded_stop(embedded_t *e)
+{
+    for (uint64_t i = 0; e->ew && i < e->workers; i++)
+        if (e->ew[i].started) {
+            atomic_store(&e->ew[i].stop, 1);
+            pthread_join(e->ew[i].thread, NULL);
+        }
+    for (uint64_t i = 0; e->ew && i < e->workers; i++)
+        worker_destroy(&e->ew[i].w);
+    tracer_device_destroy(&e->device);
+    if (e->em.m) {
+        atomic_store(&e->em.stop, 1);
+        pthread_join(e->em.thread, NULL);
+        master_destroy(&e->em.m);
+    }
+    control_destroy(&e->c);
+    free(e->ew);
+    e->ew = NULL;
+    if (e->ctx)
+        zmq_ctx_term(e->ctx);
+    e->ctx = NULL;
+}
+
+/* Ctrl-C (SIGINT) and SIGTERM during render. They are blocked in every
+ * thread (the mask is set before the first thread starts, so all inherit
+ * it, the TBB pool Embree starts included: worker/main.c says why) and
+ * taken by one thread with sigwait, so no work runs in a handler. The first
+ * asks the render to stop (interrupts, read by the main thread, which
+ * cancels the job and writes the image so far); a second ends the process
+ * at once with exit status 130. */
+typedef struct interrupt_watch {
+    sigset_t set;
+    atomic_int interrupts; /* signals taken */
+    atomic_int over;       /* the render is over: the next signal ends the watch */
+    pthread_t thread;
+    int started;
+} interrupt_watch_t;
+
+static void *watch_interrupts(void *arg)
+{
+    interrupt_watch_t *iw = arg;
+    for (;;) {
+        int sig = 0;
+        if (sigwait(&iw->set, &sig) != 0)
+            continue;
+        if (atomic_load(&iw->over))
+            return NULL;
+        if (atomic_fetch_add(&iw->interrupts, 1) > 0) {
+            static const char msg[] = "\nvbrender: interrupted again: exiting at once\n";
+            ssize_t n = write(STDERR_FILENO, msg, sizeof msg - 1);
+            (void)n; /* exiting either way */
+            _exit(130);
+        }
+    }
+}
+
+/* 0, or an errno value. */
+static int interrupt_watch_start(interrupt_watch_t *iw)
+{
+    memset(iw, 0, sizeof *iw);
+    atomic_init(&iw->interrupts, 0);
+    atomic_init(&iw->over, 0);
+    sigemptyset(&iw->set);
+    sigaddset(&iw->set, SIGINT);
+    sigaddset(&iw->set, SIGTERM);
+    int e = pthread_sigmask(SIG_BLOCK, &iw->set, NULL);
+    if (e == 0)
+        e = pthread_create(&iw->thread, NULL, watch_interrupts, iw);
+    iw->started = e == 0;
+    return e;
+}
+
+/* Ends the watch with a signal aimed at its thread. Both stay blocked: one
+ * that comes now is discarded when the process exits. */
+static void interrupt_watch_stop(interrupt_watch_t *iw)
+{
+    if (!iw->started)
+        return;
+    atomic_store(&iw->over, 1);
+    pthread_kill(iw->thread, SIGTERM);
+    pthread_join(iw->thread, NULL);
+    iw->started = 0;
+}
+
+/* Parses render's arguments, names the output and shows the scene's
+ * warnings: -1 to go on, else the exit status. */
+static int render_prepare(int argc, char **argv, args_t *a, char *out_exr, size_t len)
+{
+    int rc = parse_args(argc, argv, a, 1, 1, 0);
+    if (rc || !a->positional)
         return rc ? rc : usage_error("%s", "render needs a scene file: vbrender render SCENE.json");
-    }
-    if (a.key_file || a.master_key_file) {
-        cJSON_Delete(a.settings);
+    if (a->key_file || a->master_key_file)
         return usage_error("%s", "render runs its master in this process: it takes no keys");
-    }
-    char out_exr[4096];
-    if (a.output) {
-        snprintf(out_exr, sizeof out_exr, "%s", a.output);
+    if (a->output) {
+        snprintf(out_exr, len, "%s", a->output);
     } else {
-        const char *base = strrchr(a.positional, '/');
-        replace_extension(base ? base + 1 : a.positional, ".exr", out_exr, sizeof out_exr);
+        const char *base = strrchr(a->positional, '/');
+        replace_extension(base ? base + 1 : a->positional, ".exr", out_exr, len);
     }
-    if (check_writable(out_exr) < 0) {
-        cJSON_Delete(a.settings);
+    if (check_writable(out_exr) < 0)
         return 1;
-    }
-    if (a.workers > a.threads)
-        a.threads = a.workers;
+    if (a->workers > a->threads)
+        a->threads = a->workers;
     /* scene warnings are the client's to show: load it once here */
     char err[2048];
     scene_t *scene = NULL;
-    if (scene_load(a.positional, &scene, err, sizeof err) < 0) {
+    if (scene_load(a->positional, &scene, err, sizeof err) < 0) {
         fprintf(stderr, "vbrender: %s\n", err);
-        cJSON_Delete(a.settings);
         return 1;
     }
     for (int i = 0; i < scene->warning_count; i++)
         fprintf(stderr, "vbrender: warning: %s\n", scene->warnings[i]);
     scene_destroy(&scene);
+    return -1;
+}
 
-    void *ctx = zmq_ctx_new();
-    char wep[64], cep[64];
-    snprintf(wep, sizeof wep, "inproc://vbrender-workers");
-    snprintf(cep, sizeof cep, "inproc://vbrender-control");
-    master_config_t mc;
-    memset(&mc, 0, sizeof mc);
-    mc.zmq_ctx = ctx;
-    mc.worker_endpoint = wep;
-    mc.control_endpoint = cep;
-    mc.allow_shutdown = 1;
-    mc.log = getenv("VB_LOG") ? stderr : NULL;
-    embedded_master_t em;
-    memset(&em, 0, sizeof em);
-    tracer_device_t *device = NULL; /* one Embree device for all the workers */
-    embedded_worker_t *ew = calloc(a.workers, sizeof *ew);
-    control_t *c = NULL;
-    image_t *img = NULL;
+/* Stops issuing the job's work as `vbrender cancel` does; the image so far
+ * stays to be fetched. */
+static void cancel_job(control_t *c, unsigned long long id)
+{
+    char err[1024];
+    cJSON *req = cJSON_CreateObject();
+    cJSON_AddStringToObject(req, "cmd", "cancel");
+    cJSON_AddNumberToObject(req, "job", (double)id);
+    cJSON *reply = control_request(c, req, NULL, NULL, 0, err, sizeof err);
+    cJSON_Delete(req);
+    if (!reply)
+        fprintf(stderr, "vbrender: cannot cancel job %llu: %s\n", id, err);
+    else if (!cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(reply, "ok")))
+        fprintf(stderr, "vbrender: cannot cancel job %llu: %s\n", id, jstr(reply, "error"));
+    cJSON_Delete(reply);
+}
+
+/* Fetches the job's image and writes the outputs: the exit status. An
+ * interrupted job's image is the image so far, its header marked partial
+ * (vb.partial 1, vb.layers_done of vb.layers; vb.total_samples as always),
+ * and the status 130. */
+static int render_write(control_t *c, unsigned long long id, const char *out_exr, const args_t *a,
+                        int interrupted)
+{
+    char err[2048];
     cJSON *job = NULL;
-    rc = 1;
-    em.m = master_new(&mc, err, sizeof err);
-    if (!em.m || !ew) {
-        fprintf(stderr, "vbrender: %s\n", em.m ? "out of memory" : err);
-        goto done;
+    image_t *img = control_fetch(c, id, &job, err, sizeof err);
+    int done = img && strcmp(jstr(job, "state"), "done") == 0, rc = 1;
+    int partial = interrupted && !done;
+    if (img && partial) {
+        image_set_int(img, "vb.partial", 1);
+        image_set_int(img, "vb.layers_done", (int32_t)jnum(job, "layers_done"));
+        image_set_int(img, "vb.layers", (int32_t)jnum(job, "layers"));
     }
-    pthread_create(&em.thread, NULL, master_thread, &em);
-    if (tracer_device_new(&device, err, sizeof err) < 0) {
+    if (!img || write_outputs(img, job, out_exr, err, sizeof err) < 0) {
         fprintf(stderr, "vbrender: %s\n", err);
-        goto done;
+    } else {
+        print_summary(job, (int)a->workers, (int)a->threads);
+        rc = done ? 0 : 1;
+        if (partial)
+            fprintf(stderr,
+                    "vbrender: interrupted: wrote partial image %s (%.0f samples, %.0f of %.0f "
+                    "layers)\n",
+                    out_exr, jnum(job, "samples"), jnum(job, "layers_done"), jnum(job, "layers"));
+        else if (!done)
+            fprintf(stderr, "vbrender: job %s: %s\n", jstr(job, "state"), jstr(job, "error"));
     }
-    int per = (int)(a.threads / a.workers), extra = (int)(a.threads % a.workers);
-    for (uint64_t i = 0; i < a.workers; i++) {
-        char name[32];
-        snprintf(name, sizeof name, "worker-%llu", (unsigned long long)i + 1);
-        worker_config_t wc = {.zmq_ctx = ctx,
-                              .master_endpoint = wep,
-                              .threads = per + ((int)i < extra ? 1 : 0),
-                              .log = mc.log,
-                              .name = name,
-                              .device = device};
-        ew[i].w = worker_new(&wc, err, sizeof err);
-        if (!ew[i].w) {
-            fprintf(stderr, "vbrender: %s\n", err);
-            goto done;
-        }
-        pthread_create(&ew[i].thread, NULL, worker_thread, &ew[i]);
-        ew[i].started = 1;
-    }
+    image_destroy(&img);
+    cJSON_Delete(job);
+    return partial ? 130 : rc;
+}
+
+/* Submits the job to an embedded master and waits for it, or for an
+ * interrupt: the exit status. */
+static int render_embedded(const args_t *a, const char *out_exr, int log_level,
+                           const atomic_int *interrupts)
+{
+    char err[2048];
+    embedded_t e;
+    int rc = 1;
     image_t *ref = NULL;
-    if (a.reference && image_read_exr(a.reference, &ref, err, sizeof err) < 0) {
+    if (embedded_start(&e, a, log_level, err, sizeof err) < 0 ||
+        (a->reference && image_read_exr(a->reference, &ref, err, sizeof err) < 0)) {
         fprintf(stderr, "vbrender: %s\n", err);
         goto done;
     }
-    c = control_new(ctx, cep, CLIENT_EMBEDDED_TIMEOUT_MS, err, sizeof err);
-    /* in-process: a lost reply is a bug, not a restart; no retries */
+    if (atomic_load(interrupts)) {
+        image_destroy(&ref);
+        fprintf(stderr, "vbrender: interrupted before the render started\n");
+        rc = 130;
+        goto done;
+    }
     unsigned long long id =
-        c ? control_submit(c, a.positional, a.settings, ref, NULL, err, sizeof err) : 0;
+        control_submit(e.c, a->positional, a->settings, ref, NULL, err, sizeof err);
     image_destroy(&ref);
     if (!id) {
         fprintf(stderr, "vbrender: %s\n", err);
         goto done;
     }
-    job = wait_job(c, id, a.progress, 0, err, sizeof err);
-    if (!job) {
-        fprintf(stderr, "vbrender: %s\n", err);
-        goto done;
-    }
-    cJSON *st = NULL;
-    img = control_fetch(c, id, &st, err, sizeof err);
-    if (!img) {
-        fprintf(stderr, "vbrender: %s\n", err);
-        goto done;
-    }
+    cJSON *job = watch_job(e.c, id, a->progress, 0, interrupts, err, sizeof err);
+    int ended = job && job_ended(job), stopped = atomic_load(interrupts) && !ended;
     cJSON_Delete(job);
-    job = st;
-    if (write_outputs(img, job, out_exr, err, sizeof err) < 0) {
+    if (!ended && !stopped)
         fprintf(stderr, "vbrender: %s\n", err);
-        goto done;
+    if (stopped) {
+        fprintf(stderr,
+                "vbrender: interrupted: stopping job %llu and writing the image so far "
+                "(interrupt again to exit at once)\n",
+                id);
+        cancel_job(e.c, id);
     }
-    print_summary(job, (int)a.workers, (int)a.threads);
-    rc = strcmp(jstr(job, "state"), "done") == 0 ? 0 : 1;
-    if (rc)
-        fprintf(stderr, "vbrender: job %s: %s\n", jstr(job, "state"), jstr(job, "error"));
+    if (ended || stopped)
+        rc = render_write(e.c, id, out_exr, a, stopped);
 done:
-    for (uint64_t i = 0; ew && i < a.workers; i++)
-        if (ew[i].started) {
-            atomic_store(&ew[i].stop, 1);
-            pthread_join(ew[i].thread, NULL);
-        }
-    for (uint64_t i = 0; ew && i < a.workers; i++)
-        worker_destroy(&ew[i].w);
-    tracer_device_destroy(&device);
-    if (em.m) {
-        atomic_store(&em.stop, 1);
-        pthread_join(em.thread, NULL);
-        master_destroy(&em.m);
+    embedded_stop(&e);
+    return rc;
+}
+
+static int cmd_render(int argc, char **argv, int log_level)
+{
+    interrupt_watch_t iw;
+    int err_no = interrupt_watch_start(&iw);
+    if (err_no) {
+        fprintf(stderr, "vbrender: cannot set up signal handling: %s\n", strerror(err_no));
+        return 1;
     }
-    control_destroy(&c);
-    free(ew);
-    image_destroy(&img);
-    cJSON_Delete(job);
+    args_t a;
+    memset(&a, 0, sizeof a);
+    char out_exr[4096];
+    int rc = render_prepare(argc, argv, &a, out_exr, sizeof out_exr);
+    if (rc == -1)
+        rc = render_embedded(&a, out_exr, log_level, &iw.interrupts);
+    interrupt_watch_stop(&iw);
     cJSON_Delete(a.settings);
-    zmq_ctx_term(ctx);
     return rc;
 }
 
@@ -1024,9 +1197,38 @@ done:
     return rc;
 }
 
+/* Takes --log-level LEVEL out of argv (every command accepts it; only
+ * render's embedded master and workers log): 0 with *level set (0 when not
+ * given), else the exit status after a message. */
+static int take_log_level(int *argc, char **argv, int *level)
+{
+    *level = 0;
+    for (int i = 1; i < *argc; i++) {
+        if (strcmp(argv[i], "--log-level") != 0)
+            continue;
+        const char *v = i + 1 < *argc ? argv[i + 1] : NULL;
+        if ((*level = vblog_level_parse(v)) < 0)
+            return usage_error("--log-level must be error, warn, info or debug (got '%s')",
+                               v ? v : "");
+        memmove(argv + i, argv + i + 2, (size_t)(*argc - i - 2) * sizeof *argv);
+        *argc -= 2;
+        i--;
+    }
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     signal(SIGPIPE, SIG_IGN);
+    if (argc == 2 && strcmp(argv[1], "--version") == 0) {
+        char build[PROTO_BUILD_SIZE + 1];
+        proto_host_build_id(build);
+        printf("vbrender %s\n", build);
+        return 0;
+    }
+    int log_level, rc = take_log_level(&argc, argv, &log_level);
+    if (rc)
+        return rc;
     if (argc < 2) {
         print_usage(stderr);
         return 2;
@@ -1042,7 +1244,7 @@ int main(int argc, char **argv)
             return 0;
         }
     if (strcmp(argv[1], "render") == 0)
-        return cmd_render(argc - 2, argv + 2);
+        return cmd_render(argc - 2, argv + 2, log_level);
     if (strcmp(argv[1], "compare") == 0)
         return cmd_compare(argc - 2, argv + 2);
     if (strcmp(argv[1], "keygen") == 0)

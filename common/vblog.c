@@ -58,6 +58,28 @@ void vblog_write(FILE *out, const char *who, const char *fmt, va_list ap)
     emit(out, who, NULL, msg);
 }
 
+/* ---- levels --------------------------------------------------------------- */
+
+static const char *const level_names[] = {NULL, "error", "warn", "info", "debug"};
+
+int vblog_level_parse(const char *name)
+{
+    for (int l = VBLOG_ERROR; name && l <= VBLOG_DEBUG; l++)
+        if (strcmp(name, level_names[l]) == 0)
+            return l;
+    return -1;
+}
+
+const char *vblog_level_name(int level)
+{
+    return level >= VBLOG_ERROR && level <= VBLOG_DEBUG ? level_names[level] : "?";
+}
+
+FILE *vblog_filter(FILE *out, int threshold, vblog_level_t level)
+{
+    return (int)level <= (threshold ? threshold : VBLOG_DEFAULT_LEVEL) ? out : NULL;
+}
+
 /* ---- rate limit ----------------------------------------------------------- */
 
 /* A window is over once VBLOG_WINDOW_S has passed; a clock that went back

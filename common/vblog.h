@@ -23,6 +23,29 @@
 void vblog_write(FILE *out, const char *who, const char *fmt, va_list ap)
     __attribute__((format(printf, 3, 0)));
 
+/* Levels, most severe first. A daemon's --log-level names the least severe
+ * level it writes; every line has one (the daemons' plain lines are info,
+ * the rate-limited peer-provoked ones warn). */
+typedef enum vblog_level {
+    VBLOG_ERROR = 1, /* the daemon cannot do part of its work (state not saved) */
+    VBLOG_WARN,      /* something went wrong that it works around (a refused peer) */
+    VBLOG_INFO,      /* what an operator follows: jobs, workers joining and leaving */
+    VBLOG_DEBUG,     /* per task: what a developer follows */
+} vblog_level_t;
+/* The level a threshold of 0 (a config left zeroed) stands for. */
+#define VBLOG_DEFAULT_LEVEL VBLOG_INFO
+
+/* The level named "error", "warn", "info" or "debug", or -1. */
+int vblog_level_parse(const char *name);
+/* The name of a level ("?" for none). */
+const char *vblog_level_name(int level);
+/* out when a line of level passes threshold (the least severe level written;
+ * 0: VBLOG_DEFAULT_LEVEL), else NULL. Give the result to vblog_write or
+ * vblog_limited as their out: a filtered line is then neither written nor
+ * counted against its rate limit. The threshold lives in the caller's
+ * config, not here, so that no global state is shared. */
+FILE *vblog_filter(FILE *out, int threshold, vblog_level_t level);
+
 /* Rate limit: at most VBLOG_BURST lines of one key per VBLOG_WINDOW_S
  * window. 10 lines show what goes wrong; a flood of bad messages then costs
  * one summary line per key and window instead of megabytes a second. */

@@ -24,7 +24,15 @@ void master_log(master_t *m, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
-    vblog_write(m->cfg.log, "master", fmt, ap);
+    vblog_write(vblog_filter(m->cfg.log, m->cfg.log_level, VBLOG_INFO), "master", fmt, ap);
+    va_end(ap);
+}
+
+void master_log_at(master_t *m, vblog_level_t level, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vblog_write(vblog_filter(m->cfg.log, m->cfg.log_level, level), "master", fmt, ap);
     va_end(ap);
 }
 
@@ -32,7 +40,8 @@ void master_log_limited(master_t *m, const char *key, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
-    vblog_limited(&m->limiter, m->cfg.log, "master", key, master_now(), fmt, ap);
+    vblog_limited(&m->limiter, vblog_filter(m->cfg.log, m->cfg.log_level, VBLOG_WARN), "master",
+                  key, master_now(), fmt, ap);
     va_end(ap);
 }
 
@@ -66,7 +75,8 @@ static void reload_keys(master_t *m)
         master_log(m,
                    "reload asked for, but this master runs without --key: no allow-lists to read");
     else if (auth_reload(m->auth, msg, sizeof msg) < 0)
-        master_log(m, "cannot reload the allow-lists, keeping the old ones: %s", msg);
+        master_log_at(m, VBLOG_WARN, "cannot reload the allow-lists, keeping the old ones: %s",
+                      msg);
     else
         master_log(m, "allow-lists reloaded: %s", msg);
 }
@@ -89,8 +99,9 @@ static void expire_leases(master_t *m, double now)
         }
         if (!j->holder[c] || j->attempt[c] != l.attempt)
             continue;
-        master_log(m, "job %" PRIu64 " task %" PRIu64 ": lease ran out on %s; issuing it again",
-                   j->id, l.task, m->workers[j->holder[c] - 1].host);
+        master_log_at(m, VBLOG_WARN,
+                      "job %" PRIu64 " task %" PRIu64 ": lease ran out on %s; issuing it again",
+                      j->id, l.task, m->workers[j->holder[c] - 1].host);
         /* No credit back here: the slow worker still holds the task, and its
          * late result (ignored) returns the credit then. */
         m->workers[j->holder[c] - 1].owed++;
@@ -253,8 +264,10 @@ static int start_auth(master_t *m, char *err, size_t errlen)
     const master_config_t *cfg = &m->cfg;
     if (!cfg->curve_secret_key)
         return 0;
-    auth_config_t ac = {cfg->zmq_ctx,           cfg->curve_secret_key,  cfg->allow_workers_dir,
-                        cfg->allow_clients_dir, cfg->admin_clients_dir, cfg->log};
+    auth_config_t ac = {cfg->zmq_ctx, cfg->curve_secret_key, cfg->allow_workers_dir,
+                        cfg->allow_clients_dir, cfg->admin_clients_dir,
+                        /* it logs refusals only */
+                        vblog_filter(cfg->log, cfg->log_level, VBLOG_WARN)};
     if (!(m->auth = auth_new(&ac, err, errlen)))
         return -1;
     m->cfg.curve_secret_key = NULL; /* the caller's; auth keeps its own copy */
@@ -317,8 +330,7 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
         return NULL;
     }
     /* The build id pins the ISA: a worker on another ISA could trace other bits. */
-    __builtin_cpu_init();
-    proto_build_id(__builtin_cpu_supports("avx2") ? "avx2" : "sse4.2", m->build);
+    proto_host_build_id(m->build);
     if (open_state(m, err, errlen) < 0 || start_auth(m, err, errlen) < 0 ||
         open_sockets(m, err, errlen) < 0) {
         master_destroy(&m);

@@ -40,7 +40,8 @@ typedef struct master_config {
      * and task id) also goes to a second worker, and is merged only when
      * both results agree bit for bit. 0: none; 1: every task. */
     double verify_share;
-    FILE *log; /* NULL: silent */
+    FILE *log;     /* NULL: silent */
+    int log_level; /* least severe level logged (vblog_level_t); 0: info */
     /* transport security (auth.h) */
     const char *curve_secret_key;  /* Z85 (keys.h): both sockets speak CURVE and admit
                                       the listed keys only; NULL: no CURVE, and then

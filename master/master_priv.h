@@ -210,9 +210,12 @@ struct master {
 double master_now(void);
 /* Whether a client key (Z85) is in --admin-clients. */
 int master_is_admin(master_t *m, const char *key);
+/* A line at info level; master_log_at at another (vblog.h). */
 void master_log(master_t *m, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-/* A line any peer can provoke (bad input): rate-limited per key (a string
- * literal naming the kind of line), repeats summarised. */
+void master_log_at(master_t *m, vblog_level_t level, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+/* A line any peer can provoke (bad input), at warn level: rate-limited per
+ * key (a string literal naming the kind of line), repeats summarised. */
 void master_log_limited(master_t *m, const char *key, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 /* The CURVE public key (Z85) a received frame came with: the User-Id the

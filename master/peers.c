@@ -310,6 +310,8 @@ static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t *msg, do
     j->outstanding++;
     w->outstanding++;
     w->credit--;
+    master_log_at(m, VBLOG_DEBUG, "job %" PRIu64 " task %" PRIu64 " (attempt %u) issued to %s",
+                  j->id, t.id, attempt, w->host);
     return 1;
 }
 
@@ -439,6 +441,8 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
         return;
     }
     peer_count_result(w, j, msg);
+    master_log_at(m, VBLOG_DEBUG, "job %" PRIu64 " task %" PRIu64 " merged from %s", j->id, id,
+                  w->host);
     verify_note_plain(m, j, id);
     job_merged(m, j);
 }

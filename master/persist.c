@@ -282,7 +282,8 @@ static void on_report(void *ctx, uint64_t id, const char *error)
     j->in_write = 0;
     if (error) {
         snprintf(j->storage_error, sizeof j->storage_error, "%s", error);
-        master_log(m, "job %" PRIu64 ": cannot write its state (it keeps running): %s", id, error);
+        master_log_at(m, VBLOG_ERROR,
+                      "job %" PRIu64 ": cannot write its state (it keeps running): %s", id, error);
         return;
     }
     j->storage_error[0] = '\0';
@@ -318,7 +319,7 @@ static void collect(master_t *m)
             j->in_write = 0;
             snprintf(j->storage_error, sizeof j->storage_error,
                      "the state writer died (status %d) before this job", status);
-            master_log(m, "job %" PRIu64 ": %s", j->id, j->storage_error);
+            master_log_at(m, VBLOG_ERROR, "job %" PRIu64 ": %s", j->id, j->storage_error);
         }
 }
 
@@ -366,7 +367,7 @@ void persist_tick(master_t *m, double now, int force)
     bg_ctx_t ctx = {.m = m, .now = now};
     char err[VB_ERR_LEN];
     if (store_bg_start(m->store, bg_write, &ctx, err, sizeof err) < 0) {
-        master_log(m, "cannot start the state writer: %s", err);
+        master_log_at(m, VBLOG_ERROR, "cannot start the state writer: %s", err);
         for (job_t *j = m->jobs; j; j = j->next)
             if (j->in_write) {
                 j->in_write = 0;
@@ -547,7 +548,7 @@ void persist_recover(master_t *m)
     size_t n;
     char err[VB_ERR_LEN];
     if (store_job_ids(m->store, &ids, &n, err, sizeof err) < 0) {
-        master_log(m, "state: %s", err);
+        master_log_at(m, VBLOG_ERROR, "state: %s", err);
         return;
     }
     uint32_t resumed = 0, ended = 0, lost = 0;

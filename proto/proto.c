@@ -950,3 +950,9 @@ void proto_bundle_hash(const proto_bundle_t *b, uint8_t out[PROTO_HASH_SIZE])
     }
     crypto_generichash_final(&hs, out, PROTO_HASH_SIZE);
 }
+
+void proto_host_build_id(char out[PROTO_BUILD_SIZE + 1])
+{
+    __builtin_cpu_init();
+    proto_build_id(__builtin_cpu_supports("avx2") ? "avx2" : "sse4.2", out);
+}

@@ -184,5 +184,8 @@ void proto_bundle_hash(const proto_bundle_t *bundle, uint8_t out[PROTO_HASH_SIZE
 /* This build's id: "vbrender-<proto version>-<ISA>-<compiler>", so peers
  * that could trace different bits refuse each other. isa from tracer_isa. */
 void proto_build_id(const char *isa, char out[PROTO_BUILD_SIZE + 1]);
+/* The same with the ISA this CPU supports (avx2 or sse4.2), without an
+ * Embree device: what --version prints and the master says it runs. */
+void proto_host_build_id(char out[PROTO_BUILD_SIZE + 1]);
 
 #endif

@@ -1,18 +1,23 @@
 /* test_cli.c - Check suite for the vbrender command line (client/vbrender.c),
  * run as a separate process: usage and exit codes (0 done, 1 the work
  * failed, 2 bad usage), a message naming every bad flag, scene and output
- * errors, one tiny real render whose EXR is read back, and the commands for
- * a running master against a scripted fake one (lost replies, restarts). */
+ * errors, one tiny real render whose EXR is read back, Ctrl-C on a render
+ * (the image so far, marked partial; exit 130), --version and --log-level
+ * of every binary, and the commands for a running master against a
+ * scripted fake one (lost replies, restarts). */
 #include <cJSON.h>
 #include <check.h>
 #include <ctype.h>
+#include <fcntl.h>
 #include <math.h>
 #include <pthread.h>
+#include <signal.h>
 #include <stdarg.h>
 #include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 #include <zmq.h>
@@ -769,6 +774,219 @@ END_TEST
 
 /* ---- suite -------------------------------------------------------------- */
 
+/* ---- interrupts, --version, --log-level ----------------------------------- */
+
+static const char *bin_path(char *buf, size_t len, const char *name)
+{
+    const char *dir = getenv("VB_BINDIR");
+    snprintf(buf, len, "%s/%s", dir && *dir ? dir : "bin", name);
+    return buf;
+}
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static void sleep_ms(long ms)
+{
+    struct timespec ts = {ms / 1000, (ms % 1000) * 1000000L};
+    nanosleep(&ts, NULL);
+}
+
+/* Starts vbrender with argv (argv[0] included) and its stdout and stderr in
+ * the file log, with SIGINT and SIGTERM at their defaults and unblocked,
+ * as a shell would start it in the foreground. */
+static pid_t spawn_logged(const char *log, char *const argv[])
+{
+    /* emptied here, not in the child: the caller reads it next, and must
+     * not find the last run's lines there */
+    int fd = open(log, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    ck_assert_msg(fd >= 0, "cannot create %s", log);
+    pid_t pid = fork();
+    ck_assert_int_ge(pid, 0);
+    if (pid == 0) {
+        dup2(fd, STDOUT_FILENO);
+        dup2(fd, STDERR_FILENO);
+        close(fd);
+        signal(SIGINT, SIG_DFL);
+        signal(SIGTERM, SIG_DFL);
+        sigset_t none;
+        sigemptyset(&none);
+        sigprocmask(SIG_SETMASK, &none, NULL);
+        execv(tu_bin(), argv);
+        _exit(127);
+    }
+    close(fd);
+    return pid;
+}
+
+/* The file's text (up to len - 1 bytes) into buf. */
+static const char *read_text(const char *path, char *buf, size_t len)
+{
+    buf[0] = '\0';
+    FILE *f = fopen(path, "rb");
+    if (f) {
+        size_t n = fread(buf, 1, len - 1, f);
+        buf[n] = '\0';
+        fclose(f);
+    }
+    return buf;
+}
+
+/* Whether the file came to hold frag within timeout_s. */
+static int wait_for_text(const char *path, const char *frag, double timeout_s)
+{
+    static char buf[OUTLEN];
+    for (double end = now_s() + timeout_s; now_s() < end; sleep_ms(20))
+        if (strstr(read_text(path, buf, sizeof buf), frag))
+            return 1;
+    return 0;
+}
+
+/* pid's exit status (128 + the signal when one ended it), or -1 when it
+ * was still running after timeout_s (then it is killed). */
+static int wait_exit(pid_t pid, double timeout_s)
+{
+    int st;
+    for (double end = now_s() + timeout_s; now_s() < end; sleep_ms(10)) {
+        pid_t r = waitpid(pid, &st, WNOHANG);
+        ck_assert_int_ge(r, 0);
+        if (r == pid)
+            return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+    }
+    kill(pid, SIGKILL);
+    waitpid(pid, &st, 0);
+    return -1;
+}
+
+/* A render far too long to finish during the test (64000 spp, uniform):
+ * its first progress line comes at 10 % of the layers. */
+static pid_t start_long_render(const char *scene, const char *exr, const char *log)
+{
+    char *const argv[] = {"vbrender", "render",     (char *)scene, "-o",   (char *)exr,
+                          "--spp",    "64000",      "--adaptive",  "none", "--threads",
+                          "2",        "--progress", "lines",       NULL};
+    return spawn_logged(log, argv);
+}
+
+START_TEST(interrupt_writes_partial)
+{
+    char scene[PATHLEN], exr[PATHLEN], log[PATHLEN], err[1024];
+    static char out[OUTLEN];
+    tiny_scene(scene, sizeof scene, "cli-interrupt.json", 0);
+    tu_tmp_path(exr, sizeof exr, "cli-interrupt.exr");
+    tu_tmp_path(log, sizeof log, "cli-interrupt.log");
+    unlink(exr);
+    pid_t pid = start_long_render(scene, exr, log);
+    int progressed = wait_for_text(log, "%  layer", 60);
+    kill(pid, SIGINT);
+    int rc = wait_exit(pid, 60);
+    read_text(log, out, sizeof out);
+    ck_assert_msg(progressed, "no progress line within 60 s:\n%s", out);
+    ck_assert_msg(rc == 130, "exit %d, want 130:\n%s", rc, out);
+    ck_assert_msg(strstr(out, "interrupted: wrote partial image") && strstr(out, exr),
+                  "no partial-image line:\n%s", out);
+    image_t *img = NULL;
+    ck_assert_msg(image_read_exr(exr, &img, err, sizeof err) == 0, "%s", err);
+    const image_attr_t *a = image_attr(img, "vb.partial");
+    ck_assert_msg(a && a->type == IMAGE_ATTR_INT && a->i == 1, "vb.partial missing or not 1");
+    const image_attr_t *done = image_attr(img, "vb.layers_done"),
+                       *all = image_attr(img, "vb.layers");
+    ck_assert_ptr_nonnull(done);
+    ck_assert_ptr_nonnull(all);
+    ck_assert_int_eq(all->i, 64000 / 32);
+    ck_assert_msg(done->i >= 0 && done->i < all->i, "%d of %d layers", done->i, all->i);
+    double total = image_attr(img, "vb.total_samples")->d, sum = 0;
+    ck_assert_msg(total > 0 && total < 64000.0 * 16 * 16, "vb.total_samples %g", total);
+    const float *samples = image_channel(img, "samples");
+    for (int i = 0; i < 16 * 16; i++)
+        sum += samples[i];
+    ck_assert_msg(sum == total, "samples channel sums to %g, header says %g", sum, total);
+    image_destroy(&img);
+    unlink(exr);
+}
+END_TEST
+
+START_TEST(second_interrupt_exits_at_once)
+{
+    char scene[PATHLEN], exr[PATHLEN], log[PATHLEN];
+    static char out[OUTLEN];
+    tiny_scene(scene, sizeof scene, "cli-interrupt2.json", 0);
+    tu_tmp_path(exr, sizeof exr, "cli-interrupt2.exr");
+    tu_tmp_path(log, sizeof log, "cli-interrupt2.log");
+    pid_t pid = start_long_render(scene, exr, log);
+    int progressed = wait_for_text(log, "%  layer", 60);
+    kill(pid, SIGINT);
+    sleep_ms(20); /* two at once would merge into one pending signal */
+    kill(pid, SIGINT);
+    double t0 = now_s();
+    int rc = wait_exit(pid, 10);
+    read_text(log, out, sizeof out);
+    ck_assert_msg(progressed, "no progress line within 60 s:\n%s", out);
+    ck_assert_msg(rc == 130, "exit %d, want 130:\n%s", rc, out);
+    ck_assert_msg(now_s() - t0 < 5, "took %.1f s to exit", now_s() - t0);
+    unlink(exr);
+}
+END_TEST
+
+/* Every binary prints the same build id as "PROGRAM BUILD". */
+START_TEST(version_everywhere)
+{
+    static const char *const names[] = {"vbrender", "vbrender-master", "vbrender-worker"};
+    char build[3][256];
+    for (int i = 0; i < 3; i++) {
+        char path[PATHLEN], cmd[CMDLEN], out[OUTLEN];
+        snprintf(cmd, sizeof cmd, "'%s' --version", bin_path(path, sizeof path, names[i]));
+        int rc = tu_run(cmd, out, sizeof out);
+        ck_assert_msg(rc == 0, "%s: exit %d:\n%s", cmd, rc, out);
+        size_t n = strlen(names[i]);
+        ck_assert_msg(strncmp(out, names[i], n) == 0 && out[n] == ' ', "%s printed:\n%s", cmd, out);
+        ck_assert_msg(sscanf(out + n + 1, "%255s", build[i]) == 1, "%s printed:\n%s", cmd, out);
+        ck_assert_msg(strncmp(build[i], "vbrender-p", 10) == 0, "build id '%s'", build[i]);
+        ck_assert_str_eq(build[i], build[0]);
+    }
+}
+END_TEST
+
+/* --log-level: a bad level is a usage error naming the flag, for every
+ * binary; render's embedded daemons log per task at debug only. */
+START_TEST(log_level_flag)
+{
+    static const char *const names[] = {"vbrender-master", "vbrender-worker"};
+    char path[PATHLEN], cmd[CMDLEN], scene[PATHLEN], exr[PATHLEN];
+    static char out[OUTLEN];
+    for (int i = 0; i < 2; i++) {
+        snprintf(cmd, sizeof cmd, "'%s' --log-level loud --master tcp://127.0.0.1:1",
+                 bin_path(path, sizeof path, names[i]));
+        int rc = tu_run(cmd, out, sizeof out);
+        ck_assert_msg(rc == 2, "%s: exit %d, want 2:\n%s", cmd, rc, out);
+        ck_assert_msg(strstr(out, "--log-level") && strstr(out, "loud"), "%s:\n%s", cmd, out);
+    }
+    tiny_scene(scene, sizeof scene, "cli-loglevel.json", 0);
+    tu_tmp_path(exr, sizeof exr, "cli-loglevel.exr");
+    char args[CMDLEN];
+    snprintf(args, sizeof args, "render '%s' -o '%s' --log-level loud", scene, exr);
+    expect_usage_error(args, "--log-level");
+    int rc = run(out, sizeof out, "render '%s' -o '%s' --spp 4 --progress none --log-level debug",
+                 scene, exr);
+    ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
+    ck_assert_msg(strstr(out, "issued to") && strstr(out, "master: stopped"), "no debug lines:\n%s",
+                  out);
+    rc = run(out, sizeof out, "render '%s' -o '%s' --spp 4 --progress none --log-level info", scene,
+             exr);
+    ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
+    ck_assert_msg(!strstr(out, "issued to") && strstr(out, "master: stopped"),
+                  "info shows debug lines, or none:\n%s", out);
+    rc = run(out, sizeof out, "render '%s' -o '%s' --spp 4 --progress none --log-level error",
+             scene, exr);
+    ck_assert_msg(rc == 0 && !strstr(out, "master:"), "exit %d, lines at error:\n%s", rc, out);
+    unlink(exr);
+}
+END_TEST
+
 static Suite *cli_suite(void)
 {
     Suite *su = suite_create("cli");
@@ -795,6 +1013,14 @@ static Suite *cli_suite(void)
     tcase_add_test(tc, tiny_render);
     tcase_add_test(tc, default_output_and_flags);
     tcase_add_test(tc, deterministic_exr);
+    tcase_add_test(tc, version_everywhere);
+    tcase_add_test(tc, log_level_flag);
+    suite_add_tcase(su, tc);
+
+    tc = tcase_create("interrupt");
+    tcase_set_timeout(tc, 150);
+    tcase_add_test(tc, interrupt_writes_partial);
+    tcase_add_test(tc, second_interrupt_exits_at_once);
     suite_add_tcase(su, tc);
 
     tc = tcase_create("master");

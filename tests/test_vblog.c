@@ -1,6 +1,8 @@
 /* test_vblog.c - log lines: control bytes escaped so a peer's text cannot
  * forge a line; the per-key rate limiter's burst, summary, independence of
- * keys, window reset and a full key table. */
+ * keys, window reset and a full key table; levels (--log-level): names,
+ * the filter, and filtered lines left out of the rate limit. (The flag
+ * itself, on every binary, is tested in test_cli.c.) */
 #include <check.h>
 #include <stdarg.h>
 #include <stdlib.h>
@@ -246,6 +248,76 @@ START_TEST(test_null_out_and_key)
 }
 END_TEST
 
+/* A line at level under threshold, as the daemons' log functions write it. */
+static void put_at(FILE *f, int threshold, vblog_level_t level, const char *text)
+{
+    put(vblog_filter(f, threshold, level), "%s", text);
+}
+
+START_TEST(test_level_names)
+{
+    static const char *const names[] = {"error", "warn", "info", "debug"};
+    for (int i = 0; i < 4; i++) {
+        ck_assert_int_eq(vblog_level_parse(names[i]), VBLOG_ERROR + i);
+        ck_assert_str_eq(vblog_level_name(VBLOG_ERROR + i), names[i]);
+    }
+    /* a bad level: the flag's parser turns -1 into a usage error */
+    ck_assert_int_eq(vblog_level_parse("loud"), -1);
+    ck_assert_int_eq(vblog_level_parse("INFO"), -1);
+    ck_assert_int_eq(vblog_level_parse(""), -1);
+    ck_assert_int_eq(vblog_level_parse(NULL), -1);
+    ck_assert_str_eq(vblog_level_name(0), "?");
+}
+END_TEST
+
+START_TEST(test_level_filter)
+{
+    FILE *f = tmpfile();
+    ck_assert_ptr_nonnull(f);
+    put_at(f, VBLOG_INFO, VBLOG_DEBUG, "debug at info");
+    put_at(f, VBLOG_INFO, VBLOG_INFO, "info at info");
+    put_at(f, VBLOG_INFO, VBLOG_ERROR, "error at info");
+    put_at(f, VBLOG_DEBUG, VBLOG_DEBUG, "debug at debug");
+    put_at(f, 0, VBLOG_DEBUG, "debug at default");
+    put_at(f, 0, VBLOG_INFO, "info at default");
+    put_at(f, VBLOG_ERROR, VBLOG_WARN, "warn at error");
+    put_at(f, VBLOG_ERROR, VBLOG_ERROR, "error at error");
+    char *out = slurp(f);
+    ck_assert_ptr_null(strstr(out, "debug at info"));
+    ck_assert_ptr_nonnull(strstr(out, "info at info"));
+    ck_assert_ptr_nonnull(strstr(out, "error at info"));
+    ck_assert_ptr_nonnull(strstr(out, "debug at debug"));
+    ck_assert_ptr_null(strstr(out, "debug at default"));
+    ck_assert_ptr_nonnull(strstr(out, "info at default"));
+    ck_assert_ptr_null(strstr(out, "warn at error"));
+    ck_assert_ptr_nonnull(strstr(out, "error at error"));
+    ck_assert_uint_eq(count(out, "\n"), 5);
+    free(out);
+    fclose(f);
+}
+END_TEST
+
+/* A filtered line is not counted against its key's burst: once the level
+ * lets them through, the full burst is written. */
+START_TEST(test_filtered_not_limited)
+{
+    vblog_limiter_t l = {0};
+    FILE *f = tmpfile();
+    ck_assert_ptr_nonnull(f);
+    for (int i = 0; i < 3 * VBLOG_BURST; i++)
+        lim(&l, vblog_filter(f, VBLOG_ERROR, VBLOG_WARN), "refused", 0.0, "hidden %d", i);
+    for (int i = 0; i < VBLOG_BURST; i++)
+        lim(&l, vblog_filter(f, VBLOG_WARN, VBLOG_WARN), "refused", 1.0, "shown %d", i);
+    vblog_limiter_flush(&l, f, "master", 100.0);
+    char *out = slurp(f);
+    ck_assert_uint_eq(count(out, "master: shown "), VBLOG_BURST);
+    ck_assert_ptr_null(strstr(out, "hidden"));
+    ck_assert_ptr_null(strstr(out, "more like this"));
+    free(out);
+    fclose(f);
+}
+END_TEST
+
 int main(void)
 {
     Suite *s = suite_create("vblog");
@@ -259,6 +331,11 @@ int main(void)
     tcase_add_test(tc, test_window_reset);
     tcase_add_test(tc, test_more_keys_than_slots);
     tcase_add_test(tc, test_null_out_and_key);
+    suite_add_tcase(s, tc);
+    tc = tcase_create("level");
+    tcase_add_test(tc, test_level_names);
+    tcase_add_test(tc, test_level_filter);
+    tcase_add_test(tc, test_filtered_not_limited);
     suite_add_tcase(s, tc);
     SRunner *sr = srunner_create(s);
     srunner_run_all(sr, CK_NORMAL);

@@ -103,12 +103,23 @@ static double now_s(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
+/* A line at info level; log_at at another (vblog.h). */
 static void logf_(worker_t *w, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 static void logf_(worker_t *w, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
-    vblog_write(w->cfg.log, w->name, fmt, ap);
+    vblog_write(vblog_filter(w->cfg.log, w->cfg.log_level, VBLOG_INFO), w->name, fmt, ap);
+    va_end(ap);
+}
+
+static void log_at(worker_t *w, vblog_level_t level, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+static void log_at(worker_t *w, vblog_level_t level, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vblog_write(vblog_filter(w->cfg.log, w->cfg.log_level, level), w->name, fmt, ap);
     va_end(ap);
 }
 
@@ -495,10 +506,12 @@ static void on_message(worker_t *w, const proto_msg_t *msg)
         on_welcome(w, msg);
         break;
     case PROTO_REFUSE:
-        logf_(w, "refused by the master: %s", msg->u.text.text);
+        log_at(w, VBLOG_ERROR, "refused by the master: %s", msg->u.text.text);
         w->refused = 1;
         break;
     case PROTO_TASK:
+        log_at(w, VBLOG_DEBUG, "job %" PRIu64 " task %" PRIu64 " (attempt %u): %u pixels",
+               msg->h.job, msg->h.task, msg->h.attempt, msg->u.task.count);
         if (w->welcomed)
             on_task(w, msg);
         break;
@@ -523,7 +536,7 @@ static void handle_message(worker_t *w)
     proto_recv_result_t got =
         proto_recv(w->sock, &fr, 2, PROTO_HEADER_SIZE + (size_t)PROTO_MAX_BUNDLE, ZMQ_DONTWAIT);
     if (got != PROTO_RECV_OK || fr.count != 2) {
-        logf_(w, "dropped a malformed message from the master");
+        log_at(w, VBLOG_WARN, "dropped a malformed message from the master");
         proto_frames_close(&fr);
         return;
     }
@@ -535,11 +548,11 @@ static void handle_message(worker_t *w)
     char err[256];
     int rc = proto_frames_decode(&fr, 0, &msg, &recs, err, sizeof err);
     if (rc == -2) {
-        logf_(w, "the master speaks another protocol: %s", err);
+        log_at(w, VBLOG_ERROR, "the master speaks another protocol: %s", err);
         send_simple(w, PROTO_REFUSE, err);
         w->refused = 1;
     } else if (rc < 0) {
-        logf_(w, "dropped a malformed message from the master: %s", err);
+        log_at(w, VBLOG_WARN, "dropped a malformed message from the master: %s", err);
     } else {
         on_message(w, &msg);
     }
@@ -615,7 +628,7 @@ static void on_handshake_events(worker_t *w, double now)
             w->handshake_backoff = 1.0;
             continue;
         }
-        logf_(w, "%s; trying again in %.0f s", msg, w->handshake_backoff);
+        log_at(w, VBLOG_WARN, "%s; trying again in %.0f s", msg, w->handshake_backoff);
         close_master_socket(w);
         release_queued(w);
         w->generation++;
@@ -631,7 +644,7 @@ static void reopen_if_due(worker_t *w, double now)
         return;
     char err[512];
     if (open_master_socket(w, err, sizeof err) < 0) {
-        logf_(w, "%s; trying again in %.0f s", err, w->handshake_backoff);
+        log_at(w, VBLOG_WARN, "%s; trying again in %.0f s", err, w->handshake_backoff);
         w->reopen_at = now + w->handshake_backoff;
         return;
     }

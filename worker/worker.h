@@ -29,6 +29,7 @@ typedef struct worker_config {
     int threads;                  /* render threads, >= 1 */
     int cache_scenes;             /* scenes kept loaded; 0: 4 */
     FILE *log;                    /* NULL: silent */
+    int log_level;                /* least severe level logged (vblog_level_t); 0: info */
     const char *name;             /* for log lines */
     struct tracer_device *device; /* the process's Embree device, shared; NULL:
                                      the worker makes (and owns) its own */
