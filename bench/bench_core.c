@@ -53,6 +53,7 @@
 #include "rng.h"
 #include "scene.h"
 #include "tracer.h"
+#include "vberr.h"
 #include "vmath.h"
 
 static const char usage_text[] =
@@ -687,7 +688,7 @@ static double render_once(const tracer_t *tr, const scene_t *s, scene_integrator
     rs.threads = threads;
     rs.progress = PROGRESS_NONE;
     rs.progress_out = NULL;
-    char err[256];
+    char err[VB_ERR_LEN];
     double c0 = cpu_seconds();
     int rc = render_run(tr, film, &rs, sum, err, sizeof err);
     double cpu = cpu_seconds() - c0;
@@ -967,7 +968,7 @@ int main(int argc, char **argv)
     int rc = parse_args(argc, argv, &a);
     if (rc)
         return rc == 1 ? 0 : rc;
-    char err[1024], name[256];
+    char err[VB_ERR_LEN], name[256];
     base_name(a.scene, name, sizeof name);
     scene_t *s = NULL;
     if (scene_load(a.scene, &s, err, sizeof err) < 0) {

@@ -67,6 +67,7 @@
 #include "keys.h"
 #include "master.h"
 #include "proto.h"
+#include "vberr.h"
 
 #define MAX_SYNTH 64
 
@@ -117,7 +118,7 @@ typedef struct synth {
     uint64_t tasks, records;
     uint64_t bytes_in, bytes_out;
     int failed;
-    char error[256];
+    char error[VB_ERR_LEN];
 } synth_t;
 
 typedef struct master_thread {

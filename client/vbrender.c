@@ -46,6 +46,7 @@
 #include "render.h"
 #include "sched.h"
 #include "settings.h"
+#include "vberr.h"
 #include "vblog.h"
 #include "worker.h"
 
@@ -236,7 +237,7 @@ static int parse_args(int argc, char **argv, args_t *a, int allow_settings, int 
     for (int i = 0; i < argc; i++) {
         const char *o = argv[i];
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
-        char err[256];
+        char err[VB_ERR_LEN];
         int takes =
             (allow & ALLOW_SETTINGS) ? settings_parse_flag(o, v, a->settings, err, sizeof err) : -1;
         if (takes == -2)
@@ -472,7 +473,7 @@ static int write_outputs(image_t *img, const cJSON *job, const char *out_exr, ch
         cJSON_Delete(doc);
         FILE *f = fopen(path, "w");
         if (!f || !text || fputs(text, f) < 0) {
-            snprintf(err, errlen, "%.1500s: cannot write: %s", path, strerror(errno));
+            snprintf(err, errlen, "%.600s: cannot write: %s", path, strerror(errno));
             if (f)
                 fclose(f);
             cJSON_free(text);
@@ -714,7 +715,7 @@ static int render_prepare(int argc, char **argv, args_t *a, char *out_exr, size_
     if (a->workers > a->threads)
         a->threads = a->workers;
     /* scene warnings are the client's to show: load it once here */
-    char err[2048];
+    char err[VB_ERR_LEN];
     scene_t *scene = NULL;
     if (scene_load(a->positional, &scene, err, sizeof err) < 0) {
         fprintf(stderr, "vbrender: %s\n", err);
@@ -730,7 +731,7 @@ static int render_prepare(int argc, char **argv, args_t *a, char *out_exr, size_
  * stays to be fetched. */
 static void cancel_job(control_t *c, unsigned long long id)
 {
-    char err[1024];
+    char err[VB_ERR_LEN];
     cJSON *req = cJSON_CreateObject();
     cJSON_AddStringToObject(req, "cmd", "cancel");
     cJSON_AddNumberToObject(req, "job", (double)id);
@@ -750,7 +751,7 @@ static void cancel_job(control_t *c, unsigned long long id)
 static int render_write(control_t *c, unsigned long long id, const char *out_exr, const args_t *a,
                         int interrupted)
 {
-    char err[2048];
+    char err[VB_ERR_LEN];
     cJSON *job = NULL;
     image_t *img = control_fetch(c, id, &job, err, sizeof err);
     int done = img && strcmp(jstr(job, "state"), "done") == 0, rc = 1;
@@ -783,7 +784,7 @@ static int render_write(control_t *c, unsigned long long id, const char *out_exr
 static int render_embedded(const args_t *a, const char *out_exr, int log_level,
                            const atomic_int *interrupts)
 {
-    char err[2048];
+    char err[VB_ERR_LEN];
     embedded_t e;
     int rc = 1;
     image_t *ref = NULL;
@@ -863,7 +864,7 @@ static int load_client_keys(const args_t *a, keys_pair_t *mine, char master[KEYS
             "%s", "--key and --master-key go together (or VBRENDER_KEY and VBRENDER_MASTER_KEY)");
         return -1;
     }
-    char err[1024];
+    char err[VB_ERR_LEN];
     if (keys_load_secret(kf, mine, err, sizeof err) < 0 ||
         keys_load_public(mf, master, err, sizeof err) < 0) {
         fprintf(stderr, "vbrender: %s\n", err);
@@ -879,7 +880,7 @@ static int load_client_keys(const args_t *a, keys_pair_t *mine, char master[KEYS
 static int run_submit(control_t *c, const char *cmd, const args_t *a, unsigned long long job)
 {
     (void)cmd, (void)job;
-    char err[2048];
+    char err[VB_ERR_LEN];
     image_t *ref = NULL;
     if (a->reference && image_read_exr(a->reference, &ref, err, sizeof err) < 0) {
         fprintf(stderr, "vbrender: %s\n", err);
@@ -904,7 +905,7 @@ static int run_submit(control_t *c, const char *cmd, const args_t *a, unsigned l
 static int run_wait(control_t *c, const char *cmd, const args_t *a, unsigned long long job)
 {
     (void)cmd;
-    char err[2048];
+    char err[VB_ERR_LEN];
     cJSON *st = wait_job(c, job, a->progress, a->timeout_s, err, sizeof err);
     if (!st) {
         fprintf(stderr, "vbrender: %s\n", err);
@@ -922,7 +923,7 @@ static int run_wait(control_t *c, const char *cmd, const args_t *a, unsigned lon
 static int run_fetch(control_t *c, const char *cmd, const args_t *a, unsigned long long job)
 {
     (void)cmd;
-    char err[2048];
+    char err[VB_ERR_LEN];
     cJSON *st = NULL;
     image_t *img = control_fetch(c, job, &st, err, sizeof err);
     int rc = 0;
@@ -985,7 +986,7 @@ static void print_job(const cJSON *st, unsigned long long job)
 /* status, jobs, workers, cancel, delete, readmit: one request, one reply. */
 static int run_request(control_t *c, const char *cmd, const args_t *a, unsigned long long job)
 {
-    char err[2048];
+    char err[VB_ERR_LEN];
     cJSON *req = cJSON_CreateObject();
     cJSON_AddStringToObject(req, "cmd", strcmp(cmd, "status") == 0 && !job ? "jobs" : cmd);
     if (job)
@@ -1120,7 +1121,7 @@ static int cmd_keygen(int argc, char **argv)
         return usage_error(
             "%s", "keygen needs a name: vbrender keygen NAME (writes NAME.key and NAME.pub)");
     keys_pair_t k;
-    char err[1024];
+    char err[VB_ERR_LEN];
     if (keys_generate(&k, err, sizeof err) < 0 || keys_write(argv[0], &k, err, sizeof err) < 0) {
         explicit_bzero(&k, sizeof k);
         fprintf(stderr, "vbrender: %s\n", err);
@@ -1165,7 +1166,7 @@ static int cmd_compare(int argc, char **argv)
     if (nfiles != 2)
         return usage_error("%s", "compare needs two images: vbrender compare A.exr REF.exr");
     image_t *a = NULL, *r = NULL;
-    char err[1024];
+    char err[VB_ERR_LEN];
     int rc = 1;
     if (image_read_exr(files[0], &a, err, sizeof err) < 0 ||
         image_read_exr(files[1], &r, err, sizeof err) < 0) {

@@ -16,6 +16,7 @@
 #include "atomicfile.h"
 #include "image.h"
 #include "image_priv.h"
+#include "vberr.h"
 
 /* EXR names longer than this need the "long names" header flag, which
  * older readers reject, so it is only switched on when needed. */
@@ -25,7 +26,7 @@
  * user_data: the first error message (the root cause; later ones tend to
  * be generic follow-ups) and, when writing, our file descriptor. */
 typedef struct exr_io {
-    char msg[512];
+    char msg[VB_ERR_LEN];
     int have_msg;
     int fd;
 } exr_io_t;

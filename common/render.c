@@ -1,5 +1,6 @@
 /* render.c - see render.h. */
 #include "render.h"
+#include "vberr.h"
 
 #include <pthread.h>
 #include <stdatomic.h>
@@ -32,7 +33,7 @@ typedef struct job {
     pthread_cond_t gate;       /* is sized to the threads that started */
     int gate_open;
     pthread_cond_t finished; /* the last worker wakes the monitor */
-    char err[256];           /* written once by the first failing thread */
+    char err[VB_ERR_LEN];    /* written once by the first failing thread */
     pthread_mutex_t err_lock;
 } job_t;
 
@@ -94,7 +95,7 @@ static void *worker_main(void *argp)
                 film_prior(job->film, &tasks[i]);
             }
             tracer_stats_t st = {0, 0};
-            char err[256];
+            char err[VB_ERR_LEN];
             if (tracer_trace(job->tracer, &s->tracer, tasks, n, results, &st, err, sizeof err) <
                 0) {
                 pthread_mutex_lock(&job->err_lock);

@@ -17,6 +17,7 @@
 #include <sys/stat.h>
 
 #include "mesh.h"
+#include "vberr.h"
 
 /* JSON paths in messages are cut at PATH_LEN; a cut path still locates the
  * error, so truncation is intended here. */
@@ -50,7 +51,7 @@ typedef struct loader {
 
 static int fail(loader_t *L, const char *path, const char *fmt, ...)
 {
-    char msg[512];
+    char msg[VB_ERR_LEN];
     va_list ap;
     va_start(ap, fmt);
     vsnprintf(msg, sizeof msg, fmt, ap);
@@ -176,7 +177,7 @@ static int parse_camera(loader_t *L, const cJSON *root)
     if (w < 1 || h < 1 || w > SCENE_MAX_SIDE || h > SCENE_MAX_SIDE || w * h > SCENE_MAX_PIXELS)
         return fail(L, "camera", "absurd resolution %gx%g (each side 1..%d, at most %u pixels)", w,
                     h, SCENE_MAX_SIDE, SCENE_MAX_PIXELS);
-    char msg[256];
+    char msg[VB_ERR_LEN];
     if (camera_init(&L->s->camera, to_vec3(pos), to_vec3(at), to_vec3(up), fov, (int)w, (int)h, msg,
                     sizeof msg) < 0)
         return fail(L, "camera", "%s", msg);
@@ -590,7 +591,7 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
     if (!cJSON_IsString(f) || !*f->valuestring)
         return fail(L, p, "missing (expected a mesh path relative to the scene file)");
     mesh_t *m = NULL;
-    char merr[512];
+    char merr[VB_ERR_LEN];
     if (L->blobs) {
         const scene_blob_t *b = NULL;
         for (size_t i = 0; i < L->blob_count && !b; i++)

@@ -20,6 +20,7 @@
 #include "keys.h"
 #include "master.h"
 #include "proto.h"
+#include "vberr.h"
 #include "vblog.h"
 
 /* The globals: a signal handler can reach nothing else. A lock-free atomic
@@ -296,7 +297,7 @@ static int check_security(const master_opts_t *opts)
 static int run(master_opts_t *opts)
 {
     master_config_t *cfg = &opts->cfg;
-    char err[512];
+    char err[VB_ERR_LEN];
     keys_pair_t key;
     if (opts->key_file) {
         if (keys_load_secret(opts->key_file, &key, err, sizeof err) < 0) {

@@ -22,6 +22,7 @@
 #include "defaults.h"
 #include "keys.h"
 #include "proto.h"
+#include "vberr.h"
 #include "vblog.h"
 #include "worker.h"
 
@@ -184,7 +185,7 @@ static int run(worker_opts_t *opts, keys_pair_t *key)
     void *ctx = zmq_ctx_new();
     cfg->zmq_ctx = ctx;
     int rc = 1;
-    char err[512];
+    char err[VB_ERR_LEN];
     worker_t *w = worker_new(cfg, err, sizeof err);
     explicit_bzero(key, sizeof *key); /* the worker keeps its own copy */
     if (w)
@@ -208,7 +209,7 @@ int main(int argc, char **argv)
     int rc = parse_args(argc, argv, &opts);
     if (rc != ARGS_GO_ON)
         return rc;
-    char err[512];
+    char err[VB_ERR_LEN];
     keys_pair_t key;
     char master_key[KEYS_Z85_LEN + 1];
     memset(&key, 0, sizeof key);

@@ -24,6 +24,7 @@
 #include "proto.h"
 #include "scene.h"
 #include "tracer.h"
+#include "vberr.h"
 #include "vblog.h"
 
 typedef struct scene_entry {
@@ -47,7 +48,7 @@ typedef struct wtask {
     scene_entry_t *scene;
     uint64_t rays, busy_us;
     int failed;
-    char error[512];
+    char error[VB_ERR_LEN];
     struct wtask *next;
 } wtask_t;
 
@@ -195,7 +196,7 @@ static int send_msg(worker_t *w, proto_msg_t *msg)
         w->payload_cap = need;
     }
     uint8_t header[PROTO_HEADER_SIZE];
-    char err[256];
+    char err[VB_ERR_LEN];
     long n = proto_encode(msg, header, w->payload, w->payload_cap, err, sizeof err);
     if (n < 0) {
         logf_(w, "cannot encode %s: %s", proto_type_name(msg->h.type), err);
@@ -255,7 +256,7 @@ static void report(worker_t *w, wtask_t *t)
     char text[PROTO_TEXT_MAX + 1];
     if (t->failed) {
         msg.h.type = PROTO_TASK_FAILED;
-        snprintf(text, sizeof text, "%s: %s", w->name, t->error);
+        snprintf(text, sizeof text, "%s: %.900s", w->name, t->error); /* cut to fit the wire text */
         msg.u.text.text = text;
     } else {
         maybe_lie(w, t);
@@ -339,7 +340,7 @@ static void on_bundle(worker_t *w, const proto_msg_t *msg)
     scene_entry_t *e = find_scene(w, b->hash);
     if (!e || e->scene)
         return; /* not asked for, or already here */
-    char err[1024] = "";
+    char err[VB_ERR_LEN] = "";
     uint8_t check[PROTO_HASH_SIZE];
     proto_bundle_hash(b, check);
     int ok = memcmp(check, b->hash, PROTO_HASH_SIZE) == 0;
@@ -545,7 +546,7 @@ static void handle_message(worker_t *w)
                             .meshes = w->decode_meshes,
                             .mesh_capacity = PROTO_MAX_MESHES};
     proto_msg_t msg;
-    char err[256];
+    char err[VB_ERR_LEN];
     int rc = proto_frames_decode(&fr, 0, &msg, &recs, err, sizeof err);
     if (rc == -2) {
         log_at(w, VBLOG_ERROR, "the master speaks another protocol: %s", err);
@@ -618,7 +619,7 @@ static void close_master_socket(worker_t *w)
  * so a key added to the master's allow-list later is picked up. */
 static void on_handshake_events(worker_t *w, double now)
 {
-    char msg[768];
+    char msg[VB_ERR_LEN];
     handshake_result_t r;
     while (w->mon && (r = handshake_monitor_read(w->mon, w->cfg.master_endpoint, "worker", w->curve,
                                                  msg, sizeof msg)) != HANDSHAKE_NONE) {
@@ -642,7 +643,7 @@ static void reopen_if_due(worker_t *w, double now)
 {
     if (w->sock || now < w->reopen_at)
         return;
-    char err[512];
+    char err[VB_ERR_LEN];
     if (open_master_socket(w, err, sizeof err) < 0) {
         log_at(w, VBLOG_WARN, "%s; trying again in %.0f s", err, w->handshake_backoff);
         w->reopen_at = now + w->handshake_backoff;
