@@ -93,6 +93,7 @@ typedef struct peer {
     uint32_t bad_results; /* results refused as out of range or misfit */
     double joined, last_seen, last_sent;
     uint64_t rays, tasks_done, busy_us, samples;
+    uint64_t tasks_reissued; /* taken back from it: lease ran out, failed, refused */
     int alive;
 } peer_t;
 
@@ -182,6 +183,8 @@ struct master {
     char (*quarantine)[128];    /* workers refused: key, or address without keys */
     size_t quarantine_n, quarantine_cap;
     uint64_t malformed, dropped_late, rate_limited;
+    uint64_t tasks_issued;          /* TASK messages sent, copies for verification included */
+    uint64_t reissued_deleted_jobs; /* tasks_reissued of jobs deleted since the start */
     /* background writes of checkpoints only (not final images): what they
      * cost, for the benchmark and the dashboard */
     int bg_final; /* the write under way includes a final image */
