@@ -7,6 +7,7 @@
 #include "compare.h"
 #include "film.h"
 #include "master_priv.h"
+#include "preview.h"
 #include "scene.h"
 
 const char *const job_state_names[] = {"queued", "running", "done", "failed", "cancelled"};
@@ -72,6 +73,7 @@ void job_shed(job_t *j)
         return; /* out of memory: keep the job whole */
     free_bundle(j);
     verify_free(j);
+    preview_destroy(&j->preview); /* of the film freed here */
     sched_destroy(&j->sched);
     free(j->attempt);
     free(j->holder);
@@ -93,6 +95,7 @@ void job_free(job_t *j)
         return;
     free_bundle(j);
     verify_free(j);
+    preview_destroy(&j->preview);
     sched_destroy(&j->sched);
     free(j->flags);
     free(j->quarantined);

@@ -144,8 +144,9 @@ typedef struct job {
     int final_durable; /* image and final status are on disk */
     char storage_error[MASTER_ERR_LEN];
     char recovered[MASTER_ERR_LEN];
-    char *summary; /* status of an ended job whose film is freed, as
-                      JSON text: a tenth of the memory of its tree */
+    char *summary;           /* status of an ended job whose film is freed, as
+                                JSON text: a tenth of the memory of its tree */
+    struct preview *preview; /* the last preview made of its film, kept up to date (ctl.c) */
     /* verification by replication (verify.c) */
     struct verify_job *verify;           /* its tasks out to several workers; NULL: none */
     uint64_t tasks_verified;             /* merged once two results agreed */

@@ -3239,6 +3239,11 @@ START_TEST(preview_job)
     cJSON_Delete(r);
     free(rgb);
     free(spp);
+    /* at full size, kept by the master: the one after the end updates it */
+    r = preview(port + 1, job, "", &rgb, &spp);
+    cJSON_Delete(r);
+    free(rgb);
+    free(spp);
     /* the workers reply: heartbeat age, reissues, the master's queue */
     cJSON *wr = ctl(port + 1, "workers", 0);
     const cJSON *w0 = cJSON_GetArrayItem(cJSON_GetObjectItemCaseSensitive(wr, "workers"), 0);

@@ -249,6 +249,45 @@ START_TEST(test_preview_fit)
 }
 END_TEST
 
+/* A kept preview redoes only the output rows merged into since the last
+ * update, and always equals a preview made afresh. */
+START_TEST(test_preview_update)
+{
+    film_t *f = film_new(5, 6);
+    for (uint32_t i = 0; i < 30; i++)
+        put(f, i, i, 1, 2, 1);
+    preview_t *p = preview_new(2, 3); /* output rows: source rows {0,1} {2,3} {4,5} */
+    ck_assert_ptr_nonnull(p);
+    ck_assert_int_eq(preview_update(p, f), 3); /* the first time: all */
+    ck_assert_int_eq(preview_update(p, f), 0); /* nothing merged since */
+    put(f, 2 * 5 + 4, 7, 7, 7, 3);             /* row 2: output row 1 */
+    ck_assert_int_eq(preview_update(p, f), 1);
+    put(f, 0, 1, 1, 1, 1);
+    put(f, 29, 1, 1, 1, 1); /* rows 0 and 5: output rows 0 and 2 */
+    ck_assert_int_eq(preview_update(p, f), 2);
+    float rgb[2 * 3 * 3], spp[2 * 3];
+    ck_assert(preview_from_film(f, 2, 3, rgb, spp) == 0);
+    int w, h;
+    const float *prgb, *pspp;
+    preview_planes(p, &w, &h, &prgb, &pspp);
+    ck_assert(w == 2 && h == 3);
+    ck_assert(memcmp(prgb, rgb, sizeof rgb) == 0);
+    ck_assert(memcmp(pspp, spp, sizeof spp) == 0);
+    /* another film: all again; larger than the film: refused */
+    film_t *g = film_new(5, 6);
+    ck_assert_int_eq(preview_update(p, g), 3);
+    preview_planes(p, &w, &h, &prgb, &pspp);
+    ck_assert_float_eq(pspp[0], 0.0f);
+    preview_t *big = preview_new(6, 3);
+    ck_assert_int_eq(preview_update(big, f), -1);
+    preview_destroy(&big);
+    preview_destroy(&p);
+    ck_assert_ptr_null(p);
+    film_destroy(&g);
+    film_destroy(&f);
+}
+END_TEST
+
 int main(void)
 {
     Suite *s = suite_create("film");
@@ -260,6 +299,7 @@ int main(void)
     tcase_add_test(tc, test_preview_even);
     tcase_add_test(tc, test_preview_uneven);
     tcase_add_test(tc, test_preview_fit);
+    tcase_add_test(tc, test_preview_update);
     suite_add_tcase(s, tc);
     SRunner *sr = srunner_create(s);
     srunner_run_all(sr, CK_NORMAL);
