@@ -85,6 +85,7 @@ run() {
     "$CTL" "$CEP" wait "$id" 600 >"$OUT/$tag.status.json" || true
     [ -z "$ppid" ] || wait "$ppid"
     cpu_s "$MPID" >"$OUT/$tag.master-cpu"
+    cut -d' ' -f1 /proc/loadavg >"$OUT/$tag.load"
     for p in "$MPID" "${wpids[@]}"; do kill -TERM "$p" 2>/dev/null || true; done
     for p in "$MPID" "${wpids[@]}"; do wait "$p" 2>/dev/null || true; done
     echo "  $tag: $(python3 -c 'import json,sys; print(round(json.load(open(sys.argv[1]))["samples_per_second"]))' \
@@ -106,19 +107,20 @@ tags = sys.argv[7:]
 runs = []
 print("\nPreview cost: Cornell box 1920x1080, uniform, 2 workers x 1 thread, %s s each, "
       "a %sx%s preview every %s s (%s cores)" % (secs, size, size, interval, cores))
-print("| run | previews | samples/s | master CPU s | poller CPU s | preview ms (mean / max) |")
-print("|---|--:|--:|--:|--:|--:|")
+print("| run | previews | samples/s | master CPU s | poller CPU s | preview ms (mean / max) | load (1 min) |")
+print("|---|--:|--:|--:|--:|--:|--:|")
 for t in tags:
     st = json.load(open("%s/%s.status.json" % (out, t)))
     poll = json.load(open("%s/%s.poll.json" % (out, t)))
     row = {"run": t, "preview": t.startswith("preview"), "samples_per_second": st["samples_per_second"],
            "seconds": st["seconds"], "master_cpu_s": float(open("%s/%s.master-cpu" % (out, t)).read()),
-           "poll": poll}
+           "load": float(open("%s/%s.load" % (out, t)).read()), "poll": poll}
     runs.append(row)
-    print("| %s | %s | %.0f | %.2f | %s | %s |" % (
+    print("| %s | %s | %.0f | %.2f | %s | %s | %.1f |" % (
         t, poll.get("previews", "-"), row["samples_per_second"], row["master_cpu_s"],
         "%.2f" % poll["cpu_seconds"] if poll else "-",
-        "%.1f / %.1f" % (poll["latency_ms_mean"], poll["latency_ms_max"]) if poll else "-"))
+        "%.1f / %.1f" % (poll["latency_ms_mean"], poll["latency_ms_max"]) if poll else "-",
+        row["load"]))
 mean = lambda xs: sum(xs) / len(xs)
 plain = mean([r["samples_per_second"] for r in runs if not r["preview"]])
 prev = mean([r["samples_per_second"] for r in runs if r["preview"]])
@@ -126,12 +128,19 @@ mcpu_plain = mean([r["master_cpu_s"] for r in runs if not r["preview"]])
 mcpu_prev = mean([r["master_cpu_s"] for r in runs if r["preview"]])
 change = prev / plain - 1
 print("\nmean samples/s: %.0f without, %.0f with previews: %+.2f %% (the issue allows -1 %%)" % (plain, prev, 100 * change))
-print("master CPU: %.2f s without, %.2f s with previews (%+.2f s over %s s runs)" % (
-    mcpu_plain, mcpu_prev, mcpu_prev - mcpu_plain, secs))
+# the master's extra CPU time is what previews take from the workers on a
+# machine whose cores are all busy: a figure the machine's noise moves less
+# than the throughput's
+previews = mean([r["poll"]["previews"] for r in runs if r["preview"]])
+extra = mcpu_prev - mcpu_plain
+share = extra / (float(secs) * int(cores))
+print("master CPU: %.2f s without, %.2f s with previews: %+.2f s, %.2f ms a preview, "
+      "%.2f %% of the cores' time" % (mcpu_plain, mcpu_prev, extra, 1e3 * extra / previews, 100 * share))
 res = {"cores": int(cores), "time_limit_s": float(secs), "interval_s": float(interval),
        "preview_max": int(size), "image": "1920x1080", "runs": runs,
        "samples_per_second_plain": plain, "samples_per_second_preview": prev, "change": change,
-       "master_cpu_s_plain": mcpu_plain, "master_cpu_s_preview": mcpu_prev}
+       "master_cpu_s_plain": mcpu_plain, "master_cpu_s_preview": mcpu_prev,
+       "master_cpu_ms_per_preview": 1e3 * extra / previews, "master_cpu_share_of_cores": share}
 json.dump(res, open(dest, "w"), indent=1)
 print("\nwritten to " + dest)
 PY

@@ -200,6 +200,12 @@ int preview_update(preview_t *p, const film_t *f)
     return redone;
 }
 
+int preview_fill_image(preview_t *p, const image_t *img)
+{
+    p->film = NULL; /* an update from a film redoes it all */
+    return preview_from_image(img, p->width, p->height, p->rgb, p->spp);
+}
+
 void preview_planes(const preview_t *p, int *width, int *height, const float **rgb,
                     const float **spp)
 {

@@ -48,6 +48,10 @@ void preview_destroy(preview_t **p);
  * on f's row tracking (so the same thread rules apply). The number of
  * output rows redone, or -1 when p is larger than f or out of memory. */
 int preview_update(preview_t *p, const film_t *f);
+/* Fills p from an image, as preview_from_image does (0, or -1 when R, G or
+ * B is missing or p is larger than img). */
+int preview_fill_image(preview_t *p, const image_t *img);
+
 /* Its size and planes, as preview_from_film fills them (owned by p). */
 void preview_planes(const preview_t *p, int *width, int *height, const float **rgb,
                     const float **spp);

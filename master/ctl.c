@@ -506,8 +506,18 @@ static cJSON *ctl_preview(ctl_req_t *r)
     if (preview_limit(r->body, "max_height", &max_h) < 0)
         return error_body("preview: \"max_height\" must be an integer from 1 to %d",
                           CTL_PREVIEW_MAX);
-    if (r->job->sched)
+    job_t *j = r->job;
+    if (j->sched)
         return reply_film_preview(r, max_w, max_h);
+    int w, h, pw = 0, ph = 0;
+    const float *rgb, *spp;
+    preview_fit((int)j->width, (int)j->height, max_w, max_h, &w, &h);
+    if (j->preview)
+        preview_planes(j->preview, &pw, &ph, &rgb, &spp);
+    if (pw == w && ph == h) { /* made from its stored image before (preview_done) */
+        send_preview(r->m, r->id, j, w, h, rgb, spp);
+        return NULL;
+    }
     cJSON *limits = cJSON_CreateObject();
     if (!limits || !cJSON_AddNumberToObject(limits, "max_width", max_w) ||
         !cJSON_AddNumberToObject(limits, "max_height", max_h)) {
@@ -517,7 +527,10 @@ static cJSON *ctl_preview(ctl_req_t *r)
     return read_stored_image(r, limits);
 }
 
-/* The preview of an ended job, from its stored image. */
+/* The preview of an ended job, from its stored image. The job keeps it,
+ * so a dashboard that goes on polling a finished job does not have the
+ * image read and decoded again each time; one such job at a time, since
+ * ended jobs can be many. */
 static void preview_done(master_t *m, offload_item_t *it)
 {
     job_t *j = read_for_job(m, it, "preview");
@@ -527,19 +540,22 @@ static void preview_done(master_t *m, offload_item_t *it)
     (void)preview_limit(it->req, "max_width", &max_w); /* checked by ctl_preview */
     (void)preview_limit(it->req, "max_height", &max_h);
     preview_fit(it->image->width, it->image->height, max_w, max_h, &w, &h);
-    size_t n = (size_t)w * h;
-    float *rgb = malloc(n * 3 * sizeof *rgb), *spp = malloc(n * sizeof *spp);
-    int oom = !rgb || !spp;
-    if (!oom && preview_from_image(it->image, w, h, rgb, spp) == 0) {
-        send_preview(m, &it->client, j, w, h, rgb, spp);
-    } else {
-        cJSON *b = error_body(oom ? "preview: out of memory"
-                                  : "preview: the stored image has no R, G and B channels");
+    preview_t *p = preview_new(w, h);
+    if (!p || preview_fill_image(p, it->image) < 0) {
+        cJSON *b = error_body(!p ? "preview: out of memory"
+                                 : "preview: the stored image has no R, G and B channels");
         reply_json(m, &it->client, b, 0);
         cJSON_Delete(b);
+        preview_destroy(&p);
+        return;
     }
-    free(rgb);
-    free(spp);
+    const float *rgb, *spp;
+    preview_planes(p, &w, &h, &rgb, &spp);
+    send_preview(m, &it->client, j, w, h, rgb, spp);
+    for (job_t *o = m->jobs; o; o = o->next)
+        if (!o->sched)
+            preview_destroy(&o->preview);
+    j->preview = p;
 }
 
 void ctl_offload_done(master_t *m)

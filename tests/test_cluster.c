@@ -3293,8 +3293,17 @@ START_TEST(preview_job)
                       fabs(preview_samples(r, spp) * 64 * 64 / 100 - samples) < 1e-3 * samples,
                   "the stored image at 10x10: %gx%g", jnum(r, "width"), jnum(r, "height"));
     cJSON_Delete(r);
+    /* asked again: the master kept it */
+    float *again_rgb, *again_spp;
+    r = preview(port + 1, job, "\"max_width\": 10", &again_rgb, &again_spp);
+    ck_assert_msg(memcmp(rgb, again_rgb, 100 * 3 * sizeof(float)) == 0 &&
+                      memcmp(spp, again_spp, 100 * sizeof(float)) == 0,
+                  "the same preview of an ended job differs");
+    cJSON_Delete(r);
     free(rgb);
     free(spp);
+    free(again_rgb);
+    free(again_spp);
     free(end_rgb);
     free(end_spp);
     stop_all_clean();

@@ -273,6 +273,13 @@ START_TEST(test_preview_update)
     ck_assert(w == 2 && h == 3);
     ck_assert(memcmp(prgb, rgb, sizeof rgb) == 0);
     ck_assert(memcmp(pspp, spp, sizeof spp) == 0);
+    /* filled from the film's image: the same; then a film update redoes all */
+    image_t *img = film_to_image(f);
+    ck_assert_int_eq(preview_fill_image(p, img), 0);
+    preview_planes(p, &w, &h, &prgb, &pspp);
+    ck_assert(memcmp(prgb, rgb, sizeof rgb) == 0 && memcmp(pspp, spp, sizeof spp) == 0);
+    ck_assert_int_eq(preview_update(p, f), 3);
+    image_destroy(&img);
     /* another film: all again; larger than the film: refused */
     film_t *g = film_new(5, 6);
     ck_assert_int_eq(preview_update(p, g), 3);
