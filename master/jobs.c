@@ -301,7 +301,9 @@ cJSON *job_json(const job_t *j, int with_series)
     cJSON_AddNumberToObject(o, "busy_seconds", j->busy_us / 1e6);
     cJSON_AddNumberToObject(o, "tasks_reissued", j->reissued);
     cJSON_AddNumberToObject(o, "tasks_outstanding", j->outstanding);
-    cJSON_AddNumberToObject(o, "mean_spp", (double)samples / ((double)j->width * j->height));
+    cJSON_AddNumberToObject(o, "mean_spp",
+                            j->width && j->height ? (double)samples / ((double)j->width * j->height)
+                                                  : 0);
     cJSON_AddNumberToObject(o, "progress", job_progress(j, el, samples, max_samples));
     double eta = job_eta(j, el, samples, max_samples);
     if (eta >= 0)

@@ -146,7 +146,8 @@ typedef struct job {
     char recovered[MASTER_ERR_LEN];
     char *summary;           /* status of an ended job whose film is freed, as
                                 JSON text: a tenth of the memory of its tree */
-    struct preview *preview; /* the last preview made of its film, kept up to date (ctl.c) */
+    struct preview *preview; /* the last preview asked for, kept (ctl.c): of its film,
+                                or of its stored image once the film is freed */
     /* verification by replication (verify.c) */
     struct verify_job *verify;           /* its tasks out to several workers; NULL: none */
     uint64_t tasks_verified;             /* merged once two results agreed */
