@@ -10,7 +10,10 @@
 # BENCH_PREVIEW_ROUNDS times each. Per run: the job's samples/s, the
 # master's CPU seconds (/proc), and the poller's previews, latency and own
 # CPU. The machine is shared and noisy: every run is reported, and the
-# ratio is of the means.
+# ratio is of the means. The steadier figure is the master's CPU the
+# previews add (its merging's share, which grows with the samples, taken
+# off), as a share of the cores' time: what they take from the workers on
+# a machine whose cores are all busy.
 #
 # Knobs (environment): BENCH_PREVIEW_SECONDS (25), BENCH_PREVIEW_ROUNDS (2),
 # BENCH_PREVIEW_INTERVAL (0.25), BENCH_PREVIEW_SIZE (256), BENCH_PREVIEW_PORT
@@ -128,14 +131,21 @@ mcpu_plain = mean([r["master_cpu_s"] for r in runs if not r["preview"]])
 mcpu_prev = mean([r["master_cpu_s"] for r in runs if r["preview"]])
 change = prev / plain - 1
 print("\nmean samples/s: %.0f without, %.0f with previews: %+.2f %% (the issue allows -1 %%)" % (plain, prev, 100 * change))
-# the master's extra CPU time is what previews take from the workers on a
+# The master's extra CPU time is what previews take from the workers on a
 # machine whose cores are all busy: a figure the machine's noise moves less
-# than the throughput's
-previews = mean([r["poll"]["previews"] for r in runs if r["preview"]])
-extra = mcpu_prev - mcpu_plain
-share = extra / (float(secs) * int(cores))
-print("master CPU: %.2f s without, %.2f s with previews: %+.2f s, %.2f ms a preview, "
-      "%.2f %% of the cores' time" % (mcpu_plain, mcpu_prev, extra, 1e3 * extra / previews, 100 * share))
+# than the throughput's. Its merging grows with the samples, so the plain
+# runs' CPU per sample, times the preview runs' samples, is taken off.
+samples = lambda r: r["samples_per_second"] * r["seconds"]
+per_sample = sum(r["master_cpu_s"] for r in runs if not r["preview"]) / sum(
+    samples(r) for r in runs if not r["preview"])
+prev_runs = [r for r in runs if r["preview"]]
+extra = mean([r["master_cpu_s"] - per_sample * samples(r) for r in prev_runs])
+previews = mean([r["poll"]["previews"] for r in prev_runs])
+share = extra / (mean([r["seconds"] for r in prev_runs]) * int(cores))
+print("master CPU: %.2f s without, %.2f s with previews; %.3f s per million samples merged without;"
+      % (mcpu_plain, mcpu_prev, 1e6 * per_sample))
+print("previews' share: %+.2f s a run, %.2f ms a preview, %.2f %% of the cores' time" % (
+    extra, 1e3 * extra / previews, 100 * share))
 res = {"cores": int(cores), "time_limit_s": float(secs), "interval_s": float(interval),
        "preview_max": int(size), "image": "1920x1080", "runs": runs,
        "samples_per_second_plain": plain, "samples_per_second_preview": prev, "change": change,
