@@ -11,8 +11,8 @@
 #                build-fuzz/), 1,000,000 runs each on a copy of its corpus
 #   make fuzz-seeds   rewrite the seed corpora made by the project's writers
 #   make demo    deps, build, render scenes/cornell-box.json to out/
-#   make bench   deps, build, core, distributed, durable and verification
-#                benchmarks (bench/results/)
+#   make bench   deps, build, core, distributed, durable, verification,
+#                CURVE and preview benchmarks (bench/results/)
 #   make bench-error   the error study: adaptive modes against uniform and Mitsuba 3
 #   make format        clang-format every tracked C file in place
 #   make format-check  fail if any tracked C file differs from clang-format's output
@@ -287,6 +287,7 @@ bench: deps
 	bench/run-durable.sh
 	bench/run-verify.sh
 	bench/run-curve.sh
+	bench/run-preview.sh
 
 bench-error: deps
 	$(MAKE) all

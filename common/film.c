@@ -16,7 +16,10 @@ film_t *film_new(int width, int height)
     f->width = width;
     f->height = height;
     f->pixels = calloc((size_t)width * (size_t)height, sizeof(film_pixel_t));
-    if (!f->pixels) {
+    f->rows = calloc(1, sizeof *f->rows);
+    if (!f->pixels || !f->rows) {
+        free(f->pixels);
+        free(f->rows);
         free(f);
         return NULL;
     }
@@ -28,6 +31,9 @@ void film_destroy(film_t **fp)
     if (!fp || !*fp)
         return;
     free((*fp)->pixels);
+    if ((*fp)->rows)
+        free((*fp)->rows->row_stamp);
+    free((*fp)->rows);
     free(*fp);
     *fp = NULL;
 }
@@ -75,6 +81,8 @@ int film_merge(film_t *f, const tracer_result_t *r)
     if ((uint64_t)r->pixel >= (uint64_t)f->width * (uint64_t)f->height)
         return -1;
     film_pixel_t *p = &f->pixels[r->pixel];
+    if (f->rows->row_stamp)
+        f->rows->row_stamp[r->pixel / (uint32_t)f->width] = ++f->rows->stamp;
     p->nonfinite += r->nonfinite;
     p->pvar = r->pvar;
     p->layers++;
@@ -85,6 +93,13 @@ int film_merge(film_t *f, const tracer_result_t *r)
         neumaier_add(&p->sum[c], &p->comp[c], r->sum[c]);
     p->count += r->samples;
     return 0;
+}
+
+int film_track_rows(const film_t *f)
+{
+    if (!f->rows->row_stamp)
+        f->rows->row_stamp = calloc((size_t)f->height, sizeof *f->rows->row_stamp);
+    return f->rows->row_stamp ? 0 : -1;
 }
 
 void film_prior(const film_t *f, tracer_task_t *task)

@@ -26,9 +26,16 @@ typedef struct film_pixel {
     uint32_t layers; /* tasks merged */
 } film_pixel_t;
 
+/* Which rows merges touched (film_track_rows): off until asked for. */
+typedef struct film_rows {
+    uint64_t stamp;      /* merges counted since tracking began */
+    uint64_t *row_stamp; /* per row: the stamp of its last merge (NULL: off) */
+} film_rows_t;
+
 typedef struct film {
     int width, height;
     film_pixel_t *pixels;
+    film_rows_t *rows; /* never NULL; not pixels: may change through a const film */
 } film_t;
 
 film_t *film_new(int width, int height);
@@ -41,6 +48,14 @@ int film_merge(film_t *f, const tracer_result_t *r);
 /* Whether merging r keeps the pixel finite: 0, or -1 when a sum or M2
  * would overflow (a result that must be refused, not merged). */
 int film_merge_check(const film_t *f, const tracer_result_t *r);
+
+/* From now on each film_merge stamps its pixel's row with a count that
+ * only grows (f->rows), so a viewer can redo just the rows merged into
+ * since it last looked (preview_update). Changes no pixel, hence const;
+ * only for a film merged on one thread (the master's, not render.c's,
+ * whose threads merge into one row at once), and called on that thread.
+ * Rows start at stamp 0. 0, or -1 when out of memory. */
+int film_track_rows(const film_t *f);
 
 /* Fills a task's "so far" fields (prior_count, prior_sum) for a pixel. */
 void film_prior(const film_t *f, tracer_task_t *task);

@@ -9,6 +9,7 @@
 #include "film.h"
 #include "frames.h"
 #include "master_priv.h"
+#include "preview.h"
 
 /* A request being answered. */
 typedef struct ctl_req {
@@ -263,6 +264,24 @@ static cJSON *ctl_jobs(ctl_req_t *r)
     return b;
 }
 
+/* The master's queue and task counters, into the workers reply's "master"
+ * object: every job in memory counts, whoever owns it (numbers only). */
+static void master_queue_json(const master_t *m, cJSON *st)
+{
+    uint64_t queued = 0, running = 0, outstanding = 0, reissued = m->reissued_deleted_jobs;
+    for (const job_t *j = m->jobs; j; j = j->next) {
+        queued += j->state == JOB_QUEUED;
+        running += j->state == JOB_RUNNING;
+        outstanding += j->state == JOB_RUNNING ? j->outstanding : 0;
+        reissued += j->reissued;
+    }
+    cJSON_AddNumberToObject(st, "jobs_queued", (double)queued);
+    cJSON_AddNumberToObject(st, "jobs_running", (double)running);
+    cJSON_AddNumberToObject(st, "tasks_outstanding", (double)outstanding);
+    cJSON_AddNumberToObject(st, "tasks_issued", (double)m->tasks_issued);
+    cJSON_AddNumberToObject(st, "tasks_reissued", (double)reissued);
+}
+
 static cJSON *ctl_workers(ctl_req_t *r)
 {
     master_t *m = r->m;
@@ -278,6 +297,8 @@ static cJSON *ctl_workers(ctl_req_t *r)
         cJSON_AddNumberToObject(o, "threads", w->threads);
         cJSON_AddNumberToObject(o, "tasks_done", (double)w->tasks_done);
         cJSON_AddNumberToObject(o, "tasks_outstanding", w->outstanding);
+        cJSON_AddNumberToObject(o, "tasks_reissued", (double)w->tasks_reissued);
+        cJSON_AddNumberToObject(o, "last_seen_seconds", now - w->last_seen);
         cJSON_AddNumberToObject(o, "rays", (double)w->rays);
         cJSON_AddNumberToObject(o, "samples", (double)w->samples);
         cJSON_AddNumberToObject(o, "busy_seconds", w->busy_us / 1e6);
@@ -292,7 +313,9 @@ static cJSON *ctl_workers(ctl_req_t *r)
     cJSON *st = cJSON_AddObjectToObject(b, "master");
     cJSON_AddNumberToObject(st, "malformed_messages", (double)m->malformed);
     cJSON_AddNumberToObject(st, "late_results", (double)m->dropped_late);
+    cJSON_AddNumberToObject(st, "requeue_refused", (double)m->requeue_refused);
     cJSON_AddNumberToObject(st, "rate_limited_requests", (double)m->rate_limited);
+    master_queue_json(m, st);
     if (m->store) {
         /* the last background write of checkpoints and images: what it costs */
         store_bg_stats_t bg = store_bg_last(m->store);
@@ -356,21 +379,30 @@ static void send_image(master_t *m, zmq_msg_t *client, const job_t *j, const ima
                  (c + 1 < img->channel_count ? ZMQ_SNDMORE : 0) | ZMQ_DONTWAIT);
 }
 
+/* An ended job's image is on disk: the offload thread reads it, off the
+ * loop, and the reply follows (ctl_offload_done). A preview's read carries
+ * its size limits in req; a fetch's has none. */
+static cJSON *read_stored_image(ctl_req_t *r, cJSON *preview_req)
+{
+    offload_item_t *it = offload_item_new(OFFLOAD_FETCH);
+    if (!it) {
+        cJSON_Delete(preview_req);
+        return error_body("out of memory");
+    }
+    zmq_msg_copy(&it->client, r->id);
+    it->job_id = r->job->id;
+    it->req = preview_req;
+    persist_image_path(r->m, r->job, it->path, sizeof it->path);
+    offload_push(r->m->offload, it);
+    return NULL;
+}
+
 static cJSON *ctl_fetch(ctl_req_t *r)
 {
     master_t *m = r->m;
     job_t *j = r->job;
-    if (!j->sched) {
-        /* an ended job's image is on disk: read it off the loop */
-        offload_item_t *it = offload_item_new(OFFLOAD_FETCH);
-        if (!it)
-            return error_body("out of memory");
-        zmq_msg_copy(&it->client, r->id);
-        it->job_id = j->id;
-        persist_image_path(m, j, it->path, sizeof it->path);
-        offload_push(m->offload, it);
-        return NULL;
-    }
+    if (!j->sched)
+        return read_stored_image(r, NULL);
     image_t *img = film_to_image(sched_film(j->sched));
     if (!img)
         return error_body("fetch: out of memory");
@@ -379,20 +411,153 @@ static cJSON *ctl_fetch(ctl_req_t *r)
     return NULL;
 }
 
-static void fetch_done(master_t *m, offload_item_t *it)
+/* The job a stored image was read for, or NULL once the client has been
+ * told why not. */
+static job_t *read_for_job(master_t *m, offload_item_t *it, const char *cmd)
 {
     job_t *j = job_find(m, it->job_id);
     cJSON *b = NULL;
     if (!j)
-        b = error_body("fetch: no such job %" PRIu64 " (deleted meanwhile)", it->job_id);
+        b = error_body("%s: no such job %" PRIu64 " (deleted meanwhile)", cmd, it->job_id);
     else if (!it->image)
-        b = error_body("fetch: %s", it->err);
+        b = error_body("%s: %s", cmd, it->err);
     if (b) {
         reply_json(m, &it->client, b, 0);
         cJSON_Delete(b);
+        return NULL;
+    }
+    return j;
+}
+
+static void fetch_done(master_t *m, offload_item_t *it)
+{
+    job_t *j = read_for_job(m, it, "fetch");
+    if (j)
+        send_image(m, &it->client, j, it->image);
+}
+
+/* ---- preview ------------------------------------------------------------------------- */
+
+#define CTL_PREVIEW_DEFAULT 256
+#define CTL_PREVIEW_MAX 4096
+
+/* "max_width" or "max_height" of a preview request into *out: absent, the
+ * default; -1 if present and not an integer 1..CTL_PREVIEW_MAX. */
+static int preview_limit(const cJSON *req, const char *field, int *out)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(req, field);
+    if (!v) {
+        *out = CTL_PREVIEW_DEFAULT;
+        return 0;
+    }
+    if (!cJSON_IsNumber(v) || !(v->valuedouble >= 1 && v->valuedouble <= CTL_PREVIEW_MAX) ||
+        v->valuedouble != floor(v->valuedouble))
+        return -1;
+    *out = (int)v->valuedouble;
+    return 0;
+}
+
+/* The reply to preview: the job's status and the preview's size, then a
+ * frame of RGB (3 floats a pixel) and one of mean samples per pixel. */
+static void send_preview(master_t *m, zmq_msg_t *client, const job_t *j, int w, int h,
+                         const float *rgb, const float *spp)
+{
+    size_t n = (size_t)w * h;
+    cJSON *b = ok_with_job(j);
+    cJSON_AddNumberToObject(b, "width", w);
+    cJSON_AddNumberToObject(b, "height", h);
+    cJSON_AddNumberToObject(b, "spp_max", preview_max(spp, n));
+    reply_json(m, client, b, 1);
+    cJSON_Delete(b);
+    zmq_send(m->control_sock, rgb, n * 3 * sizeof *rgb, ZMQ_SNDMORE | ZMQ_DONTWAIT);
+    zmq_send(m->control_sock, spp, n * sizeof *spp, ZMQ_DONTWAIT);
+}
+
+/* The preview of a job whose film is in memory. The job keeps it (one
+ * size, the last asked for), so polling it again redoes only the rows
+ * merged into since: a dashboard's 0.25 s refresh of a running 1920x1080
+ * film costs a few rows, not a pass over 180 MB of pixels. */
+static cJSON *reply_film_preview(ctl_req_t *r, int max_w, int max_h)
+{
+    job_t *j = r->job;
+    const film_t *f = sched_film(j->sched);
+    int w, h, pw = 0, ph = 0;
+    const float *rgb, *spp;
+    preview_fit(f->width, f->height, max_w, max_h, &w, &h);
+    if (j->preview)
+        preview_planes(j->preview, &pw, &ph, &rgb, &spp);
+    if (pw != w || ph != h)
+        preview_destroy(&j->preview);
+    if (!j->preview)
+        j->preview = preview_new(w, h);
+    if (!j->preview || preview_update(j->preview, f) < 0) {
+        preview_destroy(&j->preview);
+        return error_body("preview: out of memory");
+    }
+    preview_planes(j->preview, &w, &h, &rgb, &spp);
+    send_preview(r->m, r->id, j, w, h, rgb, spp);
+    return NULL;
+}
+
+static cJSON *ctl_preview(ctl_req_t *r)
+{
+    int max_w, max_h;
+    if (preview_limit(r->body, "max_width", &max_w) < 0)
+        return error_body("preview: \"max_width\" must be an integer from 1 to %d",
+                          CTL_PREVIEW_MAX);
+    if (preview_limit(r->body, "max_height", &max_h) < 0)
+        return error_body("preview: \"max_height\" must be an integer from 1 to %d",
+                          CTL_PREVIEW_MAX);
+    job_t *j = r->job;
+    if (j->sched)
+        return reply_film_preview(r, max_w, max_h);
+    int w, h, pw = 0, ph = 0;
+    const float *rgb, *spp;
+    preview_fit((int)j->width, (int)j->height, max_w, max_h, &w, &h);
+    if (j->preview)
+        preview_planes(j->preview, &pw, &ph, &rgb, &spp);
+    if (pw == w && ph == h) { /* made from its stored image before (preview_done) */
+        send_preview(r->m, r->id, j, w, h, rgb, spp);
+        return NULL;
+    }
+    cJSON *limits = cJSON_CreateObject();
+    if (!limits || !cJSON_AddNumberToObject(limits, "max_width", max_w) ||
+        !cJSON_AddNumberToObject(limits, "max_height", max_h)) {
+        cJSON_Delete(limits);
+        return error_body("out of memory");
+    }
+    return read_stored_image(r, limits);
+}
+
+/* The preview of an ended job, from its stored image. The job keeps it,
+ * so a dashboard that goes on polling a finished job does not have the
+ * image read and decoded again each time; one such job at a time, since
+ * ended jobs can be many. */
+static void preview_done(master_t *m, offload_item_t *it)
+{
+    job_t *j = read_for_job(m, it, "preview");
+    if (!j)
+        return;
+    int max_w = CTL_PREVIEW_DEFAULT, max_h = CTL_PREVIEW_DEFAULT, w, h;
+    (void)preview_limit(it->req, "max_width", &max_w); /* checked by ctl_preview */
+    (void)preview_limit(it->req, "max_height", &max_h);
+    preview_fit(it->image->width, it->image->height, max_w, max_h, &w, &h);
+    preview_t *p = preview_new(w, h);
+    if (!p || preview_fill_image(p, it->image) < 0) {
+        cJSON *b = error_body(!p ? "preview: out of memory"
+                                 : "preview: the stored image has no R, G and B channels");
+        reply_json(m, &it->client, b, 0);
+        cJSON_Delete(b);
+        preview_destroy(&p);
         return;
     }
-    send_image(m, &it->client, j, it->image);
+    const float *rgb, *spp;
+    preview_planes(p, &w, &h, &rgb, &spp);
+    send_preview(m, &it->client, j, w, h, rgb, spp);
+    for (job_t *o = m->jobs; o; o = o->next)
+        if (!o->sched)
+            preview_destroy(&o->preview);
+    j->preview = p;
 }
 
 void ctl_offload_done(master_t *m)
@@ -400,7 +565,9 @@ void ctl_offload_done(master_t *m)
     offload_item_t *it = offload_take_done(m->offload);
     while (it) {
         offload_item_t *next = it->next;
-        if (it->kind == OFFLOAD_FETCH)
+        if (it->kind == OFFLOAD_FETCH && it->req)
+            preview_done(m, it);
+        else if (it->kind == OFFLOAD_FETCH)
             fetch_done(m, it);
         else
             submit_done(m, it);
@@ -424,7 +591,7 @@ static const ctl_command_t ctl_commands[] = {
     {"jobs", ctl_jobs, 0, 0, 0},       {"workers", ctl_workers, 0, 0, 0},
     {"cancel", ctl_cancel, 0, 1, 0},   {"fetch", ctl_fetch, 0, 1, 0},
     {"delete", ctl_delete, 0, 1, 0},   {"shutdown", ctl_shutdown, 0, 0, 0},
-    {"readmit", ctl_readmit, 0, 0, 1},
+    {"readmit", ctl_readmit, 0, 0, 1}, {"preview", ctl_preview, 0, 1, 0},
 };
 
 static const ctl_command_t *find_command(const char *name)

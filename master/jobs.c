@@ -7,6 +7,7 @@
 #include "compare.h"
 #include "film.h"
 #include "master_priv.h"
+#include "preview.h"
 #include "scene.h"
 
 const char *const job_state_names[] = {"queued", "running", "done", "failed", "cancelled"};
@@ -72,6 +73,7 @@ void job_shed(job_t *j)
         return; /* out of memory: keep the job whole */
     free_bundle(j);
     verify_free(j);
+    preview_destroy(&j->preview); /* of the film freed here */
     sched_destroy(&j->sched);
     free(j->attempt);
     free(j->holder);
@@ -93,6 +95,7 @@ void job_free(job_t *j)
         return;
     free_bundle(j);
     verify_free(j);
+    preview_destroy(&j->preview);
     sched_destroy(&j->sched);
     free(j->flags);
     free(j->quarantined);
@@ -180,6 +183,7 @@ void job_reissue(master_t *m, job_t *j, size_t cell)
     peer_t *w = &m->workers[j->holder[cell] - 1];
     if (w->outstanding)
         w->outstanding--;
+    w->tasks_reissued++;
     j->holder[cell] = 0;
     j->outstanding--;
     j->reissued++;
@@ -228,6 +232,39 @@ void job_finish(master_t *m, job_t *j, job_state_t st, const char *why)
                j->id, job_state_names[st], job_seconds(j, j->finished),
                j->sched ? sched_samples_done(j->sched) : 0, j->rays, why ? ": " : "",
                why ? why : "");
+}
+
+/* How far the job is, 0 to 1: its share of max_samples, or of its time
+ * limit if that is further; 1 once done (an adaptive job may end short of
+ * max_samples). */
+static double job_progress(const job_t *j, double el, uint64_t samples, uint64_t max_samples)
+{
+    if (j->state == JOB_DONE)
+        return 1;
+    double p = max_samples ? (double)samples / (double)max_samples : 0;
+    if (j->time_limit > 0 && el / j->time_limit > p)
+        p = el / j->time_limit;
+    return p < 1 ? p : 1;
+}
+
+/* Seconds left at the job's rate so far, to max_samples or to its time
+ * limit, whichever comes first; 0 once ended; -1 while not known (queued,
+ * or no sample merged yet). An adaptive job may end sooner. */
+static double job_eta(const job_t *j, double el, uint64_t samples, uint64_t max_samples)
+{
+    if (job_ended(j))
+        return 0;
+    if (j->state != JOB_RUNNING)
+        return -1;
+    double left = -1;
+    if (samples > 0 && el > 0)
+        left = (double)(max_samples > samples ? max_samples - samples : 0) / (samples / el);
+    if (j->time_limit > 0) {
+        double t = j->time_limit > el ? j->time_limit - el : 0;
+        if (left < 0 || t < left)
+            left = t;
+    }
+    return left;
 }
 
 static void add_str(cJSON *o, const char *k, const char *v)
@@ -281,6 +318,16 @@ cJSON *job_json(const job_t *j, int with_series)
     cJSON_AddNumberToObject(o, "samples_per_second", el > 0 ? samples / el : 0);
     cJSON_AddNumberToObject(o, "busy_seconds", j->busy_us / 1e6);
     cJSON_AddNumberToObject(o, "tasks_reissued", j->reissued);
+    cJSON_AddNumberToObject(o, "tasks_outstanding", j->outstanding);
+    cJSON_AddNumberToObject(o, "mean_spp",
+                            j->width && j->height ? (double)samples / ((double)j->width * j->height)
+                                                  : 0);
+    cJSON_AddNumberToObject(o, "progress", job_progress(j, el, samples, max_samples));
+    double eta = job_eta(j, el, samples, max_samples);
+    if (eta >= 0)
+        cJSON_AddNumberToObject(o, "eta_seconds", eta);
+    else
+        cJSON_AddNullToObject(o, "eta_seconds");
     cJSON_AddNumberToObject(o, "late_results", (double)j->late_results);
     cJSON_AddNumberToObject(o, "nonfinite", (double)sched_nonfinite(j->sched));
     verify_json(j, o);
@@ -327,6 +374,7 @@ void job_delete(master_t *m, job_t *j)
         if (m->jobs_tail == j)
             m->jobs_tail = prev;
     }
+    m->reissued_deleted_jobs += j->reissued; /* the master's total stays monotonic */
     if (m->store) {
         /* removed when no background write can be touching its files */
         if (m->doomed_n == m->doomed_cap) {

@@ -104,6 +104,7 @@ typedef struct peer {
     uint32_t bad_results; /* results refused as out of range or misfit */
     double joined, last_seen, last_sent;
     uint64_t rays, tasks_done, busy_us, samples;
+    uint64_t tasks_reissued; /* taken back from it: lease ran out, failed, refused */
     int alive;
 } peer_t;
 
@@ -155,8 +156,10 @@ typedef struct job {
     int final_durable; /* image and final status are on disk */
     char storage_error[VB_ERR_LEN];
     char recovered[VB_ERR_LEN];
-    char *summary; /* status of an ended job whose film is freed, as
-                      JSON text: a tenth of the memory of its tree */
+    char *summary;           /* status of an ended job whose film is freed, as
+                                JSON text: a tenth of the memory of its tree */
+    struct preview *preview; /* the last preview asked for, kept (ctl.c): of its film,
+                                or of its stored image once the film is freed */
     /* verification by replication (verify.c) */
     struct verify_job *verify;           /* its tasks out to several workers; NULL: none */
     uint64_t tasks_verified;             /* merged once two results agreed */
@@ -194,7 +197,9 @@ struct master {
     char (*quarantine)[128];    /* workers refused: key, or address without keys */
     size_t quarantine_n, quarantine_cap;
     uint64_t malformed, dropped_late, rate_limited;
-    uint64_t requeue_refused; /* tasks the scheduler would not take back (job_requeue) */
+    uint64_t requeue_refused;       /* tasks the scheduler would not take back (job_requeue) */
+    uint64_t tasks_issued;          /* TASK messages sent, copies for verification included */
+    uint64_t reissued_deleted_jobs; /* tasks_reissued of jobs deleted since the start */
     /* background writes of checkpoints only (not final images): what they
      * cost, for the benchmark and the dashboard */
     int bg_final; /* the write under way includes a final image */

@@ -272,7 +272,9 @@ int peer_send_task(master_t *m, peer_t *w, job_t *j, const sched_task_t *t, prot
     msg->u.task.layer = t->layer;
     msg->u.task.count = t->count;
     msg->u.task.records = t->records;
-    return peer_send(m, w, msg);
+    int rc = peer_send(m, w, msg);
+    m->tasks_issued += rc == SEND_OK;
+    return rc;
 }
 
 /* Hands worker w (index i) a new task, sent once or, when chosen, as the
@@ -364,6 +366,7 @@ static void on_task_failed(master_t *m, peer_t *w, job_t *j, size_t c, const cha
         job_finish(m, j, JOB_FAILED, why);
     } else {
         j->reissued++;
+        w->tasks_reissued++;
         job_requeue(m, j, (uint64_t)c + 1); /* outstanding until now: taken back */
     }
 }
@@ -431,6 +434,7 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
                            "job %" PRIu64 " task %" PRIu64 ": bad result from %s: %s", j->id, id,
                            peer_identity(w), err);
         j->reissued++;
+        w->tasks_reissued++;
         job_requeue(m, j, id); /* still outstanding: nothing was merged */
         if (w->bad_results >= MASTER_MAX_BAD_RESULTS) {
             char why[MASTER_ERR_LEN];

@@ -19,6 +19,7 @@
 #include <check.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <math.h>
 #include <signal.h>
 #include <stdarg.h>
 #include <stdint.h>
@@ -451,10 +452,11 @@ static daemon_t *start_worker(int port, int threads, const char *name, const cha
 
 /* ---- control requests straight from the test ---------------------------- */
 
-/* One JSON request to the control socket at 127.0.0.1:cport (faster and
- * more exact than parsing the client's tables while polling). NULL when
- * the master does not answer within 5 s. */
-static cJSON *ctl(int cport, const char *cmd, unsigned long long job)
+/* One request (JSON text) to the control socket at 127.0.0.1:cport: the
+ * reply's JSON, and up to max of the binary frames after it into frames
+ * (*nframes of them, to close; frames NULL: none wanted). NULL when the
+ * master does not answer within 5 s. */
+static cJSON *ctl_text(int cport, const char *text, zmq_msg_t *frames, int max, int *nframes)
 {
     void *ctx = zmq_ctx_new();
     void *s = zmq_socket(ctx, ZMQ_REQ);
@@ -470,22 +472,42 @@ static cJSON *ctl(int cport, const char *cmd, unsigned long long job)
     char ep[64];
     snprintf(ep, sizeof ep, "tcp://127.0.0.1:%d", cport);
     cJSON *reply = NULL;
+    if (nframes)
+        *nframes = 0;
+    if (zmq_connect(s, ep) == 0 && zmq_send(s, text, strlen(text), 0) >= 0) {
+        zmq_msg_t msg;
+        zmq_msg_init(&msg);
+        if (zmq_msg_recv(&msg, s, 0) >= 0)
+            reply = cJSON_ParseWithLength(zmq_msg_data(&msg), zmq_msg_size(&msg));
+        int more = zmq_msg_more(&msg);
+        zmq_msg_close(&msg);
+        while (reply && more && frames && *nframes < max) {
+            zmq_msg_init(&frames[*nframes]);
+            if (zmq_msg_recv(&frames[*nframes], s, 0) < 0) {
+                zmq_msg_close(&frames[*nframes]);
+                break;
+            }
+            more = zmq_msg_more(&frames[(*nframes)++]);
+        }
+    }
+    zmq_close(s);
+    zmq_ctx_term(ctx);
+    return reply;
+}
+
+/* One JSON request to the control socket at 127.0.0.1:cport (faster and
+ * more exact than parsing the client's tables while polling). NULL when
+ * the master does not answer within 5 s. */
+static cJSON *ctl(int cport, const char *cmd, unsigned long long job)
+{
     cJSON *req = cJSON_CreateObject();
     cJSON_AddStringToObject(req, "cmd", cmd);
     if (job)
         cJSON_AddNumberToObject(req, "job", (double)job);
     char *text = cJSON_PrintUnformatted(req);
-    if (zmq_connect(s, ep) == 0 && text && zmq_send(s, text, strlen(text), 0) >= 0) {
-        zmq_msg_t msg;
-        zmq_msg_init(&msg);
-        if (zmq_msg_recv(&msg, s, 0) >= 0)
-            reply = cJSON_ParseWithLength(zmq_msg_data(&msg), zmq_msg_size(&msg));
-        zmq_msg_close(&msg);
-    }
+    cJSON *reply = text ? ctl_text(cport, text, NULL, 0, NULL) : NULL;
     cJSON_free(text);
     cJSON_Delete(req);
-    zmq_close(s);
-    zmq_ctx_term(ctx);
     return reply;
 }
 
@@ -3056,8 +3078,8 @@ START_TEST(curve_ownership)
     ck_assert_ptr_nonnull(r);
     ck_assert_int_eq(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(r, "jobs")), 0);
     cJSON_Delete(r);
-    static const char *const cmds[] = {"status", "cancel", "fetch", "delete"};
-    for (size_t i = 0; i < 4; i++) {
+    static const char *const cmds[] = {"status", "cancel", "fetch", "delete", "preview"};
+    for (size_t i = 0; i < 5; i++) {
         r = ctl(port + 1, cmds[i], job);
         ck_assert_msg(r && strstr(jstr(r, "error"), "belongs to another client"), "bob's %s: %s",
                       cmds[i], r ? jstr(r, "error") : "no reply");
@@ -3090,6 +3112,184 @@ START_TEST(curve_ownership)
     ck_assert_msg(r && cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")),
                   "the admin's delete: %s", r ? jstr(r, "error") : "no reply");
     cJSON_Delete(r);
+    stop_all_clean();
+    remove_state(dir);
+    remove_scratch();
+}
+END_TEST
+
+/* ---- preview --------------------------------------------------------------------- */
+
+/* A preview of the job; limits: more members of the request (such as
+ * "\"max_width\": 16") or "". The reply; when it says ok, its frames are
+ * checked against its width and height and copied to *rgb (3 floats a
+ * pixel) and *spp, which the caller frees. */
+static cJSON *preview(int cport, unsigned long long job, const char *limits, float **rgb,
+                      float **spp)
+{
+    char text[512];
+    snprintf(text, sizeof text, "{\"cmd\": \"preview\", \"job\": %llu%s%s}", job,
+             limits[0] ? ", " : "", limits);
+    zmq_msg_t f[3];
+    int n = 0;
+    cJSON *r = ctl_text(cport, text, f, 3, &n);
+    ck_assert_msg(r != NULL, "no answer to %s\n%s", text, logs_tail());
+    *rgb = *spp = NULL;
+    if (cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok"))) {
+        size_t px = (size_t)jnum(r, "width") * (size_t)jnum(r, "height");
+        ck_assert_msg(n == 2 && px > 0 && zmq_msg_size(&f[0]) == px * 3 * sizeof(float) &&
+                          zmq_msg_size(&f[1]) == px * sizeof(float),
+                      "preview %s: %d frames for %gx%g", text, n, jnum(r, "width"),
+                      jnum(r, "height"));
+        *rgb = malloc(px * 3 * sizeof(float));
+        *spp = malloc(px * sizeof(float));
+        memcpy(*rgb, zmq_msg_data(&f[0]), px * 3 * sizeof(float));
+        memcpy(*spp, zmq_msg_data(&f[1]), px * sizeof(float));
+    } else {
+        ck_assert_msg(n == 0, "an error reply with %d binary frames", n);
+    }
+    for (int i = 0; i < n; i++)
+        zmq_msg_close(&f[i]);
+    return r;
+}
+
+/* The sum of a preview's samples map, and that its top is spp_max. */
+static double preview_samples(const cJSON *r, const float *spp)
+{
+    size_t px = (size_t)jnum(r, "width") * (size_t)jnum(r, "height");
+    double sum = 0;
+    float top = 0;
+    for (size_t i = 0; i < px; i++) {
+        sum += spp[i];
+        top = spp[i] > top ? spp[i] : top;
+    }
+    ck_assert_msg(jnum(r, "spp_max") == top, "spp_max %g, the map's top %g", jnum(r, "spp_max"),
+                  (double)top);
+    return sum;
+}
+
+static void preview_refused(int cport, unsigned long long job, const char *limits, const char *says)
+{
+    float *rgb, *spp;
+    cJSON *r = preview(cport, job, limits, &rgb, &spp);
+    ck_assert_msg(!cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")) &&
+                      strstr(jstr(r, "error"), says),
+                  "preview of %llu with {%s}: %s, expected an error naming %s", job, limits,
+                  jstr(r, "error"), says);
+    cJSON_Delete(r);
+}
+
+/* While the job runs, previews change (more samples each time); its size
+ * fits the limits with the film's aspect ratio and is never scaled up;
+ * once the job has ended, and after a restart (the image then comes from
+ * the state directory), the preview is the same. The status and workers
+ * replies carry the dashboard's numbers. */
+START_TEST(preview_job)
+{
+    char scene[PATHLEN], dir[PATHLEN];
+    scene_file(scene, sizeof scene, 64, NULL, NULL);
+    state_dir(dir, sizeof dir, "state-preview");
+    int port = slot_port(16);
+    daemon_t *m = start_durable(&port, "p-master", dir, NULL);
+    start_worker(port, 1, "p-worker", NULL);
+    unsigned long long job =
+        submit(port + 1, scene, "--spp 1024 --granularity 16 --adaptive none --seed 7");
+    preview_refused(port + 1, job, "\"max_width\": 0", "max_width");
+    preview_refused(port + 1, job, "\"max_width\": 4097", "max_width");
+    preview_refused(port + 1, job, "\"max_width\": 1.5", "max_width");
+    preview_refused(port + 1, job, "\"max_height\": \"big\"", "max_height");
+    preview_refused(port + 1, job, "\"max_height\": -3", "max_height");
+    preview_refused(port + 1, 999999, "", "no such job");
+    cJSON *st = wait_layers(port + 1, job, 2);
+    ck_assert_msg(!job_ended(st), "the job ended before its first preview (make it longer)");
+    ck_assert_msg(jnum(st, "progress") > 0 && jnum(st, "progress") < 1 &&
+                      jnum(st, "eta_seconds") >= 0 && jnum(st, "mean_spp") > 0,
+                  "a running job: progress %g, eta %g, mean_spp %g", jnum(st, "progress"),
+                  jnum(st, "eta_seconds"), jnum(st, "mean_spp"));
+    cJSON_Delete(st);
+    float *rgb, *spp;
+    cJSON *r = preview(port + 1, job, "\"max_width\": 16, \"max_height\": 40", &rgb, &spp);
+    ck_assert_msg(jnum(r, "width") == 16 && jnum(r, "height") == 16, "a 64x64 film in 16x40: %gx%g",
+                  jnum(r, "width"), jnum(r, "height"));
+    double first = preview_samples(r, spp);
+    ck_assert_msg(first > 0, "a running job's preview has no samples");
+    cJSON_Delete(r);
+    free(rgb);
+    free(spp);
+    sleep_ms(300);
+    r = preview(port + 1, job, "\"max_width\": 16, \"max_height\": 40", &rgb, &spp);
+    double second = preview_samples(r, spp);
+    ck_assert_msg(second > first, "the preview did not change: %g then %g samples", first, second);
+    cJSON_Delete(r);
+    free(rgb);
+    free(spp);
+    /* at full size, kept by the master: the one after the end updates it */
+    r = preview(port + 1, job, "", &rgb, &spp);
+    cJSON_Delete(r);
+    free(rgb);
+    free(spp);
+    /* the workers reply: heartbeat age, reissues, the master's queue */
+    cJSON *wr = ctl(port + 1, "workers", 0);
+    const cJSON *w0 = cJSON_GetArrayItem(cJSON_GetObjectItemCaseSensitive(wr, "workers"), 0);
+    const cJSON *ms = cJSON_GetObjectItemCaseSensitive(wr, "master");
+    ck_assert_msg(jnum(w0, "last_seen_seconds") >= 0 && jnum(w0, "last_seen_seconds") < 1 &&
+                      jnum(w0, "tasks_reissued") == 0,
+                  "worker: last seen %g s ago, %g reissued", jnum(w0, "last_seen_seconds"),
+                  jnum(w0, "tasks_reissued"));
+    ck_assert_msg(jnum(ms, "jobs_running") == 1 && jnum(ms, "jobs_queued") == 0 &&
+                      jnum(ms, "tasks_issued") > 0 && jnum(ms, "tasks_outstanding") >= 0 &&
+                      jnum(ms, "tasks_reissued") == 0,
+                  "master: %g running, %g queued, %g issued, %g reissued", jnum(ms, "jobs_running"),
+                  jnum(ms, "jobs_queued"), jnum(ms, "tasks_issued"), jnum(ms, "tasks_reissued"));
+    cJSON_Delete(wr);
+    /* ended: the full-size preview holds every sample */
+    st = wait_end(port + 1, job);
+    ck_assert_msg(state_is(st, "done") && jnum(st, "progress") == 1 && jnum(st, "eta_seconds") == 0,
+                  "job %s, progress %g, eta %g", jstr(st, "state"), jnum(st, "progress"),
+                  jnum(st, "eta_seconds"));
+    double samples = jnum(st, "samples");
+    cJSON_Delete(st);
+    float *end_rgb, *end_spp;
+    r = preview(port + 1, job, "", &end_rgb, &end_spp);
+    ck_assert_msg(jnum(r, "width") == 64 && jnum(r, "height") == 64, "64x64 in 256x256: %gx%g",
+                  jnum(r, "width"), jnum(r, "height"));
+    ck_assert_msg(preview_samples(r, end_spp) == samples && jnum(r, "spp_max") == 1024,
+                  "the ended job's preview: %g samples of %g", preview_samples(r, end_spp),
+                  samples);
+    cJSON_Delete(r);
+    /* after a restart the film is gone: the stored image gives the same */
+    double end = now_ms() + JOB_TIMEOUT_MS;
+    while (!file_exists(dir, job, "final") && now_ms() < end)
+        sleep_ms(20);
+    stop_clean(m);
+    start_durable(&port, "p-master2", dir, NULL);
+    r = preview(port + 1, job, "", &rgb, &spp);
+    ck_assert_msg(cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")),
+                  "preview after a restart: %s\n%s", jstr(r, "error"), logs_tail());
+    ck_assert_msg(memcmp(rgb, end_rgb, 64 * 64 * 3 * sizeof(float)) == 0 &&
+                      memcmp(spp, end_spp, 64 * 64 * sizeof(float)) == 0,
+                  "the preview from the stored image differs from the film's");
+    cJSON_Delete(r);
+    free(rgb);
+    free(spp);
+    r = preview(port + 1, job, "\"max_width\": 10", &rgb, &spp);
+    ck_assert_msg(jnum(r, "width") == 10 && jnum(r, "height") == 10 &&
+                      fabs(preview_samples(r, spp) * 64 * 64 / 100 - samples) < 1e-3 * samples,
+                  "the stored image at 10x10: %gx%g", jnum(r, "width"), jnum(r, "height"));
+    cJSON_Delete(r);
+    /* asked again: the master kept it */
+    float *again_rgb, *again_spp;
+    r = preview(port + 1, job, "\"max_width\": 10", &again_rgb, &again_spp);
+    ck_assert_msg(memcmp(rgb, again_rgb, 100 * 3 * sizeof(float)) == 0 &&
+                      memcmp(spp, again_spp, 100 * sizeof(float)) == 0,
+                  "the same preview of an ended job differs");
+    cJSON_Delete(r);
+    free(rgb);
+    free(spp);
+    free(again_rgb);
+    free(again_spp);
+    free(end_rgb);
+    free(end_spp);
     stop_all_clean();
     remove_state(dir);
     remove_scratch();
@@ -3136,6 +3336,7 @@ static Suite *cluster_suite(void)
         {"insecure_bind", insecure_bind},
         {"curve_sighup", curve_sighup},
         {"curve_ownership", curve_ownership},
+        {"preview", preview_job},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         TCase *tc = tcase_create(cases[i].name);
