@@ -115,7 +115,7 @@ static void reply_json(master_t *m, zmq_msg_t *id, cJSON *body, int more)
 static cJSON *error_body(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 static cJSON *error_body(const char *fmt, ...)
 {
-    char msg[MASTER_ERR_LEN];
+    char msg[VB_ERR_LEN];
     va_list ap;
     va_start(ap, fmt);
     vsnprintf(msg, sizeof msg, fmt, ap);

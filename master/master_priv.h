@@ -44,9 +44,6 @@
 #include "vberr.h"
 #include "vblog.h"
 
-/* The old name of VB_ERR_LEN (vberr.h), kept while files still use it. */
-#define MASTER_ERR_LEN VB_ERR_LEN
-
 #define MASTER_MAX_WORKERS 4096
 #define MASTER_MAX_IDENTITY 255
 #define MASTER_MAX_TASK_FAILURES 8 /* a job fails after this many TASK_FAILED */

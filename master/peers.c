@@ -56,7 +56,7 @@ static int send_frames(master_t *m, const uint8_t *id, size_t id_len, const uint
 int peer_send(master_t *m, peer_t *w, proto_msg_t *msg)
 {
     uint8_t header[PROTO_HEADER_SIZE];
-    char err[MASTER_ERR_LEN];
+    char err[VB_ERR_LEN];
     long n = encode(m, msg, header, err, sizeof err);
     if (n < 0) {
         master_log(m, "cannot encode %s for job %" PRIu64 ": %s", proto_type_name(msg->h.type),
@@ -73,7 +73,7 @@ int peer_send(master_t *m, peer_t *w, proto_msg_t *msg)
 static void send_raw_to(master_t *m, const uint8_t *id, size_t id_len, proto_msg_t *msg)
 {
     uint8_t header[PROTO_HEADER_SIZE];
-    char err[MASTER_ERR_LEN];
+    char err[VB_ERR_LEN];
     long n = encode(m, msg, header, err, sizeof err);
     if (n >= 0)
         (void)send_frames(m, id, id_len, header, n); /* a peer that left cannot be told */
@@ -361,7 +361,7 @@ static void on_task_failed(master_t *m, peer_t *w, job_t *j, size_t c, const cha
     master_log_limited(m, "task-failed", "job %" PRIu64 " task %zu failed on %s: %s", j->id, c + 1,
                        w->host, text);
     if (j->failures >= MASTER_MAX_TASK_FAILURES) {
-        char why[MASTER_ERR_LEN];
+        char why[VB_ERR_LEN];
         snprintf(why, sizeof why, "workers failed %u tasks; last: %.400s", j->failures, text);
         job_finish(m, j, JOB_FAILED, why);
     } else {
@@ -419,7 +419,7 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
         on_task_failed(m, w, j, c, msg->u.text.text);
         return;
     }
-    char err[MASTER_ERR_LEN];
+    char err[VB_ERR_LEN];
     int rc =
         sched_complete(j->sched, id, msg->u.result.records, msg->u.result.count, err, sizeof err);
     j->holder[c] = 0;
@@ -437,7 +437,7 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
         w->tasks_reissued++;
         job_requeue(m, j, id); /* still outstanding: nothing was merged */
         if (w->bad_results >= MASTER_MAX_BAD_RESULTS) {
-            char why[MASTER_ERR_LEN];
+            char why[VB_ERR_LEN];
             snprintf(why, sizeof why, "%u results refused; the last: %.700s", w->bad_results, err);
             verify_note_quarantined(j, peer_identity(w));
             peer_quarantine(m, w, why);
@@ -627,7 +627,7 @@ void peer_handle_message(master_t *m)
     /* results only: a worker sends no bundle or task, so none is stored */
     proto_records_t recs = {.results = m->results, .result_capacity = PROTO_MAX_TASK_PIXELS};
     proto_msg_t msg;
-    char err[MASTER_ERR_LEN];
+    char err[VB_ERR_LEN];
     int rc = proto_frames_decode(&fr, 1, &msg, &recs, err, sizeof err);
     if (!master_peer_allowed(m, AUTH_DOMAIN_WORKERS, &fr.part[1])) {
         /* its key left --allow-workers (SIGHUP) while it was connected */
@@ -640,7 +640,7 @@ void peer_handle_message(master_t *m)
         send_text(m, id, id_len, PROTO_REFUSE,
                   "this worker's key is no longer allowed by the master");
     } else if (rc == -2) { /* another protocol version or magic */
-        char text[MASTER_ERR_LEN + 32];
+        char text[VB_ERR_LEN + 32];
         snprintf(text, sizeof text, "master refuses: %s", err);
         m->malformed++;
         master_log_limited(m, "refused", "refused a peer: %s", err);

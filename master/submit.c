@@ -158,7 +158,7 @@ static int submit_scene(job_t *j, const submit_frame_t *json, const scene_blob_t
     memcpy(j->json, json->data, j->json_size);
     j->json[j->json_size] = '\0';
     scene_t *scene = NULL;
-    char serr[MASTER_ERR_LEN - 16];
+    char serr[VB_ERR_LEN - 16];
     if (scene_load_bundle(j->json, j->json_size, j->name, blobs, j->mesh_count, &scene, serr,
                           sizeof serr) < 0) {
         snprintf(err, errlen, "bad scene: %s", serr);
@@ -212,7 +212,7 @@ static int submit_settings(job_t *j, const cJSON *req, char *err, size_t errlen)
         .target_error = j->target_error,
         .confidence = settings_number(req, "confidence", JOB_DEFAULT_CONFIDENCE),
         .target_share = settings_number(req, "target_share", JOB_DEFAULT_TARGET_SHARE)};
-    char schederr[MASTER_ERR_LEN - 32];
+    char schederr[VB_ERR_LEN - 32];
     j->sched = sched_new(&j->sched_cfg, schederr, sizeof schederr);
     if (!j->sched) {
         snprintf(err, errlen, "bad settings: %s", schederr);

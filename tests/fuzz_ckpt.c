@@ -115,7 +115,7 @@ static void drive(sched_t *s, const sched_config_t *cfg, uint64_t seed, int plau
 {
     sched_task_t held[HELD_MAX];
     tracer_result_t res[64];
-    char err[MASTER_ERR_LEN];
+    char err[VB_ERR_LEN];
     int nheld = 0;
     for (int step = 0; step < STEPS_MAX; step++) {
         uint64_t r = step_rnd(&seed);
@@ -208,7 +208,7 @@ static int run_one(const uint8_t *data, size_t size)
         if (j->series_n > j->series_cap)
             abort();
         job_free(j);
-        char err[MASTER_ERR_LEN];
+        char err[VB_ERR_LEN];
         err[0] = '\0';
         size_t start = rec.pos;
         sched_t *s = sched_load(&cfg, store_rec_read, &rec, err, sizeof err);

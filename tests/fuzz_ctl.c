@@ -129,7 +129,7 @@ static int run_one(const uint8_t *data, size_t size)
         const submit_frame_t *extra = frames + 1;
         int nextra = n - 1;
         if (!fuzz_submit_too_big(req, nextra ? extra[0].data : "", nextra ? extra[0].size : 0)) {
-            char err[MASTER_ERR_LEN];
+            char err[VB_ERR_LEN];
             err[0] = '\0';
             /* the master's own caps too, small: their checks come first */
             static const submit_limits_t limits = {

@@ -61,7 +61,7 @@ static int read_submit(store_rec_t *rec)
     cJSON *req = cJSON_ParseWithLength((const char *)text, len);
     job_t *j = NULL;
     if (req && !fuzz_submit_too_big(req, n ? frames[0].data : "", n ? frames[0].size : 0)) {
-        char err[MASTER_ERR_LEN];
+        char err[VB_ERR_LEN];
         err[0] = '\0';
         j = submit_parse(req, frames, (int)n, NULL, err, sizeof err);
         if (!j && err[0] == '\0')
@@ -93,7 +93,7 @@ static int read_checkpoint(store_rec_t *rec)
         abort();
     sched_config_t cfg;
     fuzz_ckpt_config(0, &cfg);
-    char err[MASTER_ERR_LEN];
+    char err[VB_ERR_LEN];
     err[0] = '\0';
     sched_t *s = sched_load(&cfg, store_rec_read, rec, err, sizeof err);
     if (!s && err[0] == '\0')

@@ -236,7 +236,7 @@ static int make_requests(request_t *r)
 static void check_submit(const request_t *r)
 {
     cJSON *req = cJSON_Parse(r->json);
-    char err[MASTER_ERR_LEN] = "";
+    char err[VB_ERR_LEN] = "";
     if (!req)
         die("%s: the request is not JSON", r->name);
     job_t *j = submit_parse(req, r->frames, r->nframes, NULL, err, sizeof err);
