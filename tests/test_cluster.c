@@ -14,6 +14,12 @@
  * prints the tail of every log of the test. Every process a test starts is
  * killed in the teardown, and also dies with the test process (parent-death
  * signal), so a failed or timed-out test leaves nothing running.
+ *
+ * Length: a few cases (master_crash, preview_job, lying_worker, limits,
+ * master_garbage, flood) run past 80 lines. Each is one scenario read in
+ * order (start the processes, cause the fault, check what follows) and
+ * its steps depend on the state the previous ones left; the steps shared
+ * by several cases are the helpers above them.
  */
 #include <cJSON.h>
 #include <check.h>
