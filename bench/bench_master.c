@@ -243,148 +243,213 @@ static int synth_send(synth_t *s, void *sock, const proto_msg_t *msg, uint8_t *p
     return 0;
 }
 
-static void *synth_main(void *arg)
+/* A synthetic worker's socket, its message and record buffers, and where its
+ * conversation with the master stands. */
+typedef struct synth_io {
+    void *sock;
+    tracer_task_t *task_rec;
+    tracer_result_t *res_rec;
+    uint8_t *payload;
+    size_t result_cap;
+    proto_msg_t *in, *out;
+    proto_records_t *recs;
+    double last_sent; /* for the heartbeats */
+    int welcomed;
+} synth_io_t;
+
+/* The outgoing message, cleared, of the given type. */
+static proto_msg_t *synth_out(synth_io_t *io, uint16_t type)
 {
-    synth_t *s = arg;
-    prctl(PR_SET_NAME, "vb-synth", 0, 0, 0);
-    pthread_getcpuclockid(pthread_self(), &s->clock);
-    s->ready = 1;
+    memset(io->out, 0, sizeof *io->out);
+    io->out->h.type = type;
+    return io->out;
+}
+
+/* Buffers, socket (with the worker's CURVE keys if any) and connection. */
+static int synth_open(synth_t *s, synth_io_t *io)
+{
     size_t task_cap = 64 + (size_t)PROTO_TASK_RECORD_SIZE * PROTO_MAX_TASK_PIXELS;
-    size_t result_cap = 64 + (size_t)PROTO_RESULT_RECORD_SIZE * PROTO_MAX_TASK_PIXELS;
-    tracer_task_t *task_rec = malloc(PROTO_MAX_TASK_PIXELS * sizeof *task_rec);
-    tracer_result_t *res_rec = malloc(PROTO_MAX_TASK_PIXELS * sizeof *res_rec);
-    uint8_t *payload = malloc(result_cap > task_cap ? result_cap : task_cap);
-    proto_msg_t *in = malloc(sizeof *in), *out = malloc(sizeof *out);
-    proto_records_t *recs = calloc(1, sizeof *recs);
-    void *sock = zmq_socket(s->ctx, ZMQ_DEALER);
-    if (!task_rec || !res_rec || !payload || !in || !out || !recs || !sock) {
+    io->result_cap = 64 + (size_t)PROTO_RESULT_RECORD_SIZE * PROTO_MAX_TASK_PIXELS;
+    io->task_rec = malloc(PROTO_MAX_TASK_PIXELS * sizeof *io->task_rec);
+    io->res_rec = malloc(PROTO_MAX_TASK_PIXELS * sizeof *io->res_rec);
+    io->payload = malloc(io->result_cap > task_cap ? io->result_cap : task_cap);
+    io->in = malloc(sizeof *io->in);
+    io->out = malloc(sizeof *io->out);
+    io->recs = calloc(1, sizeof *io->recs);
+    io->sock = zmq_socket(s->ctx, ZMQ_DEALER);
+    if (!io->task_rec || !io->res_rec || !io->payload || !io->in || !io->out || !io->recs ||
+        !io->sock) {
         snprintf(s->error, sizeof s->error, "out of memory or no socket");
         s->failed = 1;
-        goto done;
+        return -1;
     }
     int zero = 0;
-    zmq_setsockopt(sock, ZMQ_LINGER, &zero, sizeof zero);
+    zmq_setsockopt(io->sock, ZMQ_LINGER, &zero, sizeof zero);
     if (s->keys) {
-        zmq_setsockopt(sock, ZMQ_CURVE_SERVERKEY, s->keys->master.public_z85, KEYS_Z85_LEN);
-        zmq_setsockopt(sock, ZMQ_CURVE_PUBLICKEY, s->keys->worker.public_z85, KEYS_Z85_LEN);
-        zmq_setsockopt(sock, ZMQ_CURVE_SECRETKEY, s->keys->worker.secret_z85, KEYS_Z85_LEN);
+        zmq_setsockopt(io->sock, ZMQ_CURVE_SERVERKEY, s->keys->master.public_z85, KEYS_Z85_LEN);
+        zmq_setsockopt(io->sock, ZMQ_CURVE_PUBLICKEY, s->keys->worker.public_z85, KEYS_Z85_LEN);
+        zmq_setsockopt(io->sock, ZMQ_CURVE_SECRETKEY, s->keys->worker.secret_z85, KEYS_Z85_LEN);
     }
-    if (zmq_connect(sock, s->endpoint) < 0) {
+    if (zmq_connect(io->sock, s->endpoint) < 0) {
         snprintf(s->error, sizeof s->error, "connect %s: %s", s->endpoint, zmq_strerror(errno));
         s->failed = 1;
-        goto done;
+        return -1;
     }
-    memset(out, 0, sizeof *out);
-    out->h.type = PROTO_HELLO;
+    return 0;
+}
+
+/* HELLO with this build's id, as a worker of this host would send it. */
+static int synth_hello(synth_t *s, synth_io_t *io)
+{
+    proto_msg_t *out = synth_out(io, PROTO_HELLO);
     out->u.hello.threads = 1;
     __builtin_cpu_init();
     proto_build_id(__builtin_cpu_supports("avx2") ? "avx2" : "sse4.2", out->u.hello.build);
-    if (synth_send(s, sock, out, payload, result_cap) < 0) {
+    if (synth_send(s, io->sock, out, io->payload, io->result_cap) < 0) {
         s->failed = 1;
-        goto done;
+        return -1;
     }
-    double last_sent = now_s();
-    int welcomed = 0;
+    io->last_sent = now_s();
+    return 0;
+}
+
+/* The RESULT of a task, at once: records that match its pixels. */
+static int synth_answer_task(synth_t *s, synth_io_t *io)
+{
+    const proto_msg_t *in = io->in;
+    const proto_task_t *t = &in->u.task;
+    for (uint32_t i = 0; i < t->count; i++) {
+        const tracer_task_t *r = &t->records[i];
+        double n = (double)r->sample_count;
+        io->res_rec[i] = (tracer_result_t){.pixel = r->pixel,
+                                           .samples = r->sample_count,
+                                           .nonfinite = 0,
+                                           .pad_ = 0,
+                                           .sum = {0.5 * n, 0.4 * n, 0.3 * n},
+                                           .lum_m2 = 0.01 * n,
+                                           .pvar = synth_pvar(r->pixel, t->layer)};
+    }
+    proto_msg_t *out = synth_out(io, PROTO_RESULT);
+    out->h.job = in->h.job;
+    out->h.task = in->h.task;
+    out->h.attempt = in->h.attempt;
+    out->u.result.rays = (uint64_t)t->count * (t->count ? t->records[0].sample_count : 0) * 6;
+    out->u.result.busy_us = 1;
+    out->u.result.count = t->count;
+    out->u.result.records = io->res_rec;
+    if (synth_send(s, io->sock, out, io->payload, io->result_cap) < 0) {
+        s->failed = 1;
+        return -1;
+    }
+    s->tasks++;
+    s->records += t->count;
+    return 0;
+}
+
+/* One decoded message from the master: WELCOME -> CREDIT, TASK -> RESULT,
+ * REFUSE or BYE -> stop (an error unless the benchmark is over). -1: read
+ * no further messages now. */
+static int synth_on_message(synth_t *s, synth_io_t *io)
+{
+    const proto_msg_t *in = io->in;
+    if (in->h.type == PROTO_WELCOME) {
+        io->welcomed = 1;
+        synth_out(io, PROTO_CREDIT)->u.credit = s->credit;
+        if (synth_send(s, io->sock, io->out, io->payload, io->result_cap) < 0)
+            s->failed = 1;
+    } else if (in->h.type == PROTO_TASK) {
+        return synth_answer_task(s, io);
+    } else if (in->h.type == PROTO_REFUSE || in->h.type == PROTO_BYE) {
+        if (!atomic_load(s->stop)) {
+            snprintf(s->error, sizeof s->error, "master said %s: %.200s",
+                     proto_type_name(in->h.type), in->u.text.text);
+            s->failed = 1;
+        }
+        return -1;
+    }
+    return 0;
+}
+
+/* Reads and answers every message waiting on the socket. */
+static void synth_drain(synth_t *s, synth_io_t *io)
+{
+    for (;;) {
+        proto_frames_t fr;
+        proto_recv_result_t got = proto_recv(io->sock, &fr, 2, SIZE_MAX, ZMQ_DONTWAIT);
+        if (got == PROTO_RECV_NONE)
+            break;
+        if (got != PROTO_RECV_OK || fr.count != 2) {
+            snprintf(s->error, sizeof s->error, "master sent a message that is not two frames");
+            s->failed = 1;
+            proto_frames_close(&fr);
+            break;
+        }
+        s->bytes_in += fr.bytes;
+        io->recs->tasks = io->task_rec;
+        io->recs->task_capacity = PROTO_MAX_TASK_PIXELS;
+        int drc = proto_frames_decode(&fr, 0, io->in, io->recs, s->error, sizeof s->error);
+        proto_frames_close(&fr);
+        if (drc < 0) {
+            s->failed = 1;
+            break;
+        }
+        if (synth_on_message(s, io) < 0)
+            break;
+        io->last_sent = now_s();
+    }
+}
+
+/* Answers the master until the benchmark stops it or something fails,
+ * with a heartbeat when idle, then says BYE. */
+static void synth_loop(synth_t *s, synth_io_t *io)
+{
     while (!atomic_load(s->stop) && !s->failed) {
-        zmq_pollitem_t it = {sock, 0, ZMQ_POLLIN, 0};
+        zmq_pollitem_t it = {io->sock, 0, ZMQ_POLLIN, 0};
         int rc = zmq_poll(&it, 1, 100);
         if (rc < 0) {
             if (errno == EINTR)
                 continue;
             break;
         }
-        if (rc == 0) {
-            if (welcomed && now_s() - last_sent > 0.3) {
-                memset(out, 0, sizeof *out);
-                out->h.type = PROTO_HEARTBEAT;
-                if (synth_send(s, sock, out, payload, result_cap) < 0)
-                    s->failed = 1;
-                last_sent = now_s();
-            }
+        if (rc > 0) {
+            synth_drain(s, io);
             continue;
         }
-        for (;;) {
-            proto_frames_t fr;
-            proto_recv_result_t got = proto_recv(sock, &fr, 2, SIZE_MAX, ZMQ_DONTWAIT);
-            if (got == PROTO_RECV_NONE)
-                break;
-            if (got != PROTO_RECV_OK || fr.count != 2) {
-                snprintf(s->error, sizeof s->error, "master sent a message that is not two frames");
+        if (io->welcomed && now_s() - io->last_sent > 0.3) {
+            if (synth_send(s, io->sock, synth_out(io, PROTO_HEARTBEAT), io->payload,
+                           io->result_cap) < 0)
                 s->failed = 1;
-                proto_frames_close(&fr);
-                break;
-            }
-            s->bytes_in += fr.bytes;
-            recs->tasks = task_rec;
-            recs->task_capacity = PROTO_MAX_TASK_PIXELS;
-            int drc = proto_frames_decode(&fr, 0, in, recs, s->error, sizeof s->error);
-            proto_frames_close(&fr);
-            if (drc < 0) {
-                s->failed = 1;
-                break;
-            }
-            if (in->h.type == PROTO_WELCOME) {
-                welcomed = 1;
-                memset(out, 0, sizeof *out);
-                out->h.type = PROTO_CREDIT;
-                out->u.credit = s->credit;
-                if (synth_send(s, sock, out, payload, result_cap) < 0)
-                    s->failed = 1;
-            } else if (in->h.type == PROTO_TASK) {
-                const proto_task_t *t = &in->u.task;
-                for (uint32_t i = 0; i < t->count; i++) {
-                    const tracer_task_t *r = &t->records[i];
-                    double n = (double)r->sample_count;
-                    res_rec[i] = (tracer_result_t){.pixel = r->pixel,
-                                                   .samples = r->sample_count,
-                                                   .nonfinite = 0,
-                                                   .pad_ = 0,
-                                                   .sum = {0.5 * n, 0.4 * n, 0.3 * n},
-                                                   .lum_m2 = 0.01 * n,
-                                                   .pvar = synth_pvar(r->pixel, t->layer)};
-                }
-                memset(out, 0, sizeof *out);
-                out->h.type = PROTO_RESULT;
-                out->h.job = in->h.job;
-                out->h.task = in->h.task;
-                out->h.attempt = in->h.attempt;
-                out->u.result.rays =
-                    (uint64_t)t->count * (t->count ? t->records[0].sample_count : 0) * 6;
-                out->u.result.busy_us = 1;
-                out->u.result.count = t->count;
-                out->u.result.records = res_rec;
-                if (synth_send(s, sock, out, payload, result_cap) < 0) {
-                    s->failed = 1;
-                    break;
-                }
-                s->tasks++;
-                s->records += t->count;
-            } else if (in->h.type == PROTO_REFUSE || in->h.type == PROTO_BYE) {
-                if (!atomic_load(s->stop)) {
-                    snprintf(s->error, sizeof s->error, "master said %s: %.200s",
-                             proto_type_name(in->h.type), in->u.text.text);
-                    s->failed = 1;
-                }
-                break;
-            }
-            last_sent = now_s();
+            io->last_sent = now_s();
         }
     }
     if (!s->failed) {
-        memset(out, 0, sizeof *out);
-        out->h.type = PROTO_BYE;
-        out->u.text.text = "benchmark over";
-        synth_send(s, sock, out, payload, result_cap);
+        synth_out(io, PROTO_BYE)->u.text.text = "benchmark over";
+        synth_send(s, io->sock, io->out, io->payload, io->result_cap);
     }
-done:
-    if (sock)
-        zmq_close(sock);
-    free(task_rec);
-    free(res_rec);
-    free(payload);
-    free(in);
-    free(out);
-    free(recs);
+}
+
+static void synth_free(synth_io_t *io)
+{
+    if (io->sock)
+        zmq_close(io->sock);
+    free(io->task_rec);
+    free(io->res_rec);
+    free(io->payload);
+    free(io->in);
+    free(io->out);
+    free(io->recs);
+}
+
+static void *synth_main(void *arg)
+{
+    synth_t *s = arg;
+    prctl(PR_SET_NAME, "vb-synth", 0, 0, 0);
+    pthread_getcpuclockid(pthread_self(), &s->clock);
+    s->ready = 1;
+    synth_io_t io = {0};
+    if (synth_open(s, &io) == 0 && synth_hello(s, &io) == 0)
+        synth_loop(s, &io);
+    synth_free(&io);
     return NULL;
 }
 
@@ -568,142 +633,197 @@ static void remove_keys(const bench_keys_t *k)
     rmdir(k->dir);
 }
 
-int main(int argc, char **argv)
+/* One benchmark run: the master (in a thread), the synthetic workers and
+ * the control socket, with the contexts, endpoints and keys they share.
+ * Lives on main's stack: the synthetic workers point into it. */
+typedef struct bench {
+    const args_t *a;
+    char wep[64], cep[64]; /* worker and control endpoints */
+    bench_keys_t keys;
+    char workers_dir[128], clients_dir[128];
+    void *ctx, *wctx; /* the master's, the synthetic workers' (may be the same) */
+    master_thread_t mt;
+    int master_started;
+    clockid_t master_clock;
+    synth_t synth[MAX_SYNTH];
+    atomic_int synth_stop;
+    void *req; /* the control socket */
+    char err[VB_ERR_LEN];
+} bench_t;
+
+/* Clock readings at the job's start. */
+typedef struct bench_clocks {
+    io_threads_t io;
+    double wall, master_cpu, proc_cpu, synth_cpu[MAX_SYNTH];
+} bench_clocks_t;
+
+/* What the run measured, at the job's end. */
+typedef struct bench_figures {
+    double seconds, samples, results; /* from the master's status */
+    double wall, master_cpu, proc_cpu, synth_cpu;
+    double master_io_cpu, master_io_busiest, worker_io_cpu;
+    uint64_t tasks, records, bytes_in, bytes_out;
+} bench_figures_t;
+
+/* Combinations parse_args cannot judge option by option; 0 or the exit code. */
+static int check_args(const args_t *a)
 {
-    signal(SIGPIPE, SIG_IGN);
-    args_t a;
-    int rc = parse_args(argc, argv, &a);
-    if (rc)
-        return rc;
-    if (a.curve && !a.tcp) {
+    if (a->curve && !a->tcp) {
         fprintf(stderr,
                 "bench_master: --curve needs --transport tcp (ZeroMQ does not secure inproc)\n");
         return 2;
     }
-    if (a.own_context && !a.tcp) {
+    if (a->own_context && !a->tcp) {
         fprintf(
             stderr,
             "bench_master: --worker-context own needs --transport tcp (inproc is per context)\n");
         return 2;
     }
-    char wep[64], cep[64], wep_connect[64], err[1024];
-    if (a.tcp) {
-        snprintf(wep, sizeof wep, "tcp://127.0.0.1:%" PRIu64, a.port);
-        snprintf(cep, sizeof cep, "tcp://127.0.0.1:%" PRIu64, a.port + 1);
-    } else {
-        snprintf(wep, sizeof wep, "inproc://bench-workers");
-        snprintf(cep, sizeof cep, "inproc://bench-control");
-    }
-    snprintf(wep_connect, sizeof wep_connect, "%s", wep);
+    return 0;
+}
 
-    bench_keys_t keys;
-    memset(&keys, 0, sizeof keys);
-    if (a.curve && make_keys(&keys, err, sizeof err) < 0) {
-        fprintf(stderr, "bench_master: %s\n", err);
-        return 1;
+static void endpoints(bench_t *b)
+{
+    if (b->a->tcp) {
+        snprintf(b->wep, sizeof b->wep, "tcp://127.0.0.1:%" PRIu64, b->a->port);
+        snprintf(b->cep, sizeof b->cep, "tcp://127.0.0.1:%" PRIu64, b->a->port + 1);
+    } else {
+        snprintf(b->wep, sizeof b->wep, "inproc://bench-workers");
+        snprintf(b->cep, sizeof b->cep, "inproc://bench-control");
     }
-    char workers_dir[128], clients_dir[128];
-    snprintf(workers_dir, sizeof workers_dir, "%s/workers", keys.dir);
-    snprintf(clients_dir, sizeof clients_dir, "%s/clients", keys.dir);
-    void *ctx = zmq_ctx_new();
-    zmq_ctx_set(ctx, ZMQ_IO_THREADS, (int)a.io_threads); /* before its first socket */
-    void *wctx = a.own_context ? zmq_ctx_new() : ctx;
-    if (wctx != ctx)
-        zmq_ctx_set(wctx, ZMQ_THREAD_NAME_PREFIX, 1); /* tells its I/O threads apart */
+}
+
+/* Endpoints, CURVE keys (--curve) and the ZeroMQ contexts. */
+static int bench_init(bench_t *b, const args_t *a)
+{
+    memset(b, 0, sizeof *b);
+    b->a = a;
+    endpoints(b);
+    if (a->curve && make_keys(&b->keys, b->err, sizeof b->err) < 0) {
+        fprintf(stderr, "bench_master: %s\n", b->err);
+        return -1;
+    }
+    snprintf(b->workers_dir, sizeof b->workers_dir, "%s/workers", b->keys.dir);
+    snprintf(b->clients_dir, sizeof b->clients_dir, "%s/clients", b->keys.dir);
+    b->ctx = zmq_ctx_new();
+    zmq_ctx_set(b->ctx, ZMQ_IO_THREADS, (int)a->io_threads); /* before its first socket */
+    b->wctx = a->own_context ? zmq_ctx_new() : b->ctx;
+    if (b->wctx != b->ctx)
+        zmq_ctx_set(b->wctx, ZMQ_THREAD_NAME_PREFIX, 1); /* tells its I/O threads apart */
+    return 0;
+}
+
+/* master_new, and master_run in a thread of its own. */
+static int start_master(bench_t *b)
+{
     master_config_t mc;
     memset(&mc, 0, sizeof mc);
-    mc.zmq_ctx = ctx;
-    mc.worker_endpoint = wep;
-    mc.control_endpoint = cep;
+    mc.zmq_ctx = b->ctx;
+    mc.worker_endpoint = b->wep;
+    mc.control_endpoint = b->cep;
     mc.log = getenv("VB_LOG") ? stderr : NULL;
-    mc.verify_share = a.verify_share;
-    if (a.curve) {
-        mc.curve_secret_key = keys.master.secret_z85;
-        mc.allow_workers_dir = workers_dir;
-        mc.allow_clients_dir = clients_dir;
+    mc.verify_share = b->a->verify_share;
+    if (b->a->curve) {
+        mc.curve_secret_key = b->keys.master.secret_z85;
+        mc.allow_workers_dir = b->workers_dir;
+        mc.allow_clients_dir = b->clients_dir;
     }
-    master_thread_t mt;
-    memset(&mt, 0, sizeof mt);
-    synth_t synth[MAX_SYNTH];
-    memset(synth, 0, sizeof synth);
-    atomic_int synth_stop = 0;
-    void *req = NULL;
-    cJSON *status = NULL, *out = NULL, *q = NULL;
-    rc = 1;
-    mt.m = master_new(&mc, err, sizeof err);
-    if (!mt.m) {
-        fprintf(stderr, "bench_master: %s\n", err);
-        if (wctx != ctx)
-            zmq_ctx_term(wctx);
-        zmq_ctx_term(ctx);
-        if (a.curve)
-            remove_keys(&keys);
-        return 1;
+    b->mt.m = master_new(&mc, b->err, sizeof b->err);
+    if (!b->mt.m) {
+        fprintf(stderr, "bench_master: %s\n", b->err);
+        return -1;
     }
-    pthread_create(&mt.thread, NULL, master_main, &mt);
-    clockid_t master_clock;
-    pthread_getcpuclockid(mt.thread, &master_clock);
-    for (uint64_t i = 0; i < a.workers; i++) {
-        synth[i] = (synth_t){.ctx = wctx,
-                             .keys = a.curve ? &keys : NULL,
-                             .credit = (uint32_t)a.credit,
-                             .stop = &synth_stop};
-        if (a.tcp) /* an address each: verified copies go to workers of another identity */
-            snprintf(synth[i].endpoint, sizeof synth[i].endpoint, "tcp://127.0.0.%" PRIu64 ":0;%s",
-                     10 + i, wep_connect + strlen("tcp://"));
+    pthread_create(&b->mt.thread, NULL, master_main, &b->mt);
+    b->master_started = 1;
+    pthread_getcpuclockid(b->mt.thread, &b->master_clock);
+    return 0;
+}
+
+static void start_synths(bench_t *b)
+{
+    const args_t *a = b->a;
+    for (uint64_t i = 0; i < a->workers; i++) {
+        synth_t *s = &b->synth[i];
+        *s = (synth_t){.ctx = b->wctx,
+                       .keys = a->curve ? &b->keys : NULL,
+                       .credit = (uint32_t)a->credit,
+                       .stop = &b->synth_stop};
+        if (a->tcp) /* an address each: verified copies go to workers of another identity */
+            snprintf(s->endpoint, sizeof s->endpoint, "tcp://127.0.0.%" PRIu64 ":0;%s", 10 + i,
+                     b->wep + strlen("tcp://"));
         else
-            snprintf(synth[i].endpoint, sizeof synth[i].endpoint, "%s", wep_connect);
-        pthread_create(&synth[i].thread, NULL, synth_main, &synth[i]);
-        synth[i].started = 1;
+            snprintf(s->endpoint, sizeof s->endpoint, "%s", b->wep);
+        pthread_create(&s->thread, NULL, synth_main, s);
+        s->started = 1;
         /* staggered, as real workers join: ZeroMQ gives an accepted
          * connection to its least loaded I/O thread, and connections
          * accepted at once all see the same loads */
         struct timespec gap = {0, 20 * 1000 * 1000};
         nanosleep(&gap, NULL);
     }
-    req = zmq_socket(ctx, ZMQ_REQ);
+}
+
+/* The REQ socket to the master's control endpoint (a CURVE client with
+ * --curve). */
+static int connect_control(bench_t *b)
+{
+    b->req = zmq_socket(b->ctx, ZMQ_REQ);
     int zero = 0, timeout = 30000;
-    zmq_setsockopt(req, ZMQ_LINGER, &zero, sizeof zero);
-    zmq_setsockopt(req, ZMQ_RCVTIMEO, &timeout, sizeof timeout);
-    if (a.curve) {
-        zmq_setsockopt(req, ZMQ_CURVE_SERVERKEY, keys.master.public_z85, KEYS_Z85_LEN);
-        zmq_setsockopt(req, ZMQ_CURVE_PUBLICKEY, keys.client.public_z85, KEYS_Z85_LEN);
-        zmq_setsockopt(req, ZMQ_CURVE_SECRETKEY, keys.client.secret_z85, KEYS_Z85_LEN);
+    zmq_setsockopt(b->req, ZMQ_LINGER, &zero, sizeof zero);
+    zmq_setsockopt(b->req, ZMQ_RCVTIMEO, &timeout, sizeof timeout);
+    if (b->a->curve) {
+        const bench_keys_t *k = &b->keys;
+        zmq_setsockopt(b->req, ZMQ_CURVE_SERVERKEY, k->master.public_z85, KEYS_Z85_LEN);
+        zmq_setsockopt(b->req, ZMQ_CURVE_PUBLICKEY, k->client.public_z85, KEYS_Z85_LEN);
+        zmq_setsockopt(b->req, ZMQ_CURVE_SECRETKEY, k->client.secret_z85, KEYS_Z85_LEN);
     }
-    if (zmq_connect(req, cep) < 0) {
-        fprintf(stderr, "bench_master: connect %s: %s\n", cep, zmq_strerror(errno));
-        goto done;
+    if (zmq_connect(b->req, b->cep) < 0) {
+        fprintf(stderr, "bench_master: connect %s: %s\n", b->cep, zmq_strerror(errno));
+        return -1;
     }
-    /* wait until every synthetic worker has joined */
-    q = cJSON_CreateObject();
+    return 0;
+}
+
+/* Until the master lists every synthetic worker (10 s at most) and every
+ * worker's CPU clock is known. */
+static int wait_for_workers(bench_t *b)
+{
+    cJSON *q = cJSON_CreateObject();
     cJSON_AddStringToObject(q, "cmd", "workers");
     for (double t0 = now_s();;) {
-        cJSON *r = request(req, q, NULL, 0, err, sizeof err);
+        cJSON *r = request(b->req, q, NULL, 0, b->err, sizeof b->err);
         if (!r) {
-            fprintf(stderr, "bench_master: %s\n", err);
-            goto done;
+            fprintf(stderr, "bench_master: %s\n", b->err);
+            cJSON_Delete(q);
+            return -1;
         }
         int n = cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(r, "workers"));
         cJSON_Delete(r);
-        if (n == (int)a.workers)
+        if (n == (int)b->a->workers)
             break;
         if (now_s() - t0 > 10) {
             fprintf(stderr, "bench_master: only %d of %" PRIu64 " synthetic workers joined\n", n,
-                    a.workers);
-            goto done;
+                    b->a->workers);
+            cJSON_Delete(q);
+            return -1;
         }
         struct timespec ts = {0, 10 * 1000 * 1000};
         nanosleep(&ts, NULL);
     }
     cJSON_Delete(q);
-    q = NULL;
-    for (uint64_t i = 0; i < a.workers; i++)
-        while (!synth[i].ready) {
+    for (uint64_t i = 0; i < b->a->workers; i++)
+        while (!b->synth[i].ready) {
             struct timespec ts = {0, 1000 * 1000};
             nanosleep(&ts, NULL);
         }
+    return 0;
+}
 
-    /* the job: one emitting quad, nothing is traced anyway */
+/* Submits the job (one emitting quad: nothing is traced anyway), with the
+ * clocks read just before; its id in *job. */
+static int submit_job(bench_t *b, bench_clocks_t *c, double *job)
+{
+    const args_t *a = b->a;
     char scene[1024];
     int scene_len = snprintf(
         scene, sizeof scene,
@@ -713,42 +833,58 @@ int main(int argc, char **argv)
         " \"materials\": {\"light\": {\"type\": \"emitter\", \"radiance\": [1, 1, 1]}},"
         " \"shapes\": [{\"type\": \"quad\", \"material\": \"light\", \"vertices\": "
         "[[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]]}]}",
-        a.size, a.size);
-    q = cJSON_CreateObject();
+        a->size, a->size);
+    cJSON *q = cJSON_CreateObject();
     cJSON_AddStringToObject(q, "cmd", "submit");
     cJSON_AddStringToObject(q, "name", "synthetic.json");
-    cJSON_AddNumberToObject(q, "spp", (double)a.spp);
-    cJSON_AddNumberToObject(q, "granularity", (double)a.granularity);
-    cJSON_AddStringToObject(q, "adaptive", a.adaptive);
-    if (a.have_uniform)
-        cJSON_AddNumberToObject(q, "uniform_layers", (double)a.uniform_layers);
-    double synth_cpu0[MAX_SYNTH];
-    io_threads_t io;
-    io_threads_start(&io);
-    double wall0 = now_s(), master_cpu0 = clock_s(master_clock),
-           proc_cpu0 = clock_s(CLOCK_PROCESS_CPUTIME_ID);
-    for (uint64_t i = 0; i < a.workers; i++)
-        synth_cpu0[i] = clock_s(synth[i].clock);
-    cJSON *r = request(req, q, scene, (size_t)scene_len, err, sizeof err);
+    cJSON_AddNumberToObject(q, "spp", (double)a->spp);
+    cJSON_AddNumberToObject(q, "granularity", (double)a->granularity);
+    cJSON_AddStringToObject(q, "adaptive", a->adaptive);
+    if (a->have_uniform)
+        cJSON_AddNumberToObject(q, "uniform_layers", (double)a->uniform_layers);
+    io_threads_start(&c->io);
+    c->wall = now_s();
+    c->master_cpu = clock_s(b->master_clock);
+    c->proc_cpu = clock_s(CLOCK_PROCESS_CPUTIME_ID);
+    for (uint64_t i = 0; i < a->workers; i++)
+        c->synth_cpu[i] = clock_s(b->synth[i].clock);
+    cJSON *r = request(b->req, q, scene, (size_t)scene_len, b->err, sizeof b->err);
     cJSON_Delete(q);
-    q = NULL;
     if (!r) {
-        fprintf(stderr, "bench_master: submit: %s\n", err);
-        goto done;
+        fprintf(stderr, "bench_master: submit: %s\n", b->err);
+        return -1;
     }
-    double job = jnum(r, "job");
+    *job = jnum(r, "job");
     cJSON_Delete(r);
-    q = cJSON_CreateObject();
+    return 0;
+}
+
+/* Cancels the job (the reply does not matter: the status polls follow it). */
+static void cancel_job(bench_t *b, double job)
+{
+    cJSON *c = cJSON_CreateObject();
+    cJSON_AddStringToObject(c, "cmd", "cancel");
+    cJSON_AddNumberToObject(c, "job", job);
+    cJSON *cr = request(b->req, c, NULL, 0, b->err, sizeof b->err);
+    cJSON_Delete(c);
+    cJSON_Delete(cr);
+}
+
+/* Polls the job's status until it is over, cancelling it once past
+ * --max-seconds from wall0. The last status (the caller's), or NULL when
+ * a poll or a synthetic worker failed. */
+static cJSON *poll_until_done(bench_t *b, double job, double wall0, int *cancelled)
+{
+    cJSON *q = cJSON_CreateObject(), *status = NULL;
     cJSON_AddStringToObject(q, "cmd", "status");
     cJSON_AddNumberToObject(q, "job", job);
-    int cancelled = 0;
     for (;;) {
         struct timespec ts = {0, 100 * 1000 * 1000}; /* as often as `vbrender wait` */
         nanosleep(&ts, NULL);
-        r = request(req, q, NULL, 0, err, sizeof err);
+        cJSON *r = request(b->req, q, NULL, 0, b->err, sizeof b->err);
         if (!r) {
-            fprintf(stderr, "bench_master: status: %s\n", err);
-            goto done;
+            fprintf(stderr, "bench_master: status: %s\n", b->err);
+            goto fail;
         }
         cJSON_Delete(status);
         status = cJSON_DetachItemFromObject(r, "job");
@@ -756,54 +892,79 @@ int main(int argc, char **argv)
         const char *st = jstr(status, "state");
         if (strcmp(st, "done") == 0 || strcmp(st, "failed") == 0 || strcmp(st, "cancelled") == 0)
             break;
-        for (uint64_t i = 0; i < a.workers; i++)
-            if (synth[i].failed) {
+        for (uint64_t i = 0; i < b->a->workers; i++)
+            if (b->synth[i].failed) {
                 fprintf(stderr, "bench_master: synthetic worker %" PRIu64 ": %s\n", i + 1,
-                        synth[i].error);
-                goto done;
+                        b->synth[i].error);
+                goto fail;
             }
-        if (!cancelled && now_s() - wall0 > (double)a.max_seconds) {
-            cJSON *c = cJSON_CreateObject();
-            cJSON_AddStringToObject(c, "cmd", "cancel");
-            cJSON_AddNumberToObject(c, "job", job);
-            cJSON *cr = request(req, c, NULL, 0, err, sizeof err);
-            cJSON_Delete(c);
-            cJSON_Delete(cr);
-            cancelled = 1;
+        if (!*cancelled && now_s() - wall0 > (double)b->a->max_seconds) {
+            cancel_job(b, job);
+            *cancelled = 1;
         }
     }
-    double wall1 = now_s(), master_cpu1 = clock_s(master_clock),
-           proc_cpu1 = clock_s(CLOCK_PROCESS_CPUTIME_ID);
-    double synth_cpu = 0;
-    uint64_t tasks = 0, records = 0, bytes_in = 0, bytes_out = 0;
-    for (uint64_t i = 0; i < a.workers; i++) {
-        synth_cpu += clock_s(synth[i].clock) - synth_cpu0[i];
-        tasks += synth[i].tasks;
-        records += synth[i].records;
-        bytes_in += synth[i].bytes_in;
-        bytes_out += synth[i].bytes_out;
-    }
-    double master_io_busiest = 0;
-    double master_io_cpu = io_threads_cpu(&io, 0, &master_io_busiest),
-           worker_io_cpu = io_threads_cpu(&io, 1, NULL);
-    double seconds = jnum(status, "seconds"), samples = jnum(status, "samples");
-    double results = samples / (double)a.granularity;
-    double master_cpu = master_cpu1 - master_cpu0, proc_cpu = proc_cpu1 - proc_cpu0,
-           wall = wall1 - wall0;
+    cJSON_Delete(q);
+    return status;
+fail:
+    cJSON_Delete(q);
+    cJSON_Delete(status);
+    return NULL;
+}
 
-    out = cJSON_CreateObject();
+/* The clocks at the job's end against c, the synthetic workers' counters
+ * and the master's figures from its last status. */
+static void collect_figures(const bench_t *b, const bench_clocks_t *c, const cJSON *status,
+                            bench_figures_t *f)
+{
+    memset(f, 0, sizeof *f);
+    f->wall = now_s() - c->wall;
+    f->master_cpu = clock_s(b->master_clock) - c->master_cpu;
+    f->proc_cpu = clock_s(CLOCK_PROCESS_CPUTIME_ID) - c->proc_cpu;
+    for (uint64_t i = 0; i < b->a->workers; i++) {
+        const synth_t *s = &b->synth[i];
+        f->synth_cpu += clock_s(s->clock) - c->synth_cpu[i];
+        f->tasks += s->tasks;
+        f->records += s->records;
+        f->bytes_in += s->bytes_in;
+        f->bytes_out += s->bytes_out;
+    }
+    f->master_io_cpu = io_threads_cpu(&c->io, 0, &f->master_io_busiest);
+    f->worker_io_cpu = io_threads_cpu(&c->io, 1, NULL);
+    f->seconds = jnum(status, "seconds");
+    f->samples = jnum(status, "samples");
+    f->results = f->samples / (double)b->a->granularity;
+}
+
+/* The result's first keys: what was run. */
+static cJSON *result_json_settings(const args_t *a)
+{
+    cJSON *out = cJSON_CreateObject();
     cJSON_AddStringToObject(out, "benchmark", "master");
-    cJSON_AddStringToObject(out, "transport", a.tcp ? "tcp" : "inproc");
-    cJSON_AddBoolToObject(out, "curve", a.curve);
-    cJSON_AddStringToObject(out, "worker_context", a.own_context ? "own" : "shared");
-    cJSON_AddNumberToObject(out, "workers", (double)a.workers);
-    cJSON_AddNumberToObject(out, "credit", (double)a.credit);
-    cJSON_AddNumberToObject(out, "width", (double)a.size);
-    cJSON_AddNumberToObject(out, "height", (double)a.size);
-    cJSON_AddNumberToObject(out, "spp", (double)a.spp);
-    cJSON_AddNumberToObject(out, "granularity", (double)a.granularity);
-    cJSON_AddStringToObject(out, "adaptive", a.adaptive);
-    cJSON_AddNumberToObject(out, "verify_share", a.verify_share);
+    cJSON_AddStringToObject(out, "transport", a->tcp ? "tcp" : "inproc");
+    cJSON_AddBoolToObject(out, "curve", a->curve);
+    cJSON_AddStringToObject(out, "worker_context", a->own_context ? "own" : "shared");
+    cJSON_AddNumberToObject(out, "workers", (double)a->workers);
+    cJSON_AddNumberToObject(out, "credit", (double)a->credit);
+    cJSON_AddNumberToObject(out, "width", (double)a->size);
+    cJSON_AddNumberToObject(out, "height", (double)a->size);
+    cJSON_AddNumberToObject(out, "spp", (double)a->spp);
+    cJSON_AddNumberToObject(out, "granularity", (double)a->granularity);
+    cJSON_AddStringToObject(out, "adaptive", a->adaptive);
+    cJSON_AddNumberToObject(out, "verify_share", a->verify_share);
+    return out;
+}
+
+/* ns per result of a CPU time, 0 without results. */
+static double ns_per_result(double cpu, double results)
+{
+    return results > 0 ? cpu / results * 1e9 : 0;
+}
+
+/* The whole result: settings, the master's status and the figures. */
+static cJSON *result_json(const args_t *a, const cJSON *status, const bench_figures_t *f)
+{
+    cJSON *out = result_json_settings(a);
+    double results = f->results, seconds = f->seconds, master_cpu = f->master_cpu;
     cJSON_AddNumberToObject(out, "tasks_verified", jnum(status, "tasks_verified"));
     cJSON_AddNumberToObject(out, "tasks_unverified", jnum(status, "tasks_unverified"));
     cJSON_AddNumberToObject(out, "verify_mismatches", jnum(status, "verify_mismatches"));
@@ -811,75 +972,135 @@ int main(int argc, char **argv)
     cJSON_AddNumberToObject(out, "layers", jnum(status, "layers"));
     cJSON_AddNumberToObject(out, "layers_done", jnum(status, "layers_done"));
     cJSON_AddNumberToObject(out, "pixel_layers_skipped", jnum(status, "pixel_layers_skipped"));
-    cJSON_AddNumberToObject(out, "samples", samples);
+    cJSON_AddNumberToObject(out, "samples", f->samples);
     cJSON_AddNumberToObject(out, "results", results);
-    cJSON_AddNumberToObject(out, "results_sent_by_workers", (double)records);
-    cJSON_AddNumberToObject(out, "tasks", (double)tasks);
-    cJSON_AddNumberToObject(out, "task_pixels", tasks ? (double)records / (double)tasks : 0);
+    cJSON_AddNumberToObject(out, "results_sent_by_workers", (double)f->records);
+    cJSON_AddNumberToObject(out, "tasks", (double)f->tasks);
+    cJSON_AddNumberToObject(out, "task_pixels",
+                            f->tasks ? (double)f->records / (double)f->tasks : 0);
     cJSON_AddNumberToObject(out, "seconds", seconds);
     cJSON_AddNumberToObject(out, "results_per_second", seconds > 0 ? results / seconds : 0);
-    cJSON_AddNumberToObject(out, "tasks_per_second", seconds > 0 ? (double)tasks / seconds : 0);
+    cJSON_AddNumberToObject(out, "tasks_per_second", seconds > 0 ? (double)f->tasks / seconds : 0);
     cJSON_AddNumberToObject(out, "wire_megabytes_per_second",
-                            seconds > 0 ? (double)(bytes_in + bytes_out) / seconds / 1e6 : 0);
-    cJSON_AddNumberToObject(out, "wall_seconds", wall);
+                            seconds > 0 ? (double)(f->bytes_in + f->bytes_out) / seconds / 1e6 : 0);
+    cJSON_AddNumberToObject(out, "wall_seconds", f->wall);
     cJSON_AddNumberToObject(out, "master_cpu_seconds", master_cpu);
-    cJSON_AddNumberToObject(out, "master_cpu_utilization", wall > 0 ? master_cpu / wall : 0);
+    cJSON_AddNumberToObject(out, "master_cpu_utilization", f->wall > 0 ? master_cpu / f->wall : 0);
     cJSON_AddNumberToObject(out, "results_per_master_cpu_second",
                             master_cpu > 0 ? results / master_cpu : 0);
-    cJSON_AddNumberToObject(out, "master_ns_per_result",
-                            results > 0 ? master_cpu / results * 1e9 : 0);
+    cJSON_AddNumberToObject(out, "master_ns_per_result", ns_per_result(master_cpu, results));
     /* ZeroMQ's I/O threads of the master's context (shared: the workers' too) */
-    cJSON_AddNumberToObject(out, "master_io_cpu_seconds", master_io_cpu);
+    cJSON_AddNumberToObject(out, "master_io_cpu_seconds", f->master_io_cpu);
     cJSON_AddNumberToObject(out, "master_io_ns_per_result",
-                            results > 0 ? master_io_cpu / results * 1e9 : 0);
-    cJSON_AddNumberToObject(out, "master_io_threads", (double)a.io_threads);
+                            ns_per_result(f->master_io_cpu, results));
+    cJSON_AddNumberToObject(out, "master_io_threads", (double)a->io_threads);
     /* a host with a core per thread is bounded by its busiest master thread */
     cJSON_AddNumberToObject(out, "master_io_busiest_ns_per_result",
-                            results > 0 ? master_io_busiest / results * 1e9 : 0);
-    cJSON_AddNumberToObject(out, "worker_io_cpu_seconds", worker_io_cpu);
-    cJSON_AddNumberToObject(out, "process_ns_per_result",
-                            results > 0 ? proc_cpu / results * 1e9 : 0);
-    cJSON_AddNumberToObject(out, "workers_cpu_seconds", synth_cpu);
-    cJSON_AddNumberToObject(out, "other_cpu_seconds", proc_cpu - master_cpu - synth_cpu);
-    cJSON_AddNumberToObject(out, "process_cpu_seconds", proc_cpu);
+                            ns_per_result(f->master_io_busiest, results));
+    cJSON_AddNumberToObject(out, "worker_io_cpu_seconds", f->worker_io_cpu);
+    cJSON_AddNumberToObject(out, "process_ns_per_result", ns_per_result(f->proc_cpu, results));
+    cJSON_AddNumberToObject(out, "workers_cpu_seconds", f->synth_cpu);
+    cJSON_AddNumberToObject(out, "other_cpu_seconds", f->proc_cpu - master_cpu - f->synth_cpu);
+    cJSON_AddNumberToObject(out, "process_cpu_seconds", f->proc_cpu);
+    return out;
+}
+
+/* The result on stdout, and in --json's file. */
+static int write_result(const args_t *a, const cJSON *out)
+{
     char *text = cJSON_Print(out);
-    if (text) {
-        printf("%s\n", text);
-        if (a.json) {
-            FILE *f = fopen(a.json, "w");
-            if (!f || fprintf(f, "%s\n", text) < 0 || fclose(f) != 0) {
-                fprintf(stderr, "bench_master: cannot write %s: %s\n", a.json, strerror(errno));
-                cJSON_free(text);
-                goto done;
-            }
+    if (!text)
+        return 0;
+    printf("%s\n", text);
+    if (a->json) {
+        FILE *f = fopen(a->json, "w");
+        if (!f || fprintf(f, "%s\n", text) < 0 || fclose(f) != 0) {
+            fprintf(stderr, "bench_master: cannot write %s: %s\n", a->json, strerror(errno));
+            cJSON_free(text);
+            return -1;
         }
-        cJSON_free(text);
     }
+    cJSON_free(text);
+    return 0;
+}
+
+static void print_summary(const args_t *a, const bench_figures_t *f)
+{
+    double results = f->results, seconds = f->seconds, master_cpu = f->master_cpu;
     fprintf(stderr,
             "bench_master: %s%s, %" PRIu64 " worker(s), %s, G %" PRIu64
             ": %.3g results in %.2f s = %.3g results/s; "
             "master thread %.2f CPU s (%.0f%%) = %.3g results per master CPU s\n",
-            a.tcp ? "tcp" : "inproc", a.curve ? " with CURVE" : "", a.workers, a.adaptive,
-            a.granularity, results, seconds, seconds > 0 ? results / seconds : 0, master_cpu,
-            wall > 0 ? 100 * master_cpu / wall : 0, master_cpu > 0 ? results / master_cpu : 0);
-    rc = strcmp(jstr(status, "state"), "done") == 0 || cancelled ? 0 : 1;
-done:
-    atomic_store(&synth_stop, 1);
-    for (uint64_t i = 0; i < a.workers; i++)
-        if (synth[i].started)
-            pthread_join(synth[i].thread, NULL);
-    atomic_store(&mt.stop, 1);
-    pthread_join(mt.thread, NULL);
-    master_destroy(&mt.m);
-    if (req)
-        zmq_close(req);
-    cJSON_Delete(q);
-    cJSON_Delete(status);
+            a->tcp ? "tcp" : "inproc", a->curve ? " with CURVE" : "", a->workers, a->adaptive,
+            a->granularity, results, seconds, seconds > 0 ? results / seconds : 0, master_cpu,
+            f->wall > 0 ? 100 * master_cpu / f->wall : 0,
+            master_cpu > 0 ? results / master_cpu : 0);
+}
+
+/* The job and its report, once master and synthetic workers run; the exit
+ * code: 0 when the job is done or was cancelled after --max-seconds. */
+static int bench_run(bench_t *b)
+{
+    bench_clocks_t c;
+    double job;
+    int cancelled = 0;
+    if (connect_control(b) < 0 || wait_for_workers(b) < 0 || submit_job(b, &c, &job) < 0)
+        return 1;
+    cJSON *status = poll_until_done(b, job, c.wall, &cancelled);
+    if (!status)
+        return 1;
+    bench_figures_t f;
+    collect_figures(b, &c, status, &f);
+    cJSON *out = result_json(b->a, status, &f);
+    int rc = 1;
+    if (write_result(b->a, out) == 0) {
+        print_summary(b->a, &f);
+        rc = strcmp(jstr(status, "state"), "done") == 0 || cancelled ? 0 : 1;
+    }
     cJSON_Delete(out);
-    if (wctx != ctx)
-        zmq_ctx_term(wctx);
-    zmq_ctx_term(ctx);
-    if (a.curve)
-        remove_keys(&keys);
+    cJSON_Delete(status);
+    return rc;
+}
+
+/* Stops and joins what runs, closes the sockets and contexts, removes
+ * the keys' scratch directory. */
+static void bench_cleanup(bench_t *b)
+{
+    atomic_store(&b->synth_stop, 1);
+    for (uint64_t i = 0; i < b->a->workers; i++)
+        if (b->synth[i].started)
+            pthread_join(b->synth[i].thread, NULL);
+    if (b->master_started) {
+        atomic_store(&b->mt.stop, 1);
+        pthread_join(b->mt.thread, NULL);
+        master_destroy(&b->mt.m);
+    }
+    if (b->req)
+        zmq_close(b->req);
+    if (b->wctx != b->ctx)
+        zmq_ctx_term(b->wctx);
+    zmq_ctx_term(b->ctx);
+    if (b->a->curve)
+        remove_keys(&b->keys);
+}
+
+int main(int argc, char **argv)
+{
+    signal(SIGPIPE, SIG_IGN);
+    args_t a;
+    int rc = parse_args(argc, argv, &a);
+    if (rc == 0)
+        rc = check_args(&a);
+    if (rc)
+        return rc;
+    bench_t b;
+    if (bench_init(&b, &a) < 0)
+        return 1;
+    rc = 1;
+    if (start_master(&b) == 0) {
+        start_synths(&b);
+        rc = bench_run(&b);
+    }
+    bench_cleanup(&b);
     return rc;
 }
