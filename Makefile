@@ -24,7 +24,8 @@ BIN       = bin
 
 DEB_PACKAGES = build-essential pkg-config libembree-dev libzmq3-dev \
                libopenexr-dev libcjson-dev check libsubunit-dev libpng-dev \
-               libsodium-dev nftables clang libclang-rt-14-dev clang-format
+               libsodium-dev nftables clang libclang-rt-14-dev clang-format \
+               libmicrohttpd-dev chromium
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 # Determinism: no -ffast-math, no FMA contraction, no -march=native (the same
@@ -86,7 +87,12 @@ DAEMONS   = $(if $(wildcard master/main.c),$(BIN)/vbrender-master) \
             $(if $(wildcard worker/main.c),$(BIN)/vbrender-worker)
 
 CLIENT_SRC = $(wildcard client/*.c)
-CLIENT_OBJ = $(CLIENT_SRC:%.c=$(BUILD)/%.o)
+# The dashboard's pages (client/web/) become C strings in a generated file.
+WEB_ASSETS = $(sort $(wildcard client/web/*))
+ASSETS_C   = $(BUILD)/gen/serve_assets.c
+ASSETS_OBJ = $(ASSETS_C:.c=.o)
+CLIENT_OBJ = $(CLIENT_SRC:%.c=$(BUILD)/%.o) $(ASSETS_OBJ)
+LDLIBS_HTTP = -lmicrohttpd
 
 TEST_SRC  = $(wildcard tests/test_*.c)
 TEST_BIN  = $(TEST_SRC:tests/%.c=$(BUILD)/tests/%)
@@ -142,7 +148,27 @@ LDLIBS_ALL = $(LDLIBS_NET) $(LDLIBS_CORE)
 
 $(BIN)/vbrender: $(CLIENT_OBJ) $(LIBS_ALL)
 	@mkdir -p $(dir $@)
-	$(CC) $(LDSAN) -pthread -o $@ $(CLIENT_OBJ) $(LIBS_ALL) $(LDLIBS_ALL)
+	$(CC) $(LDSAN) -pthread -o $@ $(CLIENT_OBJ) $(LIBS_ALL) $(LDLIBS_HTTP) $(LDLIBS_ALL)
+
+# Each file of client/web/ as `const char serve_asset_NAME_EXT[]` (serve.h),
+# a line a string: backslashes and quotes escaped, and every ? too, so that
+# no "??x" in a page reads as a C trigraph.
+$(ASSETS_C): $(WEB_ASSETS) Makefile
+	@mkdir -p $(dir $@)
+	@{ echo '/* generated from client/web/ by the Makefile: do not edit */'; \
+	   for f in $(WEB_ASSETS); do \
+	     echo "const char serve_asset_$$(basename $$f | tr '.-' '__')[] ="; \
+	     sed -e 's/\\/\\\\/g' -e 's/"/\\"/g' -e 's/?/\\?/g' -e 's/^/    "/' -e 's/$$/\\n"/' $$f; \
+	     echo '    "";'; \
+	   done; } > $@.tmp && mv $@.tmp $@
+$(ASSETS_OBJ): $(ASSETS_C)
+	$(CC) $(CFLAGS) -c $< -o $@
+
+# The handlers' unit tests and the integration test link the dashboard's
+# code itself (the other suites drive the binaries).
+SERVE_OBJ = $(BUILD)/client/serve.o $(BUILD)/client/control.o $(ASSETS_OBJ)
+$(BUILD)/tests/test_serve: $(BUILD)/tests/test_serve.o $(TEST_HELPER_OBJ) $(SERVE_OBJ) $(LIBS_ALL)
+	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_CHECK) $(LDLIBS_HTTP) $(LDLIBS_ALL)
 
 $(BIN)/vbrender-%: $(BUILD)/%/main.o $(LIBS_ALL)
 	@mkdir -p $(dir $@)
