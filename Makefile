@@ -167,6 +167,7 @@ $(ASSETS_OBJ): $(ASSETS_C)
 # The handlers' unit tests and the integration test link the dashboard's
 # code itself (the other suites drive the binaries).
 SERVE_OBJ = $(BUILD)/client/serve.o $(BUILD)/client/control.o $(ASSETS_OBJ)
+$(BUILD)/tests/test_serve.o: CFLAGS += -Iclient
 $(BUILD)/tests/test_serve: $(BUILD)/tests/test_serve.o $(TEST_HELPER_OBJ) $(SERVE_OBJ) $(LIBS_ALL)
 	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_CHECK) $(LDLIBS_HTTP) $(LDLIBS_ALL)
 
