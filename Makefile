@@ -4,7 +4,8 @@
 #   make all     bin/vbrender, bin/vbrender-master, bin/vbrender-worker and
 #                the libraries: build/libvbcore.a (renderer core, no
 #                networking) and build/libvbnet.a (protocol, master, worker)
-#   make check   deps, build, all tests, then the same tests under ASan+UBSan,
+#   make check   deps, build, all tests, the dashboard in headless Chromium
+#                (test-browser), then the same tests under ASan+UBSan,
 #                then the multi-threaded ones under ThreadSanitizer (test-tsan)
 #                then a short libFuzzer pass of every fuzz target (fuzz-short)
 #   make fuzz    every fuzz target under libFuzzer (clang, ASan+UBSan, in
@@ -109,7 +110,7 @@ BENCH_BIN = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 # Keep intermediate objects: deleting them only forces rebuilds.
 .SECONDARY:
 
-.PHONY: format format-check all deps check test test-asan test-tsan tsan-run demo bench bench-error clean fuzz fuzz-short fuzz-build fuzz-seeds
+.PHONY: format format-check all deps check test test-browser test-asan test-tsan tsan-run demo bench bench-error clean fuzz fuzz-short fuzz-build fuzz-seeds
 all: $(BIN)/vbrender $(DAEMONS) $(CORE_LIB) $(NET_LIB)
 
 deps:
@@ -272,9 +273,16 @@ tsan-run: $(BIN)/vbrender $(DAEMONS) $(TSAN_TESTS)
 	  [ -e "$$f" ] || continue; echo "== ThreadSanitizer: $$f"; cat "$$f"; rc=1; \
 	done; exit $$rc
 
+# The dashboard in headless Chromium against real daemons; its screenshots
+# stay in $(BUILD)/test-artifacts/.
+test-browser: $(BIN)/vbrender $(DAEMONS)
+	VB_BINDIR=$(abspath $(BIN)) VB_ARTIFACTS=$(abspath $(BUILD))/test-artifacts \
+	  tests/browser/test_dashboard.sh
+
 check: deps
 	$(MAKE) all
 	$(MAKE) test
+	$(MAKE) test-browser
 	$(MAKE) test-asan
 	$(MAKE) test-tsan
 	$(MAKE) fuzz-short
