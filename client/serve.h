@@ -15,7 +15,9 @@
  *   /api/job/ID/preview.png?w=W&h=H    the image so far, tone-mapped (sRGB)
  *                              within W x H (1..4096, default 256)
  *   /api/job/ID/samples.png?w=W&h=H    samples per pixel as a heat map
- *   POST /api/job/ID/cancel    cancel (the master checks the key owns it)
+ *   POST /api/job/ID/cancel    cancel (the master checks the key owns it);
+ *                              the job as JSON, or to a browser's form
+ *                              (Accept: text/html) 303 back to /job/ID
  *   /metrics                   Prometheus text format 0.0.4
  *
  * Errors are JSON {"ok": false, "error": "..."} with 400 (bad size), 403

@@ -130,6 +130,32 @@ START_TEST(error_statuses)
 }
 END_TEST
 
+/* The command line: bad options are usage errors (2), an address that
+ * cannot be bound a failure (1), each with a message. */
+START_TEST(command_line)
+{
+    static const struct {
+        const char *args;
+        int status;
+        const char *says;
+    } cases[] = {
+        {"serve --bogus", 2, "unexpected argument '--bogus'"},
+        {"serve --listen", 2, "--listen needs a value"},
+        {"serve --key some.key", 2, "--key and --master-key go together"},
+        {"serve --listen nonsense", 1, "--listen needs ADDR:PORT"},
+        {"serve --listen 127.0.0.1:http", 1, "--listen 127.0.0.1:http"},
+        {"serve --listen 192.0.2.1:8080", 1, "cannot listen on 192.0.2.1:8080"},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        char cmd[1024], out[4096];
+        snprintf(cmd, sizeof cmd, "timeout 10 '%s' %s", tu_bin(), cases[i].args);
+        int rc = tu_run(cmd, out, sizeof out);
+        ck_assert_msg(rc == cases[i].status && strstr(out, cases[i].says), "%s: %d: %s",
+                      cases[i].args, rc, out);
+    }
+}
+END_TEST
+
 /* ---- /metrics -------------------------------------------------------------------- */
 
 static const char canned_jobs[] =
@@ -762,6 +788,13 @@ START_TEST(live)
     ck_assert_double_eq(metric_value((char *)r.body, "vbrender_jobs{state=\"cancelled\"}"), 1);
     free(r.body);
     check_master_away(&c);
+    /* SIGTERM ends serve cleanly (under the sanitizers: without a leak) */
+    kill(c.serve->pid, SIGTERM);
+    int st = -1;
+    for (int i = 0; i < 100 && waitpid(c.serve->pid, &st, WNOHANG) == 0; i++)
+        tu_sleep_ms(50);
+    ck_assert_msg(WIFEXITED(st) && WEXITSTATUS(st) == 0, "serve: status 0x%x after SIGTERM", st);
+    c.serve->pid = 0;
     stop_cluster(&c);
 }
 END_TEST
@@ -774,6 +807,7 @@ int main(void)
     tcase_add_test(unit, routes);
     tcase_add_test(unit, sizes);
     tcase_add_test(unit, error_statuses);
+    tcase_add_test(unit, command_line);
     tcase_add_test(unit, metrics_text);
     tcase_add_test(unit, metrics_missing_fields);
     tcase_add_test(unit, png_tonemap);
