@@ -244,7 +244,9 @@ test-asan:
 # other cases are the same threads on other scenes); test_cli and
 # test_adaptive: the embedded render (master and workers in threads of
 # `vbrender render`); test_cluster: real master and worker daemons (TSan
-# builds too: VB_BINDIR is this tree's), three of its cases. SUITE:CASE runs
+# builds too: VB_BINDIR is this tree's), three of its cases; test_serve's
+# live case: `vbrender serve`'s HTTP threads sharing one control connection,
+# under concurrent requests. SUITE:CASE runs
 # one Check case (tests/run-suites.sh). A report makes the process exit 66,
 # which fails the test; reports also go to files (log_path), so that one in
 # a process the test kills on purpose (kill -9 of a worker) or in a timed
@@ -254,9 +256,9 @@ test-asan:
 # process, and every test, client run and daemon is one; all our threads are
 # joined before exit, so the sleep would catch nothing.
 TSAN_CLUSTER_CASES = identical_pixels worker_killed sigterm
-TSAN_TESTS = $(addprefix $(BUILD)/tests/,test_tracer test_cli test_adaptive test_cluster)
+TSAN_TESTS = $(addprefix $(BUILD)/tests/,test_tracer test_cli test_adaptive test_cluster test_serve)
 TSAN_RUN   = $(BUILD)/tests/test_tracer:determinism $(BUILD)/tests/test_cli $(BUILD)/tests/test_adaptive \
-             $(addprefix $(BUILD)/tests/test_cluster:,$(TSAN_CLUSTER_CASES))
+             $(addprefix $(BUILD)/tests/test_cluster:,$(TSAN_CLUSTER_CASES)) $(BUILD)/tests/test_serve:live
 
 test-tsan:
 	$(MAKE) SAN=thread tsan-run

@@ -21,6 +21,7 @@
 #include <math.h>
 #include <netinet/in.h>
 #include <png.h>
+#include <pthread.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -743,6 +744,42 @@ static void check_bad_requests(cluster_t *c)
     free(r.body);
 }
 
+/* Requests from several connections at once (threads of serve sharing
+ * its one control connection): every one answered. */
+typedef struct burst {
+    int port, failures;
+    pthread_t thread;
+} burst_t;
+
+static void *burst_thread(void *arg)
+{
+    burst_t *b = arg;
+    static const char *const paths[] = {"/api/jobs", "/metrics", "/api/workers", "/api/job/1", "/"};
+    for (int i = 0; i < 10; i++) {
+        http_reply_t r;
+        if (http(b->port, "GET", paths[i % 5], &r) < 0 || r.status != 200)
+            b->failures++;
+        free(r.body);
+    }
+    return NULL;
+}
+
+static void check_concurrent(cluster_t *c)
+{
+    burst_t b[6];
+    for (int i = 0; i < 6; i++) {
+        b[i].port = c->http_port;
+        b[i].failures = 0;
+        ck_assert_int_eq(pthread_create(&b[i].thread, NULL, burst_thread, &b[i]), 0);
+    }
+    int failures = 0;
+    for (int i = 0; i < 6; i++) {
+        pthread_join(b[i].thread, NULL);
+        failures += b[i].failures;
+    }
+    ck_assert_msg(failures == 0, "%d of 60 concurrent requests failed", failures);
+}
+
 /* The master killed: 503 "master unreachable"; a new one: answers again. */
 static void check_master_away(cluster_t *c)
 {
@@ -778,6 +815,7 @@ START_TEST(live)
     check_metrics(&c);
     check_preview(&c, job);
     check_bad_requests(&c);
+    check_concurrent(&c);
     http_reply_t r = http_ok(c.http_port, "GET", "/api/job/1", 200);
     ck_assert_ptr_nonnull(strstr((char *)r.body, "\"state\":\"running\""));
     free(r.body);
