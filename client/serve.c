@@ -152,6 +152,13 @@ int serve_parse_size(const char *text, const char *name, int *out, char *msg, si
     return 0;
 }
 
+int serve_same_origin(const char *origin, const char *host)
+{
+    if (!origin)
+        return 1;
+    return host && strncmp(origin, "http://", 7) == 0 && strcmp(origin + 7, host) == 0;
+}
+
 int serve_error_status(const char *msg)
 {
     if (strstr(msg, "no such job"))
@@ -513,8 +520,11 @@ static cJSON *request_for(const char *cmd, unsigned long long job)
 
 /* ---- HTTP ------------------------------------------------------------------------ */
 
-static enum MHD_Result send_body(struct MHD_Connection *conn, int status, const char *type,
-                                 void *body, size_t len, enum MHD_ResponseMemoryMode mode)
+/* One response: body (len bytes, kept or freed as mode says) of that
+ * type, with one more header when hname is not NULL (Allow, Location). */
+static enum MHD_Result respond(struct MHD_Connection *conn, int status, const char *type,
+                               void *body, size_t len, enum MHD_ResponseMemoryMode mode,
+                               const char *hname, const char *hvalue)
 {
     struct MHD_Response *r = MHD_create_response_from_buffer(len, body, mode);
     if (!r) {
@@ -525,28 +535,49 @@ static enum MHD_Result send_body(struct MHD_Connection *conn, int status, const 
     MHD_add_response_header(r, "Content-Type", type);
     MHD_add_response_header(r, "Cache-Control", "no-store");
     MHD_add_response_header(r, "X-Content-Type-Options", "nosniff");
+    if (hname)
+        MHD_add_response_header(r, hname, hvalue);
     enum MHD_Result rc = MHD_queue_response(conn, (unsigned)status, r);
     MHD_destroy_response(r);
     return rc;
 }
 
-static enum MHD_Result send_json(struct MHD_Connection *conn, int status, const cJSON *body)
+static enum MHD_Result send_body(struct MHD_Connection *conn, int status, const char *type,
+                                 void *body, size_t len, enum MHD_ResponseMemoryMode mode)
+{
+    return respond(conn, status, type, body, len, mode, NULL, NULL);
+}
+
+static enum MHD_Result send_json_with(struct MHD_Connection *conn, int status, const cJSON *body,
+                                      const char *hname, const char *hvalue)
 {
     char *text = cJSON_PrintUnformatted(body);
     if (!text)
         return MHD_NO;
     /* cJSON allocates with malloc here (no hooks set), so MHD may free it */
-    return send_body(conn, status, "application/json", text, strlen(text), MHD_RESPMEM_MUST_FREE);
+    return respond(conn, status, "application/json", text, strlen(text), MHD_RESPMEM_MUST_FREE,
+                   hname, hvalue);
 }
 
-static enum MHD_Result send_error(struct MHD_Connection *conn, int status, const char *msg)
+static enum MHD_Result send_json(struct MHD_Connection *conn, int status, const cJSON *body)
+{
+    return send_json_with(conn, status, body, NULL, NULL);
+}
+
+static enum MHD_Result send_error_with(struct MHD_Connection *conn, int status, const char *msg,
+                                       const char *hname, const char *hvalue)
 {
     cJSON *b = cJSON_CreateObject();
     cJSON_AddBoolToObject(b, "ok", 0);
     cJSON_AddStringToObject(b, "error", msg);
-    enum MHD_Result rc = send_json(conn, status, b);
+    enum MHD_Result rc = send_json_with(conn, status, b, hname, hvalue);
     cJSON_Delete(b);
     return rc;
+}
+
+static enum MHD_Result send_error(struct MHD_Connection *conn, int status, const char *msg)
+{
+    return send_error_with(conn, status, msg, NULL, NULL);
 }
 
 static const char *reply_error(const cJSON *reply)
@@ -582,13 +613,8 @@ static enum MHD_Result handle_passthrough(serve_t *s, struct MHD_Connection *con
     } else if (rt->kind == SERVE_API_CANCEL && accept && strstr(accept, "text/html")) {
         char where[64];
         snprintf(where, sizeof where, "/job/%llu", rt->job);
-        struct MHD_Response *r = MHD_create_response_from_buffer(0, NULL, MHD_RESPMEM_PERSISTENT);
-        rc = MHD_NO;
-        if (r) {
-            MHD_add_response_header(r, "Location", where);
-            rc = MHD_queue_response(conn, MHD_HTTP_SEE_OTHER, r);
-            MHD_destroy_response(r);
-        }
+        rc = respond(conn, MHD_HTTP_SEE_OTHER, "text/plain", "", 0, MHD_RESPMEM_PERSISTENT,
+                     "Location", where);
     } else {
         rc = send_json(conn, 200, a.reply);
     }
@@ -752,9 +778,8 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
 {
     (void)version;
     (void)upload;
-    static int seen; /* only its address is used: a marker, never written */
-    if (!*con_cls) { /* the headers are in; the body (if any) comes next */
-        *con_cls = &seen;
+    if (!*con_cls) {    /* the headers are in; the body (if any) comes next */
+        *con_cls = cls; /* any pointer but NULL: "seen" */
         return MHD_YES;
     }
     if (*upload_size) { /* a cancel's form body says nothing we need */
@@ -764,27 +789,17 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
     serve_route_t rt;
     char msg[512];
     int st = serve_parse_route(method, url, &rt, msg, sizeof msg);
-    if (st == 405) {
-        cJSON *b = cJSON_CreateObject();
-        cJSON_AddBoolToObject(b, "ok", 0);
-        cJSON_AddStringToObject(b, "error", msg);
-        char *text = cJSON_PrintUnformatted(b);
-        cJSON_Delete(b);
-        struct MHD_Response *r =
-            text ? MHD_create_response_from_buffer(strlen(text), text, MHD_RESPMEM_MUST_FREE)
-                 : NULL;
-        if (!r) {
-            free(text);
-            return MHD_NO;
-        }
-        MHD_add_response_header(r, "Allow", rt.allow);
-        MHD_add_response_header(r, "Content-Type", "application/json");
-        enum MHD_Result rc = MHD_queue_response(conn, 405, r);
-        MHD_destroy_response(r);
-        return rc;
-    }
+    if (st == 405)
+        return send_error_with(conn, 405, msg, "Allow", rt.allow);
     if (st != 200)
         return send_error(conn, st, msg);
+    const char *origin = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, "Origin");
+    const char *host = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, "Host");
+    if (rt.kind == SERVE_API_CANCEL && !serve_same_origin(origin, host)) {
+        snprintf(msg, sizeof msg, "cross-site request refused: Origin %.200s is not http://%.200s",
+                 origin, host ? host : "(no Host)");
+        return send_error(conn, 403, msg);
+    }
     return dispatch(cls, conn, &rt);
 }
 

@@ -21,8 +21,8 @@
  *   /metrics                   Prometheus text format 0.0.4
  *
  * Errors are JSON {"ok": false, "error": "..."} with 400 (bad size), 403
- * (another client's job), 404 (no such job or path), 405 (method), 501 (a
- * master without previews), 502 or 503 ("master unreachable: ...").
+ * (another client's job, or a cancel posted from another site's page), 404 (no such job or path),
+ * 405 (method), 501 (a master without previews), 502 or 503 ("master unreachable: ...").
  */
 #ifndef VB_SERVE_H
 #define VB_SERVE_H
@@ -68,6 +68,12 @@ int serve_parse_route(const char *method, const char *path, serve_route_t *out, 
 /* A preview dimension from the query (NULL or absent: the default): 0 with
  * *out set, or -1 with a message (an HTTP 400). name is for the message. */
 int serve_parse_size(const char *text, const char *name, int *out, char *msg, size_t msglen);
+
+/* Whether a POST may act: 1 without an Origin header (not a browser's
+ * cross-site request: scripts, curl), else only when Origin is this
+ * server as the request's Host names it. A page elsewhere could otherwise
+ * make a visitor's browser cancel jobs with this client's key (CSRF). */
+int serve_same_origin(const char *origin, const char *host);
 
 /* The HTTP status for a master's {"ok": false} error message: 404 for no
  * such job, 403 for another client's job, 501 for an unknown command (a

@@ -120,6 +120,19 @@ START_TEST(sizes)
 }
 END_TEST
 
+START_TEST(same_origin)
+{
+    ck_assert_int_eq(serve_same_origin(NULL, "127.0.0.1:8080"), 1);
+    ck_assert_int_eq(serve_same_origin(NULL, NULL), 1);
+    ck_assert_int_eq(serve_same_origin("http://127.0.0.1:8080", "127.0.0.1:8080"), 1);
+    ck_assert_int_eq(serve_same_origin("http://evil.example", "127.0.0.1:8080"), 0);
+    ck_assert_int_eq(serve_same_origin("http://127.0.0.1:8081", "127.0.0.1:8080"), 0);
+    ck_assert_int_eq(serve_same_origin("https://127.0.0.1:8080", "127.0.0.1:8080"), 0);
+    ck_assert_int_eq(serve_same_origin("null", "127.0.0.1:8080"), 0);
+    ck_assert_int_eq(serve_same_origin("http://127.0.0.1:8080", NULL), 0);
+}
+END_TEST
+
 START_TEST(error_statuses)
 {
     ck_assert_int_eq(serve_error_status("status: no such job 4"), 404);
@@ -491,8 +504,10 @@ typedef struct http_reply {
     size_t size;
 } http_reply_t;
 
-/* One HTTP/1.0 request to 127.0.0.1:port (the server closes after it). */
-static int http(int port, const char *method, const char *path, http_reply_t *r)
+/* One HTTP/1.0 request to 127.0.0.1:port (the server closes after it),
+ * with more header lines (each ending in \r\n) in headers. */
+static int http_with(int port, const char *method, const char *path, const char *headers,
+                     http_reply_t *r)
 {
     memset(r, 0, sizeof *r);
     int fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
@@ -506,8 +521,9 @@ static int http(int port, const char *method, const char *path, http_reply_t *r)
         return -1;
     }
     char req[1024];
-    int n = snprintf(req, sizeof req, "%s %s HTTP/1.0\r\nHost: 127.0.0.1\r\n%s\r\n", method, path,
-                     strcmp(method, "POST") == 0 ? "Content-Length: 0\r\n" : "");
+    int n =
+        snprintf(req, sizeof req, "%s %s HTTP/1.0\r\nHost: 127.0.0.1:%d\r\n%s%s\r\n", method, path,
+                 port, strcmp(method, "POST") == 0 ? "Content-Length: 0\r\n" : "", headers);
     ck_assert_int_eq(write(fd, req, (size_t)n), n);
     size_t cap = 1 << 16, len = 0;
     unsigned char *buf = malloc(cap);
@@ -530,6 +546,11 @@ static int http(int port, const char *method, const char *path, http_reply_t *r)
     r->body[r->size] = '\0';
     free(buf);
     return 0;
+}
+
+static int http(int port, const char *method, const char *path, http_reply_t *r)
+{
+    return http_with(port, method, path, "", r);
 }
 
 static http_reply_t http_ok(int port, const char *method, const char *path, int status)
@@ -819,6 +840,13 @@ START_TEST(live)
     http_reply_t r = http_ok(c.http_port, "GET", "/api/job/1", 200);
     ck_assert_ptr_nonnull(strstr((char *)r.body, "\"state\":\"running\""));
     free(r.body);
+    /* a form on another site's page may not cancel (CSRF) */
+    ck_assert_int_eq(
+        http_with(c.http_port, "POST", "/api/job/1/cancel", "Origin: http://evil.example\r\n", &r),
+        0);
+    ck_assert_msg(r.status == 403 && strstr((char *)r.body, "cross-site request refused"), "%d %s",
+                  r.status, (char *)r.body);
+    free(r.body);
     r = http_ok(c.http_port, "POST", "/api/job/1/cancel", 200);
     ck_assert_msg(strstr((char *)r.body, "\"state\":\"cancelled\""), "%s", (char *)r.body);
     free(r.body);
@@ -844,6 +872,7 @@ int main(void)
     TCase *unit = tcase_create("unit");
     tcase_add_test(unit, routes);
     tcase_add_test(unit, sizes);
+    tcase_add_test(unit, same_origin);
     tcase_add_test(unit, error_statuses);
     tcase_add_test(unit, command_line);
     tcase_add_test(unit, metrics_text);

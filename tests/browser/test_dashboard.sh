@@ -77,7 +77,7 @@ http() {
     shift 2
     exec 3<>"/dev/tcp/127.0.0.1/$HTTP_PORT" || return 1
     {
-        printf '%s %s HTTP/1.0\r\nHost: 127.0.0.1\r\n' "$method" "$path"
+        printf '%s %s HTTP/1.0\r\nHost: 127.0.0.1:%s\r\n' "$method" "$path" "$HTTP_PORT"
         for h in "$@"; do printf '%s\r\n' "$h"; done
         printf '\r\n'
     } >&3
@@ -167,8 +167,8 @@ fi
 # 3. cancel: the job page's form, posted as a browser does, goes back to the
 # job's page; then the pages show the job cancelled
 action=$(sed -n 's/.*<form id="cancel" method="post" action="\([^"]*\)".*/\1/p' "$TMP/job.html")
-reply=$(http POST "$action" "Accept: text/html" "Content-Type: application/x-www-form-urlencoded" \
-    "Content-Length: 0")
+reply=$(http POST "$action" "Origin: $URL" "Accept: text/html" \
+    "Content-Type: application/x-www-form-urlencoded" "Content-Length: 0")
 if [[ "$reply" == "HTTP/1.1 303"* ]] && grep -qi "^Location: /job/$JOB" <<<"$reply"; then
     ok "the cancel form ($action) answers 303 to /job/$JOB"
 else
