@@ -288,7 +288,7 @@ static void metrics_jobs(text_buf_t *b, const cJSON *jobs)
         if (i < nstates)
             count[i]++;
     }
-    metric_header(b, "vbrender_jobs", "gauge", "Jobs on the master, by state.");
+    metric_header(b, "vbrender_jobs", "gauge", "Jobs this client may see on the master, by state.");
     for (int i = 0; i < nstates; i++) {
         char label[256], num[64];
         label_escape(names[i], label, sizeof label);
@@ -339,8 +339,9 @@ static void metrics_master(text_buf_t *b, const cJSON *m, const cJSON *jobs, con
     const cJSON *it;
     cJSON_ArrayForEach(it, jobs) queued += strcmp(str_of(it, "state"), "queued") == 0;
     cJSON_ArrayForEach(it, workers) outstanding += num_of(it, "tasks_outstanding");
-    const cJSON *q = cJSON_GetObjectItemCaseSensitive(m, "queued_jobs");
-    const cJSON *o = cJSON_GetObjectItemCaseSensitive(m, "outstanding_tasks");
+    /* the master's figures count every job, the lists only this client's */
+    const cJSON *q = cJSON_GetObjectItemCaseSensitive(m, "jobs_queued");
+    const cJSON *o = cJSON_GetObjectItemCaseSensitive(m, "tasks_outstanding");
     metric(b, "vbrender_queue_depth", "gauge", "Jobs waiting to start.",
            cJSON_IsNumber(q) ? q->valuedouble : queued);
     metric(b, "vbrender_outstanding_tasks", "gauge", "Tasks sent to workers and not answered yet.",

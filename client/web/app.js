@@ -57,14 +57,17 @@ vb.ended = function (job) {
   return job.state === "done" || job.state === "failed" || job.state === "cancelled";
 };
 
-// How far a job is: the larger of its layers and its samples done, 0..1.
+// How far a job is, 0..1: the master's "progress" when it gives one, else
+// the larger of its layers and its samples done.
 vb.fraction = function (job) {
+  if (typeof job.progress === "number") return Math.min(1, Math.max(0, job.progress));
   var a = job.layers > 0 ? job.layers_done / job.layers : 0;
   var b = job.max_samples > 0 ? job.samples / job.max_samples : 0;
   return Math.min(1, Math.max(a, b, job.state === "done" ? 1 : 0));
 };
 
 vb.eta = function (job) {
+  if (job.state === "running" && typeof job.eta_seconds === "number") return vb.dur(job.eta_seconds);
   var f = vb.fraction(job);
   if (job.state !== "running" || !(f > 0)) return "";
   return vb.dur(job.seconds / f - job.seconds);
