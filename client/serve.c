@@ -670,12 +670,12 @@ static int preview_checked(const answer_t *a, int *w, int *h, double *hi, char *
         snprintf(msg, msglen, "the master's preview is malformed (frame sizes)");
         return -1;
     }
-    /* the heat map's top: the job's spp, as `fetch` has it, so that the
-     * map shows how far each pixel is; the preview's own maximum when the
-     * job object lacks it */
-    *hi = num_of(cJSON_GetObjectItemCaseSensitive(a->reply, "job"), "spp");
+    /* the heat map's top: the most samples any preview pixel has, so that
+     * the map shows where the samples went (the page says the range); the
+     * job's spp before any sample */
+    *hi = num_of(a->reply, "spp_max");
     if (!(*hi > 0))
-        *hi = num_of(a->reply, "spp_max");
+        *hi = num_of(cJSON_GetObjectItemCaseSensitive(a->reply, "job"), "spp");
     return 0;
 }
 
@@ -714,7 +714,10 @@ static enum MHD_Result handle_preview(serve_t *s, struct MHD_Connection *conn,
             rt->kind == SERVE_API_PREVIEW
                 ? serve_png_rgb(a.frames[0], w, h, &size, msg, sizeof msg)
                 : serve_png_heat(a.frames[1], w, h, (float)hi, &size, msg, sizeof msg);
-        rc = png ? send_body(conn, 200, "image/png", png, size, MHD_RESPMEM_MUST_FREE)
+        char top[64];
+        format_value(hi, top, sizeof top);
+        rc = png ? respond(conn, 200, "image/png", png, size, MHD_RESPMEM_MUST_FREE,
+                           "X-Heatmap-Max", top)
                  : send_error(conn, 500, msg);
     }
     answer_free(&a);

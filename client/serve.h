@@ -14,7 +14,9 @@
  *                              status and workers, as JSON
  *   /api/job/ID/preview.png?w=W&h=H    the image so far, tone-mapped (sRGB)
  *                              within W x H (1..4096, default 256)
- *   /api/job/ID/samples.png?w=W&h=H    samples per pixel as a heat map
+ *   /api/job/ID/samples.png?w=W&h=H    samples per pixel as a heat map from
+ *                              0 to the most any pixel has (header
+ *                              X-Heatmap-Max)
  *   POST /api/job/ID/cancel    cancel (the master checks the key owns it);
  *                              the job as JSON, or to a browser's form
  *                              (Accept: text/html) 303 back to /job/ID
@@ -88,7 +90,8 @@ char *serve_metrics_text(const cJSON *jobs, const cJSON *workers);
 /* PNGs in memory (malloc'd, *size set), or NULL with a message: linear RGB
  * (w*h*3 floats, interleaved, row 0 at the top) tone-mapped as `fetch`
  * writes its PNG (sRGB, exposure 1), and one float per pixel as the heat
- * map `fetch` writes for samples, from 0 to hi. */
+ * map `fetch` writes for samples (black, blue, red, yellow, white), from 0 to
+ * hi. */
 unsigned char *serve_png_rgb(const float *rgb, int w, int h, size_t *size, char *err,
                              size_t errlen);
 unsigned char *serve_png_heat(const float *v, int w, int h, float hi, size_t *size, char *err,

@@ -739,6 +739,7 @@ static int check_preview(cluster_t *c, unsigned long long job)
     free(a.body);
     snprintf(path, sizeof path, "/api/job/%llu/samples.png", job);
     http_reply_t s = http_ok(c->http_port, "GET", path, 200);
+    ck_assert_msg(strstr(s.headers, "X-Heatmap-Max: ") != NULL, "%s", s.headers);
     free(s.body);
     return 1;
 }
