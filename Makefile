@@ -4,7 +4,8 @@
 #   make all     bin/vbrender, bin/vbrender-master, bin/vbrender-worker and
 #                the libraries: build/libvbcore.a (renderer core, no
 #                networking) and build/libvbnet.a (protocol, master, worker)
-#   make check   deps, build, all tests, then the same tests under ASan+UBSan,
+#   make check   deps, build, all tests, the dashboard in headless Chromium
+#                (test-browser), then the same tests under ASan+UBSan,
 #                then the multi-threaded ones under ThreadSanitizer (test-tsan)
 #                then a short libFuzzer pass of every fuzz target (fuzz-short)
 #   make fuzz    every fuzz target under libFuzzer (clang, ASan+UBSan, in
@@ -24,7 +25,8 @@ BIN       = bin
 
 DEB_PACKAGES = build-essential pkg-config libembree-dev libzmq3-dev \
                libopenexr-dev libcjson-dev check libsubunit-dev libpng-dev \
-               libsodium-dev nftables clang libclang-rt-14-dev clang-format
+               libsodium-dev nftables clang libclang-rt-14-dev clang-format \
+               libmicrohttpd-dev chromium fonts-liberation
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 # Determinism: no -ffast-math, no FMA contraction, no -march=native (the same
@@ -86,7 +88,12 @@ DAEMONS   = $(if $(wildcard master/main.c),$(BIN)/vbrender-master) \
             $(if $(wildcard worker/main.c),$(BIN)/vbrender-worker)
 
 CLIENT_SRC = $(wildcard client/*.c)
-CLIENT_OBJ = $(CLIENT_SRC:%.c=$(BUILD)/%.o)
+# The dashboard's pages (client/web/) become C strings in a generated file.
+WEB_ASSETS = $(sort $(wildcard client/web/*))
+ASSETS_C   = $(BUILD)/gen/serve_assets.c
+ASSETS_OBJ = $(ASSETS_C:.c=.o)
+CLIENT_OBJ = $(CLIENT_SRC:%.c=$(BUILD)/%.o) $(ASSETS_OBJ)
+LDLIBS_HTTP = -lmicrohttpd
 
 TEST_SRC  = $(wildcard tests/test_*.c)
 TEST_BIN  = $(TEST_SRC:tests/%.c=$(BUILD)/tests/%)
@@ -103,7 +110,7 @@ BENCH_BIN = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 # Keep intermediate objects: deleting them only forces rebuilds.
 .SECONDARY:
 
-.PHONY: format format-check all deps check test test-asan test-tsan tsan-run demo bench bench-error clean fuzz fuzz-short fuzz-build fuzz-seeds
+.PHONY: format format-check all deps check test test-browser test-asan test-tsan tsan-run demo bench bench-error clean fuzz fuzz-short fuzz-build fuzz-seeds
 all: $(BIN)/vbrender $(DAEMONS) $(CORE_LIB) $(NET_LIB)
 
 deps:
@@ -142,7 +149,28 @@ LDLIBS_ALL = $(LDLIBS_NET) $(LDLIBS_CORE)
 
 $(BIN)/vbrender: $(CLIENT_OBJ) $(LIBS_ALL)
 	@mkdir -p $(dir $@)
-	$(CC) $(LDSAN) -pthread -o $@ $(CLIENT_OBJ) $(LIBS_ALL) $(LDLIBS_ALL)
+	$(CC) $(LDSAN) -pthread -o $@ $(CLIENT_OBJ) $(LIBS_ALL) $(LDLIBS_HTTP) $(LDLIBS_ALL)
+
+# Each file of client/web/ as `const char serve_asset_NAME_EXT[]` (serve.h),
+# a line a string: backslashes and quotes escaped, and every ? too, so that
+# no "??x" in a page reads as a C trigraph.
+$(ASSETS_C): $(WEB_ASSETS) Makefile
+	@mkdir -p $(dir $@)
+	@{ echo '/* generated from client/web/ by the Makefile: do not edit */'; \
+	   for f in $(WEB_ASSETS); do \
+	     echo "const char serve_asset_$$(basename $$f | tr '.-' '__')[] ="; \
+	     sed -e 's/\\/\\\\/g' -e 's/"/\\"/g' -e 's/?/\\?/g' -e 's/^/    "/' -e 's/$$/\\n"/' $$f; \
+	     echo '    "";'; \
+	   done; } > $@.tmp && mv $@.tmp $@
+$(ASSETS_OBJ): $(ASSETS_C)
+	$(CC) $(CFLAGS) -c $< -o $@
+
+# The handlers' unit tests and the integration test link the dashboard's
+# code itself (the other suites drive the binaries).
+SERVE_OBJ = $(BUILD)/client/serve.o $(BUILD)/client/control.o $(ASSETS_OBJ)
+$(BUILD)/tests/test_serve.o: CFLAGS += -Iclient
+$(BUILD)/tests/test_serve: $(BUILD)/tests/test_serve.o $(TEST_HELPER_OBJ) $(SERVE_OBJ) $(LIBS_ALL)
+	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_CHECK) $(LDLIBS_HTTP) $(LDLIBS_ALL)
 
 $(BIN)/vbrender-%: $(BUILD)/%/main.o $(LIBS_ALL)
 	@mkdir -p $(dir $@)
@@ -217,7 +245,9 @@ test-asan:
 # other cases are the same threads on other scenes); test_cli and
 # test_adaptive: the embedded render (master and workers in threads of
 # `vbrender render`); test_cluster: real master and worker daemons (TSan
-# builds too: VB_BINDIR is this tree's), three of its cases. SUITE:CASE runs
+# builds too: VB_BINDIR is this tree's), three of its cases; test_serve's
+# live case: `vbrender serve`'s HTTP threads sharing one control connection,
+# under concurrent requests. SUITE:CASE runs
 # one Check case (tests/run-suites.sh). A report makes the process exit 66,
 # which fails the test; reports also go to files (log_path), so that one in
 # a process the test kills on purpose (kill -9 of a worker) or in a timed
@@ -227,9 +257,9 @@ test-asan:
 # process, and every test, client run and daemon is one; all our threads are
 # joined before exit, so the sleep would catch nothing.
 TSAN_CLUSTER_CASES = identical_pixels worker_killed sigterm
-TSAN_TESTS = $(addprefix $(BUILD)/tests/,test_tracer test_cli test_adaptive test_cluster)
+TSAN_TESTS = $(addprefix $(BUILD)/tests/,test_tracer test_cli test_adaptive test_cluster test_serve)
 TSAN_RUN   = $(BUILD)/tests/test_tracer:determinism $(BUILD)/tests/test_cli $(BUILD)/tests/test_adaptive \
-             $(addprefix $(BUILD)/tests/test_cluster:,$(TSAN_CLUSTER_CASES))
+             $(addprefix $(BUILD)/tests/test_cluster:,$(TSAN_CLUSTER_CASES)) $(BUILD)/tests/test_serve:live
 
 test-tsan:
 	$(MAKE) SAN=thread tsan-run
@@ -246,9 +276,16 @@ tsan-run: $(BIN)/vbrender $(DAEMONS) $(TSAN_TESTS)
 	  [ -e "$$f" ] || continue; echo "== ThreadSanitizer: $$f"; cat "$$f"; rc=1; \
 	done; exit $$rc
 
+# The dashboard in headless Chromium against real daemons; its screenshots
+# stay in $(BUILD)/test-artifacts/.
+test-browser: $(BIN)/vbrender $(DAEMONS)
+	VB_BINDIR=$(abspath $(BIN)) VB_ARTIFACTS=$(abspath $(BUILD))/test-artifacts \
+	  tests/browser/test_dashboard.sh
+
 check: deps
 	$(MAKE) all
 	$(MAKE) test
+	$(MAKE) test-browser
 	$(MAKE) test-asan
 	$(MAKE) test-tsan
 	$(MAKE) fuzz-short

@@ -263,6 +263,23 @@ cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames
     return request_once(c, req, frames, sizes, nframes, c->timeout_ms, err, errlen);
 }
 
+int control_frame_count(const control_t *c)
+{
+    return extra_count(c);
+}
+
+const void *control_frame(const control_t *c, int i, size_t *size)
+{
+    if (i < 0 || i >= extra_count(c)) {
+        *size = 0;
+        return NULL;
+    }
+    /* zmq_msg_data and zmq_msg_size do not change the message */
+    zmq_msg_t *m = (zmq_msg_t *)&c->reply.part[1 + i];
+    *size = zmq_msg_size(m);
+    return zmq_msg_data(m);
+}
+
 int control_lost(const control_t *c)
 {
     return c->lost;

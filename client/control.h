@@ -40,6 +40,12 @@ void control_destroy(control_t **c);
 cJSON *control_request(control_t *c, const cJSON *req, const void *const *frames,
                        const size_t *sizes, int nframes, char *err, size_t errlen);
 
+/* The binary frames after the JSON of the last reply (a preview's image
+ * and samples, say): how many, and frame i's bytes (NULL when i is out of
+ * range) with its size. Valid until the next request. */
+int control_frame_count(const control_t *c);
+const void *control_frame(const control_t *c, int i, size_t *size);
+
 /* Whether the last request got no answer in time: the master is down,
  * restarting or busy, and it may or may not have received the request. */
 int control_lost(const control_t *c);

@@ -45,6 +45,7 @@
 #include "proto.h"
 #include "render.h"
 #include "sched.h"
+#include "serve.h"
 #include "settings.h"
 #include "vberr.h"
 #include "vblog.h"
@@ -67,6 +68,10 @@ static const char usage_head[] =
     "                    saved state from the master\n"
     "  jobs              all jobs\n"
     "  workers           connected workers: host, threads, rays/s, tasks done\n"
+    "  serve [--master EP] [--listen ADDR:PORT]   a web dashboard and Prometheus metrics\n"
+    "                    (/metrics) at http://127.0.0.1:8080/; --listen another address\n"
+    "                    (0.0.0.0:8080) serves other machines too: anybody reaching it\n"
+    "                    sees the jobs and may cancel them with this client's key\n"
     "  keygen NAME       a CURVE key pair: NAME.key (secret, mode 0600) and NAME.pub\n"
     "                    (the public key, for the master's allow-lists or --master-key)\n"
     "  compare A.exr REF.exr [--threshold E] [--error-map OUT.png]\n"
@@ -1250,6 +1255,8 @@ int main(int argc, char **argv)
         return cmd_compare(argc - 2, argv + 2);
     if (strcmp(argv[1], "keygen") == 0)
         return cmd_keygen(argc - 2, argv + 2);
+    if (strcmp(argv[1], "serve") == 0)
+        return serve_main(argc - 2, argv + 2);
     for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
         if (strcmp(argv[1], commands[i].name) == 0)
             return simple_command(argv[1], argc - 2, argv + 2);

@@ -85,4 +85,12 @@ int image_write_png(const image_t *img, const char *path, float exposure, char *
 int image_write_heatmap_png(const image_t *img, const char *channel, float lo, float hi,
                             const char *path, char *err, size_t errlen);
 
+/* The pixel maps of the two PNG writers, for images encoded elsewhere (the
+ * dashboard's previews): a linear value as the 8-bit sRGB byte
+ * image_write_png stores (clamped to [0, 1] first; NaN gives 0), and the
+ * heat-map colour of t in [0, 1] (clamped) as image_write_heatmap_png
+ * gives it. */
+unsigned char image_srgb_byte(double linear);
+void image_heat_rgb(double t, unsigned char rgb[3]);
+
 #endif

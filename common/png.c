@@ -126,6 +126,17 @@ static unsigned char to_byte(double v)
     return (unsigned char)(v * 255.0 + 0.5);
 }
 
+unsigned char image_srgb_byte(double v)
+{
+    /* Clamp before the curve: pow() of a negative is NaN, and the curve
+     * maps [0,1] onto [0,1], so this equals clamping after. */
+    if (!(v > 0.0))
+        v = 0.0;
+    else if (v > 1.0)
+        v = 1.0;
+    return to_byte(srgb_encode(v));
+}
+
 /* Packed RGB8 buffer for the image, or NULL (with err set). */
 static unsigned char *rgb_alloc(const image_t *img, const char *path, char *err, size_t errlen)
 {
@@ -157,13 +168,7 @@ int image_write_png(const image_t *img, const char *path, float exposure, char *
     for (size_t p = 0; p < n; p++) {
         for (int k = 0; k < 3; k++) {
             double v = (double)planes[k][p] * (double)exposure;
-            /* Clamp before the curve: pow() of a negative is NaN, and the
-             * curve maps [0,1] onto [0,1], so this equals clamping after. */
-            if (!(v > 0.0))
-                v = 0.0;
-            else if (v > 1.0)
-                v = 1.0;
-            rgb[p * 3 + (size_t)k] = to_byte(srgb_encode(v));
+            rgb[p * 3 + (size_t)k] = image_srgb_byte(v);
         }
     }
     int rc = png_write_file(path, img->width, img->height, rgb, err, errlen);
@@ -187,6 +192,18 @@ static void heat_ramp(double t, double out[3])
         out[k] = stops[i][k] + (stops[i + 1][k] - stops[i][k]) * f;
 }
 
+void image_heat_rgb(double t, unsigned char rgb[3])
+{
+    if (!(t > 0.0)) /* also NaN */
+        t = 0.0;
+    else if (t > 1.0)
+        t = 1.0;
+    double c[3];
+    heat_ramp(t, c);
+    for (int k = 0; k < 3; k++)
+        rgb[k] = to_byte(c[k]);
+}
+
 int image_write_heatmap_png(const image_t *img, const char *channel, float lo, float hi,
                             const char *path, char *err, size_t errlen)
 {
@@ -207,14 +224,7 @@ int image_write_heatmap_png(const image_t *img, const char *channel, float lo, f
     const size_t n = (size_t)img->width * (size_t)img->height;
     for (size_t p = 0; p < n; p++) {
         double t = usable ? ((double)plane[p] - dlo) / range : 0.0;
-        if (!(t > 0.0)) /* also NaN */
-            t = 0.0;
-        else if (t > 1.0)
-            t = 1.0;
-        double c[3];
-        heat_ramp(t, c);
-        for (int k = 0; k < 3; k++)
-            rgb[p * 3 + (size_t)k] = to_byte(c[k]);
+        image_heat_rgb(t, rgb + p * 3);
     }
     int rc = png_write_file(path, img->width, img->height, rgb, err, errlen);
     free(rgb);

@@ -22,4 +22,8 @@ const char *tu_write_tmp(char *buf, size_t len, const char *name, const char *te
  * returns the exit status (or -1 if it could not be run). */
 int tu_run(const char *cmd, char *out, size_t outlen);
 
+/* Sleeps ms milliseconds (through signals); the monotonic clock in ms. */
+void tu_sleep_ms(int ms);
+double tu_now_ms(void);
+
 #endif
