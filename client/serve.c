@@ -5,7 +5,7 @@
  * cost a connection (and a CURVE handshake) each time for nothing: the
  * master answers one request at a time anyway, and a REQ socket may not be
  * shared by threads without the lock. While the master is away a request
- * waits at most REQUEST_TIMEOUT_MS, and for FAIL_FAST_S after a lost one
+ * waits at most SERVE_REQUEST_TIMEOUT_MS, and for FAIL_FAST_S after a lost one
  * the others fail at once instead of queueing behind a timeout each.
  */
 #include "serve.h"
@@ -25,12 +25,10 @@
 #include <zmq.h>
 
 #include "control.h"
+#include "defaults.h"
 #include "image.h"
 #include "keys.h"
 
-#define DEFAULT_MASTER "tcp://localhost:7071"
-#define DEFAULT_LISTEN "127.0.0.1:8080"
-#define REQUEST_TIMEOUT_MS 2000
 #define FAIL_FAST_S 1.0
 #define MAX_JOB_ID 9007199254740992ULL /* 2^53: ids travel as JSON numbers */
 
@@ -38,8 +36,8 @@ static const char usage_text[] =
     "usage: vbrender serve [--master EP] [--listen ADDR:PORT] [--key FILE --master-key FILE]\n"
     "  a web dashboard (jobs, a job's image as it converges, workers) and Prometheus\n"
     "  metrics (/metrics) for a running master, at http://ADDR:PORT/\n"
-    "  --master EP          the master's control endpoint (default " DEFAULT_MASTER ")\n"
-    "  --listen ADDR:PORT   where to serve (default " DEFAULT_LISTEN ", this machine only).\n"
+    "  --master EP          the master's control endpoint (default " CLIENT_DEFAULT_MASTER ")\n"
+    "  --listen ADDR:PORT   where to serve (default " SERVE_DEFAULT_LISTEN ", this machine only).\n"
     "                       Anybody who reaches it sees the jobs and may cancel them with\n"
     "                       this client's key: bind another address (0.0.0.0:8080,\n"
     "                       [::]:8080) only on a network you trust. Port 0: any free port.\n"
@@ -823,8 +821,8 @@ static int usage_error(const char *fmt, const char *arg)
 
 static int parse_opts(int argc, char **argv, serve_opts_t *o)
 {
-    o->master = DEFAULT_MASTER;
-    o->listen = DEFAULT_LISTEN;
+    o->master = CLIENT_DEFAULT_MASTER;
+    o->listen = SERVE_DEFAULT_LISTEN;
     o->key_file = getenv("VBRENDER_KEY");
     o->master_key_file = getenv("VBRENDER_MASTER_KEY");
     for (int i = 0; i < argc; i++) {
@@ -895,8 +893,8 @@ static int open_master(serve_t *s, const serve_opts_t *o)
         return -1;
     }
     control_keys_t keys = {mine.public_z85, mine.secret_z85, master_key};
-    s->ctl = control_new_with_keys(s->zmq, o->master, REQUEST_TIMEOUT_MS, keyed ? &keys : NULL, err,
-                                   sizeof err);
+    s->ctl = control_new_with_keys(s->zmq, o->master, SERVE_REQUEST_TIMEOUT_MS,
+                                   keyed ? &keys : NULL, err, sizeof err);
     if (keyed)
         explicit_bzero(&mine, sizeof mine); /* control keeps its own copy */
     if (!s->ctl) {

@@ -27,9 +27,8 @@
 #define MASTER_DEFAULT_CHECKPOINT_S 10
 #define MASTER_DEFAULT_KEEP_FINISHED 1000
 #define MASTER_DEFAULT_HEARTBEAT_MS 1000
-#define MASTER_DEFAULT_WORKER_TIMEOUT_HEARTBEATS                                                   \
-    5 /* a worker silent this many beats is dropped                                                \
-       */
+/* a worker silent this many beats is dropped */
+#define MASTER_DEFAULT_WORKER_TIMEOUT_HEARTBEATS 5
 #define MASTER_DEFAULT_LEASE_MS 60000
 #define MASTER_DEFAULT_MAX_BUNDLE_MIB 1024
 #define MASTER_DEFAULT_MAX_QUEUED_PER_CLIENT 100
@@ -39,10 +38,12 @@
 #define MASTER_DEFAULT_VERIFY_SHARE 0.01 /* the daemon's; 0 in a zeroed config */
 
 /* ---- the client ---- */
-#define CLIENT_DEFAULT_TIMEOUT_S 300      /* submit, wait: how long a master may stay away */
-#define CLIENT_REQUEST_TIMEOUT_MS 10000   /* a request to a master (one try) */
-#define CLIENT_EMBEDDED_TIMEOUT_MS 600000 /* render: a request to its own in-process master */
-#define CLIENT_DEFAULT_WORKERS 1          /* render: local workers */
+#define CLIENT_DEFAULT_TIMEOUT_S 300          /* submit, wait: how long a master may stay away */
+#define CLIENT_REQUEST_TIMEOUT_MS 10000       /* a request to a master (one try) */
+#define CLIENT_EMBEDDED_TIMEOUT_MS 600000     /* render: a request to its own in-process master */
+#define CLIENT_DEFAULT_WORKERS 1              /* render: local workers */
+#define SERVE_DEFAULT_LISTEN "127.0.0.1:8080" /* serve: this machine only */
+#define SERVE_REQUEST_TIMEOUT_MS 2000         /* serve: a page waits at most this for the master */
 
 /* ---- a job's settings (settings.h) where neither request nor scene sets them ---- */
 #define JOB_DEFAULT_GRANULARITY 32 /* samples per pixel per layer */
