@@ -16,6 +16,7 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "lights.h"
 #include "mesh.h"
 
 /* JSON paths in messages are cut at PATH_LEN; a cut path still locates the
@@ -807,38 +808,11 @@ static int finish(loader_t *L)
              L->name);
         return 0;
     }
-    s->light_tris = malloc(lights * sizeof(uint32_t));
-    s->light_cdf = malloc(lights * sizeof(double));
-    if (!s->light_tris || !s->light_cdf) {
-        free(power);
-        return fail(L, NULL, "out of memory for lights");
-    }
-    double acc = 0;
-    for (size_t t = 0; t < kept; t++) {
-        if (power[t] <= 0)
-            continue;
-        acc += power[t];
-        s->light_tris[s->light_count] = (uint32_t)t;
-        s->light_cdf[s->light_count++] = acc / total_power;
-        /* pdf per unit area of picking a point on t: (power / total) / area */
-        const material_t *m = &s->materials[s->tri_material[t]];
-        double pdf = vmath_luminance(m->radiance.x, m->radiance.y, m->radiance.z) / total_power;
-        s->tri_light_pdf[t] = (float)pdf;
-        /* The tracer divides by this in single precision: lights whose
-         * sizes differ by ~1e19 (or a light of area ~1e-38) cannot be
-         * sampled there, and a wrong pdf would poison the image. */
-        if (!(s->tri_light_pdf[t] > 0.0f) || !isfinite(s->tri_light_pdf[t]) ||
-            !(s->light_cdf[s->light_count - 1] >
-              (s->light_count > 1 ? s->light_cdf[s->light_count - 2] : 0.0))) {
-            free(power);
-            return fail(L, "shapes",
-                        "light sizes out of single-precision range (light triangle %zu "
-                        "has area pdf %g): rescale the scene",
-                        t, pdf);
-        }
-    }
-    s->light_cdf[s->light_count - 1] = 1.0;
+    char msg[512];
+    lights_status_t rc = lights_build(s, power, total_power, msg, sizeof msg);
     free(power);
+    if (rc != LIGHTS_OK)
+        return fail(L, rc == LIGHTS_OUT_OF_RANGE ? "shapes" : NULL, "%s", msg);
     return 0;
 }
 
