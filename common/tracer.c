@@ -393,11 +393,11 @@ uint32_t tracer_sample(const tracer_t *t, const tracer_settings_t *settings, uin
     return rays;
 }
 
-int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_task_t *tasks,
-                 size_t count, tracer_result_t *results, tracer_stats_t *stats, char *err,
-                 size_t errlen)
+/* Refuses a task list with a pixel outside the image or a sample count
+ * outside 1..TRACER_MAX_TASK_SAMPLES, before any work is done. */
+static int check_tasks(const camera_t *cam, const tracer_task_t *tasks, size_t count, char *err,
+                       size_t errlen)
 {
-    const camera_t *cam = &t->scene->camera;
     const uint64_t npix = (uint64_t)cam->width * (uint64_t)cam->height;
     for (size_t k = 0; k < count; k++) {
         if (tasks[k].pixel >= npix) {
@@ -411,46 +411,61 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_ta
             return -1;
         }
     }
-    uint64_t rays = 0, samples = 0;
+    return 0;
+}
+
+/* Takes one task's samples into *r; returns the rays traced. */
+static uint64_t trace_task(const tracer_t *t, const tracer_settings_t *st,
+                           const tracer_task_t *task, tracer_result_t *r)
+{
+    uint64_t rays = 0;
     double running[TRACER_MAX_TASK_SAMPLES];
+    memset(r, 0, sizeof *r);
+    r->pixel = task->pixel;
+    /* eq. 4.1: P_i is the running estimate (all samples so far) after
+     * the i-th sample of this task; Welford gives the task's own M2. */
+    double prior_lum = vmath_luminance(task->prior_sum[0], task->prior_sum[1], task->prior_sum[2]);
+    double lum_sum = 0, mean = 0, m2 = 0;
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < task->sample_count; i++) {
+        vec3_t L;
+        rays += trace_sample(t, st, task->pixel, task->first_sample + i, &L);
+        if (!vec3_is_finite(L)) {
+            r->nonfinite++;
+            continue;
+        }
+        r->sum[0] += L.x;
+        r->sum[1] += L.y;
+        r->sum[2] += L.z;
+        double lum = vmath_luminance(L.x, L.y, L.z);
+        n++;
+        double delta = lum - mean;
+        mean += delta / n;
+        m2 += delta * (lum - mean);
+        lum_sum += lum;
+        running[n - 1] = (prior_lum + lum_sum) / (double)(task->prior_count + n);
+    }
+    r->samples = n;
+    r->lum_m2 = m2;
+    double pvar = 0;
+    for (uint32_t i = 0; i + 1 < n; i++) {
+        double dv = running[i] - running[n - 1];
+        pvar += dv * dv;
+    }
+    r->pvar = pvar;
+    return rays;
+}
+
+int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_task_t *tasks,
+                 size_t count, tracer_result_t *results, tracer_stats_t *stats, char *err,
+                 size_t errlen)
+{
+    if (check_tasks(&t->scene->camera, tasks, count, err, errlen) < 0)
+        return -1;
+    uint64_t rays = 0, samples = 0;
     for (size_t k = 0; k < count; k++) {
-        const tracer_task_t *task = &tasks[k];
-        tracer_result_t *r = &results[k];
-        memset(r, 0, sizeof *r);
-        r->pixel = task->pixel;
-        /* eq. 4.1: P_i is the running estimate (all samples so far) after
-         * the i-th sample of this task; Welford gives the task's own M2. */
-        double prior_lum =
-            vmath_luminance(task->prior_sum[0], task->prior_sum[1], task->prior_sum[2]);
-        double lum_sum = 0, mean = 0, m2 = 0;
-        uint32_t n = 0;
-        for (uint32_t i = 0; i < task->sample_count; i++) {
-            vec3_t L;
-            rays += trace_sample(t, st, task->pixel, task->first_sample + i, &L);
-            if (!vec3_is_finite(L)) {
-                r->nonfinite++;
-                continue;
-            }
-            r->sum[0] += L.x;
-            r->sum[1] += L.y;
-            r->sum[2] += L.z;
-            double lum = vmath_luminance(L.x, L.y, L.z);
-            n++;
-            double delta = lum - mean;
-            mean += delta / n;
-            m2 += delta * (lum - mean);
-            lum_sum += lum;
-            running[n - 1] = (prior_lum + lum_sum) / (double)(task->prior_count + n);
-        }
-        samples += task->sample_count;
-        r->samples = n;
-        r->lum_m2 = m2;
-        double pvar = 0;
-        for (uint32_t i = 0; i + 1 < n; i++) {
-            double dv = running[i] - running[n - 1];
-            pvar += dv * dv;
-        }
-        r->pvar = pvar;
+        rays += trace_task(t, st, &tasks[k], &results[k]);
+        samples += tasks[k].sample_count;
     }
     if (stats) {
         stats->rays += rays;
