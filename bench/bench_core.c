@@ -48,6 +48,7 @@
 #include <time.h>
 
 #include "film.h"
+#include "lights.h"
 #include "material.h"
 #include "render.h"
 #include "rng.h"
@@ -128,25 +129,6 @@ static int usage_error(const char *what, const char *arg)
     return 2;
 }
 
-static inline vec3_t vtx(const scene_t *s, uint32_t i)
-{
-    const float *p = s->positions + 3 * i;
-    return vec3_make(p[0], p[1], p[2]);
-}
-
-static inline vec3_t vtx_normal(const scene_t *s, uint32_t i)
-{
-    const float *p = s->normals + 3 * i;
-    return vec3_make(p[0], p[1], p[2]);
-}
-
-static inline vec3_t bary(vec3_t a, vec3_t b, vec3_t c, float u, float v)
-{
-    float w = 1.0f - u - v;
-    return vec3_make(w * a.x + u * b.x + v * c.x, w * a.y + u * b.y + v * c.y,
-                     w * a.z + u * b.z + v * c.z);
-}
-
 /* Index of the first cdf entry > u (cdf ascending, last entry 1). */
 static size_t cdf_pick(const double *cdf, size_t n, double u)
 {
@@ -161,22 +143,12 @@ static size_t cdf_pick(const double *cdf, size_t n, double u)
     return lo;
 }
 
-/* Uniform point on triangle tri (the same warp as the tracer's light sampling). */
-static vec3_t tri_point(const scene_t *s, uint32_t tri, float u1, float u2)
-{
-    const uint32_t *v = s->indices + 3 * tri;
-    float su = sqrtf(u1);
-    return bary(vtx(s, v[0]), vtx(s, v[1]), vtx(s, v[2]), su * u2, 1.0f - su);
-}
-
 /* A light point picked as the tracer picks it: triangle by power, uniform on it. */
 static uint32_t light_point(const scene_t *s, rng_stream_t *rng, vec3_t *q)
 {
     double ul = rng_next_double(rng);
     float u1 = rng_next_float(rng), u2 = rng_next_float(rng);
-    uint32_t tri = s->light_tris[cdf_pick(s->light_cdf, s->light_count, ul)];
-    *q = tri_point(s, tri, u1, u2);
-    return tri;
+    return lights_sample(s, ul, u1, u2, q);
 }
 
 /* ---- raw Embree ---------------------------------------------------------- */
@@ -474,14 +446,15 @@ static void build_path_batch(const scene_t *s, const embree_t *e, uint64_t seed,
                     break;
                 if (m->type != MATERIAL_DIFFUSE && m->type != MATERIAL_EMITTER)
                     break;
-                vec3_t p = bary(vtx(s, vi[0]), vtx(s, vi[1]), vtx(s, vi[2]), hu, hv);
+                vec3_t p = scene_point(s, tri, hu, hv);
                 vec3_t ng = s->tri_normal[tri];
                 vec3_t wo = vec3_neg(d);
                 vec3_t ngf = vec3_dot(ng, wo) < 0.0f ? vec3_neg(ng) : ng;
                 vec3_t ns = ngf;
                 if (s->tri_smooth[tri]) {
-                    vec3_t n = vec3_normalize(bary(vtx_normal(s, vi[0]), vtx_normal(s, vi[1]),
-                                                   vtx_normal(s, vi[2]), hu, hv));
+                    vec3_t n = vec3_normalize(vec3_barycentric(
+                        scene_vertex_normal(s, vi[0]), scene_vertex_normal(s, vi[1]),
+                        scene_vertex_normal(s, vi[2]), hu, hv));
                     if (vec3_dot(n, ngf) < 0.0f)
                         n = vec3_neg(n);
                     if (vec3_is_finite(n) && vec3_dot(n, wo) > 0.0f)
@@ -529,9 +502,9 @@ static int build_area_batch(const scene_t *s, uint64_t seed, batch_t *ext, batch
         if (!tri_reflects(s, t))
             continue;
         const uint32_t *v = s->indices + 3 * t;
-        vec3_t a = vtx(s, v[0]);
-        total += 0.5 * (double)vec3_length(
-                           vec3_cross(vec3_sub(vtx(s, v[1]), a), vec3_sub(vtx(s, v[2]), a)));
+        vec3_t a = scene_vertex(s, v[0]);
+        total += 0.5 * (double)vec3_length(vec3_cross(vec3_sub(scene_vertex(s, v[1]), a),
+                                                      vec3_sub(scene_vertex(s, v[2]), a)));
         cdf[n] = total;
         ids[n++] = t;
     }
@@ -547,7 +520,7 @@ static int build_area_batch(const scene_t *s, uint64_t seed, batch_t *ext, batch
         rng_stream_t rng = rng_stream(seed, 1, i);
         uint32_t t = ids[cdf_pick(cdf, n, rng_next_double(&rng))];
         float u1 = rng_next_float(&rng), u2 = rng_next_float(&rng);
-        vec3_t p = tri_point(s, t, u1, u2), ng = s->tri_normal[t];
+        vec3_t p = scene_sample_point(s, t, u1, u2), ng = s->tri_normal[t];
         u1 = rng_next_float(&rng);
         u2 = rng_next_float(&rng);
         batch_push(ext, vec3_offset_ray_origin(p, ng), material_sample_cosine(ng, u1, u2));
@@ -558,7 +531,7 @@ static int build_area_batch(const scene_t *s, uint64_t seed, batch_t *ext, batch
         rng_stream_t rng = rng_stream(seed, 2, i);
         uint32_t t = ids[cdf_pick(cdf, n, rng_next_double(&rng))];
         float u1 = rng_next_float(&rng), u2 = rng_next_float(&rng);
-        vec3_t p = tri_point(s, t, u1, u2), ng = s->tri_normal[t];
+        vec3_t p = scene_sample_point(s, t, u1, u2), ng = s->tri_normal[t];
         push_shadow(s, sh, p, ng, ng, &rng);
     }
     free(cdf);

@@ -16,6 +16,7 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "lights.h"
 #include "mesh.h"
 #include "vberr.h"
 
@@ -815,37 +816,14 @@ static size_t keep_triangles(scene_t *s, size_t nt, light_sum_t *ls)
     return kept;
 }
 
-/* The light list, its power CDF and each light triangle's area pdf. */
+/* The light list, its power CDF and each light triangle's area pdf
+ * (lights_build, common/lights.c). */
 static int build_light_cdf(loader_t *L, const light_sum_t *ls)
 {
-    scene_t *s = L->s;
-    s->light_tris = malloc(ls->lights * sizeof(uint32_t));
-    s->light_cdf = malloc(ls->lights * sizeof(double));
-    if (!s->light_tris || !s->light_cdf)
-        return fail(L, NULL, "out of memory for lights");
-    double acc = 0;
-    for (size_t t = 0; t < s->triangle_count; t++) {
-        if (ls->power[t] <= 0)
-            continue;
-        acc += ls->power[t];
-        s->light_tris[s->light_count] = (uint32_t)t;
-        s->light_cdf[s->light_count++] = acc / ls->total;
-        /* pdf per unit area of picking a point on t: (power / total) / area */
-        const material_t *m = &s->materials[s->tri_material[t]];
-        double pdf = vmath_luminance(m->radiance.x, m->radiance.y, m->radiance.z) / ls->total;
-        s->tri_light_pdf[t] = (float)pdf;
-        /* The tracer divides by this in single precision: lights whose
-         * sizes differ by ~1e19 (or a light of area ~1e-38) cannot be
-         * sampled there, and a wrong pdf would poison the image. */
-        if (!(s->tri_light_pdf[t] > 0.0f) || !isfinite(s->tri_light_pdf[t]) ||
-            !(s->light_cdf[s->light_count - 1] >
-              (s->light_count > 1 ? s->light_cdf[s->light_count - 2] : 0.0)))
-            return fail(L, "shapes",
-                        "light sizes out of single-precision range (light triangle %zu "
-                        "has area pdf %g): rescale the scene",
-                        t, pdf);
-    }
-    s->light_cdf[s->light_count - 1] = 1.0;
+    char msg[VB_ERR_LEN];
+    lights_status_t rc = lights_build(L->s, ls->power, ls->total, msg, sizeof msg);
+    if (rc != LIGHTS_OK)
+        return fail(L, rc == LIGHTS_OUT_OF_RANGE ? "shapes" : NULL, "%s", msg);
     return 0;
 }
 

@@ -59,6 +59,34 @@ typedef struct scene {
     char warnings[SCENE_MAX_WARNINGS][SCENE_WARNING_LEN];
 } scene_t;
 
+/* Vertex i's position, and its normal (the zero vector when it has none). */
+static inline vec3_t scene_vertex(const scene_t *s, uint32_t i)
+{
+    const float *p = s->positions + 3 * i;
+    return vec3_make(p[0], p[1], p[2]);
+}
+
+static inline vec3_t scene_vertex_normal(const scene_t *s, uint32_t i)
+{
+    const float *n = s->normals + 3 * i;
+    return vec3_make(n[0], n[1], n[2]);
+}
+
+/* The point at barycentrics (u, v) of triangle tri. */
+static inline vec3_t scene_point(const scene_t *s, uint32_t tri, float u, float v)
+{
+    const uint32_t *vi = s->indices + 3 * tri;
+    return vec3_barycentric(scene_vertex(s, vi[0]), scene_vertex(s, vi[1]), scene_vertex(s, vi[2]),
+                            u, v);
+}
+
+/* A uniformly distributed point on triangle tri from two uniforms. */
+static inline vec3_t scene_sample_point(const scene_t *s, uint32_t tri, float u1, float u2)
+{
+    float su = sqrtf(u1);
+    return scene_point(s, tri, su * u2, 1.0f - su);
+}
+
 /* Loads a scene file; mesh paths are relative to its folder. Returns 0 and
  * a new scene in *out (free with scene_destroy), or -1 with *out NULL and a
  * message in err ("FILE: json.path: what is wrong"). */

@@ -6,6 +6,8 @@
  * bounces: unbiased, no depth clamp unless max_depth is set.
  * `naive`: the thesis's Procedure 1, radiance only when a path hits a light.
  * Both estimate the same integral, so they converge to the same image.
+ * Picking a point on a light is lights.h's; where a path goes at a surface
+ * is its material's (material_sample, material_eval in material.h).
  *
  * Robustness: hit points come from barycentrics, new rays leave from a point
  * offset by the Wachter-Binder method along the geometric normal, so there is
@@ -21,6 +23,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "lights.h"
 #include "rng.h"
 
 struct tracer_device {
@@ -218,43 +221,6 @@ static inline int unoccluded(const tracer_t *tr, vec3_t o, vec3_t d)
     return r.tfar >= 0.0f;
 }
 
-static inline vec3_t vertex(const scene_t *s, uint32_t i)
-{
-    const float *p = s->positions + 3 * i;
-    return vec3_make(p[0], p[1], p[2]);
-}
-
-static inline vec3_t vertex_normal(const scene_t *s, uint32_t i)
-{
-    const float *p = s->normals + 3 * i;
-    return vec3_make(p[0], p[1], p[2]);
-}
-
-static inline vec3_t lerp3(vec3_t a, vec3_t b, vec3_t c, float u, float v)
-{
-    float w = 1.0f - u - v;
-    return vec3_make(w * a.x + u * b.x + v * c.x, w * a.y + u * b.y + v * c.y,
-                     w * a.z + u * b.z + v * c.z);
-}
-
-/* Picks an emissive triangle by power and a uniform point on it. */
-static inline uint32_t sample_light(const scene_t *s, double u, float u1, float u2, vec3_t *q)
-{
-    size_t lo = 0, hi = s->light_count - 1;
-    while (lo < hi) {
-        size_t mid = (lo + hi) / 2;
-        if (s->light_cdf[mid] > u)
-            hi = mid;
-        else
-            lo = mid + 1;
-    }
-    uint32_t tri = s->light_tris[lo];
-    const uint32_t *v = s->indices + 3 * tri;
-    float su = sqrtf(u1);
-    *q = lerp3(vertex(s, v[0]), vertex(s, v[1]), vertex(s, v[2]), su * u2, 1.0f - su);
-    return tri;
-}
-
 static inline float power_heuristic(float a, float b)
 {
     float a2 = a * a, b2 = b * b;
@@ -263,140 +229,157 @@ static inline float power_heuristic(float a, float b)
 
 /* ---- the integrators ---------------------------------------------------- */
 
+/* One path of a sample, as it is traced. */
+typedef struct path {
+    rng_stream_t rng; /* the sample's random numbers, drawn in order */
+    vec3_t o, d;      /* the ray being traced; d unit length */
+    vec3_t L;         /* radiance gathered so far */
+    vec3_t beta;      /* throughput */
+    float prev_pdf;   /* solid-angle pdf of the BSDF sample that made d */
+    int specular;     /* camera rays and specular bounces see lights fully */
+    uint32_t rays;
+} path_t;
+
+/* The camera ray through a random point of the pixel (two numbers). */
+static void path_start(path_t *path, const camera_t *cam, const tracer_settings_t *st,
+                       uint32_t pixel, uint64_t sample_index)
+{
+    path->rng = rng_stream(st->seed, pixel, sample_index);
+    uint32_t px = pixel % (uint32_t)cam->width, py = pixel / (uint32_t)cam->width;
+    float fu = rng_next_float(&path->rng), fv = rng_next_float(&path->rng);
+    path->o = cam->position;
+    path->d = vec3_normalize(camera_ray_dir(cam, px, py, fu, fv));
+    path->L = vec3_make(0, 0, 0);
+    path->beta = vec3_make(1, 1, 1);
+    path->prev_pdf = 0.0f;
+    path->specular = 1;
+    path->rays = 0;
+}
+
+/* Radiance of an emitter the path hit from its front (cos_o > 0), weighted
+ * by MIS against light sampling when that could have found this point. */
+static void add_emission(path_t *path, const scene_t *s, const material_t *m, const hit_t *h,
+                         float cos_o, int nee)
+{
+    float w = 1.0f;
+    if (nee && !path->specular) {
+        /* d is unit length, so h->t is the distance */
+        float light_pdf = lights_area_pdf(s, h->tri) * h->t * h->t / cos_o;
+        w = power_heuristic(path->prev_pdf, light_pdf);
+    }
+    path->L = vec3_add(path->L, vec3_mul(path->beta, vec3_scale(m->radiance, w)));
+}
+
+/* The normals at a hit, turned to the side the ray came from. */
+static material_hit_t orient_normals(const scene_t *s, const hit_t *h, vec3_t wo, float cos_o)
+{
+    vec3_t ng = s->tri_normal[h->tri];
+    material_hit_t mh = {.wo = wo, .front = cos_o > 0.0f};
+    mh.ngf = cos_o < 0.0f ? vec3_neg(ng) : ng;
+    mh.ns = mh.ngf;
+    if (s->tri_smooth[h->tri]) {
+        const uint32_t *vi = s->indices + 3 * h->tri;
+        vec3_t n = vec3_normalize(vec3_barycentric(scene_vertex_normal(s, vi[0]),
+                                                   scene_vertex_normal(s, vi[1]),
+                                                   scene_vertex_normal(s, vi[2]), h->u, h->v));
+        if (vec3_dot(n, mh.ngf) < 0.0f)
+            n = vec3_neg(n);
+        /* A shading normal that hides wo would make the BSDF take light
+         * from behind the surface: fall back to the geometric one. */
+        if (vec3_is_finite(n) && vec3_dot(n, wo) > 0.0f)
+            mh.ns = n;
+    }
+    return mh;
+}
+
+/* Next-event estimation at p on diffuse m: a point on a light (three
+ * numbers), a shadow ray, and its share MIS-weighted against BSDF sampling. */
+static void sample_direct(const tracer_t *tr, path_t *path, const material_t *m, vec3_t p,
+                          const material_hit_t *mh)
+{
+    const scene_t *s = tr->scene;
+    double ul = rng_next_double(&path->rng);
+    float u1 = rng_next_float(&path->rng), u2 = rng_next_float(&path->rng);
+    vec3_t q;
+    uint32_t lt = lights_sample(s, ul, u1, u2, &q);
+    vec3_t to = vec3_sub(q, p);
+    float dist2 = vec3_dot(to, to);
+    if (!(dist2 > 0.0f))
+        return;
+    vec3_t nl = s->tri_normal[lt];
+    vec3_t wl = vec3_scale(to, 1.0f / sqrtf(dist2));
+    float cos_l = -vec3_dot(nl, wl), cos_s, bsdf_pdf;
+    if (!(cos_l > 0.0f) || !material_eval(m, mh, wl, &cos_s, &bsdf_pdf))
+        return;
+    vec3_t from = vec3_offset_ray_origin(p, mh->ngf);
+    vec3_t target = vec3_offset_ray_origin(q, nl);
+    path->rays++;
+    if (!unoccluded(tr, from, vec3_sub(target, from)))
+        return;
+    const material_t *lm = &s->materials[s->tri_material[lt]];
+    float light_pdf = lights_area_pdf(s, lt) * dist2 / cos_l;
+    float w = power_heuristic(light_pdf, bsdf_pdf);
+    float k = w * cos_s * VMATH_INV_PI / light_pdf;
+    path->L =
+        vec3_add(path->L, vec3_mul(vec3_mul(path->beta, m->albedo), vec3_scale(lm->radiance, k)));
+}
+
+/* Russian roulette (one number): 0 ends the path; a survivor's throughput
+ * is divided by its survival probability. */
+static int survives_roulette(path_t *path)
+{
+    float q = fminf(0.95f, vec3_max_comp(path->beta));
+    if (!(rng_next_float(&path->rng) < q))
+        return 0;
+    path->beta = vec3_scale(path->beta, 1.0f / q);
+    return 1;
+}
+
+/* One sample of a pixel: its radiance in *out; returns the rays traced.
+ * Random numbers are drawn in a fixed order per bounce (light sample,
+ * BSDF sample, roulette), so a sample's path depends on its coordinates
+ * alone. */
 static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, uint32_t pixel,
                              uint64_t sample_index, vec3_t *out)
 {
     const scene_t *s = tr->scene;
-    const camera_t *cam = &s->camera;
     const int nee = st->integrator == SCENE_INTEGRATOR_PATH && s->light_count > 0;
-    const uint32_t max_depth = st->max_depth;
-    rng_stream_t rng = rng_stream(st->seed, pixel, sample_index);
-    uint32_t px = pixel % (uint32_t)cam->width, py = pixel / (uint32_t)cam->width;
-    float fu = rng_next_float(&rng), fv = rng_next_float(&rng);
-    vec3_t o = cam->position;
-    vec3_t d = vec3_normalize(camera_ray_dir(cam, px, py, fu, fv));
-    vec3_t L = vec3_make(0, 0, 0), beta = vec3_make(1, 1, 1);
-    float prev_pdf = 0.0f; /* solid-angle pdf of the BSDF sample that made d */
-    int specular = 1;      /* camera rays and specular bounces see lights fully */
-    uint32_t rays = 0;
-
+    path_t path;
+    path_start(&path, &s->camera, st, pixel, sample_index);
     for (uint32_t depth = 0;; depth++) {
         hit_t h;
-        rays++;
-        if (!intersect(tr, o, d, &h))
+        path.rays++;
+        if (!intersect(tr, path.o, path.d, &h))
             break;
-        const uint32_t *vi = s->indices + 3 * h.tri;
         const material_t *m = &s->materials[s->tri_material[h.tri]];
-        vec3_t p = lerp3(vertex(s, vi[0]), vertex(s, vi[1]), vertex(s, vi[2]), h.u, h.v);
-        vec3_t ng = s->tri_normal[h.tri];
-        vec3_t wo = vec3_neg(d);
-        float cos_o = vec3_dot(ng, wo);
-
+        vec3_t p = scene_point(s, h.tri, h.u, h.v);
+        vec3_t wo = vec3_neg(path.d);
+        float cos_o = vec3_dot(s->tri_normal[h.tri], wo);
         if (m->type == MATERIAL_EMITTER) {
-            if (cos_o > 0.0f) {
-                float w = 1.0f;
-                if (nee && !specular) {
-                    /* d is unit length, so h.t is the distance */
-                    float light_pdf = s->tri_light_pdf[h.tri] * h.t * h.t / cos_o;
-                    w = power_heuristic(prev_pdf, light_pdf);
-                }
-                L = vec3_add(L, vec3_mul(beta, vec3_scale(m->radiance, w)));
-            }
+            if (cos_o > 0.0f)
+                add_emission(&path, s, m, &h, cos_o, nee);
             if (vec3_is_zero(m->albedo))
                 break; /* a black emitter absorbs everything */
         }
         /* segments so far: depth + 1; a bounce or a light sample adds one */
-        if (max_depth && depth + 2 > max_depth)
+        if (st->max_depth && depth + 2 > st->max_depth)
             break;
-
-        /* Orient the normals to the side the ray came from. */
-        vec3_t ngf = cos_o < 0.0f ? vec3_neg(ng) : ng;
-        vec3_t ns = ngf;
-        if (s->tri_smooth[h.tri]) {
-            vec3_t n = vec3_normalize(lerp3(vertex_normal(s, vi[0]), vertex_normal(s, vi[1]),
-                                            vertex_normal(s, vi[2]), h.u, h.v));
-            if (vec3_dot(n, ngf) < 0.0f)
-                n = vec3_neg(n);
-            /* A shading normal that hides wo would make the BSDF take light
-             * from behind the surface: fall back to the geometric one. */
-            if (vec3_is_finite(n) && vec3_dot(n, wo) > 0.0f)
-                ns = n;
-        }
-        vec3_t wi;
-        if (m->type == MATERIAL_DIFFUSE || m->type == MATERIAL_EMITTER) {
-            if (nee) {
-                double ul = rng_next_double(&rng);
-                float u1 = rng_next_float(&rng), u2 = rng_next_float(&rng);
-                vec3_t q;
-                uint32_t lt = sample_light(s, ul, u1, u2, &q);
-                vec3_t to = vec3_sub(q, p);
-                float dist2 = vec3_dot(to, to);
-                vec3_t nl = s->tri_normal[lt];
-                if (dist2 > 0.0f) {
-                    float dist = sqrtf(dist2);
-                    vec3_t wl = vec3_scale(to, 1.0f / dist);
-                    float cos_l = -vec3_dot(nl, wl), cos_s = vec3_dot(ns, wl);
-                    if (cos_l > 0.0f && cos_s > 0.0f && vec3_dot(ngf, wl) > 0.0f) {
-                        vec3_t from = vec3_offset_ray_origin(p, ngf);
-                        vec3_t target = vec3_offset_ray_origin(q, nl);
-                        rays++;
-                        if (unoccluded(tr, from, vec3_sub(target, from))) {
-                            const material_t *lm = &s->materials[s->tri_material[lt]];
-                            float light_pdf = s->tri_light_pdf[lt] * dist2 / cos_l;
-                            float bsdf_pdf = cos_s * VMATH_INV_PI;
-                            float w = power_heuristic(light_pdf, bsdf_pdf);
-                            float k = w * cos_s * VMATH_INV_PI / light_pdf;
-                            L = vec3_add(L, vec3_mul(vec3_mul(beta, m->albedo),
-                                                     vec3_scale(lm->radiance, k)));
-                        }
-                    }
-                }
-            }
-            float u1 = rng_next_float(&rng), u2 = rng_next_float(&rng);
-            wi = material_sample_cosine(ns, u1, u2);
-            float cos_i = vec3_dot(ns, wi);
-            if (vec3_dot(ngf, wi) <= 0.0f || cos_i <= 0.0f)
-                break;
-            prev_pdf = cos_i * VMATH_INV_PI;
-            specular = 0;
-            beta = vec3_mul(beta, m->albedo);
-            o = vec3_offset_ray_origin(p, ngf);
-        } else if (m->type == MATERIAL_MIRROR) {
-            wi = material_reflect(wo, ns);
-            if (vec3_dot(ngf, wi) <= 0.0f)
-                break;
-            specular = 1;
-            beta = vec3_mul(beta, m->albedo);
-            o = vec3_offset_ray_origin(p, ngf);
-        } else { /* dielectric */
-            float eta = cos_o > 0.0f ? m->ior : 1.0f / m->ior;
-            float cos_i = vec3_dot(ns, wo), cos_t;
-            float F = material_fresnel(cos_i, eta, &cos_t);
-            if (rng_next_float(&rng) < F) {
-                wi = material_reflect(wo, ns);
-                if (vec3_dot(ngf, wi) <= 0.0f)
-                    break;
-                o = vec3_offset_ray_origin(p, ngf);
-            } else {
-                wi = vec3_add(vec3_scale(wo, -1.0f / eta), vec3_scale(ns, cos_i / eta - cos_t));
-                if (vec3_dot(ngf, wi) >= 0.0f)
-                    break;
-                /* radiance is compressed into the denser medium (pbrt's 1/eta^2) */
-                beta = vec3_scale(beta, 1.0f / (eta * eta));
-                o = vec3_offset_ray_origin(p, vec3_neg(ngf));
-            }
-            specular = 1;
-        }
-        if (depth + 1 >= TRACER_RR_DEPTH) {
-            float q = fminf(0.95f, vec3_max_comp(beta));
-            if (!(rng_next_float(&rng) < q))
-                break;
-            beta = vec3_scale(beta, 1.0f / q);
-        }
-        d = vec3_normalize(wi);
+        material_hit_t mh = orient_normals(s, &h, wo, cos_o);
+        if (nee && material_is_diffuse(m))
+            sample_direct(tr, &path, m, p, &mh);
+        material_sample_t bs;
+        if (!material_sample(m, &mh, &path.rng, &bs))
+            break;
+        path.beta = vec3_mul(path.beta, bs.weight);
+        path.prev_pdf = bs.pdf;
+        path.specular = bs.specular;
+        path.o = vec3_offset_ray_origin(p, bs.transmits ? vec3_neg(mh.ngf) : mh.ngf);
+        if (depth + 1 >= TRACER_RR_DEPTH && !survives_roulette(&path))
+            break;
+        path.d = vec3_normalize(bs.wi);
     }
-    *out = L;
-    return rays;
+    *out = path.L;
+    return path.rays;
 }
 
 uint32_t tracer_sample(const tracer_t *t, const tracer_settings_t *settings, uint32_t pixel,
@@ -410,11 +393,11 @@ uint32_t tracer_sample(const tracer_t *t, const tracer_settings_t *settings, uin
     return rays;
 }
 
-int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_task_t *tasks,
-                 size_t count, tracer_result_t *results, tracer_stats_t *stats, char *err,
-                 size_t errlen)
+/* Refuses a task list with a pixel outside the image or a sample count
+ * outside 1..TRACER_MAX_TASK_SAMPLES, before any work is done. */
+static int check_tasks(const camera_t *cam, const tracer_task_t *tasks, size_t count, char *err,
+                       size_t errlen)
 {
-    const camera_t *cam = &t->scene->camera;
     const uint64_t npix = (uint64_t)cam->width * (uint64_t)cam->height;
     for (size_t k = 0; k < count; k++) {
         if (tasks[k].pixel >= npix) {
@@ -428,46 +411,61 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_ta
             return -1;
         }
     }
-    uint64_t rays = 0, samples = 0;
+    return 0;
+}
+
+/* Takes one task's samples into *r; returns the rays traced. */
+static uint64_t trace_task(const tracer_t *t, const tracer_settings_t *st,
+                           const tracer_task_t *task, tracer_result_t *r)
+{
+    uint64_t rays = 0;
     double running[TRACER_MAX_TASK_SAMPLES];
+    memset(r, 0, sizeof *r);
+    r->pixel = task->pixel;
+    /* eq. 4.1: P_i is the running estimate (all samples so far) after
+     * the i-th sample of this task; Welford gives the task's own M2. */
+    double prior_lum = vmath_luminance(task->prior_sum[0], task->prior_sum[1], task->prior_sum[2]);
+    double lum_sum = 0, mean = 0, m2 = 0;
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < task->sample_count; i++) {
+        vec3_t L;
+        rays += trace_sample(t, st, task->pixel, task->first_sample + i, &L);
+        if (!vec3_is_finite(L)) {
+            r->nonfinite++;
+            continue;
+        }
+        r->sum[0] += L.x;
+        r->sum[1] += L.y;
+        r->sum[2] += L.z;
+        double lum = vmath_luminance(L.x, L.y, L.z);
+        n++;
+        double delta = lum - mean;
+        mean += delta / n;
+        m2 += delta * (lum - mean);
+        lum_sum += lum;
+        running[n - 1] = (prior_lum + lum_sum) / (double)(task->prior_count + n);
+    }
+    r->samples = n;
+    r->lum_m2 = m2;
+    double pvar = 0;
+    for (uint32_t i = 0; i + 1 < n; i++) {
+        double dv = running[i] - running[n - 1];
+        pvar += dv * dv;
+    }
+    r->pvar = pvar;
+    return rays;
+}
+
+int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_task_t *tasks,
+                 size_t count, tracer_result_t *results, tracer_stats_t *stats, char *err,
+                 size_t errlen)
+{
+    if (check_tasks(&t->scene->camera, tasks, count, err, errlen) < 0)
+        return -1;
+    uint64_t rays = 0, samples = 0;
     for (size_t k = 0; k < count; k++) {
-        const tracer_task_t *task = &tasks[k];
-        tracer_result_t *r = &results[k];
-        memset(r, 0, sizeof *r);
-        r->pixel = task->pixel;
-        /* eq. 4.1: P_i is the running estimate (all samples so far) after
-         * the i-th sample of this task; Welford gives the task's own M2. */
-        double prior_lum =
-            vmath_luminance(task->prior_sum[0], task->prior_sum[1], task->prior_sum[2]);
-        double lum_sum = 0, mean = 0, m2 = 0;
-        uint32_t n = 0;
-        for (uint32_t i = 0; i < task->sample_count; i++) {
-            vec3_t L;
-            rays += trace_sample(t, st, task->pixel, task->first_sample + i, &L);
-            if (!vec3_is_finite(L)) {
-                r->nonfinite++;
-                continue;
-            }
-            r->sum[0] += L.x;
-            r->sum[1] += L.y;
-            r->sum[2] += L.z;
-            double lum = vmath_luminance(L.x, L.y, L.z);
-            n++;
-            double delta = lum - mean;
-            mean += delta / n;
-            m2 += delta * (lum - mean);
-            lum_sum += lum;
-            running[n - 1] = (prior_lum + lum_sum) / (double)(task->prior_count + n);
-        }
-        samples += task->sample_count;
-        r->samples = n;
-        r->lum_m2 = m2;
-        double pvar = 0;
-        for (uint32_t i = 0; i + 1 < n; i++) {
-            double dv = running[i] - running[n - 1];
-            pvar += dv * dv;
-        }
-        r->pvar = pvar;
+        rays += trace_task(t, st, &tasks[k], &results[k]);
+        samples += tasks[k].sample_count;
     }
     if (stats) {
         stats->rays += rays;

@@ -69,6 +69,14 @@ static inline int vec3_is_finite(vec3_t a)
     return isfinite(a.x) && isfinite(a.y) && isfinite(a.z);
 }
 
+/* The point at barycentrics (u, v) of triangle (a, b, c): (1-u-v) a + u b + v c. */
+static inline vec3_t vec3_barycentric(vec3_t a, vec3_t b, vec3_t c, float u, float v)
+{
+    float w = 1.0f - u - v;
+    return vec3_make(w * a.x + u * b.x + v * c.x, w * a.y + u * b.y + v * c.y,
+                     w * a.z + u * b.z + v * c.z);
+}
+
 /* Luminance as the thesis defines it (P = 0.3 R + 0.59 G + 0.11 B); used for
  * every per-pixel statistic and for light selection. */
 static inline double vmath_luminance(double r, double g, double b)

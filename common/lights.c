@@ -1,0 +1,46 @@
+/* lights.c - building the scene's light distribution (see lights.h). */
+#include "lights.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+
+lights_status_t lights_build(scene_t *s, const double *power, double total_power, char *err,
+                             size_t errlen)
+{
+    size_t lights = 0;
+    for (size_t t = 0; t < s->triangle_count; t++)
+        lights += power[t] > 0;
+    s->light_tris = malloc(lights * sizeof(uint32_t));
+    s->light_cdf = malloc(lights * sizeof(double));
+    if (!s->light_tris || !s->light_cdf) {
+        snprintf(err, errlen, "out of memory for lights");
+        return LIGHTS_NO_MEMORY;
+    }
+    double acc = 0;
+    for (size_t t = 0; t < s->triangle_count; t++) {
+        if (power[t] <= 0)
+            continue;
+        acc += power[t];
+        s->light_tris[s->light_count] = (uint32_t)t;
+        s->light_cdf[s->light_count++] = acc / total_power;
+        /* pdf per unit area of picking a point on t: (power / total) / area */
+        const material_t *m = &s->materials[s->tri_material[t]];
+        double pdf = vmath_luminance(m->radiance.x, m->radiance.y, m->radiance.z) / total_power;
+        s->tri_light_pdf[t] = (float)pdf;
+        /* The tracer divides by this in single precision: lights whose
+         * sizes differ by ~1e19 (or a light of area ~1e-38) cannot be
+         * sampled there, and a wrong pdf would poison the image. */
+        if (!(s->tri_light_pdf[t] > 0.0f) || !isfinite(s->tri_light_pdf[t]) ||
+            !(s->light_cdf[s->light_count - 1] >
+              (s->light_count > 1 ? s->light_cdf[s->light_count - 2] : 0.0))) {
+            snprintf(err, errlen,
+                     "light sizes out of single-precision range (light triangle %zu "
+                     "has area pdf %g): rescale the scene",
+                     t, pdf);
+            return LIGHTS_OUT_OF_RANGE;
+        }
+    }
+    s->light_cdf[s->light_count - 1] = 1.0;
+    return LIGHTS_OK;
+}

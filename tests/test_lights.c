@@ -1,0 +1,129 @@
+/* test_lights.c - Check suite for common/lights.{h,c}: the power
+ * distribution lights_build makes from per-triangle power, picking by it,
+ * points on a light, and the two ways building fails. Scenes are built by
+ * hand (no loader) so each case states its powers. */
+#include <check.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "lights.h"
+
+#define ERRLEN 256
+
+/* n right triangles of area 1/2 in the z = 0 plane, triangle t shifted to
+ * x = 2t; material 0 is diffuse, material 1 an emitter of luminance 1. */
+static scene_t *flat_scene(size_t n)
+{
+    scene_t *s = calloc(1, sizeof *s);
+    ck_assert_ptr_nonnull(s);
+    s->materials = calloc(2, sizeof *s->materials);
+    s->material_count = 2;
+    s->materials[0].type = MATERIAL_DIFFUSE;
+    s->materials[1].type = MATERIAL_EMITTER;
+    s->materials[1].radiance = vec3_make(1, 1, 1);
+    s->positions = calloc(9 * n, sizeof(float));
+    s->indices = calloc(3 * n, sizeof(uint32_t));
+    s->tri_material = calloc(n, sizeof(uint32_t));
+    s->tri_light_pdf = calloc(n, sizeof(float));
+    for (size_t t = 0; t < n; t++) {
+        float *p = s->positions + 9 * t;
+        p[0] = (float)(2 * t);
+        p[3] = (float)(2 * t) + 1.0f;
+        p[6] = (float)(2 * t);
+        p[7] = 1.0f;
+        for (uint32_t k = 0; k < 3; k++)
+            s->indices[3 * t + k] = (uint32_t)(3 * t + k);
+    }
+    s->vertex_count = 3 * n;
+    s->triangle_count = n;
+    return s;
+}
+
+START_TEST(distribution_follows_power)
+{
+    scene_t *s = flat_scene(4);
+    s->tri_material[1] = s->tri_material[3] = 1;
+    double power[4] = {0, 1.0, 0, 3.0};
+    char err[ERRLEN];
+    ck_assert_int_eq(lights_build(s, power, 4.0, err, sizeof err), LIGHTS_OK);
+    ck_assert_uint_eq(s->light_count, 2);
+    ck_assert_uint_eq(s->light_tris[0], 1);
+    ck_assert_uint_eq(s->light_tris[1], 3);
+    ck_assert_double_eq_tol(s->light_cdf[0], 0.25, 1e-15);
+    ck_assert_double_eq(s->light_cdf[1], 1.0);
+    /* area pdf = luminance / total power, 0 off the lights */
+    ck_assert_float_eq(lights_area_pdf(s, 0), 0.0f);
+    ck_assert_float_eq_tol(lights_area_pdf(s, 1), 0.25f, 1e-7f);
+    ck_assert_float_eq_tol(lights_area_pdf(s, 3), 0.25f, 1e-7f);
+    /* picking: u below the first cdf entry is light 0, at or above it light 1 */
+    ck_assert_uint_eq(lights_pick(s, 0.0), 1);
+    ck_assert_uint_eq(lights_pick(s, 0.2499), 1);
+    ck_assert_uint_eq(lights_pick(s, 0.25), 3);
+    ck_assert_uint_eq(lights_pick(s, 0.9999999), 3);
+    scene_destroy(&s);
+}
+END_TEST
+
+START_TEST(points_lie_on_the_light)
+{
+    scene_t *s = flat_scene(3);
+    s->tri_material[2] = 1;
+    double power[3] = {0, 0, 0.5};
+    char err[ERRLEN];
+    ck_assert_int_eq(lights_build(s, power, 0.5, err, sizeof err), LIGHTS_OK);
+    ck_assert_uint_eq(s->light_count, 1);
+    double mean_x = 0, mean_y = 0;
+    const int n = 64;
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) {
+            vec3_t q;
+            uint32_t tri = lights_sample(s, (i + 0.5) / n, (i + 0.5f) / n, (j + 0.5f) / n, &q);
+            ck_assert_uint_eq(tri, 2);
+            /* inside the triangle (4,0,0), (5,0,0), (4,1,0) */
+            ck_assert(q.z == 0.0f && q.x >= 4.0f && q.y >= 0.0f);
+            ck_assert_float_le(q.x - 4.0f + q.y, 1.0f + 1e-6f);
+            mean_x += q.x;
+            mean_y += q.y;
+        }
+    /* uniform by area: the mean is the centroid (13/3, 1/3) */
+    ck_assert_double_eq_tol(mean_x / (n * n), 13.0 / 3.0, 1e-3);
+    ck_assert_double_eq_tol(mean_y / (n * n), 1.0 / 3.0, 1e-3);
+    scene_destroy(&s);
+}
+END_TEST
+
+START_TEST(out_of_float_range)
+{
+    /* a light 1e-40 of the total has an area pdf below the smallest float */
+    scene_t *s = flat_scene(2);
+    s->tri_material[0] = s->tri_material[1] = 1;
+    s->materials[1].radiance = vec3_make(1e-40f, 1e-40f, 1e-40f);
+    double power[2] = {0.5e-40, 1e300};
+    char err[ERRLEN] = "";
+    ck_assert_int_eq(lights_build(s, power, 1e300, err, sizeof err), LIGHTS_OUT_OF_RANGE);
+    ck_assert_ptr_nonnull(strstr(err, "single-precision"));
+    scene_destroy(&s);
+}
+END_TEST
+
+static Suite *lights_suite(void)
+{
+    Suite *su = suite_create("lights");
+    TCase *tc = tcase_create("distribution");
+    tcase_add_test(tc, distribution_follows_power);
+    tcase_add_test(tc, points_lie_on_the_light);
+    tcase_add_test(tc, out_of_float_range);
+    suite_add_tcase(su, tc);
+    return su;
+}
+
+int main(void)
+{
+    SRunner *sr = srunner_create(lights_suite());
+    srunner_run_all(sr, CK_NORMAL);
+    int failed = srunner_ntests_failed(sr);
+    srunner_free(sr);
+    return failed == 0 ? EXIT_SUCCESS : EXIT_FAILURE;
+}
