@@ -272,27 +272,23 @@ static void add_str(cJSON *o, const char *k, const char *v)
     cJSON_AddStringToObject(o, k, v);
 }
 
-cJSON *job_json(const job_t *j, int with_series)
+/* An ended job whose film is on disk: its status as of the end, with what
+ * may have changed since. */
+static cJSON *summary_json(const job_t *j, int with_series)
 {
-    if (j->summary && !j->sched) {
-        /* an ended job whose film is on disk: its status as of the end, with
-         * what may have changed since */
-        cJSON *o = cJSON_Parse(j->summary);
-        if (o && !with_series)
-            cJSON_DeleteItemFromObjectCaseSensitive(o, "error_series");
-        if (o && j->storage_error[0]) {
-            cJSON_DeleteItemFromObjectCaseSensitive(o, "storage_error");
-            cJSON_AddStringToObject(o, "storage_error", j->storage_error);
-        }
-        return o;
+    cJSON *o = cJSON_Parse(j->summary);
+    if (o && !with_series)
+        cJSON_DeleteItemFromObjectCaseSensitive(o, "error_series");
+    if (o && j->storage_error[0]) {
+        cJSON_DeleteItemFromObjectCaseSensitive(o, "storage_error");
+        cJSON_AddStringToObject(o, "storage_error", j->storage_error);
     }
-    cJSON *o = cJSON_CreateObject();
-    if (!o)
-        return NULL;
-    double now = master_now();
-    double el = job_seconds(j, now);
-    uint64_t samples = sched_samples_done(j->sched);
-    uint64_t max_samples = (uint64_t)j->spp * j->width * j->height;
+    return o;
+}
+
+/* What the job was asked for. */
+static void settings_json(const job_t *j, cJSON *o)
+{
     cJSON_AddNumberToObject(o, "id", (double)j->id);
     add_str(o, "state", job_state_names[j->state]);
     add_str(o, "scene", j->name);
@@ -307,6 +303,14 @@ cJSON *job_json(const job_t *j, int with_series)
     add_str(o, "integrator", scene_integrator_name(j->tracer.integrator));
     cJSON_AddNumberToObject(o, "layers", sched_layer_count(j->sched));
     cJSON_AddNumberToObject(o, "uniform_layers", sched_uniform_layers(j->sched));
+}
+
+/* How far it got, and how fast. */
+static void progress_json(const job_t *j, cJSON *o)
+{
+    double el = job_seconds(j, master_now());
+    uint64_t samples = sched_samples_done(j->sched);
+    uint64_t max_samples = (uint64_t)j->spp * j->width * j->height;
     cJSON_AddNumberToObject(o, "layers_done", sched_layers_complete(j->sched));
     cJSON_AddNumberToObject(o, "samples", (double)samples);
     cJSON_AddNumberToObject(o, "max_samples", (double)max_samples);
@@ -330,7 +334,11 @@ cJSON *job_json(const job_t *j, int with_series)
         cJSON_AddNullToObject(o, "eta_seconds");
     cJSON_AddNumberToObject(o, "late_results", (double)j->late_results);
     cJSON_AddNumberToObject(o, "nonfinite", (double)sched_nonfinite(j->sched));
-    verify_json(j, o);
+}
+
+/* Stopping rules and the error against a reference. */
+static void error_json(const job_t *j, cJSON *o, int with_series)
+{
     cJSON_AddNumberToObject(o, "time_limit", j->time_limit);
     if (j->target_error > 0) {
         cJSON_AddNumberToObject(o, "target_error", j->target_error);
@@ -347,6 +355,19 @@ cJSON *job_json(const job_t *j, int with_series)
         for (size_t i = 0; i < j->series_n; i++)
             cJSON_AddItemToArray(arr, cJSON_CreateDoubleArray(j->series + 4 * i, 4));
     }
+}
+
+cJSON *job_json(const job_t *j, int with_series)
+{
+    if (j->summary && !j->sched)
+        return summary_json(j, with_series);
+    cJSON *o = cJSON_CreateObject();
+    if (!o)
+        return NULL;
+    settings_json(j, o);
+    progress_json(j, o);
+    verify_json(j, o);
+    error_json(j, o, with_series);
     if (j->error[0])
         add_str(o, "error", j->error);
     if (j->storage_error[0])
