@@ -15,6 +15,9 @@ import json
 import os
 import sys
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from results_page import replace_block  # noqa: E402
+
 BEGIN = "<!-- bench:distributed:begin -->"
 END = "<!-- bench:distributed:end -->"
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -235,24 +238,7 @@ def main():
     body = text(d)
     print(body)
 
-    try:
-        with open(a.readme) as f:
-            readme = f.read()
-    except FileNotFoundError:
-        print(f"update-results-distributed.py: {a.readme} does not exist; results page not updated", file=sys.stderr)
-        return 0
-    i, j = readme.find(BEGIN), readme.find(END)
-    if i < 0 or j < 0 or j < i:
-        print(f"update-results-distributed.py: {a.readme} has no {BEGIN} ... {END} block; results page not updated",
-              file=sys.stderr)
-        return 0
-    new = readme[:i + len(BEGIN)] + "\n" + body + "\n" + readme[j:]
-    if new != readme:
-        tmp = a.readme + ".tmp"
-        with open(tmp, "w") as f:
-            f.write(new)
-        os.replace(tmp, a.readme)
-        print(f"update-results-distributed.py: updated {a.readme}", file=sys.stderr)
+    replace_block(a.readme, BEGIN, END, body, "update-results-distributed.py")
     return 0
 
 

@@ -15,6 +15,9 @@ import json
 import os
 import sys
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from results_page import replace_block  # noqa: E402
+
 BEGIN = "<!-- bench:core:begin -->"
 END = "<!-- bench:core:end -->"
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -109,24 +112,7 @@ def main():
     text = table(core)
     print(text)
 
-    try:
-        with open(a.readme) as f:
-            readme = f.read()
-    except FileNotFoundError:
-        print(f"update-results.py: {a.readme} does not exist; results page not updated", file=sys.stderr)
-        return 0
-    i, j = readme.find(BEGIN), readme.find(END)
-    if i < 0 or j < 0 or j < i:
-        print(f"update-results.py: {a.readme} has no {BEGIN} ... {END} block; results page not updated",
-              file=sys.stderr)
-        return 0
-    new = readme[:i + len(BEGIN)] + "\n" + text + "\n" + readme[j:]
-    if new != readme:
-        tmp = a.readme + ".tmp"
-        with open(tmp, "w") as f:
-            f.write(new)
-        os.replace(tmp, a.readme)
-        print(f"update-results.py: updated {a.readme}", file=sys.stderr)
+    replace_block(a.readme, BEGIN, END, text, "update-results.py")
     return 0
 
 

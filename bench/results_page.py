@@ -1,0 +1,30 @@
+"""The one place that writes a generated block into bench/RESULTS.md.
+
+A block sits between <!-- bench:NAME:begin --> and <!-- bench:NAME:end -->;
+the benchmarks' table printers (update-results.py,
+update-results-distributed.py) replace its content and leave the rest of the
+page alone. A missing page or missing markers is reported, not an error.
+"""
+import os
+import sys
+
+
+def replace_block(path, begin, end, body, who):
+    try:
+        with open(path) as f:
+            page = f.read()
+    except FileNotFoundError:
+        print(f"{who}: {path} does not exist; results page not updated", file=sys.stderr)
+        return
+    i, j = page.find(begin), page.find(end)
+    if i < 0 or j < 0 or j < i:
+        print(f"{who}: {path} has no {begin} ... {end} block; results page not updated",
+              file=sys.stderr)
+        return
+    new = page[:i + len(begin)] + "\n" + body + "\n" + page[j:]
+    if new != page:
+        tmp = path + ".tmp"
+        with open(tmp, "w") as f:
+            f.write(new)
+        os.replace(tmp, path)
+        print(f"{who}: updated {path}", file=sys.stderr)
