@@ -100,16 +100,31 @@ typedef struct ctl_command {
     int admin_only;   /* with keys, admins only */
 } ctl_command_t;
 
-static void reply_json(master_t *m, zmq_msg_t *id, cJSON *body, int more)
+/* The most binary parts a reply carries after its JSON (fetch: one per
+ * image channel). */
+#define CTL_MAX_REPLY_PARTS IMAGE_MAX_CHANNELS
+
+/* One reply as one message: [client id][""][JSON][binary parts...]. */
+static void reply_parts(master_t *m, zmq_msg_t *id, cJSON *body, const void *const *extra,
+                        const size_t *extra_sizes, size_t n_extra)
 {
     char *text = cJSON_PrintUnformatted(body);
+    const void *parts[3 + CTL_MAX_REPLY_PARTS] = {zmq_msg_data(id), "", text ? text : "{}"};
+    size_t sizes[3 + CTL_MAX_REPLY_PARTS] = {zmq_msg_size(id), 0, text ? strlen(text) : 2};
+    for (size_t i = 0; i < n_extra && i < CTL_MAX_REPLY_PARTS; i++) {
+        parts[3 + i] = extra[i];
+        sizes[3 + i] = extra_sizes[i];
+    }
     /* DONTWAIT: a client that does not read its replies has them dropped at
-     * the high-water mark rather than stalling the master */
-    zmq_send(m->control_sock, zmq_msg_data(id), zmq_msg_size(id), ZMQ_SNDMORE | ZMQ_DONTWAIT);
-    zmq_send(m->control_sock, "", 0, ZMQ_SNDMORE | ZMQ_DONTWAIT);
-    zmq_send(m->control_sock, text ? text : "{}", text ? strlen(text) : 2,
-             (more ? ZMQ_SNDMORE : 0) | ZMQ_DONTWAIT);
+     * the high-water mark rather than stalling the master; a dropped reply
+     * is the client's loss only, so the result is not checked */
+    (void)proto_send(m->control_sock, parts, sizes, 3 + n_extra, ZMQ_DONTWAIT);
     cJSON_free(text);
+}
+
+static void reply_json(master_t *m, zmq_msg_t *id, cJSON *body)
+{
+    reply_parts(m, id, body, NULL, NULL, 0);
 }
 
 static cJSON *error_body(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
@@ -250,7 +265,7 @@ static void submit_done(master_t *m, offload_item_t *it)
     }
     if (rid && it->kind == OFFLOAD_SUBMIT)
         inflight_remove(m, rid);
-    reply_json(m, &it->client, b, 0);
+    reply_json(m, &it->client, b);
     cJSON_Delete(b);
 }
 
@@ -371,12 +386,15 @@ static void send_image(master_t *m, zmq_msg_t *client, const job_t *j, const ima
     cJSON *ch = cJSON_AddArrayToObject(b, "channels");
     for (int c = 0; c < img->channel_count; c++)
         cJSON_AddItemToArray(ch, cJSON_CreateString(img->channel_names[c]));
-    reply_json(m, client, b, 1);
-    cJSON_Delete(b);
     size_t plane = (size_t)img->width * img->height * sizeof(float);
-    for (int c = 0; c < img->channel_count; c++)
-        zmq_send(m->control_sock, img->channels[c], plane,
-                 (c + 1 < img->channel_count ? ZMQ_SNDMORE : 0) | ZMQ_DONTWAIT);
+    const void *planes[IMAGE_MAX_CHANNELS];
+    size_t sizes[IMAGE_MAX_CHANNELS];
+    for (int c = 0; c < img->channel_count; c++) {
+        planes[c] = img->channels[c];
+        sizes[c] = plane;
+    }
+    reply_parts(m, client, b, planes, sizes, (size_t)img->channel_count);
+    cJSON_Delete(b);
 }
 
 /* An ended job's image is on disk: the offload thread reads it, off the
@@ -422,7 +440,7 @@ static job_t *read_for_job(master_t *m, offload_item_t *it, const char *cmd)
     else if (!it->image)
         b = error_body("%s: %s", cmd, it->err);
     if (b) {
-        reply_json(m, &it->client, b, 0);
+        reply_json(m, &it->client, b);
         cJSON_Delete(b);
         return NULL;
     }
@@ -467,10 +485,10 @@ static void send_preview(master_t *m, zmq_msg_t *client, const job_t *j, int w, 
     cJSON_AddNumberToObject(b, "width", w);
     cJSON_AddNumberToObject(b, "height", h);
     cJSON_AddNumberToObject(b, "spp_max", preview_max(spp, n));
-    reply_json(m, client, b, 1);
+    const void *planes[2] = {rgb, spp};
+    size_t sizes[2] = {n * 3 * sizeof *rgb, n * sizeof *spp};
+    reply_parts(m, client, b, planes, sizes, 2);
     cJSON_Delete(b);
-    zmq_send(m->control_sock, rgb, n * 3 * sizeof *rgb, ZMQ_SNDMORE | ZMQ_DONTWAIT);
-    zmq_send(m->control_sock, spp, n * sizeof *spp, ZMQ_DONTWAIT);
 }
 
 /* The preview of a job whose film is in memory. The job keeps it (one
@@ -546,7 +564,7 @@ static void preview_done(master_t *m, offload_item_t *it)
     if (!p || preview_fill_image(p, it->image) < 0) {
         cJSON *b = error_body(!p ? "preview: out of memory"
                                  : "preview: the stored image has no R, G and B channels");
-        reply_json(m, &it->client, b, 0);
+        reply_json(m, &it->client, b);
         cJSON_Delete(b);
         preview_destroy(&p);
         return;
@@ -670,7 +688,7 @@ void ctl_handle_message(master_t *m)
                            "refused a request: client key %s no longer allowed",
                            master_peer_key(&frames[2]));
         cJSON *b = error_body("this client's key is no longer allowed by the master");
-        reply_json(m, &frames[0], b, 0);
+        reply_json(m, &frames[0], b);
         cJSON_Delete(b);
         proto_frames_close(&fr);
         return;
@@ -695,7 +713,7 @@ void ctl_handle_message(master_t *m)
         b = answer(&r, overflow);
     }
     if (b) {
-        reply_json(m, &frames[0], b, 0);
+        reply_json(m, &frames[0], b);
         cJSON_Delete(b);
     }
     cJSON_Delete(req);
