@@ -196,6 +196,15 @@ else
     fail "no 'master unreachable' banner: $(grep -o '<div id="banner"[^<]*' "$TMP/away.html")"
 fi
 start_master || fail "the master does not start again"
+# The server answers 503 at once for a second after a request got no answer
+# (so a page does not wait out the timeout on every call), and the
+# browser's virtual time can spend its whole budget inside that second:
+# wait, in real time, until the API answers again, as a person's page
+# would by retrying, then look at the page.
+for _ in $(seq 50); do
+    [[ "$(http GET /api/jobs | head -n 1)" == "HTTP/1.1 200"* ]] && break
+    sleep 0.2
+done
 browse "$TMP/back.html" --dump-dom "$URL/"
 if grep -q '<div id="banner" class="">' "$TMP/back.html" &&
     ! grep -q '<body data-refreshes="0"' "$TMP/back.html"; then
