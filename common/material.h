@@ -88,6 +88,7 @@ typedef struct material_sample {
     float pdf;     /* solid-angle pdf of wi; meaningless when specular */
     int specular;  /* a delta lobe: light sampling could not have found wi */
     int transmits; /* wi leaves through the surface, to the other side of ngf */
+    float eta;     /* transmits only: eta_t / eta_i of the interface crossed */
 } material_sample_t;
 
 /* 1 when m reflects diffusely (diffuse, and an emitter's own surface):
@@ -142,13 +143,15 @@ static inline int material_sample_dielectric(const material_t *m, const material
     vec3_t wi = vec3_add(vec3_scale(h->wo, -1.0f / eta), vec3_scale(h->ns, cos_i / eta - cos_t));
     if (vec3_dot(h->ngf, wi) >= 0.0f)
         return 0;
-    /* radiance is compressed into the denser medium (pbrt's 1/eta^2) */
+    /* radiance is compressed into the denser medium (pbrt's 1/eta^2); the
+     * tracer undoes it with eta where only the path's importance matters */
     float k = 1.0f / (eta * eta);
     out->wi = wi;
     out->weight = vec3_make(k, k, k);
     out->pdf = 0.0f;
     out->specular = 1;
     out->transmits = 1;
+    out->eta = eta;
     return 1;
 }
 

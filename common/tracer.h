@@ -90,6 +90,13 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *settings, const tra
                  size_t count, tracer_result_t *results, tracer_stats_t *stats, char *err,
                  size_t errlen);
 
+/* Russian roulette's survival probability for a path of throughput beta
+ * that has crossed dielectric interfaces whose eta^2 multiply to eta_scale
+ * (1 outside glass). beta carries their 1/eta^2 radiance compression, which
+ * says nothing about how much the path will still carry: the decision is
+ * made on beta * eta_scale, as pbrt-v4 and Mitsuba 3 do, capped at 0.95. */
+float tracer_roulette_probability(vec3_t beta, float eta_scale);
+
 /* Radiance of one sample (no statistics); for tests and tools. Returns the
  * number of rays traced. */
 uint32_t tracer_sample(const tracer_t *t, const tracer_settings_t *settings, uint32_t pixel,

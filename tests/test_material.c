@@ -96,6 +96,7 @@ START_TEST(dielectric_splits_by_fresnel)
             /* straight through, radiance scaled by 1/eta^2 */
             ck_assert_float_lt(bs.wi.z, 0.0f);
             ck_assert_float_eq_tol(bs.weight.x, 1.0f / (1.5f * 1.5f), 1e-7f);
+            ck_assert(bs.eta == 1.5f);
         } else {
             reflected++;
             ck_assert(bs.weight.x == 1.0f && bs.weight.y == 1.0f && bs.weight.z == 1.0f);
@@ -104,6 +105,32 @@ START_TEST(dielectric_splits_by_fresnel)
     /* normal incidence on n = 1.5: F = ((1.5 - 1) / (1.5 + 1))^2 = 0.04 */
     ck_assert_double_eq_tol((double)reflected / n, 0.04, 0.005);
     ck_assert_int_eq(reflected + transmitted, n);
+}
+END_TEST
+
+/* Entering and leaving glass at normal incidence: the compression on the
+ * way in and the expansion on the way out cancel, and each transmission
+ * reports the eta whose square undoes its own weight (the tracer's roulette
+ * relies on that). */
+START_TEST(dielectric_entry_and_exit_cancel)
+{
+    material_t m = make(MATERIAL_DIELECTRIC);
+    float w[2] = {0, 0};
+    for (int front = 1; front >= 0; front--) {
+        material_hit_t h = hit_from(vec3_make(0, 0, 1), front);
+        for (uint64_t i = 0; i < 100 && w[front] == 0; i++) {
+            rng_stream_t rng = rng_stream(3, 4, i);
+            material_sample_t bs;
+            ck_assert_int_eq(material_sample(&m, &h, &rng, &bs), 1);
+            if (!bs.transmits)
+                continue;
+            ck_assert(bs.eta == (front ? 1.5f : 1.0f / 1.5f));
+            ck_assert_float_eq_tol(bs.weight.x * bs.eta * bs.eta, 1.0f, 1e-6f);
+            w[front] = bs.weight.x;
+        }
+        ck_assert_float_gt(w[front], 0.0f);
+    }
+    ck_assert_float_eq_tol(w[0] * w[1], 1.0f, 1e-6f);
 }
 END_TEST
 
@@ -132,6 +159,7 @@ static Suite *material_suite(void)
     tcase_add_test(tc, mirror_reflects_and_draws_nothing);
     tcase_add_test(tc, dielectric_splits_by_fresnel);
     tcase_add_test(tc, dielectric_total_internal_reflection);
+    tcase_add_test(tc, dielectric_entry_and_exit_cancel);
     suite_add_tcase(su, tc);
     return su;
 }

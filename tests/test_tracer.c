@@ -15,6 +15,7 @@
 #include <string.h>
 
 #include "film.h"
+#include "lights.h"
 #include "render.h"
 #include "scene.h"
 #include "testutil.h"
@@ -178,24 +179,28 @@ static const char *const inside_camera = "{\"position\":[0,0,0],\"look_at\":[0,0
 /* ---- furnaces --------------------------------------------------------- */
 
 /* Every surface emits Le and reflects diffusely with albedo a: radiance is
- * Le / (1 - a) everywhere, at any depth of the sum. */
-static void furnace_case(scene_integrator_t integ, double a, uint32_t spp)
+ * Le / (1 - a) everywhere, per channel, at any depth of the sum: an emitter
+ * that also reflects counts its emission and its reflection once each. */
+static void furnace_case(scene_integrator_t integ, const double a[3], uint32_t spp)
 {
+    static const double Le[3] = {1, 0.5, 0.25};
     char mat[256], json[4096];
     snprintf(mat, sizeof mat,
-             "{\"type\":\"emitter\",\"radiance\":[1,0.5,0.25],\"albedo\":[%g,%g,%g]}", a, a, a);
+             "{\"type\":\"emitter\",\"radiance\":[%g,%g,%g],\"albedo\":[%g,%g,%g]}", Le[0], Le[1],
+             Le[2], a[0], a[1], a[2]);
     furnace_box(json, sizeof json, mat, "", inside_camera);
     scene_t *s = load_text(json);
     ck_assert_uint_eq(s->light_count, 12);
     film_t *f = render(s, 7, integ, spp, 2, 32);
     assert_all_finite(f);
     region_stat_t r = region(f, 0, 0, 16, 16);
-    double expect = vmath_luminance(1, 0.5, 0.25) / (1.0 - a);
+    double expect =
+        vmath_luminance(Le[0] / (1.0 - a[0]), Le[1] / (1.0 - a[1]), Le[2] / (1.0 - a[2]));
     ck_assert_msg(r.var > 0, "no variance reported");
     ck_assert_msg(fabs(r.mean - expect) <= NSIGMA * sqrt(r.var),
-                  "furnace a=%g (%s): mean %.6f, expected %.6f, sigma %.3g", a,
-                  scene_integrator_name(integ), r.mean, expect, sqrt(r.var));
-    /* colour ratios survive every bounce */
+                  "furnace a=(%g %g %g) (%s): mean %.6f, expected %.6f, sigma %.3g", a[0], a[1],
+                  a[2], scene_integrator_name(integ), r.mean, expect, sqrt(r.var));
+    /* with a grey albedo, colour ratios survive every bounce */
     double rgb[3] = {0, 0, 0};
     for (int i = 0; i < 256; i++) {
         double px[3];
@@ -203,27 +208,40 @@ static void furnace_case(scene_integrator_t integ, double a, uint32_t spp)
         for (int c = 0; c < 3; c++)
             rgb[c] += px[c];
     }
-    ck_assert_msg(fabs(rgb[1] / rgb[0] - 0.5) < 1e-6 && fabs(rgb[2] / rgb[0] - 0.25) < 1e-6,
-                  "colour ratios drifted: %g %g", rgb[1] / rgb[0], rgb[2] / rgb[0]);
+    if (a[0] == a[1] && a[1] == a[2])
+        ck_assert_msg(fabs(rgb[1] / rgb[0] - 0.5) < 1e-6 && fabs(rgb[2] / rgb[0] - 0.25) < 1e-6,
+                      "colour ratios drifted: %g %g", rgb[1] / rgb[0], rgb[2] / rgb[0]);
     film_destroy(&f);
     scene_destroy(&s);
 }
 
 START_TEST(test_furnace_path)
 {
-    furnace_case(SCENE_INTEGRATOR_PATH, 0.5, 64);
+    furnace_case(SCENE_INTEGRATOR_PATH, (const double[3]){0.5, 0.5, 0.5}, 64);
 }
 END_TEST
 
 START_TEST(test_furnace_path_bright)
 {
-    furnace_case(SCENE_INTEGRATOR_PATH, 0.9, 64);
+    furnace_case(SCENE_INTEGRATOR_PATH, (const double[3]){0.9, 0.9, 0.9}, 64);
 }
 END_TEST
 
 START_TEST(test_furnace_naive)
 {
-    furnace_case(SCENE_INTEGRATOR_NAIVE, 0.5, 64);
+    furnace_case(SCENE_INTEGRATOR_NAIVE, (const double[3]){0.5, 0.5, 0.5}, 64);
+}
+END_TEST
+
+/* Emitters that also reflect, with an albedo of another colour than their
+ * radiance: light samples from an emitting surface (its albedo times the
+ * other walls' radiance) and its own emission hit by BSDF sampling must
+ * each be counted once, channel by channel, by both integrators. */
+START_TEST(test_furnace_coloured_albedo)
+{
+    const double a[3] = {0.3, 0.6, 0.85};
+    furnace_case(SCENE_INTEGRATOR_PATH, a, 64);
+    furnace_case(SCENE_INTEGRATOR_NAIVE, a, 64);
 }
 END_TEST
 
@@ -262,6 +280,111 @@ END_TEST
 START_TEST(test_mirror_furnace)
 {
     specular_furnace("mirror");
+}
+END_TEST
+
+/* ---- radiance scale: Russian roulette and dielectrics ----------------- */
+
+/* An axis-aligned box of material mat with outward normals (so a dielectric
+ * is entered from outside), as six quads appended to buf. */
+static void append_box(char *buf, size_t len, const char *mat, const double lo[3],
+                       const double hi[3])
+{
+    /* per face: the axis it faces along, its side, and its corners in the
+     * order that makes the normal point out (right-hand rule) */
+    static const int faces[6][4][3] = {
+        {{0, 0, 0}, {0, 1, 0}, {1, 1, 0}, {1, 0, 0}}, /* -z */
+        {{0, 0, 1}, {1, 0, 1}, {1, 1, 1}, {0, 1, 1}}, /* +z */
+        {{0, 0, 0}, {0, 0, 1}, {0, 1, 1}, {0, 1, 0}}, /* -x */
+        {{1, 0, 0}, {1, 1, 0}, {1, 1, 1}, {1, 0, 1}}, /* +x */
+        {{0, 0, 0}, {1, 0, 0}, {1, 0, 1}, {0, 0, 1}}, /* -y */
+        {{0, 1, 0}, {0, 1, 1}, {1, 1, 1}, {1, 1, 0}}, /* +y */
+    };
+    for (int f = 0; f < 6; f++) {
+        size_t used = strlen(buf);
+        used += (size_t)snprintf(buf + used, len - used,
+                                 ",{\"type\":\"quad\",\"material\":\"%s\",\"vertices\":[", mat);
+        for (int v = 0; v < 4; v++) {
+            const int *c = faces[f][v];
+            used +=
+                (size_t)snprintf(buf + used, len - used, "%s[%g,%g,%g]", v ? "," : "",
+                                 c[0] ? hi[0] : lo[0], c[1] ? hi[1] : lo[1], c[2] ? hi[2] : lo[2]);
+        }
+        snprintf(buf + used, len - used, "]}");
+    }
+}
+
+/* nslabs glass slabs between a camera and the far wall of a furnace of
+ * black emitters of radiance 0.75: every path ends on a wall through
+ * lossless interfaces, so each sample is 0.75 but for Russian roulette.
+ * *rel_var: the per-sample variance over 0.75^2. */
+static double slab_furnace(int nslabs, uint32_t spp, double *rel_var)
+{
+    char extra[8192] = "", json[16384];
+    for (int i = 0; i < nslabs; i++) {
+        double lo[3] = {-0.8, -0.8, -0.6 + 0.3 * i}, hi[3] = {0.8, 0.8, -0.45 + 0.3 * i};
+        append_box(extra, sizeof extra, "glass", lo, hi);
+    }
+    furnace_box(json, sizeof json, "{\"type\":\"emitter\",\"radiance\":[0.75,0.75,0.75]}", extra,
+                "{\"position\":[0,0,-0.9],\"look_at\":[0,0,1],\"up\":[0,1,0],\"fov\":20,"
+                "\"width\":8,\"height\":8}");
+    scene_t *s = load_text(json);
+    film_t *f = render(s, 5, SCENE_INTEGRATOR_PATH, spp, 2, 32);
+    assert_all_finite(f);
+    region_stat_t r = region(f, 0, 0, 8, 8);
+    ck_assert_msg(fabs(r.mean - 0.75) <= NSIGMA * sqrt(r.var) + 1e-6,
+                  "%d glass slabs in a furnace: mean %.7f, expected 0.75 (sigma %.3g)", nslabs,
+                  r.mean, sqrt(r.var));
+    *rel_var = r.var * 64.0 * spp / (0.75 * 0.75);
+    film_destroy(&f);
+    scene_destroy(&s);
+    return r.mean;
+}
+
+/* A path inside glass carries 1/eta^2 of compressed radiance in beta; the
+ * roulette must judge it as the same path outside (eta_scale = eta^2), and
+ * leave paths that never crossed a dielectric as they were. */
+START_TEST(test_roulette_undoes_radiance_compression)
+{
+    const vec3_t betas[] = {vec3_make(0.8f, 0.5f, 0.2f), vec3_make(0.1f, 0.3f, 0.05f),
+                            vec3_make(2.0f, 1.0f, 0.5f), vec3_make(0.02f, 0.02f, 0.02f)};
+    const float etas[] = {1.5f, 1.0f / 1.5f, 2.4f, 1.33f};
+    for (size_t i = 0; i < sizeof betas / sizeof betas[0]; i++) {
+        vec3_t b = betas[i];
+        float outside = tracer_roulette_probability(b, 1.0f);
+        ck_assert(outside == fminf(0.95f, vec3_max_comp(b)));
+        for (size_t e = 0; e < sizeof etas / sizeof etas[0]; e++) {
+            float eta2 = etas[e] * etas[e];
+            float inside = tracer_roulette_probability(vec3_scale(b, 1.0f / eta2), eta2);
+            ck_assert_msg(fabsf(inside - outside) <= 1e-6f * outside,
+                          "beta %g through eta %g: survives with %g inside, %g outside", b.x,
+                          etas[e], inside, outside);
+        }
+    }
+}
+END_TEST
+
+/* Three slabs put the roulette's first decisions inside glass. Deciding on
+ * the compressed beta (q = 0.44 there, then 2.25x brighter survivors) gave
+ * a per-sample relative variance of about 1.4; on beta * eta_scale the
+ * survivors are worth at most 1/0.95^2 more and it is about 0.1. */
+START_TEST(test_roulette_variance_inside_glass)
+{
+    double rel_var;
+    slab_furnace(3, 256, &rel_var);
+    ck_assert_msg(rel_var < 0.4, "per-sample relative variance %.3f behind 3 glass slabs", rel_var);
+}
+END_TEST
+
+/* Dielectric entry and exit: 1/eta^2 on the way in, eta^2 on the way out;
+ * through one slab no roulette is drawn on most paths and the furnace gives
+ * Le, with a variance from the few paths reflected inside long enough to
+ * meet the roulette. */
+START_TEST(test_glass_slab_furnace)
+{
+    double rel_var;
+    slab_furnace(1, 64, &rel_var);
+    ck_assert_msg(rel_var < 0.01, "per-sample relative variance %.4f through one slab", rel_var);
 }
 END_TEST
 
@@ -332,6 +455,111 @@ END_TEST
 START_TEST(test_direct_light_naive)
 {
     direct_case(SCENE_INTEGRATOR_NAIVE, 1024);
+}
+END_TEST
+
+/* ---- MIS and light selection ----------------------------------------- */
+
+/* A unit emitter of radiance 1 facing down at y = 1, over shapes, seen
+ * from camera (a narrow view): the mean luminance of its 8x8 pixels. */
+static region_stat_t under_light(const char *shapes, const char *camera, uint32_t spp)
+{
+    char json[8192];
+    snprintf(
+        json, sizeof json,
+        "{\"camera\":%s,\"materials\":{\"mirror\":{\"type\":\"mirror\",\"reflectance\":[0.5,0.5,"
+        "0.5]},\"glass\":{\"type\":\"dielectric\",\"ior\":1.5},"
+        "\"light\":{\"type\":\"emitter\",\"radiance\":[1,1,1]}},"
+        "\"shapes\":[{\"type\":\"quad\",\"material\":\"light\",\"vertices\":[[-0.5,1,-0.5],"
+        "[0.5,1,-0.5],[0.5,1,0.5],[-0.5,1,0.5]]}%s]}",
+        camera, shapes);
+    scene_t *s = load_text(json);
+    ck_assert_uint_eq(s->light_count, 2);
+    film_t *f = render(s, 13, SCENE_INTEGRATOR_PATH, spp, 2, 32);
+    assert_all_finite(f);
+    region_stat_t r = region(f, 0, 0, 8, 8);
+    film_destroy(&f);
+    scene_destroy(&s);
+    return r;
+}
+
+/* An emitter reached through a specular vertex gets MIS weight 1: light
+ * sampling cannot find a direction on a delta lobe, so the BSDF path is the
+ * only estimator of that light. A mirror of albedo 0.5 under the light, seen
+ * straight down, is 0.5 in every sample; behind a glass slab seen straight
+ * up the light is (1 - R) / (1 + R) with R = 0.04 at normal incidence. */
+START_TEST(test_light_after_specular_weighs_one)
+{
+    region_stat_t m = under_light(
+        ",{\"type\":\"quad\",\"material\":\"mirror\",\"vertices\":[[-50,0,-50],[-50,0,50],[50,0,"
+        "50],[50,0,-50]]}",
+        "{\"position\":[0,0.5,0],\"look_at\":[0,0,0],\"up\":[0,0,1],\"fov\":0.5,\"width\":8,"
+        "\"height\":8}",
+        16);
+    ck_assert_msg(fabs(m.mean - 0.5) < 1e-6 && m.var == 0.0,
+                  "light in a mirror: %.7f (variance %.3g), expected 0.5 exactly", m.mean, m.var);
+    char slab[4096] = "";
+    const double lo[3] = {-0.6, 0.4, -0.6}, hi[3] = {0.6, 0.5, 0.6};
+    append_box(slab, sizeof slab, "glass", lo, hi);
+    region_stat_t g = under_light(slab,
+                                  "{\"position\":[0,0.2,0],\"look_at\":[0,1,0],\"up\":[0,0,1],"
+                                  "\"fov\":0.5,\"width\":8,\"height\":8}",
+                                  256);
+    const double expect = 0.96 / 1.04;
+    ck_assert_msg(fabs(g.mean - expect) <= NSIGMA * sqrt(g.var) + 1e-4,
+                  "light behind a glass slab: %.5f, expected %.5f (sigma %.3g)", g.mean, expect,
+                  sqrt(g.var));
+}
+END_TEST
+
+/* The density the tracer's MIS gives a light point it hits (lights_area_pdf
+ * per unit area) is the density with which lights_sample picks it: for
+ * lights of different sizes and colours, the share of stratified picks on
+ * each triangle is its pdf times its area, and those shares sum to 1. */
+START_TEST(test_light_selection_matches_area_pdf)
+{
+    const char *json =
+        "{\"camera\":{\"position\":[0,3,-5],\"look_at\":[0,0,0],\"up\":[0,1,0],\"fov\":40,"
+        "\"width\":4,\"height\":4},"
+        "\"materials\":{\"floor\":{\"type\":\"diffuse\",\"albedo\":[0.5,0.5,0.5]},"
+        "\"a\":{\"type\":\"emitter\",\"radiance\":[1,1,1]},"
+        "\"b\":{\"type\":\"emitter\",\"radiance\":[10,2,0.5],\"albedo\":[0.3,0.3,0.3]},"
+        "\"c\":{\"type\":\"emitter\",\"radiance\":[0,0,300]}},"
+        "\"shapes\":["
+        "{\"type\":\"quad\",\"material\":\"floor\",\"vertices\":[[-4,0,-4],[-4,0,4],[4,0,4],[4,0,-"
+        "4]]},"
+        "{\"type\":\"quad\",\"material\":\"a\",\"vertices\":[[-2,2,-0.5],[-1,2,-0.5],[-1,2,0.5],[-"
+        "2,"
+        "2,0.5]]},"
+        "{\"type\":\"quad\",\"material\":\"b\",\"vertices\":[[0,2,-0.25],[2,2,-0.25],[2,2,0.25],"
+        "[0,2,0.25]]},"
+        "{\"type\":\"quad\",\"material\":\"c\",\"vertices\":[[1,3,1],[1.1,3,1],[1.1,3,1.1],[1,3,1."
+        "1]]}]}";
+    scene_t *s = load_text(json);
+    ck_assert_uint_eq(s->light_count, 6);
+    const uint32_t n = 1000000;
+    uint32_t *count = calloc(s->triangle_count, sizeof *count);
+    ck_assert_ptr_nonnull(count);
+    for (uint32_t i = 0; i < n; i++) {
+        vec3_t q;
+        count[lights_sample(s, (i + 0.5) / n, 0.5f, 0.5f, &q)]++;
+    }
+    double total = 0;
+    for (uint32_t t = 0; t < s->triangle_count; t++) {
+        const uint32_t *v = s->indices + 3 * t;
+        vec3_t p0 = scene_vertex(s, v[0]), p1 = scene_vertex(s, v[1]), p2 = scene_vertex(s, v[2]);
+        double area = 0.5 * vec3_length(vec3_cross(vec3_sub(p1, p0), vec3_sub(p2, p0)));
+        double p = (double)lights_area_pdf(s, t) * area;
+        ck_assert_msg(fabs((double)count[t] / n - p) <= 2.0 / n + 1e-5 * p,
+                      "triangle %u: picked %.6f of the time, pdf x area %.6f", t,
+                      (double)count[t] / n, p);
+        ck_assert_msg((count[t] > 0) == (s->materials[s->tri_material[t]].type == MATERIAL_EMITTER),
+                      "triangle %u picked %u times", t, count[t]);
+        total += p;
+    }
+    ck_assert_msg(fabs(total - 1.0) < 1e-5, "light pdfs integrate to %.9f", total);
+    free(count);
+    scene_destroy(&s);
 }
 END_TEST
 
@@ -768,11 +996,17 @@ static Suite *tracer_suite(void)
     tcase_add_test(tc, test_furnace_path);
     tcase_add_test(tc, test_furnace_path_bright);
     tcase_add_test(tc, test_furnace_naive);
+    tcase_add_test(tc, test_furnace_coloured_albedo);
     tcase_add_test(tc, test_glass_furnace);
     tcase_add_test(tc, test_mirror_furnace);
+    tcase_add_test(tc, test_roulette_undoes_radiance_compression);
+    tcase_add_test(tc, test_roulette_variance_inside_glass);
+    tcase_add_test(tc, test_glass_slab_furnace);
     tcase_add_test(tc, test_form_factor_formula);
     tcase_add_test(tc, test_direct_light_path);
     tcase_add_test(tc, test_direct_light_naive);
+    tcase_add_test(tc, test_light_after_specular_weighs_one);
+    tcase_add_test(tc, test_light_selection_matches_area_pdf);
     tcase_add_test(tc, test_path_and_naive_agree_cornell);
     tcase_add_test(tc, test_cornell_red_wall_on_left);
     suite_add_tcase(s, tc);
