@@ -9,6 +9,7 @@
  */
 #include <cJSON.h>
 #include <check.h>
+#include <dirent.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -20,6 +21,7 @@
 #include "scene.h"
 #include "testutil.h"
 #include "tracer.h"
+#include "vberr.h"
 
 #define NSIGMA 5.0
 
@@ -98,6 +100,55 @@ static film_t *render(const scene_t *s, uint64_t seed, scene_integrator_t integ,
     tracer_device_destroy(&dev);
     return f;
 }
+
+/* Every scene shipped in scenes/ loads from a bare clone (its meshes are in
+ * scenes/data) and renders to a finite image that is not black: at 32x32
+ * and 8 spp, since what is checked is that nothing is missing. */
+START_TEST(test_every_shipped_scene)
+{
+    char dir[1024];
+    tu_root_path(dir, sizeof dir, "scenes");
+    DIR *d = opendir(dir);
+    ck_assert_msg(d != NULL, "cannot open %s", dir);
+    int scenes = 0;
+    for (struct dirent *e; (e = readdir(d));) {
+        size_t n = strlen(e->d_name);
+        if (n < 6 || strcmp(e->d_name + n - 5, ".json") != 0)
+            continue;
+        char path[2048];
+        snprintf(path, sizeof path, "%s/%s", dir, e->d_name);
+        char *text = read_file(path);
+        cJSON *root = cJSON_Parse(text);
+        free(text);
+        ck_assert_msg(root != NULL, "%s is not JSON", path);
+        cJSON *cam = cJSON_GetObjectItem(root, "camera");
+        cJSON_ReplaceItemInObject(cam, "width", cJSON_CreateNumber(32));
+        cJSON_ReplaceItemInObject(cam, "height", cJSON_CreateNumber(32));
+        char *small = cJSON_PrintUnformatted(root);
+        cJSON_Delete(root);
+        scene_t *sc = NULL;
+        char err[VB_ERR_LEN];
+        ck_assert_msg(
+            scene_load_string(small, strlen(small), e->d_name, dir, &sc, err, sizeof err) == 0,
+            "%s: %s", e->d_name, err);
+        cJSON_free(small);
+        film_t *f = render(sc, 1, SCENE_INTEGRATOR_PATH, 8, 1, 8);
+        double sum = 0;
+        for (uint32_t p = 0; p < 32 * 32; p++) {
+            double rgb[3];
+            film_mean(f, p, rgb);
+            sum += rgb[0] + rgb[1] + rgb[2];
+        }
+        ck_assert_msg(isfinite(sum) && sum > 0, "%s renders %g", e->d_name, sum);
+        ck_assert_uint_eq(film_total_nonfinite(f), 0);
+        film_destroy(&f);
+        scene_destroy(&sc);
+        scenes++;
+    }
+    closedir(d);
+    ck_assert_msg(scenes >= 5, "only %d scenes in %s", scenes, dir);
+}
+END_TEST
 
 typedef struct region_stat {
     double mean; /* mean over pixels of the pixel mean luminance */
@@ -994,6 +1045,7 @@ static Suite *tracer_suite(void)
     TCase *tc = tcase_create("physics");
     tcase_set_timeout(tc, 600);
     tcase_add_test(tc, test_furnace_path);
+    tcase_add_test(tc, test_every_shipped_scene);
     tcase_add_test(tc, test_furnace_path_bright);
     tcase_add_test(tc, test_furnace_naive);
     tcase_add_test(tc, test_furnace_coloured_albedo);
