@@ -421,7 +421,7 @@ START_TEST(test_tasks_independent_of_batching)
     char err[256];
     ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
     ck_assert(tracer_new(dev, s, &t, err, sizeof err) == 0);
-    tracer_settings_t st = {5, SCENE_INTEGRATOR_PATH, 0};
+    tracer_settings_t st = {5, SCENE_INTEGRATOR_PATH, 0, RNG_SAMPLER_INDEPENDENT};
     tracer_task_t tasks[8];
     for (int i = 0; i < 8; i++) {
         memset(&tasks[i], 0, sizeof tasks[i]);
@@ -468,7 +468,8 @@ START_TEST(test_pvar_matches_definition)
     char err[256];
     ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
     ck_assert(tracer_new(dev, s, &t, err, sizeof err) == 0);
-    tracer_settings_t st = {9, SCENE_INTEGRATOR_PATH, 0};
+    /* _i: 0 independent, 1 sobol (a task record is one replicate) */
+    tracer_settings_t st = {9, SCENE_INTEGRATOR_PATH, 0, (rng_sampler_t)_i};
     tracer_task_t task = {.pixel = 120,
                           .sample_count = 32,
                           .first_sample = 32,
@@ -480,7 +481,7 @@ START_TEST(test_pvar_matches_definition)
     double sum[3] = {0, 0, 0};
     for (int i = 0; i < 32; i++) {
         float rgb[3];
-        tracer_sample(t, &st, 120, 32 + (uint64_t)i, rgb);
+        tracer_sample(t, &st, 120, 32, 32 + (uint64_t)i, rgb);
         for (int c = 0; c < 3; c++)
             sum[c] += rgb[c];
         run += vmath_luminance(rgb[0], rgb[1], rgb[2]);
@@ -732,7 +733,7 @@ START_TEST(test_million_constant_samples)
     ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
     ck_assert(tracer_new(dev, s, &t, err, sizeof err) == 0);
     film_t *f = film_new(1, 1);
-    tracer_settings_t st = {1, SCENE_INTEGRATOR_PATH, 0};
+    tracer_settings_t st = {1, SCENE_INTEGRATOR_PATH, 0, RNG_SAMPLER_INDEPENDENT};
     const uint32_t per = TRACER_MAX_TASK_SAMPLES;
     const uint64_t total = 1000000;
     for (uint64_t first = 0; first < total; first += per) {
@@ -780,7 +781,7 @@ static Suite *tracer_suite(void)
     tcase_set_timeout(det, 600);
     tcase_add_test(det, test_deterministic_across_threads);
     tcase_add_test(det, test_tasks_independent_of_batching);
-    tcase_add_test(det, test_pvar_matches_definition);
+    tcase_add_loop_test(det, test_pvar_matches_definition, 0, 2);
     suite_add_tcase(s, det);
     TCase *hard = tcase_create("hard cases");
     tcase_set_timeout(hard, 600);
