@@ -339,6 +339,9 @@ static int survives_roulette(path_t *path)
     return 1;
 }
 
+_Static_assert(TRACER_MAX_TASK_SAMPLES <= 1 << RNG_SOBOL_INDEX_BITS,
+               "a sobol layer's samples must have distinct Sobol indices");
+
 /* Where bounce `depth`'s numbers start under the sobol sampler: after the
  * camera's pair, six per bounce: [0] roulette, [1] light pick, [2, 3] light
  * point, [4, 5] BSDF sample, so the 2D uses are Sobol pairs (rng.h). */

@@ -168,9 +168,12 @@ START_TEST(test_sobol_unbiased_and_better)
 {
     enum { R = 4096, G = 32 };
     replicates_t ind = product_replicates(0, 0, 1, G, R);
-    /* pairs (0,1), (2,3) ... (24,25); then across pairs and into the hash */
-    static const uint64_t dims[][2] = {{0, 1}, {2, 3}, {4, 5},  {14, 15}, {24, 25},
-                                       {0, 2}, {1, 5}, {3, 24}, {25, 26}, {26, 27}};
+    /* pairs (0,1), (2,3) ... the last (L, L+1); then across pairs and into
+     * the hash */
+    enum { L = RNG_SOBOL_DIMS - 2 };
+    static const uint64_t dims[][2] = {{0, 1},         {2, 3},        {4, 5}, {L, L + 1},
+                                       {0, 2},         {1, 5},        {3, L}, {L + 1, L + 2},
+                                       {L + 2, L + 3}, {L + 8, L + 9}};
     for (size_t k = 0; k < sizeof dims / sizeof dims[0]; k++) {
         replicates_t s = product_replicates(1, dims[k][0], dims[k][1], G, R);
         double se = sqrt(s.var / R);
