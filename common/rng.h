@@ -15,12 +15,12 @@
  *   two Sobol dimensions, each Owen-scrambled. A layer of G samples (sample
  *   indices layer*G .. layer*G+G-1: one task record) is one randomised
  *   replicate: its shuffle and scrambles are seeded by hash(seed, pixel,
- *   layer*G, pair), so distinct
- *   layers are independent batches, as the adaptive modes and the target
- *   error assume, and every point is uniform on [0,1)^2 (unbiased). For a
- *   power-of-two G a layer's points of one pair form a (0,m,2)-net.
- *   Dimensions from RNG_SOBOL_DIMS on are hashed as in the independent
- *   sampler. */
+ *   layer*G, pair), so distinct layers are independent batches, as the
+ *   adaptive modes and the target error assume, and every point is uniform
+ *   on [0,1)^2 (unbiased). For a power-of-two G a layer's points of one
+ *   pair form a (0,m,2)-net. Dimensions from RNG_SOBOL_DIMS on are hashed
+ *   as in the independent sampler. tracer.c places each use of a number at
+ *   a fixed dimension (rng_seek), so the 2D uses fall on pairs. */
 #ifndef VB_RNG_H
 #define VB_RNG_H
 
