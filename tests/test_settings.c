@@ -16,8 +16,8 @@
 #include "scene.h"
 #include "sched.h"
 #include "settings.h"
-#include "tracer.h"
 #include "testutil.h"
+#include "tracer.h"
 
 /* The master's verdict on {key: value}. */
 static int master_takes(const settings_def_t *d, cJSON *value)
