@@ -16,7 +16,7 @@
 # the measured value less that, "relmse_raw" the measured one.
 #
 # Knobs (environment): BENCH_SAMPLER_SIZE (64), BENCH_SAMPLER_REF_SPP
-# (32768), BENCH_SAMPLER_SEEDS (3), BENCH_SAMPLER_THREADS (2),
+# (32768), BENCH_SAMPLER_SEEDS (6), BENCH_SAMPLER_THREADS (2),
 # BENCH_SAMPLER_CASES (scene:spp,spp,... list, see below). "s" columns are
 # wall seconds per render on a shared host: indicative only.
 set -euo pipefail
@@ -26,9 +26,9 @@ cd "$ROOT"
 
 SIZE="${BENCH_SAMPLER_SIZE:-64}"
 REF_SPP="${BENCH_SAMPLER_REF_SPP:-32768}"
-SEEDS="${BENCH_SAMPLER_SEEDS:-3}"
+SEEDS="${BENCH_SAMPLER_SEEDS:-6}"
 THREADS="${BENCH_SAMPLER_THREADS:-2}"
-CASES="${BENCH_SAMPLER_CASES:-cornell-box:64,256,1024 caustic:64,256 dark-bright:64,256}"
+CASES="${BENCH_SAMPLER_CASES:-cornell-box:64,256,1024 caustic:64,256,1024 dark-bright:64,256}"
 VB=bin/vbrender
 WORK=bench/work/sampler
 RESULTS=bench/results
