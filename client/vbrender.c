@@ -448,6 +448,7 @@ static int write_outputs(image_t *img, const cJSON *job, const char *out_exr, ch
 {
     image_set_string(img, "vb.seed", jstr(job, "seed"));
     image_set_string(img, "vb.integrator", jstr(job, "integrator"));
+    image_set_string(img, "vb.sampler", jstr(job, "sampler"));
     image_set_string(img, "vb.adaptive", jstr(job, "adaptive"));
     image_set_string(img, "vb.scene", jstr(job, "scene"));
     image_set_double(img, "vb.total_samples", jnum(job, "samples"));

@@ -17,6 +17,8 @@
  * (tests/test_settings.c checks that they do). */
 static const char *const adaptive_choices[] = {"thesis", "variance", "relerr", "none", NULL};
 static const char *const integrator_choices[] = {"path", "naive", NULL};
+/* tracer_sampler_from_name's names */
+static const char *const sampler_choices[] = {"sobol", "independent", NULL};
 
 /* Limits: where the client and the master used to differ, the tighter of
  * the two. A seed stops at 2^53 - 1, the largest integer a JSON number
@@ -138,6 +140,14 @@ static const settings_def_t table[] = {
      .default_from = SETTINGS_DEFAULT_SCENE,
      .def_text = "the scene's",
      .help = "most path segments, 0: unlimited"},
+    {.flag = "--sampler",
+     .key = "sampler",
+     .metavar = "sobol|independent",
+     .type = SETTINGS_CHOICE,
+     .choices = sampler_choices,
+     .def_choice = JOB_DEFAULT_SAMPLER,
+     .help = "sobol: Owen-scrambled Sobol, one replicate per layer;\n"
+             "independent: hashed random numbers"},
 };
 
 #define TABLE_LEN (sizeof table / sizeof table[0])

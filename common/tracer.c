@@ -243,11 +243,15 @@ typedef struct path {
     uint32_t rays;
 } path_t;
 
-/* The camera ray through a random point of the pixel (two numbers). */
+/* The camera ray through a random point of the pixel (two numbers). The
+ * sample's numbers: under sobol, its layer (from layer_first) is one
+ * randomised replicate (rng.h). */
 static void path_start(path_t *path, const camera_t *cam, const tracer_settings_t *st,
-                       uint32_t pixel, uint64_t sample_index)
+                       uint32_t pixel, uint64_t layer_first, uint64_t sample_index)
 {
-    path->rng = rng_stream(st->seed, pixel, sample_index);
+    path->rng = st->sampler == RNG_SAMPLER_SOBOL
+                    ? rng_stream_sobol(st->seed, pixel, sample_index, layer_first)
+                    : rng_stream(st->seed, pixel, sample_index);
     uint32_t px = pixel % (uint32_t)cam->width, py = pixel / (uint32_t)cam->width;
     float fu = rng_next_float(&path->rng), fv = rng_next_float(&path->rng);
     path->o = cam->position;
@@ -347,17 +351,28 @@ static int survives_roulette(path_t *path)
     return 1;
 }
 
+_Static_assert(TRACER_MAX_TASK_SAMPLES <= 1 << RNG_SOBOL_INDEX_BITS,
+               "a sobol layer's samples must have distinct Sobol indices");
+
+/* Where bounce `depth`'s numbers start under the sobol sampler: after the
+ * camera's pair, six per bounce: [0] roulette, [1] light pick, [2, 3] light
+ * point, [4, 5] BSDF sample, so the 2D uses are Sobol pairs (rng.h). */
+static inline uint64_t bounce_dim(uint32_t depth)
+{
+    return 2 + 6 * (uint64_t)depth;
+}
+
 /* One sample of a pixel: its radiance in *out; returns the rays traced.
  * Random numbers are drawn in a fixed order per bounce (light sample,
  * BSDF sample, roulette), so a sample's path depends on its coordinates
  * alone. */
 static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, uint32_t pixel,
-                             uint64_t sample_index, vec3_t *out)
+                             uint64_t layer_first, uint64_t sample_index, vec3_t *out)
 {
     const scene_t *s = tr->scene;
     const int nee = st->integrator == SCENE_INTEGRATOR_PATH && s->light_count > 0;
     path_t path;
-    path_start(&path, &s->camera, st, pixel, sample_index);
+    path_start(&path, &s->camera, st, pixel, layer_first, sample_index);
     for (uint32_t depth = 0;; depth++) {
         hit_t h;
         path.rays++;
@@ -377,8 +392,10 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
         if (st->max_depth && depth + 2 > st->max_depth)
             break;
         material_hit_t mh = orient_normals(s, &h, wo, cos_o);
+        rng_seek(&path.rng, bounce_dim(depth) + 1);
         if (nee && material_is_diffuse(m))
             sample_direct(tr, &path, m, p, &mh);
+        rng_seek(&path.rng, bounce_dim(depth) + 4);
         material_sample_t bs;
         if (!material_sample(m, &mh, &path.rng, &bs))
             break;
@@ -388,6 +405,7 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
         path.prev_pdf = bs.pdf;
         path.specular = bs.specular;
         path.o = vec3_offset_ray_origin(p, bs.transmits ? vec3_neg(mh.ngf) : mh.ngf);
+        rng_seek(&path.rng, bounce_dim(depth));
         if (depth + 1 >= TRACER_RR_DEPTH && !survives_roulette(&path))
             break;
         path.d = vec3_normalize(bs.wi);
@@ -397,10 +415,10 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
 }
 
 uint32_t tracer_sample(const tracer_t *t, const tracer_settings_t *settings, uint32_t pixel,
-                       uint64_t sample_index, float rgb[3])
+                       uint64_t layer_first, uint64_t sample_index, float rgb[3])
 {
     vec3_t L;
-    uint32_t rays = trace_sample(t, settings, pixel, sample_index, &L);
+    uint32_t rays = trace_sample(t, settings, pixel, layer_first, sample_index, &L);
     rgb[0] = L.x;
     rgb[1] = L.y;
     rgb[2] = L.z;
@@ -443,7 +461,7 @@ static uint64_t trace_task(const tracer_t *t, const tracer_settings_t *st,
     uint32_t n = 0;
     for (uint32_t i = 0; i < task->sample_count; i++) {
         vec3_t L;
-        rays += trace_sample(t, st, task->pixel, task->first_sample + i, &L);
+        rays += trace_sample(t, st, task->pixel, task->first_sample, task->first_sample + i, &L);
         if (!vec3_is_finite(L)) {
             r->nonfinite++;
             continue;
@@ -486,4 +504,18 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_ta
         stats->samples += samples;
     }
     return 0;
+}
+
+int tracer_sampler_from_name(const char *name)
+{
+    if (name && strcmp(name, "sobol") == 0)
+        return RNG_SAMPLER_SOBOL;
+    if (name && strcmp(name, "independent") == 0)
+        return RNG_SAMPLER_INDEPENDENT;
+    return -1;
+}
+
+const char *tracer_sampler_name(rng_sampler_t sampler)
+{
+    return sampler == RNG_SAMPLER_SOBOL ? "sobol" : "independent";
 }

@@ -17,6 +17,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "rng.h"
 #include "scene.h"
 
 /* The most samples one pixel task may take: the eq. 4.1 statistic keeps each
@@ -44,8 +45,16 @@ const char *tracer_device_isa(const tracer_device_t *d);
 typedef struct tracer_settings {
     uint64_t seed;
     scene_integrator_t integrator;
-    uint32_t max_depth; /* 0: unlimited; else the most path segments */
+    uint32_t max_depth;    /* 0: unlimited; else the most path segments */
+    rng_sampler_t sampler; /* where a sample's numbers come from (rng.h); under
+                            * sobol a task record (one layer of a pixel) is one
+                            * randomised replicate */
 } tracer_settings_t;
+
+/* The sampler named "sobol" or "independent", or -1. */
+int tracer_sampler_from_name(const char *name);
+/* The name of a sampler ("sobol", "independent"). */
+const char *tracer_sampler_name(rng_sampler_t sampler);
 
 /* One pixel of a task (the thesis's master -> slave message). */
 typedef struct tracer_task {
@@ -97,9 +106,10 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *settings, const tra
  * made on beta * eta_scale, as pbrt-v4 and Mitsuba 3 do, capped at 0.95. */
 float tracer_roulette_probability(vec3_t beta, float eta_scale);
 
-/* Radiance of one sample (no statistics); for tests and tools. Returns the
- * number of rays traced. */
+/* Radiance of sample `sample_index` (no statistics) of the layer whose first
+ * sample is `layer_first` (a task record's first_sample; the independent
+ * sampler ignores it); for tests and tools. Returns the rays traced. */
 uint32_t tracer_sample(const tracer_t *t, const tracer_settings_t *settings, uint32_t pixel,
-                       uint64_t sample_index, float rgb[3]);
+                       uint64_t layer_first, uint64_t sample_index, float rgb[3]);
 
 #endif

@@ -301,6 +301,7 @@ static void settings_json(const job_t *j, cJSON *o)
     snprintf(seed, sizeof seed, "%" PRIu64, j->tracer.seed);
     add_str(o, "seed", seed);
     add_str(o, "integrator", scene_integrator_name(j->tracer.integrator));
+    add_str(o, "sampler", tracer_sampler_name(j->tracer.sampler));
     cJSON_AddNumberToObject(o, "layers", sched_layer_count(j->sched));
     cJSON_AddNumberToObject(o, "uniform_layers", sched_uniform_layers(j->sched));
 }

@@ -192,6 +192,8 @@ static int submit_settings(job_t *j, const cJSON *req, char *err, size_t errlen)
         settings_string(req, "adaptive", JOB_DEFAULT_ADAPTIVE));
     j->tracer.integrator = (scene_integrator_t)scene_integrator_from_name(
         settings_string(req, "integrator", scene_integrator_name(j->tracer.integrator)));
+    j->tracer.sampler = (rng_sampler_t)tracer_sampler_from_name(
+        settings_string(req, "sampler", JOB_DEFAULT_SAMPLER));
     const char *flags = settings_string(req, "flags", NULL);
     if (flags && !(j->flags = strdup(flags))) {
         snprintf(err, errlen, "out of memory");

@@ -26,7 +26,7 @@
 #define TEXT_HEAD 4
 #define CREDIT_SIZE 4
 #define BUNDLE_HEAD (PROTO_HASH_SIZE + 8)
-#define TASK_HEAD (PROTO_HASH_SIZE + 8 + 1 + 3 + 4 + 4 + 4)
+#define TASK_HEAD (PROTO_HASH_SIZE + 8 + 1 + 1 + 2 + 4 + 4 + 4)
 #define RESULT_HEAD 24
 _Static_assert(PROTO_MAX_RESULT_PAYLOAD ==
                    RESULT_HEAD + (size_t)PROTO_RESULT_RECORD_SIZE * PROTO_MAX_TASK_PIXELS,
@@ -235,6 +235,13 @@ static int check_integrator(int v, char *err, size_t errlen)
     return 0;
 }
 
+static int check_sampler(int v, char *err, size_t errlen)
+{
+    if (v != RNG_SAMPLER_INDEPENDENT && v != RNG_SAMPLER_SOBOL)
+        return fail(err, errlen, "TASK: sampler %d is neither 0 (independent) nor 1 (sobol)", v);
+    return 0;
+}
+
 static int check_task_count(uint32_t count, char *err, size_t errlen)
 {
     if (count == 0)
@@ -401,6 +408,7 @@ static int check_msg(const proto_msg_t *msg, char *err, size_t errlen)
     case PROTO_TASK: {
         const proto_task_t *t = &msg->u.task;
         if (check_integrator((int)t->settings.integrator, err, errlen) != 0 ||
+            check_sampler((int)t->settings.sampler, err, errlen) != 0 ||
             check_task_count(t->count, err, errlen) != 0)
             return -1;
         if (!t->records)
@@ -482,7 +490,8 @@ static void write_task(const proto_task_t *t, uint8_t *p)
     p = put_bytes(p, t->scene_hash, PROTO_HASH_SIZE);
     p = put_u64(p, t->settings.seed);
     p = put_u8(p, (uint8_t)t->settings.integrator);
-    for (int i = 0; i < 3; i++)
+    p = put_u8(p, (uint8_t)t->settings.sampler);
+    for (int i = 0; i < 2; i++)
         p = put_u8(p, 0);
     p = put_u32(p, t->settings.max_depth);
     p = put_u32(p, t->layer);
@@ -713,13 +722,15 @@ static int decode_task(const uint8_t *p, size_t n, proto_records_t *recs, proto_
     memcpy(t->scene_hash, p, PROTO_HASH_SIZE);
     const uint8_t *q = p + PROTO_HASH_SIZE;
     t->settings.seed = get_u64(q);
-    uint8_t integrator = q[8];
-    for (int i = 0; i < 3; i++)
+    uint8_t integrator = q[8], sampler = q[9];
+    /* reserved bytes 1 and 2 (byte 0 became the sampler) */
+    for (int i = 1; i < 3; i++)
         if (q[9 + i] != 0)
             return fail(err, errlen, "TASK: reserved byte %d is 0x%02x, must be 0", i, q[9 + i]);
-    if (check_integrator(integrator, err, errlen) != 0)
+    if (check_integrator(integrator, err, errlen) != 0 || check_sampler(sampler, err, errlen) != 0)
         return -1;
     t->settings.integrator = (scene_integrator_t)integrator;
+    t->settings.sampler = (rng_sampler_t)sampler;
     t->settings.max_depth = get_u32(q + 12);
     t->layer = get_u32(q + 16);
     t->count = get_u32(q + 20);

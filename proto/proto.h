@@ -99,7 +99,7 @@ typedef struct proto_bundle {
 /* A task: one layer of G samples for a batch of pixels. */
 typedef struct proto_task {
     uint8_t scene_hash[PROTO_HASH_SIZE];
-    tracer_settings_t settings; /* seed, integrator, max_depth */
+    tracer_settings_t settings; /* seed, integrator, sampler, max_depth */
     uint32_t layer;
     uint32_t count;
     const tracer_task_t *records; /* count records; decode: recs->tasks */

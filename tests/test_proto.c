@@ -301,6 +301,7 @@ START_TEST(vec_task)
     expect_seq_hash(t->scene_hash, 0x00);
     ck_assert_uint_eq(t->settings.seed, UINT64_C(0xDEADBEEFCAFEF00D));
     ck_assert_int_eq(t->settings.integrator, SCENE_INTEGRATOR_NAIVE);
+    ck_assert_int_eq(t->settings.sampler, RNG_SAMPLER_SOBOL);
     ck_assert_uint_eq(t->settings.max_depth, 8);
     ck_assert_uint_eq(t->layer, 5);
     ck_assert_uint_eq(t->count, 2);
@@ -410,6 +411,7 @@ static const struct {
     {"truncated_record.hex", -1, "TASK: payload is 128 bytes, 2 records need 152"},
     {"bad_integrator.hex", -1, "TASK: integrator 2 is neither"},
     {"reserved_set.hex", -1, "TASK: reserved byte 1 is 0x01"},
+    {"bad_sampler.hex", -1, "TASK: sampler 2 is neither"},
     {"task_zero_samples.hex", -1, "TASK: record 0: sample_count 0 out of range"},
     {"task_inf_prior.hex", -1, "TASK: record 0: prior_sum[0] is infinite"},
     {"nan_in_record.hex", -1, "RESULT: record 1: pvar is NaN"},
@@ -617,6 +619,7 @@ START_TEST(rt_task_edges)
     memset(m->u.task.scene_hash, 0x5a, PROTO_HASH_SIZE);
     m->u.task.settings.seed = UINT64_MAX;
     m->u.task.settings.integrator = SCENE_INTEGRATOR_PATH;
+    m->u.task.settings.sampler = RNG_SAMPLER_SOBOL;
     m->u.task.settings.max_depth = UINT32_MAX;
     m->u.task.layer = UINT32_MAX;
     m->u.task.records = recs;
@@ -637,6 +640,7 @@ START_TEST(rt_task_edges)
         ck_assert_uint_eq(t->count, counts[k]);
         ck_assert_uint_eq(t->settings.seed, UINT64_MAX);
         ck_assert_int_eq(t->settings.integrator, SCENE_INTEGRATOR_PATH);
+        ck_assert_int_eq(t->settings.sampler, RNG_SAMPLER_SOBOL);
         ck_assert_uint_eq(t->settings.max_depth, UINT32_MAX);
         ck_assert_uint_eq(t->layer, UINT32_MAX);
         ck_assert_uint_eq(t->scene_hash[0], 0x5a);
@@ -831,6 +835,9 @@ START_TEST(enc_rejects_task_result)
     m->u.task.settings.integrator = (scene_integrator_t)2;
     expect_encode_fails(m, 256, "TASK: integrator 2 is neither");
     m->u.task.settings.integrator = SCENE_INTEGRATOR_NAIVE;
+    m->u.task.settings.sampler = (rng_sampler_t)2;
+    expect_encode_fails(m, 256, "TASK: sampler 2 is neither");
+    m->u.task.settings.sampler = RNG_SAMPLER_INDEPENDENT;
     t.sample_count = 0;
     expect_encode_fails(m, 256, "TASK: record 0: sample_count 0 out of range");
     t.sample_count = TRACER_MAX_TASK_SAMPLES + 1;

@@ -17,6 +17,7 @@
 #include "sched.h"
 #include "settings.h"
 #include "testutil.h"
+#include "tracer.h"
 
 /* The master's verdict on {key: value}. */
 static int master_takes(const settings_def_t *d, cJSON *value)
@@ -219,6 +220,14 @@ START_TEST(choices_known)
         ck_assert_int_ge(scene_integrator_from_name(in->choices[k]), 0);
     ck_assert_str_eq(scene_integrator_name(SCENE_INTEGRATOR_PATH), "path");
     ck_assert_str_eq(scene_integrator_name(SCENE_INTEGRATOR_NAIVE), "naive");
+    const settings_def_t *sm = settings_find_key("sampler");
+    for (int k = 0; sm->choices[k]; k++) {
+        int v = tracer_sampler_from_name(sm->choices[k]);
+        ck_assert_int_ge(v, 0);
+        ck_assert_str_eq(tracer_sampler_name((rng_sampler_t)v), sm->choices[k]);
+    }
+    ck_assert_int_eq(tracer_sampler_from_name(JOB_DEFAULT_SAMPLER), RNG_SAMPLER_SOBOL);
+    ck_assert_int_eq(tracer_sampler_from_name("halton"), -1);
 }
 END_TEST
 

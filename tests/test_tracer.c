@@ -74,8 +74,9 @@ static scene_t *load_json(cJSON *root)
     return s;
 }
 
-static film_t *render(const scene_t *s, uint64_t seed, scene_integrator_t integ, uint32_t spp,
-                      int threads, uint32_t granularity)
+static film_t *render_sampler(const scene_t *s, uint64_t seed, scene_integrator_t integ,
+                              rng_sampler_t sampler, uint32_t spp, int threads,
+                              uint32_t granularity)
 {
     tracer_t *t = NULL;
     tracer_device_t *dev = NULL;
@@ -88,6 +89,7 @@ static film_t *render(const scene_t *s, uint64_t seed, scene_integrator_t integ,
     memset(&rs, 0, sizeof rs);
     rs.tracer.seed = seed;
     rs.tracer.integrator = integ;
+    rs.tracer.sampler = sampler;
     rs.spp = spp;
     rs.granularity = granularity;
     rs.threads = threads;
@@ -99,6 +101,12 @@ static film_t *render(const scene_t *s, uint64_t seed, scene_integrator_t integ,
     tracer_destroy(&t);
     tracer_device_destroy(&dev);
     return f;
+}
+
+static film_t *render(const scene_t *s, uint64_t seed, scene_integrator_t integ, uint32_t spp,
+                      int threads, uint32_t granularity)
+{
+    return render_sampler(s, seed, integ, RNG_SAMPLER_INDEPENDENT, spp, threads, granularity);
 }
 
 /* Every scene shipped in scenes/ loads from a bare clone (its meshes are in
@@ -688,6 +696,37 @@ START_TEST(test_deterministic_across_threads)
 }
 END_TEST
 
+/* The sobol sampler: bit-identical for 1, 2 and 3 threads, and the same
+ * image as independent numbers within noise (its variance channel assumes
+ * independent samples, so it overstates a sobol mean's variance: the check
+ * is looser, never tighter). */
+START_TEST(test_sobol_deterministic_and_agrees)
+{
+    cJSON *root = cornell_json(24);
+    scene_t *s = load_json(root);
+    cJSON_Delete(root);
+    film_t *a = render_sampler(s, 42, SCENE_INTEGRATOR_PATH, RNG_SAMPLER_SOBOL, 48, 1, 16);
+    film_t *b = render_sampler(s, 42, SCENE_INTEGRATOR_PATH, RNG_SAMPLER_SOBOL, 48, 2, 16);
+    film_t *c = render_sampler(s, 42, SCENE_INTEGRATOR_PATH, RNG_SAMPLER_SOBOL, 48, 3, 16);
+    film_t *ind = render(s, 42, SCENE_INTEGRATOR_PATH, 48, 2, 16);
+    size_t bytes = (size_t)a->width * (size_t)a->height * sizeof(film_pixel_t);
+    ck_assert_msg(memcmp(a->pixels, b->pixels, bytes) == 0, "sobol: 1 vs 2 threads differ");
+    ck_assert_msg(memcmp(a->pixels, c->pixels, bytes) == 0, "sobol: 1 vs 3 threads differ");
+    ck_assert_msg(memcmp(a->pixels, ind->pixels, bytes) != 0, "sobol gave independent's image");
+    film_t *n = render(s, 2, SCENE_INTEGRATOR_PATH, 256, 2, 32);
+    region_stat_t ra = region(a, 0, 0, 24, 24), rn = region(n, 0, 0, 24, 24);
+    ck_assert_msg(fabs(ra.mean - rn.mean) <= NSIGMA * sqrt(ra.var + rn.var), "%.6f vs %.6f",
+                  ra.mean, rn.mean);
+    assert_films_agree(a, n, 4, 0.0, "sobol vs independent");
+    film_destroy(&a);
+    film_destroy(&b);
+    film_destroy(&c);
+    film_destroy(&ind);
+    film_destroy(&n);
+    scene_destroy(&s);
+}
+END_TEST
+
 /* The core API directly: the same task gives the same result whether it is
  * traced alone or in a batch, in any order. */
 START_TEST(test_tasks_independent_of_batching)
@@ -700,7 +739,7 @@ START_TEST(test_tasks_independent_of_batching)
     char err[256];
     ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
     ck_assert(tracer_new(dev, s, &t, err, sizeof err) == 0);
-    tracer_settings_t st = {5, SCENE_INTEGRATOR_PATH, 0};
+    tracer_settings_t st = {5, SCENE_INTEGRATOR_PATH, 0, RNG_SAMPLER_INDEPENDENT};
     tracer_task_t tasks[8];
     for (int i = 0; i < 8; i++) {
         memset(&tasks[i], 0, sizeof tasks[i]);
@@ -747,7 +786,8 @@ START_TEST(test_pvar_matches_definition)
     char err[256];
     ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
     ck_assert(tracer_new(dev, s, &t, err, sizeof err) == 0);
-    tracer_settings_t st = {9, SCENE_INTEGRATOR_PATH, 0};
+    /* _i: 0 independent, 1 sobol (a task record is one replicate) */
+    tracer_settings_t st = {9, SCENE_INTEGRATOR_PATH, 0, (rng_sampler_t)_i};
     tracer_task_t task = {.pixel = 120,
                           .sample_count = 32,
                           .first_sample = 32,
@@ -759,7 +799,7 @@ START_TEST(test_pvar_matches_definition)
     double sum[3] = {0, 0, 0};
     for (int i = 0; i < 32; i++) {
         float rgb[3];
-        tracer_sample(t, &st, 120, 32 + (uint64_t)i, rgb);
+        tracer_sample(t, &st, 120, 32, 32 + (uint64_t)i, rgb);
         for (int c = 0; c < 3; c++)
             sum[c] += rgb[c];
         run += vmath_luminance(rgb[0], rgb[1], rgb[2]);
@@ -1011,7 +1051,7 @@ START_TEST(test_million_constant_samples)
     ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
     ck_assert(tracer_new(dev, s, &t, err, sizeof err) == 0);
     film_t *f = film_new(1, 1);
-    tracer_settings_t st = {1, SCENE_INTEGRATOR_PATH, 0};
+    tracer_settings_t st = {1, SCENE_INTEGRATOR_PATH, 0, RNG_SAMPLER_INDEPENDENT};
     const uint32_t per = TRACER_MAX_TASK_SAMPLES;
     const uint64_t total = 1000000;
     for (uint64_t first = 0; first < total; first += per) {
@@ -1066,7 +1106,8 @@ static Suite *tracer_suite(void)
     tcase_set_timeout(det, 600);
     tcase_add_test(det, test_deterministic_across_threads);
     tcase_add_test(det, test_tasks_independent_of_batching);
-    tcase_add_test(det, test_pvar_matches_definition);
+    tcase_add_test(det, test_sobol_deterministic_and_agrees);
+    tcase_add_loop_test(det, test_pvar_matches_definition, 0, 2);
     suite_add_tcase(s, det);
     TCase *hard = tcase_create("hard cases");
     tcase_set_timeout(hard, 600);

@@ -143,13 +143,14 @@ def bundle(hash_, json, meshes, extra=b""):
     return p
 
 
-def task(hash_, seed, integrator, max_depth, layer, records, count=None, reserved=b"\0\0\0",
-         cut=None):
+def task(hash_, seed, integrator, max_depth, layer, records, count=None, reserved=b"\0\0",
+         cut=None, sampler=0):
     p = Frame()
     p.raw(hash_, "scene_hash[32]", hash_.hex())
     p.add("Q", seed, "seed", "0x%016x" % seed)
     p.add("B", integrator, "integrator", "%d%s" % (integrator, {0: " (path)", 1: " (naive)"}.get(integrator, "")))
-    p.raw(reserved, "reserved[3]", reserved.hex())
+    p.add("B", sampler, "sampler", "%d%s" % (sampler, {0: " (independent)", 1: " (sobol)"}.get(sampler, "")))
+    p.raw(reserved, "reserved[2]", reserved.hex())
     p.add("I", max_depth, "max_depth")
     p.add("I", layer, "layer")
     p.add("I", len(records) if count is None else count, "count")
@@ -228,7 +229,7 @@ def main():
           ["The worker asks for the bundle whose hash is 00 01 .. 1f."])
     valid("scene_bundle", "SCENE_BUNDLE", bundle(HASH_B, BUNDLE_JSON, BUNDLE_MESHES),
           ["A bundle with two mesh files, the second empty (size 0)."])
-    valid("task", "TASK", task(HASH_A, 0xDEADBEEFCAFEF00D, 1, 8, 5, TASK_RECORDS),
+    valid("task", "TASK", task(HASH_A, 0xDEADBEEFCAFEF00D, 1, 8, 5, TASK_RECORDS, sampler=1),
           ["Job, task and attempt fence the task; two pixel records, the second with",
            "first_sample 2^32 (crosses 32 bits) and prior_sum[2] = 1e300."],
           JOB, TASK_ID, ATTEMPT)
@@ -263,8 +264,10 @@ def main():
              "(header payload_size matches the frame)."], "TASK")
     invalid("bad_integrator", task(HASH_A, 1, 2, 0, 0, TASK_RECORDS[:1]),
             ["TASK with integrator 2."], "TASK")
-    invalid("reserved_set", task(HASH_A, 1, 0, 0, 0, TASK_RECORDS[:1], reserved=b"\0\1\0"),
+    invalid("reserved_set", task(HASH_A, 1, 0, 0, 0, TASK_RECORDS[:1], reserved=b"\1\0"),
             ["TASK with reserved byte 1 set."], "TASK")
+    invalid("bad_sampler", task(HASH_A, 1, 0, 0, 0, TASK_RECORDS[:1], sampler=2),
+            ["TASK with sampler 2."], "TASK")
     invalid("task_zero_samples", task(HASH_A, 1, 0, 0, 0, [(1, 0, 0, 0, (0.0, 0.0, 0.0))]),
             ["TASK record with sample_count 0."], "TASK")
     invalid("task_inf_prior",
