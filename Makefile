@@ -14,7 +14,8 @@
 #   make demo    deps, build, render scenes/cornell-box.json to out/
 #   make bench   deps, build, core, distributed, durable, verification,
 #                CURVE and preview benchmarks (bench/results/)
-#   make bench-error   the error study: adaptive modes against uniform and Mitsuba 3
+#   make bench-error   the error study: the samplers (run-sampler.sh), adaptive modes
+#                      against uniform and Mitsuba 3
 #   make format        clang-format every tracked C file in place
 #   make format-check  fail if any tracked C file differs from clang-format's output
 
@@ -328,6 +329,7 @@ bench: deps
 
 bench-error: deps
 	$(MAKE) all
+	bash bench/run-sampler.sh
 	bash bench/error/run.sh
 
 clean:
