@@ -161,6 +161,7 @@ static inline int material_sample_dielectric(const material_t *m, const material
 static inline int material_sample(const material_t *m, const material_hit_t *h, rng_stream_t *rng,
                                   material_sample_t *out)
 {
+    out->eta = 1.0f; /* set by the dielectric when it transmits; defined for the rest */
     if (material_is_diffuse(m))
         return material_sample_diffuse(m, h, rng, out);
     if (m->type == MATERIAL_MIRROR)
