@@ -28,3 +28,22 @@ def replace_block(path, begin, end, body, who):
             f.write(new)
         os.replace(tmp, path)
         print(f"{who}: updated {path}", file=sys.stderr)
+
+
+def latest_result(results_dir, benchmark, who):
+    """The newest bench/results/*.json whose "benchmark" is `benchmark`
+    (by its "date"), or None; unreadable files are reported and skipped."""
+    import glob
+    import json
+    best = None
+    for path in sorted(glob.glob(os.path.join(results_dir, "*.json"))):
+        try:
+            with open(path) as f:
+                data = json.load(f)
+        except (OSError, ValueError) as e:
+            print(f"{who}: skipping {path}: {e}", file=sys.stderr)
+            continue
+        if isinstance(data, dict) and data.get("benchmark") == benchmark:
+            if best is None or data.get("date", "") > best.get("date", ""):
+                best = data
+    return best

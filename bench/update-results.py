@@ -16,7 +16,7 @@ import os
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from results_page import replace_block  # noqa: E402
+from results_page import latest_result, replace_block  # noqa: E402
 
 BEGIN = "<!-- bench:core:begin -->"
 END = "<!-- bench:core:end -->"
@@ -32,18 +32,7 @@ def ratio(a, b):
 
 
 def load_core(results_dir):
-    best = None
-    for path in sorted(glob.glob(os.path.join(results_dir, "*.json"))):
-        try:
-            with open(path) as f:
-                data = json.load(f)
-        except (OSError, ValueError) as e:
-            print(f"update-results.py: skipping {path}: {e}", file=sys.stderr)
-            continue
-        if isinstance(data, dict) and data.get("benchmark") == "core":
-            if best is None or data.get("date", "") > best.get("date", ""):
-                best = data
-    return best
+    return latest_result(results_dir, "core", "update-results.py")
 
 
 def table(core):
