@@ -34,41 +34,8 @@ for b in $VB $VBM $VBW $CTL; do
 done
 rm -rf "$OUT"
 mkdir -p "$OUT" "$RESULTS"
-PIDS=()
-cleanup() { for p in "${PIDS[@]}"; do kill -9 "$p" 2>/dev/null || true; done; }
-trap cleanup EXIT
-
-port_free() { ! (exec 3<>"/dev/tcp/127.0.0.1/$1") 2>/dev/null; }
-next_ports() {
-    while ! port_free "$PORT" || ! port_free $((PORT + 1)); do PORT=$((PORT + 2)); done
-    WEP="tcp://127.0.0.1:$PORT"
-    CEP="tcp://127.0.0.1:$((PORT + 1))"
-    PORT=$((PORT + 2))
-}
-# start_master LOG ARGS...: sets MPID
-start_master() {
-    local log=$1
-    shift
-    "$VBM" --workers "$WEP" --control "$CEP" "$@" 2>>"$log" &
-    MPID=$!
-    PIDS+=("$MPID")
-    for _ in $(seq 100); do "$CTL" "$CEP" workers >/dev/null 2>&1 && return 0; sleep 0.05; done
-    echo "run-durable.sh: the master does not answer" >&2
-    return 1
-}
-start_workers() {
-    WPIDS=()
-    for i in $(seq "$1"); do
-        "$VBW" --master "$WEP" --threads 1 --name "w$i" 2>>"$OUT/workers.log" &
-        WPIDS+=($!)
-        PIDS+=($!)
-    done
-    "$CTL" "$CEP" wait-workers "$1" 20 >/dev/null
-}
-stop_all() {
-    for p in "$@"; do kill -TERM "$p" 2>/dev/null || true; done
-    for p in "$@"; do wait "$p" 2>/dev/null || true; done
-}
+# shellcheck source=bench/lib.sh
+. bench/lib.sh
 rss_kib() { awk '/^VmRSS:/ { print $2 }' "/proc/$1/status"; }
 jget() { python3 -c 'import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))' "$@"; }
 scene_of() { # scene_of W H FILE

@@ -39,17 +39,8 @@ for b in $VB $VBM $VBW $CTL $POLL; do
 done
 rm -rf "$OUT"
 mkdir -p "$OUT" "$RESULTS"
-PIDS=()
-cleanup() { for p in "${PIDS[@]}"; do kill -9 "$p" 2>/dev/null || true; done; }
-trap cleanup EXIT
-
-port_free() { ! (exec 3<>"/dev/tcp/127.0.0.1/$1") 2>/dev/null; }
-next_ports() {
-    while ! port_free "$PORT" || ! port_free $((PORT + 1)); do PORT=$((PORT + 2)); done
-    WEP="tcp://127.0.0.1:$PORT"
-    CEP="tcp://127.0.0.1:$((PORT + 1))"
-    PORT=$((PORT + 2))
-}
+# shellcheck source=bench/lib.sh
+. bench/lib.sh
 # CPU seconds (user + system) a live process has used
 cpu_s() { awk -v t="$(getconf CLK_TCK)" '{ print ($14 + $15) / t }' "/proc/$1/stat"; }
 
@@ -64,17 +55,8 @@ PY
 run() {
     local tag=$1 poll=$2
     next_ports
-    "$VBM" --workers "$WEP" --control "$CEP" --state none 2>>"$OUT/$tag.log" &
-    MPID=$!
-    PIDS+=("$MPID")
-    for _ in $(seq 100); do "$CTL" "$CEP" workers >/dev/null 2>&1 && break; sleep 0.05; done
-    local wpids=()
-    for i in 1 2; do
-        "$VBW" --master "$WEP" --threads 1 --name "w$i" 2>>"$OUT/workers.log" &
-        wpids+=($!)
-        PIDS+=($!)
-    done
-    "$CTL" "$CEP" wait-workers 2 20 >/dev/null
+    start_master "$OUT/$tag.log" --state none || true
+    start_workers 2
     local id
     id=$("$VB" submit "$OUT/cornell-1920x1080.json" --spp 1024 --adaptive none \
         --time-limit "$SECONDS_RUN" --master "$CEP" | tail -n 1)
@@ -89,8 +71,7 @@ run() {
     [ -z "$ppid" ] || wait "$ppid"
     cpu_s "$MPID" >"$OUT/$tag.master-cpu"
     cut -d' ' -f1 /proc/loadavg >"$OUT/$tag.load"
-    for p in "$MPID" "${wpids[@]}"; do kill -TERM "$p" 2>/dev/null || true; done
-    for p in "$MPID" "${wpids[@]}"; do wait "$p" 2>/dev/null || true; done
+    stop_all "$MPID" "${WPIDS[@]}"
     echo "  $tag: $(python3 -c 'import json,sys; print(round(json.load(open(sys.argv[1]))["samples_per_second"]))' \
         "$OUT/$tag.status.json") samples/s" >&2
 }
