@@ -64,6 +64,7 @@
 #include <zmq.h>
 
 #include "frames.h"
+#include "jsonget.h"
 #include "keys.h"
 #include "master.h"
 #include "proto.h"
@@ -509,18 +510,6 @@ static cJSON *request(void *req_sock, const cJSON *body, const char *frame, size
     return reply;
 }
 
-static double jnum(const cJSON *o, const char *k)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
-    return cJSON_IsNumber(v) ? v->valuedouble : 0.0;
-}
-
-static const char *jstr(const cJSON *o, const char *k)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
-    return cJSON_IsString(v) ? v->valuestring : "";
-}
-
 static int parse_args(int argc, char **argv, args_t *a)
 {
     *a = (args_t){.workers = 1,
@@ -854,7 +843,7 @@ static int submit_job(bench_t *b, bench_clocks_t *c, double *job)
         fprintf(stderr, "bench_master: submit: %s\n", b->err);
         return -1;
     }
-    *job = jnum(r, "job");
+    *job = json_num(r, "job");
     cJSON_Delete(r);
     return 0;
 }
@@ -889,7 +878,7 @@ static cJSON *poll_until_done(bench_t *b, double job, double wall0, int *cancell
         cJSON_Delete(status);
         status = cJSON_DetachItemFromObject(r, "job");
         cJSON_Delete(r);
-        const char *st = jstr(status, "state");
+        const char *st = json_str(status, "state");
         if (strcmp(st, "done") == 0 || strcmp(st, "failed") == 0 || strcmp(st, "cancelled") == 0)
             break;
         for (uint64_t i = 0; i < b->a->workers; i++)
@@ -930,8 +919,8 @@ static void collect_figures(const bench_t *b, const bench_clocks_t *c, const cJS
     }
     f->master_io_cpu = io_threads_cpu(&c->io, 0, &f->master_io_busiest);
     f->worker_io_cpu = io_threads_cpu(&c->io, 1, NULL);
-    f->seconds = jnum(status, "seconds");
-    f->samples = jnum(status, "samples");
+    f->seconds = json_num(status, "seconds");
+    f->samples = json_num(status, "samples");
     f->results = f->samples / (double)b->a->granularity;
 }
 
@@ -965,13 +954,13 @@ static cJSON *result_json(const args_t *a, const cJSON *status, const bench_figu
 {
     cJSON *out = result_json_settings(a);
     double results = f->results, seconds = f->seconds, master_cpu = f->master_cpu;
-    cJSON_AddNumberToObject(out, "tasks_verified", jnum(status, "tasks_verified"));
-    cJSON_AddNumberToObject(out, "tasks_unverified", jnum(status, "tasks_unverified"));
-    cJSON_AddNumberToObject(out, "verify_mismatches", jnum(status, "verify_mismatches"));
-    cJSON_AddStringToObject(out, "state", jstr(status, "state"));
-    cJSON_AddNumberToObject(out, "layers", jnum(status, "layers"));
-    cJSON_AddNumberToObject(out, "layers_done", jnum(status, "layers_done"));
-    cJSON_AddNumberToObject(out, "pixel_layers_skipped", jnum(status, "pixel_layers_skipped"));
+    cJSON_AddNumberToObject(out, "tasks_verified", json_num(status, "tasks_verified"));
+    cJSON_AddNumberToObject(out, "tasks_unverified", json_num(status, "tasks_unverified"));
+    cJSON_AddNumberToObject(out, "verify_mismatches", json_num(status, "verify_mismatches"));
+    cJSON_AddStringToObject(out, "state", json_str(status, "state"));
+    cJSON_AddNumberToObject(out, "layers", json_num(status, "layers"));
+    cJSON_AddNumberToObject(out, "layers_done", json_num(status, "layers_done"));
+    cJSON_AddNumberToObject(out, "pixel_layers_skipped", json_num(status, "pixel_layers_skipped"));
     cJSON_AddNumberToObject(out, "samples", f->samples);
     cJSON_AddNumberToObject(out, "results", results);
     cJSON_AddNumberToObject(out, "results_sent_by_workers", (double)f->records);
@@ -1055,7 +1044,7 @@ static int bench_run(bench_t *b)
     int rc = 1;
     if (write_result(b->a, out) == 0) {
         print_summary(b->a, &f);
-        rc = strcmp(jstr(status, "state"), "done") == 0 || cancelled ? 0 : 1;
+        rc = strcmp(json_str(status, "state"), "done") == 0 || cancelled ? 0 : 1;
     }
     cJSON_Delete(out);
     cJSON_Delete(status);

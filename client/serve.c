@@ -9,6 +9,7 @@
  * the others fail at once instead of queueing behind a timeout each.
  */
 #include "serve.h"
+#include "jsonget.h"
 
 #include <errno.h>
 #include <microhttpd.h>
@@ -238,18 +239,6 @@ static void metric_from(text_buf_t *b, const cJSON *obj, const char *key, const 
         metric(b, name, type, help, v->valuedouble);
 }
 
-static double num_of(const cJSON *o, const char *k)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
-    return cJSON_IsNumber(v) ? v->valuedouble : 0.0;
-}
-
-static const char *str_of(const cJSON *o, const char *k)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
-    return cJSON_IsString(v) ? v->valuestring : "";
-}
-
 /* A label value with \, " and newline escaped, as the format wants. */
 static void label_escape(const char *s, char *out, size_t len)
 {
@@ -277,7 +266,7 @@ static void metrics_jobs(text_buf_t *b, const cJSON *jobs)
     const cJSON *j;
     cJSON_ArrayForEach(j, jobs)
     {
-        const char *st = str_of(j, "state");
+        const char *st = json_str(j, "state");
         int i = 0;
         while (i < nstates && strcmp(names[i], st) != 0)
             i++;
@@ -302,12 +291,12 @@ static void metrics_throughput(text_buf_t *b, const cJSON *jobs, const cJSON *wo
     const cJSON *it;
     cJSON_ArrayForEach(it, jobs)
     {
-        if (strcmp(str_of(it, "state"), "running") == 0) {
-            rays += num_of(it, "rays_per_second");
-            samples += num_of(it, "samples_per_second");
+        if (strcmp(json_str(it, "state"), "running") == 0) {
+            rays += json_num(it, "rays_per_second");
+            samples += json_num(it, "samples_per_second");
         }
     }
-    cJSON_ArrayForEach(it, workers) threads += num_of(it, "threads");
+    cJSON_ArrayForEach(it, workers) threads += json_num(it, "threads");
     metric(b, "vbrender_workers_connected", "gauge", "Workers connected to the master.",
            (double)cJSON_GetArraySize(workers));
     metric(b, "vbrender_worker_threads", "gauge", "Render threads of the connected workers.",
@@ -335,8 +324,8 @@ static void metrics_master(text_buf_t *b, const cJSON *m, const cJSON *jobs, con
                 "Requests the master refused for their rate.");
     double queued = 0, outstanding = 0;
     const cJSON *it;
-    cJSON_ArrayForEach(it, jobs) queued += strcmp(str_of(it, "state"), "queued") == 0;
-    cJSON_ArrayForEach(it, workers) outstanding += num_of(it, "tasks_outstanding");
+    cJSON_ArrayForEach(it, jobs) queued += strcmp(json_str(it, "state"), "queued") == 0;
+    cJSON_ArrayForEach(it, workers) outstanding += json_num(it, "tasks_outstanding");
     /* the master's figures count every job, the lists only this client's */
     const cJSON *q = cJSON_GetObjectItemCaseSensitive(m, "jobs_queued");
     const cJSON *o = cJSON_GetObjectItemCaseSensitive(m, "tasks_outstanding");
@@ -581,7 +570,7 @@ static enum MHD_Result send_error(struct MHD_Connection *conn, int status, const
 
 static const char *reply_error(const cJSON *reply)
 {
-    const char *e = str_of(reply, "error");
+    const char *e = json_str(reply, "error");
     return *e ? e : "the master refused the request";
 }
 
@@ -655,7 +644,7 @@ static enum MHD_Result handle_metrics(serve_t *s, struct MHD_Connection *conn)
  * heat map's top, or -1 with a message. */
 static int preview_checked(const answer_t *a, int *w, int *h, double *hi, char *msg, size_t msglen)
 {
-    double fw = num_of(a->reply, "width"), fh = num_of(a->reply, "height");
+    double fw = json_num(a->reply, "width"), fh = json_num(a->reply, "height");
     if (!(fw >= 1 && fw <= SERVE_PREVIEW_MAX && fh >= 1 && fh <= SERVE_PREVIEW_MAX) ||
         fw != (int)fw || fh != (int)fh || a->nframes != 2) {
         snprintf(msg, msglen, "the master's preview is malformed (size or frames)");
@@ -671,9 +660,9 @@ static int preview_checked(const answer_t *a, int *w, int *h, double *hi, char *
     /* the heat map's top: the most samples any preview pixel has, so that
      * the map shows where the samples went (the page says the range); the
      * job's spp before any sample */
-    *hi = num_of(a->reply, "spp_max");
+    *hi = json_num(a->reply, "spp_max");
     if (!(*hi > 0))
-        *hi = num_of(cJSON_GetObjectItemCaseSensitive(a->reply, "job"), "spp");
+        *hi = json_num(cJSON_GetObjectItemCaseSensitive(a->reply, "job"), "spp");
     return 0;
 }
 

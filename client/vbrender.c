@@ -39,6 +39,7 @@
 #include "control.h"
 #include "defaults.h"
 #include "image.h"
+#include "jsonget.h"
 #include "keys.h"
 #include "master.h"
 #include "progress.h"
@@ -275,28 +276,16 @@ static int parse_job_id(const char *s, unsigned long long *out)
 
 /* ---- shared output ------------------------------------------------------------- */
 
-static const char *jstr(const cJSON *o, const char *k)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
-    return cJSON_IsString(v) ? v->valuestring : "";
-}
-
-static double jnum(const cJSON *o, const char *k)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
-    return cJSON_IsNumber(v) ? v->valuedouble : 0.0;
-}
-
 static int job_ended(const cJSON *job)
 {
-    const char *s = jstr(job, "state");
+    const char *s = json_str(job, "state");
     return strcmp(s, "done") == 0 || strcmp(s, "failed") == 0 || strcmp(s, "cancelled") == 0;
 }
 
 static double job_fraction(const cJSON *job)
 {
-    double layers = jnum(job, "layers"), done = jnum(job, "layers_done");
-    double s = jnum(job, "samples"), max = jnum(job, "max_samples");
+    double layers = json_num(job, "layers"), done = json_num(job, "layers_done");
+    double s = json_num(job, "samples"), max = json_num(job, "max_samples");
     double f1 = layers > 0 ? done / layers : 0, f2 = max > 0 ? s / max : 0;
     return f1 > f2 ? f1 : f2;
 }
@@ -304,14 +293,14 @@ static double job_fraction(const cJSON *job)
 static void progress_detail(const cJSON *job, char *buf, size_t len)
 {
     char a[32], b[32];
-    double frac = job_fraction(job), el = jnum(job, "seconds");
+    double frac = job_fraction(job), el = json_num(job, "seconds");
     double eta = frac > 0 ? el / frac - el : 0;
     int n = snprintf(buf, len, "layer %.0f/%.0f, %s samples, %s rays/s, ETA %.0fs",
-                     jnum(job, "layers_done"), jnum(job, "layers"),
-                     render_si(jnum(job, "samples"), a, sizeof a),
-                     render_si(jnum(job, "rays_per_second"), b, sizeof b), eta);
+                     json_num(job, "layers_done"), json_num(job, "layers"),
+                     render_si(json_num(job, "samples"), a, sizeof a),
+                     render_si(json_num(job, "rays_per_second"), b, sizeof b), eta);
     if (cJSON_GetObjectItemCaseSensitive(job, "relmse") && n > 0 && (size_t)n < len)
-        snprintf(buf + n, len - (size_t)n, ", relMSE %.3g", jnum(job, "relmse"));
+        snprintf(buf + n, len - (size_t)n, ", relMSE %.3g", json_num(job, "relmse"));
 }
 
 /* What wait shows on stderr: the progress, and lines between its updates. */
@@ -344,7 +333,7 @@ static void say_outage(void *arg, const char *endpoint, double timeout_s)
 /* Says what the master reports about a job's state files, once per new text. */
 static void show_job_notes(wait_view_t *v, unsigned long long job, const cJSON *st)
 {
-    const char *se = jstr(st, "storage_error"), *rec = jstr(st, "recovered");
+    const char *se = json_str(st, "storage_error"), *rec = json_str(st, "recovered");
     if (*se && strncmp(se, v->storage_error, sizeof v->storage_error - 1) != 0) {
         view_break(v);
         fprintf(stderr, "vbrender: job %llu: storage error: %s\n", job, se);
@@ -356,11 +345,11 @@ static void show_job_notes(wait_view_t *v, unsigned long long job, const cJSON *
         snprintf(v->recovered, sizeof v->recovered, "%s", rec);
     }
     /* --verify-share 1 without a second worker: the job makes no progress */
-    const char *wf = jstr(st, "waiting_for");
+    const char *wf = json_str(st, "waiting_for");
     if (*wf && strcmp(wf, v->waiting_for) != 0) {
         view_break(v);
         fprintf(stderr, "vbrender: job %llu: %.0f tasks wait for %s to verify them\n", job,
-                jnum(st, "verify_waiting"), wf);
+                json_num(st, "verify_waiting"), wf);
     }
     snprintf(v->waiting_for, sizeof v->waiting_for, "%s", wf);
 }
@@ -402,7 +391,7 @@ static cJSON *watch_job(control_t *c, unsigned long long job, progress_mode_t mo
         }
         if (!cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(reply, "ok"))) {
             /* e.g. "no such job" from a master that restarted without it */
-            const char *e = jstr(reply, "error");
+            const char *e = json_str(reply, "error");
             snprintf(err, errlen, "job %llu: %s", job,
                      *e ? e : "the master refused the status request");
             cJSON_Delete(reply);
@@ -416,7 +405,8 @@ static cJSON *watch_job(control_t *c, unsigned long long job, progress_mode_t mo
         progress_detail(st, detail, sizeof detail);
         if (job_ended(st)) {
             char end[64];
-            snprintf(end, sizeof end, "%s in %.2fs", jstr(st, "state"), jnum(st, "seconds"));
+            snprintf(end, sizeof end, "%s in %.2fs", json_str(st, "state"),
+                     json_num(st, "seconds"));
             progress_finish(view.prog, end);
             view.drawn = 0;
             break;
@@ -446,23 +436,23 @@ static cJSON *wait_job(control_t *c, unsigned long long job, progress_mode_t mod
 static int write_outputs(image_t *img, const cJSON *job, const char *out_exr, char *err,
                          size_t errlen)
 {
-    image_set_string(img, "vb.seed", jstr(job, "seed"));
-    image_set_string(img, "vb.integrator", jstr(job, "integrator"));
-    image_set_string(img, "vb.sampler", jstr(job, "sampler"));
-    image_set_string(img, "vb.adaptive", jstr(job, "adaptive"));
-    image_set_string(img, "vb.scene", jstr(job, "scene"));
-    image_set_double(img, "vb.total_samples", jnum(job, "samples"));
-    image_set_double(img, "vb.render_seconds", jnum(job, "seconds"));
-    image_set_int(img, "vb.spp", (int32_t)fmin(jnum(job, "spp"), 2147483647.0));
-    image_set_int(img, "vb.granularity", (int32_t)jnum(job, "granularity"));
-    image_set_double(img, "vb.nonfinite_samples", jnum(job, "nonfinite"));
+    image_set_string(img, "vb.seed", json_str(job, "seed"));
+    image_set_string(img, "vb.integrator", json_str(job, "integrator"));
+    image_set_string(img, "vb.sampler", json_str(job, "sampler"));
+    image_set_string(img, "vb.adaptive", json_str(job, "adaptive"));
+    image_set_string(img, "vb.scene", json_str(job, "scene"));
+    image_set_double(img, "vb.total_samples", json_num(job, "samples"));
+    image_set_double(img, "vb.render_seconds", json_num(job, "seconds"));
+    image_set_int(img, "vb.spp", (int32_t)fmin(json_num(job, "spp"), 2147483647.0));
+    image_set_int(img, "vb.granularity", (int32_t)json_num(job, "granularity"));
+    image_set_double(img, "vb.nonfinite_samples", json_num(job, "nonfinite"));
     char png[4096], heat[4096];
     replace_extension(out_exr, ".png", png, sizeof png);
     replace_extension(out_exr, "-samples.png", heat, sizeof heat);
     if (image_write_exr(img, out_exr, err, errlen) < 0 ||
         image_write_png(img, png, 1.0f, err, errlen) < 0 ||
-        image_write_heatmap_png(img, "samples", 0.0f, (float)jnum(job, "spp"), heat, err, errlen) <
-            0)
+        image_write_heatmap_png(img, "samples", 0.0f, (float)json_num(job, "spp"), heat, err,
+                                errlen) < 0)
         return -1;
     printf("%s\n%s\n%s\n", out_exr, png, heat);
     const cJSON *series = cJSON_GetObjectItemCaseSensitive(job, "error_series");
@@ -512,7 +502,7 @@ static int check_writable(const char *out_exr)
 static void print_summary(const cJSON *job, int workers, int threads)
 {
     char a1[32], a2[32], a3[32], a4[32], where[64] = "";
-    double secs = jnum(job, "seconds") > 0 ? jnum(job, "seconds") : 1e-9;
+    double secs = json_num(job, "seconds") > 0 ? json_num(job, "seconds") : 1e-9;
     if (workers > 0) /* embedded: say what ran it; a remote job's workers are the master's */
         snprintf(where, sizeof where, ", %d worker%s, %d threads", workers, workers == 1 ? "" : "s",
                  threads);
@@ -520,12 +510,12 @@ static void print_summary(const cJSON *job, int workers, int threads)
         stderr,
         "vbrender: %.0fx%.0f, %.0f spp max, %s, adaptive %s, seed %s%s: "
         "%.2f s, %s samples (%s samples/s), %s rays (%s rays/s), %.0f NaN/Inf samples left out\n",
-        jnum(job, "width"), jnum(job, "height"), jnum(job, "spp"), jstr(job, "integrator"),
-        jstr(job, "adaptive"), jstr(job, "seed"), where, jnum(job, "seconds"),
-        render_si(jnum(job, "samples"), a1, sizeof a1),
-        render_si(jnum(job, "samples") / secs, a2, sizeof a2),
-        render_si(jnum(job, "rays"), a3, sizeof a3),
-        render_si(jnum(job, "rays") / secs, a4, sizeof a4), jnum(job, "nonfinite"));
+        json_num(job, "width"), json_num(job, "height"), json_num(job, "spp"),
+        json_str(job, "integrator"), json_str(job, "adaptive"), json_str(job, "seed"), where,
+        json_num(job, "seconds"), render_si(json_num(job, "samples"), a1, sizeof a1),
+        render_si(json_num(job, "samples") / secs, a2, sizeof a2),
+        render_si(json_num(job, "rays"), a3, sizeof a3),
+        render_si(json_num(job, "rays") / secs, a4, sizeof a4), json_num(job, "nonfinite"));
 }
 
 /* ---- render: the embedded master and workers ------------------------------------ */
@@ -746,7 +736,7 @@ static void cancel_job(control_t *c, unsigned long long id)
     if (!reply)
         fprintf(stderr, "vbrender: cannot cancel job %llu: %s\n", id, err);
     else if (!cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(reply, "ok")))
-        fprintf(stderr, "vbrender: cannot cancel job %llu: %s\n", id, jstr(reply, "error"));
+        fprintf(stderr, "vbrender: cannot cancel job %llu: %s\n", id, json_str(reply, "error"));
     cJSON_Delete(reply);
 }
 
@@ -760,12 +750,12 @@ static int render_write(control_t *c, unsigned long long id, const char *out_exr
     char err[VB_ERR_LEN];
     cJSON *job = NULL;
     image_t *img = control_fetch(c, id, &job, err, sizeof err);
-    int done = img && strcmp(jstr(job, "state"), "done") == 0, rc = 1;
+    int done = img && strcmp(json_str(job, "state"), "done") == 0, rc = 1;
     int partial = interrupted && !done;
     if (img && partial) {
         image_set_int(img, "vb.partial", 1);
-        image_set_int(img, "vb.layers_done", (int32_t)jnum(job, "layers_done"));
-        image_set_int(img, "vb.layers", (int32_t)jnum(job, "layers"));
+        image_set_int(img, "vb.layers_done", (int32_t)json_num(job, "layers_done"));
+        image_set_int(img, "vb.layers", (int32_t)json_num(job, "layers"));
     }
     if (!img || write_outputs(img, job, out_exr, err, sizeof err) < 0) {
         fprintf(stderr, "vbrender: %s\n", err);
@@ -776,9 +766,11 @@ static int render_write(control_t *c, unsigned long long id, const char *out_exr
             fprintf(stderr,
                     "vbrender: interrupted: wrote partial image %s (%.0f samples, %.0f of %.0f "
                     "layers)\n",
-                    out_exr, jnum(job, "samples"), jnum(job, "layers_done"), jnum(job, "layers"));
+                    out_exr, json_num(job, "samples"), json_num(job, "layers_done"),
+                    json_num(job, "layers"));
         else if (!done)
-            fprintf(stderr, "vbrender: job %s: %s\n", jstr(job, "state"), jstr(job, "error"));
+            fprintf(stderr, "vbrender: job %s: %s\n", json_str(job, "state"),
+                    json_str(job, "error"));
     }
     image_destroy(&img);
     cJSON_Delete(job);
@@ -918,10 +910,10 @@ static int run_wait(control_t *c, const char *cmd, const args_t *a, unsigned lon
         return 1;
     }
     print_summary(st, 0, 0);
-    int rc = strcmp(jstr(st, "state"), "done") == 0 ? 0 : 1;
+    int rc = strcmp(json_str(st, "state"), "done") == 0 ? 0 : 1;
     if (rc)
-        fprintf(stderr, "vbrender: job %llu %s: %s\n", job, jstr(st, "state"),
-                *jstr(st, "error") ? jstr(st, "error") : "no reason given");
+        fprintf(stderr, "vbrender: job %llu %s: %s\n", job, json_str(st, "state"),
+                *json_str(st, "error") ? json_str(st, "error") : "no reason given");
     cJSON_Delete(st);
     return rc;
 }
@@ -949,9 +941,9 @@ static void print_workers(const cJSON *list)
     cJSON_ArrayForEach(w, list)
     {
         char r[32];
-        printf("%-24s %7.0f %12s %12.0f %10.1f\n", jstr(w, "host"), jnum(w, "threads"),
-               render_si(jnum(w, "rays_per_second"), r, sizeof r), jnum(w, "tasks_done"),
-               jnum(w, "busy_seconds"));
+        printf("%-24s %7.0f %12s %12.0f %10.1f\n", json_str(w, "host"), json_num(w, "threads"),
+               render_si(json_num(w, "rays_per_second"), r, sizeof r), json_num(w, "tasks_done"),
+               json_num(w, "busy_seconds"));
     }
 }
 
@@ -963,16 +955,17 @@ static void print_jobs(const cJSON *list)
     cJSON_ArrayForEach(j, list)
     {
         char size[32], layers[32], s[32];
-        snprintf(size, sizeof size, "%.0fx%.0f", jnum(j, "width"), jnum(j, "height"));
-        snprintf(layers, sizeof layers, "%.0f/%.0f", jnum(j, "layers_done"), jnum(j, "layers"));
-        printf("%6.0f %-10s %-24s %9s %8s %12s %9.2f\n", jnum(j, "id"), jstr(j, "state"),
-               jstr(j, "scene"), size, layers, render_si(jnum(j, "samples"), s, sizeof s),
-               jnum(j, "seconds"));
+        snprintf(size, sizeof size, "%.0fx%.0f", json_num(j, "width"), json_num(j, "height"));
+        snprintf(layers, sizeof layers, "%.0f/%.0f", json_num(j, "layers_done"),
+                 json_num(j, "layers"));
+        printf("%6.0f %-10s %-24s %9s %8s %12s %9.2f\n", json_num(j, "id"), json_str(j, "state"),
+               json_str(j, "scene"), size, layers, render_si(json_num(j, "samples"), s, sizeof s),
+               json_num(j, "seconds"));
         /* a durable master's notes on the job's state files, under its row */
-        if (*jstr(j, "storage_error"))
-            printf("%6s storage error: %s\n", "", jstr(j, "storage_error"));
-        if (*jstr(j, "recovered"))
-            printf("%6s recovered from %s\n", "", jstr(j, "recovered"));
+        if (*json_str(j, "storage_error"))
+            printf("%6s storage error: %s\n", "", json_str(j, "storage_error"));
+        if (*json_str(j, "recovered"))
+            printf("%6s recovered from %s\n", "", json_str(j, "recovered"));
     }
 }
 
@@ -983,10 +976,11 @@ static void print_job(const cJSON *st, unsigned long long job)
     char *text = cJSON_Print(st);
     printf("%s\n", text ? text : "{}");
     cJSON_free(text);
-    if (*jstr(st, "storage_error"))
-        fprintf(stderr, "vbrender: job %llu: storage error: %s\n", job, jstr(st, "storage_error"));
-    if (*jstr(st, "recovered"))
-        fprintf(stderr, "vbrender: job %llu: recovered from %s\n", job, jstr(st, "recovered"));
+    if (*json_str(st, "storage_error"))
+        fprintf(stderr, "vbrender: job %llu: storage error: %s\n", job,
+                json_str(st, "storage_error"));
+    if (*json_str(st, "recovered"))
+        fprintf(stderr, "vbrender: job %llu: recovered from %s\n", job, json_str(st, "recovered"));
 }
 
 /* status, jobs, workers, cancel, delete, readmit: one request, one reply. */
@@ -1002,7 +996,7 @@ static int run_request(control_t *c, const char *cmd, const args_t *a, unsigned 
     cJSON *reply = control_request(c, req, NULL, NULL, 0, err, sizeof err);
     cJSON_Delete(req);
     if (!reply || !cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(reply, "ok"))) {
-        fprintf(stderr, "vbrender: %s\n", reply ? jstr(reply, "error") : err);
+        fprintf(stderr, "vbrender: %s\n", reply ? json_str(reply, "error") : err);
         cJSON_Delete(reply);
         return 1;
     }

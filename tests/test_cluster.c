@@ -41,6 +41,7 @@
 
 #include "frames.h"
 #include "image.h"
+#include "jsonget.h"
 #include "keys.h"
 #include "proto.h"
 #include "testutil.h"
@@ -517,18 +518,6 @@ static cJSON *ctl(int cport, const char *cmd, unsigned long long job)
     return reply;
 }
 
-static double jnum(const cJSON *o, const char *k)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
-    return cJSON_IsNumber(v) ? v->valuedouble : -1.0;
-}
-
-static const char *jstr(const cJSON *o, const char *k)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
-    return cJSON_IsString(v) ? v->valuestring : "";
-}
-
 /* The job's status object (the caller frees it). */
 static cJSON *job_status(int cport, unsigned long long job)
 {
@@ -542,7 +531,7 @@ static cJSON *job_status(int cport, unsigned long long job)
 
 static int state_is(const cJSON *job, const char *state)
 {
-    return strcmp(jstr(job, "state"), state) == 0;
+    return strcmp(json_str(job, "state"), state) == 0;
 }
 
 static int job_ended(const cJSON *job)
@@ -557,7 +546,7 @@ static cJSON *wait_layers(int cport, unsigned long long job, int min_layers)
     double end = now_ms() + JOB_TIMEOUT_MS;
     for (;;) {
         cJSON *st = job_status(cport, job);
-        if (jnum(st, "layers_done") >= min_layers || job_ended(st))
+        if (json_num(st, "layers_done") >= min_layers || job_ended(st))
             return st;
         cJSON_Delete(st);
         ck_assert_msg(now_ms() < end, "job %llu: no layer complete after %d ms\n%s", job,
@@ -614,8 +603,8 @@ static int outstanding_at(int cport, const char *host)
     const cJSON *w;
     cJSON_ArrayForEach(w, list)
     {
-        if (strcmp(jstr(w, "host"), host) == 0)
-            n = (int)jnum(w, "tasks_outstanding");
+        if (strcmp(json_str(w, "host"), host) == 0)
+            n = (int)json_num(w, "tasks_outstanding");
     }
     cJSON_Delete(list);
     return n;
@@ -691,8 +680,8 @@ static void finish_and_fetch_in(const char *ns, int cport, unsigned long long jo
     char out[OUTLEN];
     if (!ns) {
         cJSON *st = wait_end(cport, job);
-        ck_assert_msg(state_is(st, "done"), "job %llu %s: %s\n%s", job, jstr(st, "state"),
-                      jstr(st, "error"), logs_tail());
+        ck_assert_msg(state_is(st, "done"), "job %llu %s: %s\n%s", job, json_str(st, "state"),
+                      json_str(st, "error"), logs_tail());
         cJSON_Delete(st);
     }
     int rc = client_in(ns, out, sizeof out, "wait %llu --progress none --master tcp://127.0.0.1:%d",
@@ -860,7 +849,7 @@ START_TEST(identical_pixels)
     const cJSON *w;
     cJSON_ArrayForEach(w, list)
     {
-        busy += jnum(w, "tasks_done") > 0;
+        busy += json_num(w, "tasks_done") > 0;
     }
     cJSON_Delete(list);
     ck_assert_msg(busy >= 2, "only %d worker(s) did any task\n%s", busy, logs_tail());
@@ -889,8 +878,8 @@ START_TEST(worker_killed)
                   "the victim lived on");
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "killed.exr"));
     cJSON *s = job_status(port + 1, job);
-    ck_assert_msg(jnum(s, "tasks_reissued") >= 1, "tasks_reissued %g after a kill -9\n%s",
-                  jnum(s, "tasks_reissued"), logs_tail());
+    ck_assert_msg(json_num(s, "tasks_reissued") >= 1, "tasks_reissued %g after a kill -9\n%s",
+                  json_num(s, "tasks_reissued"), logs_tail());
     cJSON_Delete(s);
     wait_workers(port + 1, 1);
     render_embedded(scene, LONG, 2, tmp(ref, sizeof ref, "killed-ref.exr"));
@@ -914,14 +903,14 @@ START_TEST(worker_joins)
     unsigned long long job = submit(port + 1, scene, settings);
     cJSON *st = wait_layers(port + 1, job, 1);
     ck_assert_msg(state_is(st, "running"), "job %llu already %s: make it longer", job,
-                  jstr(st, "state"));
+                  json_str(st, "state"));
     cJSON_Delete(st);
     start_worker(port, 1, "c-late", "127.0.0.3");
     wait_workers(port + 1, 2);
     st = job_status(port + 1, job);
     ck_assert_msg(state_is(st, "running"),
                   "job %llu %s before the second worker joined: make it longer", job,
-                  jstr(st, "state"));
+                  json_str(st, "state"));
     cJSON_Delete(st);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "joined.exr"));
     render_embedded(scene, settings, 2, tmp(ref, sizeof ref, "joined-ref.exr"));
@@ -1640,10 +1629,10 @@ START_TEST(master_crash)
     sleep_ms(500); /* long enough for the client to notice */
     m = start_durable(&port, "j-master4", dir, NULL);
     s = job_status(port + 1, job);
-    ck_assert_msg(strstr(jstr(s, "recovered"), "checkpoint at") != NULL,
-                  "status says recovered \"%s\"", jstr(s, "recovered"));
-    ck_assert_msg(jnum(s, "layers_done") >= 8 || job_ended(s),
-                  "resumed at %g layers, the checkpoint had >= 8", jnum(s, "layers_done"));
+    ck_assert_msg(strstr(json_str(s, "recovered"), "checkpoint at") != NULL,
+                  "status says recovered \"%s\"", json_str(s, "recovered"));
+    ck_assert_msg(json_num(s, "layers_done") >= 8 || job_ended(s),
+                  "resumed at %g layers, the checkpoint had >= 8", json_num(s, "layers_done"));
     cJSON_Delete(s);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "crash.exr"));
     int wst = 0;
@@ -1666,7 +1655,8 @@ START_TEST(master_crash)
     stop_clean(m);
     m = start_durable(&port, "j-master5", dir, NULL);
     s = job_status(port + 1, job);
-    ck_assert_msg(state_is(s, "done"), "after a restart the finished job is %s", jstr(s, "state"));
+    ck_assert_msg(state_is(s, "done"), "after a restart the finished job is %s",
+                  json_str(s, "state"));
     cJSON_Delete(s);
     char out[OUTLEN];
     unlink(tmp(got2, sizeof got2, "crash-again.exr"));
@@ -1682,7 +1672,7 @@ START_TEST(master_crash)
     rc = client(out, sizeof out, "delete %llu --master tcp://127.0.0.1:%d", job, port + 1);
     ck_assert_msg(rc == 0, "delete: exit %d: %s", rc, out);
     cJSON *r = ctl(port + 1, "status", job);
-    ck_assert_msg(r && strstr(jstr(r, "error"), "no such job"),
+    ck_assert_msg(r && strstr(json_str(r, "error"), "no such job"),
                   "a deleted job still answers status");
     cJSON_Delete(r);
     end = now_ms() + 5000;
@@ -1738,9 +1728,9 @@ START_TEST(corrupt_checkpoint)
     ck_assert_msg(strstr(log, "checksum mismatch"),
                   "the log does not report the corrupt checkpoint:\n%s", log);
     cJSON *s = job_status(port + 1, job);
-    ck_assert_msg(strstr(jstr(s, "recovered"), "checkpoint.prev") &&
-                      strstr(jstr(s, "recovered"), "checksum"),
-                  "status says recovered \"%s\"", jstr(s, "recovered"));
+    ck_assert_msg(strstr(json_str(s, "recovered"), "checkpoint.prev") &&
+                      strstr(json_str(s, "recovered"), "checksum"),
+                  "status says recovered \"%s\"", json_str(s, "recovered"));
     cJSON_Delete(s);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "corrupt.exr"));
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "corrupt-ref.exr"));
@@ -1795,14 +1785,15 @@ START_TEST(storage_failure)
     cJSON *s = NULL;
     for (;;) {
         s = job_status(port + 1, job);
-        if (strstr(jstr(s, "storage_error"), "No space left") || now_ms() > end)
+        if (strstr(json_str(s, "storage_error"), "No space left") || now_ms() > end)
             break;
         cJSON_Delete(s);
         sleep_ms(50);
     }
-    ck_assert_msg(strstr(jstr(s, "storage_error"), "No space left"),
-                  "status shows no storage error: %s", jstr(s, "storage_error"));
-    ck_assert_msg(state_is(s, "running"), "the job is %s while its writes fail", jstr(s, "state"));
+    ck_assert_msg(strstr(json_str(s, "storage_error"), "No space left"),
+                  "status shows no storage error: %s", json_str(s, "storage_error"));
+    ck_assert_msg(state_is(s, "running"), "the job is %s while its writes fail",
+                  json_str(s, "state"));
     cJSON_Delete(s);
     assert_alive(m);
     char log[65536];
@@ -1817,8 +1808,8 @@ START_TEST(storage_failure)
     ck_assert_msg(file_exists(dir, job, "final"),
                   "the final record was not written once the disk had room");
     s = job_status(port + 1, job);
-    ck_assert_msg(strlen(jstr(s, "storage_error")) == 0, "storage error still shown: %s",
-                  jstr(s, "storage_error"));
+    ck_assert_msg(strlen(json_str(s, "storage_error")) == 0, "storage error still shown: %s",
+                  json_str(s, "storage_error"));
     cJSON_Delete(s);
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "full-ref.exr"));
     compare_exr(ref, got);
@@ -1868,7 +1859,8 @@ START_TEST(churn)
     ck_assert_msg(kills >= 3, "the job ended after %d kills: make it longer", kills);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "churn.exr"));
     cJSON *s = job_status(port + 1, job);
-    ck_assert_msg(jnum(s, "tasks_reissued") > 0, "%d workers killed, no task issued again", kills);
+    ck_assert_msg(json_num(s, "tasks_reissued") > 0, "%d workers killed, no task issued again",
+                  kills);
     cJSON_Delete(s);
     render_embedded(scene, settings, 2, tmp(ref, sizeof ref, "churn-ref.exr"));
     compare_exr(ref, got);
@@ -1936,7 +1928,7 @@ START_TEST(flood)
         }
     }
     cJSON *st = wait_end(port + 1, job);
-    ck_assert_msg(state_is(st, "done"), "job %s under the flood", jstr(st, "state"));
+    ck_assert_msg(state_is(st, "done"), "job %s under the flood", json_str(st, "state"));
     cJSON_Delete(st);
     /* 300 fetches whose replies are never read */
     for (int i = 0; i < 300; i++) {
@@ -1966,7 +1958,7 @@ START_TEST(flood)
     zmq_ctx_term(ctx);
     cJSON *wl = ctl(port + 1, "workers", 0);
     ck_assert_ptr_nonnull(wl);
-    double dropped = jnum(cJSON_GetObjectItemCaseSensitive(wl, "master"), "malformed_messages");
+    double dropped = json_num(cJSON_GetObjectItemCaseSensitive(wl, "master"), "malformed_messages");
     cJSON_Delete(wl);
     ck_assert_msg(dropped >= 1000000, "the master counted %.0f malformed messages of 1,100,000",
                   dropped);
@@ -2051,7 +2043,7 @@ static void net_fault(int lossy)
         double end = now_ms() + JOB_TIMEOUT_MS;
         for (;;) {
             cJSON *st = status_in(ns_m, cep, job);
-            int go = jnum(st, "layers_done") >= 1;
+            int go = json_num(st, "layers_done") >= 1;
             ck_assert_msg(!job_ended(st), "the job ended before the partition (make it longer)");
             cJSON_Delete(st);
             if (go)
@@ -2067,10 +2059,10 @@ static void net_fault(int lossy)
                         tmp(got, sizeof got, lossy ? "lossy.exr" : "partition.exr"));
     cJSON *st = status_in(ns_m, cep, job);
     if (!lossy) {
-        ck_assert_msg(jnum(st, "tasks_reissued") > 0,
+        ck_assert_msg(json_num(st, "tasks_reissued") > 0,
                       "the cut-off worker's tasks were not issued again\n%s", logs_tail());
         printf("partition: %.0f tasks issued again, %.0f late results dropped\n",
-               jnum(st, "tasks_reissued"), jnum(st, "late_results"));
+               json_num(st, "tasks_reissued"), json_num(st, "late_results"));
         /* it rejoins */
         int back = 0;
         for (int tries = 0; tries < 200 && !back; tries++) {
@@ -2304,7 +2296,7 @@ static void raw_submit(int cport, const char *json_req, const char *const *frame
     zmq_msg_close(&r);
     snprintf(err, errlen, "%s",
              cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(body, "ok")) ? ""
-             : jstr(body, "error")[0]                                   ? jstr(body, "error")
+             : json_str(body, "error")[0]                               ? json_str(body, "error")
                                                                         : "?");
     cJSON_Delete(body);
     zmq_close(s);
@@ -2412,7 +2404,8 @@ START_TEST(limits)
     zmq_close(s);
     zmq_ctx_term(ctx);
     r = ctl(port + 1, "workers", 0);
-    double limited = jnum(cJSON_GetObjectItemCaseSensitive(r, "master"), "rate_limited_requests");
+    double limited =
+        json_num(cJSON_GetObjectItemCaseSensitive(r, "master"), "rate_limited_requests");
     cJSON_Delete(r);
     ck_assert_msg(limited >= 15 && limited <= 25,
                   "%.0f of 60 requests in a burst refused; 20 expected (burst 40)", limited);
@@ -2487,28 +2480,29 @@ START_TEST(verify_liar)
     double end = now_ms() + 20000;
     for (;;) {
         st = job_status(port + 1, job);
-        if (strcmp(jstr(st, "waiting_for"), "a second worker") == 0 &&
-            jnum(st, "verify_waiting") > 0)
+        if (strcmp(json_str(st, "waiting_for"), "a second worker") == 0 &&
+            json_num(st, "verify_waiting") > 0)
             break;
         ck_assert_msg(now_ms() < end, "the status never said it waits for a second worker\n%s",
                       logs_tail());
         cJSON_Delete(st);
         sleep_ms(50);
     }
-    ck_assert_msg(jnum(st, "samples") == 0 && jnum(st, "tasks_unverified") == 0,
+    ck_assert_msg(json_num(st, "samples") == 0 && json_num(st, "tasks_unverified") == 0,
                   "share 1 merged %.0f samples, %.0f tasks unverified, with one worker",
-                  jnum(st, "samples"), jnum(st, "tasks_unverified"));
+                  json_num(st, "samples"), json_num(st, "tasks_unverified"));
     cJSON_Delete(st);
     start_worker(port, 1, "v-worker2", "127.0.0.3");
     daemon_t *liar = start_liar(port, "v-liar", "127.0.0.4", 3, 0);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "verify.exr"));
     st = job_status(port + 1, job);
-    double tasks = jnum(st, "tasks");
-    ck_assert_msg(jnum(st, "tasks_verified") == tasks && tasks > 0 &&
-                      jnum(st, "tasks_unverified") == 0,
-                  "%.0f of %.0f tasks verified, %.0f unverified\n%s", jnum(st, "tasks_verified"),
-                  tasks, jnum(st, "tasks_unverified"), logs_tail());
-    ck_assert_msg(jnum(st, "verify_mismatches") >= 1, "no mismatch seen\n%s", logs_tail());
+    double tasks = json_num(st, "tasks");
+    ck_assert_msg(json_num(st, "tasks_verified") == tasks && tasks > 0 &&
+                      json_num(st, "tasks_unverified") == 0,
+                  "%.0f of %.0f tasks verified, %.0f unverified\n%s",
+                  json_num(st, "tasks_verified"), tasks, json_num(st, "tasks_unverified"),
+                  logs_tail());
+    ck_assert_msg(json_num(st, "verify_mismatches") >= 1, "no mismatch seen\n%s", logs_tail());
     ck_assert_msg(names_quarantined(st, "127.0.0.4"), "the status does not name the liar\n%s",
                   logs_tail());
     ck_assert_msg(!names_quarantined(st, "127.0.0.2") && !names_quarantined(st, "127.0.0.3"),
@@ -2557,13 +2551,13 @@ START_TEST(verify_no_majority)
         sleep_ms(50);
     }
     cJSON *st = job_status(port + 1, job);
-    ck_assert_msg(state_is(st, "running") && jnum(st, "samples") == 0 &&
-                      jnum(st, "tasks_verified") == 0,
+    ck_assert_msg(state_is(st, "running") && json_num(st, "samples") == 0 &&
+                      json_num(st, "tasks_verified") == 0,
                   "%s with %.0f samples, %.0f tasks verified, without a majority",
-                  jstr(st, "state"), jnum(st, "samples"), jnum(st, "tasks_verified"));
-    ck_assert_msg(jnum(st, "verify_mismatches") >= 1 && jnum(st, "tasks_reissued") >= 1,
-                  "%.0f mismatches, %.0f tasks reissued", jnum(st, "verify_mismatches"),
-                  jnum(st, "tasks_reissued"));
+                  json_str(st, "state"), json_num(st, "samples"), json_num(st, "tasks_verified"));
+    ck_assert_msg(json_num(st, "verify_mismatches") >= 1 && json_num(st, "tasks_reissued") >= 1,
+                  "%.0f mismatches, %.0f tasks reissued", json_num(st, "verify_mismatches"),
+                  json_num(st, "tasks_reissued"));
     ck_assert_int_eq(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(st, "quarantined")), 0);
     cJSON_Delete(st);
     ck_assert_msg(!strstr(log, "quarantined"), "a worker was quarantined without a majority:\n%s",
@@ -2595,16 +2589,17 @@ START_TEST(verify_quarter)
     unsigned long long job = submit(port + 1, scene, settings);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "quarter.exr"));
     cJSON *st = job_status(port + 1, job);
-    double tasks = jnum(st, "tasks"), verified = jnum(st, "tasks_verified");
+    double tasks = json_num(st, "tasks"), verified = json_num(st, "tasks_verified");
     int chosen = selected_count(37, tasks, 0.25);
     ck_assert_msg(verified > 0.15 * tasks && verified < 0.35 * tasks,
                   "%.0f of %.0f tasks verified at share 0.25", verified, tasks);
     /* a worker dropped meanwhile (a slow test machine) leaves some unverified */
-    ck_assert_msg(verified + jnum(st, "tasks_unverified") == chosen,
+    ck_assert_msg(verified + json_num(st, "tasks_unverified") == chosen,
                   "%.0f verified + %.0f unverified, %d chosen", verified,
-                  jnum(st, "tasks_unverified"), chosen);
-    ck_assert_msg(jnum(st, "verify_mismatches") == 0, "%.0f mismatches between honest workers\n%s",
-                  jnum(st, "verify_mismatches"), logs_tail());
+                  json_num(st, "tasks_unverified"), chosen);
+    ck_assert_msg(json_num(st, "verify_mismatches") == 0,
+                  "%.0f mismatches between honest workers\n%s", json_num(st, "verify_mismatches"),
+                  logs_tail());
     ck_assert_int_eq(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(st, "quarantined")), 0);
     cJSON_Delete(st);
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "quarter-ref.exr"));
@@ -2630,11 +2625,11 @@ START_TEST(verify_one_worker)
     unsigned long long job = submit(port + 1, scene, settings);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "one.exr"));
     cJSON *st = job_status(port + 1, job);
-    int chosen = selected_count(41, jnum(st, "tasks"), 0.5);
-    ck_assert_msg(chosen > 0 && jnum(st, "tasks_unverified") == chosen &&
-                      jnum(st, "tasks_verified") == 0,
-                  "%.0f unverified, %.0f verified, %d chosen\n%s", jnum(st, "tasks_unverified"),
-                  jnum(st, "tasks_verified"), chosen, logs_tail());
+    int chosen = selected_count(41, json_num(st, "tasks"), 0.5);
+    ck_assert_msg(chosen > 0 && json_num(st, "tasks_unverified") == chosen &&
+                      json_num(st, "tasks_verified") == 0,
+                  "%.0f unverified, %.0f verified, %d chosen\n%s", json_num(st, "tasks_unverified"),
+                  json_num(st, "tasks_verified"), chosen, logs_tail());
     cJSON_Delete(st);
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "one-ref.exr"));
     compare_exr(ref, got);
@@ -2803,9 +2798,9 @@ START_TEST(curve_unknown_worker)
     ck_assert_int_eq(cJSON_GetArraySize(list), 1);
     const cJSON *w = cJSON_GetArrayItem(list, 0);
     ck_assert_msg(
-        strcmp(jstr(w, "host"), "127.0.0.2") == 0 && jnum(w, "tasks_done") > 0,
+        strcmp(json_str(w, "host"), "127.0.0.2") == 0 && json_num(w, "tasks_done") > 0,
         "want the admitted worker (127.0.0.2) to have done the job, got %s with %.0f tasks\n%s",
-        jstr(w, "host"), jnum(w, "tasks_done"), logs_tail());
+        json_str(w, "host"), json_num(w, "tasks_done"), logs_tail());
     cJSON_Delete(list);
     assert_alive(stranger); /* refused, not gone: it tries again with backoff */
     render_embedded(scene, SMALL, 1, tmp(ref, sizeof ref, "stranger-ref.exr"));
@@ -3031,7 +3026,7 @@ START_TEST(curve_sighup)
                   "the worker was not dropped mid-job:\n%s", logs_tail());
     cJSON *list = workers_list(port + 1);
     ck_assert_int_eq(cJSON_GetArraySize(list), 1);
-    ck_assert_str_eq(jstr(cJSON_GetArrayItem(list, 0), "host"), "127.0.0.2");
+    ck_assert_str_eq(json_str(cJSON_GetArrayItem(list, 0), "host"), "127.0.0.2");
     cJSON_Delete(list);
     render_embedded(scene, settings, 2, tmp(ref, sizeof ref, "sighup-ref.exr"));
     compare_exr(ref, got);
@@ -3087,8 +3082,8 @@ START_TEST(curve_ownership)
     static const char *const cmds[] = {"status", "cancel", "fetch", "delete", "preview"};
     for (size_t i = 0; i < 5; i++) {
         r = ctl(port + 1, cmds[i], job);
-        ck_assert_msg(r && strstr(jstr(r, "error"), "belongs to another client"), "bob's %s: %s",
-                      cmds[i], r ? jstr(r, "error") : "no reply");
+        ck_assert_msg(r && strstr(json_str(r, "error"), "belongs to another client"),
+                      "bob's %s: %s", cmds[i], r ? json_str(r, "error") : "no reply");
         cJSON_Delete(r);
     }
     int rc = client(out, sizeof out, "fetch %llu -o '%s' --master tcp://127.0.0.1:%d", job,
@@ -3112,11 +3107,11 @@ START_TEST(curve_ownership)
     use_client_keys(dir, "root");
     r = ctl(port + 1, "cancel", job);
     ck_assert_msg(r && cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")),
-                  "the admin's cancel: %s", r ? jstr(r, "error") : "no reply");
+                  "the admin's cancel: %s", r ? json_str(r, "error") : "no reply");
     cJSON_Delete(r);
     r = ctl(port + 1, "delete", job);
     ck_assert_msg(r && cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")),
-                  "the admin's delete: %s", r ? jstr(r, "error") : "no reply");
+                  "the admin's delete: %s", r ? json_str(r, "error") : "no reply");
     cJSON_Delete(r);
     stop_all_clean();
     remove_state(dir);
@@ -3142,11 +3137,11 @@ static cJSON *preview(int cport, unsigned long long job, const char *limits, flo
     ck_assert_msg(r != NULL, "no answer to %s\n%s", text, logs_tail());
     *rgb = *spp = NULL;
     if (cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok"))) {
-        size_t px = (size_t)jnum(r, "width") * (size_t)jnum(r, "height");
+        size_t px = (size_t)json_num(r, "width") * (size_t)json_num(r, "height");
         ck_assert_msg(n == 2 && px > 0 && zmq_msg_size(&f[0]) == px * 3 * sizeof(float) &&
                           zmq_msg_size(&f[1]) == px * sizeof(float),
-                      "preview %s: %d frames for %gx%g", text, n, jnum(r, "width"),
-                      jnum(r, "height"));
+                      "preview %s: %d frames for %gx%g", text, n, json_num(r, "width"),
+                      json_num(r, "height"));
         *rgb = malloc(px * 3 * sizeof(float));
         *spp = malloc(px * sizeof(float));
         memcpy(*rgb, zmq_msg_data(&f[0]), px * 3 * sizeof(float));
@@ -3162,15 +3157,15 @@ static cJSON *preview(int cport, unsigned long long job, const char *limits, flo
 /* The sum of a preview's samples map, and that its top is spp_max. */
 static double preview_samples(const cJSON *r, const float *spp)
 {
-    size_t px = (size_t)jnum(r, "width") * (size_t)jnum(r, "height");
+    size_t px = (size_t)json_num(r, "width") * (size_t)json_num(r, "height");
     double sum = 0;
     float top = 0;
     for (size_t i = 0; i < px; i++) {
         sum += spp[i];
         top = spp[i] > top ? spp[i] : top;
     }
-    ck_assert_msg(jnum(r, "spp_max") == top, "spp_max %g, the map's top %g", jnum(r, "spp_max"),
-                  (double)top);
+    ck_assert_msg(json_num(r, "spp_max") == top, "spp_max %g, the map's top %g",
+                  json_num(r, "spp_max"), (double)top);
     return sum;
 }
 
@@ -3179,9 +3174,9 @@ static void preview_refused(int cport, unsigned long long job, const char *limit
     float *rgb, *spp;
     cJSON *r = preview(cport, job, limits, &rgb, &spp);
     ck_assert_msg(!cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")) &&
-                      strstr(jstr(r, "error"), says),
+                      strstr(json_str(r, "error"), says),
                   "preview of %llu with {%s}: %s, expected an error naming %s", job, limits,
-                  jstr(r, "error"), says);
+                  json_str(r, "error"), says);
     cJSON_Delete(r);
 }
 
@@ -3208,15 +3203,15 @@ START_TEST(preview_job)
     preview_refused(port + 1, 999999, "", "no such job");
     cJSON *st = wait_layers(port + 1, job, 2);
     ck_assert_msg(!job_ended(st), "the job ended before its first preview (make it longer)");
-    ck_assert_msg(jnum(st, "progress") > 0 && jnum(st, "progress") < 1 &&
-                      jnum(st, "eta_seconds") >= 0 && jnum(st, "mean_spp") > 0,
-                  "a running job: progress %g, eta %g, mean_spp %g", jnum(st, "progress"),
-                  jnum(st, "eta_seconds"), jnum(st, "mean_spp"));
+    ck_assert_msg(json_num(st, "progress") > 0 && json_num(st, "progress") < 1 &&
+                      json_num(st, "eta_seconds") >= 0 && json_num(st, "mean_spp") > 0,
+                  "a running job: progress %g, eta %g, mean_spp %g", json_num(st, "progress"),
+                  json_num(st, "eta_seconds"), json_num(st, "mean_spp"));
     cJSON_Delete(st);
     float *rgb, *spp;
     cJSON *r = preview(port + 1, job, "\"max_width\": 16, \"max_height\": 40", &rgb, &spp);
-    ck_assert_msg(jnum(r, "width") == 16 && jnum(r, "height") == 16, "a 64x64 film in 16x40: %gx%g",
-                  jnum(r, "width"), jnum(r, "height"));
+    ck_assert_msg(json_num(r, "width") == 16 && json_num(r, "height") == 16,
+                  "a 64x64 film in 16x40: %gx%g", json_num(r, "width"), json_num(r, "height"));
     double first = preview_samples(r, spp);
     ck_assert_msg(first > 0, "a running job's preview has no samples");
     cJSON_Delete(r);
@@ -3238,28 +3233,30 @@ START_TEST(preview_job)
     cJSON *wr = ctl(port + 1, "workers", 0);
     const cJSON *w0 = cJSON_GetArrayItem(cJSON_GetObjectItemCaseSensitive(wr, "workers"), 0);
     const cJSON *ms = cJSON_GetObjectItemCaseSensitive(wr, "master");
-    ck_assert_msg(jnum(w0, "last_seen_seconds") >= 0 && jnum(w0, "last_seen_seconds") < 1 &&
-                      jnum(w0, "tasks_reissued") == 0,
-                  "worker: last seen %g s ago, %g reissued", jnum(w0, "last_seen_seconds"),
-                  jnum(w0, "tasks_reissued"));
-    ck_assert_msg(jnum(ms, "jobs_running") == 1 && jnum(ms, "jobs_queued") == 0 &&
-                      jnum(ms, "tasks_issued") > 0 && jnum(ms, "tasks_outstanding") >= 0 &&
-                      jnum(ms, "tasks_reissued") == 0,
-                  "master: %g running, %g queued, %g issued, %g reissued", jnum(ms, "jobs_running"),
-                  jnum(ms, "jobs_queued"), jnum(ms, "tasks_issued"), jnum(ms, "tasks_reissued"));
+    ck_assert_msg(json_num(w0, "last_seen_seconds") >= 0 && json_num(w0, "last_seen_seconds") < 1 &&
+                      json_num(w0, "tasks_reissued") == 0,
+                  "worker: last seen %g s ago, %g reissued", json_num(w0, "last_seen_seconds"),
+                  json_num(w0, "tasks_reissued"));
+    ck_assert_msg(json_num(ms, "jobs_running") == 1 && json_num(ms, "jobs_queued") == 0 &&
+                      json_num(ms, "tasks_issued") > 0 && json_num(ms, "tasks_outstanding") >= 0 &&
+                      json_num(ms, "tasks_reissued") == 0,
+                  "master: %g running, %g queued, %g issued, %g reissued",
+                  json_num(ms, "jobs_running"), json_num(ms, "jobs_queued"),
+                  json_num(ms, "tasks_issued"), json_num(ms, "tasks_reissued"));
     cJSON_Delete(wr);
     /* ended: the full-size preview holds every sample */
     st = wait_end(port + 1, job);
-    ck_assert_msg(state_is(st, "done") && jnum(st, "progress") == 1 && jnum(st, "eta_seconds") == 0,
-                  "job %s, progress %g, eta %g", jstr(st, "state"), jnum(st, "progress"),
-                  jnum(st, "eta_seconds"));
-    double samples = jnum(st, "samples");
+    ck_assert_msg(state_is(st, "done") && json_num(st, "progress") == 1 &&
+                      json_num(st, "eta_seconds") == 0,
+                  "job %s, progress %g, eta %g", json_str(st, "state"), json_num(st, "progress"),
+                  json_num(st, "eta_seconds"));
+    double samples = json_num(st, "samples");
     cJSON_Delete(st);
     float *end_rgb, *end_spp;
     r = preview(port + 1, job, "", &end_rgb, &end_spp);
-    ck_assert_msg(jnum(r, "width") == 64 && jnum(r, "height") == 64, "64x64 in 256x256: %gx%g",
-                  jnum(r, "width"), jnum(r, "height"));
-    ck_assert_msg(preview_samples(r, end_spp) == samples && jnum(r, "spp_max") == 1024,
+    ck_assert_msg(json_num(r, "width") == 64 && json_num(r, "height") == 64,
+                  "64x64 in 256x256: %gx%g", json_num(r, "width"), json_num(r, "height"));
+    ck_assert_msg(preview_samples(r, end_spp) == samples && json_num(r, "spp_max") == 1024,
                   "the ended job's preview: %g samples of %g", preview_samples(r, end_spp),
                   samples);
     cJSON_Delete(r);
@@ -3271,7 +3268,7 @@ START_TEST(preview_job)
     start_durable(&port, "p-master2", dir, NULL);
     r = preview(port + 1, job, "", &rgb, &spp);
     ck_assert_msg(cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")),
-                  "preview after a restart: %s\n%s", jstr(r, "error"), logs_tail());
+                  "preview after a restart: %s\n%s", json_str(r, "error"), logs_tail());
     ck_assert_msg(memcmp(rgb, end_rgb, 64 * 64 * 3 * sizeof(float)) == 0 &&
                       memcmp(spp, end_spp, 64 * 64 * sizeof(float)) == 0,
                   "the preview from the stored image differs from the film's");
@@ -3279,9 +3276,9 @@ START_TEST(preview_job)
     free(rgb);
     free(spp);
     r = preview(port + 1, job, "\"max_width\": 10", &rgb, &spp);
-    ck_assert_msg(jnum(r, "width") == 10 && jnum(r, "height") == 10 &&
+    ck_assert_msg(json_num(r, "width") == 10 && json_num(r, "height") == 10 &&
                       fabs(preview_samples(r, spp) * 64 * 64 / 100 - samples) < 1e-3 * samples,
-                  "the stored image at 10x10: %gx%g", jnum(r, "width"), jnum(r, "height"));
+                  "the stored image at 10x10: %gx%g", json_num(r, "width"), json_num(r, "height"));
     cJSON_Delete(r);
     /* asked again: the master kept it */
     float *again_rgb, *again_spp;
