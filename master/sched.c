@@ -141,9 +141,23 @@ static void derive_sizes(sched_t *s)
     }
     s->range_pixels = rp < 1 ? 1 : rp;
     s->ranges = (s->npix + s->range_pixels - 1) / s->range_pixels;
-    s->uniform = cfg->adaptive == SCHED_ADAPTIVE_NONE ? s->layers
-                 : cfg->uniform_layers == UINT32_MAX  ? s->layers / 2
-                                                      : cfg->uniform_layers;
+    s->uniform = cfg->uniform_layers != UINT32_MAX
+                     ? cfg->uniform_layers
+                     : sched_default_uniform_layers(cfg->adaptive, s->layers);
+}
+
+uint32_t sched_default_uniform_layers(sched_adaptive_t adaptive, uint32_t layers)
+{
+    if (adaptive == SCHED_ADAPTIVE_NONE)
+        return layers;
+    /* The thesis (section 5.3.2) runs half the layers uniformly. The other
+     * modes start skipping after a fixed few, so a job bounded by time or
+     * by a target error (whose --spp is only a cap, often huge) adapts too;
+     * half a small job's layers stays the bound, as in the thesis. */
+    uint32_t half = layers / 2;
+    if (adaptive == SCHED_ADAPTIVE_THESIS || half < SCHED_DEFAULT_UNIFORM_LAYERS)
+        return half;
+    return SCHED_DEFAULT_UNIFORM_LAYERS;
 }
 
 /* Checks and copies the flag sequence, if any (s->cfg.flags then points at

@@ -45,6 +45,11 @@ typedef enum {
     SCHED_ADAPTIVE_RELERR = 3
 } sched_adaptive_t;
 
+/* Uniform layers, when the job does not say, for the variance and relerr
+ * modes: enough layers for a first variance estimate of every pixel (the
+ * study's options table: 2 starve dim pixels on dark-bright, 8 do not). */
+#define SCHED_DEFAULT_UNIFORM_LAYERS 8
+
 /* relerr's epsilon: the same scale as relMSE's (r^2 + 1e-2), so the metric
  * the sampler balances is the one the error is measured in. */
 #define SCHED_RELERR_EPS 0.1
@@ -121,6 +126,10 @@ void sched_destroy(sched_t **s);
 
 uint32_t sched_layer_count(const sched_t *s);
 uint32_t sched_uniform_layers(const sched_t *s);
+/* The uniform layers a job of `layers` layers runs when it gives none:
+ * all of them for none, half for thesis (section 5.3.2), else
+ * SCHED_DEFAULT_UNIFORM_LAYERS or half, whichever is fewer. */
+uint32_t sched_default_uniform_layers(sched_adaptive_t adaptive, uint32_t layers);
 uint32_t sched_range_count(const sched_t *s);
 
 /* The next ready task (requeued ones first, then in (layer, range) order).

@@ -459,6 +459,43 @@ END_TEST
 /* Results are range-checked before anything is merged: a lying or broken
  * worker's values are refused with a message, the task stays outstanding
  * (the master issues it again), and the film never becomes non-finite. */
+/* A job that gives no uniform layers: the thesis runs half its layers
+ * uniformly, the other modes at most SCHED_DEFAULT_UNIFORM_LAYERS, so a job
+ * whose spp is only a cap (--time-limit, --target-error) still adapts. */
+START_TEST(test_default_uniform_layers)
+{
+    char err[256];
+    ck_assert_uint_eq(sched_default_uniform_layers(SCHED_ADAPTIVE_NONE, 2048), 2048);
+    ck_assert_uint_eq(sched_default_uniform_layers(SCHED_ADAPTIVE_THESIS, 2048), 1024);
+    ck_assert_uint_eq(sched_default_uniform_layers(SCHED_ADAPTIVE_RELERR, 2048),
+                      SCHED_DEFAULT_UNIFORM_LAYERS);
+    ck_assert_uint_eq(sched_default_uniform_layers(SCHED_ADAPTIVE_VARIANCE, 2048),
+                      SCHED_DEFAULT_UNIFORM_LAYERS);
+    ck_assert_uint_eq(sched_default_uniform_layers(SCHED_ADAPTIVE_RELERR, 6), 3);
+    /* --spp 65536 --time-limit 60 at G = 32: 2048 layers, adapting after 8 */
+    sched_config_t c = {.width = 2,
+                        .height = 2,
+                        .spp = 65536,
+                        .granularity = 32,
+                        .adaptive = SCHED_ADAPTIVE_RELERR,
+                        .uniform_layers = UINT32_MAX};
+    sched_t *s = sched_new(&c, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    ck_assert_uint_eq(sched_uniform_layers(s), SCHED_DEFAULT_UNIFORM_LAYERS);
+    sched_destroy(&s);
+    c.adaptive = SCHED_ADAPTIVE_THESIS;
+    s = sched_new(&c, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    ck_assert_uint_eq(sched_uniform_layers(s), 1024);
+    sched_destroy(&s);
+    c.uniform_layers = 5; /* what the job says wins */
+    s = sched_new(&c, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    ck_assert_uint_eq(sched_uniform_layers(s), 5);
+    sched_destroy(&s);
+}
+END_TEST
+
 START_TEST(test_results_range_checked)
 {
     sched_t *s = make(4, 1, 64, 32, SCHED_ADAPTIVE_NONE, UINT32_MAX, 4);
@@ -1054,6 +1091,7 @@ int main(void)
     tcase_add_test(tc, test_dilation);
     tcase_add_test(tc, test_random_selection);
     tcase_add_test(tc, test_bad_configs);
+    tcase_add_test(tc, test_default_uniform_layers);
     tcase_add_test(tc, test_results_range_checked);
     tcase_add_test(tc, test_outstanding_and_check);
     tcase_add_test(tc, test_many_layers_new_is_cheap);
