@@ -41,13 +41,18 @@ struct sched {
     uint32_t complete;      /* layers fully complete (the next incomplete layer) */
     double *var_snapshot;   /* per pixel: the metric as of layer complete-1 */
     double *pvar_flight[2]; /* per pixel: the metric after a layer in flight, by parity */
-    uint8_t *conv_snapshot; /* per pixel: met the target error, as of layer complete-1 */
-    uint8_t *conv_flight[2];
-    uint32_t *batches;   /* per pixel: layers merged (batch means) */
-    double *bmean, *bm2; /* per pixel: Welford over the layers' luminance means */
-    double *t_table;     /* t factors by batches - 1, for relerr (0.95) and the target, */
-    double *t_target;    /* 0 until first needed (t_factor): ~50 us each, and a submit must
-                            not compute one per layer up front (1M layers: a minute) */
+    /* The target error (sched.h): per pixel, the relative variance of its
+     * layer means and how many it has, as of layer complete-1 and after a
+     * layer in flight; from the snapshot, which pixels meet the target. */
+    double *rvar_snapshot, *rvar_flight[2];
+    uint32_t *nb_snapshot, *nb_flight[2];
+    uint8_t *conv_snapshot;
+    double *pool_row, *pool_max; /* npix each: the window's row maxima, then maxima */
+    uint32_t *batches;           /* per pixel: layers merged (batch means) */
+    double *bmean, *bm2;         /* per pixel: Welford over the layers' luminance means */
+    double *t_table;             /* t factors by batches - 1, for relerr (0.95) and the target, */
+    double *t_target;            /* 0 until first needed (t_factor): ~50 us each, and a submit must
+                                    not compute one per layer up front (1M layers: a minute) */
     uint64_t converged;
     int stopped_on_target;
     uint8_t *scratch;    /* npix: dilation */
@@ -190,6 +195,29 @@ static int copy_flags(sched_t *s, char *err, size_t errlen)
     return 0;
 }
 
+/* The target error's tables (36 bytes a pixel), only for a job that has
+ * one; -1 if any is missing. */
+static int alloc_target_tables(sched_t *s)
+{
+    if (s->cfg.target_error <= 0)
+        return 0;
+    const size_t n = s->npix;
+    s->conv_snapshot = calloc(n, 1);
+    s->pool_row = calloc(n, sizeof(double));
+    s->pool_max = calloc(n, sizeof(double));
+    s->rvar_snapshot = calloc(n, sizeof(double));
+    s->nb_snapshot = calloc(n, sizeof(uint32_t));
+    for (int k = 0; k < 2; k++) {
+        s->rvar_flight[k] = calloc(n, sizeof(double));
+        s->nb_flight[k] = calloc(n, sizeof(uint32_t));
+    }
+    return !s->conv_snapshot || !s->pool_row || !s->pool_max || !s->rvar_snapshot ||
+                   !s->nb_snapshot || !s->rvar_flight[0] || !s->rvar_flight[1] ||
+                   !s->nb_flight[0] || !s->nb_flight[1]
+               ? -1
+               : 0;
+}
+
 /* Every per-layer, per-cell and per-pixel table, zeroed; -1 if any is
  * missing (sched_destroy frees the rest). */
 static int alloc_tables(sched_t *s, size_t cells, size_t member_bytes)
@@ -203,9 +231,7 @@ static int alloc_tables(sched_t *s, size_t cells, size_t member_bytes)
     s->var_snapshot = calloc(s->npix, sizeof(double));
     s->pvar_flight[0] = calloc(s->npix, sizeof(double));
     s->pvar_flight[1] = calloc(s->npix, sizeof(double));
-    s->conv_snapshot = calloc(s->npix, 1);
-    s->conv_flight[0] = calloc(s->npix, 1);
-    s->conv_flight[1] = calloc(s->npix, 1);
+    int target_failed = alloc_target_tables(s);
     s->batches = calloc(s->npix, sizeof(uint32_t));
     s->bmean = calloc(s->npix, sizeof(double));
     s->bm2 = calloc(s->npix, sizeof(double));
@@ -220,9 +246,8 @@ static int alloc_tables(sched_t *s, size_t cells, size_t member_bytes)
     s->requeued = malloc(s->rq_cap * sizeof(uint64_t));
     return !s->film || !s->member || !s->decided || !s->threshold || !s->state || !s->range_done ||
                    !s->var_snapshot || !s->pvar_flight[0] || !s->pvar_flight[1] || !s->out ||
-                   !s->out_count || !s->conv_snapshot || !s->conv_flight[0] || !s->conv_flight[1] ||
-                   !s->batches || !s->bmean || !s->bm2 || !s->scratch || !s->t_table ||
-                   !s->t_target || !s->queue || !s->requeued
+                   !s->out_count || target_failed || !s->batches || !s->bmean || !s->bm2 ||
+                   !s->scratch || !s->t_table || !s->t_target || !s->queue || !s->requeued
                ? -1
                : 0;
 }
@@ -282,8 +307,14 @@ void sched_destroy(sched_t **sp)
     free(s->pvar_flight[0]);
     free(s->pvar_flight[1]);
     free(s->conv_snapshot);
-    free(s->conv_flight[0]);
-    free(s->conv_flight[1]);
+    free(s->pool_row);
+    free(s->pool_max);
+    for (int k = 0; k < 2; k++) {
+        free(s->rvar_flight[k]);
+        free(s->nb_flight[k]);
+    }
+    free(s->rvar_snapshot);
+    free(s->nb_snapshot);
     free(s->batches);
     free(s->bmean);
     free(s->bm2);
@@ -410,6 +441,49 @@ static int applies_skip_rule(const sched_t *s, uint32_t layer)
     return flag && layer >= 2 && s->cfg.adaptive != SCHED_ADAPTIVE_NONE;
 }
 
+/* The largest of v over the (2 SCHED_TARGET_POOL_RADIUS + 1)^2 window around
+ * each pixel, into out (separable: rows into s->pool_row, then columns). */
+static void window_max(sched_t *s, const double *v, double *out)
+{
+    const int w = (int)s->cfg.width, h = (int)s->cfg.height, r = SCHED_TARGET_POOL_RADIUS;
+    for (int y = 0; y < h; y++)
+        for (int x = 0; x < w; x++) {
+            double m = 0;
+            for (int xx = x - r; xx <= x + r; xx++)
+                if (xx >= 0 && xx < w && v[y * w + xx] > m)
+                    m = v[y * w + xx];
+            s->pool_row[y * w + x] = m;
+        }
+    for (int y = 0; y < h; y++)
+        for (int x = 0; x < w; x++) {
+            double m = 0;
+            for (int yy = y - r; yy <= y + r; yy++)
+                if (yy >= 0 && yy < h && s->pool_row[yy * w + x] > m)
+                    m = s->pool_row[yy * w + x];
+            out[y * w + x] = m;
+        }
+}
+
+/* Which pixels meet the target error, from the snapshot, into
+ * s->conv_snapshot; returns how many. A pixel's own layer means can look
+ * steady long before it meets a rare bright path (a caustic seen through
+ * glass) that its neighbours have met: its relative variance is taken as
+ * the largest in its window (sched.h, bench/error/target.py). */
+static uint64_t mark_converged(sched_t *s)
+{
+    uint64_t conv = 0;
+    window_max(s, s->rvar_snapshot, s->pool_max);
+    for (uint32_t p = 0; p < s->npix; p++) {
+        uint32_t nb = s->nb_snapshot[p];
+        int c = nb >= SCHED_TARGET_MIN_LAYERS &&
+                t_factor(s->t_target, s->cfg.confidence, nb - 1) * sqrt(s->pool_max[p] / nb) <=
+                    s->cfg.target_error;
+        s->conv_snapshot[p] = (uint8_t)c;
+        conv += (uint64_t)c;
+    }
+    return conv;
+}
+
 /* Chooses the pixels of a layer from the snapshot (layers < s->complete). */
 static void decide_layer(sched_t *s, uint32_t layer)
 {
@@ -429,10 +503,7 @@ static void decide_layer(sched_t *s, uint32_t layer)
         threshold = n ? threshold / (double)n : 0.0;
     }
     s->threshold[layer] = threshold;
-    uint64_t conv = 0;
-    if (s->cfg.target_error > 0)
-        for (uint32_t p = 0; p < s->npix; p++)
-            conv += s->conv_snapshot[p];
+    uint64_t conv = s->cfg.target_error > 0 ? mark_converged(s) : 0;
     s->converged = conv;
     int stop_all = s->cfg.target_error > 0 && (double)conv >= s->cfg.target_share * s->npix;
     if (stop_all && !s->stopped_on_target)
@@ -493,12 +564,15 @@ static void complete_range(sched_t *s, uint32_t layer, uint32_t range)
         s->state[cell] = ST_DONE;
         if (++s->range_done[layer] == s->ranges) {
             /* Layers complete in order (rule 1), so this is s->complete. */
-            double *pv = s->pvar_flight[layer & 1];
-            uint8_t *cv = s->conv_flight[layer & 1];
+            const double *pv = s->pvar_flight[layer & 1], *rv = s->rvar_flight[layer & 1];
+            const uint32_t *nf = s->nb_flight[layer & 1];
             for (uint32_t p = 0; p < s->npix; p++)
                 if (is_member(s, layer, p)) {
                     s->var_snapshot[p] = pv[p];
-                    s->conv_snapshot[p] = cv[p];
+                    if (rv) {
+                        s->rvar_snapshot[p] = rv[p];
+                        s->nb_snapshot[p] = nf[p];
+                    }
                 }
             s->complete = layer + 1;
             decide_layer(s, layer + 2);
@@ -685,8 +759,8 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
     const tracer_task_t *rec = s->out[cell];
     uint32_t layer = (uint32_t)((task_id - 1) / s->ranges),
              range = (uint32_t)((task_id - 1) % s->ranges);
-    double *pv = s->pvar_flight[layer & 1];
-    uint8_t *cv = s->conv_flight[layer & 1];
+    double *pv = s->pvar_flight[layer & 1], *rv = s->rvar_flight[layer & 1];
+    uint32_t *nf = s->nb_flight[layer & 1];
     /* batch statistics only where something reads them: this loop runs for
      * every pixel-layer result, millions a second on one master core */
     const int batches = s->cfg.adaptive == SCHED_ADAPTIVE_RELERR || s->cfg.target_error > 0;
@@ -726,9 +800,11 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
             pv[p] = results[i].pvar;
             break;
         }
-        cv[p] = (uint8_t)(s->cfg.target_error > 0 && nb >= SCHED_TARGET_MIN_LAYERS &&
-                          t_factor(s->t_target, s->cfg.confidence, nb - 1) * se <=
-                              s->cfg.target_error * (fabs(s->bmean[p]) + SCHED_TARGET_EPS));
+        if (s->cfg.target_error > 0) {
+            double scale = fabs(s->bmean[p]) + SCHED_TARGET_EPS;
+            rv[p] = nb >= 2 ? s->bm2[p] / (nb - 1) / (scale * scale) : INFINITY;
+            nf[p] = nb;
+        }
     }
     free(s->out[cell]);
     s->out[cell] = NULL;
@@ -938,6 +1014,7 @@ int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
      * child, where malloc may be locked by a thread that no longer exists. */
     saver_t w = {write, ctx, {0, 0, {0}, 0}, 0};
     const size_t cells = (size_t)s->layers * s->ranges, n = s->npix;
+    const size_t tn = s->cfg.target_error > 0 ? n : 0; /* the target error's tables */
     uint32_t vc[2] = {SCHED_SAVE_VERSION, FP_COUNT};
     uint64_t fp[FP_COUNT];
     fingerprint(s, fp);
@@ -968,9 +1045,12 @@ int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
         put_section(&w, "var", s->var_snapshot, n * sizeof(double)) ||
         put_section(&w, "pvar0", s->pvar_flight[0], n * sizeof(double)) ||
         put_section(&w, "pvar1", s->pvar_flight[1], n * sizeof(double)) ||
-        put_section(&w, "conv", s->conv_snapshot, n) ||
-        put_section(&w, "conv0", s->conv_flight[0], n) ||
-        put_section(&w, "conv1", s->conv_flight[1], n) ||
+        put_section(&w, "rvar", s->rvar_snapshot, tn * sizeof(double)) ||
+        put_section(&w, "rvar0", s->rvar_flight[0], tn * sizeof(double)) ||
+        put_section(&w, "rvar1", s->rvar_flight[1], tn * sizeof(double)) ||
+        put_section(&w, "nbat", s->nb_snapshot, tn * sizeof(uint32_t)) ||
+        put_section(&w, "nbat0", s->nb_flight[0], tn * sizeof(uint32_t)) ||
+        put_section(&w, "nbat1", s->nb_flight[1], tn * sizeof(uint32_t)) ||
         put_section(&w, "batches", s->batches, n * sizeof(uint32_t)) ||
         put_section(&w, "bmean", s->bmean, n * sizeof(double)) ||
         put_section(&w, "bm2", s->bm2, n * sizeof(double)) || put_head(&w, "end", sizeof(uint64_t)))
@@ -1037,6 +1117,7 @@ static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *su
                        char *err, size_t errlen)
 {
     const size_t cells = (size_t)s->layers * s->ranges, n = s->npix;
+    const size_t tn = s->cfg.target_error > 0 ? n : 0;
     uint8_t magic[8];
     uint32_t vc[2];
     uint64_t fp[FP_COUNT], want[FP_COUNT], ct[CT_COUNT];
@@ -1105,9 +1186,12 @@ static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *su
         get_section(r, "var", s->var_snapshot, n * sizeof(double), err, errlen) ||
         get_section(r, "pvar0", s->pvar_flight[0], n * sizeof(double), err, errlen) ||
         get_section(r, "pvar1", s->pvar_flight[1], n * sizeof(double), err, errlen) ||
-        get_section(r, "conv", s->conv_snapshot, n, err, errlen) ||
-        get_section(r, "conv0", s->conv_flight[0], n, err, errlen) ||
-        get_section(r, "conv1", s->conv_flight[1], n, err, errlen) ||
+        get_section(r, "rvar", s->rvar_snapshot, tn * sizeof(double), err, errlen) ||
+        get_section(r, "rvar0", s->rvar_flight[0], tn * sizeof(double), err, errlen) ||
+        get_section(r, "rvar1", s->rvar_flight[1], tn * sizeof(double), err, errlen) ||
+        get_section(r, "nbat", s->nb_snapshot, tn * sizeof(uint32_t), err, errlen) ||
+        get_section(r, "nbat0", s->nb_flight[0], tn * sizeof(uint32_t), err, errlen) ||
+        get_section(r, "nbat1", s->nb_flight[1], tn * sizeof(uint32_t), err, errlen) ||
         get_section(r, "batches", s->batches, n * sizeof(uint32_t), err, errlen) ||
         get_section(r, "bmean", s->bmean, n * sizeof(double), err, errlen) ||
         get_section(r, "bm2", s->bm2, n * sizeof(double), err, errlen) ||
@@ -1314,13 +1398,20 @@ static int check_pixel_stats(const sched_t *s, uint32_t p, uint32_t layers, char
             snprintf(err, errlen, "checkpoint: pixel %u: adaptive metric %g", p, m[k]);
             return -1;
         }
-    const uint8_t c[3] = {s->conv_snapshot[p], s->conv_flight[0][p], s->conv_flight[1][p]};
-    for (int k = 0; k < 3; k++)
-        if (c[k] > (s->cfg.target_error > 0)) {
-            snprintf(err, errlen, "checkpoint: pixel %u: converged flag %u (target error %g)", p,
-                     c[k], s->cfg.target_error);
-            return -1;
-        }
+    if (s->cfg.target_error > 0) {
+        /* a relative variance is >= 0 (infinite before a second layer); a
+         * pixel has no more layer means than layers it took */
+        const double rv[3] = {s->rvar_snapshot[p], s->rvar_flight[0][p], s->rvar_flight[1][p]};
+        const uint32_t nb[3] = {s->nb_snapshot[p], s->nb_flight[0][p], s->nb_flight[1][p]};
+        for (int k = 0; k < 3; k++)
+            if (!(rv[k] >= 0) || nb[k] > layers || (nb[k] >= 2 && !isfinite(rv[k]))) {
+                snprintf(err, errlen,
+                         "checkpoint: pixel %u: target-error statistics (relative variance %g of "
+                         "%u layer means, %u layers taken)",
+                         p, rv[k], nb[k], layers);
+                return -1;
+            }
+    }
     /* what results in range can make: a mean of layer luminances in
      * [0, SCHED_MAX_RADIANCE] (2x: rounding), a sum of squares >= 0,
      * both 0 before the first batch and the sum still 0 after it.
