@@ -4,10 +4,10 @@
 Peer renderer for speed and accuracy benchmarks. Run inside bench/venv with
 bench/peer/env.sh sourced (see bench/peer/README.md):
 
-  mitsuba_cornell.py SCENE.json --mode speed  --spp N --threads T [--runs K]
-  mitsuba_cornell.py SCENE.json --mode render --spp N --threads T --seed S --out FILE.exr
-  mitsuba_cornell.py SCENE.json --mode sweep  --spp-list 16,32,... --threads T --seed S --out-dir DIR
-  mitsuba_cornell.py SCENE.json --mode agree  --spp N --passes K --threads T --seed S --out FILE.exr
+  mitsuba_peer.py SCENE.json --mode speed  --spp N --threads T [--runs K]
+  mitsuba_peer.py SCENE.json --mode render --spp N --threads T --seed S --out FILE.exr
+  mitsuba_peer.py SCENE.json --mode sweep  --spp-list 16,32,... --threads T --seed S --out-dir DIR
+  mitsuba_peer.py SCENE.json --mode agree  --spp N --passes K --threads T --seed S --out FILE.exr
 
 speed prints one JSON object on stdout; render writes a float32 linear RGB EXR and
 prints a JSON object (seconds, mean RGB, left/right column red means) on stdout.
@@ -144,7 +144,7 @@ def main():
 
     with open(a.scene) as f:
         scene_json = json.load(f)
-    with tempfile.TemporaryDirectory(prefix="mitsuba_cornell_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="mitsuba_peer_") as tmp:
         sd, w, h = build_scene_dict(mi, scene_json, tmp, a.spp, a.seed, a.width, a.height)
         scene = mi.load_dict(sd)
 
