@@ -170,18 +170,39 @@ def ply_has_normals(path):
     return {"nx", "ny", "nz"} <= set(props)
 
 
+def load_obj(path):
+    """common/obj.c: "v x y z" as float, "f a[/t[/n]] ..." as a triangle fan,
+    negative indices relative to the vertices so far; the rest (vn too) is
+    skipped. Mitsuba's obj loader refuses negative indices, hence our own."""
+    import numpy as np
+    pos, faces = [], []
+    with open(path) as f:
+        for line in f:
+            w = line.split("#", 1)[0].split()
+            if not w or w[0] not in ("v", "f"):
+                continue
+            if w[0] == "v":
+                pos.append([float(x) for x in w[1:4]])
+                continue
+            idx = [int(c.split("/")[0]) for c in w[1:]]
+            idx = [x + len(pos) if x < 0 else x - 1 for x in idx]
+            if len(idx) < 3:
+                raise SystemExit(f"{path}: a face with fewer than 3 vertices")
+            faces += [(idx[0], idx[k - 1], idx[k]) for k in range(2, len(idx))]
+    return np.array(pos, dtype=np.float32).astype(np.float64), None, faces
+
+
 def load_mesh_file(mi, path):
     """Positions, normals (PLY nx ny nz only, as common/ply.c; OBJ vn are
-    skipped there) and faces, read with Mitsuba's own loaders."""
+    skipped there) and faces; PLY is read with Mitsuba's own loader."""
     import numpy as np
     if path.lower().endswith(".obj"):
-        kind, normals = "obj", False
-    else:
-        with open(path, "rb") as f:
-            if f.read(3) != b"ply":
-                raise SystemExit(f"{path}: neither PLY (magic) nor .obj")
-        kind, normals = "ply", ply_has_normals(path)
-    m = mi.load_dict({"type": kind, "filename": path, "face_normals": not normals})
+        return load_obj(path)
+    with open(path, "rb") as f:
+        if f.read(3) != b"ply":
+            raise SystemExit(f"{path}: neither PLY (magic) nor .obj")
+    normals = ply_has_normals(path)
+    m = mi.load_dict({"type": "ply", "filename": path, "face_normals": not normals})
     pos = np.array(m.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
     faces = np.array(m.faces_buffer(), dtype=np.int64).reshape(-1, 3)
     nrm = None
