@@ -13,7 +13,8 @@ agree: a `mitsuba_peer.py --mode agree` render against it, with the figures of
 peer() in study.py: image means and their difference in standard errors,
 relMSE against the noise-only expectation, 8x8-block z-test.
 samplers: relMSE of single Mitsuba renders per sampler (mean over seeds, the
-reference's own noise subtracted), and Mitsuba's speed per sampler.
+reference's own noise subtracted), and Mitsuba's speed per sampler (at the
+scene's size given by --size; orthogonal at the square of a prime nearest --spp).
 Prints one JSON object; renders go to a temp dir.
 """
 import argparse
@@ -102,11 +103,17 @@ def agree(mi, a, scene, r, var_r, tmp):
     return res
 
 
+def nearest_prime_square(n):
+    """Mitsuba's orthogonal sampler takes only squares of primes."""
+    primes = [p for p in range(2, 200) if all(p % q for q in range(2, p))]
+    return min((p * p for p in primes), key=lambda x: abs(x - n))
+
+
 def samplers(mi, a, scene, r, var_r, tmp):
     ref_rel = float(np.mean(var_r / (r * r + EPS)))
     rows = {}
     for s in ("independent", "stratified", "multijitter", "orthogonal", "ldsampler"):
-        spp = 289 if s == "orthogonal" and a.spp == 256 else a.spp  # squares of primes only
+        spp = nearest_prime_square(a.spp) if s == "orthogonal" else a.spp
         rel = []
         for k in range(a.seeds):
             out = os.path.join(tmp, f"{s}-{k}.exr")
