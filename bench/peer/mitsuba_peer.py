@@ -334,6 +334,71 @@ def check_sample_counts(mi, sampler, spps):
                              "choose counts it accepts as they are")
 
 
+def mode_speed(a, render, info, npix):
+    twarm, _ = render(a.seed)  # compiles / loads kernels
+    times = []
+    for k in range(a.runs):
+        t, _ = render(a.seed + 1 + k)
+        times.append(t)
+        print(f"run {k}: {t:.3f} s", file=sys.stderr)
+    best = min(times)
+    med = statistics.median(times)
+    sps = npix * a.spp / best
+    info.update({"seconds_warmup": twarm, "seconds_best": best, "seconds_median": med,
+                 "seconds_all": times, "samples_per_second": sps,
+                 "samples_per_second_per_core": sps / a.threads})
+
+
+def mode_sweep(mi, a, render, info, npix):
+    os.makedirs(a.out_dir, exist_ok=True)
+    runs = []
+    for i, spp in enumerate(a.spps):
+        twarm, _ = render(a.seed + 1000 + i, spp)  # kernel for this spp, caches
+        t, arr = render(a.seed + i, spp)
+        out = os.path.join(a.out_dir, f"mitsuba-{spp}.exr")
+        mi.Bitmap(arr, mi.Bitmap.PixelFormat.RGB).write(out)
+        runs.append({"spp": spp, "seed": a.seed + i, "seconds": t, "seconds_warmup": twarm,
+                     "samples": npix * spp, "out": out,
+                     "mean_rgb": [float(x) for x in arr.reshape(-1, 3).mean(axis=0)]})
+        print(f"spp {spp}: {t:.3f} s (warm-up {twarm:.3f} s)", file=sys.stderr)
+    info.update({"seed": a.seed, "runs": runs})
+
+
+def mode_agree(mi, np, a, render, info):
+    s1 = None
+    s2 = None
+    total = 0.0
+    for k in range(a.passes):
+        t, arr = render(a.seed + k)
+        arr = arr.astype(np.float64)
+        s1 = arr if s1 is None else s1 + arr
+        s2 = arr * arr if s2 is None else s2 + arr * arr
+        total += t
+        print(f"pass {k}: {t:.3f} s", file=sys.stderr)
+    K = a.passes
+    mean = s1 / K
+    var_of_mean = np.maximum(s2 / K - mean * mean, 0.0) * K / (K - 1) / K
+    out = np.concatenate([mean, var_of_mean], axis=2).astype(np.float32)
+    mi.Bitmap(out, mi.Bitmap.PixelFormat.MultiChannel,
+              ["R", "G", "B", "varR", "varG", "varB"]).write(a.out)
+    info.update({"seed": a.seed, "passes": K, "out": a.out, "seconds": total,
+                 "mean_rgb": [float(x) for x in mean.reshape(-1, 3).mean(axis=0)],
+                 "nonfinite_pixels": int((~np.isfinite(mean)).any(axis=2).sum())})
+
+
+def mode_render(mi, np, a, render, info):
+    t, arr = render(a.seed)
+    mi.Bitmap(arr, mi.Bitmap.PixelFormat.RGB).write(a.out)
+    left_r = float(arr[:, :20, 0].mean())
+    right_r = float(arr[:, -20:, 0].mean())
+    info.update({"seed": a.seed, "out": a.out, "seconds": t,
+                 "mean_rgb": [float(x) for x in arr.reshape(-1, 3).mean(axis=0)],
+                 "left20_mean_r": left_r, "right20_mean_r": right_r,
+                 "red_on_left": left_r > right_r,
+                 "nonfinite_pixels": int((~np.isfinite(arr)).any(axis=2).sum())})
+    print(f"seconds {t:.3f}", file=sys.stderr)
+
+
 def main():
     a = parse_args()
     import drjit as dr
@@ -362,77 +427,19 @@ def main():
         dr.sync_thread()
         return time.perf_counter() - t0, arr
 
-    info = {"variant": a.variant, "sampler": a.sampler, "threads": a.threads, "spp": a.spp, "width": w, "height": h,
-            "version": mi.__version__, "drjit_version": dr.__version__,
+    info = {"variant": a.variant, "sampler": a.sampler, "threads": a.threads, "spp": a.spp,
+            "width": w, "height": h, "version": mi.__version__, "drjit_version": dr.__version__,
             "drjit_thread_count": dr.thread_count()}
     if a.variant.startswith("llvm"):
         info["libllvm"] = os.environ.get("DRJIT_LIBLLVM_PATH", "")
-
     if a.mode == "speed":
-        twarm, _ = render(a.seed)  # compiles / loads kernels
-        times = []
-        for k in range(a.runs):
-            t, _ = render(a.seed + 1 + k)
-            times.append(t)
-            print(f"run {k}: {t:.3f} s", file=sys.stderr)
-        best = min(times)
-        med = statistics.median(times)
-        sps = w * h * a.spp / best
-        info.update({"seconds_warmup": twarm, "seconds_best": best, "seconds_median": med,
-                     "seconds_all": times, "samples_per_second": sps,
-                     "samples_per_second_per_core": sps / a.threads})
-        print(json.dumps(info))
-        return
-
-    if a.mode == "sweep":
-        os.makedirs(a.out_dir, exist_ok=True)
-        runs = []
-        for i, spp in enumerate(a.spps):
-            twarm, _ = render(a.seed + 1000 + i, spp)  # kernel for this spp, caches
-            t, arr = render(a.seed + i, spp)
-            out = os.path.join(a.out_dir, f"mitsuba-{spp}.exr")
-            mi.Bitmap(arr, mi.Bitmap.PixelFormat.RGB).write(out)
-            runs.append({"spp": spp, "seed": a.seed + i, "seconds": t, "seconds_warmup": twarm,
-                         "samples": w * h * spp, "out": out,
-                         "mean_rgb": [float(x) for x in arr.reshape(-1, 3).mean(axis=0)]})
-            print(f"spp {spp}: {t:.3f} s (warm-up {twarm:.3f} s)", file=sys.stderr)
-        info.update({"seed": a.seed, "runs": runs})
-        print(json.dumps(info))
-        return
-
-    if a.mode == "agree":
-        s1 = None
-        s2 = None
-        total = 0.0
-        for k in range(a.passes):
-            t, arr = render(a.seed + k)
-            arr = arr.astype(np.float64)
-            s1 = arr if s1 is None else s1 + arr
-            s2 = arr * arr if s2 is None else s2 + arr * arr
-            total += t
-            print(f"pass {k}: {t:.3f} s", file=sys.stderr)
-        K = a.passes
-        mean = s1 / K
-        var_of_mean = np.maximum(s2 / K - mean * mean, 0.0) * K / (K - 1) / K
-        out = np.concatenate([mean, var_of_mean], axis=2).astype(np.float32)
-        mi.Bitmap(out, mi.Bitmap.PixelFormat.MultiChannel,
-                  ["R", "G", "B", "varR", "varG", "varB"]).write(a.out)
-        info.update({"seed": a.seed, "passes": K, "out": a.out, "seconds": total,
-                     "mean_rgb": [float(x) for x in mean.reshape(-1, 3).mean(axis=0)],
-                     "nonfinite_pixels": int((~np.isfinite(mean)).any(axis=2).sum())})
-        print(json.dumps(info))
-        return
-
-    t, arr = render(a.seed)
-    mi.Bitmap(arr, mi.Bitmap.PixelFormat.RGB).write(a.out)
-    left_r = float(arr[:, :20, 0].mean())
-    right_r = float(arr[:, -20:, 0].mean())
-    info.update({"seed": a.seed, "out": a.out, "seconds": t,
-                 "mean_rgb": [float(x) for x in arr.reshape(-1, 3).mean(axis=0)],
-                 "left20_mean_r": left_r, "right20_mean_r": right_r,
-                 "red_on_left": left_r > right_r,
-                 "nonfinite_pixels": int((~np.isfinite(arr)).any(axis=2).sum())})
-    print(f"seconds {t:.3f}", file=sys.stderr)
+        mode_speed(a, render, info, w * h)
+    elif a.mode == "sweep":
+        mode_sweep(mi, a, render, info, w * h)
+    elif a.mode == "agree":
+        mode_agree(mi, np, a, render, info)
+    else:
+        mode_render(mi, np, a, render, info)
     print(json.dumps(info))
 
 
