@@ -110,15 +110,15 @@ if bash bench/peer/setup.sh >"$OUT/peer-setup.log" 2>&1; then
         while :; do
             echo "== Mitsuba 3 peer ($MITSUBA_PEER_VARIANT), $t thread(s), $CORNELL_SPP spp" >&2
             if measured "$PEER_TIMEOUT" "$OUT/peer-$t.out" "$OUT/peer-$t.log" "$OUT/peer-$t.load" \
-                    "$MITSUBA_PEER_PYTHON" bench/peer/mitsuba_cornell.py scenes/cornell-box.json \
+                    "$MITSUBA_PEER_PYTHON" bench/peer/mitsuba_peer.py scenes/cornell-box.json \
                     --mode speed --spp "$CORNELL_SPP" --threads "$t" --runs "$RUNS"; then
                 tail -n 1 "$OUT/peer-$t.out" >"$OUT/peer-$t.json"
             else
                 rc=$?
                 if [ "$rc" = 124 ]; then
-                    peer_error="mitsuba_cornell.py --threads $t timed out after $PEER_TIMEOUT s"
+                    peer_error="mitsuba_peer.py --threads $t timed out after $PEER_TIMEOUT s"
                 else
-                    peer_error="mitsuba_cornell.py --threads $t failed (exit $rc): $(tail -n 3 "$OUT/peer-$t.log" | tr '\n' ' ')"
+                    peer_error="mitsuba_peer.py --threads $t failed (exit $rc): $(tail -n 3 "$OUT/peer-$t.log" | tr '\n' ' ')"
                 fi
                 break 2
             fi
