@@ -13,13 +13,20 @@ matplotlib). Steps:
     settings: "long" (max VB_STUDY_ADAPTIVE_SPP, VB_STUDY_UNIFORM_LAYERS uniform
     layers) and "5.3.2" (max VB_STUDY_THESIS_SPP, the default half uniform layers,
     the thesis's section 5.3.2). Each run's OUT.error.json is its error curve.
- 3. --target-error E --confidence C runs (adaptive none): share of pixels within E.
- 3b. Options the thesis left open (issue 4, section 2), modes thesis and relerr at the long
+ 2b. The same with the independent sampler (--sampler independent): uniform, and
+    the default mode (relerr) at the long setting.
+ 3. Mitsuba 3 peer on every scene (bench/peer/mitsuba_peer.py, VB_STUDY_MITSUBA_SAMPLER):
+    agreement of high-count renders with our reference, a timed sweep, and our runs
+    against it at equal time (2 cores each): our relMSE at Mitsuba's 256- and
+    1024-spp times, and time to equal relMSE.
+ 4. --target-error at E = 0.02, 0.05, 0.1: bench/error/target.py (its own
+    references, candidate rules simulated on the master's layer means, the real
+    master checked against the simulation); writes bench/results/target.json.
+ 4b. Options the thesis left open (issue 4, section 2), modes thesis and relerr at the long
     setting: --uniform-layers 2, half the layers, --random-selection, --dilate against the long runs
-    ("base", reused) and uniform; blotch share and base-vs-dilate heat maps.
+    ("base", reused) and uniform; blotch share and base-vs-dilate heat maps. Only with
+    VB_STUDY_OPTIONS=1 (else the last measured table is carried over, with its commit);
     `study.py --only options` runs this part alone on top of bench/results/error.json.
- 4. Mitsuba 3 peer on the Cornell box: agreement of high-count renders with our
-    reference, then time to equal relMSE (2 threads each).
  5. bench/results/error.json, PNG plots under bench/results/error/, the bench/RESULTS.md
     section between <!-- bench:error:begin/end -->, tables printed.
 
@@ -69,25 +76,29 @@ CFG = {
     "threads": 2,
     "seed": 7,
     "ref_seeds": [1000001, 1000002],
-    "target_error": env_float("VB_STUDY_TARGET_E", 0.1),
     "confidence": env_float("VB_STUDY_TARGET_C", 0.95),
-    "target_cap_spp": env_int("VB_STUDY_TARGET_SPP", 512 if QUICK else 2048),
+    # sample counts multijitter takes (a x a or a x (a+1)), about 2x apart
     "mitsuba_spps": [int(x) for x in os.environ.get(
-        "VB_STUDY_MITSUBA_SPPS", "16,32,64,128,256" if QUICK else "16,32,64,128,256,512,1024,2048").split(",")],
-    "mitsuba_agree_spp": env_int("VB_STUDY_AGREE_SPP", 256 if QUICK else 2048),
-    "mitsuba_agree_passes": env_int("VB_STUDY_AGREE_PASSES", 4),
+        "VB_STUDY_MITSUBA_SPPS", "16,30,64,132,256" if QUICK else "16,30,64,132,256,506,1024,2070").split(",")],
+    "mitsuba_agree_spp": env_int("VB_STUDY_AGREE_SPP", 256 if QUICK else 1024),
+    "mitsuba_agree_passes": env_int("VB_STUDY_AGREE_PASSES", 4 if QUICK else 8),
     "mitsuba_seed": 500,
     "quiet_wait_s": env_float("VB_STUDY_QUIET_WAIT", 30),
     "quiet_budget_s": env_float("VB_STUDY_QUIET_BUDGET", 240),
-    "target_share": env_float("VB_STUDY_TARGET_SHARE", 1.0),
     "quiet_cores": 0.3,
     "busy_retry_cores": 0.25,
-    "scenes": os.environ.get("VB_STUDY_SCENES", "cornell-box,happy-buddha,caustic,dark-bright").split(","),
+    "scenes": os.environ.get("VB_STUDY_SCENES",
+                             "cornell-box,cornell-glass,happy-buddha,caustic,dark-bright").split(","),
+    # Mitsuba at its best: multijitter had the lowest relMSE at equal time on
+    # the Cornell box and the glass scene (bench/peer/README.md)
+    "mitsuba_sampler": os.environ.get("VB_STUDY_MITSUBA_SAMPLER", "multijitter"),
+    "mitsuba_marks": [256, 1024],
+    "default_mode": "relerr",  # common/defaults.h JOB_DEFAULT_ADAPTIVE
 }
 MODES = ["thesis", "variance", "relerr"]
+INDEP = ["--sampler", "independent"]
 HARD = {"caustic", "dark-bright"}
 EPS = 1e-2          # compare.h COMPARE_EPS
-TARGET_EPS = 1e-3   # sched.h SCHED_TARGET_EPS
 WORK = os.path.join(ROOT, "bench", "work", "error")
 # The quick smoke run writes under bench/work/ (git-ignored), never over the full results.
 RESULTS_JSON = os.path.join(WORK, "quick", "error.json") if QUICK else \
@@ -284,6 +295,15 @@ def make_reference(name, scene):
     return exr, meta
 
 
+def image_bias(exr, ref_ch):
+    """The image's mean luminance against the reference's: relative difference
+    and in standard errors (from the per-pixel relMSE spread, a loose bound)."""
+    a, r = lum(rgb(read_exr(exr))), lum(rgb(ref_ch))
+    d = a - r
+    se = float(np.std(d) / math.sqrt(d.size))
+    return {"relative": float(d.mean() / max(r.mean(), 1e-12)), "in_se": float(d.mean() / max(se, 1e-30))}
+
+
 def git_commit():
     try:
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
@@ -421,6 +441,16 @@ def compare_curves(u, a, npix):
 
 
 # ---------------------------------------------------------------- plots
+def curve_slope(s, key):
+    """Log-log slope of error against samples over the run's last decade
+    (-1: Monte Carlo's rate; steeper: the sampler's stratification pays)."""
+    n, y = by_samples(s, key)
+    keep = (n >= n[-1] / 10) & (y > 0)
+    if keep.sum() < 3:
+        return None
+    return float(np.polyfit(np.log(n[keep]), np.log(y[keep]), 1)[0])
+
+
 def plot_scene(name, runs, ref_meta, path):
     import matplotlib
     matplotlib.use("Agg")
@@ -431,9 +461,11 @@ def plot_scene(name, runs, ref_meta, path):
         for (col, xk) in enumerate(("t", "n")):
             ax = axs[row][col]
             for tag, s in runs.items():
-                ls = "--" if tag.startswith("t532") else "-"
+                ls = ":" if tag.endswith("-indep") else "--" if tag.startswith("t532") else "-"
                 x = s[xk] / (1 if xk == "t" else s["npix"])
-                ax.loglog(x, s[key], ls, color=colors[s["adaptive"]], lw=1.3, label=s["label"])
+                slope = curve_slope(s, key)
+                ax.loglog(x, s[key], ls, color=colors[s["adaptive"]], lw=1.3,
+                          label=s["label"] + (f", slope {slope:.2f}" if slope is not None and xk == "n" else ""))
             refv = ref_meta["relmse_est"] if key == "relmse" else ref_meta["rmse_est"]
             ax.axhline(refv, color="0.6", ls=":", lw=1, label="reference's own error")
             ax.set_xlabel("seconds" if xk == "t" else "samples per pixel (mean)")
@@ -481,60 +513,43 @@ def plot_heat(name, runs, ref_rgb, path):
     plt.close(fig)
 
 
-def plot_peer(ours, mits, path, ref_meta):
+def plot_peer(name, ours, mits, path, ref_meta):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(6, 4.2))
     for s, c in ours:
         ax.loglog(s["t"], s["relmse"], "-", color=c, label=s["label"])
-    ax.loglog(mits["t"], mits["relmse"], "o-", color="C3", label="Mitsuba 3 llvm_ad_rgb, path")
+    ax.loglog(mits["t"], mits["relmse"], "o-", color="C3",
+              label=f"Mitsuba 3 llvm_ad_rgb, path, {CFG['mitsuba_sampler']}")
     ax.axhline(ref_meta["relmse_est"], color="0.6", ls=":", label="reference's own error")
     ax.set_xlabel("seconds (2 threads)")
     ax.set_ylabel("relMSE vs vbrender reference")
     ax.grid(True, which="both", alpha=0.25)
     ax.legend(fontsize=7)
-    ax.set_title("cornell-box: time to equal relMSE", fontsize=9)
+    ax.set_title(f"{name}: relMSE against time, 2 cores each", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=70)
     plt.close(fig)
 
 
 # ---------------------------------------------------------------- target error
-def target_check(name, scene, ref, ref_ch):
-    E, C, cap = CFG["target_error"], CFG["confidence"], CFG["target_cap_spp"]
-    out = os.path.join(RUNS, f"{name}-target.exr")
-    cmd = vb_cmd(scene, out, cap, "none", CFG["seed"], CFG["workers"], CFG["threads"],
-                 ["--target-error", str(E), "--confidence", str(C), "--target-share", str(CFG["target_share"])],
-                 ref)
-    log(f"{name} target: E {E}, C {C}, cap {cap} spp")
-    p, st = run_measured(cmd, timed=False)
-    ch = read_exr(out)
-    a = lum(rgb(ch))
-    r = lum(rgb(ref_ch))
-    d = np.abs(a - r)
-    tol = E * (np.abs(r) + TARGET_EPS)
-    z = statistics.NormalDist().inv_cdf(0.5 + C / 2)
-    sig_r = np.sqrt(np.maximum(ref_ch["variance"], 0))
-    tol_adj = np.sqrt(tol ** 2 + (z * sig_r) ** 2)
-    conv = ch["samples"] < cap * (1 - 1e-9)
-    with open(out[:-4] + ".error.json") as f:
-        job = json.load(f).get("job", {})
-    res = {
-        "command": " ".join(rel(x) if x.startswith(ROOT) else x for x in cmd),
-        "seconds": st["wall_s"], "summary": p.stderr.strip().splitlines()[-1] if p.stderr.strip() else "",
-        "job": job, "E": E, "C": C, "cap_spp": cap, "mean_spp": float(ch["samples"].mean()),
-        "stopped_early_share": float(conv.mean()),
-        "within_share_raw": float((d <= tol).mean()),
-        "within_share_ref_noise_adjusted": float((d <= tol_adj).mean()),
-        "within_share_raw_stopped_pixels": float((d <= tol)[conv].mean()) if conv.any() else None,
-        "within_share_adjusted_stopped_pixels": float((d <= tol_adj)[conv].mean()) if conv.any() else None,
-        "median_ref_halfwidth_over_tol": float(np.median(z * sig_r / tol)),
-        "metric": "per-pixel luminance 0.3R+0.59G+0.11B: |mean - ref| <= E (ref + 1e-3); "
-                  "adjusted: tolerance widened in quadrature by the reference's own z*sigma "
-                  "(its variance channel), which is what a pixel exactly at the bound would show",
-    }
-    return res
+def target_study():
+    """bench/error/target.py: --target-error at E = 0.02, 0.05, 0.1 on every
+    scene it knows, simulated rules and the real master (its own references)."""
+    out = os.path.join(WORK, "quick", "target.json") if QUICK else \
+        os.path.join(ROOT, "bench", "results", "target.json")
+    env = dict(os.environ, VB_TARGET_OUT=out)
+    if QUICK:
+        env.setdefault("VB_TARGET_E", "0.1")
+        env.setdefault("VB_TARGET_SCENES", "cornell-box,dark-bright")
+    log("target error: bench/error/target.py")
+    t0 = time.time()
+    subprocess.run([sys.executable, os.path.join(ROOT, "bench", "error", "target.py")], check=True, env=env)
+    with open(out) as f:
+        T = json.load(f)
+    T["seconds"] = time.time() - t0
+    return T
 
 
 # ---------------------------------------------------------------- options the thesis left open
@@ -671,61 +686,52 @@ def plot_options_heat(name, maps, path):
 
 
 # ---------------------------------------------------------------- Mitsuba peer
-def peer(scene, ref, ref_meta, ref_ch, best_mode):
+def peer_agreement(name, mm, var_m, r, ref_meta):
+    """Mitsuba's K-pass mean against our reference (bench/peer/check_peer.py's
+    figures: relMSE against what noise alone gives, an 8x8-block z-test and
+    the image means)."""
+    halves = [os.path.join(WORK, "refs", f"{name}-{CFG['size']}x{CFG['size']}-{CFG['ref_spp']}spp-half{k}.exr")
+              for k in (0, 1)]
+    if all(os.path.exists(h) for h in halves):
+        h = [rgb(read_exr(x)) for x in halves]
+        var_r = (h[0] - h[1]) ** 2 / 4
+    else:  # halves gone: spread the estimated reference error evenly
+        var_r = np.full_like(r, ref_meta["mse_est"])
+    sys.path.insert(0, os.path.join(ROOT, "bench", "peer"))
+    from check_peer import agreement_figures
+    f = agreement_figures(mm, var_m, r, var_r)
+    f["relmse_mitsuba_vs_ref"] = f.pop("relmse")
+    f["block_count"] = f.pop("blocks")
+    return f
+
+
+def peer(name, scene, ref, ref_meta, runs):
+    """Mitsuba 3 on one scene: agreement with our reference, a timed sweep, and
+    our runs (2 workers x 1 thread: the same 2 cores as its 2 threads) against
+    it at equal time."""
     py = os.environ.get("MITSUBA_PEER_PYTHON", sys.executable)
-    script = os.path.join(ROOT, "bench", "peer", "mitsuba_cornell.py")
+    script = os.path.join(ROOT, "bench", "peer", "mitsuba_peer.py")
     size = str(CFG["size"])
-    out = {}
-    r = rgb(ref_ch)
-    # 1. agreement: K passes of N spp, mean and per-channel variance of the mean
-    agree_exr = os.path.join(WORK, "peer", "mitsuba-agree.exr")
+    common = ["--threads", "2", "--width", size, "--height", size, "--sampler", CFG["mitsuba_sampler"]]
+    r = rgb(read_exr(ref))
+    out = {"sampler": CFG["mitsuba_sampler"]}
+    agree_exr = os.path.join(WORK, "peer", f"{name}-mitsuba-agree.exr")
     os.makedirs(os.path.dirname(agree_exr), exist_ok=True)
     cmd = [py, script, scene, "--mode", "agree", "--spp", str(CFG["mitsuba_agree_spp"]),
-           "--passes", str(CFG["mitsuba_agree_passes"]), "--threads", "2", "--seed", "900",
-           "--width", size, "--height", size, "--out", agree_exr]
-    log(f"mitsuba agree: {CFG['mitsuba_agree_passes']} x {CFG['mitsuba_agree_spp']} spp")
+           "--passes", str(CFG["mitsuba_agree_passes"]), "--seed", "900", "--out", agree_exr] + common
+    log(f"{name} mitsuba agree: {CFG['mitsuba_agree_passes']} x {CFG['mitsuba_agree_spp']} spp")
     p, _ = run_measured(cmd, timed=False)
     info = json.loads(p.stdout.strip().splitlines()[-1])
     m = read_exr(agree_exr)
-    mm = rgb(m)
     var_m = np.stack([m["varR"], m["varG"], m["varB"]], axis=2)
-    h = [read_exr(os.path.join(WORK, "refs", f"cornell-box-{size}x{size}-{CFG['ref_spp']}spp-half{k}.exr"))
-         for k in (0, 1)] if all(os.path.exists(os.path.join(
-             WORK, "refs", f"cornell-box-{size}x{size}-{CFG['ref_spp']}spp-half{k}.exr")) for k in (0, 1)) else None
-    if h:
-        var_r = (rgb(h[0]) - rgb(h[1])) ** 2 / 4
-    else:  # halves gone: spread the estimated reference error evenly
-        var_r = np.full_like(r, ref_meta["mse_est"])
-    noise_rel = float(np.mean((var_m + var_r) / (r * r + EPS)))
-    meas_rel = relmse(mm, r)
-    # block test: 8x8 blocks, z of the mean difference per channel
-    B = 8
-    H, W = r.shape[:2]
-    hb, wb = H // B, W // B
-    d = (mm - r)[:hb * B, :wb * B].reshape(hb, B, wb, B, 3).mean(axis=(1, 3))
-    vd = (var_m + var_r)[:hb * B, :wb * B].reshape(hb, B, wb, B, 3).sum(axis=(1, 3)) / (B * B) ** 2
-    zb = d / np.sqrt(np.maximum(vd, 1e-30))
-    npix = H * W
-    mean_m = mm.reshape(-1, 3).mean(axis=0)
-    mean_r = r.reshape(-1, 3).mean(axis=0)
-    se_mean = np.sqrt((var_m + var_r).reshape(-1, 3).sum(axis=0)) / npix
-    out["agreement"] = {
-        "mitsuba": info, "mitsuba_spp_total": CFG["mitsuba_agree_spp"] * CFG["mitsuba_agree_passes"],
-        "relmse_mitsuba_vs_ref": meas_rel, "relmse_expected_from_noise": noise_rel,
-        "excess_relmse": meas_rel - noise_rel,
-        "block_z_chi2_per_dof": float(np.mean(zb ** 2)), "block_z_max_abs": float(np.abs(zb).max()),
-        "block_count": int(zb.size), "blocks_over_4_sigma": int((np.abs(zb) > 4).sum()),
-        "mean_rgb_mitsuba": [float(x) for x in mean_m], "mean_rgb_ours_ref": [float(x) for x in mean_r],
-        "mean_diff_in_sigma": [float(x) for x in (mean_m - mean_r) / se_mean],
-    }
-    # 2. sweep
-    sweep_dir = os.path.join(WORK, "peer", "sweep")
+    out["agreement"] = dict(peer_agreement(name, rgb(m), var_m, r, ref_meta), mitsuba=info,
+                            mitsuba_spp_total=CFG["mitsuba_agree_spp"] * CFG["mitsuba_agree_passes"])
+    sweep_dir = os.path.join(WORK, "peer", f"{name}-sweep")
     cmd = [py, script, scene, "--mode", "sweep", "--spp-list", ",".join(map(str, CFG["mitsuba_spps"])),
-           "--threads", "2", "--seed", str(CFG["mitsuba_seed"]), "--width", size, "--height", size,
-           "--out-dir", sweep_dir]
+           "--seed", str(CFG["mitsuba_seed"]), "--out-dir", sweep_dir] + common
     best = None
     for attempt in range(2):
-        log(f"mitsuba sweep: spp {CFG['mitsuba_spps']}")
+        log(f"{name} mitsuba sweep: spp {CFG['mitsuba_spps']}")
         p, st = run_measured(cmd, timed=True)
         st["attempt"] = attempt
         if best is None or st["other_cpu_cores"] < best[1]["other_cpu_cores"]:
@@ -737,50 +743,43 @@ def peer(scene, ref, ref_meta, ref_ch, best_mode):
     sw = json.loads(p.stdout.strip().splitlines()[-1])
     pts = []
     for run in sw["runs"]:
-        a = rgb(read_exr(run["out"]))
-        rr = relmse(a, r)
+        rr = relmse(rgb(read_exr(run["out"])), r)
         pts.append({"spp": run["spp"], "seconds": run["seconds"], "relmse_raw": rr,
                     "relmse": max(rr - ref_meta["relmse_est"], 1e-12),
                     "samples_per_second": run["samples"] / run["seconds"]})
     out["mitsuba_sweep"] = {"runs": pts, "stats": st, "variant": sw.get("variant"), "version": sw.get("version")}
     mits = {"t": np.array([q["seconds"] for q in pts]), "relmse": np.array([q["relmse"] for q in pts])}
-    # 3. ours, one embedded worker with 2 threads
-    ours = []
-    ref_runs = {}
-    for tag, adaptive, spp, extra in (
-            ("peer-uniform", "none", CFG["uniform_spp"], []),
-            (f"peer-{best_mode}", best_mode, CFG["adaptive_spp"],
-             ["--uniform-layers", str(CFG["adaptive_uniform_layers"])])):
-        s = study_run("cornell-box", scene, ref, ref_meta, tag, spp, adaptive, 1, 2, extra)
-        s["label"] = f"vbrender {adaptive if adaptive != 'none' else 'uniform'} (1 worker, 2 threads)"
-        ref_runs[tag] = s
-        ours.append((s, "k" if adaptive == "none" else "C0"))
-    ratios = {}
-    for tag, s in ref_runs.items():
-        lo = max(float(np.min(s["relmse"])), float(np.min(mits["relmse"])))
-        hi = min(float(np.max(s["relmse"])), float(np.max(mits["relmse"])))
-        levels = []
-        if hi > lo:
-            for lev in np.geomspace(hi, lo, 6)[1:-1]:
-                tm = first_reach(mits["t"], mits["relmse"], lev)
-                to = first_reach(s["t"], s["relmse"], lev)
-                if tm and to:
-                    levels.append({"relmse": float(lev), "mitsuba_s": tm, "ours_s": to, "ratio": tm / to})
-        ratios[tag] = {"levels": levels,
-                       "geomean_ratio": float(np.exp(np.mean([np.log(x["ratio"]) for x in levels])))
-                       if levels else None,
-                       "ours_samples_per_second": float(s["n"][-1] / s["t"][-1]),
-                       "ours_stats": s["stats"], "command": s["command"]}
-    out["time_to_equal_relmse"] = ratios
-    u = ref_runs["peer-uniform"]
-    nu, yu = by_samples(u, "relmse")
-    out["relmse_ratio_mitsuba_over_ours_at_equal_spp"] = [
-        {"spp": q["spp"], "mitsuba": q["relmse"], "ours": interp_loglog(nu, yu, q["spp"] * r.shape[0] * r.shape[1]),
-         "ratio": (q["relmse"] / interp_loglog(nu, yu, q["spp"] * r.shape[0] * r.shape[1]))
-         if interp_loglog(nu, yu, q["spp"] * r.shape[0] * r.shape[1]) else None} for q in pts]
     out["mitsuba_samples_per_second"] = float(np.median([q["samples_per_second"] for q in pts[-3:]]))
-    plot_peer(ours, mits, os.path.join(PLOTS, "peer-cornell-box.png"), ref_meta)
+    out["ours"] = {tag: peer_compare(s, mits, pts) for tag, s in runs.items()}
+    plot_peer(name, [(s, c) for s, c in ((runs.get("uniform"), "k"),
+                                         (runs.get(f"long-{CFG['default_mode']}"), "C2"),
+                                         (runs.get("uniform-indep"), "0.5")) if s], mits,
+              os.path.join(PLOTS, f"peer-{name}.png"), ref_meta)
     return out
+
+
+def peer_compare(s, mits, pts):
+    """One of our runs against Mitsuba's sweep: our relMSE over Mitsuba's at
+    the time Mitsuba took for each mark (256, 1024 spp), and Mitsuba's time
+    over ours to equal relMSE at levels both reach."""
+    marks = []
+    for q in pts:
+        if q["spp"] in CFG["mitsuba_marks"]:
+            ours = interp_loglog(s["t"], s["relmse"], q["seconds"])
+            marks.append({"mitsuba_spp": q["spp"], "seconds": q["seconds"], "mitsuba": q["relmse"],
+                          "ours": ours, "ratio": ours / q["relmse"] if ours else None})
+    lo = max(float(np.min(s["relmse"])), float(np.min(mits["relmse"])))
+    hi = min(float(np.max(s["relmse"])), float(np.max(mits["relmse"])))
+    levels = []
+    if hi > lo:
+        for lev in np.geomspace(hi, lo, 6)[1:-1]:
+            tm = first_reach(mits["t"], mits["relmse"], lev)
+            to = first_reach(s["t"], s["relmse"], lev)
+            if tm and to:
+                levels.append({"relmse": float(lev), "mitsuba_s": tm, "ours_s": to, "ratio": tm / to})
+    return {"at_mitsuba_times": marks, "time_levels": levels,
+            "time_geomean": float(np.exp(np.mean([np.log(x["ratio"]) for x in levels]))) if levels else None,
+            "ours_samples_per_second": float(s["n"][-1] / s["t"][-1])}
 
 
 # ---------------------------------------------------------------- tables
@@ -885,43 +884,8 @@ def tables(R):
                      f"{fmt(es['ratio'])} | {fmt(a['rmse_equal_samples']['ratio'])} | "
                      f"{fmt(a['relmse_equal_time']['ratio'])} ({fmt(w['ratio']) if w else '-'}) |")
     L.append("")
-    L.append(f"`--target-error {c['target_error']} --confidence {c['confidence']} --target-share "
-             f"{c['target_share']}` (adaptive none, cap "
-             f"{c['target_cap_spp']} spp): share of pixels whose luminance is within E (ref + 1e-3) of the "
-             f"reference; \"adjusted\" widens the tolerance in quadrature by the reference's own "
-             f"z sigma. \"Stopped pixels\": those the rule stopped before the cap (the claim under test); "
-             f"the others ran to the cap without meeting E.")
-    L.append("")
-    L.append("| scene | stopped on target | pixels stopped early | mean spp | within E, all pixels (adjusted) "
-             "| within E, stopped pixels (adjusted) | ref. half-width / tol. (median) |")
-    L.append("|---|---|--:|--:|--:|--:|--:|")
-    for sc, S in R["scenes"].items():
-        t = S["target"]
-        L.append(f"| {sc} | {'yes' if t['job'].get('stopped_on_target') else 'no'} | "
-                 f"{t['stopped_early_share']:.3f} | {t['mean_spp']:.0f} | {t['within_share_raw']:.3f} "
-                 f"({t['within_share_ref_noise_adjusted']:.3f}) | {fmt(t['within_share_raw_stopped_pixels'])} "
-                 f"({fmt(t['within_share_adjusted_stopped_pixels'])}) | {t['median_ref_halfwidth_over_tol']:.2f} |")
-    P = R.get("peer")
-    if P:
-        ag = P["agreement"]
-        L.append("")
-        L.append(f"Mitsuba 3 ({P['mitsuba_sweep']['variant']}, path, box filter, 2 threads) on the Cornell box. "
-                 f"Agreement: {ag['mitsuba_spp_total']} spp Mitsuba against our reference: relMSE "
-                 f"{ag['relmse_mitsuba_vs_ref']:.3g}, expected from noise alone {ag['relmse_expected_from_noise']:.3g}; "
-                 f"8x8-block z-test chi2/dof {ag['block_z_chi2_per_dof']:.2f}, max |z| "
-                 f"{ag['block_z_max_abs']:.1f} over {ag['block_count']} blocks x 3 channels; image mean "
-                 f"difference {', '.join(f'{x:+.1f}' for x in ag['mean_diff_in_sigma'])} sigma (R, G, B). "
-                 f"Mitsuba {P['mitsuba_samples_per_second'] / 1e6:.2f} M samples/s. relMSE Mitsuba / ours at "
-                 f"equal spp: "
-                 + ", ".join(f"{q['ratio']:.2f} @ {q['spp']}" for q in P["relmse_ratio_mitsuba_over_ours_at_equal_spp"]
-                             if q["ratio"] and q["spp"] >= 64) + ".")
-        L.append("")
-        L.append("| ours (2 threads, 1 embedded worker) | ours samples/s | Mitsuba time / ours, at relMSE levels | geomean |")
-        L.append("|---|--:|---|--:|")
-        for tag, q in P["time_to_equal_relmse"].items():
-            lv = ", ".join(f"{x['ratio']:.2f} @ {x['relmse']:.2g}" for x in q["levels"])
-            L.append(f"| {tag[5:]} | {q['ours_samples_per_second'] / 1e6:.2f} M | {lv or '-'} | "
-                     f"{fmt(q['geomean_ratio'])} |")
+    L += sampler_mode_table(R)
+    L += target_table(R.get("target"))
     busy = R.get("busy_runs", [])
     if busy:
         L.append("")
@@ -969,7 +933,7 @@ def tables(R):
         L.append("")
         L.append("Heat maps, base vs --dilate: `bench/results/error/<scene>-dilate.png`.")
     L.append("")
-    L.append("Targets (issue 4, section 4):")
+    L.append("Targets (issues 4 and 10):")
     L.append("")
     for t in R["targets"]:
         L.append(f"- {'met' if t['met'] else 'MISSED'}: {t['text']}")
@@ -982,13 +946,99 @@ def tables(R):
              "relMSE where the bright side's larger absolute variance draws the samples away from the "
              "dark side (dark-bright). relerr (t half-width / (mean + 0.1)) weights pixels as relMSE "
              "does. Equal-samples ratios flatter modes whose chosen pixels cost more per sample "
-             "(happy-buddha: background pixels are cheap), so time is the fair axis. Mitsuba's "
-             "relMSE per sample equals ours, so the time ratio is the samples/s ratio.")
+             "(happy-buddha: background pixels are cheap), so time is the fair axis. Against Mitsuba "
+             "the time ratio combines samples/s and error per sample (sampler and estimator).")
     L.append("")
     L.append("Plots: `bench/results/error/<scene>.png` (error vs time and samples, log-log), "
              "`<scene>-heat.png` (samples per pixel), `heat/` (vbrender's own heat maps), "
-             "`peer-cornell-box.png`.")
+             "`peer-<scene>.png` (relMSE against time, ours and Mitsuba 3).")
     return "\n".join(L)
+
+
+def sampler_mode_table(R):
+    """Issue 10's report: per scene, sampler x mode at equal spp and equal
+    time (against uniform Sobol), bias, and against Mitsuba 3."""
+    c = R["config"]
+    marks = c.get("mitsuba_marks", [256, 1024])
+    L = ["", f"Sampler x mode, per scene (Sobol: Owen-scrambled, one replicate per layer; independent: "
+         f"`--sampler independent`). relMSE ratios against uniform Sobol (below 1: better); bias: image "
+         f"mean luminance against the reference, relative (and in standard errors). Against Mitsuba 3 "
+         f"({c.get('mitsuba_sampler', 'independent')} sampler, 2 threads; ours 2 workers x 1 thread, the same 2 "
+         f"cores): our relMSE over Mitsuba's at the time Mitsuba took for "
+         + " and ".join(f"{m} spp" for m in marks) + ", and Mitsuba's time over ours to equal relMSE "
+         "(geomean over levels both reach; above 1: we are faster).", "",
+         "| scene | sampler | mode | mean spp | relMSE slope vs samples (last decade) | relMSE ratio, equal spp "
+         "| relMSE ratio, equal time | bias | "
+         + " | ".join(f"ours / Mitsuba relMSE @ its {m}-spp time" for m in marks)
+         + " | Mitsuba time / ours |", "|---|---|---|--:|--:|--:|--:|--:|" + "--:|" * len(marks) + "--:|"]
+    P = R.get("peers", {})
+    for sc, S in R["scenes"].items():
+        for tag, run in S["runs"].items():
+            if tag.startswith("t532"):
+                continue
+            sampler = "independent" if tag.endswith("-indep") else "sobol"
+            mode = run["job"].get("adaptive", "none") if run.get("job") else "?"
+            cmp = S["comparisons"].get(tag)
+            eqs = fmt(cmp["relmse_equal_samples"]["ratio"]) if cmp else "1"
+            eqt = fmt(cmp["relmse_equal_time"]["ratio"]) if cmp else "1"
+            b = run.get("bias")
+            bias = f"{100 * b['relative']:+.3f} % ({b['in_se']:+.1f})" if b else "-"
+            o = P.get(sc, {}).get("ours", {}).get(tag)
+            cells = []
+            for m in marks:
+                x = [q for q in (o or {}).get("at_mitsuba_times", []) if q["mitsuba_spp"] == m]
+                cells.append(fmt(x[0]["ratio"]) if x else "-")
+            L.append(f"| {sc} | {sampler} | {mode} | {run['mean_spp']:.0f} | "
+                     f"{fmt(run.get('slope_relmse_vs_samples'), 2)} | {eqs} | {eqt} | {bias} | "
+                     + " | ".join(cells) + f" | {fmt(o['time_geomean']) if o else '-'} |")
+    if P:
+        L += ["", "Mitsuba 3 against our references (agreement: K passes, mean and variance of the mean):", "",
+              "| scene | Mitsuba spp | relMSE vs ours | expected from noise | 8x8-block chi2/dof | max abs z "
+              "| image mean difference, R G B (sigma) | Mitsuba samples/s |", "|---|--:|--:|--:|--:|--:|---|--:|"]
+        for sc, q in P.items():
+            ag = q["agreement"]
+            L.append(f"| {sc} | {ag['mitsuba_spp_total']} | {ag['relmse_mitsuba_vs_ref']:.3g} | "
+                     f"{ag['relmse_expected_from_noise']:.3g} | {ag['block_z_chi2_per_dof']:.2f} | "
+                     f"{ag['block_z_max_abs']:.1f} | "
+                     + " ".join(f"{x:+.1f}" for x in ag["mean_diff_in_sigma"])
+                     + f" | {q['mitsuba_samples_per_second'] / 1e6:.2f} M |")
+    return L
+
+
+def target_table(T):
+    """bench/error/target.py's figures: the rule as shipped, simulated and run."""
+    if not T:
+        return []
+    cf = T["config"]
+    L = ["", f"`--target-error E --confidence {cf['confidence']}` (bench/error/target.py, image side by E "
+         f"{cf['sizes']}, G = {cf['granularity']}, adaptive none): share of non-black pixels "
+         f"within E (ref + 1e-3) of an independent reference whose own per-pixel noise (one standard "
+         f"error, relative) is at most E/5 (pixels where it is not are left out and counted). "
+         f"\"Master\": the real `vbrender render`, 2 workers; \"simulated\": the same rule on the same "
+         f"layer means (bench_batches). Samples against uniform sampling reaching the same share.", "",
+         "| scene | E | size | reference noise p99 / max | pixels checked | share (master) | share (simulated) "
+         "| mean spp | uniform spp, same share | ratio | master spp = simulated |",
+         "|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|"]
+    shipped = T.get("shipped", "window5")
+    for sc, S in T["scenes"].items():
+        for E, B in S["by_error"].items():
+            r = B["rules"][shipped]
+            m = B.get("master") or {}
+            rn = B["reference_noise"]
+            L.append(f"| {sc} | {E} | {B['size']} | {rn['p99']:.4f} / {rn['max']:.4f} | {B['checked_pixels']} of "
+                     f"{B['nonblack']} | {fmt(m.get('share'))} | {r['share']:.3f} | {r['mean_spp']:.0f} | "
+                     f"{r['uniform_spp_same_share'] or '-'} | {fmt(r['samples_vs_uniform'])} | "
+                     f"{fmt(m.get('pixels_with_simulated_samples'))} |")
+    L += ["", "Rules measured (simulated share at each E; the shipped one first):", "",
+          "| rule | " + " | ".join(f"{sc} {E}" for sc, S in T["scenes"].items() for E in S["by_error"]) + " |",
+          "|---|" + "--:|" * sum(len(S["by_error"]) for S in T["scenes"].values())]
+    for rn in T["rules"]:
+        L.append(f"| {rn} | " + " | ".join(
+            f"{S['by_error'][E]['rules'][rn]['share']:.3f} ({fmt(S['by_error'][E]['rules'][rn]['samples_vs_uniform'], 2)})"
+            for S in T["scenes"].values() for E in S["by_error"]) + " |")
+    L += ["", "Each cell: share within E (samples / uniform's for the same share). " +
+          "; ".join(f"{k}: {v}" for k, v in T["rules"].items()) + "."]
+    return L
 
 
 def update_readme(md):
@@ -1041,35 +1091,29 @@ def targets(R):
                       "(any time after the uniform layers): worst "
                       + ", ".join(f"{sc} {tag} {r:.2f}" for r, sc, tag in worst[:4])
                       + (f"; {len(losers)} of {len(worst)} (scene, mode, setting) over 1.05" if losers else "")})
-    tg = [(sc, S["target"]) for sc, S in R["scenes"].items()]
-    T.append({"met": all((t["within_share_adjusted_stopped_pixels"] or 0) >= t["C"] for _, t in tg),
-              "text": f"--target-error {R['config']['target_error']}: share of the pixels it stopped within E >= C = "
-                      f"{R['config']['confidence']}: "
-                      + ", ".join(f"{sc} {fmt(t['within_share_raw_stopped_pixels'])} raw / "
-                                  f"{fmt(t['within_share_adjusted_stopped_pixels'])} adjusted" for sc, t in tg)
-                      + "".join(f"; {sc}: met only with the reference's own noise accounted for, the raw "
-                                f"share misses" for sc, t in tg
-                                if (t["within_share_raw_stopped_pixels"] or 0) < t["C"]
-                                <= (t["within_share_adjusted_stopped_pixels"] or 0))
-                      + " (all pixels, cap included: "
-                      + ", ".join(f"{sc} {t['within_share_raw']:.3f} / {t['within_share_ref_noise_adjusted']:.3f}"
-                                  for sc, t in tg) + ")"})
-    if R.get("peer"):
-        q = R["peer"]["time_to_equal_relmse"]
-        g = {k: v["geomean_ratio"] for k, v in q.items()}
-        T.append({"met": any(v is not None and v >= 2 for v in g.values()),
-                  "text": "Cornell box time to equal relMSE at least 2x better than Mitsuba 3: Mitsuba time / "
-                          "ours " + ", ".join(f"{k[5:]} {fmt(v)}" for k, v in g.items())})
+    TG = R.get("target")
+    if TG:
+        rows = [(sc, E, B) for sc, S in TG["scenes"].items() for E, B in S["by_error"].items()]
+        share = [(B.get("master") or {}).get("share") for _, _, B in rows]
+        C = TG["config"]["confidence"]
+        T.append({"met": all(x is not None and x >= C for x in share),
+                  "text": f"--target-error E --confidence {C}: share of non-black pixels within E >= C "
+                          "(the real master): " + ", ".join(f"{sc} {E} {fmt(x)}" for (sc, E, _), x in zip(rows, share))})
+    for sc in ("cornell-box", "cornell-glass"):
+        o = R.get("peers", {}).get(sc, {}).get("ours", {}).get(f"long-{R['config'].get('default_mode', 'relerr')}")
+        if not o:
+            continue
+        ratios = [q["ratio"] for q in o["at_mitsuba_times"]]
+        T.append({"met": bool(ratios) and all(x is not None and x <= 0.5 for x in ratios),
+                  "text": f"{sc}: our relMSE (default mode) at least 2x lower than Mitsuba 3's at its "
+                          + " and ".join(f"{q['mitsuba_spp']}-spp time ({fmt(q['ratio'])})" for q in o["at_mitsuba_times"])})
     R["targets"] = T
     R["busy_runs"] = [f"{sc}/{tag} ({r['stats']['other_cpu_cores']:.2f})" for sc, S in R["scenes"].items()
                       for tag, r in S["runs"].items() if r["stats"]["other_cpu_cores"] > R["config"]["busy_retry_cores"]]
-    if R.get("peer"):
-        for tag, q in R["peer"]["time_to_equal_relmse"].items():
-            if q["ours_stats"]["other_cpu_cores"] > R["config"]["busy_retry_cores"]:
-                R["busy_runs"].append(f"{tag} ({q['ours_stats']['other_cpu_cores']:.2f})")
-        st = R["peer"]["mitsuba_sweep"]["stats"]
+    for sc, q in R.get("peers", {}).items():
+        st = q["mitsuba_sweep"]["stats"]
         if st["other_cpu_cores"] > R["config"]["busy_retry_cores"]:
-            R["busy_runs"].append(f"mitsuba sweep ({st['other_cpu_cores']:.2f})")
+            R["busy_runs"].append(f"{sc}/mitsuba sweep ({st['other_cpu_cores']:.2f})")
 
 
 # ---------------------------------------------------------------- main
@@ -1161,9 +1205,21 @@ def main():
             s["label"] = f"{m} long (max {CFG['adaptive_spp']})"
             runs[f"long-{m}"] = s
         for m in MODES:
-            s = study_run(name, scene, ref, meta, f"t532-{m}", CFG["thesis_spp"], m, CFG["workers"], CFG["threads"])
+            # half the layers uniform, as the thesis (explicit: only thesis has it by default)
+            half = CFG["thesis_spp"] // CFG["granularity"] // 2
+            s = study_run(name, scene, ref, meta, f"t532-{m}", CFG["thesis_spp"], m, CFG["workers"], CFG["threads"],
+                          ["--uniform-layers", str(half)])
             s["label"] = f"{m} 5.3.2 (max {CFG['thesis_spp']})"
             runs[f"t532-{m}"] = s
+        d = CFG["default_mode"]
+        s = study_run(name, scene, ref, meta, "uniform-indep", CFG["uniform_spp"], "none", CFG["workers"],
+                      CFG["threads"], INDEP)
+        s["label"] = f"uniform {CFG['uniform_spp']} spp, independent sampler"
+        runs["uniform-indep"] = s
+        s = study_run(name, scene, ref, meta, f"long-{d}-indep", CFG["adaptive_spp"], d, CFG["workers"],
+                      CFG["threads"], ["--uniform-layers", str(CFG["adaptive_uniform_layers"])] + INDEP)
+        s["label"] = f"{d} long, independent sampler"
+        runs[f"long-{d}-indep"] = s
         for s in runs.values():
             s["npix"] = npix
             s["mean_spp"] = float(s["n"][-1] / npix)
@@ -1171,7 +1227,6 @@ def main():
         comps = {tag: compare_curves(runs["uniform"], runs[tag], npix) for tag in runs if tag != "uniform"}
         plot_scene(name, runs, meta, os.path.join(PLOTS, f"{name}.png"))
         plot_heat(name, runs, rgb(ref_ch), os.path.join(PLOTS, f"{name}-heat.png"))
-        target = target_check(name, scene, ref, ref_ch)
         out_runs = {}
         for tag, s in runs.items():
             out_runs[tag] = {
@@ -1180,27 +1235,36 @@ def main():
                 "mean_spp": s["mean_spp"], "seconds": s["seconds"],
                 "relmse": float(s["relmse"][-1]), "rmse": float(s["rmse"][-1]),
                 "relmse_raw": float(s["relmse_raw"][-1]), "rmse_raw": float(s["rmse_raw"][-1]),
+                "bias": image_bias(s["exr"], ref_ch),
+                "slope_relmse_vs_samples": curve_slope(s, "relmse"),
                 "series": {"columns": "seconds samples relmse rmse relmse_raw rmse_raw",
                            "rows": [[round(float(a), 4), int(b), g5(c), g5(d), g5(e), g5(f)]
                                     for a, b, c, d, e, f in zip(s["t"], s["n"], s["relmse"], s["rmse"],
                                                                 s["relmse_raw"], s["rmse_raw"])]},
             }
         floor = min(float(np.min(s["relmse_raw"])) for s in runs.values())
-        R["scenes"][name] = {"runs": out_runs, "comparisons": comps, "target": target,
+        R["scenes"][name] = {"runs": out_runs, "comparisons": comps,
                              "reference_error_over_smallest_measured": meta["relmse_est"] / floor}
         R["_runs_" + name] = runs  # for the peer choice, dropped before writing
-    # peer on the Cornell box with the best adaptive mode there (long setting, equal time)
-    if "cornell-box" in scenes:
-        comps = R["scenes"]["cornell-box"]["comparisons"]
-        best = min(MODES, key=lambda m: comps[f"long-{m}"]["equal_relmse_time"]["time_share"] or 9e9)
-        ref, meta = refs["cornell-box"]
-        R["peer"] = peer(scenes["cornell-box"], ref, meta, read_exr(ref), best)
-        R["peer"]["best_adaptive_mode"] = best
+    R["peers"] = {}
+    for name, scene in scenes.items():
+        ref, meta = refs[name]
+        R["peers"][name] = peer(name, scene, ref, meta, R["_runs_" + name])
     for k in [k for k in R if k.startswith("_runs_")]:
         del R[k]
-    R["options"] = options_study(R, scenes, refs)
+    R["target"] = target_study()
+    if os.environ.get("VB_STUDY_OPTIONS", "0") == "1":
+        R["options"] = options_study(R, scenes, refs)
+    elif os.path.exists(RESULTS_JSON):
+        # the options study (issue 4) is not rerun by default: its table stays,
+        # with the commit it was measured at
+        with open(RESULTS_JSON) as f:
+            old = json.load(f)
+        if old.get("options"):
+            R["options"] = old["options"]
     targets(R)
     R["total_seconds"] = time.time() - T_START
+    write_json(R)  # first: a fault in the tables below loses no measurement (--from-json)
     md = tables(R)
     R["readme_markdown"] = md
     write_json(R)
