@@ -328,7 +328,7 @@ bench: deps
 	bench/run-preview.sh
 
 bench-error: deps
-	$(MAKE) all
+	$(MAKE) all $(BUILD)/bench/bench_batches
 	bash bench/run-sampler.sh
 	bash bench/error/run.sh
 

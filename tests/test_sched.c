@@ -334,6 +334,44 @@ START_TEST(test_target_error_stops)
 }
 END_TEST
 
+/* every pixel steady, but pixel 10's one layer 4 (the layer already decided
+ * for it when the steady pixels converged) is bright */
+static double late_spike(uint32_t p, uint32_t layer)
+{
+    return p == 10 && layer == 4 ? 1.5 : 0.5;
+}
+
+/* A pixel that stopped starts again when a neighbour's later layer raises
+ * its window's variance: pixels within SCHED_TARGET_POOL_RADIUS of pixel 10
+ * skip layer 5 (converged after layer 3, so decided out) and take layer 6;
+ * the others stop for good. */
+START_TEST(test_target_window_restarts)
+{
+    char err[256];
+    sched_config_t c = {.width = 16,
+                        .height = 1,
+                        .spp = 64,
+                        .granularity = 4,
+                        .adaptive = SCHED_ADAPTIVE_NONE,
+                        .uniform_layers = UINT32_MAX,
+                        .range_pixels = 4,
+                        .target_error = 0.05,
+                        .confidence = 0.95};
+    sched_t *s = sched_new(&c, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    run_all(s, late_spike, 4);
+    ck_assert(sched_done(s));
+    for (uint32_t p = 0; p < 16; p++) {
+        int near = p + SCHED_TARGET_POOL_RADIUS >= 10 && p <= 10 + SCHED_TARGET_POOL_RADIUS;
+        ck_assert_int_eq(sched_pixel_in_layer(s, 4, p), 1);
+        ck_assert_msg(sched_pixel_in_layer(s, 5, p) == 0, "pixel %u took layer 5", p);
+        ck_assert_msg(sched_pixel_in_layer(s, 6, p) == near, "pixel %u %s layer 6", p,
+                      near ? "skipped" : "took");
+    }
+    sched_destroy(&s);
+}
+END_TEST
+
 /* relerr and variance keep the noisy pixels and skip the steady ones. */
 START_TEST(test_relerr_and_variance_modes)
 {
@@ -1093,6 +1131,7 @@ int main(void)
     tcase_add_test(tc, test_order_does_not_matter);
     tcase_add_test(tc, test_flag_sequence);
     tcase_add_test(tc, test_target_error_stops);
+    tcase_add_test(tc, test_target_window_restarts);
     tcase_add_test(tc, test_relerr_and_variance_modes);
     tcase_add_test(tc, test_dilation);
     tcase_add_test(tc, test_random_selection);

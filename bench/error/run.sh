@@ -12,8 +12,9 @@ set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 cd "$ROOT"
 
-if [ ! -x bin/vbrender ]; then
-    echo "bench/error/run.sh: bin/vbrender is missing; run 'make all' first" >&2
+if [ ! -x bin/vbrender ] || [ ! -x build/bench/bench_batches ]; then
+    echo "bench/error/run.sh: bin/vbrender or build/bench/bench_batches is missing;" \
+        "run 'make all build/bench/bench_batches' first (make bench-error does)" >&2
     exit 1
 fi
 
