@@ -15,7 +15,8 @@
 
 /* The names sched_adaptive_from_name and scene_integrator_from_name take
  * (tests/test_settings.c checks that they do). */
-static const char *const adaptive_choices[] = {"thesis", "variance", "relerr", "none", NULL};
+static const char *const adaptive_choices[] = {"relmse",   "relerr", "thesis",
+                                               "variance", "none",   NULL};
 static const char *const integrator_choices[] = {"path", "naive", NULL};
 /* tracer_sampler_from_name's names */
 static const char *const sampler_choices[] = {"sobol", "independent", NULL};
@@ -48,8 +49,10 @@ static const settings_def_t table[] = {
      .type = SETTINGS_CHOICE,
      .choices = adaptive_choices,
      .def_choice = JOB_DEFAULT_ADAPTIVE,
-     .help = "thesis (eq. 4.1), variance (of the pixel mean),\n"
-             "relerr (t-bound of layer means over mean) or none (uniform)"},
+     .help = "relmse (the relMSE one more layer takes off),\n"
+             "relerr (t-bound of layer means over mean),\n"
+             "thesis (eq. 4.1, as published), variance (of the\n"
+             "pixel mean) or none (uniform)"},
     {.flag = "--random-selection",
      .key = "random_selection",
      .type = SETTINGS_SWITCH,

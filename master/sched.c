@@ -378,11 +378,12 @@ int sched_stopped_on_target(const sched_t *s)
     return s->stopped_on_target;
 }
 
-static const char *const adaptive_names[] = {"none", "thesis", "variance", "relerr"};
+static const char *const adaptive_names[] = {"none", "thesis", "variance", "relerr", "relmse"};
+#define ADAPTIVE_MODES (int)(sizeof adaptive_names / sizeof adaptive_names[0])
 
 int sched_adaptive_from_name(const char *name)
 {
-    for (int i = 0; i < 4; i++)
+    for (int i = 0; i < ADAPTIVE_MODES; i++)
         if (strcmp(name, adaptive_names[i]) == 0)
             return i;
     return -1;
@@ -390,7 +391,7 @@ int sched_adaptive_from_name(const char *name)
 
 const char *sched_adaptive_name(sched_adaptive_t a)
 {
-    return (unsigned)a < 4 ? adaptive_names[a] : "?";
+    return (unsigned)a < ADAPTIVE_MODES ? adaptive_names[a] : "?";
 }
 
 int sched_pixel_in_layer(const sched_t *s, uint32_t layer, uint32_t pixel)
@@ -763,7 +764,8 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
     uint32_t *nf = s->nb_flight[layer & 1];
     /* batch statistics only where something reads them: this loop runs for
      * every pixel-layer result, millions a second on one master core */
-    const int batches = s->cfg.adaptive == SCHED_ADAPTIVE_RELERR || s->cfg.target_error > 0;
+    const int batches = s->cfg.adaptive == SCHED_ADAPTIVE_RELERR ||
+                        s->cfg.adaptive == SCHED_ADAPTIVE_RELMSE || s->cfg.target_error > 0;
     for (uint32_t i = 0; i < count; i++) {
         uint32_t p = results[i].pixel;
         film_merge(s->film, &results[i]);
@@ -796,6 +798,13 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
                                   (fabs(s->bmean[p]) + SCHED_RELERR_EPS)
                             : INFINITY;
             break;
+        case SCHED_ADAPTIVE_RELMSE: {
+            /* the relMSE one more layer would take off, per layer: the
+             * relative variance of the mean over the layers (sched.h) */
+            double scale = fabs(s->bmean[p]) + SCHED_RELERR_EPS;
+            pv[p] = nb >= 2 ? se * se / (scale * scale) / nb : INFINITY;
+            break;
+        }
         default:
             pv[p] = results[i].pvar;
             break;
@@ -1417,7 +1426,8 @@ static int check_pixel_stats(const sched_t *s, uint32_t p, uint32_t layers, char
      * both 0 before the first batch and the sum still 0 after it.
      * Anything else can turn the metrics NaN or infinite on the next
      * merge (Welford's update assumes them) */
-    const int batch = s->cfg.adaptive == SCHED_ADAPTIVE_RELERR || s->cfg.target_error > 0;
+    const int batch = s->cfg.adaptive == SCHED_ADAPTIVE_RELERR ||
+                      s->cfg.adaptive == SCHED_ADAPTIVE_RELMSE || s->cfg.target_error > 0;
     const uint32_t nb = s->batches[p];
     if (batch ? nb > layers || !(s->bmean[p] >= 0 && s->bmean[p] <= 2 * SCHED_MAX_RADIANCE) ||
                     !(s->bm2[p] >= 0 && isfinite(s->bm2[p])) || (nb == 0 && s->bmean[p] != 0) ||

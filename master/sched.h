@@ -37,12 +37,21 @@
  *  relerr:   a Student-t half-width (confidence 0.95) of the mean of the
  *            layers' means, each layer an independent batch, divided by
  *            (mean + SCHED_RELERR_EPS). Pixels with fewer than two layers
- *            have no bound yet and are always sampled. */
+ *            have no bound yet and are always sampled.
+ *  relmse:   the relMSE one more layer would take off the pixel: the
+ *            relative variance of its mean (the same batches and scale as
+ *            relerr) divided by its layers, v / n^2 for a pixel of relative
+ *            variance v per layer after n layers. Balancing it gives each
+ *            pixel layers in proportion to sqrt(v), which minimises the
+ *            image's relMSE for the samples spent; balancing relerr gives
+ *            layers in proportion to v, which ties uniform sampling on that
+ *            measure (docs/ADAPTIVE.md). */
 typedef enum {
     SCHED_ADAPTIVE_NONE = 0,
     SCHED_ADAPTIVE_THESIS = 1,
     SCHED_ADAPTIVE_VARIANCE = 2,
-    SCHED_ADAPTIVE_RELERR = 3
+    SCHED_ADAPTIVE_RELERR = 3,
+    SCHED_ADAPTIVE_RELMSE = 4
 } sched_adaptive_t;
 
 /* Uniform layers, when the job does not say, for the variance and relerr
@@ -70,7 +79,7 @@ typedef enum {
  * past it is a broken or lying worker, refused before it reaches the film. */
 #define SCHED_MAX_RADIANCE 1e30
 
-/* "thesis", "variance", "relerr", "none"; -1 for anything else. */
+/* "thesis", "variance", "relerr", "relmse", "none"; -1 for anything else. */
 int sched_adaptive_from_name(const char *name);
 const char *sched_adaptive_name(sched_adaptive_t a);
 

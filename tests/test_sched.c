@@ -376,7 +376,7 @@ END_TEST
 START_TEST(test_relerr_and_variance_modes)
 {
     char err[256];
-    for (int mode = SCHED_ADAPTIVE_VARIANCE; mode <= SCHED_ADAPTIVE_RELERR; mode++) {
+    for (int mode = SCHED_ADAPTIVE_VARIANCE; mode <= SCHED_ADAPTIVE_RELMSE; mode++) {
         sched_config_t c = {.width = 16,
                             .height = 1,
                             .spp = 64,
@@ -399,6 +399,42 @@ START_TEST(test_relerr_and_variance_modes)
     }
     ck_assert_int_eq(sched_adaptive_from_name("relerr"), SCHED_ADAPTIVE_RELERR);
     ck_assert_int_eq(sched_adaptive_from_name("bogus"), -1);
+}
+END_TEST
+
+/* pixels 0-7 swing +-0.05 about 0.5 layer to layer, pixels 8-15 four times as far */
+static double two_noise_levels(uint32_t p, uint32_t layer)
+{
+    double a = p < 8 ? 0.05 : 0.2;
+    return 0.5 + (layer % 2 ? a : -a);
+}
+
+/* What each mode balances shows in how it shares layers between pixels whose
+ * relative variance differs 16-fold: relerr equalises the relative error
+ * (layers in proportion to the variance, about 16:1), relmse the relMSE one
+ * more layer takes off (in proportion to its square root, 4:1), which is
+ * what minimises the image's relMSE for the samples spent. */
+START_TEST(test_relmse_balances_sqrt_variance)
+{
+    char err[256];
+    double ratio[2];
+    for (int k = 0; k < 2; k++) {
+        sched_config_t c = {.width = 16,
+                            .height = 1,
+                            .spp = 4 * 400,
+                            .granularity = 4,
+                            .adaptive = k ? SCHED_ADAPTIVE_RELMSE : SCHED_ADAPTIVE_RELERR,
+                            .uniform_layers = 4,
+                            .range_pixels = 4};
+        sched_t *s = sched_new(&c, err, sizeof err);
+        ck_assert_msg(s != NULL, "%s", err);
+        run_all(s, two_noise_levels, 4);
+        const film_t *f = sched_film(s);
+        ratio[k] = (double)f->pixels[12].count / (double)f->pixels[3].count;
+        sched_destroy(&s);
+    }
+    ck_assert_msg(ratio[1] > 3 && ratio[1] < 5.5, "relmse: layers noisy / quiet %g", ratio[1]);
+    ck_assert_msg(ratio[0] > 9, "relerr: layers noisy / quiet %g", ratio[0]);
 }
 END_TEST
 
@@ -1133,6 +1169,7 @@ int main(void)
     tcase_add_test(tc, test_target_error_stops);
     tcase_add_test(tc, test_target_window_restarts);
     tcase_add_test(tc, test_relerr_and_variance_modes);
+    tcase_add_test(tc, test_relmse_balances_sqrt_variance);
     tcase_add_test(tc, test_dilation);
     tcase_add_test(tc, test_random_selection);
     tcase_add_test(tc, test_bad_configs);

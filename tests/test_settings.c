@@ -163,7 +163,7 @@ START_TEST(messages_name_the_range)
     cJSON_Delete(req);
     req = cJSON_Parse("{\"adaptive\": \"fast\"}");
     ck_assert_int_eq(settings_check_request(req, err, sizeof err), -1);
-    ck_assert_str_eq(err, "adaptive must be \"thesis\", \"variance\", \"relerr\" or \"none\"");
+    ck_assert_str_eq(err, "adaptive must be \"relmse\", \"relerr\", \"thesis\", \"variance\" or \"none\"");
     cJSON_Delete(req);
     req = cJSON_CreateObject();
     ck_assert_int_eq(settings_parse_flag("--granularity", "4097", req, err, sizeof err), -2);
@@ -214,7 +214,7 @@ START_TEST(choices_known)
         ck_assert_msg(mode >= 0 && !(seen & 1 << mode), "%s", a->choices[k]);
         seen |= 1 << mode;
     }
-    ck_assert_int_eq(count, 4); /* every mode the scheduler has */
+    ck_assert_int_eq(count, SCHED_ADAPTIVE_RELMSE + 1); /* every mode the scheduler has */
     ck_assert_int_ge(sched_adaptive_from_name(JOB_DEFAULT_ADAPTIVE), 0);
     for (int k = 0; in->choices[k]; k++)
         ck_assert_int_ge(scene_integrator_from_name(in->choices[k]), 0);
