@@ -944,8 +944,12 @@ def tables(R):
              "adaptive layer (heat maps). That wins in RMSE, and in relMSE where a few fireflies "
              "dominate it (caustic: the win is largely those pixels being resampled), but loses in "
              "relMSE where the bright side's larger absolute variance draws the samples away from the "
-             "dark side (dark-bright). relerr (t half-width / (mean + 0.1)) weights pixels as relMSE "
-             "does. Equal-samples ratios flatter modes whose chosen pixels cost more per sample "
+             "dark side (dark-bright). relerr (t half-width / (mean + 0.1)) equalises the relative "
+             "error, which gives pixels layers in proportion to their relative variance v and so ties "
+             "uniform on relMSE at best; relmse (v / n^2, the relMSE the next layer takes off) gives "
+             "layers in proportion to sqrt(v), the relMSE-optimal share (docs/ADAPTIVE.md). The bias "
+             "column: adaptive modes give fewer layers to pixels whose own layers look steady, so where "
+             "rare bright paths carry the light (glass, caustic) their image comes out low. Equal-samples ratios flatter modes whose chosen pixels cost more per sample "
              "(happy-buddha: background pixels are cheap), so time is the fair axis. Against Mitsuba "
              "the time ratio combines samples/s and error per sample (sampler and estimator).")
     L.append("")
@@ -1017,7 +1021,8 @@ def target_table(T):
          f"\"Master\": the real `vbrender render`, 2 workers; \"simulated\": the same rule on the same "
          f"layer means (bench_batches). Samples against uniform sampling reaching the same share.", "",
          "| scene | E | size | reference noise p99 / max | pixels checked | share (master) | share (simulated) "
-         "| mean spp | uniform spp, same share | ratio | master spp = simulated |",
+         "| mean spp | uniform spp, same share | ratio | master's spp = simulated (pixels the simulation traced "
+         "to the end) |",
          "|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|"]
     shipped = T.get("shipped", "window5")
     for sc, S in T["scenes"].items():
@@ -1025,6 +1030,10 @@ def target_table(T):
             r = B["rules"][shipped]
             m = B.get("master") or {}
             rn = B["reference_noise"]
+            if not B["checked_pixels"]:
+                L.append(f"| {sc} | {E} | {B['size']} | {rn['p99']:.4f} / {rn['max']:.4f} | 0 of {B['nonblack']}: "
+                         f"no pixel's reference is within E/5 | - | - | {r['mean_spp']:.0f} | - | - | - |")
+                continue
             L.append(f"| {sc} | {E} | {B['size']} | {rn['p99']:.4f} / {rn['max']:.4f} | {B['checked_pixels']} of "
                      f"{B['nonblack']} | {fmt(m.get('share'))} | {r['share']:.3f} | {r['mean_spp']:.0f} | "
                      f"{r['uniform_spp_same_share'] or '-'} | {fmt(r['samples_vs_uniform'])} | "
@@ -1035,6 +1044,7 @@ def target_table(T):
     for rn in T["rules"]:
         L.append(f"| {rn} | " + " | ".join(
             f"{S['by_error'][E]['rules'][rn]['share']:.3f} ({fmt(S['by_error'][E]['rules'][rn]['samples_vs_uniform'], 2)})"
+            if S["by_error"][E]["checked_pixels"] else "-"
             for S in T["scenes"].values() for E in S["by_error"]) + " |")
     L += ["", "Each cell: share within E (samples / uniform's for the same share). " +
           "; ".join(f"{k}: {v}" for k, v in T["rules"].items()) + "."]
@@ -1081,6 +1091,8 @@ def targets(R):
     worst = []
     for sc, S in R["scenes"].items():
         for tag, c in S["comparisons"].items():
+            if tag.startswith("uniform"):  # the other sampler's uniform run: not an adaptive mode
+                continue
             w = c["relmse_worst_equal_time_after_uniform_layers"]
             e = c["relmse_equal_time"]["ratio"]
             worst.append((max(w["ratio"] if w else 0, e or 0), sc, tag))
@@ -1096,6 +1108,7 @@ def targets(R):
         rows = [(sc, E, B) for sc, S in TG["scenes"].items() for E, B in S["by_error"].items()]
         share = [(B.get("master") or {}).get("share") for _, _, B in rows]
         C = TG["config"]["confidence"]
+        share = [x if x is not None and x == x else None for x in share]  # NaN: no pixel checked
         T.append({"met": all(x is not None and x >= C for x in share),
                   "text": f"--target-error E --confidence {C}: share of non-black pixels within E >= C "
                           "(the real master): " + ", ".join(f"{sc} {E} {fmt(x)}" for (sc, E, _), x in zip(rows, share))})
@@ -1173,10 +1186,20 @@ def main():
     os.makedirs(PLOTS, exist_ok=True)
     if "--only" in sys.argv:  # one part again on top of bench/results/error.json
         part = sys.argv[sys.argv.index("--only") + 1] if sys.argv.index("--only") + 1 < len(sys.argv) else ""
-        if part != "options":
-            raise SystemExit("study.py: --only takes 'options'")
+        if part not in ("options", "target"):
+            raise SystemExit("study.py: --only takes 'options' or 'target'")
         with open(RESULTS_JSON) as f:
             R = json.load(f)
+        if part == "target":  # bench/error/target.py again, on top of bench/results/error.json
+            R["target"] = target_study()
+            targets(R)
+            md = tables(R)
+            R["readme_markdown"] = md
+            write_json(R)
+            if UPDATE_README:
+                update_readme(md)
+            print(md)
+            return
         for k in ("size", "ref_spp", "adaptive_spp", "adaptive_uniform_layers", "granularity", "workers",
                   "threads", "seed"):
             if R["config"][k] != CFG[k]:
@@ -1264,16 +1287,22 @@ def main():
         R["peers"][name] = peer(name, scene, ref, meta, R["_runs_" + name])
     for k in [k for k in R if k.startswith("_runs_")]:
         del R[k]
-    R["target"] = target_study()
-    if os.environ.get("VB_STUDY_OPTIONS", "0") == "1":
-        R["options"] = options_study(R, scenes, refs)
-    elif os.path.exists(RESULTS_JSON):
-        # the options study (issue 4) is not rerun by default: its table stays,
-        # with the commit it was measured at
+    old = {}
+    if os.path.exists(RESULTS_JSON):
         with open(RESULTS_JSON) as f:
             old = json.load(f)
-        if old.get("options"):
-            R["options"] = old["options"]
+    if os.environ.get("VB_STUDY_TARGET", "1") == "1" or not old.get("target"):
+        R["target"] = target_study()
+    else:
+        # VB_STUDY_TARGET=0: the target-error table stays as last measured
+        # (bench/results/target.json), for a change that cannot move it
+        R["target"] = old["target"]
+    if os.environ.get("VB_STUDY_OPTIONS", "0") == "1":
+        R["options"] = options_study(R, scenes, refs)
+    elif old.get("options"):
+        # the options study (issue 4) is not rerun by default: its table stays,
+        # with the commit it was measured at
+        R["options"] = old["options"]
     targets(R)
     R["total_seconds"] = time.time() - T_START
     write_json(R)  # first: a fault in the tables below loses no measurement (--from-json)
