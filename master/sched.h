@@ -45,7 +45,13 @@
  *            pixel layers in proportion to sqrt(v), which minimises the
  *            image's relMSE for the samples spent; balancing relerr gives
  *            layers in proportion to v, which ties uniform sampling on that
- *            measure (docs/ADAPTIVE.md). */
+ *            measure (docs/ADAPTIVE.md).
+ *  relerr and relmse take the relative variance of a layer mean from the
+ *  pixel's 3x3 neighbours, the pixel itself left out, and the layer count
+ *  from the pixel: a pixel's own samples then do not decide how many it
+ *  gets, which keeps its mean unbiased (judged on its own variance, a pixel
+ *  that has not yet met a rare bright path stops early and low). thesis and
+ *  variance judge the pixel by itself, as published. */
 typedef enum {
     SCHED_ADAPTIVE_NONE = 0,
     SCHED_ADAPTIVE_THESIS = 1,
@@ -223,7 +229,9 @@ double sched_threshold(const sched_t *s, uint32_t layer);
  * fingerprint fields; then sections, each an 8-byte ASCII tag (NUL padded),
  * a uint64 byte count and the bytes; last the section "end" holding a
  * uint64 checksum of everything before it. */
-#define SCHED_SAVE_VERSION 2 /* 2: target-error window statistics */
+/* 2: target-error window statistics; 3: layer-mean counts for relerr and
+ * relmse, whose saved metric is then a layer mean's relative variance */
+#define SCHED_SAVE_VERSION 3
 typedef int (*sched_write_fn)(void *ctx, const void *data, size_t len);
 /* Reads exactly len bytes; returns 0, or non-zero on a short read / error. */
 typedef int (*sched_read_fn)(void *ctx, void *data, size_t len);

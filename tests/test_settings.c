@@ -163,7 +163,8 @@ START_TEST(messages_name_the_range)
     cJSON_Delete(req);
     req = cJSON_Parse("{\"adaptive\": \"fast\"}");
     ck_assert_int_eq(settings_check_request(req, err, sizeof err), -1);
-    ck_assert_str_eq(err, "adaptive must be \"relmse\", \"relerr\", \"thesis\", \"variance\" or \"none\"");
+    ck_assert_str_eq(
+        err, "adaptive must be \"relmse\", \"relerr\", \"thesis\", \"variance\" or \"none\"");
     cJSON_Delete(req);
     req = cJSON_CreateObject();
     ck_assert_int_eq(settings_parse_flag("--granularity", "4097", req, err, sizeof err), -2);
