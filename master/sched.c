@@ -482,7 +482,11 @@ static void make_ready(sched_t *s, uint32_t layer, uint32_t range)
 /* Whether layer's pixels are chosen by the skip rule (rule 3). */
 static int applies_skip_rule(const sched_t *s, uint32_t layer)
 {
-    int flag = s->flags ? s->flags[layer] == '1' : layer >= s->uniform;
+    /* relerr and relmse learn only from uniform layers (pool_neighbours):
+     * without a flag sequence, every SCHED_UNIFORM_EVERY-th layer stays
+     * uniform so their statistics keep growing */
+    int refresh = pools_neighbours(s) && layer % SCHED_UNIFORM_EVERY == 0;
+    int flag = s->flags ? s->flags[layer] == '1' : layer >= s->uniform && !refresh;
     return flag && layer >= 2 && s->cfg.adaptive != SCHED_ADAPTIVE_NONE;
 }
 

@@ -14,8 +14,10 @@
  *     in). Layer l-1 is then still being traced, so the queue never drains
  *     at a layer boundary.
  *  3. A layer takes part in the skip rule only when its flag is set (the
- *     flag sequence): by default the first half of the layers are uniform.
- *     Layers 0 and 1 never skip: nothing is known yet when they are chosen.
+ *     flag sequence): by default the first layers are uniform
+ *     (sched_default_uniform_layers), and for relerr and relmse every
+ *     SCHED_UNIFORM_EVERY-th layer after them too. Layers 0 and 1 never
+ *     skip: nothing is known yet when they are chosen.
  *
  * Skip rule (adaptive thesis): pixel p skips layer l if flag[l] and
  * variance[p] < threshold, where variance[p] is the eq. 4.1 statistic of
@@ -64,6 +66,12 @@ typedef enum {
  * modes: enough layers for a first variance estimate of every pixel (the
  * study's options table: 2 starve dim pixels on dark-bright, 8 do not). */
 #define SCHED_DEFAULT_UNIFORM_LAYERS 8
+/* relerr and relmse, without a flag sequence: after the uniform layers,
+ * every 4th layer (layer % 4 == 0) is uniform too, since they learn a
+ * pixel's variance from its neighbours' uniform layers only (on the glass
+ * scene, relMSE at equal samples against uniform sampling: 1.29x with only
+ * the first 8 uniform, 0.88x with every 4th, 0.91x with every 2nd). */
+#define SCHED_UNIFORM_EVERY 4
 
 /* relerr's epsilon: the same scale as relMSE's (r^2 + 1e-2), so the metric
  * the sampler balances is the one the error is measured in. */

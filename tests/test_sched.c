@@ -418,18 +418,25 @@ static double two_noise_levels(uint32_t p, uint32_t layer)
  * relative variance differs 16-fold: relerr equalises the relative error
  * (layers in proportion to the variance, about 16:1), relmse the relMSE one
  * more layer takes off (in proportion to its square root, 4:1), which is
- * what minimises the image's relMSE for the samples spent. */
+ * what minimises the image's relMSE for the samples spent. An explicit flag
+ * sequence (4 uniform layers, then all adaptive): the default's uniform
+ * layer in every SCHED_UNIFORM_EVERY would cap the ratio at 4. */
 START_TEST(test_relmse_balances_sqrt_variance)
 {
     char err[256];
     double ratio[2];
+    char flags[401];
+    memset(flags, '1', 400);
+    memset(flags, '0', 4);
+    flags[400] = '\0';
     for (int k = 0; k < 2; k++) {
         sched_config_t c = {.width = 16,
                             .height = 1,
                             .spp = 4 * 400,
                             .granularity = 4,
                             .adaptive = k ? SCHED_ADAPTIVE_RELMSE : SCHED_ADAPTIVE_RELERR,
-                            .uniform_layers = 4,
+                            .uniform_layers = UINT32_MAX,
+                            .flags = flags,
                             .range_pixels = 4};
         sched_t *s = sched_new(&c, err, sizeof err);
         ck_assert_msg(s != NULL, "%s", err);
