@@ -24,6 +24,9 @@
  *      two kinds (time-weighted: a mix rate is 1 / sum(fraction / rate));
  *      for reference, the "path" rays also on a BVH built without
  *      RTC_SCENE_FLAG_ROBUST (what that flag costs; JSON only);
+ *      and on the triangle list (trilist.h), which the tracer uses instead
+ *      of Embree for a scene of up to TRILIST_MAX_TRIANGLES triangles
+ *      ("accel" in the JSON says which the renders used);
  *   3. peak memory (ru_maxrss) right after the renders, before the ray
  *      batches exist, and at the end.
  *
@@ -54,6 +57,7 @@
 #include "rng.h"
 #include "scene.h"
 #include "tracer.h"
+#include "trilist.h"
 #include "vberr.h"
 #include "vmath.h"
 
@@ -197,6 +201,7 @@ typedef struct embree {
     RTCDevice device;
     RTCScene scene;
     char isa[16];
+    trilist_t *list; /* if set, rays go to the triangle list instead */
 } embree_t;
 
 /* The same device configuration, scene flags and build quality as
@@ -268,6 +273,7 @@ static int closest_hit(const embree_t *e, vec3_t o, vec3_t d, uint32_t *tri, flo
 
 typedef struct raw_job {
     RTCScene scene;
+    const trilist_t *list;
     const bray_t *rays;
     size_t begin, end;
     int shadow;
@@ -280,7 +286,20 @@ static void *raw_worker(void *argp)
 {
     raw_job_t *j = argp;
     size_t hits = 0;
-    if (j->shadow) {
+    if (j->list) {
+        for (size_t i = j->begin; i < j->end; i++) {
+            const bray_t *b = &j->rays[i];
+            vec3_t o = vec3_make(b->o[0], b->o[1], b->o[2]),
+                   d = vec3_make(b->d[0], b->d[1], b->d[2]);
+            if (j->shadow) {
+                hits += trilist_occluded(j->list, o, d, 0.99999f);
+            } else {
+                uint32_t tri;
+                float t, u, v;
+                hits += trilist_intersect(j->list, o, d, INFINITY, &tri, &t, &u, &v);
+            }
+        }
+    } else if (j->shadow) {
         for (size_t i = j->begin; i < j->end; i++) {
             const bray_t *b = &j->rays[i];
             struct RTCIntersectContext ctx;
@@ -355,6 +374,7 @@ static int raw_time(const embree_t *e, const batch_t *b, int shadow, int threads
         double t0 = now_seconds(), c0 = cpu_seconds();
         for (int k = 0; k < threads; k++) {
             jobs[k].scene = e->scene;
+            jobs[k].list = e->list;
             jobs[k].rays = b->rays;
             jobs[k].begin = b->count * (size_t)k / (size_t)threads;
             jobs[k].end = b->count * (size_t)(k + 1) / (size_t)threads;
@@ -735,7 +755,7 @@ static int measure_ours(const tracer_t *tr, const scene_t *s, const args_t *a, o
 /* Raw Embree on two ray distributions; dist[0] ("path") also on a BVH
  * without ROBUST (into *fast). */
 typedef struct raw {
-    dist_result_t dist[2], fast;
+    dist_result_t dist[2], fast, list;
     int runs;
     long rss_total;
 } raw_t;
@@ -761,7 +781,7 @@ static void set_mix(dist_result_t *d, double f_ext)
 /* One distribution (k = 0 path rays, 1 area rays) on the ROBUST BVH, and
  * for k = 0 also on the fast one. */
 static int measure_dist(const scene_t *s, const args_t *a, int k, const embree_t *e,
-                        const embree_t *efast, double f_ext, raw_t *r)
+                        const embree_t *efast, const embree_t *elist, double f_ext, raw_t *r)
 {
     const int threads = (int)a->threads;
     batch_t ext, sh;
@@ -781,7 +801,9 @@ static int measure_dist(const scene_t *s, const args_t *a, int k, const embree_t
     if (raw_time(e, &ext, 0, threads, r->runs, &d->ext) < 0 ||
         raw_time(e, &sh, 1, threads, r->runs, &d->sh) < 0 ||
         (k == 0 && (raw_time(efast, &ext, 0, threads, r->runs, &r->fast.ext) < 0 ||
-                    raw_time(efast, &sh, 1, threads, r->runs, &r->fast.sh) < 0))) {
+                    raw_time(efast, &sh, 1, threads, r->runs, &r->fast.sh) < 0 ||
+                    raw_time(elist, &ext, 0, threads, r->runs, &r->list.ext) < 0 ||
+                    raw_time(elist, &sh, 1, threads, r->runs, &r->list.sh) < 0))) {
         fprintf(stderr, "bench_core: cannot start threads\n");
         return -1;
     }
@@ -794,6 +816,12 @@ static int measure_dist(const scene_t *s, const args_t *a, int k, const embree_t
                 "our mix %.3f M rays/s\n",
                 r->fast.ext.rays_per_second / 1e6, r->fast.sh.rays_per_second / 1e6,
                 r->fast.mix / 1e6);
+        set_mix(&r->list, f_ext);
+        fprintf(stderr,
+                "  raw path, triangle list (%s kernel, no BVH): extension %.3f M rays/s, shadow "
+                "%.3f M rays/s, our mix %.3f M rays/s\n",
+                trilist_kernel(elist->list), r->list.ext.rays_per_second / 1e6,
+                r->list.sh.rays_per_second / 1e6, r->list.mix / 1e6);
     }
     batch_free(&ext);
     batch_free(&sh);
@@ -806,19 +834,26 @@ static int measure_raw(const scene_t *s, const args_t *a, double f_ext, raw_t *r
 {
     memset(r, 0, sizeof *r);
     r->runs = (int)a->runs > RAW_MIN_RUNS ? (int)a->runs : RAW_MIN_RUNS;
-    embree_t e, efast;
+    embree_t e, efast, elist;
     memset(&e, 0, sizeof e);
     memset(&efast, 0, sizeof efast);
+    memset(&elist, 0, sizeof elist);
     int rc = 0;
     if (embree_build(s, &e, 1) < 0 || embree_build(s, &efast, 0) < 0) {
         fprintf(stderr, "bench_core: cannot build the Embree scene\n");
         rc = -1;
     }
+    elist.list = trilist_new(s->positions, s->indices, s->triangle_count);
+    if (!elist.list) {
+        fprintf(stderr, "bench_core: out of memory\n");
+        rc = -1;
+    }
     for (int k = 0; k < 2 && rc == 0; k++)
-        rc = measure_dist(s, a, k, &e, &efast, f_ext, r);
+        rc = measure_dist(s, a, k, &e, &efast, &elist, f_ext, r);
     r->rss_total = peak_rss_kb();
     embree_free(&e);
     embree_free(&efast);
+    trilist_destroy(&elist.list);
     return rc;
 }
 
@@ -869,6 +904,10 @@ static cJSON *raw_embree_json(const raw_t *r, const args_t *a, int threads)
                           dist_json(&r->fast, threads,
                                     "the path rays on a BVH built without RTC_SCENE_FLAG_ROBUST "
                                     "(reference: what the flag costs)"));
+    cJSON_AddItemToObject(j, "path_triangle_list",
+                          dist_json(&r->list, threads,
+                                    "the path rays on every triangle without a BVH (trilist.h, "
+                                    "what the tracer uses up to TRILIST_MAX_TRIANGLES)"));
     return j;
 }
 
@@ -886,6 +925,8 @@ static int write_json(const char *path, const args_t *a, const char *name, const
     cJSON_AddNumberToObject(root, "height", s->camera.height);
     cJSON_AddNumberToObject(root, "threads", threads);
     cJSON_AddStringToObject(root, "isa", tracer_isa(tr));
+    cJSON_AddStringToObject(root, "accel",
+                            tracer_accel_for(s) == TRACER_ACCEL_TRILIST ? "trilist" : "embree");
     cJSON_AddStringToObject(root, "embree_version", RTC_VERSION_STRING);
     cJSON_AddBoolToObject(root, "disturbed", disturbed);
     cJSON_AddItemToObject(root, "ours", ours_json(o, a, s, threads));

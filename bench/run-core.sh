@@ -66,6 +66,10 @@ for spec in "cornell-box:$CORNELL_SPP" "happy-buddha:$BUDDHA_SPP"; do
     done
 done
 
+# 1b. Where the triangle list stops beating Embree (TRILIST_MAX_TRIANGLES).
+echo "== bench_trilist" >&2
+"$(dirname "$BIN")/bench_trilist" --json "$RESULTS/trilist.json"
+
 # 2. The Mitsuba 3 peer (Cornell box only: the peer script converts quads).
 #    The peer cannot tell us whether it had its cores, so this wrapper does:
 #    it runs a command with a time limit (exit 124 when over) and writes the

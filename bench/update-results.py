@@ -41,21 +41,22 @@ def table(core):
     variant = next(iter(peer_by_threads.values()), {}).get("variant", "")
     lines = [
         "| Scene | Threads | Ours samples/s/core | Ours rays/s/core | "
-        "Raw Embree rays/s/core (ext / shadow) | Ours / raw | "
+        "Raw ray casting rays/s/core (ext / shadow) | Ours / raw | "
         f"Mitsuba 3{' ' + variant if variant else ''} samples/s/core | Ours / Mitsuba | Peak memory |",
         "|---|--:|--:|--:|--:|--:|--:|--:|--:|",
     ]
     for r in core["runs"]:
         t = r["threads"]
         ours = r["ours"]
-        raw = r["raw_embree"]["path"]
+        listed = r.get("accel") == "trilist" and "path_triangle_list" in r["raw_embree"]
+        raw = r["raw_embree"]["path_triangle_list" if listed else "path"]
         m = peer_by_threads.get(t) if r["scene_name"] == "cornell-box" else None
         m_sps = m["samples_per_second_per_core"] if m else None
         lines.append(
             f"| {r['scene_name']} | {t}{'*' if r.get('disturbed') else ''} | {mega(ours['samples_per_second_per_core'])} | "
             f"{mega(ours['rays_per_second_per_core'])} | "
             f"{mega(raw['extension']['rays_per_second_per_core'], 1)} / "
-            f"{mega(raw['shadow']['rays_per_second_per_core'], 1)} | "
+            f"{mega(raw['shadow']['rays_per_second_per_core'], 1)}{' (list)' if listed else ''} | "
             f"{ratio(ours['rays_per_second'], raw['mix_rays_per_second'])} | "
             f"{mega(m_sps)}{'*' if m and m.get('disturbed') else ''} | {ratio(ours['samples_per_second_per_core'], m_sps)} | "
             f"{r['peak_rss_kb_render'] / 1024:.0f} MiB |")
@@ -66,16 +67,21 @@ def table(core):
         f"256x256, path integrator, {spp_text}, best of {core.get('settings', {}).get('runs')} runs; "
         f"{mach.get('cpu')}, {mach.get('cores')} cores, Embree {mach.get('embree')} ({mach.get('isa')}); "
         f"commit {core.get('commit')}, {core.get('date')}; whole benchmark {core.get('bench_seconds', 0):.0f} s.",
-        "Raw Embree: rtcIntersect1 / rtcOccluded1 alone over 2M precomputed rays recorded from diffuse "
-        "random walks from the camera (the rays our tracer traces); \"Ours / raw\" compares our rays/s, "
+        "Raw ray casting: what the tracer casts rays with, alone, over 2M precomputed rays recorded from "
+        "diffuse random walks from the camera (the rays our tracer traces): Embree's rtcIntersect1 / "
+        "rtcOccluded1, or \"(list)\" the triangle list without a BVH (common/trilist.h) that the tracer "
+        "uses for scenes of up to 64 triangles; \"Ours / raw\" compares our rays/s, "
         "shading and sampling included, with the raw rate of our own extension/shadow mix "
         "(1 / sum(fraction / rate)). Peak memory: ru_maxrss of the benchmark process after the renders.",
     ]
+    robust = [f"{r['scene_name']} {mega(r['raw_embree']['path']['mix_rays_per_second_per_core'], 1)}"
+              for r in core["runs"] if r["threads"] == 1]
     fast = [f"{r['scene_name']} {mega(r['raw_embree']['path_not_robust']['mix_rays_per_second_per_core'], 1)}"
             for r in core["runs"] if r["threads"] == 1 and "path_not_robust" in r["raw_embree"]]
     if fast:
-        notes.append("The tracer builds its BVH with RTC_SCENE_FLAG_ROBUST; without it the same ray mix "
-                     f"runs at {', '.join(fast)} rays/s (1 thread, reference only).")
+        notes.append("Embree's BVH is built with RTC_SCENE_FLAG_ROBUST: the same ray mix runs at "
+                     f"{', '.join(robust)} rays/s on it, and at {', '.join(fast)} rays/s without the flag "
+                     "(1 thread, reference only).")
     if any(r.get("disturbed") for r in core["runs"] + list(peer_by_threads.values())):
         notes.append("\\* another process used the CPU during this measurement, so its figure is low "
                      "(core.json: cpu_utilization under 0.95 even after extra runs, or other_cpu_cores "
@@ -85,7 +91,35 @@ def table(core):
     else:
         notes.append("Mitsuba 3: same Cornell box, spp and threads, `path` integrator, best of its timed "
                      "renders after a warm-up (bench/peer/).")
-    return "\n".join(lines) + "\n\n" + "\n\n".join(notes)
+    text = "\n".join(lines) + "\n\n" + "\n\n".join(notes)
+    return text
+
+
+def trilist_table(results_dir):
+    """The crossover of bench_trilist (bench/results/trilist.json), or ''."""
+    path = os.path.join(results_dir, "trilist.json")
+    try:
+        with open(path) as f:
+            t = json.load(f)
+    except (OSError, ValueError):
+        return ""
+    lines = [
+        f"**Triangle list or BVH** (`bench_trilist`, 1 thread, {t['kernel']} list kernel, Embree "
+        f"{t.get('embree_isa', '')} ROBUST; {t['rays'] // 1000}k closest-hit rays from inside each closed "
+        "mesh in random directions, and as many shadow rays between two inside points):",
+        "",
+        "| Mesh | Triangles | List ext M rays/s | Embree ext | List / Embree | List shadow | Embree shadow "
+        "| List / Embree |",
+        "|---|--:|--:|--:|--:|--:|--:|--:|",
+    ]
+    for m in t["meshes"]:
+        lines.append(
+            f"| {m['mesh']} | {m['triangles']} | {m['list_ext_mrays']:.2f} | {m['embree_ext_mrays']:.2f} | "
+            f"{m['list_ext_mrays'] / m['embree_ext_mrays']:.2f} | {m['list_shadow_mrays']:.2f} | "
+            f"{m['embree_shadow_mrays']:.2f} | {m['list_shadow_mrays'] / m['embree_shadow_mrays']:.2f} |")
+    lines.append("")
+    lines.append(f"The tracer uses the list up to {t['max_triangles']} triangles (TRILIST_MAX_TRIANGLES).")
+    return "\n".join(lines)
 
 
 def main():
@@ -99,6 +133,9 @@ def main():
         print(f"update-results.py: no core results in {a.results} (run 'make bench')", file=sys.stderr)
         return 1
     text = table(core)
+    crossover = trilist_table(a.results)
+    if crossover:
+        text += "\n\n" + crossover
     print(text)
 
     replace_block(a.readme, BEGIN, END, text, "update-results.py")

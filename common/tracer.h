@@ -1,7 +1,9 @@
 /* tracer.h - the rendering core: "trace these samples for these pixels".
  *
- * A tracer holds one Embree device and the scene's BVH, built once and then
- * only read, so any number of threads may call tracer_trace at once. A call
+ * A tracer holds the scene's ray-casting structure, built once and then
+ * only read, so any number of threads may call tracer_trace at once: for a
+ * scene of up to TRILIST_MAX_TRIANGLES triangles the whole triangle list,
+ * tested 8 or 16 at a time (trilist.h), else Embree's BVH. A call
  * takes a list of pixel tasks (the thesis's message, table 4.3: pixel,
  * samples to take, first sample index, samples and RGB sums so far) and
  * fills one result per task with exactly what a worker sends back: RGB
@@ -81,11 +83,27 @@ typedef struct tracer_stats {
     uint64_t samples; /* samples taken, finite or not */
 } tracer_stats_t;
 
+/* How rays find the scene's surfaces. */
+typedef enum tracer_accel {
+    TRACER_ACCEL_AUTO,    /* tracer_accel_for(scene) */
+    TRACER_ACCEL_EMBREE,  /* Embree's BVH */
+    TRACER_ACCEL_TRILIST, /* every triangle tested, SIMD (trilist.h) */
+} tracer_accel_t;
+
+/* What tracer_new uses for a scene: the triangle list up to
+ * TRILIST_MAX_TRIANGLES triangles, Embree above. A function of the scene
+ * alone, so every worker of a job traces the same bits. */
+tracer_accel_t tracer_accel_for(const scene_t *scene);
+
 /* Builds the BVH for a scene on a device. Both are borrowed and must
  * outlive the tracer. Returns 0, or -1 with a message (Embree's own, from
  * the device's error callback, when it refuses). */
 int tracer_new(tracer_device_t *device, const scene_t *scene, tracer_t **out, char *err,
                size_t errlen);
+/* tracer_new with the acceleration chosen (tests and benchmarks compare
+ * the two on one scene). */
+int tracer_new_accel(tracer_device_t *device, const scene_t *scene, tracer_accel_t accel,
+                     tracer_t **out, char *err, size_t errlen);
 void tracer_destroy(tracer_t **t);
 
 /* The Embree ISA this tracer runs ("avx2" or "sse4.2"). */

@@ -1,0 +1,380 @@
+/* bench_trilist.c - where the triangle list (trilist.h: every triangle
+ * tested, no BVH) stops beating Embree, which sets TRILIST_MAX_TRIANGLES.
+ *
+ * For closed meshes of growing size (a cube, the Cornell box, icospheres of
+ * 20 to 1280 triangles) it times closest-hit rays from random points inside
+ * in random directions, and shadow rays between two such points (the
+ * any-hit query; on a convex mesh none is blocked, its worst case), on the
+ * triangle list (its widest kernel) and on Embree's BVH built as the tracer
+ * builds it (ROBUST, high quality, the same ISA). One thread, best of 5.
+ *
+ * usage: bench_trilist [--rays N] [--json OUT.json]
+ */
+#include <cJSON.h>
+#include <embree3/rtcore.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "rng.h"
+#include "scene.h"
+#include "trilist.h"
+
+typedef struct mesh {
+    const char *name;
+    float *pos;
+    uint32_t *idx;
+    size_t nv, nt;
+    float lo[3], hi[3]; /* where ray origins are drawn */
+    int sphere;         /* origins inside the unit sphere (else the box lo..hi) */
+} mesh_t;
+
+static double now_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static void *xrealloc(void *p, size_t n)
+{
+    void *q = realloc(p, n);
+    if (!q) {
+        fprintf(stderr, "bench_trilist: out of memory\n");
+        exit(1);
+    }
+    return q;
+}
+
+static uint32_t add_vertex(mesh_t *m, float x, float y, float z)
+{
+    for (size_t i = 0; i < m->nv; i++)
+        if (m->pos[3 * i] == x && m->pos[3 * i + 1] == y && m->pos[3 * i + 2] == z)
+            return (uint32_t)i;
+    m->pos = xrealloc(m->pos, 3 * (m->nv + 1) * sizeof(float));
+    m->pos[3 * m->nv] = x;
+    m->pos[3 * m->nv + 1] = y;
+    m->pos[3 * m->nv + 2] = z;
+    return (uint32_t)m->nv++;
+}
+
+static void add_tri(mesh_t *m, uint32_t a, uint32_t b, uint32_t c)
+{
+    m->idx = xrealloc(m->idx, 3 * (m->nt + 1) * sizeof(uint32_t));
+    m->idx[3 * m->nt] = a;
+    m->idx[3 * m->nt + 1] = b;
+    m->idx[3 * m->nt + 2] = c;
+    m->nt++;
+}
+
+static mesh_t cube(void)
+{
+    mesh_t m = {.name = "cube", .lo = {-0.9f, -0.9f, -0.9f}, .hi = {0.9f, 0.9f, 0.9f}};
+    for (int v = 0; v < 8; v++)
+        add_vertex(&m, v & 1 ? 1.0f : -1.0f, v & 2 ? 1.0f : -1.0f, v & 4 ? 1.0f : -1.0f);
+    static const uint32_t f[6][4] = {{0, 1, 3, 2}, {4, 6, 7, 5}, {0, 4, 5, 1},
+                                     {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 5, 7, 3}};
+    for (int i = 0; i < 6; i++) {
+        add_tri(&m, f[i][0], f[i][1], f[i][2]);
+        add_tri(&m, f[i][0], f[i][2], f[i][3]);
+    }
+    return m;
+}
+
+static uint32_t midpoint(mesh_t *m, uint32_t a, uint32_t b)
+{
+    float p[3];
+    double len = 0;
+    for (int k = 0; k < 3; k++) {
+        p[k] = m->pos[3 * a + k] + m->pos[3 * b + k];
+        len += (double)p[k] * p[k];
+    }
+    len = sqrt(len);
+    return add_vertex(m, (float)(p[0] / len), (float)(p[1] / len), (float)(p[2] / len));
+}
+
+static mesh_t icosphere(int levels)
+{
+    static char names[4][32];
+    mesh_t m = {.sphere = 1};
+    const float t = 1.6180339887f, s = 1.0f / sqrtf(1.0f + t * t), a = t * s;
+    const float v[12][3] = {{-s, a, 0}, {s, a, 0}, {-s, -a, 0}, {s, -a, 0},
+                            {0, -s, a}, {0, s, a}, {0, -s, -a}, {0, s, -a},
+                            {a, 0, -s}, {a, 0, s}, {-a, 0, -s}, {-a, 0, s}};
+    for (int i = 0; i < 12; i++)
+        add_vertex(&m, v[i][0], v[i][1], v[i][2]);
+    static const uint32_t f[20][3] = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
+                                      {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
+                                      {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
+                                      {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
+    for (int i = 0; i < 20; i++)
+        add_tri(&m, f[i][0], f[i][1], f[i][2]);
+    for (int l = 0; l < levels; l++) {
+        mesh_t n = {.sphere = 1};
+        for (size_t i = 0; i < m.nv; i++)
+            add_vertex(&n, m.pos[3 * i], m.pos[3 * i + 1], m.pos[3 * i + 2]);
+        for (size_t i = 0; i < m.nt; i++) {
+            uint32_t x = m.idx[3 * i], y = m.idx[3 * i + 1], z = m.idx[3 * i + 2];
+            uint32_t xy = midpoint(&n, x, y), yz = midpoint(&n, y, z), zx = midpoint(&n, z, x);
+            add_tri(&n, x, xy, zx);
+            add_tri(&n, y, yz, xy);
+            add_tri(&n, z, zx, yz);
+            add_tri(&n, xy, yz, zx);
+        }
+        free(m.pos);
+        free(m.idx);
+        m = n;
+    }
+    snprintf(names[levels], sizeof names[levels], "icosphere-%zu", m.nt);
+    m.name = names[levels];
+    return m;
+}
+
+static mesh_t cornell(void)
+{
+    mesh_t m = {.name = "cornell-box", .lo = {20, 1, 20}, .hi = {530, 546, 540}};
+    scene_t *s = NULL;
+    char err[512];
+    if (scene_load("scenes/cornell-box.json", &s, err, sizeof err) < 0) {
+        fprintf(stderr, "bench_trilist: %s\n", err);
+        exit(1);
+    }
+    m.nv = s->vertex_count;
+    m.nt = s->triangle_count;
+    m.pos = xrealloc(NULL, 3 * m.nv * sizeof(float));
+    m.idx = xrealloc(NULL, 3 * m.nt * sizeof(uint32_t));
+    memcpy(m.pos, s->positions, 3 * m.nv * sizeof(float));
+    memcpy(m.idx, s->indices, 3 * m.nt * sizeof(uint32_t));
+    scene_destroy(&s);
+    return m;
+}
+
+static vec3_t inside_point(const mesh_t *m, rng_stream_t *rng)
+{
+    if (m->sphere) {
+        for (;;) {
+            vec3_t p = vec3_make(2 * rng_next_float(rng) - 1, 2 * rng_next_float(rng) - 1,
+                                 2 * rng_next_float(rng) - 1);
+            if (vec3_dot(p, p) < 0.81f)
+                return p;
+        }
+    }
+    return vec3_make(m->lo[0] + (m->hi[0] - m->lo[0]) * rng_next_float(rng),
+                     m->lo[1] + (m->hi[1] - m->lo[1]) * rng_next_float(rng),
+                     m->lo[2] + (m->hi[2] - m->lo[2]) * rng_next_float(rng));
+}
+
+typedef struct rays {
+    vec3_t *o, *d, *so, *sd; /* closest-hit rays; shadow segments */
+    size_t n;
+} rays_t;
+
+static rays_t make_rays(const mesh_t *m, size_t n)
+{
+    rays_t r = {.n = n};
+    r.o = xrealloc(NULL, n * sizeof(vec3_t));
+    r.d = xrealloc(NULL, n * sizeof(vec3_t));
+    r.so = xrealloc(NULL, n * sizeof(vec3_t));
+    r.sd = xrealloc(NULL, n * sizeof(vec3_t));
+    rng_stream_t rng = rng_stream(11, 0, 0);
+    for (size_t i = 0; i < n; i++) {
+        r.o[i] = inside_point(m, &rng);
+        float z = 1.0f - 2.0f * rng_next_float(&rng), phi = 6.2831853f * rng_next_float(&rng);
+        float rr = sqrtf(fmaxf(0.0f, 1.0f - z * z));
+        r.d[i] = vec3_make(rr * cosf(phi), rr * sinf(phi), z);
+        r.so[i] = inside_point(m, &rng);
+        r.sd[i] = vec3_sub(inside_point(m, &rng), r.so[i]);
+    }
+    return r;
+}
+
+static void free_rays(rays_t *r)
+{
+    free(r->o);
+    free(r->d);
+    free(r->so);
+    free(r->sd);
+}
+
+typedef struct rates {
+    double ext, shadow; /* M rays/s */
+    size_t hits;
+} rates_t;
+
+#define RUNS 5
+
+static rates_t time_trilist(const trilist_t *l, const rays_t *r)
+{
+    rates_t out = {0};
+    double best_e = INFINITY, best_s = INFINITY;
+    for (int run = 0; run < RUNS; run++) {
+        size_t hits = 0;
+        double t0 = now_seconds();
+        for (size_t i = 0; i < r->n; i++) {
+            uint32_t tri;
+            float t, u, v;
+            hits += (size_t)trilist_intersect(l, r->o[i], r->d[i], INFINITY, &tri, &t, &u, &v);
+        }
+        double t1 = now_seconds();
+        for (size_t i = 0; i < r->n; i++)
+            hits += (size_t)trilist_occluded(l, r->so[i], r->sd[i], 0.99999f);
+        double t2 = now_seconds();
+        best_e = fmin(best_e, t1 - t0);
+        best_s = fmin(best_s, t2 - t1);
+        out.hits = hits;
+    }
+    out.ext = (double)r->n / best_e / 1e6;
+    out.shadow = (double)r->n / best_s / 1e6;
+    return out;
+}
+
+static rates_t time_embree(RTCScene sc, const rays_t *r)
+{
+    rates_t out = {0};
+    double best_e = INFINITY, best_s = INFINITY;
+    for (int run = 0; run < RUNS; run++) {
+        size_t hits = 0;
+        double t0 = now_seconds();
+        for (size_t i = 0; i < r->n; i++) {
+            struct RTCIntersectContext ctx;
+            rtcInitIntersectContext(&ctx);
+            struct RTCRayHit rh;
+            memset(&rh, 0, sizeof rh);
+            rh.ray.org_x = r->o[i].x;
+            rh.ray.org_y = r->o[i].y;
+            rh.ray.org_z = r->o[i].z;
+            rh.ray.dir_x = r->d[i].x;
+            rh.ray.dir_y = r->d[i].y;
+            rh.ray.dir_z = r->d[i].z;
+            rh.ray.tfar = INFINITY;
+            rh.ray.mask = 0xffffffffu;
+            rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+            rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+            rtcIntersect1(sc, &ctx, &rh);
+            hits += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+        }
+        double t1 = now_seconds();
+        for (size_t i = 0; i < r->n; i++) {
+            struct RTCIntersectContext ctx;
+            rtcInitIntersectContext(&ctx);
+            struct RTCRay ray;
+            memset(&ray, 0, sizeof ray);
+            ray.org_x = r->so[i].x;
+            ray.org_y = r->so[i].y;
+            ray.org_z = r->so[i].z;
+            ray.dir_x = r->sd[i].x;
+            ray.dir_y = r->sd[i].y;
+            ray.dir_z = r->sd[i].z;
+            ray.tfar = 0.99999f;
+            ray.mask = 0xffffffffu;
+            rtcOccluded1(sc, &ctx, &ray);
+            hits += ray.tfar < 0.0f;
+        }
+        double t2 = now_seconds();
+        best_e = fmin(best_e, t1 - t0);
+        best_s = fmin(best_s, t2 - t1);
+        out.hits = hits;
+    }
+    out.ext = (double)r->n / best_e / 1e6;
+    out.shadow = (double)r->n / best_s / 1e6;
+    return out;
+}
+
+int main(int argc, char **argv)
+{
+    size_t nrays = 500000;
+    const char *json_path = NULL;
+    for (int i = 1; i < argc; i++) {
+        if (strcmp(argv[i], "--rays") == 0 && i + 1 < argc) {
+            char *end;
+            unsigned long long v = strtoull(argv[++i], &end, 10);
+            if (*end || v == 0 || v > 100000000ull) {
+                fprintf(stderr, "bench_trilist: --rays: want 1..1e8, got '%s'\n", argv[i]);
+                return 2;
+            }
+            nrays = (size_t)v;
+        } else if (strcmp(argv[i], "--json") == 0 && i + 1 < argc) {
+            json_path = argv[++i];
+        } else {
+            fprintf(stderr, "usage: bench_trilist [--rays N] [--json OUT.json]\n");
+            return 2;
+        }
+    }
+    __builtin_cpu_init();
+    const char *isa = __builtin_cpu_supports("avx2") ? "avx2" : "sse4.2";
+    char config[64];
+    snprintf(config, sizeof config, "isa=%s,verbose=0", isa);
+    RTCDevice dev = rtcNewDevice(config);
+    if (!dev) {
+        fprintf(stderr, "bench_trilist: cannot create the Embree device\n");
+        return 1;
+    }
+    mesh_t meshes[] = {cube(), icosphere(0), cornell(), icosphere(1), icosphere(2), icosphere(3)};
+    const size_t count = sizeof meshes / sizeof meshes[0];
+    cJSON *root = cJSON_CreateObject(), *rows = cJSON_AddArrayToObject(root, "meshes");
+    cJSON_AddStringToObject(root, "benchmark", "trilist");
+    cJSON_AddNumberToObject(root, "rays", (double)nrays);
+    cJSON_AddNumberToObject(root, "max_triangles", TRILIST_MAX_TRIANGLES);
+    const char *kernel = "";
+    printf("| Mesh | Triangles | List ext M rays/s | Embree ext | List / Embree | List shadow | "
+           "Embree shadow | List / Embree |\n|---|--:|--:|--:|--:|--:|--:|--:|\n");
+    for (size_t k = 0; k < count; k++) {
+        mesh_t *m = &meshes[k];
+        trilist_t *l = trilist_new(m->pos, m->idx, m->nt);
+        if (!l) {
+            fprintf(stderr, "bench_trilist: out of memory\n");
+            return 1;
+        }
+        kernel = trilist_kernel(l);
+        RTCScene sc = rtcNewScene(dev);
+        rtcSetSceneFlags(sc, RTC_SCENE_FLAG_ROBUST);
+        rtcSetSceneBuildQuality(sc, RTC_BUILD_QUALITY_HIGH);
+        RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
+        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, m->pos, 0,
+                                   3 * sizeof(float), m->nv);
+        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->idx, 0,
+                                   3 * sizeof(uint32_t), m->nt);
+        rtcCommitGeometry(g);
+        rtcAttachGeometry(sc, g);
+        rtcReleaseGeometry(g);
+        rtcCommitScene(sc);
+        rays_t r = make_rays(m, nrays);
+        rates_t a = time_trilist(l, &r), b = time_embree(sc, &r);
+        if (a.hits != b.hits)
+            fprintf(stderr, "bench_trilist: %s: %zu hits on the list, %zu on Embree\n", m->name,
+                    a.hits, b.hits);
+        printf("| %s | %zu | %.2f | %.2f | %.2f | %.2f | %.2f | %.2f |\n", m->name, m->nt, a.ext,
+               b.ext, a.ext / b.ext, a.shadow, b.shadow, a.shadow / b.shadow);
+        fflush(stdout);
+        cJSON *row = cJSON_CreateObject();
+        cJSON_AddStringToObject(row, "mesh", m->name);
+        cJSON_AddNumberToObject(row, "triangles", (double)m->nt);
+        cJSON_AddNumberToObject(row, "list_ext_mrays", a.ext);
+        cJSON_AddNumberToObject(row, "embree_ext_mrays", b.ext);
+        cJSON_AddNumberToObject(row, "list_shadow_mrays", a.shadow);
+        cJSON_AddNumberToObject(row, "embree_shadow_mrays", b.shadow);
+        cJSON_AddItemToArray(rows, row);
+        free_rays(&r);
+        rtcReleaseScene(sc);
+        trilist_destroy(&l);
+        free(m->pos);
+        free(m->idx);
+    }
+    cJSON_AddStringToObject(root, "kernel", kernel);
+    cJSON_AddStringToObject(root, "embree_isa", isa);
+    rtcReleaseDevice(dev);
+    int rc = 0;
+    if (json_path) {
+        char *text = cJSON_Print(root);
+        FILE *f = fopen(json_path, "w");
+        if (!f || fputs(text, f) < 0 || fclose(f) != 0) {
+            fprintf(stderr, "bench_trilist: cannot write %s\n", json_path);
+            rc = 1;
+        }
+        cJSON_free(text);
+    }
+    cJSON_Delete(root);
+    return rc;
+}
