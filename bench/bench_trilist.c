@@ -1,12 +1,12 @@
 /* bench_trilist.c - where the triangle list (trilist.h: every triangle
  * tested, no BVH) stops beating Embree, which sets TRILIST_MAX_TRIANGLES.
  *
- * For closed meshes of growing size (a cube, the Cornell box, icospheres of
- * 20 to 1280 triangles) it times closest-hit rays from random points inside
- * in random directions, and shadow rays between two such points (the
- * any-hit query; on a convex mesh none is blocked, its worst case), on the
- * triangle list (its widest kernel) and on Embree's BVH built as the tracer
- * builds it (ROBUST, high quality, the same ISA). One thread, best of 5.
+ * For closed meshes of growing size (cubes of 12 to 300 triangles, the
+ * Cornell box, icospheres of 20 to 1280 triangles) it times closest-hit rays from random points
+ * inside in random directions, and shadow rays between two such points (the any-hit query; on a
+ * convex mesh none is blocked, its worst case), on the triangle list (its widest kernel) and on
+ * Embree's BVH built as the tracer builds it (ROBUST, high quality, the same ISA). One thread, best
+ * of 5.
  *
  * usage: bench_trilist [--rays N] [--json OUT.json]
  */
@@ -69,17 +69,34 @@ static void add_tri(mesh_t *m, uint32_t a, uint32_t b, uint32_t c)
     m->nt++;
 }
 
-static mesh_t cube(void)
+/* The cube [-1, 1]^3, each face an n x n grid of quads: 12 n^2 triangles
+ * (shared lattice points, so it is closed). */
+static mesh_t cube_grid(int n)
 {
-    mesh_t m = {.name = "cube", .lo = {-0.9f, -0.9f, -0.9f}, .hi = {0.9f, 0.9f, 0.9f}};
-    for (int v = 0; v < 8; v++)
-        add_vertex(&m, v & 1 ? 1.0f : -1.0f, v & 2 ? 1.0f : -1.0f, v & 4 ? 1.0f : -1.0f);
-    static const uint32_t f[6][4] = {{0, 1, 3, 2}, {4, 6, 7, 5}, {0, 4, 5, 1},
-                                     {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 5, 7, 3}};
-    for (int i = 0; i < 6; i++) {
-        add_tri(&m, f[i][0], f[i][1], f[i][2]);
-        add_tri(&m, f[i][0], f[i][2], f[i][3]);
+    static char names[8][32];
+    mesh_t m = {.lo = {-0.9f, -0.9f, -0.9f}, .hi = {0.9f, 0.9f, 0.9f}};
+    for (int axis = 0; axis < 3; axis++) {
+        for (int side = 0; side < 2; side++) {
+            int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;
+            for (int i = 0; i < n; i++) {
+                for (int j = 0; j < n; j++) {
+                    uint32_t q[4];
+                    static const int di[4] = {0, 1, 1, 0}, dj[4] = {0, 0, 1, 1};
+                    for (int c = 0; c < 4; c++) {
+                        float p[3];
+                        p[axis] = side ? 1.0f : -1.0f;
+                        p[a1] = -1.0f + 2.0f * (float)(i + di[c]) / (float)n;
+                        p[a2] = -1.0f + 2.0f * (float)(j + dj[c]) / (float)n;
+                        q[c] = add_vertex(&m, p[0], p[1], p[2]);
+                    }
+                    add_tri(&m, q[0], q[1], q[2]);
+                    add_tri(&m, q[0], q[2], q[3]);
+                }
+            }
+        }
     }
+    snprintf(names[n % 8], sizeof names[n % 8], n == 1 ? "cube" : "cube-grid-%d", n);
+    m.name = names[n % 8];
     return m;
 }
 
@@ -311,7 +328,8 @@ int main(int argc, char **argv)
         fprintf(stderr, "bench_trilist: cannot create the Embree device\n");
         return 1;
     }
-    mesh_t meshes[] = {cube(), icosphere(0), cornell(), icosphere(1), icosphere(2), icosphere(3)};
+    mesh_t meshes[] = {cube_grid(1), icosphere(0), cornell(),    cube_grid(2), icosphere(1),
+                       cube_grid(3), cube_grid(4), cube_grid(5), icosphere(2), icosphere(3)};
     const size_t count = sizeof meshes / sizeof meshes[0];
     cJSON *root = cJSON_CreateObject(), *rows = cJSON_AddArrayToObject(root, "meshes");
     cJSON_AddStringToObject(root, "benchmark", "trilist");

@@ -70,7 +70,7 @@ def table(core):
         "Raw ray casting: what the tracer casts rays with, alone, over 2M precomputed rays recorded from "
         "diffuse random walks from the camera (the rays our tracer traces): Embree's rtcIntersect1 / "
         "rtcOccluded1, or \"(list)\" the triangle list without a BVH (common/trilist.h) that the tracer "
-        "uses for scenes of up to 64 triangles; \"Ours / raw\" compares our rays/s, "
+        "uses for scenes of up to 112 triangles; \"Ours / raw\" compares our rays/s, "
         "shading and sampling included, with the raw rate of our own extension/shadow mix "
         "(1 / sum(fraction / rate)). Peak memory: ru_maxrss of the benchmark process after the renders.",
     ]

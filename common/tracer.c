@@ -265,7 +265,9 @@ static inline int unoccluded(const tracer_t *tr, vec3_t o, vec3_t d)
 
 static inline void inset_from_edges(hit_t *h)
 {
-    float u = fmaxf(h->u, TRACER_EDGE_INSET), v = fmaxf(h->v, TRACER_EDGE_INSET);
+    /* (comparisons, not fmaxf: that is a libm call without -ffast-math) */
+    float u = h->u < TRACER_EDGE_INSET ? TRACER_EDGE_INSET : h->u;
+    float v = h->v < TRACER_EDGE_INSET ? TRACER_EDGE_INSET : h->v;
     if (u + v > 1.0f - TRACER_EDGE_INSET) {
         float k = (1.0f - TRACER_EDGE_INSET) / (u + v);
         u *= k;

@@ -152,8 +152,9 @@ int trilist_use_kernel(trilist_t *l, const char *name)
         if (strcmp(name, kernels[i].name) != 0)
             continue;
         /* __builtin_cpu_supports wants a literal */
-        int ok = i == 0 ? __builtin_cpu_supports("avx512f")
-                        : i == 1 ? __builtin_cpu_supports("avx2") : __builtin_cpu_supports("sse2");
+        int ok = i == 0   ? __builtin_cpu_supports("avx512f")
+                 : i == 1 ? __builtin_cpu_supports("avx2")
+                          : __builtin_cpu_supports("sse2");
         if (!ok)
             return -1;
         l->fn = kernels[i].fn;

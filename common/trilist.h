@@ -24,9 +24,11 @@
 
 #include "vmath.h"
 
-/* The largest scene traced without a BVH (measured crossover, see
- * bench/RESULTS.md "Core speed"). */
-#define TRILIST_MAX_TRIANGLES 64
+/* The largest scene traced without a BVH: bench_trilist measured the list
+ * 1.2x (closest hit) and 1.5x (shadow) Embree's ROBUST BVH at 108
+ * triangles, 0.5x and 0.3x at 192 (bench/RESULTS.md, "Core speed"); seven
+ * blocks of 16. */
+#define TRILIST_MAX_TRIANGLES 112
 
 typedef struct trilist trilist_t;
 

@@ -301,8 +301,8 @@ START_TEST(test_agrees_with_embree)
     /* most rays hit (the box is open at the front); they may differ only
      * where two triangles meet within rounding (an edge, a box's foot) */
     ck_assert_msg(both > n * 3 / 4, "%zu of %zu rays hit", both, n);
-    ck_assert_msg(differ <= n / 10000, "%zu of %zu rays hit another triangle than Embree's",
-                  differ, n);
+    ck_assert_msg(differ <= n / 10000, "%zu of %zu rays hit another triangle than Embree's", differ,
+                  n);
     free(rays);
     rtcReleaseScene(sc);
     rtcReleaseDevice(dev);
@@ -393,18 +393,18 @@ START_TEST(test_nearest_and_ties)
         ck_assert_float_eq(t, 2.0f);
         ck_assert(fabsf(u - 0.275f) < 1e-6f && fabsf(v - 0.3f) < 1e-6f);
         /* from z = 35.5 towards -z: triangle 5 (z = 35) and its copy 40 tie */
-        ck_assert(trilist_intersect(l, vec3_make(0.1f, 0.2f, 35.5f), vec3_make(0, 0, -1),
-                                    INFINITY, &tri, &t, &u, &v));
+        ck_assert(trilist_intersect(l, vec3_make(0.1f, 0.2f, 35.5f), vec3_make(0, 0, -1), INFINITY,
+                                    &tri, &t, &u, &v));
         ck_assert_uint_eq(tri, 5);
         ck_assert(!trilist_intersect(l, vec3_make(0.1f, 0.2f, 35.5f), vec3_make(0, 0, -1), 0.4f,
                                      &tri, &t, &u, &v));
         ck_assert(!trilist_occluded(l, vec3_make(0.1f, 0.2f, 35.5f), vec3_make(0, 0, -1), 0.4f));
         ck_assert(trilist_occluded(l, vec3_make(0.1f, 0.2f, 35.5f), vec3_make(0, 0, -1), 0.6f));
         /* outside every triangle, a zero direction, a NaN origin: no hit */
-        ck_assert(!trilist_intersect(l, vec3_make(5, 5, -1), vec3_make(0, 0, 1), INFINITY, &tri,
-                                     &t, &u, &v));
-        ck_assert(!trilist_intersect(l, vec3_make(0, 0, -1), vec3_make(0, 0, 0), INFINITY, &tri,
-                                     &t, &u, &v));
+        ck_assert(!trilist_intersect(l, vec3_make(5, 5, -1), vec3_make(0, 0, 1), INFINITY, &tri, &t,
+                                     &u, &v));
+        ck_assert(!trilist_intersect(l, vec3_make(0, 0, -1), vec3_make(0, 0, 0), INFINITY, &tri, &t,
+                                     &u, &v));
         ck_assert(!trilist_occluded(l, vec3_make(NAN, 0, -1), vec3_make(0, 0, 1), INFINITY));
     }
     ck_assert_int_eq(trilist_use_kernel(l, "avx1024"), -1);
@@ -414,8 +414,8 @@ START_TEST(test_nearest_and_ties)
     ck_assert(l != NULL);
     uint32_t tri;
     float t, u, v;
-    ck_assert(!trilist_intersect(l, vec3_make(0, 0, -1), vec3_make(0, 0, 1), INFINITY, &tri, &t,
-                                 &u, &v));
+    ck_assert(
+        !trilist_intersect(l, vec3_make(0, 0, -1), vec3_make(0, 0, 1), INFINITY, &tri, &t, &u, &v));
     trilist_destroy(&l);
 }
 END_TEST
