@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # run-core.sh - the core benchmark ("make bench"): bench_core on the Cornell
-# box and the Happy Buddha at 1 and 2 threads, the Mitsuba 3 peer on the
-# Cornell box at the same spp and thread counts, all merged into
+# box, the 100k-triangle Happy Buddha in the Cornell box (cornell-buddha) and
+# the glass scene (cornell-glass) at 1 and 2 threads, the Mitsuba 3 peer on each at the same spp and thread counts,
+# all merged into
 # bench/results/core.json; then prints the table and refreshes bench/RESULTS.md's
 # block through bench/update-results.py.
 #
@@ -11,8 +12,8 @@
 # "peer_error" says why, and the benchmark still finishes.
 #
 # Knobs (environment, for quick trials): BENCH_BIN, BENCH_RUNS (3),
-# BENCH_THREADS ("1 2"), BENCH_CORNELL_SPP (128), BENCH_BUDDHA_SPP (384),
-# BENCH_PEER_TIMEOUT (300 s per peer run).
+# BENCH_THREADS ("1 2"), BENCH_CORNELL_SPP (128), BENCH_BUDDHA_SPP (128),
+# BENCH_GLASS_SPP (64), BENCH_PEER_TIMEOUT (300 s per peer run).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -22,7 +23,9 @@ BIN="${BENCH_BIN:-build/bench/bench_core}"
 RUNS="${BENCH_RUNS:-3}"
 THREADS="${BENCH_THREADS:-1 2}"
 CORNELL_SPP="${BENCH_CORNELL_SPP:-128}"
-BUDDHA_SPP="${BENCH_BUDDHA_SPP:-384}"
+BUDDHA_SPP="${BENCH_BUDDHA_SPP:-128}"
+GLASS_SPP="${BENCH_GLASS_SPP:-64}"
+SCENES="cornell-box:$CORNELL_SPP cornell-buddha:$BUDDHA_SPP cornell-glass:$GLASS_SPP"
 PEER_TIMEOUT="${BENCH_PEER_TIMEOUT:-300}"
 OUT="build/bench/out"
 RESULTS="bench/results"
@@ -47,7 +50,7 @@ is_disturbed() { # JSON-FILE: its top-level "disturbed" is true
 
 # 1. Our renderer and raw Embree, one process per (scene, threads) so each
 #    peak-memory figure is that configuration's alone.
-for spec in "cornell-box:$CORNELL_SPP" "happy-buddha:$BUDDHA_SPP"; do
+for spec in $SCENES; do
     scene="${spec%%:*}"
     spp="${spec##*:}"
     for t in $THREADS; do
@@ -70,7 +73,8 @@ done
 echo "== bench_trilist" >&2
 "$(dirname "$BIN")/bench_trilist" --json "$RESULTS/trilist.json"
 
-# 2. The Mitsuba 3 peer (Cornell box only: the peer script converts quads).
+# 2. The Mitsuba 3 peer on each scene (bench/peer/mitsuba_peer.py converts
+#    quads, triangles, spheres and meshes).
 #    The peer cannot tell us whether it had its cores, so this wrapper does:
 #    it runs a command with a time limit (exit 124 when over) and writes the
 #    average number of cores other processes (and the hypervisor, "steal")
@@ -110,23 +114,27 @@ echo "== Mitsuba 3 peer setup" >&2
 if bash bench/peer/setup.sh >"$OUT/peer-setup.log" 2>&1; then
     # shellcheck disable=SC1091
     source bench/peer/env.sh
+    for spec in $SCENES; do
+    scene="${spec%%:*}"
+    spp="${spec##*:}"
     for t in $THREADS; do
+        base="$OUT/peer-$scene-$t"
         while :; do
-            echo "== Mitsuba 3 peer ($MITSUBA_PEER_VARIANT), $t thread(s), $CORNELL_SPP spp" >&2
-            if measured "$PEER_TIMEOUT" "$OUT/peer-$t.out" "$OUT/peer-$t.log" "$OUT/peer-$t.load" \
-                    "$MITSUBA_PEER_PYTHON" bench/peer/mitsuba_peer.py scenes/cornell-box.json \
-                    --mode speed --spp "$CORNELL_SPP" --threads "$t" --runs "$RUNS"; then
-                tail -n 1 "$OUT/peer-$t.out" >"$OUT/peer-$t.json"
+            echo "== Mitsuba 3 peer ($MITSUBA_PEER_VARIANT), $scene, $t thread(s), $spp spp" >&2
+            if measured "$PEER_TIMEOUT" "$base.out" "$base.log" "$base.load" \
+                    "$MITSUBA_PEER_PYTHON" bench/peer/mitsuba_peer.py "scenes/$scene.json" \
+                    --mode speed --spp "$spp" --threads "$t" --runs "$RUNS"; then
+                tail -n 1 "$base.out" >"$base.json"
             else
                 rc=$?
                 if [ "$rc" = 124 ]; then
-                    peer_error="mitsuba_peer.py --threads $t timed out after $PEER_TIMEOUT s"
+                    peer_error="mitsuba_peer.py $scene --threads $t timed out after $PEER_TIMEOUT s"
                 else
-                    peer_error="mitsuba_peer.py --threads $t failed (exit $rc): $(tail -n 3 "$OUT/peer-$t.log" | tr '\n' ' ')"
+                    peer_error="mitsuba_peer.py $scene --threads $t failed (exit $rc): $(tail -n 3 "$base.log" | tr '\n' ' ')"
                 fi
-                break 2
+                break 3
             fi
-            if [ "$RETRIES" -gt 0 ] && is_disturbed "$OUT/peer-$t.load"; then
+            if [ "$RETRIES" -gt 0 ] && is_disturbed "$base.load"; then
                 RETRIES=$((RETRIES - 1))
                 echo "run-core.sh: disturbed by another process; again in 10 s" >&2
                 sleep 10
@@ -134,6 +142,7 @@ if bash bench/peer/setup.sh >"$OUT/peer-setup.log" 2>&1; then
                 break
             fi
         done
+    done
     done
 else
     peer_error="bench/peer/setup.sh failed: $(tail -n 3 "$OUT/peer-setup.log" | tr '\n' ' ')"
@@ -144,9 +153,9 @@ if [ -n "$peer_error" ]; then echo "run-core.sh: peer skipped: $peer_error" >&2;
 end=$(date +%s.%N)
 commit=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
 python3 - "$OUT" "$RESULTS/core.json" "$start" "$end" "$commit" "$peer_error" "$load_before" \
-    "$CORNELL_SPP" "$BUDDHA_SPP" "$RUNS" <<'PY'
+    "$CORNELL_SPP" "$BUDDHA_SPP" "$RUNS" "$GLASS_SPP" <<'PY'
 import glob, json, os, platform, sys, time
-out, dest, start, end, commit, peer_error, load_before, cspp, bspp, nruns = sys.argv[1:11]
+out, dest, start, end, commit, peer_error, load_before, cspp, bspp, nruns, gspp = sys.argv[1:12]
 
 def cpu_model():
     try:
@@ -166,10 +175,12 @@ runs.sort(key=lambda r: (r["scene_name"], r["threads"]))
 
 peer = None
 if not peer_error:
-    peer = {"scene": "cornell-box", "runs": []}
+    peer = {"runs": []}
     for path in sorted(glob.glob(os.path.join(out, "peer-*.json"))):
         with open(path) as f:
             run = json.load(f)
+        # peer-SCENE-THREADS.json
+        run["scene_name"] = os.path.basename(path)[len("peer-"):].rsplit("-", 1)[0]
         try:
             with open(path[:-len(".json")] + ".load") as f:
                 load = json.load(f)
@@ -178,7 +189,7 @@ if not peer_error:
         except (OSError, ValueError, KeyError):
             pass
         peer["runs"].append(run)
-    peer["runs"].sort(key=lambda r: r["threads"])
+    peer["runs"].sort(key=lambda r: (r["scene_name"], r["threads"]))
     if not peer["runs"]:
         peer, peer_error = None, "no peer output"
 
@@ -197,7 +208,8 @@ result = {
         "loadavg_before": load_before,
         "loadavg_after": load_after,
     },
-    "settings": {"width": 256, "height": 256, "spp": {"cornell-box": int(cspp), "happy-buddha": int(bspp)},
+    "settings": {"width": 256, "height": 256,
+                 "spp": {"cornell-box": int(cspp), "cornell-buddha": int(bspp), "cornell-glass": int(gspp)},
                  "runs": int(nruns)},
     "bench_seconds": float(end) - float(start),
     "runs": runs,

@@ -37,8 +37,11 @@ def load_core(results_dir):
 
 def table(core):
     peer = core.get("peer") or {}
-    peer_by_threads = {r["threads"]: r for r in peer.get("runs", [])}
-    variant = next(iter(peer_by_threads.values()), {}).get("variant", "")
+    # (scene, threads) -> run; results before the peer ran on every scene
+    # hold the Cornell box only, without "scene_name"
+    peer_runs = {(r.get("scene_name", peer.get("scene", "cornell-box")), r["threads"]): r
+                 for r in peer.get("runs", [])}
+    variant = next(iter(peer_runs.values()), {}).get("variant", "")
     lines = [
         "| Scene | Threads | Ours samples/s/core | Ours rays/s/core | "
         "Raw ray casting rays/s/core (ext / shadow) | Ours / raw | "
@@ -50,7 +53,7 @@ def table(core):
         ours = r["ours"]
         listed = r.get("accel") == "trilist" and "path_triangle_list" in r["raw_embree"]
         raw = r["raw_embree"]["path_triangle_list" if listed else "path"]
-        m = peer_by_threads.get(t) if r["scene_name"] == "cornell-box" else None
+        m = peer_runs.get((r["scene_name"], t))
         m_sps = m["samples_per_second_per_core"] if m else None
         lines.append(
             f"| {r['scene_name']} | {t}{'*' if r.get('disturbed') else ''} | {mega(ours['samples_per_second_per_core'])} | "
@@ -82,15 +85,15 @@ def table(core):
         notes.append("Embree's BVH is built with RTC_SCENE_FLAG_ROBUST: the same ray mix runs at "
                      f"{', '.join(robust)} rays/s on it, and at {', '.join(fast)} rays/s without the flag "
                      "(1 thread, reference only).")
-    if any(r.get("disturbed") for r in core["runs"] + list(peer_by_threads.values())):
+    if any(r.get("disturbed") for r in core["runs"] + list(peer_runs.values())):
         notes.append("\\* another process used the CPU during this measurement, so its figure is low "
                      "(core.json: cpu_utilization under 0.95 even after extra runs, or other_cpu_cores "
                      "for the peer).")
     if core.get("peer") is None:
         notes.append(f"Mitsuba 3 peer not run: {core.get('peer_error', 'unknown reason')}.")
     else:
-        notes.append("Mitsuba 3: same Cornell box, spp and threads, `path` integrator, best of its timed "
-                     "renders after a warm-up (bench/peer/).")
+        notes.append("Mitsuba 3: the same scene (bench/peer/mitsuba_peer.py converts our JSON), spp and "
+                     "threads, `path` integrator, best of its timed renders after a warm-up (bench/peer/).")
     text = "\n".join(lines) + "\n\n" + "\n\n".join(notes)
     return text
 
