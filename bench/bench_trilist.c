@@ -22,11 +22,11 @@
 #include "scene.h"
 #include "trilist.h"
 
+#include "../tests/closedmesh.h"
+
 typedef struct mesh {
     const char *name;
-    float *pos;
-    uint32_t *idx;
-    size_t nv, nt;
+    closedmesh_t g;
     float lo[3], hi[3]; /* where ray origins are drawn */
     int sphere;         /* origins inside the unit sphere (else the box lo..hi) */
 } mesh_t;
@@ -48,27 +48,6 @@ static void *xrealloc(void *p, size_t n)
     return q;
 }
 
-static uint32_t add_vertex(mesh_t *m, float x, float y, float z)
-{
-    for (size_t i = 0; i < m->nv; i++)
-        if (m->pos[3 * i] == x && m->pos[3 * i + 1] == y && m->pos[3 * i + 2] == z)
-            return (uint32_t)i;
-    m->pos = xrealloc(m->pos, 3 * (m->nv + 1) * sizeof(float));
-    m->pos[3 * m->nv] = x;
-    m->pos[3 * m->nv + 1] = y;
-    m->pos[3 * m->nv + 2] = z;
-    return (uint32_t)m->nv++;
-}
-
-static void add_tri(mesh_t *m, uint32_t a, uint32_t b, uint32_t c)
-{
-    m->idx = xrealloc(m->idx, 3 * (m->nt + 1) * sizeof(uint32_t));
-    m->idx[3 * m->nt] = a;
-    m->idx[3 * m->nt + 1] = b;
-    m->idx[3 * m->nt + 2] = c;
-    m->nt++;
-}
-
 /* The cube [-1, 1]^3, each face an n x n grid of quads: 12 n^2 triangles
  * (shared lattice points, so it is closed). */
 static mesh_t cube_grid(int n)
@@ -87,10 +66,10 @@ static mesh_t cube_grid(int n)
                         p[axis] = side ? 1.0f : -1.0f;
                         p[a1] = -1.0f + 2.0f * (float)(i + di[c]) / (float)n;
                         p[a2] = -1.0f + 2.0f * (float)(j + dj[c]) / (float)n;
-                        q[c] = add_vertex(&m, p[0], p[1], p[2]);
+                        q[c] = closedmesh_vertex(&m.g, p[0], p[1], p[2]);
                     }
-                    add_tri(&m, q[0], q[1], q[2]);
-                    add_tri(&m, q[0], q[2], q[3]);
+                    closedmesh_tri(&m.g, q[0], q[1], q[2]);
+                    closedmesh_tri(&m.g, q[0], q[2], q[3]);
                 }
             }
         }
@@ -100,51 +79,11 @@ static mesh_t cube_grid(int n)
     return m;
 }
 
-static uint32_t midpoint(mesh_t *m, uint32_t a, uint32_t b)
-{
-    float p[3];
-    double len = 0;
-    for (int k = 0; k < 3; k++) {
-        p[k] = m->pos[3 * a + k] + m->pos[3 * b + k];
-        len += (double)p[k] * p[k];
-    }
-    len = sqrt(len);
-    return add_vertex(m, (float)(p[0] / len), (float)(p[1] / len), (float)(p[2] / len));
-}
-
 static mesh_t icosphere(int levels)
 {
     static char names[4][32];
-    mesh_t m = {.sphere = 1};
-    const float t = 1.6180339887f, s = 1.0f / sqrtf(1.0f + t * t), a = t * s;
-    const float v[12][3] = {{-s, a, 0}, {s, a, 0}, {-s, -a, 0}, {s, -a, 0},
-                            {0, -s, a}, {0, s, a}, {0, -s, -a}, {0, s, -a},
-                            {a, 0, -s}, {a, 0, s}, {-a, 0, -s}, {-a, 0, s}};
-    for (int i = 0; i < 12; i++)
-        add_vertex(&m, v[i][0], v[i][1], v[i][2]);
-    static const uint32_t f[20][3] = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
-                                      {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
-                                      {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
-                                      {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
-    for (int i = 0; i < 20; i++)
-        add_tri(&m, f[i][0], f[i][1], f[i][2]);
-    for (int l = 0; l < levels; l++) {
-        mesh_t n = {.sphere = 1};
-        for (size_t i = 0; i < m.nv; i++)
-            add_vertex(&n, m.pos[3 * i], m.pos[3 * i + 1], m.pos[3 * i + 2]);
-        for (size_t i = 0; i < m.nt; i++) {
-            uint32_t x = m.idx[3 * i], y = m.idx[3 * i + 1], z = m.idx[3 * i + 2];
-            uint32_t xy = midpoint(&n, x, y), yz = midpoint(&n, y, z), zx = midpoint(&n, z, x);
-            add_tri(&n, x, xy, zx);
-            add_tri(&n, y, yz, xy);
-            add_tri(&n, z, zx, yz);
-            add_tri(&n, xy, yz, zx);
-        }
-        free(m.pos);
-        free(m.idx);
-        m = n;
-    }
-    snprintf(names[levels], sizeof names[levels], "icosphere-%zu", m.nt);
+    mesh_t m = {.sphere = 1, .g = closedmesh_icosphere(levels)};
+    snprintf(names[levels], sizeof names[levels], "icosphere-%zu", m.g.nt);
     m.name = names[levels];
     return m;
 }
@@ -158,12 +97,12 @@ static mesh_t cornell(void)
         fprintf(stderr, "bench_trilist: %s\n", err);
         exit(1);
     }
-    m.nv = s->vertex_count;
-    m.nt = s->triangle_count;
-    m.pos = xrealloc(NULL, 3 * m.nv * sizeof(float));
-    m.idx = xrealloc(NULL, 3 * m.nt * sizeof(uint32_t));
-    memcpy(m.pos, s->positions, 3 * m.nv * sizeof(float));
-    memcpy(m.idx, s->indices, 3 * m.nt * sizeof(uint32_t));
+    m.g.nv = s->vertex_count;
+    m.g.nt = s->triangle_count;
+    m.g.pos = xrealloc(NULL, 3 * m.g.nv * sizeof(float));
+    m.g.idx = xrealloc(NULL, 3 * m.g.nt * sizeof(uint32_t));
+    memcpy(m.g.pos, s->positions, 3 * m.g.nv * sizeof(float));
+    memcpy(m.g.idx, s->indices, 3 * m.g.nt * sizeof(uint32_t));
     scene_destroy(&s);
     return m;
 }
@@ -340,7 +279,7 @@ int main(int argc, char **argv)
            "Embree shadow | List / Embree |\n|---|--:|--:|--:|--:|--:|--:|--:|\n");
     for (size_t k = 0; k < count; k++) {
         mesh_t *m = &meshes[k];
-        trilist_t *l = trilist_new(m->pos, m->idx, m->nt);
+        trilist_t *l = trilist_new(m->g.pos, m->g.idx, m->g.nt);
         if (!l) {
             fprintf(stderr, "bench_trilist: out of memory\n");
             return 1;
@@ -350,10 +289,10 @@ int main(int argc, char **argv)
         rtcSetSceneFlags(sc, RTC_SCENE_FLAG_ROBUST);
         rtcSetSceneBuildQuality(sc, RTC_BUILD_QUALITY_HIGH);
         RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
-        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, m->pos, 0,
-                                   3 * sizeof(float), m->nv);
-        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->idx, 0,
-                                   3 * sizeof(uint32_t), m->nt);
+        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, m->g.pos, 0,
+                                   3 * sizeof(float), m->g.nv);
+        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->g.idx, 0,
+                                   3 * sizeof(uint32_t), m->g.nt);
         rtcCommitGeometry(g);
         rtcAttachGeometry(sc, g);
         rtcReleaseGeometry(g);
@@ -363,12 +302,12 @@ int main(int argc, char **argv)
         if (a.hits != b.hits)
             fprintf(stderr, "bench_trilist: %s: %zu hits on the list, %zu on Embree\n", m->name,
                     a.hits, b.hits);
-        printf("| %s | %zu | %.2f | %.2f | %.2f | %.2f | %.2f | %.2f |\n", m->name, m->nt, a.ext,
+        printf("| %s | %zu | %.2f | %.2f | %.2f | %.2f | %.2f | %.2f |\n", m->name, m->g.nt, a.ext,
                b.ext, a.ext / b.ext, a.shadow, b.shadow, a.shadow / b.shadow);
         fflush(stdout);
         cJSON *row = cJSON_CreateObject();
         cJSON_AddStringToObject(row, "mesh", m->name);
-        cJSON_AddNumberToObject(row, "triangles", (double)m->nt);
+        cJSON_AddNumberToObject(row, "triangles", (double)m->g.nt);
         cJSON_AddNumberToObject(row, "list_ext_mrays", a.ext);
         cJSON_AddNumberToObject(row, "embree_ext_mrays", b.ext);
         cJSON_AddNumberToObject(row, "list_shadow_mrays", a.shadow);
@@ -377,8 +316,7 @@ int main(int argc, char **argv)
         free_rays(&r);
         rtcReleaseScene(sc);
         trilist_destroy(&l);
-        free(m->pos);
-        free(m->idx);
+        closedmesh_free(&m->g);
     }
     cJSON_AddStringToObject(root, "kernel", kernel);
     cJSON_AddStringToObject(root, "embree_isa", isa);

@@ -7,6 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "closedmesh.h"
 #include "rng.h"
 #include "scene.h"
 #include "testutil.h"
@@ -16,117 +17,28 @@ static const char *kernels[] = {"avx512", "avx2", "sse2"};
 
 /* ---- meshes ----------------------------------------------------------- */
 
-typedef struct mesh {
-    float *pos;
-    uint32_t *idx;
-    size_t nv, nt, cap_v, cap_t;
-} mesh_t;
-
-static uint32_t mesh_vertex(mesh_t *m, float x, float y, float z)
-{
-    for (size_t i = 0; i < m->nv; i++)
-        if (m->pos[3 * i] == x && m->pos[3 * i + 1] == y && m->pos[3 * i + 2] == z)
-            return (uint32_t)i;
-    if (m->nv == m->cap_v) {
-        m->cap_v = m->cap_v ? 2 * m->cap_v : 64;
-        m->pos = realloc(m->pos, 3 * m->cap_v * sizeof(float));
-        ck_assert(m->pos != NULL);
-    }
-    m->pos[3 * m->nv] = x;
-    m->pos[3 * m->nv + 1] = y;
-    m->pos[3 * m->nv + 2] = z;
-    return (uint32_t)m->nv++;
-}
-
-static void mesh_tri(mesh_t *m, uint32_t a, uint32_t b, uint32_t c)
-{
-    if (m->nt == m->cap_t) {
-        m->cap_t = m->cap_t ? 2 * m->cap_t : 64;
-        m->idx = realloc(m->idx, 3 * m->cap_t * sizeof(uint32_t));
-        ck_assert(m->idx != NULL);
-    }
-    m->idx[3 * m->nt] = a;
-    m->idx[3 * m->nt + 1] = b;
-    m->idx[3 * m->nt + 2] = c;
-    m->nt++;
-}
-
-static void mesh_free(mesh_t *m)
-{
-    free(m->pos);
-    free(m->idx);
-    memset(m, 0, sizeof *m);
-}
-
 /* The cube [-1, 1]^3 as 12 triangles, diagonals alternating. */
-static mesh_t cube_mesh(void)
+static closedmesh_t cube_mesh(void)
 {
-    mesh_t m = {0};
+    closedmesh_t m = {0};
     for (int v = 0; v < 8; v++)
-        mesh_vertex(&m, v & 1 ? 1.0f : -1.0f, v & 2 ? 1.0f : -1.0f, v & 4 ? 1.0f : -1.0f);
+        closedmesh_vertex(&m, v & 1 ? 1.0f : -1.0f, v & 2 ? 1.0f : -1.0f, v & 4 ? 1.0f : -1.0f);
     static const uint32_t faces[6][4] = {{0, 1, 3, 2}, {4, 6, 7, 5}, {0, 4, 5, 1},
                                          {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 5, 7, 3}};
     for (int f = 0; f < 6; f++) {
         const uint32_t *q = faces[f];
         if (f % 2) {
-            mesh_tri(&m, q[0], q[1], q[2]);
-            mesh_tri(&m, q[0], q[2], q[3]);
+            closedmesh_tri(&m, q[0], q[1], q[2]);
+            closedmesh_tri(&m, q[0], q[2], q[3]);
         } else {
-            mesh_tri(&m, q[0], q[1], q[3]);
-            mesh_tri(&m, q[1], q[2], q[3]);
+            closedmesh_tri(&m, q[0], q[1], q[3]);
+            closedmesh_tri(&m, q[1], q[2], q[3]);
         }
     }
     return m;
 }
 
-static uint32_t midpoint(mesh_t *m, uint32_t a, uint32_t b)
-{
-    float p[3];
-    double len = 0;
-    for (int k = 0; k < 3; k++) {
-        p[k] = m->pos[3 * a + k] + m->pos[3 * b + k]; /* the same for (b, a) */
-        len += (double)p[k] * p[k];
-    }
-    len = sqrt(len);
-    return mesh_vertex(m, (float)(p[0] / len), (float)(p[1] / len), (float)(p[2] / len));
-}
-
-/* An icosphere of radius 1: 20 * 4^levels triangles sharing every edge. */
-static mesh_t icosphere(int levels)
-{
-    mesh_t m = {0};
-    const float t = 1.6180339887f, s = 1.0f / sqrtf(1.0f + t * t), a = t * s;
-    const float v[12][3] = {{-s, a, 0}, {s, a, 0}, {-s, -a, 0}, {s, -a, 0},
-                            {0, -s, a}, {0, s, a}, {0, -s, -a}, {0, s, -a},
-                            {a, 0, -s}, {a, 0, s}, {-a, 0, -s}, {-a, 0, s}};
-    for (int i = 0; i < 12; i++)
-        mesh_vertex(&m, v[i][0], v[i][1], v[i][2]);
-    static const uint32_t f[20][3] = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
-                                      {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
-                                      {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
-                                      {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
-    for (int i = 0; i < 20; i++)
-        mesh_tri(&m, f[i][0], f[i][1], f[i][2]);
-    for (int l = 0; l < levels; l++) {
-        mesh_t n = {0};
-        for (size_t i = 0; i < m.nv; i++)
-            mesh_vertex(&n, m.pos[3 * i], m.pos[3 * i + 1], m.pos[3 * i + 2]);
-        for (size_t i = 0; i < m.nt; i++) {
-            uint32_t x = m.idx[3 * i], y = m.idx[3 * i + 1], z = m.idx[3 * i + 2];
-            /* midpoints computed from n so they are shared between faces */
-            uint32_t xy = midpoint(&n, x, y), yz = midpoint(&n, y, z), zx = midpoint(&n, z, x);
-            mesh_tri(&n, x, xy, zx);
-            mesh_tri(&n, y, yz, xy);
-            mesh_tri(&n, z, zx, yz);
-            mesh_tri(&n, xy, yz, zx);
-        }
-        mesh_free(&m);
-        m = n;
-    }
-    return m;
-}
-
-static vec3_t vtx(const mesh_t *m, uint32_t i)
+static vec3_t vtx(const closedmesh_t *m, uint32_t i)
 {
     return vec3_make(m->pos[3 * i], m->pos[3 * i + 1], m->pos[3 * i + 2]);
 }
@@ -136,7 +48,7 @@ static vec3_t vtx(const mesh_t *m, uint32_t i)
 /* From interior points, rays aimed exactly at every vertex, at points along
  * every edge (including its midpoint) and in random directions: each must
  * hit the closed mesh and be occluded by it. Returns the rays cast. */
-static uint64_t assert_no_leak(const mesh_t *m, const char *kernel, uint64_t random_rays)
+static uint64_t assert_no_leak(const closedmesh_t *m, const char *kernel, uint64_t random_rays)
 {
     trilist_t *l = trilist_new(m->pos, m->idx, m->nt);
     ck_assert(l != NULL);
@@ -188,24 +100,24 @@ static uint64_t assert_no_leak(const mesh_t *m, const char *kernel, uint64_t ran
 
 START_TEST(test_watertight_cube)
 {
-    mesh_t m = cube_mesh();
+    closedmesh_t m = cube_mesh();
     ck_assert_uint_eq(m.nt, 12);
     uint64_t rays = 0;
     for (size_t k = 0; k < 3; k++)
         rays += assert_no_leak(&m, kernels[k], 200000);
     ck_assert_uint_gt(rays, 0);
-    mesh_free(&m);
+    closedmesh_free(&m);
 }
 END_TEST
 
 START_TEST(test_watertight_icosphere)
 {
-    mesh_t m = icosphere(3);
+    closedmesh_t m = closedmesh_icosphere(3);
     ck_assert_uint_eq(m.nt, 1280);
     ck_assert_uint_eq(m.nv, 642); /* every edge shared: V - E + F = 2 */
     for (size_t k = 0; k < 3; k++)
         assert_no_leak(&m, kernels[k], 20000);
-    mesh_free(&m);
+    closedmesh_free(&m);
 }
 END_TEST
 
@@ -316,7 +228,7 @@ END_TEST
 START_TEST(test_kernels_same_bits)
 {
     scene_t *s = cornell();
-    mesh_t ico = icosphere(2); /* 320 triangles: 20 blocks */
+    closedmesh_t ico = closedmesh_icosphere(2); /* 320 triangles: 20 blocks */
     for (int which = 0; which < 2; which++) {
         const float *pos = which ? ico.pos : s->positions;
         const uint32_t *idx = which ? ico.idx : s->indices;
@@ -361,7 +273,7 @@ START_TEST(test_kernels_same_bits)
         free(rays);
         trilist_destroy(&l);
     }
-    mesh_free(&ico);
+    closedmesh_free(&ico);
     scene_destroy(&s);
 }
 END_TEST
