@@ -219,8 +219,9 @@ static int pools_neighbours(const sched_t *s)
     return s->cfg.adaptive == SCHED_ADAPTIVE_RELERR || s->cfg.adaptive == SCHED_ADAPTIVE_RELMSE;
 }
 
-/* Layer-mean counts per pixel: kept for the target error and for the modes
- * that pool their neighbours. */
+/* Layer-mean counts per pixel, and the statistics of the uniform layers'
+ * means: kept for the target error and for the modes that pool their
+ * neighbours (both judge a pixel by its neighbours' uniform layers). */
 static int keeps_counts(const sched_t *s)
 {
     return s->cfg.target_error > 0 || pools_neighbours(s);
@@ -236,12 +237,13 @@ static int alloc_target_tables(sched_t *s)
         if (!s->nb_snapshot || !s->nb_flight[0] || !s->nb_flight[1])
             return -1;
     }
-    if (pools_neighbours(s)) {
-        s->pooled = calloc(n, sizeof(double));
+    if (pools_neighbours(s) && !(s->pooled = calloc(n, sizeof(double))))
+        return -1;
+    if (keeps_counts(s)) {
         s->ubatches = calloc(n, sizeof(uint32_t));
         s->umean = calloc(n, sizeof(double));
         s->um2 = calloc(n, sizeof(double));
-        if (!s->pooled || !s->ubatches || !s->umean || !s->um2)
+        if (!s->ubatches || !s->umean || !s->um2)
             return -1;
     }
     if (s->cfg.target_error <= 0)
@@ -484,15 +486,20 @@ static int applies_skip_rule(const sched_t *s, uint32_t layer)
 {
     /* relerr and relmse learn only from uniform layers (pool_neighbours):
      * without a flag sequence, every SCHED_UNIFORM_EVERY-th layer stays
-     * uniform so their statistics keep growing */
-    int refresh = pools_neighbours(s) && layer % SCHED_UNIFORM_EVERY == 0;
+     * uniform so their statistics keep growing (not with a target error,
+     * whose statistics stop growing after SCHED_TARGET_MIN_LAYERS) */
+    int refresh =
+        pools_neighbours(s) && s->cfg.target_error <= 0 && layer % SCHED_UNIFORM_EVERY == 0;
     int flag = s->flags ? s->flags[layer] == '1' : layer >= s->uniform && !refresh;
     return flag && layer >= 2 && s->cfg.adaptive != SCHED_ADAPTIVE_NONE;
 }
 
 /* The largest of v over the (2 SCHED_TARGET_POOL_RADIUS + 1)^2 window around
- * each pixel, into out (separable: rows into s->pool_row, then columns). */
-static void window_max(sched_t *s, const double *v, double *out)
+ * each pixel, the pixel itself left out, into out: separable (rows into
+ * s->pool_row, then columns) with the pixel in, then the few pixels that
+ * are their window's maximum done again without themselves. A pixel with
+ * no neighbour at all (a 1 x 1 image) keeps its own value. */
+static void window_max_excluding_self(sched_t *s, const double *v, double *out)
 {
     const int w = (int)s->cfg.width, h = (int)s->cfg.height, r = SCHED_TARGET_POOL_RADIUS;
     for (int y = 0; y < h; y++)
@@ -511,17 +518,39 @@ static void window_max(sched_t *s, const double *v, double *out)
                     m = s->pool_row[yy * w + x];
             out[y * w + x] = m;
         }
+    if (w * h == 1)
+        return;
+    for (int y = 0; y < h; y++)
+        for (int x = 0; x < w; x++) {
+            if (v[y * w + x] < out[y * w + x])
+                continue; /* a neighbour holds the maximum */
+            double m = 0;
+            for (int yy = y - r; yy <= y + r; yy++)
+                for (int xx = x - r; xx <= x + r; xx++)
+                    if (yy >= 0 && yy < h && xx >= 0 && xx < w && (yy != y || xx != x) &&
+                        v[yy * w + xx] > m)
+                        m = v[yy * w + xx];
+            out[y * w + x] = m;
+        }
 }
 
 /* Which pixels meet the target error, from the snapshot, into
  * s->conv_snapshot; returns how many. A pixel's own layer means can look
  * steady long before it meets a rare bright path (a caustic seen through
  * glass) that its neighbours have met: its relative variance is taken as
- * the largest in its window (sched.h, bench/error/target.py). */
+ * the largest in its window (sched.h, bench/error/target.py). The pixel
+ * itself is left out, and the variances come from uniform layers only:
+ * a pixel that stopped because its own layers looked steady would stop
+ * exactly when it had not met the bright path yet, and its mean would be
+ * low (test_target_unbiased); only its layer count is its own. Nor may
+ * a neighbour's statistics grow with the layers it took, since how many
+ * it took depends on this pixel's values through the neighbour's own
+ * window: they come from every pixel's first SCHED_TARGET_MIN_LAYERS
+ * layers, frozen from then on (sched.h). */
 static uint64_t mark_converged(sched_t *s)
 {
     uint64_t conv = 0;
-    window_max(s, s->rvar_snapshot, s->pool_max);
+    window_max_excluding_self(s, s->rvar_snapshot, s->pool_max);
     for (uint32_t p = 0; p < s->npix; p++) {
         uint32_t nb = s->nb_snapshot[p];
         int c = nb >= SCHED_TARGET_MIN_LAYERS &&
@@ -879,7 +908,11 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
             double bm = vmath_luminance(results[i].sum[0], results[i].sum[1], results[i].sum[2]) /
                         results[i].samples;
             welford_add(&s->batches[p], &s->bmean[p], &s->bm2[p], bm);
-            if (s->ubatches && !adaptive_layer)
+            /* with a target error, a pixel's first SCHED_TARGET_MIN_LAYERS
+             * layers whatever they are (frozen_statistics); else its
+             * uniform layers */
+            if (s->ubatches && (s->cfg.target_error > 0 ? s->ubatches[p] < SCHED_TARGET_MIN_LAYERS
+                                                        : !adaptive_layer))
                 welford_add(&s->ubatches[p], &s->umean[p], &s->um2[p], bm);
         }
         uint32_t nb = s->batches[p];
@@ -901,8 +934,11 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
             break;
         }
         if (s->cfg.target_error > 0) {
-            double scale = fabs(s->bmean[p]) + SCHED_TARGET_EPS;
-            rv[p] = nb >= 2 ? s->bm2[p] / (nb - 1) / (scale * scale) : INFINITY;
+            /* a layer mean's relative variance, over its first layers */
+            const uint32_t nu = s->ubatches[p];
+            double scale = fabs(s->umean[p]) + SCHED_TARGET_EPS;
+            rv[p] =
+                nu >= SCHED_TARGET_MIN_LAYERS ? s->um2[p] / (nu - 1) / (scale * scale) : INFINITY;
         }
         if (nf)
             nf[p] = nb;
@@ -1117,7 +1153,7 @@ int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
     const size_t cells = (size_t)s->layers * s->ranges, n = s->npix;
     const size_t tn = s->cfg.target_error > 0 ? n : 0; /* the target error's tables */
     const size_t cn = keeps_counts(s) ? n : 0;         /* layer-mean counts */
-    const size_t un = pools_neighbours(s) ? n : 0;     /* uniform layers' statistics */
+    const size_t un = keeps_counts(s) ? n : 0;         /* uniform layers' statistics */
     uint32_t vc[2] = {SCHED_SAVE_VERSION, FP_COUNT};
     uint64_t fp[FP_COUNT];
     fingerprint(s, fp);
@@ -1225,7 +1261,7 @@ static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *su
 {
     const size_t cells = (size_t)s->layers * s->ranges, n = s->npix;
     const size_t tn = s->cfg.target_error > 0 ? n : 0, cn = keeps_counts(s) ? n : 0,
-                 un = pools_neighbours(s) ? n : 0;
+                 un = keeps_counts(s) ? n : 0;
     uint8_t magic[8];
     uint32_t vc[2];
     uint64_t fp[FP_COUNT], want[FP_COUNT], ct[CT_COUNT];
@@ -1518,12 +1554,14 @@ static int check_pixel_stats(const sched_t *s, uint32_t p, uint32_t layers, char
         }
     if (keeps_counts(s)) {
         /* a pixel has no more layer means than layers it took; a relative
-         * variance is >= 0 (infinite before a second layer) */
+         * variance is >= 0 (infinite before a second layer; the target's,
+         * before SCHED_TARGET_MIN_LAYERS) */
+        const uint32_t finite_from = s->cfg.target_error > 0 ? SCHED_TARGET_MIN_LAYERS : 2;
         const double *rvs[3] = {s->rvar_snapshot, s->rvar_flight[0], s->rvar_flight[1]};
         const uint32_t nb[3] = {s->nb_snapshot[p], s->nb_flight[0][p], s->nb_flight[1][p]};
         for (int k = 0; k < 3; k++) {
             const double rv = rvs[k] ? rvs[k][p] : 0.0; /* without a target: none kept */
-            if (!(rv >= 0) || nb[k] > layers || (nb[k] >= 2 && !isfinite(rv))) {
+            if (!(rv >= 0) || nb[k] > layers || (nb[k] >= finite_from && !isfinite(rv))) {
                 snprintf(err, errlen,
                          "checkpoint: pixel %u: layer-mean statistics (relative variance %g of "
                          "%u layer means, %u layers taken)",

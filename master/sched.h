@@ -77,15 +77,20 @@ typedef enum {
  * the sampler balances is the one the error is measured in. */
 #define SCHED_RELERR_EPS 0.1
 /* The target-error rule (sched_config_t.target_error): its epsilon
- * (half-width <= E (mean + eps)), the fewest layers before a pixel may count
- * as converged, and the radius of the window whose largest relative
- * variance a pixel's half-width uses. The window is what makes the target
- * hold: a pixel's own layer means look steady until it meets a rare bright
- * path its neighbours have already met (bench/error/target.py measured the
- * candidates: on the glass scene the pixel's own variance left 43 % of the
- * pixels within E = 0.05, a 5 x 5 window 98 %). */
+ * (half-width <= E (mean + eps)); the layers whose means give each pixel's
+ * relative variance (its first ones, frozen after them), which is also the
+ * fewest a pixel takes; and the radius of the window whose largest relative
+ * variance a pixel's half-width uses, the pixel itself left out. The window
+ * is what makes the target hold: a pixel's own layer means look steady
+ * until it meets a rare bright path its neighbours have already met
+ * (bench/error/target.py measured the candidates: on the glass scene the
+ * pixel's own variance left 43 % of the pixels within E = 0.05, a 5 x 5
+ * window 98 %). Leaving the pixel out, and freezing every pixel's
+ * statistics after the same number of layers, is what keeps the image
+ * unbiased: whether a pixel stops then depends on its neighbours' first
+ * layers alone, never on its own values (test_target_unbiased). */
 #define SCHED_TARGET_EPS 1e-3
-#define SCHED_TARGET_MIN_LAYERS 4
+#define SCHED_TARGET_MIN_LAYERS 8
 #define SCHED_TARGET_POOL_RADIUS 2
 /* The largest mean radiance a result may report per sample. No scene comes
  * near it (the brightest test light is 1e7), and squares and sums of it
@@ -115,10 +120,10 @@ typedef struct sched_config {
     uint64_t seed;        /* for random selection */
     /* Stopping on a confidence bound: a pixel stops once the t half-width
      * of its layers' means at `confidence` is <= target_error (mean + eps),
-     * its layer means' relative variance taken as the largest in its
-     * window (SCHED_TARGET_POOL_RADIUS); it starts again if a later layer
-     * of a neighbour raises that. The job stops when target_share of the
-     * pixels have. 0: off. */
+     * its layer means' relative variance taken as the largest among its
+     * neighbours' (SCHED_TARGET_POOL_RADIUS, SCHED_TARGET_MIN_LAYERS). With
+     * relerr or relmse, their neighbours' statistics are those same first
+     * layers. The job stops when target_share of the pixels have. 0: off. */
     double target_error;
     double confidence;   /* 0: JOB_DEFAULT_CONFIDENCE (0.95) */
     double target_share; /* 0: 1.0 */
@@ -238,8 +243,9 @@ double sched_threshold(const sched_t *s, uint32_t layer);
  * a uint64 byte count and the bytes; last the section "end" holding a
  * uint64 checksum of everything before it. */
 /* 2: target-error window statistics; 3: layer-mean counts for relerr and
- * relmse, whose saved metric is then a layer mean's relative variance */
-#define SCHED_SAVE_VERSION 3
+ * relmse, whose saved metric is then a layer mean's relative variance;
+ * 4: the target error's too, and its variances from uniform layers */
+#define SCHED_SAVE_VERSION 4
 typedef int (*sched_write_fn)(void *ctx, const void *data, size_t len);
 /* Reads exactly len bytes; returns 0, or non-zero on a short read / error. */
 typedef int (*sched_read_fn)(void *ctx, void *data, size_t len);

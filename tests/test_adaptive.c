@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include "image.h"
+#include "sched.h"
 #include "testutil.h"
 
 #define OUTLEN 16384
@@ -128,7 +129,9 @@ START_TEST(test_target_error_stops_early)
     }
     /* stopped well before 4096 spp everywhere, and not uniformly */
     ck_assert_msg(total < 0.5 * 4096 * 24 * 24, "took %g samples", total);
-    ck_assert_msg(lo >= 64, "a pixel stopped after %g samples (before 4 layers)", lo);
+    ck_assert_msg(lo >= 16 * SCHED_TARGET_MIN_LAYERS,
+                  "a pixel stopped after %g samples (before %d layers)", lo,
+                  SCHED_TARGET_MIN_LAYERS);
     ck_assert_msg(hi > lo, "every pixel took %g samples", lo);
     image_destroy(&im);
 }

@@ -230,9 +230,12 @@ class Rule:
     """A per-pixel stopping rule: 'fires' from Welford state after a layer."""
 
     def __init__(self, name, min_batches=4, confidence_scale=1.0, confirm=0, pool=0, pool_max=False,
-                 neighbours=0, doc=""):
+                 neighbours=0, frozen=0, doc=""):
         self.name, self.min_batches, self.confirm, self.doc = name, min_batches, confirm, doc
         self.pool, self.pool_max = pool, pool_max  # window radius, max instead of mean
+        # frozen > 0: every pixel's variance from its first `frozen` layers only, and the
+        # window's largest taken over the neighbours, the pixel itself left out
+        self.frozen = frozen
         self.neighbours = neighbours  # stops only when every pixel within this radius has fired
         self.confidence_scale = confidence_scale  # alpha divided by this
 
@@ -241,8 +244,12 @@ class Rule:
 
 
 RULES = [
+    Rule("window5-frozen8", pool=2, pool_max=True, frozen=8, min_batches=8,
+         doc="as shipped: the relative variance of a pixel's layer means taken as the largest among its 24 "
+             "neighbours in the 5x5 window, each over its first 8 layers only (unbiased: a pixel's stop "
+             "never depends on its own values)"),
     Rule("window5", pool=2, pool_max=True,
-         doc="as shipped: the relative variance of a pixel's layer means taken as the largest in its 5x5 window"),
+         doc="the largest in the 5x5 window, the pixel included, over all layers taken (before the change)"),
     Rule("own", doc="the pixel's own: t half-width <= E (|mean| + 1e-3) after >= 4 layers (before issue 10)"),
     Rule("own-min8", min_batches=8, doc="own, after >= 8 layers"),
     Rule("own-min32", min_batches=32, doc="own, after >= 32 layers"),
@@ -267,6 +274,16 @@ def window(img, radius, pad_value, reduce):
         return reduce(blocks, axis=0)
 
 
+def window_without_centre(img, radius, pad_value):
+    """The largest over each pixel's (2 radius + 1)^2 window, the pixel left out."""
+    w = img.shape[0]
+    pad = np.pad(img, radius, constant_values=pad_value)
+    k = 2 * radius + 1
+    blocks = np.stack([pad[dy:dy + w, dx:dx + w] for dy in range(k) for dx in range(k)
+                       if (dy, dx) != (radius, radius)])
+    return blocks.max(axis=0)
+
+
 def simulate(data, rule, E, C):
     """Runs rule on the run's layer means; returns per-pixel (estimate, layers)."""
     run = data["run"]
@@ -278,6 +295,9 @@ def simulate(data, rule, E, C):
     m2 = np.zeros(npix)
     snap = np.zeros(npix, bool)  # converged, as of the last layer the pixel took
     first = np.zeros(npix, np.int64)  # confirm: layers when it first fired (0: not yet)
+    fn = np.zeros(npix, np.int64)  # frozen: Welford over the first rule.frozen layers
+    fmean = np.zeros(npix)
+    fm2 = np.zeros(npix)
     decided = [np.ones(npix, bool), np.ones(npix, bool)]
     for layer in range(L):
         member = decided[layer] & ~np.isnan(run[layer])
@@ -288,13 +308,24 @@ def simulate(data, rule, E, C):
         d = x - mean[member]
         mean[member] += d / nb[member]
         m2[member] += d * (x - mean[member])
+        if rule.frozen:
+            grow = member & (fn < rule.frozen)
+            xf = run[layer, grow]
+            fn[grow] += 1
+            df = xf - fmean[grow]
+            fmean[grow] += df / fn[grow]
+            fm2[grow] += df * (xf - fmean[grow])
         # every pixel's state is judged at each decision (master/sched.c
         # mark_converged), its own state changed only by the layers it took
         k = nb
         with np.errstate(all="ignore"):
             scale = np.abs(mean) + EPS
             rv = np.where(k >= 2, m2 / (k - 1) / (scale * scale), np.where(k == 0, 0.0, np.inf))
-            if rule.pool and rule.pool_max:  # exactly as the master: the window's largest, 0 outside
+            if rule.frozen:  # exactly as the master: frozen statistics, the neighbours' largest
+                fscale = np.abs(fmean) + EPS
+                frv = np.where(fn >= rule.frozen, fm2 / (fn - 1) / (fscale * fscale), np.inf)
+                v = window_without_centre(frv.reshape(w, w), rule.pool, 0.0).ravel()
+            elif rule.pool and rule.pool_max:  # the window's largest, 0 outside
                 v = window(rv.reshape(w, w), rule.pool, 0.0, np.max).ravel()
             elif rule.pool:
                 vb = np.where(k >= 2, rv, np.nan)
