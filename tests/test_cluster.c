@@ -52,7 +52,13 @@
 #define CMDLEN 4096
 #define MAX_DAEMONS 32
 #define STOP_MS 5000 /* a daemon must exit this soon after SIGTERM */
+/* A job's limit: under the sanitizers, every ray and every message costs 3
+ * to 5 times as much (the triangle list's kernels are instrumented too) */
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define JOB_TIMEOUT_MS 120000
+#else
 #define JOB_TIMEOUT_MS 60000
+#endif
 
 /* Settings shared by a distributed run and its embedded reference. */
 #define SMALL "--spp 64 --granularity 16"
