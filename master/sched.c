@@ -219,9 +219,10 @@ static int pools_neighbours(const sched_t *s)
     return s->cfg.adaptive == SCHED_ADAPTIVE_RELERR || s->cfg.adaptive == SCHED_ADAPTIVE_RELMSE;
 }
 
-/* Layer-mean counts per pixel, and the statistics of the uniform layers'
- * means: kept for the target error and for the modes that pool their
- * neighbours (both judge a pixel by its neighbours' uniform layers). */
+/* Layer-mean counts per pixel, and the statistics of the layer means its
+ * neighbours judge it by (its uniform layers; with a target error, its
+ * first SCHED_TARGET_MIN_LAYERS): kept for the target error and for the
+ * modes that pool their neighbours. */
 static int keeps_counts(const sched_t *s)
 {
     return s->cfg.target_error > 0 || pools_neighbours(s);
@@ -539,10 +540,10 @@ static void window_max_excluding_self(sched_t *s, const double *v, double *out)
  * steady long before it meets a rare bright path (a caustic seen through
  * glass) that its neighbours have met: its relative variance is taken as
  * the largest in its window (sched.h, bench/error/target.py). The pixel
- * itself is left out, and the variances come from uniform layers only:
- * a pixel that stopped because its own layers looked steady would stop
- * exactly when it had not met the bright path yet, and its mean would be
- * low (test_target_unbiased); only its layer count is its own. Nor may
+ * itself is left out: a pixel that stopped because its own layers looked
+ * steady would stop exactly when it had not met the bright path yet, and
+ * its mean would be low (test_target_unbiased); only its layer count is
+ * its own. Nor may
  * a neighbour's statistics grow with the layers it took, since how many
  * it took depends on this pixel's values through the neighbour's own
  * window: they come from every pixel's first SCHED_TARGET_MIN_LAYERS
@@ -909,8 +910,8 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
                         results[i].samples;
             welford_add(&s->batches[p], &s->bmean[p], &s->bm2[p], bm);
             /* with a target error, a pixel's first SCHED_TARGET_MIN_LAYERS
-             * layers whatever they are (frozen_statistics); else its
-             * uniform layers */
+             * layers whatever they are (mark_converged); else its uniform
+             * layers */
             if (s->ubatches && (s->cfg.target_error > 0 ? s->ubatches[p] < SCHED_TARGET_MIN_LAYERS
                                                         : !adaptive_layer))
                 welford_add(&s->ubatches[p], &s->umean[p], &s->um2[p], bm);
