@@ -115,34 +115,34 @@ if bash bench/peer/setup.sh >"$OUT/peer-setup.log" 2>&1; then
     # shellcheck disable=SC1091
     source bench/peer/env.sh
     for spec in $SCENES; do
-    scene="${spec%%:*}"
-    spp="${spec##*:}"
-    for t in $THREADS; do
-        base="$OUT/peer-$scene-$t"
-        while :; do
-            echo "== Mitsuba 3 peer ($MITSUBA_PEER_VARIANT), $scene, $t thread(s), $spp spp" >&2
-            if measured "$PEER_TIMEOUT" "$base.out" "$base.log" "$base.load" \
-                    "$MITSUBA_PEER_PYTHON" bench/peer/mitsuba_peer.py "scenes/$scene.json" \
-                    --mode speed --spp "$spp" --threads "$t" --runs "$RUNS"; then
-                tail -n 1 "$base.out" >"$base.json"
-            else
-                rc=$?
-                if [ "$rc" = 124 ]; then
-                    peer_error="mitsuba_peer.py $scene --threads $t timed out after $PEER_TIMEOUT s"
+        scene="${spec%%:*}"
+        spp="${spec##*:}"
+        for t in $THREADS; do
+            base="$OUT/peer-$scene-$t"
+            while :; do
+                echo "== Mitsuba 3 peer ($MITSUBA_PEER_VARIANT), $scene, $t thread(s), $spp spp" >&2
+                if measured "$PEER_TIMEOUT" "$base.out" "$base.log" "$base.load" \
+                        "$MITSUBA_PEER_PYTHON" bench/peer/mitsuba_peer.py "scenes/$scene.json" \
+                        --mode speed --spp "$spp" --threads "$t" --runs "$RUNS"; then
+                    tail -n 1 "$base.out" >"$base.json"
                 else
-                    peer_error="mitsuba_peer.py $scene --threads $t failed (exit $rc): $(tail -n 3 "$base.log" | tr '\n' ' ')"
+                    rc=$?
+                    if [ "$rc" = 124 ]; then
+                        peer_error="mitsuba_peer.py $scene --threads $t timed out after $PEER_TIMEOUT s"
+                    else
+                        peer_error="mitsuba_peer.py $scene --threads $t failed (exit $rc): $(tail -n 3 "$base.log" | tr '\n' ' ')"
+                    fi
+                    break 3
                 fi
-                break 3
-            fi
-            if [ "$RETRIES" -gt 0 ] && is_disturbed "$base.load"; then
-                RETRIES=$((RETRIES - 1))
-                echo "run-core.sh: disturbed by another process; again in 10 s" >&2
-                sleep 10
-            else
-                break
-            fi
+                if [ "$RETRIES" -gt 0 ] && is_disturbed "$base.load"; then
+                    RETRIES=$((RETRIES - 1))
+                    echo "run-core.sh: disturbed by another process; again in 10 s" >&2
+                    sleep 10
+                else
+                    break
+                fi
+            done
         done
-    done
     done
 else
     peer_error="bench/peer/setup.sh failed: $(tail -n 3 "$OUT/peer-setup.log" | tr '\n' ' ')"

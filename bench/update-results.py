@@ -35,7 +35,7 @@ def load_core(results_dir):
     return latest_result(results_dir, "core", "update-results.py")
 
 
-def table(core):
+def table(core, max_triangles):
     peer = core.get("peer") or {}
     # (scene, threads) -> run; results before the peer ran on every scene
     # hold the Cornell box only, without "scene_name"
@@ -73,7 +73,7 @@ def table(core):
         "Raw ray casting: what the tracer casts rays with, alone, over 2M precomputed rays recorded from "
         "diffuse random walks from the camera (the rays our tracer traces): Embree's rtcIntersect1 / "
         "rtcOccluded1, or \"(list)\" the triangle list without a BVH (common/trilist.h) that the tracer "
-        "uses for scenes of up to 112 triangles; \"Ours / raw\" compares our rays/s, "
+        f"uses for scenes of up to {max_triangles} triangles; \"Ours / raw\" compares our rays/s, "
         "shading and sampling included, with the raw rate of our own extension/shadow mix "
         "(1 / sum(fraction / rate)). Peak memory: ru_maxrss of the benchmark process after the renders.",
     ]
@@ -135,7 +135,13 @@ def main():
     if core is None:
         print(f"update-results.py: no core results in {a.results} (run 'make bench')", file=sys.stderr)
         return 1
-    text = table(core)
+    # the list's limit as bench_trilist measured it (TRILIST_MAX_TRIANGLES)
+    try:
+        with open(os.path.join(a.results, "trilist.json")) as f:
+            max_triangles = json.load(f)["max_triangles"]
+    except (OSError, ValueError, KeyError):
+        max_triangles = "TRILIST_MAX_TRIANGLES"
+    text = table(core, max_triangles)
     crossover = trilist_table(a.results)
     if crossover:
         text += "\n\n" + crossover
