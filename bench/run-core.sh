@@ -48,6 +48,18 @@ is_disturbed() { # JSON-FILE: its top-level "disturbed" is true
     python3 -c 'import json, sys; sys.exit(0 if json.load(open(sys.argv[1])).get("disturbed") else 1)' "$1"
 }
 
+# FILE: 0, after a pause, when FILE's run was disturbed and a retry is left
+# (one is used up); 1 when the run stands.
+again_if_disturbed() {
+    if [ "$RETRIES" -gt 0 ] && is_disturbed "$1"; then
+        RETRIES=$((RETRIES - 1))
+        echo "run-core.sh: disturbed by another process; again in 10 s" >&2
+        sleep 10
+        return 0
+    fi
+    return 1
+}
+
 # 1. Our renderer and raw Embree, one process per (scene, threads) so each
 #    peak-memory figure is that configuration's alone.
 for spec in $SCENES; do
@@ -58,13 +70,7 @@ for spec in $SCENES; do
             echo "== bench_core $scene, $t thread(s), $spp spp" >&2
             "$BIN" --scene "scenes/$scene.json" --threads "$t" --spp "$spp" --runs "$RUNS" \
                 --json "$OUT/core-$scene-$t.json"
-            if [ "$RETRIES" -gt 0 ] && is_disturbed "$OUT/core-$scene-$t.json"; then
-                RETRIES=$((RETRIES - 1))
-                echo "run-core.sh: disturbed by another process; again in 10 s" >&2
-                sleep 10
-            else
-                break
-            fi
+            again_if_disturbed "$OUT/core-$scene-$t.json" || break
         done
     done
 done
@@ -134,13 +140,7 @@ if bash bench/peer/setup.sh >"$OUT/peer-setup.log" 2>&1; then
                     fi
                     break 3
                 fi
-                if [ "$RETRIES" -gt 0 ] && is_disturbed "$base.load"; then
-                    RETRIES=$((RETRIES - 1))
-                    echo "run-core.sh: disturbed by another process; again in 10 s" >&2
-                    sleep 10
-                else
-                    break
-                fi
+                again_if_disturbed "$base.load" || break
             done
         done
     done
