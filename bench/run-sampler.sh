@@ -15,10 +15,17 @@
 # N spp, gives the reference's own as m N / (REF_SPP + N); "relmse" below is
 # the measured value less that, "relmse_raw" the measured one.
 #
+# The peer, where bench/venv has Mitsuba 3 (bench/peer/setup.sh): the same
+# scene, spp and seeds with Mitsuba's multijitter sampler (its best at equal
+# time in the error study), against the same reference, so the table says
+# how our error per sample compares with Mitsuba's. BENCH_SAMPLER_PEER=0
+# leaves it out.
+#
 # Knobs (environment): BENCH_SAMPLER_SIZE (64), BENCH_SAMPLER_REF_SPP
 # (32768), BENCH_SAMPLER_SEEDS (6), BENCH_SAMPLER_THREADS (2),
-# BENCH_SAMPLER_CASES (scene:spp,spp,... list, see below). "s" columns are
-# wall seconds per render on a shared host: indicative only.
+# BENCH_SAMPLER_CASES (scene:spp,spp,... list, see below),
+# BENCH_SAMPLER_PEER (1). "s" columns are wall seconds per render on a
+# shared host: indicative only.
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -29,6 +36,7 @@ REF_SPP="${BENCH_SAMPLER_REF_SPP:-32768}"
 SEEDS="${BENCH_SAMPLER_SEEDS:-6}"
 THREADS="${BENCH_SAMPLER_THREADS:-2}"
 CASES="${BENCH_SAMPLER_CASES:-cornell-box:64,256,1024 caustic:64,256,1024 dark-bright:64,256}"
+PEER="${BENCH_SAMPLER_PEER:-1}"
 VB=bin/vbrender
 WORK=bench/work/sampler
 RESULTS=bench/results
@@ -59,7 +67,21 @@ print(dst)
 EOF
 }
 
+PEER_PY=""
+if [ "$PEER" = 1 ] && [ -f bench/peer/env.sh ]; then
+    # shellcheck disable=SC1091
+    source bench/peer/env.sh
+    PEER_PY="${MITSUBA_PEER_PYTHON:-}"
+fi
+SAMPLERS="independent sobol"
+[ -n "$PEER_PY" ] && SAMPLERS="$SAMPLERS mitsuba-multijitter"
+
 render() { # scene out spp sampler seed
+    if [ "$4" = mitsuba-multijitter ]; then
+        "$PEER_PY" bench/peer/mitsuba_peer.py "$1" --mode render --spp "$3" --threads "$THREADS" \
+            --seed "$5" --sampler multijitter --out "$2" >/dev/null 2>>"$WORK/render.log"
+        return
+    fi
     "$VB" render "$1" -o "$2" --spp "$3" --granularity 32 --adaptive none --sampler "$4" \
         --seed "$5" --threads "$THREADS" --progress none >/dev/null 2>>"$WORK/render.log"
 }
@@ -82,7 +104,7 @@ for case in $CASES; do
         echo "   $(echo "$(date +%s.%N) - $start" | bc) s" >&2
     fi
     for spp in ${spps//,/ }; do
-        for sampler in independent sobol; do
+        for sampler in $SAMPLERS; do
             for seed in $(seq 1 "$SEEDS"); do
                 out="$WORK/$scene_name-$SIZE-$sampler-$spp-s$seed.exr"
                 start=$(date +%s.%N)
@@ -121,23 +143,31 @@ for scene in scenes:
     entry = {"reference_own_relmse_est": own, "spp": {}}
     for spp in spps:
         e = {}
-        for sampler in ("independent", "sobol"):
-            rs = runs[(scene, spp, sampler)]
+        for sampler in ("independent", "sobol", "mitsuba-multijitter"):
+            rs = runs.get((scene, spp, sampler))
+            if not rs:
+                continue
             raw = sum(r for r, _ in rs) / len(rs)
             e[sampler] = {"relmse_raw": raw, "relmse": max(raw - own, 1e-12),
                           "per_seed_raw": [r for r, _ in rs],
                           "seconds": sum(s for _, s in rs) / len(rs)}
         e["ratio_independent_over_sobol"] = e["independent"]["relmse"] / e["sobol"]["relmse"]
         e["ratio_raw"] = e["independent"]["relmse_raw"] / e["sobol"]["relmse_raw"]
+        peer = e.get("mitsuba-multijitter")
+        if peer:
+            e["ratio_mitsuba_over_sobol"] = peer["relmse"] / e["sobol"]["relmse"]
         entry["spp"][str(spp)] = e
         table.append((scene, spp, e["independent"]["relmse"], e["sobol"]["relmse"],
                       e["ratio_independent_over_sobol"], e["ratio_raw"],
+                      "%.4g" % peer["relmse"] if peer else "-",
+                      "%.2fx" % e["ratio_mitsuba_over_sobol"] if peer else "-",
                       e["independent"]["seconds"], e["sobol"]["seconds"], own))
     res["scenes"][scene] = entry
 json.dump(res, open(out, "w"), indent=1)
-print("| scene | spp | relMSE independent | relMSE sobol | indep/sobol | (raw) | s indep | s sobol | ref own relMSE |")
-print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+print("| scene | spp | relMSE independent | relMSE sobol | indep/sobol | (raw) "
+      "| relMSE Mitsuba multijitter | Mitsuba/sobol | s indep | s sobol | ref own relMSE |")
+print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
 for t in table:
-    print("| %s | %d | %.4g | %.4g | %.2fx | %.2fx | %.1f | %.1f | %.2g |" % t)
+    print("| %s | %d | %.4g | %.4g | %.2fx | %.2fx | %s | %s | %.1f | %.1f | %.2g |" % t)
 EOF
 echo "run-sampler.sh: wrote $RESULTS/sampler.json" >&2

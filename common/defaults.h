@@ -48,7 +48,7 @@
 /* ---- a job's settings (settings.h) where neither request nor scene sets them ---- */
 #define JOB_DEFAULT_GRANULARITY 32    /* samples per pixel per layer */
 #define JOB_DEFAULT_ADAPTIVE "relmse" /* the study: bench/RESULTS.md, docs/ADAPTIVE.md */
-#define JOB_DEFAULT_SAMPLER "sobol"   /* Owen-scrambled Sobol, one replicate per layer */
+#define JOB_DEFAULT_SAMPLER "sobol"   /* Owen-scrambled Sobol, one sequence per pixel */
 #define JOB_DEFAULT_CONFIDENCE 0.95
 #define JOB_DEFAULT_TARGET_SHARE 1
 #define JOB_DEFAULT_TARGET_ERROR 0 /* 0: no error target */

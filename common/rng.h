@@ -3,24 +3,32 @@
  *
  * No generator state lives in a thread or a worker: a sample's stream is
  * rebuilt from its coordinates wherever and whenever it is drawn, so the
- * same sample gives the same path on any thread, worker or retry, and the
- * layers of a pixel are independent batches. A stream is SplitMix64 started
+ * same sample gives the same path on any thread, worker or retry (and,
+ * under the independent sampler, the layers of a pixel are independent
+ * batches). A stream is SplitMix64 started
  * at a hash of the coordinates; the dimension is its counter.
  *
  * Two samplers share the stream type:
  * - independent (rng_stream): every number is hashed, as above.
  * - sobol (rng_stream_sobol): randomised quasi-Monte Carlo after Burley,
  *   "Practical Hash-based Owen Scrambling" (JCGT 2020). Dimensions come in
- *   pairs; pair p of sample i of a layer is point shuffle_p(i) of the first
- *   two Sobol dimensions, each Owen-scrambled. A layer of G samples (sample
- *   indices layer*G .. layer*G+G-1: one task record) is one randomised
- *   replicate: its shuffle and scrambles are seeded by hash(seed, pixel,
- *   layer*G, pair), so distinct layers are independent batches, as the
- *   adaptive modes and the target error assume, and every point is uniform
- *   on [0,1)^2 (unbiased). For a power-of-two G a layer's points of one
- *   pair form a (0,m,2)-net. Dimensions from RNG_SOBOL_DIMS on are hashed
- *   as in the independent sampler. tracer.c places each use of a number at
- *   a fixed dimension (rng_seek), so the 2D uses fall on pairs. */
+ *   pairs; pair p of a pixel's sample i is point shuffle_p(i) of the first
+ *   two Sobol dimensions, each Owen-scrambled, the shuffle and scrambles
+ *   seeded by hash(seed, pixel, i >> RNG_SOBOL_INDEX_BITS, pair). So a
+ *   pixel's samples are one scrambled Sobol sequence (a fresh, independent
+ *   scramble every 2^RNG_SOBOL_INDEX_BITS samples): its first 2^m samples
+ *   form a (0,m,2)-net, and so does every aligned block of 2^m (a layer of
+ *   G = 2^m samples, layer * G onwards), whichever layers a pixel takes.
+ *   Every point is uniform on [0,1)^2 (unbiased). A whole pixel's samples
+ *   are stratified together, as Mitsuba's multijitter and pbrt's Sobol
+ *   samplers stratify them; one scramble per layer (the first design)
+ *   left the error falling as 1/N past a layer: 1.4x the relMSE at 1024
+ *   spp on the Cornell box. Layers of one sequence are not independent:
+ *   their spread overstates the error of their mean (test_sampler), so the
+ *   adaptive modes' and the target error's variance from layers errs on
+ *   the safe side. Dimensions from RNG_SOBOL_DIMS on are hashed as in the
+ *   independent sampler. tracer.c places each use of a number at a fixed
+ *   dimension (rng_seek), so the 2D uses fall on pairs. */
 #ifndef VB_RNG_H
 #define VB_RNG_H
 
@@ -38,15 +46,16 @@ typedef enum rng_sampler {
  * at 64 spp (within 5 %), and each pair costs about 25 ns a sample. */
 #define RNG_SOBOL_BOUNCES 2
 #define RNG_SOBOL_DIMS (2 + 6 * RNG_SOBOL_BOUNCES)
-/* A layer holds at most 2^12 samples (TRACER_MAX_TASK_SAMPLES): the Sobol
- * index needs no more bits (two 6-bit table lookups, rng_sobol1_reversed). */
-#define RNG_SOBOL_INDEX_BITS 12
+/* Samples of a pixel per Sobol sequence: 2^24, far past any reference's
+ * count (four 6-bit table lookups, rng_sobol1_reversed); the next 2^24 take
+ * an independent scramble. */
+#define RNG_SOBOL_INDEX_BITS 24
 
 typedef struct rng_stream {
     uint64_t base;
     uint64_t dim;
-    uint64_t layer_key;      /* sobol: hash of (seed, pixel, layer); 0 when independent */
-    uint32_t index;          /* sobol: sample index within its layer */
+    uint64_t sequence_key;   /* sobol: hash of (seed, pixel, sequence); 0 when independent */
+    uint32_t index;          /* sobol: sample index within its sequence */
     uint32_t index_reversed; /* sobol: its bits reversed (each pair's shuffle takes it) */
     uint32_t sobol;          /* 1 under the sobol sampler */
     uint32_t pair_plus1;     /* sobol: the pair whose two numbers pair_bits holds, + 1 */
@@ -82,20 +91,18 @@ static inline uint32_t rng_reverse32(uint32_t x)
     return ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);
 }
 
-/* The sobol stream of sample `sample_index` of pixel `pixel`, in the layer
- * whose first sample is `layer_first` (<= sample_index; a task record's
- * first_sample, layer * G). The layer is the randomised replicate: its
- * first sample names its scrambles, and the sample's place in it is its
- * Sobol index. Dimensions past RNG_SOBOL_DIMS draw from the same hash as
- * rng_stream's. */
-static inline rng_stream_t rng_stream_sobol(uint64_t seed, uint64_t pixel, uint64_t sample_index,
-                                            uint64_t layer_first)
+/* The sobol stream of sample `sample_index` of pixel `pixel`: point
+ * sample_index mod 2^RNG_SOBOL_INDEX_BITS of the pixel's scrambled Sobol
+ * sequence number sample_index >> RNG_SOBOL_INDEX_BITS. Dimensions past
+ * RNG_SOBOL_DIMS draw from the same hash as rng_stream's. */
+static inline rng_stream_t rng_stream_sobol(uint64_t seed, uint64_t pixel, uint64_t sample_index)
 {
     rng_stream_t s = rng_stream(seed, pixel, sample_index);
     uint64_t h = rng_mix64(seed ^ 0x50b01a7e5c4a3b1eULL);
     h = rng_mix64(h ^ (pixel * 0xd1b54a32d192ed03ULL));
-    s.layer_key = rng_mix64(h ^ (layer_first * 0xaef17502108ef2d9ULL));
-    s.index = (uint32_t)(sample_index - layer_first);
+    uint64_t sequence = sample_index >> RNG_SOBOL_INDEX_BITS;
+    s.sequence_key = rng_mix64(h ^ (sequence * 0xaef17502108ef2d9ULL));
+    s.index = (uint32_t)(sample_index & ((1u << RNG_SOBOL_INDEX_BITS) - 1));
     s.index_reversed = rng_reverse32(s.index);
     s.sobol = 1;
     return s;
@@ -140,49 +147,62 @@ static inline uint32_t rng_laine_karras(uint32_t x, uint32_t seed)
 /* The second Sobol dimension (primitive polynomial x + 1) of an index below
  * 2^RNG_SOBOL_INDEX_BITS, bit-reversed (the scramble works on reversed
  * bits, so this saves a reversal): the generator matrix is Pascal's
- * triangle mod 2, its columns XORed in by six index bits at a time from
- * two tables (a loop over the 12 bits cost a fifth of a pair). The first
- * dimension reversed is the index itself. */
+ * triangle mod 2 (column c holds C(c, r) mod 2 in bit r), its columns XORed
+ * in by six index bits at a time from four tables (a loop over the bits
+ * cost a fifth of a pair). The first dimension reversed is the index
+ * itself. */
 static inline uint32_t rng_sobol1_reversed(uint32_t i)
 {
-    static const uint32_t lo[64] = {
-        0x00000000u, 0x00000001u, 0x00000003u, 0x00000002u, 0x00000005u, 0x00000004u, 0x00000006u,
-        0x00000007u, 0x0000000fu, 0x0000000eu, 0x0000000cu, 0x0000000du, 0x0000000au, 0x0000000bu,
-        0x00000009u, 0x00000008u, 0x00000011u, 0x00000010u, 0x00000012u, 0x00000013u, 0x00000014u,
-        0x00000015u, 0x00000017u, 0x00000016u, 0x0000001eu, 0x0000001fu, 0x0000001du, 0x0000001cu,
-        0x0000001bu, 0x0000001au, 0x00000018u, 0x00000019u, 0x00000033u, 0x00000032u, 0x00000030u,
-        0x00000031u, 0x00000036u, 0x00000037u, 0x00000035u, 0x00000034u, 0x0000003cu, 0x0000003du,
-        0x0000003fu, 0x0000003eu, 0x00000039u, 0x00000038u, 0x0000003au, 0x0000003bu, 0x00000022u,
-        0x00000023u, 0x00000021u, 0x00000020u, 0x00000027u, 0x00000026u, 0x00000024u, 0x00000025u,
-        0x0000002du, 0x0000002cu, 0x0000002eu, 0x0000002fu, 0x00000028u, 0x00000029u, 0x0000002bu,
-        0x0000002au,
+    static const uint32_t chunk[4][64] = {
+        {0x000000u, 0x000001u, 0x000003u, 0x000002u, 0x000005u, 0x000004u, 0x000006u, 0x000007u,
+         0x00000fu, 0x00000eu, 0x00000cu, 0x00000du, 0x00000au, 0x00000bu, 0x000009u, 0x000008u,
+         0x000011u, 0x000010u, 0x000012u, 0x000013u, 0x000014u, 0x000015u, 0x000017u, 0x000016u,
+         0x00001eu, 0x00001fu, 0x00001du, 0x00001cu, 0x00001bu, 0x00001au, 0x000018u, 0x000019u,
+         0x000033u, 0x000032u, 0x000030u, 0x000031u, 0x000036u, 0x000037u, 0x000035u, 0x000034u,
+         0x00003cu, 0x00003du, 0x00003fu, 0x00003eu, 0x000039u, 0x000038u, 0x00003au, 0x00003bu,
+         0x000022u, 0x000023u, 0x000021u, 0x000020u, 0x000027u, 0x000026u, 0x000024u, 0x000025u,
+         0x00002du, 0x00002cu, 0x00002eu, 0x00002fu, 0x000028u, 0x000029u, 0x00002bu, 0x00002au},
+        {0x000000u, 0x000055u, 0x0000ffu, 0x0000aau, 0x000101u, 0x000154u, 0x0001feu, 0x0001abu,
+         0x000303u, 0x000356u, 0x0003fcu, 0x0003a9u, 0x000202u, 0x000257u, 0x0002fdu, 0x0002a8u,
+         0x000505u, 0x000550u, 0x0005fau, 0x0005afu, 0x000404u, 0x000451u, 0x0004fbu, 0x0004aeu,
+         0x000606u, 0x000653u, 0x0006f9u, 0x0006acu, 0x000707u, 0x000752u, 0x0007f8u, 0x0007adu,
+         0x000f0fu, 0x000f5au, 0x000ff0u, 0x000fa5u, 0x000e0eu, 0x000e5bu, 0x000ef1u, 0x000ea4u,
+         0x000c0cu, 0x000c59u, 0x000cf3u, 0x000ca6u, 0x000d0du, 0x000d58u, 0x000df2u, 0x000da7u,
+         0x000a0au, 0x000a5fu, 0x000af5u, 0x000aa0u, 0x000b0bu, 0x000b5eu, 0x000bf4u, 0x000ba1u,
+         0x000909u, 0x00095cu, 0x0009f6u, 0x0009a3u, 0x000808u, 0x00085du, 0x0008f7u, 0x0008a2u},
+        {0x000000u, 0x001111u, 0x003333u, 0x002222u, 0x005555u, 0x004444u, 0x006666u, 0x007777u,
+         0x00ffffu, 0x00eeeeu, 0x00ccccu, 0x00ddddu, 0x00aaaau, 0x00bbbbu, 0x009999u, 0x008888u,
+         0x010001u, 0x011110u, 0x013332u, 0x012223u, 0x015554u, 0x014445u, 0x016667u, 0x017776u,
+         0x01fffeu, 0x01eeefu, 0x01cccdu, 0x01dddcu, 0x01aaabu, 0x01bbbau, 0x019998u, 0x018889u,
+         0x030003u, 0x031112u, 0x033330u, 0x032221u, 0x035556u, 0x034447u, 0x036665u, 0x037774u,
+         0x03fffcu, 0x03eeedu, 0x03cccfu, 0x03dddeu, 0x03aaa9u, 0x03bbb8u, 0x03999au, 0x03888bu,
+         0x020002u, 0x021113u, 0x023331u, 0x022220u, 0x025557u, 0x024446u, 0x026664u, 0x027775u,
+         0x02fffdu, 0x02eeecu, 0x02ccceu, 0x02dddfu, 0x02aaa8u, 0x02bbb9u, 0x02999bu, 0x02888au},
+        {0x000000u, 0x050005u, 0x0f000fu, 0x0a000au, 0x110011u, 0x140014u, 0x1e001eu, 0x1b001bu,
+         0x330033u, 0x360036u, 0x3c003cu, 0x390039u, 0x220022u, 0x270027u, 0x2d002du, 0x280028u,
+         0x550055u, 0x500050u, 0x5a005au, 0x5f005fu, 0x440044u, 0x410041u, 0x4b004bu, 0x4e004eu,
+         0x660066u, 0x630063u, 0x690069u, 0x6c006cu, 0x770077u, 0x720072u, 0x780078u, 0x7d007du,
+         0xff00ffu, 0xfa00fau, 0xf000f0u, 0xf500f5u, 0xee00eeu, 0xeb00ebu, 0xe100e1u, 0xe400e4u,
+         0xcc00ccu, 0xc900c9u, 0xc300c3u, 0xc600c6u, 0xdd00ddu, 0xd800d8u, 0xd200d2u, 0xd700d7u,
+         0xaa00aau, 0xaf00afu, 0xa500a5u, 0xa000a0u, 0xbb00bbu, 0xbe00beu, 0xb400b4u, 0xb100b1u,
+         0x990099u, 0x9c009cu, 0x960096u, 0x930093u, 0x880088u, 0x8d008du, 0x870087u, 0x820082u},
     };
-    static const uint32_t hi[64] = {
-        0x00000000u, 0x00000055u, 0x000000ffu, 0x000000aau, 0x00000101u, 0x00000154u, 0x000001feu,
-        0x000001abu, 0x00000303u, 0x00000356u, 0x000003fcu, 0x000003a9u, 0x00000202u, 0x00000257u,
-        0x000002fdu, 0x000002a8u, 0x00000505u, 0x00000550u, 0x000005fau, 0x000005afu, 0x00000404u,
-        0x00000451u, 0x000004fbu, 0x000004aeu, 0x00000606u, 0x00000653u, 0x000006f9u, 0x000006acu,
-        0x00000707u, 0x00000752u, 0x000007f8u, 0x000007adu, 0x00000f0fu, 0x00000f5au, 0x00000ff0u,
-        0x00000fa5u, 0x00000e0eu, 0x00000e5bu, 0x00000ef1u, 0x00000ea4u, 0x00000c0cu, 0x00000c59u,
-        0x00000cf3u, 0x00000ca6u, 0x00000d0du, 0x00000d58u, 0x00000df2u, 0x00000da7u, 0x00000a0au,
-        0x00000a5fu, 0x00000af5u, 0x00000aa0u, 0x00000b0bu, 0x00000b5eu, 0x00000bf4u, 0x00000ba1u,
-        0x00000909u, 0x0000095cu, 0x000009f6u, 0x000009a3u, 0x00000808u, 0x0000085du, 0x000008f7u,
-        0x000008a2u,
-    };
-    return lo[i & 63u] ^ hi[(i >> 6) & 63u];
+    return chunk[0][i & 63u] ^ chunk[1][(i >> 6) & 63u] ^ chunk[2][(i >> 12) & 63u] ^
+           chunk[3][(i >> 18) & 63u];
 }
 
 /* 32 bits of dimension dim < RNG_SOBOL_DIMS of a sobol stream. The index
  * is shuffled by a nested uniform scramble of its bits from the lowest up
- * (Burley's): for i < 2^m the low m bits are permuted and the bits above
- * become one constant (cut to RNG_SOBOL_INDEX_BITS), so a layer of 2^m
- * samples is an aligned block of the Sobol sequence, a (0,m,2)-net. The
- * shuffle differs per pair so that pairs are not correlated. */
+ * (Burley's): an aligned block of 2^m indices (a pixel's first 2^m
+ * samples, or one layer of G = 2^m) keeps its high bits together and its
+ * low m bits permuted, so it maps onto an aligned block of the Sobol
+ * sequence, a (0,m,2)-net. The shuffle differs per pair so that pairs are
+ * not correlated. */
 static inline uint32_t rng_sobol_bits(rng_stream_t *s, uint64_t dim)
 {
     uint32_t pair_plus1 = (uint32_t)(dim >> 1) + 1;
     if (s->pair_plus1 != pair_plus1) {
-        uint64_t pair_key = rng_mix64(s->layer_key ^ pair_plus1 * 0x9e3779b97f4a7c15ULL);
+        uint64_t pair_key = rng_mix64(s->sequence_key ^ pair_plus1 * 0x9e3779b97f4a7c15ULL);
         /* the index shuffle's and the two scrambles' seeds */
         uint32_t seed0 = (uint32_t)(pair_key >> 32), seed1 = rng_hash32(seed0);
         /* owen(x) = reverse(laine_karras(reverse(x))): the index's reversal

@@ -149,7 +149,7 @@ static const settings_def_t table[] = {
      .type = SETTINGS_CHOICE,
      .choices = sampler_choices,
      .def_choice = JOB_DEFAULT_SAMPLER,
-     .help = "sobol: Owen-scrambled Sobol, one replicate per layer;\n"
+     .help = "sobol: Owen-scrambled Sobol, one sequence per pixel;\n"
              "independent: hashed random numbers"},
 };
 

@@ -299,14 +299,13 @@ typedef struct path {
 } path_t;
 
 /* The camera ray through a random point of the pixel (two numbers). The
- * sample's numbers: under sobol, its layer (from layer_first) is one
- * randomised replicate (rng.h). */
+ * sample's numbers: under sobol, point sample_index of the pixel's
+ * scrambled Sobol sequence (rng.h). */
 static void path_start(path_t *path, const camera_t *cam, const tracer_settings_t *st,
-                       uint32_t pixel, uint64_t layer_first, uint64_t sample_index)
+                       uint32_t pixel, uint64_t sample_index)
 {
-    path->rng = st->sampler == RNG_SAMPLER_SOBOL
-                    ? rng_stream_sobol(st->seed, pixel, sample_index, layer_first)
-                    : rng_stream(st->seed, pixel, sample_index);
+    path->rng = st->sampler == RNG_SAMPLER_SOBOL ? rng_stream_sobol(st->seed, pixel, sample_index)
+                                                 : rng_stream(st->seed, pixel, sample_index);
     uint32_t px = pixel % (uint32_t)cam->width, py = pixel / (uint32_t)cam->width;
     float fu = rng_next_float(&path->rng), fv = rng_next_float(&path->rng);
     path->o = cam->position;
@@ -406,9 +405,6 @@ static int survives_roulette(path_t *path)
     return 1;
 }
 
-_Static_assert(TRACER_MAX_TASK_SAMPLES <= 1 << RNG_SOBOL_INDEX_BITS,
-               "a sobol layer's samples must have distinct Sobol indices");
-
 /* Where bounce `depth`'s numbers start under the sobol sampler: after the
  * camera's pair, six per bounce: [0] roulette, [1] light pick, [2, 3] light
  * point, [4, 5] BSDF sample, so the 2D uses are Sobol pairs (rng.h). */
@@ -422,12 +418,12 @@ static inline uint64_t bounce_dim(uint32_t depth)
  * BSDF sample, roulette), so a sample's path depends on its coordinates
  * alone. */
 static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, uint32_t pixel,
-                             uint64_t layer_first, uint64_t sample_index, vec3_t *out)
+                             uint64_t sample_index, vec3_t *out)
 {
     const scene_t *s = tr->scene;
     const int nee = st->integrator == SCENE_INTEGRATOR_PATH && s->light_count > 0;
     path_t path;
-    path_start(&path, &s->camera, st, pixel, layer_first, sample_index);
+    path_start(&path, &s->camera, st, pixel, sample_index);
     for (uint32_t depth = 0;; depth++) {
         hit_t h;
         path.rays++;
@@ -471,10 +467,10 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
 }
 
 uint32_t tracer_sample(const tracer_t *t, const tracer_settings_t *settings, uint32_t pixel,
-                       uint64_t layer_first, uint64_t sample_index, float rgb[3])
+                       uint64_t sample_index, float rgb[3])
 {
     vec3_t L;
-    uint32_t rays = trace_sample(t, settings, pixel, layer_first, sample_index, &L);
+    uint32_t rays = trace_sample(t, settings, pixel, sample_index, &L);
     rgb[0] = L.x;
     rgb[1] = L.y;
     rgb[2] = L.z;
@@ -517,7 +513,7 @@ static uint64_t trace_task(const tracer_t *t, const tracer_settings_t *st,
     uint32_t n = 0;
     for (uint32_t i = 0; i < task->sample_count; i++) {
         vec3_t L;
-        rays += trace_sample(t, st, task->pixel, task->first_sample, task->first_sample + i, &L);
+        rays += trace_sample(t, st, task->pixel, task->first_sample + i, &L);
         if (!vec3_is_finite(L)) {
             r->nonfinite++;
             continue;

@@ -49,8 +49,8 @@ typedef struct tracer_settings {
     scene_integrator_t integrator;
     uint32_t max_depth;    /* 0: unlimited; else the most path segments */
     rng_sampler_t sampler; /* where a sample's numbers come from (rng.h); under
-                            * sobol a task record (one layer of a pixel) is one
-                            * randomised replicate */
+                            * sobol a pixel's samples are one scrambled Sobol
+                            * sequence, each a function of its index alone */
 } tracer_settings_t;
 
 /* The sampler named "sobol" or "independent", or -1. */
@@ -124,10 +124,9 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *settings, const tra
  * made on beta * eta_scale, as pbrt-v4 and Mitsuba 3 do, capped at 0.95. */
 float tracer_roulette_probability(vec3_t beta, float eta_scale);
 
-/* Radiance of sample `sample_index` (no statistics) of the layer whose first
- * sample is `layer_first` (a task record's first_sample; the independent
- * sampler ignores it); for tests and tools. Returns the rays traced. */
+/* Radiance of sample `sample_index` of a pixel (no statistics); for tests
+ * and tools. Returns the rays traced. */
 uint32_t tracer_sample(const tracer_t *t, const tracer_settings_t *settings, uint32_t pixel,
-                       uint64_t layer_first, uint64_t sample_index, float rgb[3]);
+                       uint64_t sample_index, float rgb[3]);
 
 #endif

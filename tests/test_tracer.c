@@ -796,7 +796,7 @@ START_TEST(test_pvar_matches_definition)
     char err[256];
     ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
     ck_assert(tracer_new(dev, s, &t, err, sizeof err) == 0);
-    /* _i: 0 independent, 1 sobol (a task record is one replicate) */
+    /* _i: 0 independent, 1 sobol */
     tracer_settings_t st = {9, SCENE_INTEGRATOR_PATH, 0, (rng_sampler_t)_i};
     tracer_task_t task = {.pixel = 120,
                           .sample_count = 32,
@@ -809,7 +809,7 @@ START_TEST(test_pvar_matches_definition)
     double sum[3] = {0, 0, 0};
     for (int i = 0; i < 32; i++) {
         float rgb[3];
-        tracer_sample(t, &st, 120, 32, 32 + (uint64_t)i, rgb);
+        tracer_sample(t, &st, 120, 32 + (uint64_t)i, rgb);
         for (int c = 0; c < 3; c++)
             sum[c] += rgb[c];
         run += vmath_luminance(rgb[0], rgb[1], rgb[2]);

@@ -964,7 +964,7 @@ def sampler_mode_table(R):
     time (against uniform Sobol), bias, and against Mitsuba 3."""
     c = R["config"]
     marks = c.get("mitsuba_marks", [256, 1024])
-    L = ["", f"Sampler x mode, per scene (Sobol: Owen-scrambled, one replicate per layer; independent: "
+    L = ["", f"Sampler x mode, per scene (Sobol: Owen-scrambled, one sequence per pixel; independent: "
          f"`--sampler independent`). relMSE ratios against uniform Sobol (below 1: better); bias: image "
          f"mean luminance against the reference, relative (and in standard errors). Against Mitsuba 3 "
          f"({c.get('mitsuba_sampler', 'independent')} sampler, 2 threads; ours 2 workers x 1 thread, the same 2 "
