@@ -62,7 +62,7 @@ const char *tracer_sampler_name(rng_sampler_t sampler);
 typedef struct tracer_task {
     uint32_t pixel;        /* y * width + x */
     uint32_t sample_count; /* samples to take, 1..TRACER_MAX_TASK_SAMPLES */
-    uint64_t first_sample; /* index of the first sample (layer * G) */
+    uint64_t first_sample; /* index of the first sample: the pixel's samples so far */
     uint64_t prior_count;  /* finite samples merged so far */
     double prior_sum[3];   /* their RGB sums, for eq. 4.1's running estimates */
 } tracer_task_t;

@@ -34,6 +34,7 @@ struct sched {
     uint32_t npix, layers, ranges, range_pixels, uniform;
     film_t *film;
     uint8_t *member;        /* layers x npix bits: pixel takes part in layer */
+    uint32_t *taken;        /* per pixel: decided layers it takes part in */
     uint8_t *decided;       /* per layer */
     double *threshold;      /* per layer */
     uint8_t *state;         /* layers x ranges */
@@ -86,6 +87,23 @@ static inline void set_member(sched_t *s, uint32_t layer, uint32_t pixel)
 {
     size_t bit = (size_t)layer * s->npix + pixel;
     s->member[bit >> 3] |= (uint8_t)(1u << (bit & 7));
+}
+
+/* Where pixel p's samples of layer l start: after the samples of the
+ * earlier layers it took part in, so that a pixel's samples are always the
+ * first ones of its sample sequence, whichever layers the adaptive rule
+ * skipped (under the sobol sampler the first 2^m samples of a pixel form a
+ * net, an arbitrary set of layers does not: rng.h). Only the last layer may
+ * be short, so every earlier one counts G. Layers are decided in order and
+ * at most two beyond the last complete one, and a layer's records are made
+ * before it completes: taken[p] less the decided layers from l on is the
+ * count before l, a pure function of the decisions. */
+static uint64_t first_sample_of(const sched_t *s, uint32_t layer, uint32_t p)
+{
+    uint32_t before = s->taken[p];
+    for (uint32_t l = layer; l < s->layers && s->decided[l]; l++)
+        before -= (uint32_t)is_member(s, l, p);
+    return (uint64_t)before * s->cfg.granularity;
 }
 
 /* Samples a pixel takes in layer l: G, or what is left of spp in the last. */
@@ -267,6 +285,7 @@ static int alloc_tables(sched_t *s, size_t cells, size_t member_bytes)
 {
     s->film = film_new((int)s->cfg.width, (int)s->cfg.height);
     s->member = calloc(member_bytes, 1);
+    s->taken = calloc(s->npix, sizeof(uint32_t));
     s->decided = calloc(s->layers, 1);
     s->threshold = calloc(s->layers, sizeof(double));
     s->state = calloc(cells, 1);
@@ -287,10 +306,11 @@ static int alloc_tables(sched_t *s, size_t cells, size_t member_bytes)
     s->queue = malloc(s->q_cap * sizeof(uint64_t));
     s->rq_cap = SCHED_REQUEUE_CAP0;
     s->requeued = malloc(s->rq_cap * sizeof(uint64_t));
-    return !s->film || !s->member || !s->decided || !s->threshold || !s->state || !s->range_done ||
-                   !s->var_snapshot || !s->pvar_flight[0] || !s->pvar_flight[1] || !s->out ||
-                   !s->out_count || target_failed || !s->batches || !s->bmean || !s->bm2 ||
-                   !s->scratch || !s->t_table || !s->t_target || !s->queue || !s->requeued
+    return !s->film || !s->member || !s->taken || !s->decided || !s->threshold || !s->state ||
+                   !s->range_done || !s->var_snapshot || !s->pvar_flight[0] || !s->pvar_flight[1] ||
+                   !s->out || !s->out_count || target_failed || !s->batches || !s->bmean ||
+                   !s->bm2 || !s->scratch || !s->t_table || !s->t_target || !s->queue ||
+                   !s->requeued
                ? -1
                : 0;
 }
@@ -342,6 +362,7 @@ void sched_destroy(sched_t **sp)
     film_destroy(&s->film);
     free(s->flags);
     free(s->member);
+    free(s->taken);
     free(s->decided);
     free(s->threshold);
     free(s->state);
@@ -669,6 +690,7 @@ static void decide_layer(sched_t *s, uint32_t layer)
         int in = sel[p] != 0 && !stop_all && !(s->cfg.target_error > 0 && s->conv_snapshot[p]);
         if (in) {
             set_member(s, layer, p);
+            s->taken[p]++;
             s->pixel_layers++;
         } else {
             s->skipped++;
@@ -755,7 +777,6 @@ int sched_next(sched_t *s, sched_task_t *out)
                 s->q_head = (s->q_head + s->q_cap - 1) % s->q_cap;
             return SCHED_NEXT_NONE_READY;
         }
-        uint64_t first = (uint64_t)layer * s->cfg.granularity;
         uint32_t take = layer_samples(s, layer);
         uint32_t k = 0;
         for (uint32_t p = p0; p < p1; p++) {
@@ -763,7 +784,7 @@ int sched_next(sched_t *s, sched_task_t *out)
                 continue;
             rec[k].pixel = p;
             rec[k].sample_count = take;
-            rec[k].first_sample = first;
+            rec[k].first_sample = first_sample_of(s, layer, p);
             film_prior(s->film, &rec[k]);
             k++;
         }
@@ -1651,6 +1672,11 @@ sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, ch
         sched_destroy(&s);
         return NULL;
     }
+    /* Each pixel's count of decided layers it takes part in: derived, not
+     * saved (first_sample_of). */
+    for (uint32_t l = 0; l < s->layers && s->decided[l]; l++)
+        for (uint32_t p = 0; p < s->npix; p++)
+            s->taken[p] += (uint32_t)is_member(s, l, p);
     /* The ready queue in id order: results merge per pixel in layer order
      * and decisions read snapshots only, so the order tasks are issued in
      * changes nothing. */

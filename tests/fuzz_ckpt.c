@@ -102,7 +102,8 @@ static void check_task(const sched_t *s, const sched_config_t *cfg, const sched_
     for (uint32_t i = 0; i < t->count; i++) {
         const tracer_task_t *k = &t->records[i];
         if (k->pixel >= npix || k->sample_count < 1 || k->sample_count > cfg->granularity ||
-            k->first_sample != (uint64_t)t->layer * cfg->granularity ||
+            k->first_sample % cfg->granularity != 0 ||
+            k->first_sample > (uint64_t)t->layer * cfg->granularity ||
             k->first_sample + k->sample_count > cfg->spp)
             abort();
     }

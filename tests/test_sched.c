@@ -455,6 +455,53 @@ START_TEST(test_relmse_balances_sqrt_variance)
 }
 END_TEST
 
+/* A pixel's records number its samples from 0 up without gaps, whichever
+ * layers it skipped: first_sample is the samples its earlier layers took,
+ * so its samples are the first of its Sobol sequence (rng.h). */
+START_TEST(test_first_sample_counts_taken_layers)
+{
+    char err[256];
+    sched_config_t c = {.width = 16,
+                        .height = 1,
+                        .spp = 4 * 60,
+                        .granularity = 4,
+                        .adaptive = SCHED_ADAPTIVE_RELMSE,
+                        .uniform_layers = 4,
+                        .range_pixels = 4};
+    sched_t *s = sched_new(&c, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    uint64_t next[16] = {0};
+    uint32_t skipping = 0;
+    sched_task_t t;
+    tracer_result_t r[16];
+    int rc;
+    while ((rc = sched_next(s, &t)) != SCHED_NEXT_ALL_ISSUED) {
+        ck_assert_int_eq(rc, 1);
+        for (uint32_t i = 0; i < t.count; i++) {
+            const tracer_task_t *k = &t.records[i];
+            ck_assert_msg(k->first_sample == next[k->pixel],
+                          "pixel %u layer %u: first sample %llu, expected %llu", k->pixel, t.layer,
+                          (unsigned long long)k->first_sample, (unsigned long long)next[k->pixel]);
+            skipping += k->first_sample < (uint64_t)t.layer * c.granularity;
+            next[k->pixel] += k->sample_count;
+            memset(&r[i], 0, sizeof r[i]);
+            r[i].pixel = k->pixel;
+            r[i].samples = k->sample_count;
+            double l = two_noise_levels(k->pixel, t.layer) * r[i].samples;
+            r[i].sum[0] = r[i].sum[1] = r[i].sum[2] = l;
+            r[i].lum_m2 = 0.01 * c.granularity;
+            r[i].pvar = two_noise_levels(k->pixel, t.layer);
+        }
+        ck_assert_msg(sched_complete(s, t.id, r, t.count, err, sizeof err) == 0, "%s", err);
+    }
+    ck_assert_msg(skipping > 0, "no pixel skipped a layer: the test proves nothing");
+    const film_t *f = sched_film(s);
+    for (uint32_t p = 0; p < 16; p++)
+        ck_assert_uint_eq(next[p], f->pixels[p].count);
+    sched_destroy(&s);
+}
+END_TEST
+
 /* Every pixel the same integrand with a rare bright path: a layer's mean is
  * 0.5, or 10.5 in one layer of twenty (hashed from pixel and layer), so the
  * true value is 1.0. */
@@ -1322,6 +1369,7 @@ int main(void)
     tcase_add_test(tc, test_target_window_excludes_self);
     tcase_add_test(tc, test_relerr_and_variance_modes);
     tcase_add_test(tc, test_relmse_balances_sqrt_variance);
+    tcase_add_test(tc, test_first_sample_counts_taken_layers);
     tcase_add_test(tc, test_adaptive_unbiased);
     tcase_add_test(tc, test_target_unbiased);
     tcase_add_test(tc, test_dilation);
