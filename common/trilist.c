@@ -54,12 +54,16 @@ static inline float trilist_min4(__m128 v)
 #define KVI trilist_vi16
 #define KW 16
 #define KNAME trilist_avx512
+#define KFIX trilist_avx512_fix
+#define KEDGES trilist_edges16
 #define KTARGET "avx512f"
 #define KMASK(m) ((unsigned)_mm512_test_epi32_mask((__m512i)(m), (__m512i)(m)))
 #define KLANEMIN(v) trilist_min16((__m512)(v))
 #include "trilist_kernel.inc"
 #undef KW
 #undef KNAME
+#undef KFIX
+#undef KEDGES
 #undef KTARGET
 #undef KVF
 #undef KVI
@@ -70,12 +74,16 @@ static inline float trilist_min4(__m128 v)
 #define KVI trilist_vi8
 #define KW 8
 #define KNAME trilist_avx2
+#define KFIX trilist_avx2_fix
+#define KEDGES trilist_edges8
 #define KTARGET "avx2"
 #define KMASK(m) ((unsigned)_mm256_movemask_ps((__m256)(m)))
 #define KLANEMIN(v) trilist_min8((__m256)(v))
 #include "trilist_kernel.inc"
 #undef KW
 #undef KNAME
+#undef KFIX
+#undef KEDGES
 #undef KTARGET
 #undef KVF
 #undef KVI
@@ -87,11 +95,15 @@ static inline float trilist_min4(__m128 v)
 #define KVI trilist_vi4
 #define KW 4
 #define KNAME trilist_sse2
+#define KFIX trilist_sse2_fix
+#define KEDGES trilist_edges4
 #define KMASK(m) ((unsigned)_mm_movemask_ps((__m128)(m)))
 #define KLANEMIN(v) trilist_min4((__m128)(v))
 #include "trilist_kernel.inc"
 #undef KW
 #undef KNAME
+#undef KFIX
+#undef KEDGES
 #undef KVF
 #undef KVI
 #undef KMASK
