@@ -331,6 +331,7 @@ bench-error: deps
 	$(MAKE) all $(BUILD)/bench/bench_batches
 	bash bench/run-sampler.sh
 	bash bench/error/run.sh
+	bash bench/error/run.sh --repeat
 
 clean:
 	rm -rf build build-asan build-tsan build-fuzz bin

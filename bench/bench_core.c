@@ -61,6 +61,8 @@
 #include "vberr.h"
 #include "vmath.h"
 
+#include "benchray.h"
+
 static const char usage_text[] =
     "usage: bench_core --scene FILE.json [options]\n"
     "\n"
@@ -248,22 +250,8 @@ static void embree_free(embree_t *e)
 /* Untimed closest hit, for building the path batch. */
 static int closest_hit(const embree_t *e, vec3_t o, vec3_t d, uint32_t *tri, float *u, float *v)
 {
-    struct RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
     struct RTCRayHit rh;
-    memset(&rh, 0, sizeof rh);
-    rh.ray.org_x = o.x;
-    rh.ray.org_y = o.y;
-    rh.ray.org_z = o.z;
-    rh.ray.dir_x = d.x;
-    rh.ray.dir_y = d.y;
-    rh.ray.dir_z = d.z;
-    rh.ray.tfar = INFINITY;
-    rh.ray.mask = 0xffffffffu;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(e->scene, &ctx, &rh);
-    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID)
+    if (!benchray_intersect(e->scene, o, d, &rh))
         return 0;
     *tri = rh.hit.primID;
     *u = rh.hit.u;

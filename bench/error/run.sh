@@ -5,6 +5,8 @@
 #
 # Needs bin/vbrender (make all). Settings come from the environment
 # (VB_STUDY_QUICK=1 for a ~3-minute smoke run; the rest in bench/error/study.py).
+# `run.sh --repeat` runs bench/error/repeat.py instead: uniform, relmse and
+# relerr again at three more seeds (about 21 minutes).
 # Writes bench/results/error.json, bench/results/error/*.png and the bench/RESULTS.md
 # section between <!-- bench:error:begin --> and <!-- bench:error:end -->.
 set -euo pipefail
@@ -25,4 +27,9 @@ if ! "$MITSUBA_PEER_PYTHON" -c 'import matplotlib' 2>/dev/null; then
     "$ROOT/bench/venv/bin/pip" install -q --disable-pip-version-check matplotlib
 fi
 
+# --repeat: bench/error/repeat.py (adaptive against uniform over several seeds)
+if [ "${1:-}" = "--repeat" ]; then
+    shift
+    exec "$MITSUBA_PEER_PYTHON" bench/error/repeat.py "$@"
+fi
 exec "$MITSUBA_PEER_PYTHON" bench/error/study.py "$@"

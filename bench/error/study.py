@@ -1051,19 +1051,21 @@ def target_table(T):
     return L
 
 
-def update_readme(md):
+def update_readme(md, marker="error"):
+    """Writes md between bench/RESULTS.md's <!-- bench:MARKER:begin/end --> (added
+    after the error section, else the distributed or the core one, when missing)."""
     path = os.path.join(ROOT, "bench", "RESULTS.md")
     with open(path) as f:
         text = f.read()
-    b, e = "<!-- bench:error:begin -->", "<!-- bench:error:end -->"
+    b, e = f"<!-- bench:{marker}:begin -->", f"<!-- bench:{marker}:end -->"
     block = f"{b}\n{md}\n{e}"
     if b in text and e in text:
         i, j = text.index(b), text.index(e) + len(e)
         text = text[:i] + block + text[j:]
     else:
-        anchor = "<!-- bench:distributed:end -->" if "<!-- bench:distributed:end -->" in text \
-            else "<!-- bench:core:end -->"
-        if anchor not in text:
+        anchor = next((a for a in ("<!-- bench:error:end -->", "<!-- bench:distributed:end -->",
+                                   "<!-- bench:core:end -->") if a in text and a != e), None)
+        if anchor is None:
             log("bench/RESULTS.md: no anchor marker; section not written")
             return
         i = text.index(anchor) + len(anchor)
