@@ -31,9 +31,9 @@ typedef enum {
 lights_status_t lights_build(scene_t *s, const double *power, double total_power, char *err,
                              size_t errlen);
 
-/* The light whose share of the cumulative power holds u in [0, 1): a
- * binary search in light_cdf. Returns a triangle index. */
-static inline uint32_t lights_pick(const scene_t *s, double u)
+/* The index (into light_tris, light_cdf) of the light whose share of the
+ * cumulative power holds u in [0, 1): a binary search in light_cdf. */
+static inline size_t lights_pick_index(const scene_t *s, double u)
 {
     size_t lo = 0, hi = s->light_count - 1;
     while (lo < hi) {
@@ -43,14 +43,36 @@ static inline uint32_t lights_pick(const scene_t *s, double u)
         else
             lo = mid + 1;
     }
-    return s->light_tris[lo];
+    return lo;
 }
 
-/* Picks a light by power with u and a point *q on it with (u1, u2);
- * returns its triangle. The density of *q is lights_area_pdf per area. */
-static inline uint32_t lights_sample(const scene_t *s, double u, float u1, float u2, vec3_t *q)
+/* The light triangle lights_pick_index chooses for u. */
+static inline uint32_t lights_pick(const scene_t *s, double u)
 {
-    uint32_t tri = lights_pick(s, u);
+    return s->light_tris[lights_pick_index(s, u)];
+}
+
+/* Picks a light by power and a point *q on it, uniform by area, from two
+ * numbers, as Mitsuba 3 and pbrt do; returns its triangle. u picks the
+ * light, and where it fell within that light's share of the power,
+ * rescaled to [0, 1), is the point's first number (u2 the second). A
+ * stratified pair (u, u2) then stratifies the points over all the lights
+ * together (a quad light's two triangles as one); a number of its own for
+ * the pick left each triangle's points stratified on their own: 2 to 4 %
+ * more relMSE on the Cornell box (256 and 1024 spp) and dark-bright (256).
+ * u is a double, so the rescaled number keeps a float's 24 bits for any
+ * light count below 2^29.
+ * The density of *q is lights_area_pdf per area. */
+static inline uint32_t lights_sample(const scene_t *s, double u, float u2, vec3_t *q)
+{
+    size_t i = lights_pick_index(s, u);
+    double lo = i ? s->light_cdf[i - 1] : 0.0, hi = s->light_cdf[i];
+    float u1 = (float)((u - lo) / (hi - lo));
+    if (!(u1 < 1.0f)) /* rounded up to 1 (or u outside [lo, hi)) */
+        u1 = 0x1.fffffep-1f;
+    if (!(u1 >= 0.0f))
+        u1 = 0.0f;
+    uint32_t tri = s->light_tris[i];
     *q = scene_sample_point(s, tri, u1, u2);
     return tri;
 }

@@ -354,16 +354,17 @@ static material_hit_t orient_normals(const scene_t *s, const hit_t *h, vec3_t wo
     return mh;
 }
 
-/* Next-event estimation at p on diffuse m: a point on a light (three
- * numbers), a shadow ray, and its share MIS-weighted against BSDF sampling. */
+/* Next-event estimation at p on diffuse m: a light and a point on it (two
+ * numbers, lights_sample), a shadow ray, and its share MIS-weighted
+ * against BSDF sampling. */
 static void sample_direct(const tracer_t *tr, path_t *path, const material_t *m, vec3_t p,
                           const material_hit_t *mh)
 {
     const scene_t *s = tr->scene;
     double ul = rng_next_double(&path->rng);
-    float u1 = rng_next_float(&path->rng), u2 = rng_next_float(&path->rng);
+    float u2 = rng_next_float(&path->rng);
     vec3_t q;
-    uint32_t lt = lights_sample(s, ul, u1, u2, &q);
+    uint32_t lt = lights_sample(s, ul, u2, &q);
     vec3_t to = vec3_sub(q, p);
     float dist2 = vec3_dot(to, to);
     if (!(dist2 > 0.0f))
@@ -406,8 +407,9 @@ static int survives_roulette(path_t *path)
 }
 
 /* Where bounce `depth`'s numbers start under the sobol sampler: after the
- * camera's pair, six per bounce: [0] roulette, [1] light pick, [2, 3] light
- * point, [4, 5] BSDF sample, so the 2D uses are Sobol pairs (rng.h). */
+ * camera's pair, six per bounce: [0] roulette, [1] unused (it was the light
+ * pick, which now shares the light point's pair), [2, 3] the light and the
+ * point on it, [4, 5] BSDF sample, so the 2D uses are Sobol pairs (rng.h). */
 static inline uint64_t bounce_dim(uint32_t depth)
 {
     return 2 + 6 * (uint64_t)depth;
@@ -444,7 +446,7 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
         if (st->max_depth && depth + 2 > st->max_depth)
             break;
         material_hit_t mh = orient_normals(s, &h, wo, cos_o);
-        rng_seek(&path.rng, bounce_dim(depth) + 1);
+        rng_seek(&path.rng, bounce_dim(depth) + 2);
         if (nee && material_is_diffuse(m))
             sample_direct(tr, &path, m, p, &mh);
         rng_seek(&path.rng, bounce_dim(depth) + 4);

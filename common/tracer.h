@@ -25,6 +25,14 @@
 /* The most samples one pixel task may take: the eq. 4.1 statistic keeps each
  * running estimate of the task on the stack. A layer is G samples, G <= this. */
 #define TRACER_MAX_TASK_SAMPLES 4096
+/* The tracer's version: raised whenever the same (scene, settings, seed,
+ * pixel, sample) would give another value (a sampler or estimator change).
+ * It is part of the build id (proto_build_id), so a master refuses a worker
+ * built from a commit that traces different bits, as it refuses another
+ * ISA: 2 since the light and the point on it come from one pair of
+ * numbers (lights_sample) and new rays leave 16 ulps off the surface
+ * (vmath_offset_coord). */
+#define TRACER_VERSION 2
 /* Russian roulette starts after this many bounces (as Mitsuba 3's default
  * rr_depth, so samples/s compare like with like). */
 #define TRACER_RR_DEPTH 5

@@ -928,8 +928,8 @@ void proto_build_id(const char *isa, char out[PROTO_BUILD_SIZE + 1])
     snprintf(cc, sizeof cc, "cc");
 #endif
     /* A longer id is cut to PROTO_BUILD_SIZE, as proto.h promises. */
-    if (snprintf(out, PROTO_BUILD_SIZE + 1, "vbrender-p%d-%s-%s", PROTO_VERSION, isa ? isa : "?",
-                 cc) > PROTO_BUILD_SIZE)
+    if (snprintf(out, PROTO_BUILD_SIZE + 1, "vbrender-p%d-t%d-%s-%s", PROTO_VERSION, TRACER_VERSION,
+                 isa ? isa : "?", cc) > PROTO_BUILD_SIZE)
         out[PROTO_BUILD_SIZE] = '\0';
     /* The id goes into HELLO, which only carries printable ASCII; an odd
      * ISA string must not make this build unable to say hello. */

@@ -20,7 +20,7 @@
 #define PROTO_VERSION 1
 #define PROTO_HEADER_SIZE 32
 #define PROTO_HASH_SIZE 32  /* BLAKE2b-256 of a scene bundle */
-#define PROTO_BUILD_SIZE 32 /* build id: version + compiler + ISA, NUL-padded */
+#define PROTO_BUILD_SIZE 32 /* build id: versions + ISA + compiler, NUL-padded */
 #define PROTO_TEXT_MAX 1024 /* refusal and error texts */
 
 /* Limits that bound every allocation a peer can cause. */

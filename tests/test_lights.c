@@ -41,13 +41,20 @@ static scene_t *flat_scene(size_t n)
     return s;
 }
 
-START_TEST(distribution_follows_power)
+/* flat_scene(4) with triangles 1 and 3 lights of power 1 and 3, built. */
+static scene_t *two_lights(void)
 {
     scene_t *s = flat_scene(4);
     s->tri_material[1] = s->tri_material[3] = 1;
     double power[4] = {0, 1.0, 0, 3.0};
     char err[ERRLEN];
     ck_assert_int_eq(lights_build(s, power, 4.0, err, sizeof err), LIGHTS_OK);
+    return s;
+}
+
+START_TEST(distribution_follows_power)
+{
+    scene_t *s = two_lights();
     ck_assert_uint_eq(s->light_count, 2);
     ck_assert_uint_eq(s->light_tris[0], 1);
     ck_assert_uint_eq(s->light_tris[1], 3);
@@ -79,7 +86,7 @@ START_TEST(points_lie_on_the_light)
     for (int i = 0; i < n; i++)
         for (int j = 0; j < n; j++) {
             vec3_t q;
-            uint32_t tri = lights_sample(s, (i + 0.5) / n, (i + 0.5f) / n, (j + 0.5f) / n, &q);
+            uint32_t tri = lights_sample(s, (i + 0.5) / n, (j + 0.5f) / n, &q);
             ck_assert_uint_eq(tri, 2);
             /* inside the triangle (4,0,0), (5,0,0), (4,1,0) */
             ck_assert(q.z == 0.0f && q.x >= 4.0f && q.y >= 0.0f);
@@ -90,6 +97,48 @@ START_TEST(points_lie_on_the_light)
     /* uniform by area: the mean is the centroid (13/3, 1/3) */
     ck_assert_double_eq_tol(mean_x / (n * n), 13.0 / 3.0, 1e-3);
     ck_assert_double_eq_tol(mean_y / (n * n), 1.0 / 3.0, 1e-3);
+    scene_destroy(&s);
+}
+END_TEST
+
+/* lights_sample takes the light and the point's first number from one u:
+ * a stratified grid of (u, u2) over two lights of power 1 and 3
+ * gives each light its share of the points exactly, and on each light the
+ * same point as scene_sample_point for the rescaled u, so the points of each
+ * light form a stratified grid of their own (uniform by area: the mean is
+ * the centroid, to the grid's 1e-3). */
+START_TEST(reuse_stratifies_over_all_lights)
+{
+    scene_t *s = two_lights();
+    const int n = 64;
+    int count[4] = {0};
+    double mean_x[4] = {0}, mean_y[4] = {0};
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) {
+            double u = (i + 0.5) / n;
+            float u2 = (j + 0.5f) / n;
+            vec3_t q;
+            uint32_t tri = lights_sample(s, u, u2, &q);
+            ck_assert(tri == 1 || tri == 3);
+            double lo = tri == 1 ? 0.0 : 0.25, hi = tri == 1 ? 0.25 : 1.0;
+            vec3_t want = scene_sample_point(s, tri, (float)((u - lo) / (hi - lo)), u2);
+            ck_assert(q.x == want.x && q.y == want.y && q.z == want.z);
+            count[tri]++;
+            mean_x[tri] += q.x;
+            mean_y[tri] += q.y;
+        }
+    ck_assert_int_eq(count[1], n * n / 4);
+    ck_assert_int_eq(count[3], 3 * n * n / 4);
+    /* light t is the triangle (2t,0,0), (2t+1,0,0), (2t,1,0): centroid (2t + 1/3, 1/3) */
+    for (int t = 1; t <= 3; t += 2) {
+        ck_assert_double_eq_tol(mean_x[t] / count[t], 2 * t + 1.0 / 3.0, 1e-3);
+        ck_assert_double_eq_tol(mean_y[t] / count[t], 1.0 / 3.0, 1e-3);
+    }
+    /* the ends of [0, 1) stay on the lights, the rescaled number below 1 */
+    vec3_t q;
+    ck_assert_uint_eq(lights_sample(s, 0.0, 0.5f, &q), 1);
+    ck_assert_uint_eq(lights_sample(s, 0x1.fffffffffffffp-1, 0.5f, &q), 3);
+    ck_assert(q.x >= 6.0f && q.y >= 0.0f && q.x - 6.0f + q.y <= 1.0f + 1e-6f);
     scene_destroy(&s);
 }
 END_TEST
@@ -114,6 +163,7 @@ static Suite *lights_suite(void)
     TCase *tc = tcase_create("distribution");
     tcase_add_test(tc, distribution_follows_power);
     tcase_add_test(tc, points_lie_on_the_light);
+    tcase_add_test(tc, reuse_stratifies_over_all_lights);
     tcase_add_test(tc, out_of_float_range);
     suite_add_tcase(su, tc);
     return su;

@@ -1173,11 +1173,13 @@ START_TEST(build_id)
 {
     char id[PROTO_BUILD_SIZE + 1], want[64];
 #if defined(__clang__)
-    snprintf(want, sizeof want, "vbrender-p1-avx2-clang%d.%d", __clang_major__, __clang_minor__);
+    snprintf(want, sizeof want, "vbrender-p1-t%d-avx2-clang%d.%d", TRACER_VERSION, __clang_major__,
+             __clang_minor__);
 #elif defined(__GNUC__)
-    snprintf(want, sizeof want, "vbrender-p1-avx2-gcc%d.%d", __GNUC__, __GNUC_MINOR__);
+    snprintf(want, sizeof want, "vbrender-p1-t%d-avx2-gcc%d.%d", TRACER_VERSION, __GNUC__,
+             __GNUC_MINOR__);
 #else
-    snprintf(want, sizeof want, "vbrender-p1-avx2-cc");
+    snprintf(want, sizeof want, "vbrender-p1-t%d-avx2-cc", TRACER_VERSION);
 #endif
     proto_build_id("avx2", id);
     ck_assert_str_eq(id, want);
@@ -1185,11 +1187,14 @@ START_TEST(build_id)
     /* cut to 32, and always a valid HELLO build id */
     proto_build_id("a-very-long-isa-name-that-goes-on-and-on", id);
     ck_assert_uint_eq(strlen(id), PROTO_BUILD_SIZE);
-    ck_assert(strncmp(id, "vbrender-p1-a-very-long-isa-name", PROTO_BUILD_SIZE) == 0);
+    snprintf(want, sizeof want, "vbrender-p1-t%d-a-very-long-isa-name", TRACER_VERSION);
+    ck_assert(strncmp(id, want, PROTO_BUILD_SIZE) == 0);
     proto_build_id("sse\n4.2", id);
-    ck_assert(strncmp(id, "vbrender-p1-sse?4.2-", 20) == 0);
+    snprintf(want, sizeof want, "vbrender-p1-t%d-sse?4.2-", TRACER_VERSION);
+    ck_assert(strncmp(id, want, strlen(want)) == 0);
     proto_build_id(NULL, id);
-    ck_assert(strncmp(id, "vbrender-p1-?-", 14) == 0);
+    snprintf(want, sizeof want, "vbrender-p1-t%d-?-", TRACER_VERSION);
+    ck_assert(strncmp(id, want, strlen(want)) == 0);
 
     proto_msg_t *m = msg_new(PROTO_HELLO);
     rx_t *r = rx_new(1);

@@ -611,7 +611,7 @@ START_TEST(test_light_selection_matches_area_pdf)
     ck_assert_ptr_nonnull(count);
     for (uint32_t i = 0; i < n; i++) {
         vec3_t q;
-        count[lights_sample(s, (i + 0.5) / n, 0.5f, 0.5f, &q)]++;
+        count[lights_sample(s, (i + 0.5) / n, 0.5f, &q)]++;
     }
     double total = 0;
     for (uint32_t t = 0; t < s->triangle_count; t++) {
@@ -860,12 +860,15 @@ static film_t *cornell_transformed(double k, double t, int size, uint32_t spp)
     return f;
 }
 
+/* 256 spp: with new rays offset by 256 ulps of their origin (16 scene
+ * units at 1e6) the translated box's contact shadows were 8 % off in a
+ * block, inside the 5-sigma bound at 64 spp; at 256 spp it fails. */
 START_TEST(test_cornell_any_scale)
 {
-    film_t *ref = cornell_transformed(1.0, 0.0, 32, 64);
+    film_t *ref = cornell_transformed(1.0, 0.0, 32, 256);
     const double cases[][2] = {{1e-3, 0.0}, {1e5, 0.0}, {1.0, 1e6}};
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
-        film_t *f = cornell_transformed(cases[i][0], cases[i][1], 32, 64);
+        film_t *f = cornell_transformed(cases[i][0], cases[i][1], 32, 256);
         char what[64];
         snprintf(what, sizeof what, "scale %g translate %g", cases[i][0], cases[i][1]);
         /* 4x4 blocks: light leaks or acne would shift a block by far more */
