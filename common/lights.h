@@ -46,12 +46,6 @@ static inline size_t lights_pick_index(const scene_t *s, double u)
     return lo;
 }
 
-/* The light triangle lights_pick_index chooses for u. */
-static inline uint32_t lights_pick(const scene_t *s, double u)
-{
-    return s->light_tris[lights_pick_index(s, u)];
-}
-
 /* Picks a light by power and a point *q on it, uniform by area, from two
  * numbers, as Mitsuba 3 and pbrt do; returns its triangle. u picks the
  * light, and where it fell within that light's share of the power,

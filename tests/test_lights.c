@@ -65,10 +65,10 @@ START_TEST(distribution_follows_power)
     ck_assert_float_eq_tol(lights_area_pdf(s, 1), 0.25f, 1e-7f);
     ck_assert_float_eq_tol(lights_area_pdf(s, 3), 0.25f, 1e-7f);
     /* picking: u below the first cdf entry is light 0, at or above it light 1 */
-    ck_assert_uint_eq(lights_pick(s, 0.0), 1);
-    ck_assert_uint_eq(lights_pick(s, 0.2499), 1);
-    ck_assert_uint_eq(lights_pick(s, 0.25), 3);
-    ck_assert_uint_eq(lights_pick(s, 0.9999999), 3);
+    ck_assert_uint_eq(lights_pick_index(s, 0.0), 0);
+    ck_assert_uint_eq(lights_pick_index(s, 0.2499), 0);
+    ck_assert_uint_eq(lights_pick_index(s, 0.25), 1);
+    ck_assert_uint_eq(lights_pick_index(s, 0.9999999), 1);
     scene_destroy(&s);
 }
 END_TEST
