@@ -325,7 +325,7 @@ static int synth_answer_task(synth_t *s, synth_io_t *io)
         io->res_rec[i] = (tracer_result_t){.pixel = r->pixel,
                                            .samples = r->sample_count,
                                            .nonfinite = 0,
-                                           .pad_ = 0,
+                                           .rays = 6 * r->sample_count,
                                            .sum = {0.5 * n, 0.4 * n, 0.3 * n},
                                            .lum_m2 = 0.01 * n,
                                            .pvar = synth_pvar(r->pixel, t->layer)};

@@ -49,7 +49,8 @@ static const settings_def_t table[] = {
      .type = SETTINGS_CHOICE,
      .choices = adaptive_choices,
      .def_choice = JOB_DEFAULT_ADAPTIVE,
-     .help = "relmse (the relMSE one more layer takes off),\n"
+     .help = "relmse (the relMSE one more layer takes off\n"
+             "per ray it costs),\n"
              "relerr (t-bound of layer means over mean),\n"
              "thesis (eq. 4.1, as published), variance (of the\n"
              "pixel mean) or none (uniform)"},

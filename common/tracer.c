@@ -539,6 +539,7 @@ static uint64_t trace_task(const tracer_t *t, const tracer_settings_t *st,
         pvar += dv * dv;
     }
     r->pvar = pvar;
+    r->rays = rays < UINT32_MAX ? (uint32_t)rays : UINT32_MAX;
     return rays;
 }
 

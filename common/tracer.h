@@ -80,10 +80,12 @@ typedef struct tracer_result {
     uint32_t pixel;
     uint32_t samples;   /* finite samples in the sums */
     uint32_t nonfinite; /* NaN/Inf samples counted and left out */
-    uint32_t pad_;
-    double sum[3]; /* RGB sums of this task's finite samples */
-    double lum_m2; /* sum of squared deviations of luminance from this task's mean */
-    double pvar;   /* eq. 4.1: sum over i < G of (P_i - P_G)^2 */
+    uint32_t rays;      /* rays traced for these samples (camera, extension, shadow; at
+                         * least one a sample), saturated at UINT32_MAX: what a
+                         * pixel's samples cost, for relmse's allocation (sched.h) */
+    double sum[3];      /* RGB sums of this task's finite samples */
+    double lum_m2;      /* sum of squared deviations of luminance from this task's mean */
+    double pvar;        /* eq. 4.1: sum over i < G of (P_i - P_G)^2 */
 } tracer_result_t;
 
 typedef struct tracer_stats {

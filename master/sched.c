@@ -57,6 +57,12 @@ struct sched {
     double *bmean, *bm2;         /* per pixel: Welford over the layers' luminance means */
     uint32_t *ubatches;          /* relerr, relmse: the same over the uniform layers only */
     double *umean, *um2;
+    /* relmse: what a sample of the pixel costs, in rays, over the same
+     * layers as ubatches (their rays and samples, NaN/Inf ones too); the
+     * rays per sample as of layer complete-1 and after a layer in flight
+     * (0: none yet), which decide_layer reads from the neighbours */
+    uint64_t *urays, *usamples;
+    float *cost_snapshot, *cost_flight[2];
     double *t_table;  /* t factors by batches - 1, for relerr (0.95) and the target, */
     double *t_target; /* 0 until first needed (t_factor): ~50 us each, and a submit must
                          not compute one per layer up front (1M layers: a minute) */
@@ -246,6 +252,12 @@ static int keeps_counts(const sched_t *s)
     return s->cfg.target_error > 0 || pools_neighbours(s);
 }
 
+/* relmse weighs a layer's gain against what its samples cost (sched.h). */
+static int weighs_cost(const sched_t *s)
+{
+    return s->cfg.adaptive == SCHED_ADAPTIVE_RELMSE;
+}
+
 static int alloc_target_tables(sched_t *s)
 {
     const size_t n = s->npix;
@@ -263,6 +275,16 @@ static int alloc_target_tables(sched_t *s)
         s->umean = calloc(n, sizeof(double));
         s->um2 = calloc(n, sizeof(double));
         if (!s->ubatches || !s->umean || !s->um2)
+            return -1;
+    }
+    if (weighs_cost(s)) {
+        s->urays = calloc(n, sizeof(uint64_t));
+        s->usamples = calloc(n, sizeof(uint64_t));
+        s->cost_snapshot = calloc(n, sizeof(float));
+        s->cost_flight[0] = calloc(n, sizeof(float));
+        s->cost_flight[1] = calloc(n, sizeof(float));
+        if (!s->urays || !s->usamples || !s->cost_snapshot || !s->cost_flight[0] ||
+            !s->cost_flight[1])
             return -1;
     }
     if (s->cfg.target_error <= 0)
@@ -374,6 +396,11 @@ void sched_destroy(sched_t **sp)
     free(s->ubatches);
     free(s->umean);
     free(s->um2);
+    free(s->urays);
+    free(s->usamples);
+    free(s->cost_snapshot);
+    free(s->cost_flight[0]);
+    free(s->cost_flight[1]);
     free(s->conv_snapshot);
     free(s->pool_row);
     free(s->pool_max);
@@ -584,6 +611,27 @@ static uint64_t mark_converged(sched_t *s)
     return conv;
 }
 
+/* relmse: the rays a sample of the pixel at (x, y) takes, as the mean over
+ * its 3x3 neighbours of their uniform layers' rays per sample, the pixel
+ * itself left out for the same reason as its variance (its own uniform
+ * rays count with its radiance: the paths that enter glass are both the
+ * long and the bright ones). At least 1 (every sample traces its camera
+ * ray); 1 while no neighbour has any (a 1 x 1 image: all pixels alike). */
+static double neighbour_cost(const sched_t *s, int x, int y)
+{
+    const int w = (int)s->cfg.width, h = (int)s->cfg.height;
+    double sum = 0;
+    int k = 0;
+    for (int yy = y - 1; yy <= y + 1; yy++)
+        for (int xx = x - 1; xx <= x + 1; xx++)
+            if (yy >= 0 && yy < h && xx >= 0 && xx < w && (yy != y || xx != x) &&
+                s->cost_snapshot[yy * w + xx] > 0) {
+                sum += s->cost_snapshot[yy * w + xx];
+                k++;
+            }
+    return k && sum > k ? sum / k : 1.0;
+}
+
 /* relerr and relmse's metric for each pixel, into s->pooled, from the
  * snapshot: the relative variance of a layer mean, measured over the uniform
  * layers only, is the mean over the pixel's 3x3 neighbours, the pixel itself
@@ -618,7 +666,7 @@ static void pool_neighbours(sched_t *s)
             if (nb < 2 || !isfinite(rv))
                 s->pooled[p] = INFINITY; /* sampled until it and its neighbours have two */
             else if (s->cfg.adaptive == SCHED_ADAPTIVE_RELMSE)
-                s->pooled[p] = rv / ((double)nb * nb);
+                s->pooled[p] = rv / ((double)nb * nb) / neighbour_cost(s, x, y);
             else
                 s->pooled[p] =
                     t_factor(s->t_table, SCHED_RELERR_CONFIDENCE, nb - 1) * sqrt(rv / nb);
@@ -713,6 +761,7 @@ static void complete_range(sched_t *s, uint32_t layer, uint32_t range)
             /* Layers complete in order (rule 1), so this is s->complete. */
             const double *pv = s->pvar_flight[layer & 1], *rv = s->rvar_flight[layer & 1];
             const uint32_t *nf = s->nb_flight[layer & 1];
+            const float *cf = s->cost_flight[layer & 1];
             for (uint32_t p = 0; p < s->npix; p++)
                 if (is_member(s, layer, p)) {
                     s->var_snapshot[p] = pv[p];
@@ -720,6 +769,8 @@ static void complete_range(sched_t *s, uint32_t layer, uint32_t range)
                         s->rvar_snapshot[p] = rv[p];
                     if (nf)
                         s->nb_snapshot[p] = nf[p];
+                    if (cf)
+                        s->cost_snapshot[p] = cf[p];
                 }
             s->complete = layer + 1;
             decide_layer(s, layer + 2);
@@ -867,6 +918,11 @@ int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *resul
                      rec[i].pixel, rec[i].sample_count);
             return SCHED_BAD_RESULT;
         }
+        if (r->rays < rec[i].sample_count) { /* each traces at least its camera ray */
+            snprintf(err, errlen, "task %llu: result %u (pixel %u): %u rays for %u samples",
+                     (unsigned long long)task_id, i, r->pixel, r->rays, rec[i].sample_count);
+            return SCHED_BAD_RESULT;
+        }
         /* radiance is never negative; sums of no samples are zero */
         const double n = r->samples, cap = SCHED_MAX_RADIANCE;
         int bad = !(r->lum_m2 >= 0 && r->lum_m2 <= n * cap * cap) ||
@@ -907,6 +963,7 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
              range = (uint32_t)((task_id - 1) % s->ranges);
     double *pv = s->pvar_flight[layer & 1], *rv = s->rvar_flight[layer & 1];
     uint32_t *nf = s->nb_flight[layer & 1];
+    float *cf = s->cost_flight[layer & 1];
     /* batch statistics only where something reads them: this loop runs for
      * every pixel-layer result, millions a second on one master core */
     const int batches = s->cfg.adaptive == SCHED_ADAPTIVE_RELERR ||
@@ -925,17 +982,25 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
                     : results[i].pvar;
             continue;
         }
+        /* with a target error, a pixel's first SCHED_TARGET_MIN_LAYERS
+         * layers whatever they are (mark_converged); else its uniform layers */
+        const int judged =
+            s->ubatches &&
+            (s->cfg.target_error > 0 ? s->ubatches[p] < SCHED_TARGET_MIN_LAYERS : !adaptive_layer);
         /* the layer's mean is one batch; Welford over batches */
         if (results[i].samples > 0) {
             double bm = vmath_luminance(results[i].sum[0], results[i].sum[1], results[i].sum[2]) /
                         results[i].samples;
             welford_add(&s->batches[p], &s->bmean[p], &s->bm2[p], bm);
-            /* with a target error, a pixel's first SCHED_TARGET_MIN_LAYERS
-             * layers whatever they are (mark_converged); else its uniform
-             * layers */
-            if (s->ubatches && (s->cfg.target_error > 0 ? s->ubatches[p] < SCHED_TARGET_MIN_LAYERS
-                                                        : !adaptive_layer))
+            if (judged)
                 welford_add(&s->ubatches[p], &s->umean[p], &s->um2[p], bm);
+        }
+        if (cf) {
+            if (judged) {
+                s->urays[p] += results[i].rays;
+                s->usamples[p] += rec[i].sample_count;
+            }
+            cf[p] = s->usamples[p] ? (float)((double)s->urays[p] / (double)s->usamples[p]) : 0.0f;
         }
         uint32_t nb = s->batches[p];
         switch (s->cfg.adaptive) {
@@ -1176,6 +1241,7 @@ int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
     const size_t tn = s->cfg.target_error > 0 ? n : 0; /* the target error's tables */
     const size_t cn = keeps_counts(s) ? n : 0;         /* layer-mean counts */
     const size_t un = keeps_counts(s) ? n : 0;         /* uniform layers' statistics */
+    const size_t kn = weighs_cost(s) ? n : 0;          /* their cost */
     uint32_t vc[2] = {SCHED_SAVE_VERSION, FP_COUNT};
     uint64_t fp[FP_COUNT];
     fingerprint(s, fp);
@@ -1218,6 +1284,11 @@ int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
         put_section(&w, "ubat", s->ubatches, un * sizeof(uint32_t)) ||
         put_section(&w, "umean", s->umean, un * sizeof(double)) ||
         put_section(&w, "um2", s->um2, un * sizeof(double)) ||
+        put_section(&w, "urays", s->urays, kn * sizeof(uint64_t)) ||
+        put_section(&w, "usamp", s->usamples, kn * sizeof(uint64_t)) ||
+        put_section(&w, "cost", s->cost_snapshot, kn * sizeof(float)) ||
+        put_section(&w, "cost0", s->cost_flight[0], kn * sizeof(float)) ||
+        put_section(&w, "cost1", s->cost_flight[1], kn * sizeof(float)) ||
         put_head(&w, "end", sizeof(uint64_t)))
         return w.rc;
     uint64_t sum = ck_final(&w.ck);
@@ -1283,7 +1354,7 @@ static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *su
 {
     const size_t cells = (size_t)s->layers * s->ranges, n = s->npix;
     const size_t tn = s->cfg.target_error > 0 ? n : 0, cn = keeps_counts(s) ? n : 0,
-                 un = keeps_counts(s) ? n : 0;
+                 un = keeps_counts(s) ? n : 0, kn = weighs_cost(s) ? n : 0;
     uint8_t magic[8];
     uint32_t vc[2];
     uint64_t fp[FP_COUNT], want[FP_COUNT], ct[CT_COUNT];
@@ -1364,6 +1435,11 @@ static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *su
         get_section(r, "ubat", s->ubatches, un * sizeof(uint32_t), err, errlen) ||
         get_section(r, "umean", s->umean, un * sizeof(double), err, errlen) ||
         get_section(r, "um2", s->um2, un * sizeof(double), err, errlen) ||
+        get_section(r, "urays", s->urays, kn * sizeof(uint64_t), err, errlen) ||
+        get_section(r, "usamp", s->usamples, kn * sizeof(uint64_t), err, errlen) ||
+        get_section(r, "cost", s->cost_snapshot, kn * sizeof(float), err, errlen) ||
+        get_section(r, "cost0", s->cost_flight[0], kn * sizeof(float), err, errlen) ||
+        get_section(r, "cost1", s->cost_flight[1], kn * sizeof(float), err, errlen) ||
         get_head(r, "end", sizeof(uint64_t), err, errlen))
         return -1;
     *sum_computed = ck_final(&r->ck);
@@ -1617,6 +1693,29 @@ static int check_pixel_stats(const sched_t *s, uint32_t p, uint32_t layers, char
     return 0;
 }
 
+/* relmse's cost of pixel p: rays of at most the samples merged, at least
+ * one a sample, and rays per sample of 0 (none yet) or at least 1. */
+static int check_pixel_cost(const sched_t *s, uint32_t p, uint64_t samples, char *err,
+                            size_t errlen)
+{
+    if (!s->urays)
+        return 0;
+    const uint64_t rays = s->urays[p], taken = s->usamples[p];
+    if (taken > samples || rays < taken || (taken == 0) != (rays == 0)) {
+        snprintf(err, errlen,
+                 "checkpoint: pixel %u: %llu rays for %llu uniform-layer samples of %llu merged", p,
+                 (unsigned long long)rays, (unsigned long long)taken, (unsigned long long)samples);
+        return -1;
+    }
+    const float c[3] = {s->cost_snapshot[p], s->cost_flight[0][p], s->cost_flight[1][p]};
+    for (int k = 0; k < 3; k++)
+        if (!(c[k] == 0 || (c[k] >= 1 && isfinite(c[k])))) {
+            snprintf(err, errlen, "checkpoint: pixel %u: %g rays per sample", p, (double)c[k]);
+            return -1;
+        }
+    return 0;
+}
+
 /* The film against the cells that were merged into it, and the per-pixel
  * statistics. */
 static int check_pixels(const sched_t *s, uint32_t D, char *err, size_t errlen)
@@ -1633,7 +1732,8 @@ static int check_pixels(const sched_t *s, uint32_t D, char *err, size_t errlen)
     uint64_t total = 0, nonfinite = 0;
     for (uint32_t p = 0; p < N; p++) {
         if (check_film_pixel(s, p, layers[p], samples[p], err, errlen) < 0 ||
-            check_pixel_stats(s, p, layers[p], err, errlen) < 0)
+            check_pixel_stats(s, p, layers[p], err, errlen) < 0 ||
+            check_pixel_cost(s, p, samples[p], err, errlen) < 0)
             goto out;
         total += samples[p];
         nonfinite += s->film->pixels[p].nonfinite;

@@ -40,20 +40,24 @@
  *            layers' means, each layer an independent batch, divided by
  *            (mean + SCHED_RELERR_EPS). Pixels with fewer than two layers
  *            have no bound yet and are always sampled.
- *  relmse:   the relMSE one more layer would take off the pixel: the
- *            relative variance of its mean (the same batches and scale as
- *            relerr) divided by its layers, v / n^2 for a pixel of relative
- *            variance v per layer after n layers. Balancing it gives each
- *            pixel layers in proportion to sqrt(v), which minimises the
- *            image's relMSE for the samples spent; balancing relerr gives
- *            layers in proportion to v, which ties uniform sampling on that
- *            measure (docs/ADAPTIVE.md).
- *  relerr and relmse take the relative variance of a layer mean from the
- *  pixel's 3x3 neighbours, the pixel itself left out, and the layer count
- *  from the pixel: a pixel's own samples then do not decide how many it
- *  gets, which keeps its mean unbiased (judged on its own variance, a pixel
- *  that has not yet met a rare bright path stops early and low). thesis and
- *  variance judge the pixel by itself, as published. */
+ *  relmse:   the relMSE one more layer would take off the pixel per ray it
+ *            costs: the relative variance of its mean (the same batches and
+ *            scale as relerr) divided by its layers and by the rays a
+ *            sample takes, v / (n^2 c) for a pixel of relative variance v
+ *            per layer after n layers whose samples trace c rays each.
+ *            Balancing it gives each pixel layers in proportion to
+ *            sqrt(v / c), which minimises the image's relMSE for the rays
+ *            (the time) spent; balancing relerr gives layers in proportion
+ *            to v, which ties uniform sampling on that measure
+ *            (docs/ADAPTIVE.md).
+ *  relerr and relmse take the relative variance of a layer mean (and relmse
+ *  the rays per sample) from the pixel's 3x3 neighbours, the pixel itself
+ *  left out, over their uniform layers, and the layer count from the
+ *  pixel: a pixel's own samples then do not decide how many it gets, which
+ *  keeps its mean unbiased (judged on its own variance, a pixel that has
+ *  not yet met a rare bright path stops early and low; its own rays count
+ *  with its radiance, as the long paths through glass are the bright
+ *  ones). thesis and variance judge the pixel by itself, as published. */
 typedef enum {
     SCHED_ADAPTIVE_NONE = 0,
     SCHED_ADAPTIVE_THESIS = 1,
@@ -244,8 +248,9 @@ double sched_threshold(const sched_t *s, uint32_t layer);
  * uint64 checksum of everything before it. */
 /* 2: target-error window statistics; 3: layer-mean counts for relerr and
  * relmse, whose saved metric is then a layer mean's relative variance;
- * 4: the target error's too, and its variances from uniform layers */
-#define SCHED_SAVE_VERSION 4
+ * 4: the target error's too, and its variances from uniform layers;
+ * 5: relmse's rays and samples of the uniform layers, and rays per sample */
+#define SCHED_SAVE_VERSION 5
 typedef int (*sched_write_fn)(void *ctx, const void *data, size_t len);
 /* Reads exactly len bytes; returns 0, or non-zero on a short read / error. */
 typedef int (*sched_read_fn)(void *ctx, void *data, size_t len);

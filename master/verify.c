@@ -163,7 +163,8 @@ static int same_results(const tracer_result_t *a, const tracer_result_t *b, uint
 {
     for (uint32_t i = 0; i < count; i++)
         if (a[i].pixel != b[i].pixel || a[i].samples != b[i].samples ||
-            a[i].nonfinite != b[i].nonfinite || memcmp(a[i].sum, b[i].sum, sizeof a[i].sum) != 0 ||
+            a[i].nonfinite != b[i].nonfinite || a[i].rays != b[i].rays ||
+            memcmp(a[i].sum, b[i].sum, sizeof a[i].sum) != 0 ||
             memcmp(&a[i].lum_m2, &b[i].lum_m2, 8) != 0 || memcmp(&a[i].pvar, &b[i].pvar, 8) != 0)
             return 0;
     return 1;

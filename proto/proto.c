@@ -289,6 +289,12 @@ static int check_result_record(const tracer_result_t *r, uint32_t i, char *err, 
                     "RESULT: record %" PRIu32 ": samples %" PRIu32 " + nonfinite %" PRIu32
                     " out of range 1..%d",
                     i, r->samples, r->nonfinite, TRACER_MAX_TASK_SAMPLES);
+    /* every sample traces at least its camera ray */
+    if (r->rays < taken)
+        return fail(err, errlen,
+                    "RESULT: record %" PRIu32 ": rays %" PRIu32 " fewer than its %" PRIu64
+                    " samples (each traces at least one)",
+                    i, r->rays, taken);
     static const char *const names[5] = {"sum[0]", "sum[1]", "sum[2]", "lum_m2", "pvar"};
     const double v[5] = {r->sum[0], r->sum[1], r->sum[2], r->lum_m2, r->pvar};
     for (int k = 0; k < 5; k++) {
@@ -518,8 +524,7 @@ static void write_result(const proto_result_t *res, uint8_t *p)
         p = put_u32(p, r->pixel);
         p = put_u32(p, r->samples);
         p = put_u32(p, r->nonfinite);
-        /* pad_ is the struct's, not the protocol's: reserved goes out 0. */
-        p = put_u32(p, 0);
+        p = put_u32(p, r->rays);
         for (int c = 0; c < 3; c++)
             p = put_f64(p, r->sum[c]);
         p = put_f64(p, r->lum_m2);
@@ -793,12 +798,7 @@ static int decode_result(const uint8_t *p, size_t n, proto_records_t *recs, prot
         r->pixel = get_u32(q);
         r->samples = get_u32(q + 4);
         r->nonfinite = get_u32(q + 8);
-        r->pad_ = 0;
-        uint32_t rsv = get_u32(q + 12);
-        if (rsv != 0)
-            return fail(err, errlen,
-                        "RESULT: record %" PRIu32 ": reserved field is 0x%08" PRIx32 ", must be 0",
-                        i, rsv);
+        r->rays = get_u32(q + 12);
         for (int c = 0; c < 3; c++)
             r->sum[c] = get_f64(q + 16 + 8 * c);
         r->lum_m2 = get_f64(q + 40);

@@ -17,7 +17,7 @@
 #include "tracer.h"
 
 #define PROTO_MAGIC 0x50524256u /* "VBRP" read as little-endian bytes */
-#define PROTO_VERSION 1
+#define PROTO_VERSION 2
 #define PROTO_HEADER_SIZE 32
 #define PROTO_HASH_SIZE 32  /* BLAKE2b-256 of a scene bundle */
 #define PROTO_BUILD_SIZE 32 /* build id: versions + ISA + compiler, NUL-padded */
@@ -117,7 +117,7 @@ typedef struct proto_result {
  * mesh files, text) are pointers: to encode, the caller points them at its
  * own data; a decode sets them itself, into the proto_records_t it is
  * given, and clears everything else first, so nothing from an earlier
- * message survives into the next. The encoder sends a result's pad_ as 0. */
+ * message survives into the next. */
 typedef struct proto_msg {
     proto_header_t h;
     union {

@@ -84,6 +84,7 @@ static void fake_results(const sched_task_t *t, tracer_result_t *r)
         memset(&r[i], 0, sizeof r[i]);
         r[i].pixel = k->pixel;
         r[i].samples = k->sample_count;
+        r[i].rays = k->sample_count * (1 + k->pixel % 4);
         for (int c = 0; c < 3; c++)
             r[i].sum[c] = 0.25 * k->sample_count * (c + 1) + 1e-4 * k->pixel +
                           1e-6 * (double)(k->prior_count % 1000);

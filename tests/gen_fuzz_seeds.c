@@ -391,6 +391,7 @@ static void fake_results(const sched_task_t *t, tracer_result_t *r)
         r[i].samples =
             k->sample_count - (k->pixel == 1 && k->first_sample == 0); /* one NaN sample */
         r[i].nonfinite = k->sample_count - r[i].samples;
+        r[i].rays = 3 * k->sample_count + k->pixel % 5;
         for (int c = 0; c < 3; c++)
             r[i].sum[c] =
                 0.25 * k->sample_count * (c + 1) + 1e-3 * k->prior_sum[c] + 1e-4 * k->pixel;

@@ -1176,20 +1176,23 @@ START_TEST(master_garbage)
     memset(&msg, 0, sizeof msg);
     msg.h.type = PROTO_HELLO;
     msg.u.hello.threads = 1;
-    snprintf(msg.u.hello.build, sizeof msg.u.hello.build, "vbrender-p2-avx2-gcc99");
-    send_proto(s, &msg, 2, 0);
+    snprintf(msg.u.hello.build, sizeof msg.u.hello.build, "vbrender-p%d-avx2-gcc99",
+             PROTO_VERSION + 1);
+    send_proto(s, &msg, PROTO_VERSION + 1, 0);
     proto_msg_t reply;
     proto_records_t text_buf = {0};
     int rc = recv_proto(s, NULL, NULL, &reply, &text_buf, err, sizeof err);
-    ck_assert_msg(rc == 0, "no readable reply to a version-2 HELLO: %s\n%s", err, logs_tail());
-    ck_assert_msg(reply.h.type == PROTO_REFUSE && strstr(reply.u.text.text, "version 2") != NULL,
-                  "reply to a version-2 HELLO: %s \"%s\"", proto_type_name(reply.h.type),
+    ck_assert_msg(rc == 0, "no readable reply to a next-version HELLO: %s\n%s", err, logs_tail());
+    char next[32];
+    snprintf(next, sizeof next, "version %d", PROTO_VERSION + 1);
+    ck_assert_msg(reply.h.type == PROTO_REFUSE && strstr(reply.u.text.text, next) != NULL,
+                  "reply to a next-version HELLO: %s \"%s\"", proto_type_name(reply.h.type),
                   reply.u.text.text);
     /* this version, another build: refused too */
     memset(&msg, 0, sizeof msg);
     msg.h.type = PROTO_HELLO;
     msg.u.hello.threads = 1;
-    snprintf(msg.u.hello.build, sizeof msg.u.hello.build, "vbrender-p1-other-cc1");
+    snprintf(msg.u.hello.build, sizeof msg.u.hello.build, "vbrender-p%d-other-cc1", PROTO_VERSION);
     send_proto(s, &msg, -1, 0);
     rc = recv_proto(s, NULL, NULL, &reply, &text_buf, err, sizeof err);
     ck_assert_msg(rc == 0 && reply.h.type == PROTO_REFUSE &&
@@ -2244,6 +2247,7 @@ START_TEST(lying_worker)
             memset(&res[i], 0, sizeof res[i]);
             res[i].pixel = recs[i].pixel;
             res[i].samples = recs[i].sample_count;
+            res[i].rays = recs[i].sample_count;
             res[i].sum[0] = res[i].sum[1] = res[i].sum[2] = 1.7e308;
         }
         uint64_t j = msg->h.job, t = msg->h.task;

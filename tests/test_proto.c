@@ -215,7 +215,7 @@ START_TEST(vec_hello)
     rx_t *r = decode_valid("hello.hex", &v);
     expect_header(&r->m, PROTO_HELLO, 0, 0, 0, 36);
     ck_assert_uint_eq(r->m.u.hello.threads, 16);
-    ck_assert_str_eq(r->m.u.hello.build, "vbrender-p1-avx2-gcc12.2");
+    ck_assert_str_eq(r->m.u.hello.build, "vbrender-p2-t2-avx2-gcc12.2");
     rx_free(r);
     free_vec(&v);
 }
@@ -237,7 +237,7 @@ START_TEST(vec_refuse)
 {
     vec_t v;
     rx_t *r = decode_valid("refuse.hex", &v);
-    const char *want = "build differs: vbrender-p1-sse4.2-gcc12.2";
+    const char *want = "build differs: vbrender-p2-t2-sse4.2-gcc12.2";
     expect_header(&r->m, PROTO_REFUSE, 0, 0, 0, (uint32_t)(4 + strlen(want)));
     ck_assert_str_eq(r->m.u.text.text, want);
     rx_free(r);
@@ -340,6 +340,7 @@ START_TEST(vec_result)
     ck_assert_uint_eq(a->pixel, 7);
     ck_assert_uint_eq(a->samples, 15);
     ck_assert_uint_eq(a->nonfinite, 1);
+    ck_assert_uint_eq(a->rays, 83);
     expect_f64(a->sum[0], 3.0);
     expect_f64(a->sum[1], 0.5);
     expect_f64(a->sum[2], 0.125);
@@ -348,7 +349,8 @@ START_TEST(vec_result)
     ck_assert_uint_eq(b->pixel, 1000000);
     ck_assert_uint_eq(b->samples, 4096);
     ck_assert_uint_eq(b->nonfinite, 0);
-    expect_f64(b->sum[0], 5e-324); /* the smallest subnormal */
+    ck_assert_uint_eq(b->rays, UINT32_MAX); /* saturated */
+    expect_f64(b->sum[0], 5e-324);          /* the smallest subnormal */
     expect_f64(b->sum[1], 4096.0);
     expect_f64(b->sum[2], 0.0);
     expect_f64(b->lum_m2, 0.0);
@@ -400,7 +402,7 @@ static const struct {
     const char *msg; /* must appear in the error */
 } invalid_vectors[] = {
     {"bad_magic.hex", -1, "header: bad magic 0x50524257"},
-    {"wrong_version.hex", -2, "peer speaks protocol version 2, this build speaks 1"},
+    {"wrong_version.hex", -2, "peer speaks protocol version 1, this build speaks 2"},
     {"unknown_type.hex", -1, "unknown message type 12"},
     {"short_header.hex", -1, "header: 31 bytes"},
     {"size_mismatch.hex", -1, "payload_size 8 but the payload frame has 4 bytes"},
@@ -416,7 +418,7 @@ static const struct {
     {"task_inf_prior.hex", -1, "TASK: record 0: prior_sum[0] is infinite"},
     {"nan_in_record.hex", -1, "RESULT: record 1: pvar is NaN"},
     {"result_negative.hex", -1, "RESULT: record 0: sum[2] is negative"},
-    {"result_reserved.hex", -1, "RESULT: record 0: reserved field is 0x00000005"},
+    {"result_few_rays.hex", -1, "RESULT: record 0: rays 3 fewer than its 4 samples"},
     {"result_zero_samples.hex", -1, "RESULT: record 0: samples 0 + nonfinite 0 out of range"},
     {"duplicate_mesh_name.hex", -1, "mesh 1: duplicate name \"quad.obj\""},
     {"name_with_slash.hex", -1, "mesh 0: name contains '/'"},
@@ -683,6 +685,7 @@ START_TEST(rt_result_edges)
             recs[i].sum[c] = vals[(i + (uint32_t)c) % 5];
         recs[i].lum_m2 = vals[(i + 3) % 5];
         recs[i].pvar = vals[(i + 4) % 5];
+        recs[i].rays = i % 2 ? UINT32_MAX - i : recs[i].samples + recs[i].nonfinite;
     }
     m->u.result.records = recs;
     m->u.result.count = n;
@@ -857,7 +860,7 @@ START_TEST(enc_rejects_task_result)
 
     memset(m, 0, sizeof *m);
     m->h.type = PROTO_RESULT;
-    tracer_result_t r = {1, 1, 0, 0, {0, 0, 0}, 0, 0};
+    tracer_result_t r = {1, 1, 0, 1, {0, 0, 0}, 0, 0};
     m->u.result.count = 1;
     expect_encode_fails(m, 256, "RESULT: records is NULL");
     m->u.result.records = &r;
@@ -882,12 +885,17 @@ START_TEST(enc_rejects_task_result)
     r.pvar = -0.5;
     expect_encode_fails(m, 256, "RESULT: record 0: pvar is negative");
     r.pvar = 0;
-    /* pad_ is not a protocol field: it goes out as 0 */
-    r.pad_ = 0xdeadbeef;
+    /* every sample traces at least its camera ray */
+    r.samples = 3;
+    r.nonfinite = 2;
+    r.rays = 4;
+    expect_encode_fails(m, 256, "RESULT: record 0: rays 4 fewer than its 5 samples");
+    r.rays = 0xdeadbeef;
     uint8_t hdr[PROTO_HEADER_SIZE], buf[80];
     char err[256];
     ck_assert_int_eq(proto_encode(m, hdr, buf, sizeof buf, err, sizeof err), 80);
-    ck_assert(buf[24 + 12] == 0 && buf[24 + 13] == 0 && buf[24 + 14] == 0 && buf[24 + 15] == 0);
+    ck_assert(buf[24 + 12] == 0xef && buf[24 + 13] == 0xbe && buf[24 + 14] == 0xad &&
+              buf[24 + 15] == 0xde);
     free(m);
 }
 END_TEST
@@ -1083,7 +1091,9 @@ START_TEST(random_frames)
         ck_assert_ptr_nonnull(p);
         for (size_t i = 0; i < sizeof h; i++)
             h[i] = (uint8_t)rnd(&s);
-        memcpy(h, "VBRP\x01\x00", 6);
+        memcpy(h, "VBRP", 4);
+        h[4] = PROTO_VERSION & 0xff;
+        h[5] = PROTO_VERSION >> 8;
         h[6] = (uint8_t)(rnd(&s) % 13);
         h[7] = 0;
         set_payload_size(h, (uint32_t)pn);
@@ -1133,14 +1143,14 @@ START_TEST(version_refusal)
     vec_t v = load_vec("hello.hex");
     char err[256];
     rx_t *r = rx_new(1);
-    const uint16_t versions[3] = {0, 2, 0xffff};
+    const uint16_t versions[3] = {0, PROTO_VERSION - 1, 0xffff};
     for (int i = 0; i < 3; i++) {
         v.h[4] = (uint8_t)versions[i];
         v.h[5] = (uint8_t)(versions[i] >> 8);
         ck_assert_int_eq(decode(r, 1, v.h, v.hn, v.p, v.pn, err, sizeof err), -2);
         char want[128];
-        snprintf(want, sizeof want, "peer speaks protocol version %u, this build speaks 1",
-                 (unsigned)versions[i]);
+        snprintf(want, sizeof want, "peer speaks protocol version %u, this build speaks %d",
+                 (unsigned)versions[i], PROTO_VERSION);
         ck_assert_str_eq(err, want);
     }
     /* a bad magic wins over the version: it is not our protocol at all */
@@ -1173,13 +1183,13 @@ START_TEST(build_id)
 {
     char id[PROTO_BUILD_SIZE + 1], want[64];
 #if defined(__clang__)
-    snprintf(want, sizeof want, "vbrender-p1-t%d-avx2-clang%d.%d", TRACER_VERSION, __clang_major__,
-             __clang_minor__);
+    snprintf(want, sizeof want, "vbrender-p%d-t%d-avx2-clang%d.%d", PROTO_VERSION, TRACER_VERSION,
+             __clang_major__, __clang_minor__);
 #elif defined(__GNUC__)
-    snprintf(want, sizeof want, "vbrender-p1-t%d-avx2-gcc%d.%d", TRACER_VERSION, __GNUC__,
-             __GNUC_MINOR__);
+    snprintf(want, sizeof want, "vbrender-p%d-t%d-avx2-gcc%d.%d", PROTO_VERSION, TRACER_VERSION,
+             __GNUC__, __GNUC_MINOR__);
 #else
-    snprintf(want, sizeof want, "vbrender-p1-t%d-avx2-cc", TRACER_VERSION);
+    snprintf(want, sizeof want, "vbrender-p%d-t%d-avx2-cc", PROTO_VERSION, TRACER_VERSION);
 #endif
     proto_build_id("avx2", id);
     ck_assert_str_eq(id, want);
@@ -1187,13 +1197,14 @@ START_TEST(build_id)
     /* cut to 32, and always a valid HELLO build id */
     proto_build_id("a-very-long-isa-name-that-goes-on-and-on", id);
     ck_assert_uint_eq(strlen(id), PROTO_BUILD_SIZE);
-    snprintf(want, sizeof want, "vbrender-p1-t%d-a-very-long-isa-name", TRACER_VERSION);
+    snprintf(want, sizeof want, "vbrender-p%d-t%d-a-very-long-isa-name", PROTO_VERSION,
+             TRACER_VERSION);
     ck_assert(strncmp(id, want, PROTO_BUILD_SIZE) == 0);
     proto_build_id("sse\n4.2", id);
-    snprintf(want, sizeof want, "vbrender-p1-t%d-sse?4.2-", TRACER_VERSION);
+    snprintf(want, sizeof want, "vbrender-p%d-t%d-sse?4.2-", PROTO_VERSION, TRACER_VERSION);
     ck_assert(strncmp(id, want, strlen(want)) == 0);
     proto_build_id(NULL, id);
-    snprintf(want, sizeof want, "vbrender-p1-t%d-?-", TRACER_VERSION);
+    snprintf(want, sizeof want, "vbrender-p%d-t%d-?-", PROTO_VERSION, TRACER_VERSION);
     ck_assert(strncmp(id, want, strlen(want)) == 0);
 
     proto_msg_t *m = msg_new(PROTO_HELLO);

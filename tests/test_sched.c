@@ -20,6 +20,7 @@ static void fake_results(const sched_task_t *t, tracer_result_t *r, const double
         memset(&r[i], 0, sizeof r[i]);
         r[i].pixel = k->pixel;
         r[i].samples = k->sample_count;
+        r[i].rays = k->sample_count * (1 + k->pixel % 3);
         for (int c = 0; c < 3; c++)
             r[i].sum[c] = 0.25 * k->sample_count * (c + 1) + 1e-3 * k->prior_sum[c] +
                           1e-6 * (double)k->prior_count + 1e-4 * k->pixel +
@@ -147,6 +148,11 @@ START_TEST(test_dependencies_and_priors)
     fake_results(&a, r, NULL);
     r[1].samples = 1;
     ck_assert_int_eq(sched_complete(s, a.id, r, a.count, err, sizeof err), SCHED_BAD_RESULT);
+    /* every sample traces at least its camera ray */
+    fake_results(&a, r, NULL);
+    r[1].rays = a.records[1].sample_count - 1;
+    ck_assert_int_eq(sched_complete(s, a.id, r, a.count, err, sizeof err), SCHED_BAD_RESULT);
+    ck_assert_msg(strstr(err, "rays for") != NULL, "%s", err);
     ck_assert_uint_eq(sched_film(s)->pixels[a.records[0].pixel].count, 0);
     /* requeue gives the same task back first */
     ck_assert_int_eq(sched_requeue(s, a.id), 0);
@@ -259,7 +265,16 @@ END_TEST
 /* Results whose layer means are given per pixel by lum(pixel, layer). */
 typedef double (*lum_fn)(uint32_t pixel, uint32_t layer);
 
-static void run_all(sched_t *s, lum_fn f, uint32_t g)
+/* Rays a sample of a pixel traces. */
+typedef uint32_t (*cost_fn)(uint32_t pixel);
+
+static uint32_t one_ray(uint32_t pixel)
+{
+    (void)pixel;
+    return 1;
+}
+
+static void run_all_costing(sched_t *s, lum_fn f, uint32_t g, cost_fn cost)
 {
     sched_task_t t;
     tracer_result_t r[64];
@@ -271,6 +286,7 @@ static void run_all(sched_t *s, lum_fn f, uint32_t g)
             memset(&r[i], 0, sizeof r[i]);
             r[i].pixel = t.records[i].pixel;
             r[i].samples = t.records[i].sample_count;
+            r[i].rays = r[i].samples * cost(r[i].pixel);
             double l = f(r[i].pixel, t.layer) * r[i].samples;
             r[i].sum[0] = r[i].sum[1] = r[i].sum[2] = l; /* luminance of (l,l,l) is l */
             r[i].lum_m2 = 0.01 * g;
@@ -278,6 +294,11 @@ static void run_all(sched_t *s, lum_fn f, uint32_t g)
         }
         ck_assert_msg(sched_complete(s, t.id, r, t.count, err, sizeof err) == 0, "%s", err);
     }
+}
+
+static void run_all(sched_t *s, lum_fn f, uint32_t g)
+{
+    run_all_costing(s, f, g, one_ray);
 }
 
 /* pixels 0-7 steady, pixels 8-15 jump between layers */
@@ -419,39 +440,72 @@ static double two_noise_levels(uint32_t p, uint32_t layer)
     return 0.5 + (layer % 2 ? a : -a);
 }
 
+/* Layers pixel a took over those pixel b took, in a 16 x 1 image run with
+ * 4 uniform layers and then 396 adaptive ones (an explicit flag sequence:
+ * the default's uniform layer in every SCHED_UNIFORM_EVERY would cap the
+ * ratios the tests below look for). */
+static double layer_ratio(sched_adaptive_t mode, lum_fn f, cost_fn cost, uint32_t a, uint32_t b)
+{
+    char err[256], flags[401];
+    memset(flags, '1', 400);
+    memset(flags, '0', 4);
+    flags[400] = '\0';
+    sched_config_t c = {.width = 16,
+                        .height = 1,
+                        .spp = 4 * 400,
+                        .granularity = 4,
+                        .adaptive = mode,
+                        .uniform_layers = UINT32_MAX,
+                        .flags = flags,
+                        .range_pixels = 4};
+    sched_t *s = sched_new(&c, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    run_all_costing(s, f, 4, cost);
+    const film_t *film = sched_film(s);
+    double ratio = (double)film->pixels[a].count / (double)film->pixels[b].count;
+    sched_destroy(&s);
+    return ratio;
+}
+
 /* What each mode balances shows in how it shares layers between pixels whose
  * relative variance differs 16-fold: relerr equalises the relative error
  * (layers in proportion to the variance, about 16:1), relmse the relMSE one
  * more layer takes off (in proportion to its square root, 4:1), which is
- * what minimises the image's relMSE for the samples spent. An explicit flag
- * sequence (4 uniform layers, then all adaptive): the default's uniform
- * layer in every SCHED_UNIFORM_EVERY would cap the ratio at 4. */
+ * what minimises the image's relMSE for the samples spent. */
 START_TEST(test_relmse_balances_sqrt_variance)
 {
-    char err[256];
-    double ratio[2];
-    char flags[401];
-    memset(flags, '1', 400);
-    memset(flags, '0', 4);
-    flags[400] = '\0';
-    for (int k = 0; k < 2; k++) {
-        sched_config_t c = {.width = 16,
-                            .height = 1,
-                            .spp = 4 * 400,
-                            .granularity = 4,
-                            .adaptive = k ? SCHED_ADAPTIVE_RELMSE : SCHED_ADAPTIVE_RELERR,
-                            .uniform_layers = UINT32_MAX,
-                            .flags = flags,
-                            .range_pixels = 4};
-        sched_t *s = sched_new(&c, err, sizeof err);
-        ck_assert_msg(s != NULL, "%s", err);
-        run_all(s, two_noise_levels, 4);
-        const film_t *f = sched_film(s);
-        ratio[k] = (double)f->pixels[12].count / (double)f->pixels[3].count;
-        sched_destroy(&s);
-    }
-    ck_assert_msg(ratio[1] > 3 && ratio[1] < 5.5, "relmse: layers noisy / quiet %g", ratio[1]);
-    ck_assert_msg(ratio[0] > 9, "relerr: layers noisy / quiet %g", ratio[0]);
+    double relmse = layer_ratio(SCHED_ADAPTIVE_RELMSE, two_noise_levels, one_ray, 12, 3),
+           relerr = layer_ratio(SCHED_ADAPTIVE_RELERR, two_noise_levels, one_ray, 12, 3);
+    ck_assert_msg(relmse > 3 && relmse < 5.5, "relmse: layers noisy / quiet %g", relmse);
+    ck_assert_msg(relerr > 9, "relerr: layers noisy / quiet %g", relerr);
+}
+END_TEST
+
+/* every pixel swings +-0.2 about 0.5 layer to layer */
+static double one_noise_level(uint32_t p, uint32_t layer)
+{
+    (void)p;
+    return 0.5 + (layer % 2 ? 0.2 : -0.2);
+}
+
+/* pixels 8-15 trace four rays a sample, pixels 0-7 one */
+static uint32_t right_half_costs_four(uint32_t pixel)
+{
+    return pixel < 8 ? 1 : 4;
+}
+
+/* relmse weighs a layer's gain against its cost: with the same variance
+ * everywhere, pixels whose samples trace 4x the rays get layers in
+ * proportion to sqrt(1/4), half as many (n ~ sqrt(v / c) minimises the
+ * image's relMSE for the rays spent); with equal costs the same pixels get
+ * equal layers, so the difference is the cost's alone. */
+START_TEST(test_relmse_weighs_cost)
+{
+    double equal = layer_ratio(SCHED_ADAPTIVE_RELMSE, one_noise_level, one_ray, 3, 12),
+           costly =
+               layer_ratio(SCHED_ADAPTIVE_RELMSE, one_noise_level, right_half_costs_four, 3, 12);
+    ck_assert_msg(equal > 0.9 && equal < 1.1, "equal costs: layers 3 / 12 %g", equal);
+    ck_assert_msg(costly > 1.7 && costly < 2.4, "4x cost: layers cheap / costly %g", costly);
 }
 END_TEST
 
@@ -487,6 +541,7 @@ START_TEST(test_first_sample_counts_taken_layers)
             memset(&r[i], 0, sizeof r[i]);
             r[i].pixel = k->pixel;
             r[i].samples = k->sample_count;
+            r[i].rays = k->sample_count;
             double l = two_noise_levels(k->pixel, t.layer) * r[i].samples;
             r[i].sum[0] = r[i].sum[1] = r[i].sum[2] = l;
             r[i].lum_m2 = 0.01 * c.granularity;
@@ -914,6 +969,7 @@ START_TEST(test_many_layers_new_is_cheap)
             memset(&r, 0, sizeof r);
             r.pixel = 0;
             r.samples = 32;
+            r.rays = 32;
             r.sum[0] = r.sum[1] = r.sum[2] = 16.0 + 0.5 * (l % 2);
             r.lum_m2 = 1.0;
             r.pvar = 1.0;
@@ -960,6 +1016,15 @@ static int mem_read(void *ctx, void *data, size_t len)
     return 0;
 }
 
+/* A copy of a saved job to edit. */
+static membuf_t copy_of(const membuf_t *b)
+{
+    membuf_t m = {malloc(b->len), b->len, b->len, 0};
+    ck_assert_ptr_nonnull(m.data);
+    memcpy(m.data, b->data, b->len);
+    return m;
+}
+
 static membuf_t save_mem(const sched_t *s)
 {
     membuf_t b = {0};
@@ -991,6 +1056,7 @@ static void hashed_results(const sched_task_t *t, tracer_result_t *r)
         r[i].pixel = k->pixel;
         r[i].nonfinite = k->sample_count > 1 && v < 0.05;
         r[i].samples = k->sample_count - r[i].nonfinite;
+        r[i].rays = k->sample_count * (1 + (uint32_t)(4 * u)); /* 1-4 a sample, hashed */
         for (int c = 0; c < 3; c++)
             r[i].sum[c] = mean * r[i].samples * (1.0 + 0.1 * c) + 1e-9 * k->prior_sum[c] +
                           1e-12 * (double)k->prior_count;
@@ -1179,8 +1245,7 @@ static void expect_refused(const sched_config_t *c, const membuf_t *b, size_t of
                            const char *want)
 {
     char err[256] = "";
-    membuf_t m = {malloc(b->len), b->len, b->len, 0};
-    memcpy(m.data, b->data, b->len);
+    membuf_t m = copy_of(b);
     m.data[off] = v;
     sched_t *s = load_mem(c, &m, m.len, err, sizeof err);
     ck_assert_msg(s == NULL, "byte %zu set to %u was accepted (want: %s)", off, v, want);
@@ -1296,6 +1361,37 @@ START_TEST(test_checkpoint_refuses_garbage)
 }
 END_TEST
 
+/* A job of config c saved after 60 events of the simulated workers (and
+ * shown to load as it is). */
+static membuf_t saved_midway(const sched_config_t *c)
+{
+    char err[256];
+    sim_t a = {.workers = 5, .seed = 3};
+    a.s = sched_new(c, err, sizeof err);
+    for (int i = 0; i < 60; i++)
+        ck_assert(sim_step(&a));
+    membuf_t b = save_mem(a.s);
+    sched_destroy(&a.s);
+    sched_t *s = load_mem(c, &b, b.len, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    sched_destroy(&s);
+    return b;
+}
+
+/* m, an edited copy of a saved job, with the stream's checksum made right
+ * again so that only the checks can refuse it: the load refuses it, with a
+ * message naming want. Frees m. */
+static void expect_load_refused(const sched_config_t *c, membuf_t *m, const char *what,
+                                const char *want)
+{
+    char err[256] = "";
+    fuzz_fix_sched_checksum(m->data, m->len);
+    sched_t *s = load_mem(c, m, m->len, err, sizeof err);
+    ck_assert_msg(s == NULL, "%s was accepted", what);
+    ck_assert_msg(strstr(err, want) != NULL, "%s", err);
+    free(m->data);
+}
+
 /* Found by tests/fuzz_ckpt.c: streams whose batch statistics no run can
  * make loaded, checksum and all: a negative M2 (the sum of squared
  * deviations of a pixel's layer means), a mean of -8e306, a mean of 5e6
@@ -1306,9 +1402,8 @@ END_TEST
 static void expect_batch_refused(const sched_config_t *c, const membuf_t *b, const char *tag,
                                  double v)
 {
-    char err[256] = "";
-    membuf_t m = {malloc(b->len), b->len, b->len, 0};
-    memcpy(m.data, b->data, b->len);
+    char what[128];
+    membuf_t m = copy_of(b);
     size_t n, p = 0;
     double x;
     /* the uniform layers' statistics (relerr, relmse) or all layers' */
@@ -1323,26 +1418,14 @@ static void expect_batch_refused(const sched_config_t *c, const membuf_t *b, con
     } else {
         memcpy(sec + p * sizeof v, &v, sizeof v);
     }
-    /* the stream's checksum made right again: only the checks can refuse it */
-    fuzz_fix_sched_checksum(m.data, m.len);
-    sched_t *s = load_mem(c, &m, m.len, err, sizeof err);
-    ck_assert_msg(s == NULL, "%s %g at pixel %zu was accepted", tag, v, p);
-    ck_assert_msg(strstr(err, "batch") != NULL, "%s", err);
-    free(m.data);
+    snprintf(what, sizeof what, "%s %g at pixel %zu", tag, v, p);
+    expect_load_refused(c, &m, what, "batch");
 }
 
 START_TEST(test_checkpoint_refuses_impossible_batches)
 {
-    char err[256];
     sched_config_t c = ckpt_cases[4].cfg; /* relerr with a target */
-    sim_t a = {.workers = 5, .seed = 3};
-    a.s = sched_new(&c, err, sizeof err);
-    for (int i = 0; i < 60; i++)
-        ck_assert(sim_step(&a));
-    membuf_t b = save_mem(a.s);
-    sched_t *s = load_mem(&c, &b, b.len, err, sizeof err);
-    ck_assert_msg(s != NULL, "%s", err);
-    sched_destroy(&s);
+    membuf_t b = saved_midway(&c);
     expect_batch_refused(&c, &b, "bm2", -0.25);
     expect_batch_refused(&c, &b, "bmean", -8.13636e306);
     expect_batch_refused(&c, &b, "bmean", 1e300);
@@ -1353,7 +1436,44 @@ START_TEST(test_checkpoint_refuses_impossible_batches)
     expect_batch_refused(&c, &b, "ubat", 1);
     expect_batch_refused(&c, &b, "ubat", 1000); /* more uniform layers than layers */
     free(b.data);
-    sched_destroy(&a.s);
+}
+END_TEST
+
+/* relmse's cost sections of a saved job, one value at a pixel that has
+ * uniform-layer samples changed: the load refuses it, naming the rays. */
+static void expect_cost_refused(const sched_config_t *c, const membuf_t *b, const char *tag,
+                                double v)
+{
+    membuf_t m = copy_of(b);
+    size_t n, p = 0;
+    uint64_t taken = 0;
+    for (const uint8_t *usamp = find_section(&m, "usamp", &n); taken == 0; p++)
+        memcpy(&taken, usamp + p * sizeof taken, sizeof taken);
+    p--; /* the first pixel with uniform-layer samples */
+    uint8_t *sec = find_section(&m, tag, &n);
+    if (strcmp(tag, "cost") == 0) {
+        float f = (float)v;
+        memcpy(sec + p * sizeof f, &f, sizeof f);
+    } else {
+        uint64_t k = v < 0 ? taken - 1 : (uint64_t)v; /* -1: one ray short of the samples */
+        memcpy(sec + p * sizeof k, &k, sizeof k);
+    }
+    char what[128];
+    snprintf(what, sizeof what, "%s %g at pixel %zu", tag, v, p);
+    expect_load_refused(c, &m, what, "rays");
+}
+
+START_TEST(test_checkpoint_refuses_impossible_costs)
+{
+    sched_config_t c = ckpt_cases[8].cfg; /* relmse */
+    ck_assert_int_eq(c.adaptive, SCHED_ADAPTIVE_RELMSE);
+    membuf_t b = saved_midway(&c);
+    expect_cost_refused(&c, &b, "urays", -1);  /* fewer rays than samples */
+    expect_cost_refused(&c, &b, "urays", 0);   /* samples but no rays */
+    expect_cost_refused(&c, &b, "usamp", 1e6); /* more samples than merged */
+    expect_cost_refused(&c, &b, "cost", 0.5);  /* under a ray a sample */
+    expect_cost_refused(&c, &b, "cost", NAN);
+    free(b.data);
 }
 END_TEST
 
@@ -1369,6 +1489,7 @@ int main(void)
     tcase_add_test(tc, test_target_window_excludes_self);
     tcase_add_test(tc, test_relerr_and_variance_modes);
     tcase_add_test(tc, test_relmse_balances_sqrt_variance);
+    tcase_add_test(tc, test_relmse_weighs_cost);
     tcase_add_test(tc, test_first_sample_counts_taken_layers);
     tcase_add_test(tc, test_adaptive_unbiased);
     tcase_add_test(tc, test_target_unbiased);
@@ -1383,6 +1504,7 @@ int main(void)
                         (int)(sizeof ckpt_cases / sizeof ckpt_cases[0]));
     tcase_add_test(tc, test_checkpoint_refuses_garbage);
     tcase_add_test(tc, test_checkpoint_refuses_impossible_batches);
+    tcase_add_test(tc, test_checkpoint_refuses_impossible_costs);
     suite_add_tcase(s, tc);
     SRunner *sr = srunner_create(s);
     srunner_run_all(sr, CK_NORMAL);

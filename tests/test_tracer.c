@@ -766,6 +766,13 @@ START_TEST(test_tasks_independent_of_batching)
     ck_assert(tracer_trace(t, &st, tasks, 8, batch, &stats, err, sizeof err) == 0);
     ck_assert_uint_eq(stats.samples, 8 * 32);
     ck_assert(stats.rays >= stats.samples);
+    /* each record's rays are its samples' own: they add up to the call's */
+    uint64_t record_rays = 0;
+    for (int i = 0; i < 8; i++) {
+        ck_assert_uint_ge(batch[i].rays, 32);
+        record_rays += batch[i].rays;
+    }
+    ck_assert_uint_eq(record_rays, stats.rays);
     for (int i = 7; i >= 0; i--) {
         ck_assert(tracer_trace(t, &st, &tasks[i], 1, &single, NULL, err, sizeof err) == 0);
         ck_assert_msg(memcmp(&single, &batch[i], sizeof single) == 0, "task %d differs", i);
@@ -807,9 +814,10 @@ START_TEST(test_pvar_matches_definition)
     ck_assert(tracer_trace(t, &st, &task, 1, &r, NULL, err, sizeof err) == 0);
     double lum_prior = vmath_luminance(4.0, 3.0, 2.0), run = lum_prior, P[32];
     double sum[3] = {0, 0, 0};
+    uint64_t rays = 0;
     for (int i = 0; i < 32; i++) {
         float rgb[3];
-        tracer_sample(t, &st, 120, 32 + (uint64_t)i, rgb);
+        rays += tracer_sample(t, &st, 120, 32 + (uint64_t)i, rgb);
         for (int c = 0; c < 3; c++)
             sum[c] += rgb[c];
         run += vmath_luminance(rgb[0], rgb[1], rgb[2]);
@@ -822,6 +830,8 @@ START_TEST(test_pvar_matches_definition)
                   pvar);
     for (int c = 0; c < 3; c++)
         ck_assert(fabs(r.sum[c] - sum[c]) <= 1e-12 * (fabs(sum[c]) + 1));
+    ck_assert_uint_eq(r.rays, rays); /* what relmse weighs a pixel's samples by */
+    ck_assert_uint_gt(rays, 32);     /* the Cornell box: bounces and shadow rays too */
     tracer_destroy(&t);
     tracer_device_destroy(&dev);
     scene_destroy(&s);

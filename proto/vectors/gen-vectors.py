@@ -57,7 +57,7 @@ class Frame:
         return out
 
 
-def header(type_, job=0, task=0, attempt=0, payload_size=0, magic=MAGIC, version=1):
+def header(type_, job=0, task=0, attempt=0, payload_size=0, magic=MAGIC, version=2):
     h = Frame()
     h.add("I", magic, "magic", "0x%08x" % magic + (' "VBRP"' if magic == MAGIC else ""))
     h.add("H", version, "version")
@@ -178,11 +178,11 @@ def result(rays, busy, records, count=None, reserved=0):
     p.add("I", reserved, "reserved")
     for i, rec in enumerate(records):
         pixel, samples, nonfinite, sums, m2, pvar = rec[:6]
-        rsv = rec[6] if len(rec) > 6 else 0
+        rays = rec[6] if len(rec) > 6 else samples + nonfinite  # the fewest rays valid
         p.add("I", pixel, "record[%d].pixel" % i)
         p.add("I", samples, "record[%d].samples" % i)
         p.add("I", nonfinite, "record[%d].nonfinite" % i)
-        p.add("I", rsv, "record[%d].reserved" % i)
+        p.add("I", rays, "record[%d].rays" % i)
         for c in range(3):
             p.add("d", sums[c], "record[%d].sum[%d]" % (i, c), fhex(sums[c]))
         p.add("d", m2, "record[%d].lum_m2" % i, fhex(m2))
@@ -209,8 +209,8 @@ TASK_RECORDS = [
     (1000000, 4096, 1 << 32, 3, (0.1, 2.0, 1e300)),
 ]
 RESULT_RECORDS = [
-    (7, 15, 1, (3.0, 0.5, 0.125), 0.75, 0.01),
-    (1000000, 4096, 0, (5e-324, 4096.0, 0.0), 0.0, 0.0),
+    (7, 15, 1, (3.0, 0.5, 0.125), 0.75, 0.01, 83),
+    (1000000, 4096, 0, (5e-324, 4096.0, 0.0), 0.0, 0.0, 0xFFFFFFFF),
 ]
 BUNDLE_JSON = b'{"meshes":["quad.obj"]}'
 BUNDLE_MESHES = [(b"quad.obj", b"v 0 0 0\n"), (b"empty.ply", b"")]
@@ -220,9 +220,9 @@ def main():
     os.makedirs(os.path.join(VEC, "invalid"), exist_ok=True)
     os.makedirs(FUZZ, exist_ok=True)
 
-    valid("hello", "HELLO", hello(16, b"vbrender-p1-avx2-gcc12.2"), ["A worker with 16 threads."])
+    valid("hello", "HELLO", hello(16, b"vbrender-p2-t2-avx2-gcc12.2"), ["A worker with 16 threads."])
     valid("welcome", "WELCOME", welcome(1000, 30000), ["Heartbeat every second, 30 s lease."])
-    valid("refuse", "REFUSE", text(b"build differs: vbrender-p1-sse4.2-gcc12.2"),
+    valid("refuse", "REFUSE", text(b"build differs: vbrender-p2-t2-sse4.2-gcc12.2"),
           ["The master refuses a worker of another build."])
     valid("credit", "CREDIT", credit(8), ["The worker can take 8 more tasks."])
     valid("scene_request", "SCENE_REQUEST", Frame().raw(HASH_A, "hash[32]", HASH_A.hex()),
@@ -234,7 +234,8 @@ def main():
            "first_sample 2^32 (crosses 32 bits) and prior_sum[2] = 1e300."],
           JOB, TASK_ID, ATTEMPT)
     valid("result", "RESULT", result(123456789012, 250000, RESULT_RECORDS),
-          ["The answer to task.hex (same job, task, attempt); record 1 has a subnormal sum[0]."],
+          ["The answer to task.hex (same job, task, attempt); record 1 has a subnormal sum[0]",
+           "and its rays saturated at 2^32 - 1."],
           JOB, TASK_ID, ATTEMPT)
     valid("heartbeat", "HEARTBEAT", Frame(), ["Empty payload."])
     valid("bye", "BYE", text(b"worker shutting down"), ["A worker leaving."])
@@ -244,8 +245,8 @@ def main():
     # ---- invalid ----
     invalid("bad_magic", Frame(), ["HEARTBEAT with magic 0x50524257 ('W' for 'V')."],
             h=header(9, magic=0x50524257))
-    invalid("wrong_version", Frame(), ["HEARTBEAT from a version 2 peer: decode returns -2."],
-            h=header(9, version=2))
+    invalid("wrong_version", Frame(), ["HEARTBEAT from a version 1 peer: decode returns -2."],
+            h=header(9, version=1))
     invalid("unknown_type", Frame(), ["Message type 12 does not exist."], h=header(12))
     sh = header(9)
     sh.fields[-1] = (28, b"\0\0\0", "payload_size (cut short)", "3 of 4 bytes")
@@ -278,8 +279,8 @@ def main():
             "RESULT")
     invalid("result_negative", result(1, 1, [(8, 1, 0, (0.0, 0.0, -1.0), 0.0, 0.0)]),
             ["RESULT whose record 0 has sum[2] = -1."], "RESULT")
-    invalid("result_reserved", result(1, 1, [(8, 1, 0, (0.0, 0.0, 0.0), 0.0, 0.0, 5)]),
-            ["RESULT whose record 0 has its reserved field set."], "RESULT")
+    invalid("result_few_rays", result(1, 1, [(8, 3, 1, (0.0, 0.0, 0.0), 0.0, 0.0, 3)]),
+            ["RESULT whose record 0 has 3 rays for 4 samples (each traces at least one)."], "RESULT")
     invalid("result_zero_samples", result(1, 1, [(8, 0, 0, (0.0, 0.0, 0.0), 0.0, 0.0)]),
             ["RESULT record with samples 0 and nonfinite 0."], "RESULT")
     invalid("duplicate_mesh_name",
