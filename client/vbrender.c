@@ -461,7 +461,7 @@ static int write_outputs(image_t *img, const cJSON *job, const char *out_exr, ch
         char path[4096];
         replace_extension(out_exr, ".error.json", path, sizeof path);
         cJSON *doc = cJSON_CreateObject();
-        cJSON_AddStringToObject(doc, "columns", "seconds samples relmse rmse");
+        cJSON_AddStringToObject(doc, "columns", "seconds samples relmse rmse rays");
         cJSON_AddItemToObject(doc, "series", cJSON_Duplicate(series, 1));
         cJSON_AddItemToObject(doc, "job", cJSON_Duplicate(job, 1));
         cJSON_DeleteItemFromObject(cJSON_GetObjectItemCaseSensitive(doc, "job"), "error_series");

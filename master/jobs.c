@@ -144,17 +144,18 @@ void job_eval_error(job_t *j, double now)
                    JOB_EVAL_THRESHOLD, &r);
     if (j->series_n == j->series_cap) {
         size_t cap = j->series_cap ? 2 * j->series_cap : 64;
-        double *ns = realloc(j->series, cap * 4 * sizeof(double));
+        double *ns = realloc(j->series, cap * JOB_SERIES_COLUMNS * sizeof(double));
         if (!ns)
             return;
         j->series = ns;
         j->series_cap = cap;
     }
-    double *pt = j->series + 4 * j->series_n++;
+    double *pt = j->series + JOB_SERIES_COLUMNS * j->series_n++;
     pt[0] = job_seconds(j, now);
     pt[1] = (double)sched_samples_done(j->sched);
     pt[2] = r.relmse;
     pt[3] = r.rmse;
+    pt[4] = (double)j->rays;
     j->last_eval = now;
     j->last_eval_layers = sched_layers_complete(j->sched);
 }
@@ -347,14 +348,15 @@ static void error_json(const job_t *j, cJSON *o, int with_series)
         cJSON_AddBoolToObject(o, "stopped_on_target", sched_stopped_on_target(j->sched));
     }
     if (j->series_n > 0) {
-        const double *last = j->series + 4 * (j->series_n - 1);
+        const double *last = j->series + JOB_SERIES_COLUMNS * (j->series_n - 1);
         cJSON_AddNumberToObject(o, "relmse", last[2]);
         cJSON_AddNumberToObject(o, "rmse", last[3]);
     }
     if (with_series && j->series_n > 0) {
         cJSON *arr = cJSON_AddArrayToObject(o, "error_series");
         for (size_t i = 0; i < j->series_n; i++)
-            cJSON_AddItemToArray(arr, cJSON_CreateDoubleArray(j->series + 4 * i, 4));
+            cJSON_AddItemToArray(arr, cJSON_CreateDoubleArray(j->series + JOB_SERIES_COLUMNS * i,
+                                                              JOB_SERIES_COLUMNS));
     }
 }
 

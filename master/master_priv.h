@@ -86,6 +86,9 @@ typedef enum {
 } send_status_t;
 
 /* A connected worker, as the master sees it. */
+/* Columns of a point of a job's error series (job_t.series). */
+#define JOB_SERIES_COLUMNS 5
+
 typedef struct peer {
     uint8_t id[MASTER_MAX_IDENTITY];
     size_t id_len;
@@ -141,7 +144,8 @@ typedef struct job {
     int stopped_issuing; /* time limit reached: no new tasks */
     /* error against a reference (--reference), over time and samples */
     float *ref[3], *cur[3];
-    double *series; /* 4 per point: seconds, samples, relMSE, RMSE */
+    double *series; /* JOB_SERIES_COLUMNS per point: seconds, samples, relMSE, RMSE,
+                       rays (what the samples cost, for equal-cost comparisons) */
     size_t series_n, series_cap;
     double last_eval;
     uint32_t last_eval_layers;

@@ -111,7 +111,8 @@ static char *extras_json(const job_t *j, double now)
     if (j->series_n) {
         cJSON *arr = cJSON_AddArrayToObject(o, "series");
         for (size_t i = 0; i < j->series_n; i++)
-            cJSON_AddItemToArray(arr, cJSON_CreateDoubleArray(j->series + 4 * i, 4));
+            cJSON_AddItemToArray(arr, cJSON_CreateDoubleArray(j->series + JOB_SERIES_COLUMNS * i,
+                                                              JOB_SERIES_COLUMNS));
     }
     char *text = cJSON_PrintUnformatted(o);
     cJSON_Delete(o);
@@ -149,14 +150,17 @@ void persist_apply_extras(job_t *j, const cJSON *o)
     }
     const cJSON *series = cJSON_GetObjectItemCaseSensitive(o, "series");
     int n = cJSON_IsArray(series) ? cJSON_GetArraySize(series) : 0;
-    if (n > 0 && (j->series = calloc((size_t)n * 4, sizeof(double))) != NULL) {
+    if (n > 0 && (j->series = calloc((size_t)n * JOB_SERIES_COLUMNS, sizeof(double))) != NULL) {
         j->series_cap = (size_t)n;
         for (const cJSON *pt = series->child; pt; pt = pt->next) {
-            if (cJSON_GetArraySize(pt) != 4)
+            /* 4 columns: saved before the rays were kept, which stay 0 */
+            const int cols = cJSON_GetArraySize(pt);
+            if (cols != JOB_SERIES_COLUMNS && cols != 4)
                 continue;
-            for (int k = 0; k < 4; k++) {
+            for (int k = 0; k < cols; k++) {
                 const cJSON *v = cJSON_GetArrayItem(pt, k);
-                j->series[4 * j->series_n + (size_t)k] = cJSON_IsNumber(v) ? v->valuedouble : 0;
+                j->series[JOB_SERIES_COLUMNS * j->series_n + (size_t)k] =
+                    cJSON_IsNumber(v) ? v->valuedouble : 0;
             }
             j->series_n++;
         }

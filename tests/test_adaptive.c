@@ -74,12 +74,24 @@ START_TEST(test_reference_series)
     double rel0 = cJSON_GetArrayItem(first, 2)->valuedouble,
            rel1 = cJSON_GetArrayItem(last, 2)->valuedouble;
     ck_assert_msg(rel1 < rel0, "relMSE did not fall: %g -> %g", rel0, rel1);
-    /* samples and seconds never go backwards */
-    for (int i = 1; i < n; i++) {
-        const cJSON *a = cJSON_GetArrayItem(series, i - 1), *b = cJSON_GetArrayItem(series, i);
-        ck_assert(cJSON_GetArrayItem(b, 0)->valuedouble >= cJSON_GetArrayItem(a, 0)->valuedouble);
-        ck_assert(cJSON_GetArrayItem(b, 1)->valuedouble >= cJSON_GetArrayItem(a, 1)->valuedouble);
+    ck_assert_str_eq(cJSON_GetObjectItem(doc, "columns")->valuestring,
+                     "seconds samples relmse rmse rays");
+    /* samples, seconds and rays never go backwards; every sample traces a
+     * ray at least */
+    for (int i = 0; i < n; i++) {
+        const cJSON *b = cJSON_GetArrayItem(series, i);
+        ck_assert_int_eq(cJSON_GetArraySize(b), 5);
+        ck_assert(cJSON_GetArrayItem(b, 4)->valuedouble >= cJSON_GetArrayItem(b, 1)->valuedouble);
+        if (i == 0)
+            continue;
+        const cJSON *a = cJSON_GetArrayItem(series, i - 1);
+        for (int k = 0; k < 5; k += k == 1 ? 3 : 1) /* seconds, samples, rays */
+            ck_assert(cJSON_GetArrayItem(b, k)->valuedouble >=
+                      cJSON_GetArrayItem(a, k)->valuedouble);
     }
+    /* the last point's rays are the job's */
+    ck_assert_double_eq(cJSON_GetArrayItem(last, 4)->valuedouble,
+                        cJSON_GetObjectItem(cJSON_GetObjectItem(doc, "job"), "rays")->valuedouble);
     /* the last point is the final image's error, as `compare` measures it */
     char cmd[4096];
     snprintf(cmd, sizeof cmd, "'%s' compare '%s' '%s'", tu_bin(), img, ref);

@@ -15,6 +15,10 @@ study's scenes), with the study's settings, references and timing guard
   seeds at each time before the ratio is taken), the figure the "never
   loses more than 5 %" rule is judged on, since a single run's ratio is
   mostly its fireflies.
+- the same at equal rays traced instead of equal time: deterministic, so
+  free of this host's speed swings (up to 35 % between identical runs),
+  though blind to what a ray costs where it goes and to the pipeline's idle
+  time.
 
 Writes bench/results/adaptive-repeat.json, prints a table and writes it to
 bench/RESULTS.md (between its bench:adaptive-repeat markers). Runs last in
@@ -62,10 +66,36 @@ def run(name, scene, ref, meta, seed, mode):
     return s
 
 
-def mean_curve(runs, grid):
-    """relMSE averaged over the runs at each time of grid (log-log interpolation)."""
-    ys = [[S.interp_loglog(r["t"], r["relmse"], t) for t in grid] for r in runs]
+def along(r, x):
+    """Run r's x axis ("t" seconds or "rays" traced) and relMSE, x strictly increasing."""
+    xs, ys = r[x], r["relmse"]
+    keep = np.concatenate([[True], np.diff(xs) > 0]) & np.isfinite(xs) & (xs > 0)
+    return xs[keep], ys[keep]
+
+
+def mean_curve(runs, grid, x="t"):
+    """relMSE averaged over the runs at each point of grid on axis x (log-log interpolation)."""
+    ys = [[S.interp_loglog(*along(r, x), q) for q in grid] for r in runs]
     return np.array([np.mean(col) if all(v is not None for v in col) else np.nan for col in zip(*ys)])
+
+
+def equal_rays(u, a, ul):
+    """Run a against uniform run u at equal rays traced, which the host's speed does not move:
+    the ratio at the smaller total, and the worst after a's uniform layers (40 points, log)."""
+    xa, ya = along(a, "rays")
+    xu, yu = along(u, "rays")
+    if len(xa) < 2 or len(xu) < 2:
+        return None, None
+    end = float(min(xa[-1], xu[-1]))
+    final = S.interp_loglog(xa, ya, end) / S.interp_loglog(xu, yu, end)
+    after = np.nonzero(a["n"] >= ul)[0]
+    start = float(a["rays"][after[0]]) if len(after) else end
+    worst = None
+    for q in np.geomspace(start, end, 40) if start < end else [end]:
+        ra, ru = S.interp_loglog(xa, ya, q), S.interp_loglog(xu, yu, q)
+        if ra is not None and ru is not None and (worst is None or ra / ru > worst):
+            worst = ra / ru
+    return final, worst
 
 
 def table(R):
@@ -75,19 +105,30 @@ def table(R):
             f"max {c['adaptive_spp']} spp, {c['adaptive_uniform_layers']} uniform layers, the study's references); "
             "per run, one figure per seed: at equal samples and at equal time at the shorter run's end, and the "
             "worst equal-time ratio after the uniform layers; mean curve: the equal-time ratios of the seed-mean "
-            "relMSE curves; samples/s: the adaptive run's over the uniform run's. Commit "
+            "relMSE curves; samples/s: the adaptive run's over the uniform run's; equal rays: the same ratios "
+            "at equal rays traced instead of equal time (deterministic, so the host's speed does not move "
+            "them; they miss what a ray costs where it goes and the layer pipeline's idle time). Commit "
             f"{R['commit']}, {R['date']}, {R['seconds']:.0f} s (`bench/error/repeat.py`).\n")
     rows = ["| scene | mode | per run, equal samples | per run, equal time | per run, worst | "
-            "mean curve, equal time | mean curve, worst | samples/s over uniform |",
-            "|---|---|---|---|---|--:|--:|--:|"]
+            "mean curve, equal time | mean curve, worst | samples/s over uniform | per run, equal rays | "
+            "per run, worst at equal rays | mean curve, equal rays (final / worst) | rays per sample over uniform |",
+            "|---|---|---|---|---|--:|--:|--:|---|---|--:|--:|"]
     for name, sc in R["scenes"].items():
         for m, r in sc["modes"].items():
             def col(key):
                 return " ".join(f"{x[key]:.3f}" if x[key] else "-" for x in r["runs"])
             sps = np.mean([x["samples_per_second_over_uniform"] for x in r["runs"]])
-            rows.append(f"| {name} | {m} | {col('final_equal_samples')} | {col('final_equal_time')} | "
-                        f"{col('worst_after_uniform')} | {r['mean_curve_final_equal_time']:.3f} | "
-                        f"{r['mean_curve_worst_after_uniform']:.3f} | {sps:.3f} |")
+            row = (f"| {name} | {m} | {col('final_equal_samples')} | {col('final_equal_time')} | "
+                   f"{col('worst_after_uniform')} | {r['mean_curve_final_equal_time']:.3f} | "
+                   f"{r['mean_curve_worst_after_uniform']:.3f} | {sps:.3f} |")
+            if r.get("mean_curve_final_equal_rays") is not None:
+                rps = np.mean([x["rays_per_sample_over_uniform"] for x in r["runs"]])
+                row += (f" {col('final_equal_rays')} | {col('worst_equal_rays_after_uniform')} | "
+                        f"{r['mean_curve_final_equal_rays']:.3f} / {r['mean_curve_worst_equal_rays']:.3f} | "
+                        f"{rps:.3f} |")
+            else:
+                row += " - | - | - | - |"
+            rows.append(row)
     return head + "\n" + "\n".join(rows)
 
 
@@ -117,10 +158,12 @@ def main():
             for m in per:
                 per[m].append(run(name, scene, ref, meta, seed, m))
         res = {}
+        ul = S.CFG["adaptive_uniform_layers"] * S.CFG["granularity"] * npix
         for m in MODES:
             rows = []
             for u, a in zip(per["none"], per[m]):
                 c = S.compare_curves(u, a, npix)
+                er_final, er_worst = equal_rays(u, a, ul)
                 rows.append({"final_equal_time": c["relmse_equal_time"]["ratio"],
                              "final_equal_samples": c["relmse_equal_samples"]["ratio"],
                              "worst_after_uniform": (c["relmse_worst_equal_time_after_uniform_layers"] or {})
@@ -128,16 +171,26 @@ def main():
                              "worst_seconds": (c["relmse_worst_equal_time_after_uniform_layers"] or {})
                              .get("seconds"),
                              "samples_per_second_over_uniform":
-                                 (a["n"][-1] / a["t"][-1]) / (u["n"][-1] / u["t"][-1])})
+                                 (a["n"][-1] / a["t"][-1]) / (u["n"][-1] / u["t"][-1]),
+                             "final_equal_rays": er_final, "worst_equal_rays_after_uniform": er_worst,
+                             "rays_per_sample_over_uniform":
+                                 (a["rays"][-1] / a["n"][-1]) / (u["rays"][-1] / u["n"][-1])})
             # the seed-mean curves: from the latest time all adaptive runs have
             # finished their uniform layers to the earliest end of any run
-            ul = S.CFG["adaptive_uniform_layers"] * S.CFG["granularity"] * npix
             t0 = max(float(a["t"][np.nonzero(a["n"] >= ul)[0][0]]) for a in per[m])
             t1 = min(min(float(a["t"][-1]) for a in per[m]), min(float(u["t"][-1]) for u in per["none"]))
             grid = np.geomspace(t0, t1, 40) if t0 < t1 else np.array([t1])
             ratio = mean_curve(per[m], grid) / mean_curve(per["none"], grid)
             k = int(np.nanargmax(ratio))
+            # and the same along the rays traced
+            r0 = max(float(a["rays"][np.nonzero(a["n"] >= ul)[0][0]]) for a in per[m])
+            r1 = min(float(np.nanmax(x["rays"])) for x in per[m] + per["none"])
+            rgrid = np.geomspace(r0, r1, 40) if r0 < r1 else np.array([r1])
+            rratio = mean_curve(per[m], rgrid, "rays") / mean_curve(per["none"], rgrid, "rays")
             res[m] = {"runs": rows,
+                      "mean_curve_final_equal_rays": float(rratio[-1]),
+                      "mean_curve_worst_equal_rays": float(np.nanmax(rratio)),
+                      "mean_curve_ratio_equal_rays": [[float(x), float(r)] for x, r in zip(rgrid, rratio)],
                       "mean_curve_final_equal_time": float(ratio[-1]),
                       "mean_curve_worst_after_uniform": float(ratio[k]),
                       "mean_curve_worst_seconds": float(grid[k]),

@@ -319,15 +319,18 @@ def load_series(errjson, ref_meta):
     job = d.get("job", {})
     pts = [p for p in d["series"] if p[1] > 0 and p[0] > 0]
     if job.get("samples") and (not pts or job["samples"] > pts[-1][1]) and "relmse" in job:
-        pts.append([job["seconds"], job["samples"], job["relmse"], job["rmse"]])
+        pts.append([job["seconds"], job["samples"], job["relmse"], job["rmse"], job.get("rays", 0)])
     pts.sort(key=lambda p: (p[0], p[1]))
     t = np.array([p[0] for p in pts], dtype=float)
     n = np.array([p[1] for p in pts], dtype=float)
     r_raw = np.array([p[2] for p in pts], dtype=float)
     e_raw = np.array([p[3] for p in pts], dtype=float)
+    # rays traced so far (a fifth column since the result records carry them)
+    rays = np.array([p[4] if len(p) > 4 else np.nan for p in pts], dtype=float)
     r = np.maximum(r_raw - ref_meta["relmse_est"], 1e-12)
     e = np.sqrt(np.maximum(e_raw ** 2 - ref_meta["mse_est"], 1e-24))
-    return {"t": t, "n": n, "relmse": r, "rmse": e, "relmse_raw": r_raw, "rmse_raw": e_raw, "job": job}
+    return {"t": t, "n": n, "rays": rays, "relmse": r, "rmse": e, "relmse_raw": r_raw, "rmse_raw": e_raw,
+            "job": job}
 
 
 def study_run(name, scene, ref, ref_meta, tag, spp, adaptive, workers, threads, extra=()):
