@@ -153,11 +153,9 @@ void persist_apply_extras(job_t *j, const cJSON *o)
     if (n > 0 && (j->series = calloc((size_t)n * JOB_SERIES_COLUMNS, sizeof(double))) != NULL) {
         j->series_cap = (size_t)n;
         for (const cJSON *pt = series->child; pt; pt = pt->next) {
-            /* 4 columns: saved before the rays were kept, which stay 0 */
-            const int cols = cJSON_GetArraySize(pt);
-            if (cols != JOB_SERIES_COLUMNS && cols != 4)
+            if (cJSON_GetArraySize(pt) != JOB_SERIES_COLUMNS)
                 continue;
-            for (int k = 0; k < cols; k++) {
+            for (int k = 0; k < JOB_SERIES_COLUMNS; k++) {
                 const cJSON *v = cJSON_GetArrayItem(pt, k);
                 j->series[JOB_SERIES_COLUMNS * j->series_n + (size_t)k] =
                     cJSON_IsNumber(v) ? v->valuedouble : 0;

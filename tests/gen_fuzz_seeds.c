@@ -474,7 +474,7 @@ static void gen_checkpoints(gen_t *g)
         "{\"seconds\":0,\"rays\":0,\"busy_us\":0,\"reissued\":0,\"late_results\":0,\"failures\":0}",
         "{\"seconds\":1.5,\"rays\":12345,\"busy_us\":2500000,\"reissued\":2,\"late_results\":1,"
         "\"failures\":1,"
-        "\"series\":[[0.5,96,0.25,0.125],[1,192,0.125,0.0625]]}",
+        "\"series\":[[0.5,96,0.25,0.125,288],[1,192,0.125,0.0625,600]]}",
     };
     for (unsigned c = 0; c < FUZZ_CKPT_CONFIGS; c++) {
         sched_config_t cfg;
@@ -720,7 +720,8 @@ int main(int argc, char **argv)
     gen_final(
         &g, "done",
         "{\"id\":2,\"state\":\"done\",\"scene\":\"basic.json\",\"request_id\":\"fuzz-seed_2\","
-        "\"width\":8,\"height\":6,\"spp\":8,\"samples\":384,\"error_series\":[[0.5,96,0.25,0.125]]"
+        "\"width\":8,\"height\":6,\"spp\":8,\"samples\":384,\"error_series\":[[0.5,96,0.25,0.125,"
+        "288]]"
         "}");
     gen_final(&g, "cancelled",
               "{\"id\":7,\"state\":\"cancelled\",\"scene\":\"mesh.json\",\"error\":\"cancelled by "
