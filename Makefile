@@ -230,7 +230,10 @@ endif
 FUZZ_N    = 20000
 FUZZ_RUNS = $(foreach f,$(FUZZ_BIN),$(f):$(or $(FUZZ_N_$(notdir $(f))),$(FUZZ_N)))
 
-test: $(BIN)/vbrender $(DAEMONS) $(TEST_BIN) $(FUZZ_BIN) $(FAULT_MASTER) $(FAULT_WORKER) $(SEEDS_BIN)
+# (the benchmarks are built too, not run: a change to an API they call
+# must not leave `make bench` broken until someone next runs it)
+test: $(BIN)/vbrender $(DAEMONS) $(TEST_BIN) $(FUZZ_BIN) $(FAULT_MASTER) $(FAULT_WORKER) $(SEEDS_BIN) \
+      $(BENCH_BIN)
 	@tests/check-docs.sh
 	@mkdir -p $(BUILD)/test-out
 	@TMPDIR=$(abspath $(BUILD)/test-out) $(SEEDS_BIN) --check tests/data

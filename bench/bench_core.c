@@ -149,12 +149,13 @@ static size_t cdf_pick(const double *cdf, size_t n, double u)
     return lo;
 }
 
-/* A light point picked as the tracer picks it: triangle by power, uniform on it. */
+/* A light point picked as the tracer picks it (sample_direct in tracer.c):
+ * the triangle by power and the point on it from one pair. */
 static uint32_t light_point(const scene_t *s, rng_stream_t *rng, vec3_t *q)
 {
     double ul = rng_next_double(rng);
-    float u1 = rng_next_float(rng), u2 = rng_next_float(rng);
-    return lights_sample(s, ul, u1, u2, q);
+    float u2 = rng_next_float(rng);
+    return lights_sample(s, ul, u2, q);
 }
 
 /* ---- raw Embree ---------------------------------------------------------- */
