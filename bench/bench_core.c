@@ -27,6 +27,13 @@
  *      and on the triangle list (trilist.h), which the tracer uses instead
  *      of Embree for a scene of up to TRILIST_MAX_TRIANGLES triangles
  *      ("accel" in the JSON says which the renders used);
+ *      and, on a scene traced through Embree, the two other ways it could
+ *      be kept watertight (issue 9; JSON "path_sorted" and
+ *      "path_watertight_user"): the same rays sorted by direction octant
+ *      and the Morton code of their origin (what a wavefront tracer that
+ *      sorts its rays could at best gain: the sort is not timed), and an
+ *      Embree BVH over clusters of 16 triangles tested by trilist's
+ *      watertight kernel (user geometry) instead of ROBUST;
  *   3. peak memory (ru_maxrss) right after the renders, before the ray
  *      batches exist, and at the end.
  *
@@ -548,6 +555,234 @@ static int build_area_batch(const scene_t *s, uint64_t seed, batch_t *ext, batch
     return 0;
 }
 
+/* ---- other ways to stay watertight on Embree (issue 9) --------------------- */
+
+/* 10 bits of x spread to every third bit (a 30-bit Morton code's share). */
+static uint32_t morton_spread(uint32_t x)
+{
+    x &= 0x3ffu;
+    x = (x | x << 16) & 0x030000ffu;
+    x = (x | x << 8) & 0x0300f00fu;
+    x = (x | x << 4) & 0x030c30c3u;
+    return (x | x << 2) & 0x09249249u;
+}
+
+/* The Morton code of p in the box [lo, hi]. */
+static uint32_t morton_code(const float p[3], const float lo[3], const float hi[3])
+{
+    uint32_t code = 0;
+    for (int k = 0; k < 3; k++) {
+        float f = hi[k] > lo[k] ? (p[k] - lo[k]) / (hi[k] - lo[k]) : 0.0f;
+        f = f < 0.0f ? 0.0f : f > 1.0f ? 1.0f : f;
+        code |= morton_spread((uint32_t)(f * 1023.0f)) << k;
+    }
+    return code;
+}
+
+typedef struct sort_key {
+    uint64_t key;
+    uint32_t index;
+} sort_key_t;
+
+static int sort_key_cmp(const void *a, const void *b)
+{
+    const sort_key_t *x = a, *y = b;
+    if (x->key != y->key)
+        return x->key < y->key ? -1 : 1;
+    return x->index < y->index ? -1 : x->index > y->index;
+}
+
+/* A copy of b sorted by direction octant, then the origin's Morton code
+ * in the batch's bounds: rays that start close together and go the same
+ * way become neighbours. */
+static int batch_sorted(const batch_t *b, batch_t *out)
+{
+    if (batch_init(out, b->count ? b->count : 1) < 0)
+        return -1;
+    sort_key_t *keys = malloc((b->count ? b->count : 1) * sizeof *keys);
+    if (!keys) {
+        batch_free(out);
+        return -1;
+    }
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t i = 0; i < b->count; i++)
+        for (int k = 0; k < 3; k++) {
+            lo[k] = fminf(lo[k], b->rays[i].o[k]);
+            hi[k] = fmaxf(hi[k], b->rays[i].o[k]);
+        }
+    for (size_t i = 0; i < b->count; i++) {
+        const bray_t *r = &b->rays[i];
+        uint64_t octant = (uint64_t)((r->d[0] < 0) | (r->d[1] < 0) << 1 | (r->d[2] < 0) << 2);
+        keys[i].key = octant << 32 | morton_code(r->o, lo, hi);
+        keys[i].index = (uint32_t)i;
+    }
+    qsort(keys, b->count, sizeof *keys, sort_key_cmp);
+    for (size_t i = 0; i < b->count; i++)
+        out->rays[i] = b->rays[keys[i].index];
+    out->count = b->count;
+    free(keys);
+    return 0;
+}
+
+/* Triangles in clusters of TRILIST_BLOCK-sized lists, each one Embree user
+ * primitive: Embree's BVH finds the clusters a ray may hit, trilist's
+ * watertight kernel tests their triangles. */
+#define CLUSTER_TRIANGLES 16
+
+typedef struct clusters {
+    trilist_t **lists;
+    uint32_t *tri; /* the scene's triangle of each clustered one, cluster by cluster */
+    float *bounds; /* 6 per cluster, padded outwards: Embree's non-robust
+                    * traversal must not skip a cluster a ray grazes */
+    size_t count;
+} clusters_t;
+
+static void clusters_free(clusters_t *c)
+{
+    for (size_t i = 0; c->lists && i < c->count; i++)
+        trilist_destroy(&c->lists[i]);
+    free(c->lists);
+    free(c->tri);
+    free(c->bounds);
+    memset(c, 0, sizeof *c);
+}
+
+static void cluster_bounds_fn(const struct RTCBoundsFunctionArguments *args)
+{
+    const clusters_t *c = args->geometryUserPtr;
+    const float *b = c->bounds + 6 * (size_t)args->primID;
+    args->bounds_o->lower_x = b[0];
+    args->bounds_o->lower_y = b[1];
+    args->bounds_o->lower_z = b[2];
+    args->bounds_o->upper_x = b[3];
+    args->bounds_o->upper_y = b[4];
+    args->bounds_o->upper_z = b[5];
+}
+
+static void cluster_intersect_fn(const struct RTCIntersectFunctionNArguments *args)
+{
+    if (args->N != 1 || !args->valid[0])
+        return;
+    const clusters_t *c = args->geometryUserPtr;
+    struct RTCRayHit *rh = (struct RTCRayHit *)args->rayhit;
+    vec3_t o = vec3_make(rh->ray.org_x, rh->ray.org_y, rh->ray.org_z);
+    vec3_t d = vec3_make(rh->ray.dir_x, rh->ray.dir_y, rh->ray.dir_z);
+    uint32_t k;
+    float t, u, v;
+    if (!trilist_intersect(c->lists[args->primID], o, d, rh->ray.tfar, &k, &t, &u, &v))
+        return;
+    rh->ray.tfar = t;
+    rh->hit.u = u;
+    rh->hit.v = v;
+    rh->hit.primID = c->tri[(size_t)args->primID * CLUSTER_TRIANGLES + k];
+    rh->hit.geomID = args->geomID;
+    rh->hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+}
+
+static void cluster_occluded_fn(const struct RTCOccludedFunctionNArguments *args)
+{
+    if (args->N != 1 || !args->valid[0])
+        return;
+    const clusters_t *c = args->geometryUserPtr;
+    struct RTCRay *r = (struct RTCRay *)args->ray;
+    if (trilist_occluded(c->lists[args->primID], vec3_make(r->org_x, r->org_y, r->org_z),
+                         vec3_make(r->dir_x, r->dir_y, r->dir_z), r->tfar))
+        r->tfar = -INFINITY;
+}
+
+/* e: the device and a BVH (high quality, default flags) over s's triangles
+ * in Morton order of their centroids, CLUSTER_TRIANGLES to a cluster. */
+static int clusters_build(const scene_t *s, embree_t *e, clusters_t *c)
+{
+    memset(c, 0, sizeof *c);
+    size_t n = s->triangle_count;
+    c->count = (n + CLUSTER_TRIANGLES - 1) / CLUSTER_TRIANGLES;
+    sort_key_t *keys = malloc((n ? n : 1) * sizeof *keys);
+    uint32_t *idx = malloc((n ? 3 * n : 1) * sizeof *idx);
+    c->lists = calloc(c->count ? c->count : 1, sizeof *c->lists);
+    c->tri = calloc(c->count * CLUSTER_TRIANGLES + 1, sizeof *c->tri);
+    c->bounds = malloc((c->count ? 6 * c->count : 1) * sizeof *c->bounds);
+    if (!keys || !idx || !c->lists || !c->tri || !c->bounds) {
+        free(keys);
+        free(idx);
+        clusters_free(c);
+        return -1;
+    }
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t i = 0; i < s->vertex_count; i++)
+        for (int k = 0; k < 3; k++) {
+            lo[k] = fminf(lo[k], s->positions[3 * i + k]);
+            hi[k] = fmaxf(hi[k], s->positions[3 * i + k]);
+        }
+    for (size_t t = 0; t < n; t++) {
+        float centroid[3] = {0, 0, 0};
+        for (int j = 0; j < 3; j++)
+            for (int k = 0; k < 3; k++)
+                centroid[k] += s->positions[3 * s->indices[3 * t + j] + k] / 3.0f;
+        keys[t].key = morton_code(centroid, lo, hi);
+        keys[t].index = (uint32_t)t;
+    }
+    qsort(keys, n, sizeof *keys, sort_key_cmp);
+    for (size_t t = 0; t < n; t++)
+        for (int j = 0; j < 3; j++)
+            idx[3 * t + j] = s->indices[3 * keys[t].index + j];
+    int rc = 0;
+    for (size_t i = 0; i < c->count && rc == 0; i++) {
+        size_t first = i * CLUSTER_TRIANGLES, m = n - first;
+        if (m > CLUSTER_TRIANGLES)
+            m = CLUSTER_TRIANGLES;
+        c->lists[i] = trilist_new(s->positions, idx + 3 * first, m);
+        if (!c->lists[i])
+            rc = -1;
+        float *b = c->bounds + 6 * i;
+        for (int k = 0; k < 3; k++) {
+            b[k] = INFINITY;
+            b[3 + k] = -INFINITY;
+        }
+        for (size_t t = first; t < first + m; t++) {
+            c->tri[t] = keys[t].index;
+            for (int j = 0; j < 3; j++)
+                for (int k = 0; k < 3; k++) {
+                    float x = s->positions[3 * idx[3 * t + j] + k];
+                    b[k] = fminf(b[k], x);
+                    b[3 + k] = fmaxf(b[3 + k], x);
+                }
+        }
+        for (int k = 0; k < 3; k++) {
+            float pad = 1e-5f * (fabsf(b[k]) + fabsf(b[3 + k])) + 1e-30f;
+            b[k] -= pad;
+            b[3 + k] += pad;
+        }
+    }
+    free(keys);
+    free(idx);
+    if (rc < 0) {
+        clusters_free(c);
+        return -1;
+    }
+    char config[64];
+    snprintf(e->isa, sizeof e->isa, "%s", __builtin_cpu_supports("avx2") ? "avx2" : "sse4.2");
+    snprintf(config, sizeof config, "isa=%s,verbose=0", e->isa);
+    e->device = rtcNewDevice(config);
+    if (!e->device) {
+        clusters_free(c);
+        return -1;
+    }
+    e->scene = rtcNewScene(e->device);
+    rtcSetSceneBuildQuality(e->scene, RTC_BUILD_QUALITY_HIGH);
+    RTCGeometry g = rtcNewGeometry(e->device, RTC_GEOMETRY_TYPE_USER);
+    rtcSetGeometryUserPrimitiveCount(g, (unsigned)c->count);
+    rtcSetGeometryUserData(g, c);
+    rtcSetGeometryBoundsFunction(g, cluster_bounds_fn, c);
+    rtcSetGeometryIntersectFunction(g, cluster_intersect_fn);
+    rtcSetGeometryOccludedFunction(g, cluster_occluded_fn);
+    rtcCommitGeometry(g);
+    rtcAttachGeometry(e->scene, g);
+    rtcReleaseGeometry(g);
+    rtcCommitScene(e->scene);
+    return rtcGetDeviceError(e->device) == RTC_ERROR_NONE ? 0 : -1;
+}
+
 /* ---- reporting ------------------------------------------------------------ */
 
 /* Rate of a mix of two kinds of rays: the time per ray is the weighted
@@ -744,7 +979,7 @@ static int measure_ours(const tracer_t *tr, const scene_t *s, const args_t *a, o
 /* Raw Embree on two ray distributions; dist[0] ("path") also on a BVH
  * without ROBUST (into *fast). */
 typedef struct raw {
-    dist_result_t dist[2], fast, list;
+    dist_result_t dist[2], fast, list, sorted, user;
     int runs;
     long rss_total;
 } raw_t;
@@ -765,6 +1000,54 @@ static void set_mix(dist_result_t *d, double f_ext)
 {
     d->mix = mix_rate(f_ext, d->ext.rays_per_second, d->sh.rays_per_second);
     d->mix_5050 = mix_rate(0.5, d->ext.rays_per_second, d->sh.rays_per_second);
+}
+
+/* The path rays sorted on the ROBUST BVH, and on clusters tested by the
+ * watertight list kernel (r->sorted, r->user). */
+static int measure_other_ways(const scene_t *s, const embree_t *e, const batch_t *ext,
+                              const batch_t *sh, int threads, double f_ext, raw_t *r)
+{
+    batch_t sext, ssh;
+    if (batch_sorted(ext, &sext) < 0)
+        return -1;
+    if (batch_sorted(sh, &ssh) < 0) {
+        batch_free(&sext);
+        return -1;
+    }
+    int rc = raw_time(e, &sext, 0, threads, r->runs, &r->sorted.ext) < 0 ||
+                     raw_time(e, &ssh, 1, threads, r->runs, &r->sorted.sh) < 0
+                 ? -1
+                 : 0;
+    batch_free(&sext);
+    batch_free(&ssh);
+    embree_t eu;
+    clusters_t c;
+    memset(&eu, 0, sizeof eu);
+    if (rc == 0 && clusters_build(s, &eu, &c) < 0) {
+        fprintf(stderr, "bench_core: cannot build the clustered scene\n");
+        embree_free(&eu);
+        return -1;
+    }
+    if (rc == 0 && (raw_time(&eu, ext, 0, threads, r->runs, &r->user.ext) < 0 ||
+                    raw_time(&eu, sh, 1, threads, r->runs, &r->user.sh) < 0))
+        rc = -1;
+    if (rc == 0) {
+        embree_free(&eu);
+        clusters_free(&c);
+        set_mix(&r->sorted, f_ext);
+        set_mix(&r->user, f_ext);
+        fprintf(stderr,
+                "  raw path, ROBUST, rays sorted (sort not timed): extension %.3f, shadow %.3f, "
+                "our mix %.3f M rays/s\n"
+                "  raw path, watertight clusters of %d (user geometry): extension %.3f, shadow "
+                "%.3f, our mix %.3f M rays/s (%zu of %zu hits as ROBUST)\n",
+                r->sorted.ext.rays_per_second / 1e6, r->sorted.sh.rays_per_second / 1e6,
+                r->sorted.mix / 1e6, CLUSTER_TRIANGLES, r->user.ext.rays_per_second / 1e6,
+                r->user.sh.rays_per_second / 1e6, r->user.mix / 1e6,
+                (size_t)(r->user.ext.hit_fraction * (double)ext->count + 0.5),
+                (size_t)(r->dist[0].ext.hit_fraction * (double)ext->count + 0.5));
+    }
+    return rc < 0 ? -1 : 0;
 }
 
 /* One distribution (k = 0 path rays, 1 area rays) on the ROBUST BVH, and
@@ -807,6 +1090,8 @@ static int measure_dist(const scene_t *s, const args_t *a, int k, const embree_t
                 r->fast.ext.rays_per_second / 1e6, r->fast.sh.rays_per_second / 1e6,
                 r->fast.mix / 1e6);
     }
+    if (k == 0 && !elist->list && measure_other_ways(s, e, &ext, &sh, threads, f_ext, r) < 0)
+        return -1;
     if (k == 0 && elist->list) {
         set_mix(&r->list, f_ext);
         fprintf(stderr,
@@ -900,6 +1185,17 @@ static cJSON *raw_embree_json(const raw_t *r, const args_t *a, int threads)
                           dist_json(&r->fast, threads,
                                     "the path rays on a BVH built without RTC_SCENE_FLAG_ROBUST "
                                     "(reference: what the flag costs)"));
+    if (r->sorted.ext.rays)
+        cJSON_AddItemToObject(j, "path_sorted",
+                              dist_json(&r->sorted, threads,
+                                        "the path rays on the ROBUST BVH, sorted by direction "
+                                        "octant and origin Morton code (sort not timed)"));
+    if (r->user.ext.rays)
+        cJSON_AddItemToObject(j, "path_watertight_user",
+                              dist_json(&r->user, threads,
+                                        "the path rays on a BVH (default flags) over user "
+                                        "geometry: clusters of 16 triangles in Morton order, "
+                                        "each tested by the watertight trilist kernel"));
     if (r->list.ext.rays)
         cJSON_AddItemToObject(j, "path_triangle_list",
                               dist_json(&r->list, threads,
