@@ -1166,6 +1166,14 @@ static cJSON *ours_json(const ours_t *o, const args_t *a, const scene_t *s, int 
     return j;
 }
 
+/* d under key, if that measurement was made on this scene. */
+static void add_dist_if_run(cJSON *j, const char *key, const dist_result_t *d, int threads,
+                            const char *how)
+{
+    if (d->ext.rays)
+        cJSON_AddItemToObject(j, key, dist_json(d, threads, how));
+}
+
 static cJSON *raw_embree_json(const raw_t *r, const args_t *a, int threads)
 {
     cJSON *j = cJSON_CreateObject();
@@ -1185,22 +1193,15 @@ static cJSON *raw_embree_json(const raw_t *r, const args_t *a, int threads)
                           dist_json(&r->fast, threads,
                                     "the path rays on a BVH built without RTC_SCENE_FLAG_ROBUST "
                                     "(reference: what the flag costs)"));
-    if (r->sorted.ext.rays)
-        cJSON_AddItemToObject(j, "path_sorted",
-                              dist_json(&r->sorted, threads,
-                                        "the path rays on the ROBUST BVH, sorted by direction "
-                                        "octant and origin Morton code (sort not timed)"));
-    if (r->user.ext.rays)
-        cJSON_AddItemToObject(j, "path_watertight_user",
-                              dist_json(&r->user, threads,
-                                        "the path rays on a BVH (default flags) over user "
-                                        "geometry: clusters of 16 triangles in Morton order, "
-                                        "each tested by the watertight trilist kernel"));
-    if (r->list.ext.rays)
-        cJSON_AddItemToObject(j, "path_triangle_list",
-                              dist_json(&r->list, threads,
-                                        "the path rays on every triangle without a BVH (trilist.h, "
-                                        "what the tracer uses up to TRILIST_MAX_TRIANGLES)"));
+    add_dist_if_run(j, "path_sorted", &r->sorted, threads,
+                    "the path rays on the ROBUST BVH, sorted by direction octant and origin "
+                    "Morton code (sort not timed)");
+    add_dist_if_run(j, "path_watertight_user", &r->user, threads,
+                    "the path rays on a BVH (default flags) over user geometry: clusters of 16 "
+                    "triangles in Morton order, each tested by the watertight trilist kernel");
+    add_dist_if_run(j, "path_triangle_list", &r->list, threads,
+                    "the path rays on every triangle without a BVH (trilist.h, what the tracer "
+                    "uses up to TRILIST_MAX_TRIANGLES)");
     return j;
 }
 
