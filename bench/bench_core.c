@@ -1020,20 +1020,22 @@ static int measure_other_ways(const scene_t *s, const embree_t *e, const batch_t
                  : 0;
     batch_free(&sext);
     batch_free(&ssh);
+    if (rc < 0)
+        return -1;
     embree_t eu;
     clusters_t c;
     memset(&eu, 0, sizeof eu);
-    if (rc == 0 && clusters_build(s, &eu, &c) < 0) {
+    if (clusters_build(s, &eu, &c) < 0) {
         fprintf(stderr, "bench_core: cannot build the clustered scene\n");
         embree_free(&eu);
         return -1;
     }
-    if (rc == 0 && (raw_time(&eu, ext, 0, threads, r->runs, &r->user.ext) < 0 ||
-                    raw_time(&eu, sh, 1, threads, r->runs, &r->user.sh) < 0))
+    if (raw_time(&eu, ext, 0, threads, r->runs, &r->user.ext) < 0 ||
+        raw_time(&eu, sh, 1, threads, r->runs, &r->user.sh) < 0)
         rc = -1;
+    embree_free(&eu);
+    clusters_free(&c);
     if (rc == 0) {
-        embree_free(&eu);
-        clusters_free(&c);
         set_mix(&r->sorted, f_ext);
         set_mix(&r->user, f_ext);
         fprintf(stderr,
@@ -1090,8 +1092,11 @@ static int measure_dist(const scene_t *s, const args_t *a, int k, const embree_t
                 r->fast.ext.rays_per_second / 1e6, r->fast.sh.rays_per_second / 1e6,
                 r->fast.mix / 1e6);
     }
-    if (k == 0 && !elist->list && measure_other_ways(s, e, &ext, &sh, threads, f_ext, r) < 0)
+    if (k == 0 && !elist->list && measure_other_ways(s, e, &ext, &sh, threads, f_ext, r) < 0) {
+        batch_free(&ext);
+        batch_free(&sh);
         return -1;
+    }
     if (k == 0 && elist->list) {
         set_mix(&r->list, f_ext);
         fprintf(stderr,
