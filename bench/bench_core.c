@@ -214,17 +214,23 @@ typedef struct embree {
     trilist_t *list; /* if set, rays go to the triangle list instead */
 } embree_t;
 
-/* The same device configuration, scene flags and build quality as
- * tracer_new, so the BVH and kernels are the ones our tracer uses (robust
- * 0 leaves out RTC_SCENE_FLAG_ROBUST, for the reference figure only). */
-static int embree_build(const scene_t *s, embree_t *e, int robust)
+/* e->device configured as tracer_device_new configures it (the ISA pinned). */
+static int embree_device_new(embree_t *e)
 {
     __builtin_cpu_init();
     snprintf(e->isa, sizeof e->isa, "%s", __builtin_cpu_supports("avx2") ? "avx2" : "sse4.2");
     char config[64];
     snprintf(config, sizeof config, "isa=%s,verbose=0", e->isa);
     e->device = rtcNewDevice(config);
-    if (!e->device)
+    return e->device ? 0 : -1;
+}
+
+/* The same device configuration, scene flags and build quality as
+ * tracer_new, so the BVH and kernels are the ones our tracer uses (robust
+ * 0 leaves out RTC_SCENE_FLAG_ROBUST, for the reference figure only). */
+static int embree_build(const scene_t *s, embree_t *e, int robust)
+{
+    if (embree_device_new(e) < 0)
         return -1;
     e->scene = rtcNewScene(e->device);
     rtcSetSceneFlags(e->scene, robust ? RTC_SCENE_FLAG_ROBUST : RTC_SCENE_FLAG_NONE);
@@ -557,6 +563,23 @@ static int build_area_batch(const scene_t *s, uint64_t seed, batch_t *ext, batch
 
 /* ---- other ways to stay watertight on Embree (issue 9) --------------------- */
 
+/* An empty box [lo, hi], and the box grown to take in p. */
+static void bounds_empty(float lo[3], float hi[3])
+{
+    for (int k = 0; k < 3; k++) {
+        lo[k] = INFINITY;
+        hi[k] = -INFINITY;
+    }
+}
+
+static void bounds_grow(float lo[3], float hi[3], const float p[3])
+{
+    for (int k = 0; k < 3; k++) {
+        lo[k] = fminf(lo[k], p[k]);
+        hi[k] = fmaxf(hi[k], p[k]);
+    }
+}
+
 /* 10 bits of x spread to every third bit (a 30-bit Morton code's share). */
 static uint32_t morton_spread(uint32_t x)
 {
@@ -604,12 +627,10 @@ static int batch_sorted(const batch_t *b, batch_t *out)
         batch_free(out);
         return -1;
     }
-    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    float lo[3], hi[3];
+    bounds_empty(lo, hi);
     for (size_t i = 0; i < b->count; i++)
-        for (int k = 0; k < 3; k++) {
-            lo[k] = fminf(lo[k], b->rays[i].o[k]);
-            hi[k] = fmaxf(hi[k], b->rays[i].o[k]);
-        }
+        bounds_grow(lo, hi, b->rays[i].o);
     for (size_t i = 0; i < b->count; i++) {
         const bray_t *r = &b->rays[i];
         uint64_t octant = (uint64_t)((r->d[0] < 0) | (r->d[1] < 0) << 1 | (r->d[2] < 0) << 2);
@@ -708,12 +729,10 @@ static int clusters_build(const scene_t *s, embree_t *e, clusters_t *c)
         clusters_free(c);
         return -1;
     }
-    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    float lo[3], hi[3];
+    bounds_empty(lo, hi);
     for (size_t i = 0; i < s->vertex_count; i++)
-        for (int k = 0; k < 3; k++) {
-            lo[k] = fminf(lo[k], s->positions[3 * i + k]);
-            hi[k] = fmaxf(hi[k], s->positions[3 * i + k]);
-        }
+        bounds_grow(lo, hi, s->positions + 3 * i);
     for (size_t t = 0; t < n; t++) {
         float centroid[3] = {0, 0, 0};
         for (int j = 0; j < 3; j++)
@@ -735,18 +754,11 @@ static int clusters_build(const scene_t *s, embree_t *e, clusters_t *c)
         if (!c->lists[i])
             rc = -1;
         float *b = c->bounds + 6 * i;
-        for (int k = 0; k < 3; k++) {
-            b[k] = INFINITY;
-            b[3 + k] = -INFINITY;
-        }
+        bounds_empty(b, b + 3);
         for (size_t t = first; t < first + m; t++) {
             c->tri[t] = keys[t].index;
             for (int j = 0; j < 3; j++)
-                for (int k = 0; k < 3; k++) {
-                    float x = s->positions[3 * idx[3 * t + j] + k];
-                    b[k] = fminf(b[k], x);
-                    b[3 + k] = fmaxf(b[3 + k], x);
-                }
+                bounds_grow(b, b + 3, s->positions + 3 * idx[3 * t + j]);
         }
         for (int k = 0; k < 3; k++) {
             float pad = 1e-5f * (fabsf(b[k]) + fabsf(b[3 + k])) + 1e-30f;
@@ -760,11 +772,7 @@ static int clusters_build(const scene_t *s, embree_t *e, clusters_t *c)
         clusters_free(c);
         return -1;
     }
-    char config[64];
-    snprintf(e->isa, sizeof e->isa, "%s", __builtin_cpu_supports("avx2") ? "avx2" : "sse4.2");
-    snprintf(config, sizeof config, "isa=%s,verbose=0", e->isa);
-    e->device = rtcNewDevice(config);
-    if (!e->device) {
+    if (embree_device_new(e) < 0) {
         clusters_free(c);
         return -1;
     }
