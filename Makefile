@@ -322,11 +322,12 @@ demo: deps
 	$(BIN)/vbrender render scenes/cornell-box.json -o out/cornell-box.exr
 
 bench: deps
-	$(MAKE) all $(BENCH_BIN)
+	$(MAKE) all $(BENCH_BIN) $(FAULT_WORKER)
 	bench/run-core.sh
 	if [ -x bench/run-distributed.sh ]; then bench/run-distributed.sh; fi
 	bench/run-durable.sh
 	bench/run-verify.sh
+	bench/run-stragglers.sh
 	bench/run-curve.sh
 	bench/run-preview.sh
 

@@ -320,6 +320,10 @@ static void metrics_master(text_buf_t *b, const cJSON *m, const cJSON *jobs, con
                 "Results dropped because they came after their task was reissued or ended.");
     metric_from(b, m, "malformed_messages", "vbrender_malformed_messages_total", "counter",
                 "Malformed messages the master dropped.");
+    metric_from(b, m, "backups", "vbrender_backup_tasks_total", "counter",
+                "Backup copies of tasks out too long, sent to idle workers.");
+    metric_from(b, m, "workers_banned", "vbrender_workers_banned_total", "counter",
+                "Workers dropped and refused for a while over refused results.");
     metric_from(b, m, "rate_limited_requests", "vbrender_rate_limited_requests_total", "counter",
                 "Requests the master refused for their rate.");
     double queued = 0, outstanding = 0;

@@ -68,7 +68,8 @@ static const char usage_head[] =
     "  delete JOB        cancel a job if it runs, then remove it, its image and its\n"
     "                    saved state from the master\n"
     "  jobs              all jobs\n"
-    "  workers           connected workers: host, threads, rays/s, tasks done\n"
+    "  workers           connected workers: host, threads, rays/s, tasks done, backup\n"
+    "                    copies run, state (breaker: no tasks until it answers one)\n"
     "  serve [--master EP] [--listen ADDR:PORT]   a web dashboard and Prometheus metrics\n"
     "                    (/metrics) at http://127.0.0.1:8080/; --listen another address\n"
     "                    (0.0.0.0:8080) serves other machines too: anybody reaching it\n"
@@ -936,14 +937,18 @@ static int run_fetch(control_t *c, const char *cmd, const args_t *a, unsigned lo
 
 static void print_workers(const cJSON *list)
 {
-    printf("%-24s %7s %12s %12s %10s\n", "host", "threads", "rays/s", "tasks done", "busy s");
+    printf("%-24s %7s %12s %12s %10s %8s %8s\n", "host", "threads", "rays/s", "tasks done",
+           "busy s", "backups", "state");
     const cJSON *w;
     cJSON_ArrayForEach(w, list)
     {
         char r[32];
-        printf("%-24s %7.0f %12s %12.0f %10.1f\n", json_str(w, "host"), json_num(w, "threads"),
-               render_si(json_num(w, "rays_per_second"), r, sizeof r), json_num(w, "tasks_done"),
-               json_num(w, "busy_seconds"));
+        /* "breaker": its leases kept running out; no task until it answers */
+        const char *state = json_str(w, "state");
+        printf("%-24s %7.0f %12s %12.0f %10.1f %8.0f %8s\n", json_str(w, "host"),
+               json_num(w, "threads"), render_si(json_num(w, "rays_per_second"), r, sizeof r),
+               json_num(w, "tasks_done"), json_num(w, "busy_seconds"), json_num(w, "backups"),
+               *state ? state : "ok");
     }
 }
 

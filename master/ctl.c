@@ -313,6 +313,10 @@ static cJSON *ctl_workers(ctl_req_t *r)
         cJSON_AddNumberToObject(o, "tasks_done", (double)w->tasks_done);
         cJSON_AddNumberToObject(o, "tasks_outstanding", w->outstanding);
         cJSON_AddNumberToObject(o, "tasks_reissued", (double)w->tasks_reissued);
+        cJSON_AddNumberToObject(o, "backups", (double)w->backups);
+        cJSON_AddNumberToObject(o, "bad_results", w->bad_results);
+        /* breaker: its leases kept running out, it gets no task until it answers */
+        cJSON_AddStringToObject(o, "state", peer_breaker_open(w) ? "breaker" : "ok");
         cJSON_AddNumberToObject(o, "last_seen_seconds", now - w->last_seen);
         cJSON_AddNumberToObject(o, "rays", (double)w->rays);
         cJSON_AddNumberToObject(o, "samples", (double)w->samples);
@@ -330,6 +334,9 @@ static cJSON *ctl_workers(ctl_req_t *r)
     cJSON_AddNumberToObject(st, "late_results", (double)m->dropped_late);
     cJSON_AddNumberToObject(st, "requeue_refused", (double)m->requeue_refused);
     cJSON_AddNumberToObject(st, "rate_limited_requests", (double)m->rate_limited);
+    cJSON_AddNumberToObject(st, "backups", (double)m->backups);
+    cJSON_AddNumberToObject(st, "workers_banned", (double)m->banned);
+    peer_bans_json(m, cJSON_AddArrayToObject(st, "bans"), now);
     master_queue_json(m, st);
     if (m->store) {
         /* the last background write of checkpoints and images: what it costs */

@@ -77,8 +77,11 @@ void job_shed(job_t *j)
     sched_destroy(&j->sched);
     free(j->attempt);
     free(j->holder);
+    free(j->sent_ms);
+    lease_queue_destroy(&j->leases);
     j->attempt = NULL;
     j->holder = NULL;
+    j->sent_ms = NULL;
     for (int c = 0; c < 3; c++) {
         free(j->ref[c]);
         free(j->cur[c]);
@@ -101,6 +104,8 @@ void job_free(job_t *j)
     free(j->quarantined);
     free(j->attempt);
     free(j->holder);
+    free(j->sent_ms);
+    lease_queue_destroy(&j->leases);
     for (int c = 0; c < 3; c++) {
         free(j->ref[c]);
         free(j->cur[c]);
@@ -189,6 +194,33 @@ void job_reissue(master_t *m, job_t *j, size_t cell)
     j->outstanding--;
     j->reissued++;
     job_requeue(m, j, (uint64_t)cell + 1);
+}
+
+/* ---- task times and leases -------------------------------------------------------- */
+
+double job_task_seconds(const job_t *j)
+{
+    return lease_times_quantile(&j->times, MASTER_TASK_QUANTILE);
+}
+
+double job_lease_seconds(const master_t *m, const job_t *j)
+{
+    double ceiling = m->cfg.lease_ms / 1000.0;
+    double floor = MASTER_LEASE_FLOOR_S < ceiling ? MASTER_LEASE_FLOOR_S : ceiling;
+    return lease_length(job_task_seconds(j), MASTER_LEASE_FACTOR, floor, ceiling);
+}
+
+void job_lease(master_t *m, job_t *j, uint64_t task, uint32_t attempt, uint32_t slot, double now)
+{
+    lease_t l = {.job = j->id, .task = task, .attempt = attempt, .slot = slot, .sent = now};
+    if (lease_push(j->leases, &l) < 0)
+        master_log(m, "job %" PRIu64 " task %" PRIu64 ": out of memory for its lease", j->id, task);
+}
+
+uint32_t job_ms(const job_t *j, double now)
+{
+    double ms = (now - j->epoch) * 1000.0;
+    return ms <= 0 ? 0 : ms >= 4294967295.0 ? UINT32_MAX : (uint32_t)ms;
 }
 
 void job_requeue(master_t *m, job_t *j, uint64_t task)
@@ -325,6 +357,10 @@ static void progress_json(const job_t *j, cJSON *o)
     cJSON_AddNumberToObject(o, "busy_seconds", j->busy_us / 1e6);
     cJSON_AddNumberToObject(o, "tasks_reissued", j->reissued);
     cJSON_AddNumberToObject(o, "tasks_outstanding", j->outstanding);
+    /* backup copies of stragglers' tasks, and how many answered first */
+    cJSON_AddNumberToObject(o, "backups", (double)j->backups);
+    cJSON_AddNumberToObject(o, "backups_won", (double)j->backups_won);
+    cJSON_AddNumberToObject(o, "task_seconds", job_task_seconds(j));
     cJSON_AddNumberToObject(o, "mean_spp",
                             j->width && j->height ? (double)samples / ((double)j->width * j->height)
                                                   : 0);

@@ -38,7 +38,7 @@ static void on_signal(int sig)
 
 static const char usage[] =
     "usage: vbrender-master [--workers ENDPOINT] [--control ENDPOINT]\n"
-    "                       [--heartbeat-ms N] [--lease-ms N]\n"
+    "                       [--heartbeat-ms N] [--lease-ms N] [--backup-factor K] [--ban-s S]\n"
     "                       [--state DIR|none] [--checkpoint-s S] [--keep-finished N]\n"
     "                       [--key FILE --allow-workers DIR --allow-clients DIR\n"
     "                        [--admin-clients DIR] | --insecure]\n"
@@ -48,8 +48,18 @@ static const char usage[] =
     "                       --insecure)\n"
     "  --control ENDPOINT   where clients connect (default " MASTER_DEFAULT_CONTROL ": the same)\n"
     "  --heartbeat-ms N     heartbeat interval (default " MASTER_DEFAULT_HEARTBEAT_MS_TEXT ")\n"
-    "  --lease-ms N         a task unanswered this long is issued again "
-    "(default " MASTER_DEFAULT_LEASE_MS_TEXT ")\n"
+    "  --lease-ms N         the longest a task may go unanswered before it is issued\n"
+    "                       again (default " MASTER_DEFAULT_LEASE_MS_TEXT
+    "); below it a lease runs out after\n"
+    "                       8 of the job's typical task times (the median of its last\n"
+    "                       64), never under 2 s\n"
+    "  --backup-factor K    a task out K typical task times gets a backup copy on an\n"
+    "                       idle worker, and the first answer wins "
+    "(default " MASTER_DEFAULT_BACKUP_FACTOR_TEXT ";\n"
+    "                       0: no backups)\n"
+    "  --ban-s S            a worker with 3 results refused (malformed, out of range) is\n"
+    "                       dropped and refused S seconds, doubled on each repeat up to an\n"
+    "                       hour (default " MASTER_DEFAULT_BAN_S_TEXT ")\n"
     "  --state DIR          jobs, checkpoints and images survive a restart here\n"
     "                       (default ./" MASTER_DEFAULT_STATE "); none: keep them in memory only\n"
     "  --checkpoint-s S     checkpoint running jobs this often "
@@ -196,6 +206,15 @@ static int parse_number(const char *o, const char *v, master_opts_t *opts)
     } else if (strcmp(o, "--heartbeat-ms") == 0) {
         if (parse_ms(v, &cfg->heartbeat_ms) < 0)
             return bad_value(o, "10..3600000", v);
+    } else if (strcmp(o, "--ban-s") == 0) {
+        if (parse_count(v, 0.1, 3600, &cfg->ban_s) < 0)
+            return bad_value(o, "seconds from 0.1 to 3600", v);
+    } else if (strcmp(o, "--backup-factor") == 0) {
+        if (parse_count(v, 0, 1000, &cfg->backup_factor) < 0 ||
+            (cfg->backup_factor > 0 && cfg->backup_factor < 1.5))
+            return bad_value(o, "0 (no backups) or a factor from 1.5 to 1000", v);
+        if (cfg->backup_factor == 0)
+            cfg->backup_factor = -1; /* the config's "none" */
     } else if (strcmp(o, "--lease-ms") == 0) {
         if (parse_ms(v, &cfg->lease_ms) < 0)
             return bad_value(o, "10..3600000", v);

@@ -83,29 +83,37 @@ static void reload_keys(master_t *m)
 
 /* ---- periodic tasks ------------------------------------------------------------- */
 
-/* Tasks whose lease ran out go out again. The queue is in deadline order;
- * a lease whose task was completed or reissued since is stale and skipped. */
+/* Tasks whose lease ran out go out again. Each job's queue is in the order
+ * the copies were sent and one length applies to all of them
+ * (job_lease_seconds), so only the heads are looked at; a lease whose copy
+ * was answered or sent again since is stale and skipped. */
 static void expire_leases(master_t *m, double now)
 {
-    lease_t l;
-    while (lease_pop_expired(m->leases, now, &l)) {
-        job_t *j = job_find(m, l.job);
-        if (!j || j->state != JOB_RUNNING || !j->holder)
+    for (job_t *j = m->jobs; j; j = j->next) {
+        if (j->state != JOB_RUNNING || !j->holder || !j->leases)
             continue;
-        size_t c = (size_t)(l.task - 1);
-        if (verify_holds(j, c)) {
-            verify_lease_expired(m, j, c, &l); /* one copy of several */
-            continue;
+        double before = now - job_lease_seconds(m, j);
+        lease_t l;
+        while (j->state == JOB_RUNNING && lease_pop_sent_before(j->leases, before, &l)) {
+            size_t c = (size_t)(l.task - 1);
+            if (verify_holds(j, c)) {
+                verify_lease_expired(m, j, c, &l); /* one copy of several */
+                continue;
+            }
+            if (j->holder[c] != l.slot || j->attempt[c] != l.attempt)
+                continue;
+            peer_t *w = &m->workers[l.slot - 1];
+            master_log_at(m, VBLOG_WARN,
+                          "job %" PRIu64 " task %" PRIu64
+                          ": lease ran out on %s after %.1f s (task time %.3f s); issuing it "
+                          "again",
+                          j->id, l.task, w->host, now - l.sent, job_task_seconds(j));
+            /* No credit back here: the slow worker still holds the task, and
+             * its late result (ignored) returns the credit then. */
+            w->owed++;
+            peer_lease_lost(m, w);
+            job_reissue(m, j, c);
         }
-        if (!j->holder[c] || j->attempt[c] != l.attempt)
-            continue;
-        master_log_at(m, VBLOG_WARN,
-                      "job %" PRIu64 " task %" PRIu64 ": lease ran out on %s; issuing it again",
-                      j->id, l.task, m->workers[j->holder[c] - 1].host);
-        /* No credit back here: the slow worker still holds the task, and its
-         * late result (ignored) returns the credit then. */
-        m->workers[j->holder[c] - 1].owed++;
-        job_reissue(m, j, c);
     }
 }
 
@@ -222,6 +230,10 @@ static void apply_defaults(master_config_t *c)
         c->heartbeat_ms = MASTER_DEFAULT_HEARTBEAT_MS;
     if (!c->lease_ms)
         c->lease_ms = MASTER_DEFAULT_LEASE_MS;
+    if (c->backup_factor == 0)
+        c->backup_factor = MASTER_DEFAULT_BACKUP_FACTOR;
+    if (!(c->ban_s > 0))
+        c->ban_s = MASTER_DEFAULT_BAN_S;
     if (!c->worker_timeout_ms)
         c->worker_timeout_ms = MASTER_DEFAULT_WORKER_TIMEOUT_HEARTBEATS * c->heartbeat_ms;
     if (!(c->checkpoint_s > 0))
@@ -315,8 +327,7 @@ master_t *master_new(const master_config_t *cfg, char *err, size_t errlen)
     apply_defaults(&m->cfg);
     m->workers = calloc(MASTER_MAX_WORKERS, sizeof *m->workers);
     m->results = malloc(PROTO_MAX_TASK_PIXELS * sizeof *m->results);
-    m->leases = lease_queue_new();
-    if (!m->workers || !m->results || !m->leases) {
+    if (!m->workers || !m->results) {
         snprintf(err, errlen, "out of memory");
         master_destroy(&m);
         return NULL;
@@ -396,13 +407,13 @@ void master_destroy(master_t **mp)
     free(m->inflight);
     free(m->buckets);
     free(m->quarantine);
+    free(m->bans);
     job_t *j = m->jobs;
     while (j) {
         job_t *next = j->next;
         job_free(j);
         j = next;
     }
-    lease_queue_destroy(&m->leases);
     free(m->doomed);
     free(m->workers);
     free(m->results);

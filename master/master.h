@@ -23,13 +23,22 @@ typedef struct master_config {
     const char *worker_endpoint;  /* e.g. tcp port 7070 on every interface, or inproc */
     const char *control_endpoint; /* e.g. tcp port 7071, or inproc */
     uint32_t heartbeat_ms;        /* 0: MASTER_DEFAULT_HEARTBEAT_MS */
-    uint32_t lease_ms;            /* 0: MASTER_DEFAULT_LEASE_MS; a task unanswered
-                                     this long is issued again */
+    uint32_t lease_ms;            /* 0: MASTER_DEFAULT_LEASE_MS; the longest a task may
+                                     go unanswered before it is issued again (leases
+                                     follow the job's task times below it) */
     uint32_t worker_timeout_ms;   /* 0: MASTER_DEFAULT_WORKER_TIMEOUT_HEARTBEATS beats */
-    int allow_shutdown;           /* accept the "shutdown" control command */
-    const char *state_dir;        /* durable state (store.h); NULL: in memory only */
-    double checkpoint_s;          /* 0: MASTER_DEFAULT_CHECKPOINT_S */
-    uint32_t keep_finished;       /* ended jobs kept; 0: MASTER_DEFAULT_KEEP_FINISHED */
+    /* A task out this many times the job's typical task time gets a backup
+     * copy on an idle worker (the first answer wins). 0:
+     * MASTER_DEFAULT_BACKUP_FACTOR; negative: no backups. */
+    double backup_factor;
+    /* A worker whose results are refused MASTER_MAX_BAD_RESULTS times is
+     * dropped and refused this long, doubled on each repeat. 0:
+     * MASTER_DEFAULT_BAN_S. */
+    double ban_s;
+    int allow_shutdown;     /* accept the "shutdown" control command */
+    const char *state_dir;  /* durable state (store.h); NULL: in memory only */
+    double checkpoint_s;    /* 0: MASTER_DEFAULT_CHECKPOINT_S */
+    uint32_t keep_finished; /* ended jobs kept; 0: MASTER_DEFAULT_KEEP_FINISHED */
     /* Limits, each checked before a request's data is copied (0: default). */
     uint32_t max_bundle_mib;        /* scene JSON and meshes of one job */
     uint32_t max_queued_per_client; /* queued and running jobs of one client */

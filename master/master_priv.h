@@ -11,7 +11,7 @@
  *   ctl.c       the control commands, as a table
  *   persist.c   durable state: submissions, checkpoints, final images, and
  *               recovery at startup (through store.h)
- *   lease.c     task leases in deadline order (lease.h)
+ *   lease.c     task leases in the order sent, and task times (lease.h)
  *   verify.c    verification by replication: a seeded share of tasks goes
  *               to two (on a mismatch three) different workers and is
  *               merged only when two results agree bit for bit
@@ -54,7 +54,20 @@
 #define MASTER_CONTROL_HWM 4       /* replies queued per client before drops */
 #define MASTER_MAX_REQUEST_ID 64
 #define MASTER_RATE_BUCKETS 1024 /* connections whose request rate is tracked */
-#define MASTER_MAX_BAD_RESULTS 8 /* refused results before a worker is quarantined */
+#define MASTER_MAX_BAD_RESULTS 3 /* refused results before a worker is banned */
+#define MASTER_BAN_MAX_S 3600.0  /* no ban is longer (the first: --ban-s, each repeat doubles) */
+/* Leases lost in a row (run out, unanswered) before a worker gets no new
+ * task until it answers one: the circuit breaker. */
+#define MASTER_BREAKER_LEASES 3
+/* Leases and backups are judged against this quantile of the job's last
+ * LEASE_TIMES task times (lease.h): the median, which a minority of slow
+ * workers cannot drag up. */
+#define MASTER_TASK_QUANTILE 0.5
+/* A lease runs out after MASTER_LEASE_FACTOR task times, never sooner than
+ * the floor (a hiccup of a host or the network is not a lost task), never
+ * later than --lease-ms. */
+#define MASTER_LEASE_FACTOR 8.0
+#define MASTER_LEASE_FLOOR_S 2.0
 #define MASTER_CONTROL_MAX_BYTES ((int64_t)PROTO_MAX_BUNDLE + (1 << 20))
 /* A job with this many verified tasks waiting for a copy to go out takes
  * no new tasks: with --verify-share 1 and no second worker, results would
@@ -102,6 +115,9 @@ typedef struct peer {
                              (lease ran out, job ended): their late results
                              return credit, other unmatched results do not */
     uint32_t bad_results; /* results refused as out of range or misfit */
+    uint32_t leases_lost; /* leases run out in a row; MASTER_BREAKER_LEASES opens
+                             the breaker, an answer closes it */
+    uint64_t backups;     /* backup copies sent to it */
     double joined, last_seen, last_sent;
     uint64_t rays, tasks_done, busy_us, samples;
     uint64_t tasks_reissued; /* taken back from it: lease ran out, failed, refused */
@@ -133,9 +149,16 @@ typedef struct job {
     char *flags;              /* sched_cfg.flags points here */
     /* progress */
     sched_t *sched;
-    uint32_t *attempt; /* per task id - 1 */
-    uint32_t *holder;  /* per task id - 1: worker slot + 1, 0 none (calloc'd:
-                          no O(tasks) work at submit) */
+    uint32_t *attempt;     /* per task id - 1 */
+    uint32_t *holder;      /* per task id - 1: worker slot + 1, 0 none (calloc'd:
+                              no O(tasks) work at submit) */
+    uint32_t *sent_ms;     /* per task id - 1: when its plain copy was sent, in ms
+                              since epoch (its task time when answered) */
+    double epoch;          /* master_now() when this master took the job */
+    lease_queue_t *leases; /* the copies it has out, oldest first (lease.h) */
+    lease_times_t times;   /* its last task times */
+    uint64_t backups;      /* backup copies sent */
+    uint64_t backups_won;  /* tasks whose backup copy answered first */
     uint32_t outstanding, reissued, failures;
     int requeue_refused; /* a task the scheduler would not take back: fail at the next tick */
     double submitted, started, finished;
@@ -184,8 +207,7 @@ struct master {
     char build[PROTO_BUILD_SIZE + 1];
     uint8_t *payload; /* encode buffer */
     size_t payload_cap;
-    tracer_result_t *results; /* decode buffer */
-    lease_queue_t *leases;
+    tracer_result_t *results;                    /* decode buffer */
     store_t *store;                              /* NULL: --state none, or embedded */
     offload_t *offload;                          /* slow control work, off the loop */
     char (*inflight)[MASTER_MAX_REQUEST_ID + 1]; /* request ids being submitted */
@@ -197,6 +219,9 @@ struct master {
     struct ctl_bucket *buckets; /* request rate per control connection */
     char (*quarantine)[128];    /* workers refused: key, or address without keys */
     size_t quarantine_n, quarantine_cap;
+    struct peer_ban *bans; /* workers refused for a while over bad results */
+    size_t bans_n, bans_cap;
+    uint64_t backups, banned;
     uint64_t malformed, dropped_late, rate_limited;
     uint64_t requeue_refused;       /* tasks the scheduler would not take back (job_requeue) */
     uint64_t tasks_issued;          /* TASK messages sent, copies for verification included */
@@ -261,6 +286,15 @@ void job_reissue(master_t *m, job_t *j, size_t cell);
 /* Hands a task the scheduler gave out (and nobody holds now) back to it;
  * a refusal is logged and counted in m->requeue_refused. */
 void job_requeue(master_t *m, job_t *j, uint64_t task);
+/* The job's typical task time (MASTER_TASK_QUANTILE of its last ones), 0
+ * while too few are known; and how long a copy may be out before its lease
+ * runs out (lease_length with the master's floor and --lease-ms). */
+double job_task_seconds(const job_t *j);
+double job_lease_seconds(const master_t *m, const job_t *j);
+/* Records a copy of task sent now to worker slot (index + 1) with attempt. */
+void job_lease(master_t *m, job_t *j, uint64_t task, uint32_t attempt, uint32_t slot, double now);
+/* now as milliseconds since the job's epoch (sent_ms). */
+uint32_t job_ms(const job_t *j, double now);
 /* After a merge: finishes the job when the scheduler is done, else adds a
  * point to its error series per finished layer. */
 void job_merged(master_t *m, job_t *j);
@@ -306,6 +340,20 @@ int peer_send_task(master_t *m, peer_t *w, job_t *j, const sched_task_t *t, prot
 /* Counts an accepted result's work (rays, busy time, samples) for the job
  * and the worker. */
 void peer_count_result(peer_t *w, job_t *j, const proto_msg_t *msg);
+/* A result of a task w held was refused (malformed, out of range, misfit;
+ * the caller has handed the task back): counted and logged, and at
+ * MASTER_MAX_BAD_RESULTS the worker is dropped and banned for a while. */
+void peer_bad_result(master_t *m, peer_t *w, job_t *j, uint64_t task, const char *err);
+/* Seconds who (a key or an address) is still banned for; 0 if not. */
+double peer_banned_for(master_t *m, const char *who, double now);
+/* The bans still running, as objects {worker, seconds_left, bans}. */
+void peer_bans_json(master_t *m, cJSON *arr, double now);
+/* The circuit breaker: a lease of w ran out; w answered a task (any answer
+ * to a task it holds or is owed closes the breaker); whether it is open
+ * (w gets no new task). */
+void peer_lease_lost(master_t *m, peer_t *w);
+void peer_answered(master_t *m, peer_t *w);
+int peer_breaker_open(const peer_t *w);
 /* Quarantines who (a key or an address) whether or not it is connected:
  * every connection of it is refused and dropped. */
 void peer_quarantine_identity(master_t *m, const char *who, const char *why);
@@ -331,11 +379,20 @@ int verify_start(master_t *m, job_t *j, const sched_task_t *t, peer_t *w, proto_
 int verify_dispatch_copy(master_t *m, peer_t *w, proto_msg_t *msg, double now);
 /* Whether any job has copies waiting for a worker. */
 int verify_copies_waiting(const master_t *m);
+/* A backup copy of task cell + 1, out once (to its holder) for too long,
+ * to w: the task becomes an entry whose first valid answer is merged and
+ * whose other copy is then dropped as late. 1 if sent or tried (w may be
+ * lost, or the job failed), 0 if it does not qualify or out of memory. */
+int verify_backup(master_t *m, job_t *j, size_t cell, peer_t *w, proto_msg_t *msg, double now);
+/* Whether the task of a cell held by verify still has the copy that worker
+ * slot (index + 1) was sent with attempt: a lease that names it is live. */
+int verify_copy_live(const job_t *j, size_t cell, uint32_t slot, uint32_t attempt);
 /* Whether the job takes no new tasks for now (MASTER_VERIFY_MAX_QUEUED). */
 int verify_saturated(const job_t *j);
-/* A RESULT or TASK_FAILED for a task being verified: 0 if it was for a copy
- * w holds (handled), -1 if not (the caller counts it unmatched). */
-int verify_on_result(master_t *m, peer_t *w, job_t *j, const proto_msg_t *msg);
+/* A RESULT or TASK_FAILED for a task being verified (bad: a RESULT whose
+ * records did not decode, and why): 0 if it was for a copy w holds
+ * (handled), -1 if not (the caller counts it unmatched). */
+int verify_on_result(master_t *m, peer_t *w, job_t *j, const proto_msg_t *msg, const char *bad);
 /* The lease of a copy ran out: the copy goes to another worker. */
 void verify_lease_expired(master_t *m, job_t *j, size_t cell, const lease_t *l);
 /* Worker slot (index + 1) is gone: the copies it held go out again (and its

@@ -224,32 +224,139 @@ int peer_readmit(master_t *m, const char *who)
     return -1;
 }
 
-/* ---- dispatch ------------------------------------------------------------------- */
+/* ---- bans and the circuit breaker ------------------------------------------------ */
 
-/* The oldest running job's next ready task, starting queued jobs as it goes. */
-static job_t *next_task(master_t *m, sched_task_t *t, double now)
+/* A worker refused for a while: its identity, until when, and how many
+ * times it has been banned (each ban doubles the last). */
+typedef struct peer_ban {
+    char who[MASTER_MAX_WHO];
+    double until;
+    uint32_t strikes;
+} peer_ban_t;
+
+static peer_ban_t *ban_find(master_t *m, const char *who)
 {
-    for (job_t *j = m->jobs; j; j = j->next) {
-        if (j->state == JOB_QUEUED) {
-            j->state = JOB_RUNNING;
-            j->started = now;
-            master_log(m, "job %" PRIu64 " started: %s %ux%u, %u spp, G %u, adaptive %s", j->id,
-                       j->name, j->width, j->height, j->spp, j->granularity,
-                       sched_adaptive_name(j->adaptive));
-        }
-        if (j->state != JOB_RUNNING || j->stopped_issuing || verify_saturated(j))
-            continue;
-        if (sched_next(j->sched, t) == SCHED_NEXT_TASK)
-            return j;
-    }
+    for (size_t i = 0; i < m->bans_n; i++)
+        if (strcmp(m->bans[i].who, who) == 0)
+            return &m->bans[i];
     return NULL;
 }
+
+double peer_banned_for(master_t *m, const char *who, double now)
+{
+    const peer_ban_t *b = ban_find(m, who);
+    return b && b->until > now ? b->until - now : 0;
+}
+
+/* The entry for who, new or the one whose ban ended longest ago when the
+ * list is full (MASTER_MAX_WORKERS identities); NULL when out of memory. */
+static peer_ban_t *ban_entry(master_t *m, const char *who)
+{
+    peer_ban_t *b = ban_find(m, who);
+    if (b)
+        return b;
+    if (m->bans_n == m->bans_cap && m->bans_cap < MASTER_MAX_WORKERS) {
+        size_t cap = m->bans_cap ? 2 * m->bans_cap : 8;
+        peer_ban_t *nb = realloc(m->bans, cap * sizeof *nb);
+        if (nb) {
+            m->bans = nb;
+            m->bans_cap = cap;
+        }
+    }
+    if (m->bans_n < m->bans_cap) {
+        b = &m->bans[m->bans_n++];
+    } else {
+        if (m->bans_n == 0)
+            return NULL;
+        b = &m->bans[0];
+        for (size_t i = 1; i < m->bans_n; i++)
+            if (m->bans[i].until < b->until)
+                b = &m->bans[i];
+    }
+    memset(b, 0, sizeof *b);
+    snprintf(b->who, sizeof b->who, "%s", who);
+    return b;
+}
+
+/* Drops the worker and refuses its identity for --ban-s, doubled on each
+ * repeat up to MASTER_BAN_MAX_S. */
+static void peer_ban(master_t *m, peer_t *w, const char *why)
+{
+    char who[MASTER_MAX_WHO];
+    snprintf(who, sizeof who, "%s", peer_identity(w));
+    double now = master_now(), len = m->cfg.ban_s;
+    peer_ban_t *b = ban_entry(m, who);
+    if (b) {
+        for (uint32_t k = 0; k < b->strikes && len < MASTER_BAN_MAX_S; k++)
+            len *= 2;
+        len = len > MASTER_BAN_MAX_S ? MASTER_BAN_MAX_S : len;
+        b->strikes++;
+        b->until = now + len;
+    }
+    m->banned++;
+    master_log(m, "worker %s banned for %.0f s (ban %u): %s", who, len, b ? b->strikes : 1, why);
+    char text[512];
+    snprintf(text, sizeof text, "banned for %.0f s: %.400s", len, why);
+    send_text(m, w->id, w->id_len, PROTO_REFUSE, text);
+    peer_lost(m, w, "banned");
+}
+
+void peer_bad_result(master_t *m, peer_t *w, job_t *j, uint64_t task, const char *err)
+{
+    m->malformed++;
+    w->bad_results++;
+    master_log_limited(m, "bad-result",
+                       "job %" PRIu64 " task %" PRIu64
+                       ": bad result %u from %s (a ban at %d): %s; the task is issued again",
+                       j->id, task, w->bad_results, peer_identity(w), MASTER_MAX_BAD_RESULTS, err);
+    if (w->bad_results >= MASTER_MAX_BAD_RESULTS) {
+        char why[VB_ERR_LEN];
+        snprintf(why, sizeof why, "%u results refused; the last: %.700s", w->bad_results, err);
+        peer_ban(m, w, why);
+    }
+}
+
+void peer_lease_lost(master_t *m, peer_t *w)
+{
+    if (++w->leases_lost == MASTER_BREAKER_LEASES)
+        master_log(m,
+                   "worker %s: %d leases ran out in a row; no new task for it until it answers "
+                   "one",
+                   w->host, MASTER_BREAKER_LEASES);
+}
+
+void peer_answered(master_t *m, peer_t *w)
+{
+    if (w->leases_lost >= MASTER_BREAKER_LEASES)
+        master_log(m, "worker %s answered again; it gets tasks again", w->host);
+    w->leases_lost = 0;
+}
+
+int peer_breaker_open(const peer_t *w)
+{
+    return w->leases_lost >= MASTER_BREAKER_LEASES;
+}
+
+void peer_bans_json(master_t *m, cJSON *arr, double now)
+{
+    for (size_t i = 0; arr && i < m->bans_n; i++) {
+        if (!(m->bans[i].until > now))
+            continue;
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddStringToObject(o, "worker", m->bans[i].who);
+        cJSON_AddNumberToObject(o, "seconds_left", m->bans[i].until - now);
+        cJSON_AddNumberToObject(o, "bans", m->bans[i].strikes);
+        cJSON_AddItemToArray(arr, o);
+    }
+}
+
+/* ---- dispatch ------------------------------------------------------------------- */
 
 static peer_t *next_peer_with_credit(master_t *m, uint32_t from, uint32_t *slot)
 {
     for (uint32_t k = 0; k < m->worker_count; k++) {
         uint32_t i = (from + k) % m->worker_count;
-        if (m->workers[i].alive && m->workers[i].credit > 0) {
+        if (m->workers[i].alive && m->workers[i].credit > 0 && !peer_breaker_open(&m->workers[i])) {
             *slot = i;
             return &m->workers[i];
         }
@@ -277,52 +384,119 @@ int peer_send_task(master_t *m, peer_t *w, job_t *j, const sched_task_t *t, prot
     return rc;
 }
 
-/* Hands worker w (index i) a new task, sent once or, when chosen, as the
- * first copy of a verified task: 1 if one was taken from a scheduler, 0 if
- * none is ready, -1 when out of memory. */
-static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t *msg, double now)
+/* Sends task t, just handed out by j's scheduler, to worker w (index i):
+ * once, or when chosen, as the first copy of a verified task. 1, or -1
+ * when out of memory. */
+static int send_new(master_t *m, peer_t *w, uint32_t i, job_t *j, const sched_task_t *t,
+                    proto_msg_t *msg, double now)
 {
-    sched_task_t t;
-    job_t *j = next_task(m, &t, now);
-    if (!j)
-        return 0;
-    if (verify_wanted(m, j, t.id))
-        return verify_start(m, j, &t, w, msg, now);
-    size_t c = (size_t)(t.id - 1);
+    if (verify_wanted(m, j, t->id))
+        return verify_start(m, j, t, w, msg, now);
+    size_t c = (size_t)(t->id - 1);
     uint32_t attempt;
-    int rc = peer_send_task(m, w, j, &t, msg, &attempt);
+    int rc = peer_send_task(m, w, j, t, msg, &attempt);
     if (rc == SEND_BAD_MESSAGE) {
-        job_requeue(m, j, t.id);
+        job_requeue(m, j, t->id);
         job_finish(m, j, JOB_FAILED, "a task of this job cannot be encoded (see the master's log)");
         return 1;
     }
     if (rc == SEND_UNREACHABLE) {
-        job_requeue(m, j, t.id);
+        job_requeue(m, j, t->id);
         peer_lost(m, w, "unreachable");
         return 1;
     }
     j->holder[c] = i + 1;
-    lease_t l = {.job = j->id,
-                 .task = t.id,
-                 .attempt = attempt,
-                 .slot = i + 1,
-                 .deadline = now + m->cfg.lease_ms / 1000.0};
-    if (lease_push(m->leases, &l) < 0)
-        master_log(m, "job %" PRIu64 " task %" PRIu64 ": out of memory for its lease", j->id, t.id);
+    j->sent_ms[c] = job_ms(j, now);
+    job_lease(m, j, t->id, attempt, i + 1, now);
     j->outstanding++;
     w->outstanding++;
     w->credit--;
     master_log_at(m, VBLOG_DEBUG, "job %" PRIu64 " task %" PRIu64 " (attempt %u) issued to %s",
-                  j->id, t.id, attempt, w->host);
+                  j->id, t->id, attempt, w->host);
     return 1;
+}
+
+/* Whether lease l of job j still names a copy out (plain or one of
+ * several): a stale lease stays stale, attempts only grow. */
+static int lease_live(const job_t *j, const lease_t *l)
+{
+    size_t c = (size_t)(l->task - 1);
+    if (verify_holds(j, c))
+        return verify_copy_live(j, c, l->slot, l->attempt);
+    return j->holder[c] == l->slot && j->attempt[c] == l->attempt;
+}
+
+/* A backup copy for worker w (slot + 1 = its index + 1) of the task of j
+ * that has been out longest, if that is more than --backup-factor task
+ * times: MapReduce's answer to stragglers. Only a task sent once qualifies
+ * (a task out as several copies has its own rules, verify.c); one that w
+ * itself holds sets *blocked, so that dispatch offers it to the next
+ * worker. 1 if a copy was sent or tried, 0 if none qualifies. */
+static int send_backup(master_t *m, peer_t *w, job_t *j, proto_msg_t *msg, double now, int *blocked)
+{
+    double task_s = job_task_seconds(j);
+    if (!(m->cfg.backup_factor > 0) || !(task_s > 0))
+        return 0;
+    double before = now - m->cfg.backup_factor * task_s;
+    uint32_t slot = (uint32_t)(w - m->workers) + 1;
+    size_t k = 0;
+    for (const lease_t *l; (l = lease_at(j->leases, k)) && l->sent < before;) {
+        size_t c = (size_t)(l->task - 1);
+        if (!lease_live(j, l)) {
+            if (k == 0)
+                lease_pop(j->leases); /* stale for good: off the head */
+            else
+                k++;
+            continue;
+        }
+        if (verify_holds(j, c)) {
+            k++; /* a backup is out already, or it is being verified */
+            continue;
+        }
+        if (l->slot == slot) {
+            *blocked = 1;
+            k++;
+            continue;
+        }
+        return verify_backup(m, j, c, w, msg, now);
+    }
+    return 0;
+}
+
+/* Hands worker w (index i) the oldest running job's next ready task,
+ * starting queued jobs as it goes; a job with none ready and a straggler
+ * out gets a backup copy of it instead. 1 if something was sent or tried,
+ * 0 if nothing suits w (*blocked: something might suit another worker),
+ * -1 when out of memory. */
+static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t *msg, double now,
+                        int *blocked)
+{
+    for (job_t *j = m->jobs; j; j = j->next) {
+        if (j->state == JOB_QUEUED) {
+            j->state = JOB_RUNNING;
+            j->started = now;
+            master_log(m, "job %" PRIu64 " started: %s %ux%u, %u spp, G %u, adaptive %s", j->id,
+                       j->name, j->width, j->height, j->spp, j->granularity,
+                       sched_adaptive_name(j->adaptive));
+        }
+        if (j->state != JOB_RUNNING || j->stopped_issuing || verify_saturated(j))
+            continue;
+        sched_task_t t;
+        if (sched_next(j->sched, &t) == SCHED_NEXT_TASK)
+            return send_new(m, w, i, j, &t, msg, now);
+        int rc = send_backup(m, w, j, msg, now, blocked);
+        if (rc != 0)
+            return rc;
+    }
+    return 0;
 }
 
 /* Hands ready tasks to workers with credit, one task per worker in turn
  * (round robin from the worker after the last one served), so a trickle of
  * ready tasks spreads over all workers instead of filling the first. Copies
  * waiting for verification go first. A worker given nothing ends the round
- * unless copies wait: one it may not run (it has the first copy) may suit
- * the next worker, so the round goes on until it comes back to it. */
+ * unless copies wait or a backup it may not run (its own task) may suit the
+ * next worker: then the round goes on until it comes back to it. */
 void dispatch(master_t *m)
 {
     double now = master_now();
@@ -330,19 +504,20 @@ void dispatch(master_t *m)
     uint32_t from = m->rr, first_miss = UINT32_MAX;
     for (;;) {
         uint32_t i = 0;
+        int blocked = 0;
         peer_t *w = next_peer_with_credit(m, from, &i);
         if (!w || i == first_miss)
             break;
         int rc = verify_dispatch_copy(m, w, &msg, now);
         if (rc == 0)
-            rc = dispatch_new(m, w, i, &msg, now);
+            rc = dispatch_new(m, w, i, &msg, now, &blocked);
         if (rc < 0)
             break;
         from = i + 1;
         if (rc > 0) {
             m->rr = from;
             first_miss = UINT32_MAX;
-        } else if (!verify_copies_waiting(m)) {
+        } else if (!blocked && !verify_copies_waiting(m)) {
             break;
         } else if (first_miss == UINT32_MAX) {
             first_miss = i;
@@ -387,63 +562,80 @@ static void unmatched_result(master_t *m, peer_t *w, job_t *j)
     if (w->owed > 0) {
         w->owed--;
         w->credit++;
+        peer_answered(m, w); /* late, but an answer: the breaker closes */
     }
     if (j)
         j->late_results++;
     m->dropped_late++;
 }
 
-static void on_result(master_t *m, peer_t *w, proto_msg_t *msg)
+/* A malformed RESULT that answers no task its sender holds: dropped. */
+static void malformed_result(master_t *m, const char *why)
+{
+    m->malformed++;
+    master_log_limited(m, "malformed", "dropped a malformed RESULT (%" PRIu64 " so far): %s",
+                       m->malformed, why);
+}
+
+/* A RESULT or TASK_FAILED from w; bad (not NULL): a RESULT whose header
+ * decoded but whose payload did not, with what is wrong. A bad result for
+ * a task w holds hands the task back at once, with a new attempt. */
+static void on_result(master_t *m, peer_t *w, proto_msg_t *msg, const char *bad)
 {
     job_t *j = job_find(m, msg->h.job);
     if (!j || j->state != JOB_RUNNING || !j->holder) {
-        unmatched_result(m, w, NULL);
+        if (bad)
+            malformed_result(m, bad);
+        else
+            unmatched_result(m, w, NULL);
         return;
     }
     uint64_t id = msg->h.task;
     size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
     uint32_t slot = (uint32_t)(w - m->workers) + 1;
     if (id != 0 && id <= cells && verify_holds(j, id - 1)) {
-        if (verify_on_result(m, w, j, msg) < 0)
-            unmatched_result(m, w, j);
+        if (verify_on_result(m, w, j, msg, bad) < 0) {
+            if (bad)
+                malformed_result(m, bad);
+            else
+                unmatched_result(m, w, j);
+        }
         return;
     }
     if (id == 0 || id > cells || j->holder[id - 1] != slot ||
         j->attempt[id - 1] != msg->h.attempt) {
-        unmatched_result(m, w, j);
+        if (bad)
+            malformed_result(m, bad);
+        else
+            unmatched_result(m, w, j);
         return;
     }
     w->credit++; /* a result of a task it holds returns the task's credit */
     size_t c = (size_t)(id - 1);
     if (msg->h.type == PROTO_TASK_FAILED) {
+        peer_answered(m, w);
         on_task_failed(m, w, j, c, msg->u.text.text);
         return;
     }
     char err[VB_ERR_LEN];
-    int rc =
-        sched_complete(j->sched, id, msg->u.result.records, msg->u.result.count, err, sizeof err);
+    int rc = bad ? SCHED_BAD_RESULT
+                 : sched_complete(j->sched, id, msg->u.result.records, msg->u.result.count, err,
+                                  sizeof err);
     j->holder[c] = 0;
     j->outstanding--;
     w->outstanding--;
     if (rc < 0) {
-        /* a result that does not fit its task: drop it, issue the task again,
-         * and count it against the worker */
-        m->malformed++;
-        w->bad_results++;
-        master_log_limited(m, "bad-result",
-                           "job %" PRIu64 " task %" PRIu64 ": bad result from %s: %s", j->id, id,
-                           peer_identity(w), err);
+        /* a result that does not fit its task: dropped, the task issued
+         * again at once, and counted against the worker */
         j->reissued++;
         w->tasks_reissued++;
         job_requeue(m, j, id); /* still outstanding: nothing was merged */
-        if (w->bad_results >= MASTER_MAX_BAD_RESULTS) {
-            char why[VB_ERR_LEN];
-            snprintf(why, sizeof why, "%u results refused; the last: %.700s", w->bad_results, err);
-            verify_note_quarantined(j, peer_identity(w));
-            peer_quarantine(m, w, why);
-        }
+        peer_bad_result(m, w, j, id, bad ? bad : err);
         return;
     }
+    double now = master_now();
+    lease_times_add(&j->times, now - (j->epoch + j->sent_ms[c] / 1000.0));
+    peer_answered(m, w);
     peer_count_result(w, j, msg);
     master_log_at(m, VBLOG_DEBUG, "job %" PRIu64 " task %" PRIu64 " merged from %s", j->id, id,
                   w->host);
@@ -465,6 +657,16 @@ void peer_count_result(peer_t *w, job_t *j, const proto_msg_t *msg)
 static void on_hello(master_t *m, const uint8_t *id, size_t id_len, const char *host,
                      const char *key, proto_msg_t *msg)
 {
+    double banned = peer_banned_for(m, key && *key ? key : host, master_now());
+    if (banned > 0) {
+        char text[160];
+        snprintf(text, sizeof text, "banned for another %.0f s: this worker's results were refused",
+                 banned);
+        master_log_limited(m, "banned", "refused banned worker %s (%.0f s left)",
+                           key && *key ? key : host, banned);
+        send_text(m, id, id_len, PROTO_REFUSE, text);
+        return;
+    }
     if (peer_quarantined(m, key && *key ? key : host)) {
         master_log_limited(m, "quarantined", "refused quarantined worker %s",
                            key && *key ? key : host);
@@ -550,11 +752,14 @@ static void on_scene_request(master_t *m, peer_t *w, proto_msg_t *msg)
         peer_lost(m, w, "unreachable");
 }
 
-static void on_message(master_t *m, const uint8_t *id, size_t id_len, proto_msg_t *msg)
+static void on_message(master_t *m, const uint8_t *id, size_t id_len, proto_msg_t *msg,
+                       const char *bad)
 {
     peer_t *w = find_peer(m, id, id_len);
     if (!w) {
-        if (msg->h.type == PROTO_RESULT || msg->h.type == PROTO_TASK_FAILED) {
+        if (bad) {
+            malformed_result(m, bad);
+        } else if (msg->h.type == PROTO_RESULT || msg->h.type == PROTO_TASK_FAILED) {
             /* from a worker dropped meanwhile (silent, partitioned): its
              * tasks went out again, so this result is late */
             job_t *j = job_find(m, msg->h.job);
@@ -567,6 +772,10 @@ static void on_message(master_t *m, const uint8_t *id, size_t id_len, proto_msg_
         return;
     }
     w->last_seen = master_now();
+    if (bad) {
+        on_result(m, w, msg, bad);
+        return;
+    }
     switch (msg->h.type) {
     case PROTO_CREDIT: {
         /* credit, tasks held and tasks owed never exceed what a worker of
@@ -581,7 +790,7 @@ static void on_message(master_t *m, const uint8_t *id, size_t id_len, proto_msg_
         break;
     case PROTO_RESULT:
     case PROTO_TASK_FAILED:
-        on_result(m, w, msg);
+        on_result(m, w, msg, NULL);
         break;
     case PROTO_HEARTBEAT:
         break;
@@ -627,6 +836,7 @@ void peer_handle_message(master_t *m)
     /* results only: a worker sends no bundle or task, so none is stored */
     proto_records_t recs = {.results = m->results, .result_capacity = PROTO_MAX_TASK_PIXELS};
     proto_msg_t msg;
+    msg.h.type = 0; /* proto_decode sets it once the header is read */
     char err[VB_ERR_LEN];
     int rc = proto_frames_decode(&fr, 1, &msg, &recs, err, sizeof err);
     if (!master_peer_allowed(m, AUTH_DOMAIN_WORKERS, &fr.part[1])) {
@@ -645,6 +855,10 @@ void peer_handle_message(master_t *m)
         m->malformed++;
         master_log_limited(m, "refused", "refused a peer: %s", err);
         send_text(m, id, id_len, PROTO_REFUSE, text);
+    } else if (rc < 0 && msg.h.type == PROTO_RESULT) {
+        /* its header decoded (proto_decode fills it first), its records did
+         * not: a bad answer to a task its sender may hold */
+        on_message(m, id, id_len, &msg, err);
     } else if (rc < 0) {
         m->malformed++;
         master_log_limited(m, "malformed",
@@ -654,7 +868,7 @@ void peer_handle_message(master_t *m)
         const char *key = zmq_msg_gets(&fr.part[1], "User-Id");
         on_hello(m, id, id_len, host, key, &msg);
     } else {
-        on_message(m, id, id_len, &msg);
+        on_message(m, id, id_len, &msg, NULL);
     }
     proto_frames_close(&fr);
 }

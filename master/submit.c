@@ -223,7 +223,10 @@ static int submit_settings(job_t *j, const cJSON *req, char *err, size_t errlen)
     size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
     j->attempt = calloc(cells, sizeof *j->attempt);
     j->holder = calloc(cells, sizeof *j->holder);
-    if (!j->attempt || !j->holder) {
+    j->sent_ms = calloc(cells, sizeof *j->sent_ms);
+    j->leases = lease_queue_new();
+    j->epoch = master_now();
+    if (!j->attempt || !j->holder || !j->sent_ms || !j->leases) {
         snprintf(err, errlen, "out of memory");
         return -1;
     }

@@ -44,6 +44,7 @@
 typedef struct vcopy {
     uint32_t slot;    /* worker index + 1 while it holds the copy */
     uint32_t attempt; /* the attempt number it was sent with */
+    double sent;      /* when (its task time once answered) */
     int answered;
     tracer_result_t *res;     /* the answer, range-checked */
     char who[MASTER_MAX_WHO]; /* identity of the worker it went to */
@@ -53,6 +54,8 @@ typedef struct ventry {
     uint64_t task;  /* 0: a free entry */
     uint32_t count; /* records of the task */
     int queued;     /* in the queue of entries that need a copy sent */
+    int backup;     /* a straggler's task with a backup copy: the first valid
+                       answer is merged, no agreement needed */
     uint32_t next_free;
     vcopy_t c[VERIFY_COPIES];
 } ventry_t;
@@ -96,9 +99,12 @@ static uint32_t answered(const ventry_t *e)
 }
 
 /* Two copies, or three once two answers differ (answers kept always
- * differ: two that agree are merged at once). */
+ * differ: two that agree are merged at once); a backup entry needs one
+ * copy out until one answers. */
 static uint32_t wanted(const ventry_t *e)
 {
+    if (e->backup)
+        return 1;
     return answered(e) >= 2 ? 3 : 2;
 }
 
@@ -116,6 +122,20 @@ static int has_who(const ventry_t *e, const char *who)
     return 0;
 }
 
+/* Whether worker w may run a copy of the entry's task: a verified task
+ * goes to another identity than those with a copy, a backup to another
+ * connection than the one that holds it. */
+static int may_take(const master_t *m, const ventry_t *e, const peer_t *w)
+{
+    if (!e->backup)
+        return !has_who(e, peer_identity(w));
+    uint32_t slot = (uint32_t)(w - m->workers) + 1;
+    for (int k = 0; k < VERIFY_COPIES; k++)
+        if (e->c[k].slot == slot)
+            return 0;
+    return 1;
+}
+
 static int free_copy(const ventry_t *e)
 {
     for (int k = 0; k < VERIFY_COPIES; k++)
@@ -131,12 +151,21 @@ static void forget_answer(vcopy_t *c)
     c->answered = 0;
 }
 
-/* Up to max distinct identities of the connected workers, into ids. */
+/* Whether w can take a copy now or later: connected, its breaker closed,
+ * and credit to use or tasks out that will return some. A worker whose
+ * every credit is owed for tasks taken back (a hoarder) cannot, until a
+ * late answer returns one: copies must not wait for it. */
+static int can_work(const peer_t *w)
+{
+    return w->alive && !peer_breaker_open(w) && w->credit + w->outstanding > 0;
+}
+
+/* Up to max distinct identities of the workers that can work, into ids. */
 static uint32_t alive_identities(const master_t *m, const char **ids, uint32_t max)
 {
     uint32_t n = 0;
     for (uint32_t i = 0; i < m->worker_count && n < max; i++) {
-        if (!m->workers[i].alive)
+        if (!can_work(&m->workers[i]))
             continue;
         const char *who = peer_identity(&m->workers[i]);
         uint32_t k = 0;
@@ -280,10 +309,12 @@ static void entry_drop(master_t *m, job_t *j, uint32_t idx)
     job_requeue(m, j, task);
 }
 
+typedef enum { MERGE_VERIFIED, MERGE_UNVERIFIED, MERGE_BACKUP } merge_kind_t;
+
 /* Merges res for the entry's task and closes the entry. The job may end
  * here (job_merged): nothing of it may be touched after. */
 static void entry_merge(master_t *m, job_t *j, uint32_t idx, const tracer_result_t *res,
-                        int verified)
+                        merge_kind_t kind)
 {
     ventry_t *e = &j->verify->pool[idx];
     char err[VB_ERR_LEN];
@@ -296,10 +327,12 @@ static void entry_merge(master_t *m, job_t *j, uint32_t idx, const tracer_result
         entry_drop(m, j, idx);
         return;
     }
-    if (verified)
+    if (kind == MERGE_VERIFIED)
         j->tasks_verified++;
-    else
+    else if (kind == MERGE_UNVERIFIED)
         j->tasks_unverified++;
+    else
+        verify_note_plain(m, j, e->task); /* it went out as a plain task */
     entry_close(m, j, idx);
     job_merged(m, j);
 }
@@ -337,14 +370,9 @@ static int send_copy(master_t *m, job_t *j, uint32_t idx, int k, peer_t *w, prot
     vcopy_t *c = &j->verify->pool[idx].c[k];
     c->slot = slot;
     c->attempt = attempt;
+    c->sent = now;
     snprintf(c->who, sizeof c->who, "%s", peer_identity(w));
-    lease_t l = {.job = j->id,
-                 .task = task,
-                 .attempt = attempt,
-                 .slot = slot,
-                 .deadline = now + m->cfg.lease_ms / 1000.0};
-    if (lease_push(m->leases, &l) < 0)
-        master_log(m, "job %" PRIu64 " task %" PRIu64 ": out of memory for a lease", j->id, task);
+    job_lease(m, j, task, attempt, slot, now);
     w->outstanding++;
     w->credit--;
     return SEND_OK;
@@ -379,7 +407,6 @@ int verify_start(master_t *m, job_t *j, const sched_task_t *t, peer_t *w, proto_
 
 int verify_dispatch_copy(master_t *m, peer_t *w, proto_msg_t *msg, double now)
 {
-    const char *who = peer_identity(w);
     for (job_t *j = m->jobs; j; j = j->next) {
         verify_job_t *v = j->verify;
         if (j->state != JOB_RUNNING || !v)
@@ -391,7 +418,7 @@ int verify_dispatch_copy(master_t *m, peer_t *w, proto_msg_t *msg, double now)
                 queue_remove_at(v, q); /* stale: a copy came back meanwhile */
                 continue;
             }
-            if (has_who(e, who)) {
+            if (!may_take(m, e, w)) {
                 q++;
                 continue;
             }
@@ -417,6 +444,45 @@ int verify_saturated(const job_t *j)
     return j->verify && j->verify->qlen >= MASTER_VERIFY_MAX_QUEUED;
 }
 
+int verify_backup(master_t *m, job_t *j, size_t cell, peer_t *w, proto_msg_t *msg, double now)
+{
+    uint64_t task = (uint64_t)cell + 1;
+    uint32_t holder = j->holder[cell];
+    sched_task_t t;
+    if (holder == 0 || verify_holds(j, cell) || sched_outstanding(j->sched, task, &t) != SCHED_OK)
+        return 0;
+    uint32_t idx = entry_new(j, task, t.count);
+    if (idx == NO_ENTRY)
+        return 0; /* out of memory: the task stays with its one worker */
+    ventry_t *e = &j->verify->pool[idx];
+    e->backup = 1;
+    e->c[0].slot = holder;
+    e->c[0].attempt = j->attempt[cell];
+    e->c[0].sent = j->epoch + j->sent_ms[cell] / 1000.0;
+    snprintf(e->c[0].who, sizeof e->c[0].who, "%s", peer_identity(&m->workers[holder - 1]));
+    j->holder[cell] = MASTER_VERIFY_HOLDER | idx; /* still one task outstanding */
+    double out = now - e->c[0].sent;
+    if (send_copy(m, j, idx, 1, w, msg, now) == SEND_OK) {
+        j->backups++;
+        m->backups++;
+        w->backups++;
+        master_log_at(m, VBLOG_DEBUG,
+                      "job %" PRIu64 " task %" PRIu64 ": out %.3f s on %s (task time %.3f s); "
+                      "backup copy sent to %s",
+                      j->id, task, out, m->workers[holder - 1].host, job_task_seconds(j), w->host);
+    }
+    return 1; /* after SEND_BAD_MESSAGE the job has failed; after UNREACHABLE w is gone */
+}
+
+int verify_copy_live(const job_t *j, size_t cell, uint32_t slot, uint32_t attempt)
+{
+    const ventry_t *e = &j->verify->pool[j->holder[cell] & ~MASTER_VERIFY_HOLDER];
+    for (int k = 0; k < VERIFY_COPIES; k++)
+        if (e->c[k].slot == slot && e->c[k].attempt == attempt)
+            return 1;
+    return 0;
+}
+
 /* ---- answers ------------------------------------------------------------------ */
 
 static void copy_failed(master_t *m, peer_t *w, job_t *j, uint32_t idx, int k, const char *text)
@@ -436,24 +502,15 @@ static void copy_failed(master_t *m, peer_t *w, job_t *j, uint32_t idx, int k, c
     enqueue(j->verify, idx);
 }
 
-/* Out of range or misfit: counted against the worker, as in peers.c, and
- * the copy goes to another worker. */
+/* Malformed, out of range or misfit: counted against the worker, as in
+ * peers.c, and the copy goes to another worker at once. */
 static void copy_refused(master_t *m, peer_t *w, job_t *j, uint32_t idx, int k, const char *err)
 {
     ventry_t *e = &j->verify->pool[idx];
     e->c[k].slot = 0;
-    m->malformed++;
-    w->bad_results++;
-    master_log_limited(m, "bad-result", "job %" PRIu64 " task %" PRIu64 ": bad result from %s: %s",
-                       j->id, e->task, peer_identity(w), err);
     j->reissued++;
     enqueue(j->verify, idx);
-    if (w->bad_results >= MASTER_MAX_BAD_RESULTS) {
-        char why[VB_ERR_LEN];
-        snprintf(why, sizeof why, "%u results refused; the last: %.700s", w->bad_results, err);
-        verify_note_quarantined(j, peer_identity(w));
-        peer_quarantine(m, w, why);
-    }
+    peer_bad_result(m, w, j, e->task, err); /* may ban w */
 }
 
 /* Two answers agree with each other and not with a third (answered copy
@@ -473,7 +530,7 @@ static void agreed(master_t *m, job_t *j, uint32_t idx, int k, int other, int od
                    e->task, e->c[k].who, e->c[other].who, liar);
         verify_note_quarantined(j, liar);
     }
-    entry_merge(m, j, idx, res, 1); /* may end the job */
+    entry_merge(m, j, idx, res, MERGE_VERIFIED); /* may end the job */
     if (liar[0])
         peer_quarantine_identity(m, liar, why);
 }
@@ -486,6 +543,12 @@ static void copy_answered(master_t *m, job_t *j, uint32_t idx, int k, const trac
     ventry_t *e = &j->verify->pool[idx];
     int others[VERIFY_COPIES], n = 0;
     e->c[k].slot = 0;
+    if (e->backup) {
+        if (k != 0)
+            j->backups_won++;                      /* copy 0 is the straggler's own */
+        entry_merge(m, j, idx, res, MERGE_BACKUP); /* may end the job */
+        return;
+    }
     for (int i = 0; i < VERIFY_COPIES; i++)
         if (i != k && e->c[i].answered)
             others[n++] = i;
@@ -522,13 +585,13 @@ static void copy_answered(master_t *m, job_t *j, uint32_t idx, int k, const trac
     const char *ids[VERIFY_COPIES + 1];
     uint32_t nid = alive_identities(m, ids, VERIFY_COPIES + 1);
     if (n == 0 && m->cfg.verify_share < 1 && !held(e) && !can_place(e, ids, nid)) {
-        entry_merge(m, j, idx, e->c[k].res, 0); /* no second worker left */
+        entry_merge(m, j, idx, e->c[k].res, MERGE_UNVERIFIED); /* no second worker left */
         return;
     }
     enqueue(j->verify, idx);
 }
 
-int verify_on_result(master_t *m, peer_t *w, job_t *j, const proto_msg_t *msg)
+int verify_on_result(master_t *m, peer_t *w, job_t *j, const proto_msg_t *msg, const char *bad)
 {
     uint32_t idx = j->holder[msg->h.task - 1] & ~MASTER_VERIFY_HOLDER;
     ventry_t *e = &j->verify->pool[idx];
@@ -542,15 +605,18 @@ int verify_on_result(master_t *m, peer_t *w, job_t *j, const proto_msg_t *msg)
     if (w->outstanding)
         w->outstanding--;
     if (msg->h.type == PROTO_TASK_FAILED) {
+        peer_answered(m, w);
         copy_failed(m, w, j, idx, k, msg->u.text.text);
         return 0;
     }
     char err[VB_ERR_LEN];
-    if (sched_check(j->sched, e->task, msg->u.result.records, msg->u.result.count, err,
-                    sizeof err) != SCHED_OK) {
-        copy_refused(m, w, j, idx, k, err);
+    if (bad || sched_check(j->sched, e->task, msg->u.result.records, msg->u.result.count, err,
+                           sizeof err) != SCHED_OK) {
+        copy_refused(m, w, j, idx, k, bad ? bad : err);
         return 0;
     }
+    lease_times_add(&j->times, master_now() - e->c[k].sent);
+    peer_answered(m, w);
     peer_count_result(w, j, msg);
     copy_answered(m, j, idx, k, msg->u.result.records);
     return 0;
@@ -568,6 +634,7 @@ void verify_lease_expired(master_t *m, job_t *j, size_t cell, const lease_t *l)
                        "job %" PRIu64 " task %" PRIu64
                        ": lease of a copy ran out on %s; sending it again",
                        j->id, l->task, m->workers[l->slot - 1].host);
+            peer_lease_lost(m, &m->workers[l->slot - 1]);
             release_copy(m, &e->c[k]); /* no credit back: it still works on it */
             j->reissued++;
             enqueue(j->verify, idx);
@@ -633,6 +700,11 @@ static void tick_job(master_t *m, job_t *j, const char **ids, uint32_t nid)
         ventry_t *e = &j->verify->pool[idx];
         if (!e->task)
             continue;
+        if (e->backup) { /* any worker but its holder may take a copy */
+            if (needs_copy(e))
+                enqueue(j->verify, idx);
+            continue;
+        }
         for (int k = 0; k < VERIFY_COPIES; k++)
             if (e->c[k].answered && peer_quarantined(m, e->c[k].who))
                 forget_answer(&e->c[k]);
@@ -645,7 +717,7 @@ static void tick_job(master_t *m, job_t *j, const char **ids, uint32_t nid)
             int k = 0;
             while (!e->c[k].answered)
                 k++;
-            entry_merge(m, j, idx, e->c[k].res, 0); /* may end the job */
+            entry_merge(m, j, idx, e->c[k].res, MERGE_UNVERIFIED); /* may end the job */
             if (j->state != JOB_RUNNING)
                 return;
             continue;

@@ -660,6 +660,15 @@ static int signal_holding_worker(int cport, unsigned long long job, daemon_t *d[
     return -1;
 }
 
+/* Tasks of a job that a lost worker held and another did instead: issued
+ * again (lease ran out, worker dropped), or a backup copy answered first
+ * (the master sends one when a task is out much longer than the job's
+ * typical task time, which a dead worker's tasks soon are). */
+static double taken_over(const cJSON *status)
+{
+    return json_num(status, "tasks_reissued") + json_num(status, "backups_won");
+}
+
 /* ---- client runs -------------------------------------------------------- */
 
 /* Submits through the client; returns the job id it printed. */
@@ -893,8 +902,7 @@ START_TEST(worker_killed)
                   "the victim lived on");
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "killed.exr"));
     cJSON *s = job_status(port + 1, job);
-    ck_assert_msg(json_num(s, "tasks_reissued") >= 1, "tasks_reissued %g after a kill -9\n%s",
-                  json_num(s, "tasks_reissued"), logs_tail());
+    ck_assert_msg(taken_over(s) >= 1, "no task taken over after a kill -9\n%s", logs_tail());
     cJSON_Delete(s);
     wait_workers(port + 1, 1);
     render_embedded(scene, LONG, 2, tmp(ref, sizeof ref, "killed-ref.exr"));
@@ -1878,8 +1886,7 @@ START_TEST(churn)
     ck_assert_msg(kills >= 3, "the job ended after %d kills: make it longer", kills);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "churn.exr"));
     cJSON *s = job_status(port + 1, job);
-    ck_assert_msg(json_num(s, "tasks_reissued") > 0, "%d workers killed, no task issued again",
-                  kills);
+    ck_assert_msg(taken_over(s) > 0, "%d workers killed, no task taken over", kills);
     cJSON_Delete(s);
     render_embedded(scene, settings, 2, tmp(ref, sizeof ref, "churn-ref.exr"));
     compare_exr(ref, got);
@@ -2078,10 +2085,11 @@ static void net_fault(int lossy)
                         tmp(got, sizeof got, lossy ? "lossy.exr" : "partition.exr"));
     cJSON *st = status_in(ns_m, cep, job);
     if (!lossy) {
-        ck_assert_msg(json_num(st, "tasks_reissued") > 0,
-                      "the cut-off worker's tasks were not issued again\n%s", logs_tail());
-        printf("partition: %.0f tasks issued again, %.0f late results dropped\n",
-               json_num(st, "tasks_reissued"), json_num(st, "late_results"));
+        ck_assert_msg(taken_over(st) > 0, "the cut-off worker's tasks were not taken over\n%s",
+                      logs_tail());
+        printf("partition: %.0f tasks issued again, %.0f backups won, %.0f late results dropped\n",
+               json_num(st, "tasks_reissued"), json_num(st, "backups_won"),
+               json_num(st, "late_results"));
         /* it rejoins */
         int back = 0;
         for (int tries = 0; tries < 200 && !back; tries++) {
@@ -2174,71 +2182,23 @@ static int fake_recv(void *s, proto_msg_t *msg, proto_records_t *recs)
     return recv_proto(s, NULL, NULL, msg, recs, err, sizeof err);
 }
 
-/* A worker that connects from 127.0.0.9 and answers every task with sums
- * of 1.7e308 (which once overflowed the film and poisoned the job for
- * good); first it forges credit with 3,000 results of tasks it never held.
- * The master refuses every lie, issues the tasks to the honest worker,
- * caps the liar's tasks at what a worker of its size asks for, quarantines
- * it, and the image is the honest one. */
-START_TEST(lying_worker)
+/* The fake's answer to every TASK it is sent until the master refuses it:
+ * sums of 1.7e308. Returns the refusal's text (static). *most_held: the
+ * most tasks the master said it held meanwhile. */
+static const char *lie_until_refused(void *s, int cport, proto_msg_t *msg, proto_records_t *rx,
+                                     tracer_result_t *res, int *most_held)
 {
-    static const char *const settings = "--spp 256 --granularity 16 --adaptive none --seed 29";
-    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], log[65536], ep[96],
-        build[PROTO_BUILD_SIZE + 1];
-    scene_file(scene, sizeof scene, 32, NULL, NULL);
-    int port = slot_port(13);
-    daemon_t *m = start_master(&port, "r-master");
-    void *ctx = zmq_ctx_new();
-    void *s = zmq_socket(ctx, ZMQ_DEALER);
-    int zero = 0, timeout = 200;
-    zmq_setsockopt(s, ZMQ_LINGER, &zero, sizeof zero);
-    zmq_setsockopt(s, ZMQ_RCVTIMEO, &timeout, sizeof timeout);
-    snprintf(ep, sizeof ep, "tcp://127.0.0.9:0;127.0.0.1:%d", port);
-    ck_assert_int_eq(zmq_connect(s, ep), 0);
-    __builtin_cpu_init();
-    proto_build_id(__builtin_cpu_supports("avx2") ? "avx2" : "sse4.2", build);
-    proto_msg_t *msg = calloc(1, sizeof *msg);
-    tracer_task_t *recs = calloc(PROTO_MAX_TASK_PIXELS, sizeof *recs);
-    tracer_result_t *res = calloc(PROTO_MAX_TASK_PIXELS, sizeof *res);
-    proto_records_t *rx = calloc(1, sizeof *rx);
-    rx->tasks = recs;
-    rx->task_capacity = PROTO_MAX_TASK_PIXELS;
-    msg->h.type = PROTO_HELLO;
-    msg->u.hello.threads = 1;
-    memcpy(msg->u.hello.build, build, sizeof msg->u.hello.build);
-    fake_send(s, msg);
-    ck_assert_msg(fake_recv(s, msg, rx) == 0 && msg->h.type == PROTO_WELCOME,
-                  "no WELCOME for the fake\n%s", logs_tail());
-    /* forged credit: results of tasks it never held, then CREDIT again */
-    for (int i = 0; i < 3000; i++) {
-        memset(msg, 0, sizeof *msg);
-        msg->h.type = PROTO_RESULT;
-        msg->h.job = 1;
-        msg->h.task = 1 + (uint64_t)(i % 7);
-        msg->h.attempt = 1;
-        msg->u.result.count = 0;
-        msg->u.result.records = res;
-        fake_send(s, msg);
-    }
-    for (int i = 0; i < 10; i++) {
-        memset(msg, 0, sizeof *msg);
-        msg->h.type = PROTO_CREDIT;
-        msg->u.credit = PROTO_MAX_CREDIT;
-        fake_send(s, msg);
-    }
-    start_worker(port, 1, "r-worker", "127.0.0.2");
-    wait_workers(port + 1, 2);
-    unsigned long long job = submit(port + 1, scene, settings);
-    int lies = 0, quarantined = 0, most_held = 0;
+    static char refusal[PROTO_TEXT_MAX + 1];
+    const tracer_task_t *recs = rx->tasks;
     double end = now_ms() + JOB_TIMEOUT_MS;
-    while (!quarantined && now_ms() < end) {
-        int held = outstanding_at(port + 1, "127.0.0.9");
-        most_held = held > most_held ? held : most_held;
+    while (now_ms() < end) {
+        int held = outstanding_at(cport, "127.0.0.9");
+        *most_held = held > *most_held ? held : *most_held;
         if (fake_recv(s, msg, rx) < 0)
             continue;
         if (msg->h.type == PROTO_REFUSE) {
-            quarantined = strstr(msg->u.text.text, "quarantined") != NULL;
-            break;
+            snprintf(refusal, sizeof refusal, "%s", msg->u.text.text);
+            return refusal;
         }
         if (msg->h.type != PROTO_TASK)
             continue;
@@ -2260,33 +2220,145 @@ START_TEST(lying_worker)
         msg->u.result.count = n;
         msg->u.result.records = res;
         fake_send(s, msg);
-        lies++;
     }
-    ck_assert_msg(quarantined, "the liar was not quarantined after %d lies\n%s", lies, logs_tail());
-    ck_assert_msg(most_held <= PROTO_CREDIT_PER_THREAD,
-                  "a 1-thread fake held %d tasks after forging credit", most_held);
-    /* it cannot come back */
+    ck_abort_msg("the liar was never refused\n%s", logs_tail());
+    return NULL;
+}
+
+/* The fake says HELLO; returns the type of the master's answer. */
+static int fake_hello(void *s, const char *build, proto_msg_t *msg, proto_records_t *rx)
+{
     memset(msg, 0, sizeof *msg);
     msg->h.type = PROTO_HELLO;
     msg->u.hello.threads = 1;
     memcpy(msg->u.hello.build, build, sizeof msg->u.hello.build);
     fake_send(s, msg);
-    int refused = 0;
-    for (int i = 0; i < 20 && !refused; i++)
-        refused = fake_recv(s, msg, rx) == 0 && msg->h.type == PROTO_REFUSE;
-    ck_assert_msg(refused, "a quarantined worker was let in again");
+    for (int i = 0; i < 50; i++)
+        if (fake_recv(s, msg, rx) == 0 &&
+            (msg->h.type == PROTO_WELCOME || msg->h.type == PROTO_REFUSE))
+            return msg->h.type;
+    return 0;
+}
+
+/* The master's running bans, as the workers reply has them: the count
+ * of who's bans, 0 when it is not banned now. */
+static int bans_of(int cport, const char *who)
+{
+    cJSON *wl = ctl(cport, "workers", 0);
+    ck_assert_ptr_nonnull(wl);
+    const cJSON *b = cJSON_GetObjectItemCaseSensitive(
+                    cJSON_GetObjectItemCaseSensitive(wl, "master"), "bans"),
+                *it;
+    int n = 0;
+    cJSON_ArrayForEach(it, b)
+    {
+        if (strcmp(json_str(it, "worker"), who) == 0)
+            n = (int)json_num(it, "bans");
+    }
+    cJSON_Delete(wl);
+    return n;
+}
+
+/* A worker that connects from 127.0.0.9 and answers every task with sums
+ * of 1.7e308 (which once overflowed the film and poisoned the job for
+ * good); first it forges credit with 3,000 results of tasks it never held.
+ * The master refuses every lie and issues the task again at once, caps
+ * the liar's tasks at what a worker of its size asks for, and at the third
+ * bad result drops it and bans it (--ban-s 1): a HELLO meanwhile is
+ * refused. Once the ban ends it is let in again, lies again, and is
+ * banned for twice as long. The images are the honest ones. */
+START_TEST(lying_worker)
+{
+    static const char *const settings = "--spp 256 --granularity 16 --adaptive none --seed 29";
+    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], log[65536], ep[96],
+        build[PROTO_BUILD_SIZE + 1];
+    scene_file(scene, sizeof scene, 32, NULL, NULL);
+    int port = slot_port(13);
+    const char *extra[] = {"--state", "none", "--ban-s", "1", NULL};
+    daemon_t *m = start_master_with(&port, "r-master", extra);
+    void *ctx = zmq_ctx_new();
+    void *s = zmq_socket(ctx, ZMQ_DEALER);
+    int zero = 0, timeout = 200;
+    zmq_setsockopt(s, ZMQ_LINGER, &zero, sizeof zero);
+    zmq_setsockopt(s, ZMQ_RCVTIMEO, &timeout, sizeof timeout);
+    snprintf(ep, sizeof ep, "tcp://127.0.0.9:0;127.0.0.1:%d", port);
+    ck_assert_int_eq(zmq_connect(s, ep), 0);
+    __builtin_cpu_init();
+    proto_build_id(__builtin_cpu_supports("avx2") ? "avx2" : "sse4.2", build);
+    proto_msg_t *msg = calloc(1, sizeof *msg);
+    tracer_task_t *recs = calloc(PROTO_MAX_TASK_PIXELS, sizeof *recs);
+    tracer_result_t *res = calloc(PROTO_MAX_TASK_PIXELS, sizeof *res);
+    proto_records_t *rx = calloc(1, sizeof *rx);
+    rx->tasks = recs;
+    rx->task_capacity = PROTO_MAX_TASK_PIXELS;
+    ck_assert_msg(fake_hello(s, build, msg, rx) == PROTO_WELCOME, "no WELCOME for the fake\n%s",
+                  logs_tail());
+    /* forged credit: results of tasks it never held, then CREDIT again */
+    for (int i = 0; i < 3000; i++) {
+        memset(msg, 0, sizeof *msg);
+        msg->h.type = PROTO_RESULT;
+        msg->h.job = 1;
+        msg->h.task = 1 + (uint64_t)(i % 7);
+        msg->h.attempt = 1;
+        msg->u.result.count = 0;
+        msg->u.result.records = res;
+        fake_send(s, msg);
+    }
+    for (int i = 0; i < 10; i++) {
+        memset(msg, 0, sizeof *msg);
+        msg->h.type = PROTO_CREDIT;
+        msg->u.credit = PROTO_MAX_CREDIT;
+        fake_send(s, msg);
+    }
+    start_worker(port, 1, "r-worker", "127.0.0.2");
+    wait_workers(port + 1, 2);
+    unsigned long long job = submit(port + 1, scene, settings);
+    int most_held = 0;
+    const char *why = lie_until_refused(s, port + 1, msg, rx, res, &most_held);
+    ck_assert_msg(strstr(why, "banned for 1 s: 3 results refused"), "refused: %s", why);
+    ck_assert_msg(most_held <= PROTO_CREDIT_PER_THREAD,
+                  "a 1-thread fake held %d tasks after forging credit", most_held);
+    /* it cannot come back while the ban runs (or it already ended: then
+     * the workers reply no longer lists it) */
+    int banned = bans_of(port + 1, "127.0.0.9");
+    ck_assert_msg(banned == 1 || fake_hello(s, build, msg, rx) == PROTO_WELCOME,
+                  "the ban is not listed");
+    if (banned) {
+        int answer = fake_hello(s, build, msg, rx);
+        ck_assert_msg(answer == PROTO_REFUSE || bans_of(port + 1, "127.0.0.9") == 0,
+                      "a banned worker was let in");
+    }
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "liar.exr"));
+    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "liar-ref.exr"));
+    compare_exr(ref, got);
+    /* once the ban is over it is let in, lies again, and gets 2 s */
+    double end = now_ms() + JOB_TIMEOUT_MS;
+    while (bans_of(port + 1, "127.0.0.9") > 0) {
+        ck_assert_msg(now_ms() < end, "the ban never ended");
+        sleep_ms(50);
+    }
+    ck_assert_msg(fake_hello(s, build, msg, rx) == PROTO_WELCOME, "not let in after the ban\n%s",
+                  logs_tail());
+    memset(msg, 0, sizeof *msg);
+    msg->h.type = PROTO_CREDIT;
+    msg->u.credit = PROTO_CREDIT_PER_THREAD;
+    fake_send(s, msg);
+    wait_workers(port + 1, 2);
+    job = submit(port + 1, scene, settings);
+    why = lie_until_refused(s, port + 1, msg, rx, res, &most_held);
+    ck_assert_msg(strstr(why, "banned for 2 s: 3 results refused"), "refused again: %s", why);
     zmq_close(s);
     zmq_ctx_term(ctx);
     free(msg);
     free(rx);
     free(recs);
     free(res);
-    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "liar.exr"));
-    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "liar-ref.exr"));
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "liar2.exr"));
     compare_exr(ref, got);
     read_log(m, log, sizeof log);
-    ck_assert_msg(strstr(log, "127.0.0.9 quarantined"),
-                  "the log does not name the quarantined worker:\n%s", log);
+    ck_assert_msg(strstr(log, "worker 127.0.0.9 banned for 1 s (ban 1)") &&
+                      strstr(log, "worker 127.0.0.9 banned for 2 s (ban 2)"),
+                  "the log does not name the banned worker:\n%s", log);
     stop_all_clean();
     remove_scratch();
 }
@@ -2450,20 +2522,38 @@ static int selected_count(uint64_t seed, double tasks, double share)
     return n;
 }
 
-/* The fault build of the worker (VB_FAULT_WORKER), perturbing one result in
- * lie_every (bit `bit` of a sum), connected from src like start_worker's. */
-static daemon_t *start_liar(int port, const char *name, const char *src, int lie_every, int bit)
+/* The fault build of the worker (VB_FAULT_WORKER) with `threads` threads,
+ * connected from src like start_worker's, its faults set by env (NULL-ended
+ * VB_FAULT_*=... assignments). */
+static daemon_t *start_fault_worker(int port, const char *name, const char *src, int threads,
+                                    const char *const *env)
 {
     const char *bin = getenv("VB_FAULT_WORKER");
     ck_assert_msg(bin && access(bin, X_OK) == 0, "VB_FAULT_WORKER (%s) is not built",
                   bin ? bin : "unset");
-    char ep[128], every[48], flip[48];
+    char ep[128], th[16];
     snprintf(ep, sizeof ep, "tcp://%s:0;127.0.0.1:%d", src, port);
+    snprintf(th, sizeof th, "%d", threads);
+    const char *args[24] = {"env"};
+    int na = 1;
+    for (int i = 0; env && env[i] && na < 12; i++)
+        args[na++] = env[i];
+    const char *rest[] = {bin, "--master", ep, "--threads", th, "--name", name, NULL};
+    for (int i = 0; rest[i]; i++)
+        args[na++] = rest[i];
+    args[na] = NULL;
+    return spawn(name, NULL, args);
+}
+
+/* The fault build of the worker perturbing one result in lie_every (bit
+ * `bit` of a sum). */
+static daemon_t *start_liar(int port, const char *name, const char *src, int lie_every, int bit)
+{
+    char every[48], flip[48];
     snprintf(every, sizeof every, "VB_FAULT_LIE_EVERY=%d", lie_every);
     snprintf(flip, sizeof flip, "VB_FAULT_LIE_BIT=%d", bit);
-    const char *args[] = {"env",       every, flip,     bin,  "--master", ep,
-                          "--threads", "1",   "--name", name, NULL};
-    return spawn(name, NULL, args);
+    const char *env[] = {every, flip, NULL};
+    return start_fault_worker(port, name, src, 1, env);
 }
 
 /* 1 if the job's "quarantined" list names who. */
@@ -3321,6 +3411,182 @@ END_TEST
 
 /* ---- suite ------------------------------------------------------------------------ */
 
+/* ---- l. workers that stall a job ----------------------------------------------- */
+
+/* Relmse (the default) over 32 layers: tasks of every size, layers that
+ * wait for the last task of the one before. */
+#define STALL_SETTINGS "--spp 512 --granularity 16 --seed 37"
+
+/* Runs a job to its end on the master at cport and fetches its image: its
+ * status (the caller frees it). */
+static cJSON *run_job(int cport, const char *scene, const char *settings, const char *out_exr)
+{
+    unsigned long long job = submit(cport, scene, settings);
+    finish_and_fetch(cport, job, out_exr);
+    return job_status(cport, job);
+}
+
+/* The job's seconds by the master's clock, from its first task to its end. */
+static double job_secs(const cJSON *st)
+{
+    return json_num(st, "seconds");
+}
+
+/* What beside_honest started. */
+typedef struct stall_run {
+    daemon_t *master, *fault;
+    int cport;
+} stall_run_t;
+
+/* One honest worker renders STALL_SETTINGS alone; then a worker with the
+ * faults fault_env (VB_FAULT_*) joins it from 127.0.0.3 and the same job
+ * runs again. The second job ends in at most twice the first one's time
+ * (both by the master's clock, on this host, one after the other) with
+ * the same image bit for bit. Returns the second job's status (the caller
+ * frees it). */
+static cJSON *beside_honest(int slot, const char *tag, const char *const *fault_env,
+                            stall_run_t *run)
+{
+    char scene[PATHLEN], alone[PATHLEN], got[PATHLEN], name[64];
+    scene_file(scene, sizeof scene, 64, NULL, NULL);
+    int port = slot_port(slot);
+    snprintf(name, sizeof name, "%s-master", tag);
+    daemon_t *m = start_master(&port, name);
+    snprintf(name, sizeof name, "%s-honest", tag);
+    start_worker(port, 1, name, "127.0.0.2");
+    wait_workers(port + 1, 1);
+    cJSON *st = run_job(port + 1, scene, STALL_SETTINGS, tmp(alone, sizeof alone, "alone.exr"));
+    double t_alone = job_secs(st);
+    cJSON_Delete(st);
+    snprintf(name, sizeof name, "%s-fault", tag);
+    run->fault = start_fault_worker(port, name, "127.0.0.3", 1, fault_env);
+    wait_workers(port + 1, 2);
+    st = run_job(port + 1, scene, STALL_SETTINGS, tmp(got, sizeof got, "beside.exr"));
+    double t = job_secs(st);
+    printf("%s: the honest worker alone %.2f s, beside the faulty one %.2f s (%.2fx); %.0f "
+           "backups (%.0f answered first), %.0f tasks issued again\n",
+           tag, t_alone, t, t / t_alone, json_num(st, "backups"), json_num(st, "backups_won"),
+           json_num(st, "tasks_reissued"));
+    fflush(stdout);
+    ck_assert_msg(t <= 2 * t_alone,
+                  "%s: the job took %.2f s beside the faulty worker, %.2f s without it\n%s", tag, t,
+                  t_alone, logs_tail());
+    compare_exr(alone, got);
+    run->master = m;
+    run->cport = port + 1;
+    return st;
+}
+
+/* A hoarder takes tasks, keeps its heartbeats going and never answers:
+ * backup copies of its tasks go to the honest worker and answer first. */
+START_TEST(stall_hoarder)
+{
+    static const char *const env[] = {"VB_FAULT_HOARD=1", NULL};
+    stall_run_t run;
+    cJSON *st = beside_honest(20, "s-hoard", env, &run);
+    ck_assert_msg(json_num(st, "backups_won") >= 1,
+                  "the hoarder's tasks came back without a backup copy\n%s", logs_tail());
+    cJSON_Delete(st);
+    /* counted where an operator looks: the workers reply (and /metrics) */
+    cJSON *wl = ctl(run.cport, "workers", 0);
+    ck_assert_ptr_nonnull(wl);
+    ck_assert(json_num(cJSON_GetObjectItemCaseSensitive(wl, "master"), "backups") >= 1);
+    cJSON_Delete(wl);
+    assert_alive(run.master);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* A worker whose every RESULT has a record of 0 rays (it fails to decode):
+ * each goes back to the queue at once, and at the third the worker is
+ * dropped and banned (it exits on the refusal). */
+START_TEST(stall_malformed)
+{
+    static const char *const env[] = {"VB_FAULT_MALFORMED=1", NULL};
+    stall_run_t run;
+    cJSON *st = beside_honest(21, "s-bad", env, &run);
+    ck_assert_msg(json_num(st, "tasks_reissued") >= 1, "no task was handed back\n%s", logs_tail());
+    cJSON_Delete(st);
+    char log[65536];
+    read_log(run.master, log, sizeof log);
+    ck_assert_msg(strstr(log, "worker 127.0.0.3 banned for 10 s (ban 1): 3 results refused"),
+                  "the log does not name the banned worker:\n%s", log);
+    /* refused, it exits 1 */
+    int status = 0;
+    ck_assert_msg(reap(run.fault, STOP_MS, &status) && WIFEXITED(status) &&
+                      WEXITSTATUS(status) == 1,
+                  "the banned worker did not exit 1\n%s", logs_tail());
+    cJSON *wl = ctl(run.cport, "workers", 0);
+    ck_assert_ptr_nonnull(wl);
+    const cJSON *ms = cJSON_GetObjectItemCaseSensitive(wl, "master");
+    ck_assert_int_eq((int)json_num(ms, "workers_banned"), 1);
+    char *text = cJSON_PrintUnformatted(ms);
+    int named = text && strstr(text, "\"worker\":\"127.0.0.3\"") != NULL;
+    cJSON_free(text);
+    ck_assert_msg(named, "the bans do not name it");
+    cJSON_Delete(wl);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* A worker ten times slower than the other (each task sleeps nine times
+ * its trace time): the job does not wait for it. */
+START_TEST(stall_slow)
+{
+    static const char *const env[] = {"VB_FAULT_SLOW=10", NULL};
+    stall_run_t run;
+    cJSON *st = beside_honest(22, "s-slow", env, &run);
+    cJSON_Delete(st);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
+/* The circuit breaker: a worker that answers each task 2 s late, with
+ * leases of 500 ms and no backups: its leases run out, at the third in a
+ * row it gets no new task (its state says "breaker"), and its first late
+ * answer closes the breaker again. The image is the embedded one. */
+START_TEST(breaker)
+{
+    static const char *const settings = "--spp 256 --granularity 16 --adaptive none --seed 41";
+    static const char *const env[] = {"VB_FAULT_DELAY_MS=2000", NULL};
+    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN];
+    scene_file(scene, sizeof scene, 64, NULL, NULL);
+    int port = slot_port(23);
+    const char *extra[] = {"--state", "none", "--lease-ms", "500", "--backup-factor", "0", NULL};
+    daemon_t *m = start_master_with(&port, "t-master", extra);
+    start_worker(port, 1, "t-honest", "127.0.0.2");
+    start_fault_worker(port, "t-late", "127.0.0.3", 2, env);
+    wait_workers(port + 1, 2);
+    unsigned long long job = submit(port + 1, scene, settings);
+    ck_assert_msg(log_has(m, "127.0.0.3: 3 leases ran out in a row", JOB_TIMEOUT_MS),
+                  "the breaker did not open\n%s", logs_tail());
+    /* open until its first late answer, which is at least 1.5 s away: the
+     * workers reply says so meanwhile (or the answer came, and then the
+     * log says it closed) */
+    cJSON *list = workers_list(port + 1);
+    const cJSON *w;
+    int seen = 0;
+    cJSON_ArrayForEach(w, list)
+    {
+        if (strcmp(json_str(w, "host"), "127.0.0.3") == 0)
+            seen = strcmp(json_str(w, "state"), "breaker") == 0;
+    }
+    cJSON_Delete(list);
+    ck_assert_msg(seen || log_has(m, "127.0.0.3 answered again", 0),
+                  "the workers reply does not show the breaker\n%s", logs_tail());
+    ck_assert_msg(log_has(m, "127.0.0.3 answered again", JOB_TIMEOUT_MS),
+                  "the breaker never closed\n%s", logs_tail());
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "breaker.exr"));
+    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "breaker-ref.exr"));
+    compare_exr(ref, got);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
 static Suite *cluster_suite(void)
 {
     Suite *su = suite_create("cluster");
@@ -3360,6 +3626,10 @@ static Suite *cluster_suite(void)
         {"curve_sighup", curve_sighup},
         {"curve_ownership", curve_ownership},
         {"preview", preview_job},
+        {"stall_hoarder", stall_hoarder},
+        {"stall_malformed", stall_malformed},
+        {"stall_slow", stall_slow},
+        {"breaker", breaker},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         TCase *tc = tcase_create(cases[i].name);

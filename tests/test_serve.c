@@ -186,7 +186,7 @@ static const char canned_workers[] =
     "{\"host\":\"b\",\"threads\":4,\"tasks_outstanding\":1}],"
     "\"master\":{\"malformed_messages\":2,\"late_results\":7,\"rate_limited_requests\":0,"
     "\"tasks_issued\":1234,\"tasks_reissued\":5,\"jobs_queued\":3,\"jobs_running\":2,"
-    "\"tasks_outstanding\":6}}";
+    "\"tasks_outstanding\":6,\"backups\":9,\"workers_banned\":1}}";
 
 static const char expected_metrics[] =
     "# HELP vbrender_jobs Jobs this client may see on the master, by state.\n"
@@ -222,6 +222,14 @@ static const char expected_metrics[] =
     "# HELP vbrender_malformed_messages_total Malformed messages the master dropped.\n"
     "# TYPE vbrender_malformed_messages_total counter\n"
     "vbrender_malformed_messages_total 2\n"
+    "# HELP vbrender_backup_tasks_total Backup copies of tasks out too long, sent to idle "
+    "workers.\n"
+    "# TYPE vbrender_backup_tasks_total counter\n"
+    "vbrender_backup_tasks_total 9\n"
+    "# HELP vbrender_workers_banned_total Workers dropped and refused for a while over refused "
+    "results.\n"
+    "# TYPE vbrender_workers_banned_total counter\n"
+    "vbrender_workers_banned_total 1\n"
     "# HELP vbrender_rate_limited_requests_total Requests the master refused for their rate.\n"
     "# TYPE vbrender_rate_limited_requests_total counter\n"
     "vbrender_rate_limited_requests_total 0\n"

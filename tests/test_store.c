@@ -2,6 +2,7 @@
  * checkpoint's counters (master/persist.c) and task leases
  * (master/lease.c). */
 #include <check.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -287,31 +288,75 @@ START_TEST(lease_fifo)
     lease_queue_t *q = lease_queue_new();
     ck_assert_ptr_nonnull(q);
     lease_t out;
-    ck_assert_int_eq(lease_pop_expired(q, 100.0, &out), 0);
+    ck_assert_int_eq(lease_pop_sent_before(q, 100.0, &out), 0);
+    ck_assert_ptr_null(lease_at(q, 0));
     /* more than the first allocation, wrapping around as it goes */
     for (uint64_t i = 0; i < 1000; i++) {
-        lease_t l = {.job = 1, .task = i + 1, .attempt = 1, .deadline = (double)i};
+        lease_t l = {.job = 1, .task = i + 1, .attempt = 1, .sent = (double)i};
         ck_assert_int_eq(lease_push(q, &l), 0);
         if (i % 3 == 0) {
-            ck_assert_int_eq(lease_pop_expired(q, 1e9, &out), 1);
+            ck_assert_int_eq(lease_pop_sent_before(q, 1e9, &out), 1);
         }
     }
     size_t left = lease_count(q);
     ck_assert_uint_eq(left, 1000 - 334);
-    /* only those past their deadline, oldest first */
+    /* lease_at walks them oldest first without taking any */
+    for (size_t i = 1; i < left; i++)
+        ck_assert(lease_at(q, i)->sent > lease_at(q, i - 1)->sent);
+    ck_assert_ptr_null(lease_at(q, left));
+    ck_assert_uint_eq(lease_count(q), left);
+    /* only those sent before the time, oldest first */
     double last = -1;
     size_t popped = 0;
-    while (lease_pop_expired(q, 900.5, &out)) {
-        ck_assert(out.deadline < 900.5);
-        ck_assert(out.deadline > last);
-        last = out.deadline;
+    while (lease_pop_sent_before(q, 900.5, &out)) {
+        ck_assert(out.sent < 900.5);
+        ck_assert(out.sent > last);
+        last = out.sent;
         popped++;
     }
     ck_assert_uint_eq(lease_count(q), left - popped);
-    ck_assert_int_eq(lease_pop_expired(q, 900.5, &out), 0);
+    ck_assert_int_eq(lease_pop_sent_before(q, 900.5, &out), 0);
     ck_assert_double_eq(last, 900.0);
+    lease_pop(q);
+    ck_assert_uint_eq(lease_count(q), left - popped - 1);
+    ck_assert_double_eq(lease_at(q, 0)->sent, 902.0); /* 901 went with lease_pop */
     lease_queue_destroy(&q);
     ck_assert_ptr_null(q);
+}
+END_TEST
+
+/* The median of the window follows the job: a minority of slow tasks
+ * (a straggling worker's) does not move it, a change of the job's own
+ * task time does once it fills half the window. */
+START_TEST(lease_task_times)
+{
+    lease_times_t t = {0};
+    ck_assert_double_eq(lease_times_quantile(&t, 0.5), 0);
+    for (int i = 0; i < LEASE_TIMES_MIN - 1; i++)
+        lease_times_add(&t, 1.0);
+    ck_assert_double_eq(lease_times_quantile(&t, 0.5), 0); /* too few to believe */
+    lease_times_add(&t, 1.0);
+    ck_assert_double_eq(lease_times_quantile(&t, 0.5), 1.0);
+    /* 10 fast to 1 slow (10x): the median stays the fast time */
+    for (int i = 0; i < 200; i++)
+        lease_times_add(&t, i % 11 == 10 ? 10.0 : 0.25);
+    ck_assert_double_eq(lease_times_quantile(&t, 0.5), 0.25);
+    ck_assert_double_eq(lease_times_quantile(&t, 1.0), 10.0);
+    ck_assert_double_eq(lease_times_quantile(&t, 0.0), 0.25);
+    /* the job's tasks get dearer: the window follows */
+    for (int i = 0; i < LEASE_TIMES; i++)
+        lease_times_add(&t, 2.0);
+    ck_assert_double_eq(lease_times_quantile(&t, 0.5), 2.0);
+    /* not a time: ignored */
+    lease_times_add(&t, -1.0);
+    lease_times_add(&t, NAN);
+    ck_assert_double_eq(lease_times_quantile(&t, 0.0), 2.0);
+    /* the lease: factor x task time within floor and ceiling; the ceiling
+     * while the task time is unknown */
+    ck_assert_double_eq(lease_length(0, 8, 2, 60), 60);
+    ck_assert_double_eq(lease_length(0.1, 8, 2, 60), 2);
+    ck_assert_double_eq(lease_length(1.0, 8, 2, 60), 8);
+    ck_assert_double_eq(lease_length(100, 8, 2, 60), 60);
 }
 END_TEST
 
@@ -362,6 +407,7 @@ static Suite *store_suite(void)
     tcase_add_test(tc, background_writer);
     tcase_add_test(tc, checksum_split_invariant);
     tcase_add_test(tc, lease_fifo);
+    tcase_add_test(tc, lease_task_times);
     tcase_add_test(tc, checkpoint_counters_out_of_range);
     suite_add_tcase(s, tc);
     return s;

@@ -94,6 +94,10 @@ struct worker {
     unsigned long lie_every; /* VB_FAULT_LIE_EVERY: perturb one result in this many */
     unsigned long lie_bit;   /* VB_FAULT_LIE_BIT: the bit flipped (default 0) */
     unsigned long results_sent;
+    double slow;   /* VB_FAULT_SLOW=F: each task takes F times its trace time */
+    double delay;  /* VB_FAULT_DELAY_MS=N: and N ms more */
+    int hoard;     /* VB_FAULT_HOARD=1: takes tasks, never answers (heartbeats go on) */
+    int malformed; /* VB_FAULT_MALFORMED=1: every RESULT has a record of 0 rays */
 #endif
 };
 
@@ -164,6 +168,13 @@ static void *render_main(void *arg)
                          t->error, sizeof t->error) < 0)
             t->failed = 1;
         t->rays = st.rays;
+#ifdef VB_FAULT_INJECTION
+        if (w->slow > 1 || w->delay > 0) { /* a slower host: the thread stays busy */
+            double extra = (w->slow > 1 ? (w->slow - 1) * (now_s() - t0) : 0) + w->delay;
+            struct timespec ts = {(time_t)extra, (long)((extra - (double)(time_t)extra) * 1e9)};
+            nanosleep(&ts, NULL);
+        }
+#endif
         t->busy_us = (uint64_t)((now_s() - t0) * 1e6);
 
         pthread_mutex_lock(&w->lock);
@@ -202,6 +213,12 @@ static int send_msg(worker_t *w, proto_msg_t *msg)
         logf_(w, "cannot encode %s: %s", proto_type_name(msg->h.type), err);
         return -1;
     }
+#ifdef VB_FAULT_INJECTION
+    /* the first record's rays (the payload's head is 24 bytes, rays sit at
+     * 12 in a record) zeroed after encoding, which would refuse it */
+    if (w->malformed && msg->h.type == PROTO_RESULT && n >= 24 + PROTO_RESULT_RECORD_SIZE)
+        memset(w->payload + 24 + 12, 0, 4);
+#endif
     const void *parts[2] = {header, w->payload};
     const size_t sizes[2] = {PROTO_HEADER_SIZE, (size_t)n};
     if (proto_send(w->sock, parts, sizes, 2, ZMQ_DONTWAIT) < 0)
@@ -259,6 +276,10 @@ static void report(worker_t *w, wtask_t *t)
         snprintf(text, sizeof text, "%s: %.900s", w->name, t->error); /* cut to fit the wire text */
         msg.u.text.text = text;
     } else {
+#ifdef VB_FAULT_INJECTION
+        if (w->hoard)
+            return; /* as if it kept tracing forever */
+#endif
         maybe_lie(w, t);
         msg.h.type = PROTO_RESULT;
         msg.u.result.rays = t->rays;
@@ -697,6 +718,12 @@ worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
     w->lie_every = lie ? strtoul(lie, NULL, 10) : 0;
     const char *bit = getenv("VB_FAULT_LIE_BIT");
     w->lie_bit = bit ? strtoul(bit, NULL, 10) : 0;
+    const char *slow = getenv("VB_FAULT_SLOW");
+    w->slow = slow ? strtod(slow, NULL) : 0;
+    const char *delay = getenv("VB_FAULT_DELAY_MS");
+    w->delay = delay ? strtod(delay, NULL) / 1000.0 : 0;
+    w->hoard = getenv("VB_FAULT_HOARD") != NULL;
+    w->malformed = getenv("VB_FAULT_MALFORMED") != NULL;
 #endif
     pthread_mutex_init(&w->lock, NULL);
     pthread_cond_init(&w->cond, NULL);
