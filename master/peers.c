@@ -479,10 +479,12 @@ static int dispatch_new(master_t *m, peer_t *w, uint32_t i, proto_msg_t *msg, do
                        j->name, j->width, j->height, j->spp, j->granularity,
                        sched_adaptive_name(j->adaptive));
         }
-        if (j->state != JOB_RUNNING || j->stopped_issuing || verify_saturated(j))
+        if (j->state != JOB_RUNNING || verify_saturated(j))
             continue;
         sched_task_t t;
-        if (sched_next(j->sched, &t) == SCHED_NEXT_TASK)
+        /* past its time limit a job takes no new task, but its last ones
+         * may still get backups */
+        if (!j->stopped_issuing && sched_next(j->sched, &t) == SCHED_NEXT_TASK)
             return send_new(m, w, i, j, &t, msg, now);
         int rc = send_backup(m, w, j, msg, now, blocked);
         if (rc != 0)
