@@ -1088,7 +1088,9 @@ START_TEST(identical_pixels)
     }
 
     int port = slot_port(0);
-    start_master(&port, "a-master");
+    /* at debug level the master logs each result it merges, and whose */
+    const char *debug[] = {"--state", "none", "--log-level", "debug", NULL};
+    daemon_t *m = start_master_with(&port, "a-master", debug);
     static const char *const hosts[4] = {"127.0.0.2", "127.0.0.3", "127.0.0.4", "127.0.0.5"};
     int started = 0;
     static const int counts[3] = {1, 2, 4};
@@ -1106,16 +1108,19 @@ START_TEST(identical_pixels)
         }
     }
     /* the work was shared (a dispatch that always served the first worker
-     * with credit would leave the others idle: see worker_joins) */
-    cJSON *list = workers_list(port + 1);
+     * with credit would leave the others idle: see worker_joins): the
+     * master's log names the worker of every result it merged, whatever
+     * became of the worker later (the workers reply would forget one that
+     * went silent on a loaded host and joined again) */
+    static char log[1 << 20];
+    read_log(m, log, sizeof log);
     int busy = 0;
-    const cJSON *w;
-    cJSON_ArrayForEach(w, list)
-    {
-        busy += json_num(w, "tasks_done") > 0;
+    for (int k = 0; k < 4; k++) {
+        char merged[64];
+        snprintf(merged, sizeof merged, "merged from %s\n", hosts[k]);
+        busy += strstr(log, merged) != NULL;
     }
-    cJSON_Delete(list);
-    ck_assert_msg(busy >= 2, "only %d worker(s) did any task\n%s", busy, logs_tail());
+    ck_assert_msg(busy >= 2, "results merged from %d worker(s) only\n%s", busy, logs_tail());
     stop_all_clean();
     remove_scratch();
 }
@@ -1462,7 +1467,14 @@ START_TEST(master_garbage)
     ck_assert_msg(rc == 0 && reply.h.type == PROTO_BYE,
                   "reply to a stranger's heartbeat: rc %d %s %s", rc, proto_type_name(reply.h.type),
                   err);
-    /* an oversized frame: over the master's message size limit */
+    /* an oversized frame: over the master's message size limit, so the
+     * master's side drops the connection (the monitor says when) */
+    ck_assert_int_eq(zmq_socket_monitor(s, "inproc://garbage-monitor", ZMQ_EVENT_DISCONNECTED), 0);
+    void *mon = zmq_socket(ctx, ZMQ_PAIR);
+    zmq_setsockopt(mon, ZMQ_LINGER, &zero, sizeof zero);
+    int mon_timeout = 20000;
+    zmq_setsockopt(mon, ZMQ_RCVTIMEO, &mon_timeout, sizeof mon_timeout);
+    ck_assert_int_eq(zmq_connect(mon, "inproc://garbage-monitor"), 0);
     size_t big = 8u << 20;
     uint8_t *huge = calloc(1, big);
     ck_assert_ptr_nonnull(huge);
@@ -1473,7 +1485,15 @@ START_TEST(master_garbage)
     ck_assert_int_ge(zmq_send(s, header, sizeof header, ZMQ_SNDMORE), 0);
     ck_assert_int_ge(zmq_send(s, huge, big, 0), 0);
     free(huge);
-    sleep_ms(300);
+    zmq_msg_t event;
+    zmq_msg_init(&event);
+    uint16_t what = 0;
+    if (zmq_msg_recv(&event, mon, 0) >= 6)
+        memcpy(&what, zmq_msg_data(&event), sizeof what);
+    ck_assert_msg(what == ZMQ_EVENT_DISCONNECTED,
+                  "the master did not drop the connection of the oversized frame\n%s", logs_tail());
+    zmq_msg_close(&event);
+    zmq_close(mon);
     zmq_close(s);
     zmq_ctx_term(ctx);
 
@@ -2366,7 +2386,8 @@ START_TEST(lossy_link)
 END_TEST
 /* A submission of 2^20 layers (the scheduler's t factors were once computed
  * for each at submit, 55 s on the master's only thread): the master keeps
- * answering and keeps its worker. */
+ * answering (each request within ctl's 5 s, a bound on a hang, not a
+ * measure of this host's speed) and keeps its worker. */
 START_TEST(big_submit)
 {
     char scene[PATHLEN];
@@ -2378,11 +2399,9 @@ START_TEST(big_submit)
     unsigned long long job = submit(
         port + 1, scene, "--spp 1048576 --granularity 1 --adaptive relerr --target-error 0.01");
     for (int i = 0; i < 20; i++) {
-        double t0 = now_ms();
         cJSON *r = ctl(port + 1, "jobs", 0);
         ck_assert_msg(r != NULL, "the master did not answer within 5 s\n%s", logs_tail());
         cJSON_Delete(r);
-        ck_assert_msg(now_ms() - t0 < 2000, "jobs took %.0f ms", now_ms() - t0);
         sleep_ms(50);
     }
     wait_workers(port + 1, 1);
@@ -2672,8 +2691,11 @@ START_TEST(limits)
     double limited =
         json_num(cJSON_GetObjectItemCaseSensitive(r, "master"), "rate_limited_requests");
     cJSON_Delete(r);
-    ck_assert_msg(limited >= 15 && limited <= 25,
-                  "%.0f of 60 requests in a burst refused; 20 expected (burst 40)", limited);
+    /* the bucket holds 40 and refills 20 a second while the master works
+     * through the burst: at most 20 refused, fewer on a slow host, but some
+     * (unless it took the master a whole second to answer 60 requests) */
+    ck_assert_msg(limited >= 1 && limited <= 20,
+                  "%.0f of 60 requests in a burst refused; 1 to 20 expected (burst 40)", limited);
     ck_assert_int_gt(refused, 0); /* some replies came back */
     assert_alive(m);
     stop_all_clean();
@@ -2847,7 +2869,7 @@ START_TEST(verify_quarter)
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     int port = slot_port(16);
     const char *extra[] = {"--state", "none", "--verify-share", "0.25", NULL};
-    start_master_with(&port, "w-master", extra);
+    daemon_t *m = start_master_with(&port, "w-master", extra);
     start_worker(port, 1, "w-worker1", "127.0.0.2");
     start_worker(port, 1, "w-worker2", "127.0.0.3");
     wait_workers(port + 1, 2);
@@ -2856,12 +2878,17 @@ START_TEST(verify_quarter)
     cJSON *st = job_status(port + 1, job);
     double tasks = json_num(st, "tasks"), verified = json_num(st, "tasks_verified");
     int chosen = selected_count(37, tasks, 0.25);
-    ck_assert_msg(verified > 0.15 * tasks && verified < 0.35 * tasks,
-                  "%.0f of %.0f tasks verified at share 0.25", verified, tasks);
-    /* a worker dropped meanwhile (a slow test machine) leaves some unverified */
+    ck_assert_msg(chosen > 0.15 * tasks && chosen < 0.35 * tasks,
+                  "%d of %.0f tasks chosen at share 0.25", chosen, tasks);
     ck_assert_msg(verified + json_num(st, "tasks_unverified") == chosen,
                   "%.0f verified + %.0f unverified, %d chosen", verified,
                   json_num(st, "tasks_unverified"), chosen);
+    /* every chosen task verified, unless a worker went silent meanwhile (a
+     * loaded host), which the master's log says: its copies were merged
+     * unverified */
+    if (!log_has(m, " gone: ", 0))
+        ck_assert_msg(verified == chosen, "%.0f of %d chosen tasks verified with both workers up",
+                      verified, chosen);
     ck_assert_msg(json_num(st, "verify_mismatches") == 0,
                   "%.0f mismatches between honest workers\n%s", json_num(st, "verify_mismatches"),
                   logs_tail());
@@ -3063,9 +3090,10 @@ START_TEST(curve_unknown_worker)
 END_TEST
 
 /* A client the master does not know, one holding the wrong master key and
- * one without keys are told why within 5 s and exit non-zero (submit and
- * wait too, which otherwise retry a silent master); a worker holding the
- * wrong master key says so. */
+ * one without keys are told why (from the handshake's events, not after a
+ * timeout) and exit non-zero without retrying (submit and wait too, which
+ * retry a silent master, saying so); a worker holding the wrong master key
+ * says so. */
 START_TEST(curve_refused_clients)
 {
     char dir[PATHLEN], scene[PATHLEN], out[OUTLEN], ep[64];
@@ -3101,17 +3129,14 @@ START_TEST(curve_refused_clients)
         else
             forget_client_keys(); /* the last case: none at all */
         int is_submit = strncmp(cases[i].cmd, "submit", 6) == 0;
-        double t0 = now_ms();
         int rc =
             client(out, sizeof out, "%s %s%s%s --master %s %s", cases[i].cmd, is_submit ? "'" : "",
                    is_submit ? scene : "", is_submit ? "'" : "", ep, keys);
-        double ms = now_ms() - t0;
-        ck_assert_msg(rc == 1 && ms < 5000 && strstr(out, cases[i].want),
-                      "%s with %s and %s: exit %d after %.0f ms, "
-                      "want 1 within 5000 ms saying '%s':\n%s\n%s",
+        ck_assert_msg(rc == 1 && strstr(out, cases[i].want) && !strstr(out, "retrying"),
+                      "%s with %s and %s: exit %d, want 1 saying '%s' without retrying:\n%s\n%s",
                       cases[i].cmd, cases[i].key ? cases[i].key : "no key",
-                      cases[i].master ? cases[i].master : "no master key", rc, ms, cases[i].want,
-                      out, logs_tail());
+                      cases[i].master ? cases[i].master : "no master key", rc, cases[i].want, out,
+                      logs_tail());
     }
     use_client_keys(dir, "client");
     daemon_t *w = start_keyed_worker(port, "m-wrong-master-key", NULL, dir, "w", "stranger");
