@@ -23,7 +23,6 @@
  */
 #include <cJSON.h>
 #include <check.h>
-#include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
@@ -712,33 +711,6 @@ static long tcp_unread(pid_t pid, int port)
     return total;
 }
 
-/* 1 when every thread of pid has stopped (SIGSTOP takes effect when a
- * thread next leaves the kernel, not when kill returns), or pid is gone. */
-static int stopped(pid_t pid)
-{
-    char path[64], line[512];
-    snprintf(path, sizeof path, "/proc/%ld/task", (long)pid);
-    DIR *dir = opendir(path);
-    if (!dir)
-        return 1;
-    int all = 1;
-    struct dirent *e;
-    while (all && (e = readdir(dir)) != NULL) {
-        if (e->d_name[0] == '.')
-            continue;
-        snprintf(path, sizeof path, "/proc/%ld/task/%.20s/stat", (long)pid, e->d_name);
-        FILE *f = fopen(path, "r");
-        if (!f)
-            continue;
-        /* pid (comm) state ...: the comm may hold spaces and parentheses */
-        const char *close = fgets(line, sizeof line, f) ? strrchr(line, ')') : NULL;
-        all = !close || close[1] != ' ' || strchr("TtZX", close[2]) != NULL;
-        fclose(f);
-    }
-    closedir(dir);
-    return all;
-}
-
 /* Freezes the paced workers, then waits until every thread of theirs has
  * stopped and the master has read every byte that reached it: what they
  * sent before they stopped. It handles worker messages before control
@@ -754,7 +726,7 @@ static void pace_freeze(pacer_t *p)
     for (;;) {
         int all = 1;
         for (int i = 0; i < p->n && all; i++)
-            all = stopped(p->w[i]->pid);
+            all = tu_stopped(p->w[i]->pid);
         assert_alive(p->master);
         long unread = all ? tcp_unread(p->master->pid, p->port) : 1;
         if (unread == 0)
