@@ -657,26 +657,24 @@ START_TEST(err_unsupported_format)
 }
 END_TEST
 
+/* Huge counts in the header of a small file are refused from the header,
+ * against the file's size, before a vertex is read or memory is taken for
+ * them (the message says so: a loader that tried would fail otherwise). */
 START_TEST(err_huge_count_small_file)
 {
-    struct timespec t0, t1;
-    clock_gettime(CLOCK_MONOTONIC, &t0);
     expect_fail_text("huge.ply",
                      "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\n"
                      "property float x\nproperty float y\nproperty float z\n"
                      "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
                      "0123456789abcdef",
-                     "vertex count", "line 3");
+                     "vertex count 4000000000 is more than the file can hold", "line 3");
     expect_fail_text("huge_face.ply",
                      PLY_XYZ_HEAD("ascii", 3, 9000000000000000000) "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
-                     "face count", "line 7");
+                     "face count 9000000000000000000 is more than the file can hold", "line 7");
     /* Counts past 64 bits do not parse. */
     expect_fail_text("huge_parse.ply",
                      "ply\nformat ascii 1.0\nelement vertex 99999999999999999999999\n",
                      "bad element count", "line 3");
-    clock_gettime(CLOCK_MONOTONIC, &t1);
-    double s = (double)(t1.tv_sec - t0.tv_sec) + (double)(t1.tv_nsec - t0.tv_nsec) * 1e-9;
-    ck_assert_msg(s < 0.5, "rejecting huge counts took %g s", s);
 }
 END_TEST
 

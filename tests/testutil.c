@@ -1,7 +1,9 @@
 /* testutil.c - see testutil.h. */
 #include "testutil.h"
 
+#include <dirent.h>
 #include <errno.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -89,4 +91,39 @@ double tu_now_ms(void)
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}
+
+int tu_stopped(pid_t pid)
+{
+    char path[64], line[512];
+    snprintf(path, sizeof path, "/proc/%ld/task", (long)pid);
+    DIR *dir = opendir(path);
+    if (!dir)
+        return 1;
+    int all = 1;
+    struct dirent *e;
+    while (all && (e = readdir(dir)) != NULL) {
+        if (e->d_name[0] == '.')
+            continue;
+        snprintf(path, sizeof path, "/proc/%ld/task/%.20s/stat", (long)pid, e->d_name);
+        FILE *f = fopen(path, "r");
+        if (!f)
+            continue;
+        /* pid (comm) state ...: the comm may hold spaces and parentheses */
+        const char *close = fgets(line, sizeof line, f) ? strrchr(line, ')') : NULL;
+        all = !close || close[1] != ' ' || strchr("TtZX", close[2]) != NULL;
+        fclose(f);
+    }
+    closedir(dir);
+    return all;
+}
+
+int tu_freeze(pid_t pid)
+{
+    if (kill(pid, SIGSTOP) < 0)
+        return -1;
+    for (double end = tu_now_ms() + 10000; !tu_stopped(pid); tu_sleep_ms(1))
+        if (tu_now_ms() > end)
+            return -1;
+    return 0;
 }

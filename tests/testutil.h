@@ -6,6 +6,7 @@
 #define VB_TESTUTIL_H
 
 #include <stddef.h>
+#include <sys/types.h>
 
 /* Path under the project root / ../shared / the scratch folder, written into
  * buf (the caller's), which is returned. */
@@ -25,5 +26,12 @@ int tu_run(const char *cmd, char *out, size_t outlen);
 /* Sleeps ms milliseconds (through signals); the monotonic clock in ms. */
 void tu_sleep_ms(int ms);
 double tu_now_ms(void);
+
+/* 1 when every thread of pid has stopped (SIGSTOP takes effect when a
+ * thread next leaves the kernel, not when kill returns), or pid is gone. */
+int tu_stopped(pid_t pid);
+/* SIGSTOP to pid, and waits (up to 10 s) until all its threads have
+ * stopped: then it sends nothing more. 0, or -1 when it did not stop. */
+int tu_freeze(pid_t pid);
 
 #endif
