@@ -61,10 +61,10 @@
 #endif
 
 /* Settings shared by a distributed run and its embedded reference. LONG:
- * long in layers (128, cheap ones on a 32x32 film), for a paced job (see
- * pace_step). */
+ * long enough in tasks (64 layers of 64 tasks: a layer is cut in 64 pixel
+ * ranges) for a paced job (see pace_step), cheap ones on a 32x32 film. */
 #define SMALL "--spp 64 --granularity 16"
-#define LONG "--spp 1024 --granularity 8 --adaptive none --seed 11"
+#define LONG "--spp 512 --granularity 8 --adaptive none --seed 11"
 
 /* ---- processes ---------------------------------------------------------- */
 
@@ -803,8 +803,8 @@ static cJSON *pace_step(pacer_t *p)
     double max = json_num(st, "max_samples"), layers = json_num(st, "layers");
     double at = max > 0 ? json_num(st, "samples") / max : 0, moved = at - p->at;
     double at_layers = layers > 0 ? json_num(st, "layers_done") / layers : 0;
-    if (at_layers - p->at_layers > moved)
-        moved = at_layers - p->at_layers;
+    if (at_layers - p->at_layers - 1 / layers > moved) /* one layer: its last task came in */
+        moved = at_layers - p->at_layers - 1 / layers;
     ck_assert_msg(
         !job_ended(st),
         "job %llu %s while paced (at %.1f %% of its layers a slice of %.1f ms before)\n%s", p->job,
@@ -1135,7 +1135,7 @@ END_TEST
 
 START_TEST(worker_joins)
 {
-    static const char *const settings = "--spp 512 --granularity 8 --adaptive none --seed 12";
+    static const char *const settings = "--spp 256 --granularity 8 --adaptive none --seed 12";
     char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], out[OUTLEN];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     int port = slot_port(2);
@@ -1824,7 +1824,7 @@ START_TEST(master_crash)
      * paced); half the layers adaptive, so the scheduler's skip state is
      * restored too */
     static const char *const settings =
-        "--spp 2048 --granularity 16 --adaptive thesis --uniform-layers 64 --seed 5";
+        "--spp 512 --granularity 16 --adaptive thesis --uniform-layers 16 --seed 5";
     char scene[PATHLEN], dir[PATHLEN], ref[PATHLEN], got[PATHLEN], got2[PATHLEN], log[65536];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     state_dir(dir, sizeof dir, "state-crash");
@@ -1897,8 +1897,8 @@ START_TEST(master_crash)
     cJSON *s = job_status(port + 1, job);
     ck_assert_msg(strstr(json_str(s, "recovered"), "checkpoint at") != NULL,
                   "status says recovered \"%s\"", json_str(s, "recovered"));
-    ck_assert_msg(json_num(s, "layers_done") >= 16 && !job_ended(s),
-                  "resumed %s at %g layers, the checkpoint had >= 16", json_str(s, "state"),
+    ck_assert_msg(json_num(s, "layers_done") >= 4 && !job_ended(s),
+                  "resumed %s at %g layers, the checkpoint had >= 4", json_str(s, "state"),
                   json_num(s, "layers_done"));
     cJSON_Delete(s);
     pace_thaw(&pace);
@@ -1960,7 +1960,7 @@ END_TEST
  * (or starts over) and still ends with the uninterrupted image. */
 START_TEST(corrupt_checkpoint)
 {
-    static const char *const settings = "--spp 2048 --granularity 16 --adaptive none --seed 8";
+    static const char *const settings = "--spp 512 --granularity 16 --adaptive none --seed 8";
     char scene[PATHLEN], dir[PATHLEN], ref[PATHLEN], got[PATHLEN], log[65536], path[PATHLEN + 64];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     state_dir(dir, sizeof dir, "state-corrupt");
@@ -1973,7 +1973,7 @@ START_TEST(corrupt_checkpoint)
     pacer_t pace;
     pace_start(&pace, m, port, &w, 1);
     unsigned long long job = pace_submit(&pace, scene, settings);
-    cJSON_Delete(pace_to(&pace, 4 / 128.0));
+    cJSON_Delete(pace_to(&pace, 4 / 32.0));
     for (double end = now_ms() + JOB_TIMEOUT_MS; !file_exists(dir, job, "checkpoint.prev");) {
         ck_assert_msg(now_ms() < end, "no two checkpoints within %d ms\n%s", JOB_TIMEOUT_MS,
                       logs_tail());
@@ -2018,7 +2018,7 @@ START_TEST(storage_failure)
 {
     const char *fault_bin = getenv("VB_FAULT_MASTER");
     ck_assert_msg(fault_bin && access(fault_bin, X_OK) == 0, "VB_FAULT_MASTER is not built");
-    static const char *const settings = "--spp 1024 --granularity 16 --adaptive none --seed 13";
+    static const char *const settings = "--spp 512 --granularity 16 --adaptive none --seed 13";
     char scene[PATHLEN], dir[PATHLEN], flag[PATHLEN], ref[PATHLEN], got[PATHLEN], out[OUTLEN],
         env[PATHLEN + 64];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
@@ -2099,7 +2099,7 @@ END_TEST
  * however fast the host. The image is the fault-free one. */
 START_TEST(churn)
 {
-    static const char *const settings = "--spp 1600 --granularity 8 --adaptive thesis --seed 17";
+    static const char *const settings = "--spp 400 --granularity 8 --adaptive thesis --seed 17";
     char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], name[32], host[32];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     int port = slot_port(10);
@@ -2152,7 +2152,14 @@ static long rss_kib(pid_t pid)
 /* A flood during a job: 1,000,000 malformed frames on the worker port and
  * 100,000 malformed control requests, from several connections, then 300
  * fetches nobody reads. The master's memory stays within 2x, the drops are
- * counted, the log stays small, and the job's image is the fault-free one. */
+ * counted, the log stays small, and the job's image is the fault-free one.
+ * Under the sanitizers (where the memory bound is not checked: see below)
+ * a quarter of the flood exercises the same paths. */
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define FLOOD_FRAMES 250000L
+#else
+#define FLOOD_FRAMES 1000000L
+#endif
 START_TEST(flood)
 {
     static const char *const settings = "--spp 512 --granularity 16 --adaptive none --seed 19";
@@ -2177,18 +2184,18 @@ START_TEST(flood)
     }
     uint8_t junk[64];
     uint32_t x = 777;
-    for (long i = 0; i < 1000000; i++) {
+    for (long i = 0; i < FLOOD_FRAMES; i++) {
         size_t len = 1 + (x = x * 1664525u + 1013904223u) % sizeof junk;
         for (size_t b = 0; b < len; b++)
             junk[b] = (uint8_t)((x = x * 1664525u + 1013904223u) >> 24);
         junk[0] = 0; /* never a valid magic */
         ck_assert_int_ge(zmq_send(socks[i % 3], junk, len, 0), 0);
-        if (i < 100000) {
+        if (i < FLOOD_FRAMES / 10) {
             /* [empty][not JSON], as a REQ socket would frame it */
             ck_assert_int_ge(zmq_send(socks[3], "", 0, ZMQ_SNDMORE), 0);
             ck_assert_int_ge(zmq_send(socks[3], junk, len, 0), 0);
         }
-        if (i % 50000 == 0) {
+        if (i % (FLOOD_FRAMES / 20) == 0) {
             long r = rss_kib(m->pid);
             peak = r > peak ? r : peak;
         }
@@ -2222,12 +2229,19 @@ START_TEST(flood)
     for (int k = 0; k < 4; k++)
         zmq_close(socks[k]);
     zmq_ctx_term(ctx);
-    cJSON *wl = ctl(port + 1, "workers", 0);
-    ck_assert_ptr_nonnull(wl);
-    double dropped = json_num(cJSON_GetObjectItemCaseSensitive(wl, "master"), "malformed_messages");
-    cJSON_Delete(wl);
-    ck_assert_msg(dropped >= 1000000, "the master counted %.0f malformed messages of 1,100,000",
-                  dropped);
+    /* counted as the master works through what it has received (all but
+     * what the sockets held when they were closed) */
+    double dropped = 0;
+    for (double end = now_ms() + JOB_TIMEOUT_MS; dropped < FLOOD_FRAMES && now_ms() < end;) {
+        cJSON *wl = ctl(port + 1, "workers", 0);
+        ck_assert_ptr_nonnull(wl);
+        dropped = json_num(cJSON_GetObjectItemCaseSensitive(wl, "master"), "malformed_messages");
+        cJSON_Delete(wl);
+        if (dropped < FLOOD_FRAMES)
+            sleep_ms(50);
+    }
+    ck_assert_msg(dropped >= FLOOD_FRAMES, "the master counted %.0f malformed messages of %ld",
+                  dropped, FLOOD_FRAMES + FLOOD_FRAMES / 10);
     struct stat lst;
     ck_assert_int_eq(stat(m->log, &lst), 0);
     ck_assert_msg(lst.st_size < 64 * 1024, "the master wrote %lld bytes of log for the flood",
@@ -2277,7 +2291,7 @@ static void net_fault(int lossy)
         fflush(stdout);
         return;
     }
-    static const char *const settings = "--spp 2048 --granularity 16 --adaptive thesis --seed 23";
+    static const char *const settings = "--spp 512 --granularity 16 --adaptive thesis --seed 23";
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     const int port = 7070;
     char cep[64];
@@ -3243,7 +3257,7 @@ START_TEST(curve_sighup)
     keygen(dir, "client", "clients");
     use_client_keys(dir, "client");
     scene_file(scene, sizeof scene, 32, NULL, NULL);
-    static const char *const settings = "--spp 512 --granularity 8 --adaptive none --seed 13";
+    static const char *const settings = "--spp 256 --granularity 8 --adaptive none --seed 13";
     int port = slot_port(17);
     daemon_t *m = start_keyed_master(&port, "p-master", dir);
     daemon_t *w[2] = {start_keyed_worker(port, "p-worker1", "127.0.0.2", dir, "w1", "master"),
@@ -3454,14 +3468,14 @@ START_TEST(preview_job)
     pacer_t pace;
     pace_start(&pace, m, port, &w, 1);
     unsigned long long job =
-        pace_submit(&pace, scene, "--spp 512 --granularity 8 --adaptive none --seed 7");
+        pace_submit(&pace, scene, "--spp 256 --granularity 8 --adaptive none --seed 7");
     preview_refused(port + 1, job, "\"max_width\": 0", "max_width");
     preview_refused(port + 1, job, "\"max_width\": 4097", "max_width");
     preview_refused(port + 1, job, "\"max_width\": 1.5", "max_width");
     preview_refused(port + 1, job, "\"max_height\": \"big\"", "max_height");
     preview_refused(port + 1, job, "\"max_height\": -3", "max_height");
     preview_refused(port + 1, 999999, "", "no such job");
-    cJSON *st = pace_to(&pace, 2 / 64.0);
+    cJSON *st = pace_to(&pace, 2 / 32.0);
     ck_assert_msg(json_num(st, "progress") > 0 && json_num(st, "progress") < 1 &&
                       json_num(st, "eta_seconds") >= 0 && json_num(st, "mean_spp") > 0,
                   "a running job: progress %g, eta %g, mean_spp %g", json_num(st, "progress"),
@@ -3519,7 +3533,7 @@ START_TEST(preview_job)
     r = preview(port + 1, job, "", &end_rgb, &end_spp);
     ck_assert_msg(json_num(r, "width") == 64 && json_num(r, "height") == 64,
                   "64x64 in 256x256: %gx%g", json_num(r, "width"), json_num(r, "height"));
-    ck_assert_msg(preview_samples(r, end_spp) == samples && json_num(r, "spp_max") == 512,
+    ck_assert_msg(preview_samples(r, end_spp) == samples && json_num(r, "spp_max") == 256,
                   "the ended job's preview: %g samples of %g", preview_samples(r, end_spp),
                   samples);
     cJSON_Delete(r);
