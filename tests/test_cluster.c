@@ -10,6 +10,15 @@
  * peer of another protocol version are refused on both sides; every daemon
  * exits 0 on SIGTERM (in the sanitizer build a leak makes that fail).
  *
+ * No case guesses how fast the host is: a case that acts at a point of a
+ * job paces it (pace_step: the workers run only in short slices between the
+ * test's looks, frozen with SIGSTOP while it reads the master's counters
+ * and acts), and the other waits are for events (a log line, a counter, a
+ * reply), bounded only by a generous timeout against a hang. (The flood's
+ * two pauses before it reads the master's memory decide only what that
+ * check sees, never whether a correct master passes.) So a case passes on
+ * a faster host, a slower one, and beside other work.
+ *
  * Each daemon writes its stderr to a log under VB_TMP; a failing assertion
  * prints the tail of every log of the test. Every process a test starts is
  * killed in the teardown, and also dies with the test process (parent-death
@@ -2738,11 +2747,11 @@ static int names_quarantined(const cJSON *st, const char *who)
 }
 
 /* --verify-share 1: with one worker nothing is merged (the status says a
- * second worker is awaited); then two honest workers and one that perturbs
- * every third result join. Every task is merged only on two equal results,
- * a mismatch calls a third worker, and the liar is quarantined (refused:
- * it exits 1; the status and the log name it); the image is the embedded
- * render's bit for bit. */
+ * second worker is awaited); then one that perturbs every third result
+ * joins, and once a result of its mismatched, a second honest worker.
+ * Every task is merged only on two equal results, a mismatch calls a third
+ * worker, and the liar is quarantined (refused: it exits 1; the status and
+ * the log name it); the image is the embedded render's bit for bit. */
 START_TEST(verify_liar)
 {
     static const char *const settings = "--spp 256 --granularity 16 --adaptive none --seed 31";
@@ -2770,8 +2779,24 @@ START_TEST(verify_liar)
                   "share 1 merged %.0f samples, %.0f tasks unverified, with one worker",
                   json_num(st, "samples"), json_num(st, "tasks_unverified"));
     cJSON_Delete(st);
-    start_worker(port, 1, "v-worker2", "127.0.0.3");
+    /* the liar joins first: its lie (one of its first three results) is a
+     * mismatch no task can be merged past until a third worker settles it,
+     * so the job waits for the second honest worker, started then, however
+     * fast the others are */
     daemon_t *liar = start_liar(port, "v-liar", "127.0.0.4", 3, 0);
+    end = now_ms() + JOB_TIMEOUT_MS;
+    for (;;) {
+        st = job_status(port + 1, job);
+        int mismatch = json_num(st, "verify_mismatches") >= 1;
+        ck_assert_msg(!job_ended(st), "job %llu %s before the second honest worker\n%s", job,
+                      json_str(st, "state"), logs_tail());
+        cJSON_Delete(st);
+        if (mismatch)
+            break;
+        ck_assert_msg(now_ms() < end, "the liar's results never mismatched\n%s", logs_tail());
+        sleep_ms(20);
+    }
+    start_worker(port, 1, "v-worker2", "127.0.0.3");
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "verify.exr"));
     st = job_status(port + 1, job);
     double tasks = json_num(st, "tasks");
