@@ -224,6 +224,13 @@ ifeq ($(SAN),1)
   TEST_ENV += CK_FORK=no
 endif
 
+# Suites run TEST_JOBS at a time (tests/run-suites.sh -j), test_cluster's
+# cases each in a process of its own (test_cluster:*); the builds of `make
+# check` use as many jobs. The tests wait for events, not for times, so a
+# loaded host makes them slower, not wrong.
+TEST_JOBS ?= $(shell nproc 2>/dev/null || echo 2)
+TEST_RUN   = $(filter-out %/test_cluster,$(TEST_BIN)) '$(BUILD)/tests/test_cluster:*'
+
 # Mutations per fuzz target in `make test` (the standalone driver, fixed
 # seed). Every target does 20000 in under 4 s under ASan; one that gets
 # slow can have fewer, as FUZZ_N_fuzz_NAME = N.
@@ -237,7 +244,8 @@ test: $(BIN)/vbrender $(DAEMONS) $(TEST_BIN) $(FUZZ_BIN) $(FAULT_MASTER) $(FAULT
 	@tests/check-docs.sh
 	@mkdir -p $(BUILD)/test-out
 	@TMPDIR=$(abspath $(BUILD)/test-out) $(SEEDS_BIN) --check tests/data
-	@$(TEST_ENV) VB_TMP=$(abspath $(BUILD)/test-out) tests/run-suites.sh $(TEST_BIN) -- $(FUZZ_RUNS)
+	@$(TEST_ENV) VB_TMP=$(abspath $(BUILD)/test-out) tests/run-suites.sh -j $(TEST_JOBS) \
+	  $(TEST_RUN) -- $(FUZZ_RUNS)
 
 test-asan:
 	$(MAKE) SAN=1 test
@@ -275,7 +283,7 @@ tsan-run: $(BIN)/vbrender $(DAEMONS) $(TSAN_TESTS)
 	@$(TEST_ENV) VB_TMP=$(abspath $(BUILD)/test-out) \
 	  TSAN_OPTIONS="suppressions=$(CURDIR)/tests/tsan.supp atexit_sleep_ms=0 second_deadlock_stack=1 \
 	                log_path=$(abspath $(BUILD)/test-out/tsan-report) $$TSAN_OPTIONS" \
-	  tests/run-suites.sh $(TSAN_RUN); rc=$$?; \
+	  tests/run-suites.sh -j $(TEST_JOBS) $(TSAN_RUN); rc=$$?; \
 	for f in $(BUILD)/test-out/tsan-report.*; do \
 	  [ -e "$$f" ] || continue; echo "== ThreadSanitizer: $$f"; cat "$$f"; rc=1; \
 	done; exit $$rc
@@ -287,12 +295,12 @@ test-browser: $(BIN)/vbrender $(DAEMONS)
 	  tests/browser/test_dashboard.sh
 
 check: deps
-	$(MAKE) all
-	$(MAKE) test
+	$(MAKE) -j$(TEST_JOBS) all
+	$(MAKE) -j$(TEST_JOBS) test
 	$(MAKE) test-browser
-	$(MAKE) test-asan
-	$(MAKE) test-tsan
-	$(MAKE) fuzz-short
+	$(MAKE) -j$(TEST_JOBS) test-asan
+	$(MAKE) -j$(TEST_JOBS) test-tsan
+	$(MAKE) -j$(TEST_JOBS) fuzz-short
 
 # The seed corpora the project's own writers make (tests/gen_fuzz_seeds.c);
 # `make test` checks that the committed ones are still what they make.

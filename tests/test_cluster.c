@@ -10,6 +10,15 @@
  * peer of another protocol version are refused on both sides; every daemon
  * exits 0 on SIGTERM (in the sanitizer build a leak makes that fail).
  *
+ * No case guesses how fast the host is: a case that acts at a point of a
+ * job paces it (pace_step: the workers run only in short slices between the
+ * test's looks, frozen with SIGSTOP while it reads the master's counters
+ * and acts), and the other waits are for events (a log line, a counter, a
+ * reply), bounded only by a generous timeout against a hang. (The flood's
+ * two pauses before it reads the master's memory decide only what that
+ * check sees, never whether a correct master passes.) So a case passes on
+ * a faster host, a slower one, and beside other work.
+ *
  * Each daemon writes its stderr to a log under VB_TMP; a failing assertion
  * prints the tail of every log of the test. Every process a test starts is
  * killed in the teardown, and also dies with the test process (parent-death
@@ -61,10 +70,10 @@
 #endif
 
 /* Settings shared by a distributed run and its embedded reference. LONG:
- * long in layers (128, cheap ones on a 32x32 film), for a paced job (see
- * pace_step). */
+ * long enough in tasks (64 layers of 64 tasks: a layer is cut in 64 pixel
+ * ranges) for a paced job (see pace_step), cheap ones on a 32x32 film. */
 #define SMALL "--spp 64 --granularity 16"
-#define LONG "--spp 1024 --granularity 8 --adaptive none --seed 11"
+#define LONG "--spp 512 --granularity 8 --adaptive none --seed 11"
 
 /* ---- processes ---------------------------------------------------------- */
 
@@ -658,15 +667,15 @@ static cJSON *status_in(const char *ns, const char *cep, unsigned long long job)
 /* ---- pacing: the job advances only while the test looks away ------------ */
 
 /* A test that acts at a point of a job (a worker killed at 40 % of its
- * layers, one joining or the master killed while it runs) must not guess
+ * work, one joining or the master killed while it runs) must not guess
  * how fast this host renders. It paces the job instead: its workers are
  * frozen (SIGSTOP) whenever the test reads the master's counters and acts,
  * and thawed (SIGCONT) for short slices in between, so the job advances
  * only in steps the test sees and stands still while it acts. A slice is
- * lengthened while it moves the job by less than PACE_STEP (of its samples
- * or of its layers) and shortened when it moves it more, so a fast and a
- * slow host take the same steps, in fewer or more slices: a paced job needs
- * many layers (well over 1 / PACE_STEP), not many seconds. A look takes
+ * lengthened while it moves the job by less than PACE_STEP of its work
+ * (job_work) and shortened when it moves it more, so a fast and a slow host
+ * take the same steps, in fewer or more slices: a paced job needs many
+ * tasks (well over 1 / PACE_STEP), not many seconds. A look takes
  * milliseconds, far less than the master's heartbeat timeout, so a frozen
  * worker is not taken for a silent one. */
 #define PACE_STEP 0.01
@@ -680,9 +689,22 @@ typedef struct pacer {
     const char *ns, *cep; /* a master in a namespace: asked through status_in */
     daemon_t *w[MAX_DAEMONS];
     int n, frozen;
-    double slice_ms, at, at_layers; /* the next slice; the job's share of samples and of
-                                     * layers at the last look */
+    double slice_ms, at; /* the next slice; the job's work done at the last look */
 } pacer_t;
+
+/* The share of the job's work done: its pixel-layers merged or skipped
+ * (an adaptive job skips more and more of them), of width x height x
+ * layers. Neither samples alone (few in an adaptive job's later layers) nor
+ * layers_done (the complete layers: it stands still while a killed
+ * worker's task waits to go out again, then jumps) says how much is left. */
+static double job_work(const cJSON *st)
+{
+    double all = json_num(st, "width") * json_num(st, "height") * json_num(st, "layers");
+    double g = json_num(st, "granularity");
+    return all > 0 && g > 0
+               ? (json_num(st, "samples") / g + json_num(st, "pixel_layers_skipped")) / all
+               : 0;
+}
 
 /* The bytes received and not yet read on the TCP connections whose local
  * port is port, from /proc/PID/net/tcp and tcp6 (in pid's network
@@ -798,18 +820,10 @@ static cJSON *pace_step(pacer_t *p)
         ;
     pace_freeze(p);
     cJSON *st = pace_look(p);
-    /* the job's move: in samples (an adaptive job's later layers cost
-     * few) or in layers, whichever is more */
-    double max = json_num(st, "max_samples"), layers = json_num(st, "layers");
-    double at = max > 0 ? json_num(st, "samples") / max : 0, moved = at - p->at;
-    double at_layers = layers > 0 ? json_num(st, "layers_done") / layers : 0;
-    if (at_layers - p->at_layers > moved)
-        moved = at_layers - p->at_layers;
-    ck_assert_msg(
-        !job_ended(st),
-        "job %llu %s while paced (at %.1f %% of its layers a slice of %.1f ms before)\n%s", p->job,
-        json_str(st, "state"), 100 * p->at_layers, p->slice_ms, logs_tail());
-    p->at_layers = at_layers > p->at_layers ? at_layers : p->at_layers;
+    double at = job_work(st), moved = at - p->at;
+    ck_assert_msg(!job_ended(st),
+                  "job %llu %s while paced (%.1f %% done a slice of %.1f ms before)\n%s", p->job,
+                  json_str(st, "state"), 100 * p->at, p->slice_ms, logs_tail());
     if (moved > PACE_STEP)
         p->slice_ms = p->slice_ms / 2 > 0.2 ? p->slice_ms / 2 : 0.2;
     else if (moved > 0 && moved < PACE_STEP / 2)
@@ -820,20 +834,17 @@ static cJSON *pace_step(pacer_t *p)
     return st;
 }
 
-/* Steps until `fraction` of the job's layers are complete (0: until some
- * samples are merged); returns its status, the workers frozen. */
+/* Steps until `fraction` of the job's work is done (job_work; 0: until
+ * some samples are merged); returns its status, the workers frozen. */
 static cJSON *pace_to(pacer_t *p, double fraction)
 {
     double end = now_ms() + JOB_TIMEOUT_MS;
     for (;;) {
         cJSON *st = pace_step(p);
-        if (json_num(st, "layers_done") >= ceil(fraction * json_num(st, "layers")) &&
-            json_num(st, "samples") > 0)
+        if (p->at >= fraction && json_num(st, "samples") > 0)
             return st;
-        ck_assert_msg(now_ms() < end,
-                      "job %llu at %.0f of %.0f layers after %d ms, want %.0f %%\n%s", p->job,
-                      json_num(st, "layers_done"), json_num(st, "layers"), JOB_TIMEOUT_MS,
-                      100 * fraction, logs_tail());
+        ck_assert_msg(now_ms() < end, "job %llu %.1f %% done after %d ms, want %.0f %%\n%s", p->job,
+                      100 * p->at, JOB_TIMEOUT_MS, 100 * fraction, logs_tail());
         cJSON_Delete(st);
     }
 }
@@ -1143,7 +1154,7 @@ END_TEST
 
 START_TEST(worker_joins)
 {
-    static const char *const settings = "--spp 512 --granularity 8 --adaptive none --seed 12";
+    static const char *const settings = "--spp 256 --granularity 8 --adaptive none --seed 12";
     char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], out[OUTLEN];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     int port = slot_port(2);
@@ -1832,7 +1843,7 @@ START_TEST(master_crash)
      * paced); half the layers adaptive, so the scheduler's skip state is
      * restored too */
     static const char *const settings =
-        "--spp 2048 --granularity 16 --adaptive thesis --uniform-layers 64 --seed 5";
+        "--spp 512 --granularity 16 --adaptive thesis --uniform-layers 16 --seed 5";
     char scene[PATHLEN], dir[PATHLEN], ref[PATHLEN], got[PATHLEN], got2[PATHLEN], log[65536];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     state_dir(dir, sizeof dir, "state-crash");
@@ -1878,7 +1889,9 @@ START_TEST(master_crash)
     pacer_t pace;
     pace_start(&pace, m, port, &w, 1);
     pace.job = job;
-    cJSON_Delete(pace_to(&pace, 0.125));
+    cJSON *s = pace_to(&pace, 0.125);
+    double merged = json_num(s, "samples");
+    cJSON_Delete(s);
     char ckpt[PATHLEN + 64];
     snprintf(ckpt, sizeof ckpt, "%s/jobs/%llu/checkpoint", dir, job);
     struct stat before, now;
@@ -1902,12 +1915,12 @@ START_TEST(master_crash)
                   logs_tail());
     kill9(m);
     m = start_durable(&port, "j-master4", dir, NULL);
-    cJSON *s = job_status(port + 1, job);
+    s = job_status(port + 1, job);
     ck_assert_msg(strstr(json_str(s, "recovered"), "checkpoint at") != NULL,
                   "status says recovered \"%s\"", json_str(s, "recovered"));
-    ck_assert_msg(json_num(s, "layers_done") >= 16 && !job_ended(s),
-                  "resumed %s at %g layers, the checkpoint had >= 16", json_str(s, "state"),
-                  json_num(s, "layers_done"));
+    ck_assert_msg(json_num(s, "samples") >= merged && !job_ended(s),
+                  "resumed %s with %g samples, the checkpoint had >= %g", json_str(s, "state"),
+                  json_num(s, "samples"), merged);
     cJSON_Delete(s);
     pace_thaw(&pace);
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "crash.exr"));
@@ -1968,7 +1981,7 @@ END_TEST
  * (or starts over) and still ends with the uninterrupted image. */
 START_TEST(corrupt_checkpoint)
 {
-    static const char *const settings = "--spp 2048 --granularity 16 --adaptive none --seed 8";
+    static const char *const settings = "--spp 512 --granularity 16 --adaptive none --seed 8";
     char scene[PATHLEN], dir[PATHLEN], ref[PATHLEN], got[PATHLEN], log[65536], path[PATHLEN + 64];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     state_dir(dir, sizeof dir, "state-corrupt");
@@ -1981,7 +1994,7 @@ START_TEST(corrupt_checkpoint)
     pacer_t pace;
     pace_start(&pace, m, port, &w, 1);
     unsigned long long job = pace_submit(&pace, scene, settings);
-    cJSON_Delete(pace_to(&pace, 4 / 128.0));
+    cJSON_Delete(pace_to(&pace, 4 / 32.0));
     for (double end = now_ms() + JOB_TIMEOUT_MS; !file_exists(dir, job, "checkpoint.prev");) {
         ck_assert_msg(now_ms() < end, "no two checkpoints within %d ms\n%s", JOB_TIMEOUT_MS,
                       logs_tail());
@@ -2026,7 +2039,7 @@ START_TEST(storage_failure)
 {
     const char *fault_bin = getenv("VB_FAULT_MASTER");
     ck_assert_msg(fault_bin && access(fault_bin, X_OK) == 0, "VB_FAULT_MASTER is not built");
-    static const char *const settings = "--spp 1024 --granularity 16 --adaptive none --seed 13";
+    static const char *const settings = "--spp 512 --granularity 16 --adaptive none --seed 13";
     char scene[PATHLEN], dir[PATHLEN], flag[PATHLEN], ref[PATHLEN], got[PATHLEN], out[OUTLEN],
         env[PATHLEN + 64];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
@@ -2101,13 +2114,14 @@ START_TEST(storage_failure)
 END_TEST
 
 /* Churn: four workers over a whole job; each time the job passes 20, 40,
- * 60 and 80 % of its layers, one worker holding a task is killed with
+ * 60 and 80 % of its layers (its pixel-layers: job_work), one worker
+ * holding a task is killed with
  * SIGKILL and a new one starts. The job is paced (pace_step), so it stands
  * still at each of those points and cannot end before the last kill,
  * however fast the host. The image is the fault-free one. */
 START_TEST(churn)
 {
-    static const char *const settings = "--spp 1600 --granularity 8 --adaptive thesis --seed 17";
+    static const char *const settings = "--spp 400 --granularity 8 --adaptive thesis --seed 17";
     char scene[PATHLEN], ref[PATHLEN], got[PATHLEN], name[32], host[32];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     int port = slot_port(10);
@@ -2159,7 +2173,14 @@ static long rss_kib(pid_t pid)
 /* A flood during a job: 1,000,000 malformed frames on the worker port and
  * 100,000 malformed control requests, from several connections, then 300
  * fetches nobody reads. The master's memory stays within 2x, the drops are
- * counted, the log stays small, and the job's image is the fault-free one. */
+ * counted, the log stays small, and the job's image is the fault-free one.
+ * Under the sanitizers (where the memory bound is not checked: see below)
+ * a quarter of the flood exercises the same paths. */
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define FLOOD_FRAMES 250000L
+#else
+#define FLOOD_FRAMES 1000000L
+#endif
 START_TEST(flood)
 {
     static const char *const settings = "--spp 512 --granularity 16 --adaptive none --seed 19";
@@ -2184,18 +2205,18 @@ START_TEST(flood)
     }
     uint8_t junk[64];
     uint32_t x = 777;
-    for (long i = 0; i < 1000000; i++) {
+    for (long i = 0; i < FLOOD_FRAMES; i++) {
         size_t len = 1 + (x = x * 1664525u + 1013904223u) % sizeof junk;
         for (size_t b = 0; b < len; b++)
             junk[b] = (uint8_t)((x = x * 1664525u + 1013904223u) >> 24);
         junk[0] = 0; /* never a valid magic */
         ck_assert_int_ge(zmq_send(socks[i % 3], junk, len, 0), 0);
-        if (i < 100000) {
+        if (i < FLOOD_FRAMES / 10) {
             /* [empty][not JSON], as a REQ socket would frame it */
             ck_assert_int_ge(zmq_send(socks[3], "", 0, ZMQ_SNDMORE), 0);
             ck_assert_int_ge(zmq_send(socks[3], junk, len, 0), 0);
         }
-        if (i % 50000 == 0) {
+        if (i % (FLOOD_FRAMES / 20) == 0) {
             long r = rss_kib(m->pid);
             peak = r > peak ? r : peak;
         }
@@ -2229,12 +2250,19 @@ START_TEST(flood)
     for (int k = 0; k < 4; k++)
         zmq_close(socks[k]);
     zmq_ctx_term(ctx);
-    cJSON *wl = ctl(port + 1, "workers", 0);
-    ck_assert_ptr_nonnull(wl);
-    double dropped = json_num(cJSON_GetObjectItemCaseSensitive(wl, "master"), "malformed_messages");
-    cJSON_Delete(wl);
-    ck_assert_msg(dropped >= 1000000, "the master counted %.0f malformed messages of 1,100,000",
-                  dropped);
+    /* counted as the master works through what it has received (all but
+     * what the sockets held when they were closed) */
+    double dropped = 0;
+    for (double end = now_ms() + JOB_TIMEOUT_MS; dropped < FLOOD_FRAMES && now_ms() < end;) {
+        cJSON *wl = ctl(port + 1, "workers", 0);
+        ck_assert_ptr_nonnull(wl);
+        dropped = json_num(cJSON_GetObjectItemCaseSensitive(wl, "master"), "malformed_messages");
+        cJSON_Delete(wl);
+        if (dropped < FLOOD_FRAMES)
+            sleep_ms(50);
+    }
+    ck_assert_msg(dropped >= FLOOD_FRAMES, "the master counted %.0f malformed messages of %ld",
+                  dropped, FLOOD_FRAMES + FLOOD_FRAMES / 10);
     struct stat lst;
     ck_assert_int_eq(stat(m->log, &lst), 0);
     ck_assert_msg(lst.st_size < 64 * 1024, "the master wrote %lld bytes of log for the flood",
@@ -2284,7 +2312,7 @@ static void net_fault(int lossy)
         fflush(stdout);
         return;
     }
-    static const char *const settings = "--spp 2048 --granularity 16 --adaptive thesis --seed 23";
+    static const char *const settings = "--spp 512 --granularity 16 --adaptive thesis --seed 23";
     scene_file(scene, sizeof scene, 32, NULL, NULL);
     const int port = 7070;
     char cep[64];
@@ -2809,11 +2837,11 @@ static int names_quarantined(const cJSON *st, const char *who)
 }
 
 /* --verify-share 1: with one worker nothing is merged (the status says a
- * second worker is awaited); then two honest workers and one that perturbs
- * every third result join. Every task is merged only on two equal results,
- * a mismatch calls a third worker, and the liar is quarantined (refused:
- * it exits 1; the status and the log name it); the image is the embedded
- * render's bit for bit. */
+ * second worker is awaited); then one that perturbs every third result
+ * joins, and once a result of its mismatched, a second honest worker.
+ * Every task is merged only on two equal results, a mismatch calls a third
+ * worker, and the liar is quarantined (refused: it exits 1; the status and
+ * the log name it); the image is the embedded render's bit for bit. */
 START_TEST(verify_liar)
 {
     static const char *const settings = "--spp 256 --granularity 16 --adaptive none --seed 31";
@@ -2841,8 +2869,24 @@ START_TEST(verify_liar)
                   "share 1 merged %.0f samples, %.0f tasks unverified, with one worker",
                   json_num(st, "samples"), json_num(st, "tasks_unverified"));
     cJSON_Delete(st);
-    start_worker(port, 1, "v-worker2", "127.0.0.3");
+    /* the liar joins first: its lie (one of its first three results) is a
+     * mismatch no task can be merged past until a third worker settles it,
+     * so the job waits for the second honest worker, started then, however
+     * fast the others are */
     daemon_t *liar = start_liar(port, "v-liar", "127.0.0.4", 3, 0);
+    end = now_ms() + JOB_TIMEOUT_MS;
+    for (;;) {
+        st = job_status(port + 1, job);
+        int mismatch = json_num(st, "verify_mismatches") >= 1;
+        ck_assert_msg(!job_ended(st), "job %llu %s before the second honest worker\n%s", job,
+                      json_str(st, "state"), logs_tail());
+        cJSON_Delete(st);
+        if (mismatch)
+            break;
+        ck_assert_msg(now_ms() < end, "the liar's results never mismatched\n%s", logs_tail());
+        sleep_ms(20);
+    }
+    start_worker(port, 1, "v-worker2", "127.0.0.3");
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "verify.exr"));
     st = job_status(port + 1, job);
     double tasks = json_num(st, "tasks");
@@ -3333,7 +3377,7 @@ START_TEST(curve_sighup)
     keygen(dir, "client", "clients");
     use_client_keys(dir, "client");
     scene_file(scene, sizeof scene, 32, NULL, NULL);
-    static const char *const settings = "--spp 512 --granularity 8 --adaptive none --seed 13";
+    static const char *const settings = "--spp 256 --granularity 8 --adaptive none --seed 13";
     int port = slot_port(17);
     daemon_t *m = start_keyed_master(&port, "p-master", dir);
     daemon_t *w[2] = {start_keyed_worker(port, "p-worker1", "127.0.0.2", dir, "w1", "master"),
@@ -3544,14 +3588,14 @@ START_TEST(preview_job)
     pacer_t pace;
     pace_start(&pace, m, port, &w, 1);
     unsigned long long job =
-        pace_submit(&pace, scene, "--spp 512 --granularity 8 --adaptive none --seed 7");
+        pace_submit(&pace, scene, "--spp 256 --granularity 8 --adaptive none --seed 7");
     preview_refused(port + 1, job, "\"max_width\": 0", "max_width");
     preview_refused(port + 1, job, "\"max_width\": 4097", "max_width");
     preview_refused(port + 1, job, "\"max_width\": 1.5", "max_width");
     preview_refused(port + 1, job, "\"max_height\": \"big\"", "max_height");
     preview_refused(port + 1, job, "\"max_height\": -3", "max_height");
     preview_refused(port + 1, 999999, "", "no such job");
-    cJSON *st = pace_to(&pace, 2 / 64.0);
+    cJSON *st = pace_to(&pace, 2 / 32.0);
     ck_assert_msg(json_num(st, "progress") > 0 && json_num(st, "progress") < 1 &&
                       json_num(st, "eta_seconds") >= 0 && json_num(st, "mean_spp") > 0,
                   "a running job: progress %g, eta %g, mean_spp %g", json_num(st, "progress"),
@@ -3580,18 +3624,20 @@ START_TEST(preview_job)
     free(rgb);
     free(spp);
     /* the workers reply, just after a result came in: heartbeat age,
-     * reissues, the master's queue */
+     * reissues (none, unless the master's log says the worker went silent
+     * on a loaded host), the master's queue */
     pace_more_samples(&pace);
     cJSON *wr = ctl(port + 1, "workers", 0);
     const cJSON *w0 = cJSON_GetArrayItem(cJSON_GetObjectItemCaseSensitive(wr, "workers"), 0);
     const cJSON *ms = cJSON_GetObjectItemCaseSensitive(wr, "master");
+    int lost = log_has(m, " gone: ", 0);
     ck_assert_msg(json_num(w0, "last_seen_seconds") >= 0 && json_num(w0, "last_seen_seconds") < 1 &&
-                      json_num(w0, "tasks_reissued") == 0,
+                      (lost || json_num(w0, "tasks_reissued") == 0),
                   "worker: last seen %g s ago, %g reissued", json_num(w0, "last_seen_seconds"),
                   json_num(w0, "tasks_reissued"));
     ck_assert_msg(json_num(ms, "jobs_running") == 1 && json_num(ms, "jobs_queued") == 0 &&
                       json_num(ms, "tasks_issued") > 0 && json_num(ms, "tasks_outstanding") >= 0 &&
-                      json_num(ms, "tasks_reissued") == 0,
+                      (lost || json_num(ms, "tasks_reissued") == 0),
                   "master: %g running, %g queued, %g issued, %g reissued",
                   json_num(ms, "jobs_running"), json_num(ms, "jobs_queued"),
                   json_num(ms, "tasks_issued"), json_num(ms, "tasks_reissued"));
@@ -3609,7 +3655,7 @@ START_TEST(preview_job)
     r = preview(port + 1, job, "", &end_rgb, &end_spp);
     ck_assert_msg(json_num(r, "width") == 64 && json_num(r, "height") == 64,
                   "64x64 in 256x256: %gx%g", json_num(r, "width"), json_num(r, "height"));
-    ck_assert_msg(preview_samples(r, end_spp) == samples && json_num(r, "spp_max") == 512,
+    ck_assert_msg(preview_samples(r, end_spp) == samples && json_num(r, "spp_max") == 256,
                   "the ended job's preview: %g samples of %g", preview_samples(r, end_spp),
                   samples);
     cJSON_Delete(r);
@@ -3651,8 +3697,6 @@ START_TEST(preview_job)
     remove_scratch();
 }
 END_TEST
-
-/* ---- suite ------------------------------------------------------------------------ */
 
 /* ---- l. workers that stall a job ----------------------------------------------- */
 
@@ -3829,63 +3873,73 @@ START_TEST(breaker)
     remove_scratch();
 }
 END_TEST
+/* ---- suite ------------------------------------------------------------------------ */
+
+/* The Check cases, each one test: `test_cluster --list` prints their names
+ * (tests/run-suites.sh runs them one a process, several at once). Each
+ * test is the address of START_TEST's pointer, a constant. */
+static const struct {
+    const char *name;
+    const TTest *const *test;
+} cases[] = {
+    {"identical_pixels", &identical_pixels},
+    {"worker_killed", &worker_killed},
+    {"worker_joins", &worker_joins},
+    {"queued_jobs", &queued_jobs},
+    {"cancel", &cancel_job},
+    {"bad_scenes", &bad_scenes},
+    {"garbage", &master_garbage},
+    {"version", &worker_refuses_version},
+    {"sigterm", &sigterm},
+    {"several_hosts", &several_hosts},
+    {"master_crash", &master_crash},
+    {"corrupt_checkpoint", &corrupt_checkpoint},
+    {"storage_failure", &storage_failure},
+    {"churn", &churn},
+    {"flood", &flood},
+    {"partition", &partition},
+    {"lossy_link", &lossy_link},
+    {"big_submit", &big_submit},
+    {"lying_worker", &lying_worker},
+    {"limits", &limits},
+    {"verify_liar", &verify_liar},
+    {"verify_quarter", &verify_quarter},
+    {"verify_one_worker", &verify_one_worker},
+    {"verify_no_majority", &verify_no_majority},
+    {"curve_render", &curve_render},
+    {"curve_unknown_worker", &curve_unknown_worker},
+    {"curve_refused_clients", &curve_refused_clients},
+    {"curve_key_mode", &curve_key_mode},
+    {"insecure_bind", &insecure_bind},
+    {"curve_sighup", &curve_sighup},
+    {"curve_ownership", &curve_ownership},
+    {"preview", &preview_job},
+    {"stall_hoarder", &stall_hoarder},
+    {"stall_malformed", &stall_malformed},
+    {"stall_slow", &stall_slow},
+    {"breaker", &breaker},
+};
 
 static Suite *cluster_suite(void)
 {
     Suite *su = suite_create("cluster");
-    struct {
-        const char *name;
-        const TTest *test;
-    } cases[] = {
-        {"identical_pixels", identical_pixels},
-        {"worker_killed", worker_killed},
-        {"worker_joins", worker_joins},
-        {"queued_jobs", queued_jobs},
-        {"cancel", cancel_job},
-        {"bad_scenes", bad_scenes},
-        {"garbage", master_garbage},
-        {"version", worker_refuses_version},
-        {"sigterm", sigterm},
-        {"several_hosts", several_hosts},
-        {"master_crash", master_crash},
-        {"corrupt_checkpoint", corrupt_checkpoint},
-        {"storage_failure", storage_failure},
-        {"churn", churn},
-        {"flood", flood},
-        {"partition", partition},
-        {"lossy_link", lossy_link},
-        {"big_submit", big_submit},
-        {"lying_worker", lying_worker},
-        {"limits", limits},
-        {"verify_liar", verify_liar},
-        {"verify_quarter", verify_quarter},
-        {"verify_one_worker", verify_one_worker},
-        {"verify_no_majority", verify_no_majority},
-        {"curve_render", curve_render},
-        {"curve_unknown_worker", curve_unknown_worker},
-        {"curve_refused_clients", curve_refused_clients},
-        {"curve_key_mode", curve_key_mode},
-        {"insecure_bind", insecure_bind},
-        {"curve_sighup", curve_sighup},
-        {"curve_ownership", curve_ownership},
-        {"preview", preview_job},
-        {"stall_hoarder", stall_hoarder},
-        {"stall_malformed", stall_malformed},
-        {"stall_slow", stall_slow},
-        {"breaker", breaker},
-    };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         TCase *tc = tcase_create(cases[i].name);
         tcase_set_timeout(tc, 120);
         tcase_add_checked_fixture(tc, setup, teardown);
-        tcase_add_test(tc, cases[i].test);
+        tcase_add_test(tc, *cases[i].test);
         suite_add_tcase(su, tc);
     }
     return su;
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
+    if (argc == 2 && strcmp(argv[1], "--list") == 0) {
+        for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
+            printf("%s\n", cases[i].name);
+        return 0;
+    }
     /* a client or daemon that goes away must not kill the suite */
     signal(SIGPIPE, SIG_IGN);
     SRunner *sr = srunner_create(cluster_suite());
