@@ -6,7 +6,25 @@ update-results-distributed.py) replace its content and leave the rest of the
 page alone. A missing page or missing markers is reported, not an error.
 """
 import os
+import subprocess
 import sys
+import time
+
+
+def result_meta(benchmark):
+    """The fields every bench/results/*.json opens with: the benchmark's
+    name, the date, the commit and the machine."""
+    try:
+        commit = subprocess.check_output(["git", "rev-parse", "--short", "HEAD"], text=True).strip()
+    except Exception:
+        commit = "?"
+    cpu = "?"
+    for line in open("/proc/cpuinfo"):
+        if line.startswith("model name"):
+            cpu = line.split(":", 1)[1].strip()
+            break
+    return {"benchmark": benchmark, "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "commit": commit, "machine": {"cpu": cpu, "cores": os.cpu_count()}}
 
 
 def replace_block(path, begin, end, body, who):

@@ -121,27 +121,17 @@ for r in $(seq 1 "$REPEATS"); do
 done
 
 python3 - "$OUT" "$RESULTS/stragglers.json" "$REPEATS" "$FACTORS" "$SETTINGS" <<'PY'
-import json, os, statistics, subprocess, sys, time
+import json, statistics, sys
+sys.path.insert(0, "bench")
+from results_page import result_meta
 out, dest, repeats, factors, settings = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4].split(), sys.argv[5]
-def git(*a):
-    try:
-        return subprocess.check_output(["git"] + list(a), text=True).strip()
-    except Exception:
-        return "?"
-cpu = "?"
-for line in open("/proc/cpuinfo"):
-    if line.startswith("model name"):
-        cpu = line.split(":", 1)[1].strip()
-        break
 def runs(tag):
     return [json.load(open("%s/%s-r%d.json" % (out, tag, r))) for r in range(1, repeats + 1)]
 def med(rs, key):
     return statistics.median(r[key] for r in rs)
 alone = med(runs("alone"), "seconds")
-res = {"benchmark": "stragglers", "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-       "commit": git("rev-parse", "--short", "HEAD"), "machine": {"cpu": cpu, "cores": os.cpu_count()},
-       "scene": "scenes/cornell-box.json", "settings": settings, "repeats": repeats,
-       "alone_seconds": alone, "kinds": [], "factors": []}
+res = dict(result_meta("stragglers"), scene="scenes/cornell-box.json", settings=settings,
+           repeats=repeats, alone_seconds=alone, kinds=[], factors=[])
 print("Beside one honest worker (1 thread each), --backup-factor 3; medians of %d runs; the honest worker alone: %.2f s" % (repeats, alone))
 print()
 print("| second worker | job s | vs alone | backups (won) | tasks issued again | image identical |")

@@ -45,22 +45,12 @@ for k in $WORKERS; do
 done
 
 python3 - "$OUT" "$RESULTS/verify.json" "$SHARES" "$WORKERS" "$REPEATS" <<'PY'
-import json, os, subprocess, sys, time
+import json, sys
+sys.path.insert(0, "bench")
+from results_page import result_meta
 out, dest = sys.argv[1], sys.argv[2]
 shares, workers, repeats = sys.argv[3].split(), sys.argv[4].split(), int(sys.argv[5])
-def git(*a):
-    try:
-        return subprocess.check_output(["git"] + list(a), text=True).strip()
-    except Exception:
-        return "?"
-cpu = "?"
-for line in open("/proc/cpuinfo"):
-    if line.startswith("model name"):
-        cpu = line.split(":", 1)[1].strip()
-        break
-res = {"benchmark": "verify", "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-       "commit": git("rev-parse", "--short", "HEAD"), "machine": {"cpu": cpu, "cores": os.cpu_count()},
-       "transport": "tcp", "repeats": repeats, "runs": []}
+res = dict(result_meta("verify"), transport="tcp", repeats=repeats, runs=[])
 print("| workers | share | merged results/s | results per master CPU s | vs share 0 | results sent | tasks verified | unverified | mismatches | master CPU use |")
 print("|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|")
 for k in workers:

@@ -212,7 +212,7 @@ double job_lease_seconds(const master_t *m, const job_t *j)
 
 void job_lease(master_t *m, job_t *j, uint64_t task, uint32_t attempt, uint32_t slot, double now)
 {
-    lease_t l = {.job = j->id, .task = task, .attempt = attempt, .slot = slot, .sent = now};
+    lease_t l = {.task = task, .attempt = attempt, .slot = slot, .sent = now};
     if (lease_push(j->leases, &l) < 0)
         master_log(m, "job %" PRIu64 " task %" PRIu64 ": out of memory for its lease", j->id, task);
 }

@@ -9,7 +9,7 @@
  * of each job's queue, never at every task. The same order names the task
  * that has been out longest, the first candidate for a backup copy.
  *
- * A lease is fenced by (job, task, attempt, worker slot): one whose copy
+ * A lease is fenced by (task, attempt, worker slot) within its job's queue: one whose copy
  * was answered, taken back or sent again since is stale (the caller judges
  * that; staleness is for good, as attempt numbers only grow) and is
  * skipped and popped when it reaches the head.
@@ -20,8 +20,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-typedef struct lease {
-    uint64_t job;
+typedef struct lease { /* in its job's queue */
     uint64_t task;
     uint32_t attempt;
     uint32_t slot; /* the worker it was sent to: slot + 1 */

@@ -579,6 +579,16 @@ static void malformed_result(master_t *m, const char *why)
                        m->malformed, why);
 }
 
+/* An answer of w that matches no task it holds: malformed (bad: why), or
+ * late or made up (unmatched_result). */
+static void unheld_result(master_t *m, peer_t *w, job_t *j, const char *bad)
+{
+    if (bad)
+        malformed_result(m, bad);
+    else
+        unmatched_result(m, w, j);
+}
+
 /* A RESULT or TASK_FAILED from w; bad (not NULL): a RESULT whose header
  * decoded but whose payload did not, with what is wrong. A bad result for
  * a task w holds hands the task back at once, with a new attempt. */
@@ -586,30 +596,20 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg, const char *bad)
 {
     job_t *j = job_find(m, msg->h.job);
     if (!j || j->state != JOB_RUNNING || !j->holder) {
-        if (bad)
-            malformed_result(m, bad);
-        else
-            unmatched_result(m, w, NULL);
+        unheld_result(m, w, NULL, bad);
         return;
     }
     uint64_t id = msg->h.task;
     size_t cells = (size_t)sched_layer_count(j->sched) * sched_range_count(j->sched);
     uint32_t slot = (uint32_t)(w - m->workers) + 1;
     if (id != 0 && id <= cells && verify_holds(j, id - 1)) {
-        if (verify_on_result(m, w, j, msg, bad) < 0) {
-            if (bad)
-                malformed_result(m, bad);
-            else
-                unmatched_result(m, w, j);
-        }
+        if (verify_on_result(m, w, j, msg, bad) < 0)
+            unheld_result(m, w, j, bad);
         return;
     }
     if (id == 0 || id > cells || j->holder[id - 1] != slot ||
         j->attempt[id - 1] != msg->h.attempt) {
-        if (bad)
-            malformed_result(m, bad);
-        else
-            unmatched_result(m, w, j);
+        unheld_result(m, w, j, bad);
         return;
     }
     w->credit++; /* a result of a task it holds returns the task's credit */

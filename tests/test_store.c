@@ -292,7 +292,7 @@ START_TEST(lease_fifo)
     ck_assert_ptr_null(lease_at(q, 0));
     /* more than the first allocation, wrapping around as it goes */
     for (uint64_t i = 0; i < 1000; i++) {
-        lease_t l = {.job = 1, .task = i + 1, .attempt = 1, .sent = (double)i};
+        lease_t l = {.task = i + 1, .attempt = 1, .sent = (double)i};
         ck_assert_int_eq(lease_push(q, &l), 0);
         if (i % 3 == 0) {
             ck_assert_int_eq(lease_pop_sent_before(q, 1e9, &out), 1);
