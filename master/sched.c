@@ -799,19 +799,11 @@ static void start(sched_t *s)
     }
 }
 
-int sched_next(sched_t *s, sched_task_t *out)
+/* Hands out the ready task `id`: builds its records (from the film, which
+ * holds exactly its pixels' earlier layers) unless it has them from an
+ * earlier issue. SCHED_OK, or SCHED_NO_MEMORY (nothing changed). */
+static sched_status_t issue(sched_t *s, uint64_t id, sched_task_t *out)
 {
-    start(s);
-    uint64_t id;
-    const int from_requeued = s->rq_len > 0;
-    if (from_requeued) {
-        id = s->requeued[--s->rq_len];
-    } else if (s->q_head != s->q_tail) {
-        id = s->queue[s->q_head];
-        s->q_head = (s->q_head + 1) % s->q_cap;
-    } else {
-        return s->complete == s->layers ? SCHED_NEXT_ALL_ISSUED : SCHED_NEXT_NONE_READY;
-    }
     uint32_t layer = (uint32_t)((id - 1) / s->ranges), range = (uint32_t)((id - 1) % s->ranges);
     size_t cell = (size_t)layer * s->ranges + range;
     if (!s->out[cell]) {
@@ -820,14 +812,8 @@ int sched_next(sched_t *s, sched_task_t *out)
             p1 = s->npix;
         uint32_t n = range_members(s, layer, range);
         tracer_task_t *rec = calloc(n, sizeof *rec);
-        if (!rec) {
-            /* Put it back where it came from: the caller retries later. */
-            if (from_requeued)
-                s->rq_len++;
-            else
-                s->q_head = (s->q_head + s->q_cap - 1) % s->q_cap;
-            return SCHED_NEXT_NONE_READY;
-        }
+        if (!rec)
+            return SCHED_NO_MEMORY;
         uint32_t take = layer_samples(s, layer);
         uint32_t k = 0;
         for (uint32_t p = p0; p < p1; p++) {
@@ -848,7 +834,44 @@ int sched_next(sched_t *s, sched_task_t *out)
     out->range = range;
     out->count = s->out_count[cell];
     out->records = s->out[cell];
-    return SCHED_NEXT_TASK;
+    return SCHED_OK;
+}
+
+int sched_next(sched_t *s, sched_task_t *out)
+{
+    start(s);
+    for (;;) {
+        uint64_t id;
+        const int from_requeued = s->rq_len > 0;
+        if (from_requeued) {
+            id = s->requeued[--s->rq_len];
+        } else if (s->q_head != s->q_tail) {
+            id = s->queue[s->q_head];
+            s->q_head = (s->q_head + 1) % s->q_cap;
+        } else {
+            return s->complete == s->layers ? SCHED_NEXT_ALL_ISSUED : SCHED_NEXT_NONE_READY;
+        }
+        if (s->state[id - 1] != ST_READY)
+            continue; /* sched_take handed it out already */
+        if (issue(s, id, out) != SCHED_OK) {
+            /* Put it back where it came from: the caller retries later. */
+            if (from_requeued)
+                s->rq_len++;
+            else
+                s->q_head = (s->q_head + s->q_cap - 1) % s->q_cap;
+            return SCHED_NEXT_NONE_READY;
+        }
+        return SCHED_NEXT_TASK;
+    }
+}
+
+int sched_take(sched_t *s, uint64_t task_id, sched_task_t *out)
+{
+    start(s);
+    if (task_id == 0 || task_id > (uint64_t)s->layers * s->ranges ||
+        s->state[task_id - 1] != ST_READY)
+        return SCHED_NOT_OUTSTANDING;
+    return issue(s, task_id, out);
 }
 
 /* SCHED_OK and the task's cell if it is handed out, else SCHED_NOT_OUTSTANDING. */

@@ -180,6 +180,13 @@ uint32_t sched_range_count(const sched_t *s);
  * or completed. */
 int sched_next(sched_t *s, sched_task_t *out);
 
+/* Hands out one particular ready task, as sched_next would when its turn
+ * came: for replaying results merged before a restart (a journal), in the
+ * order they were merged, which is an order in which each was ready.
+ * SCHED_OK and *out; SCHED_NOT_OUTSTANDING when the task is not ready now
+ * (never made ready, handed out, or complete); SCHED_NO_MEMORY. */
+int sched_take(sched_t *s, uint64_t task_id, sched_task_t *out);
+
 /* Puts a handed-out task back (its worker died or its lease ran out):
  * SCHED_OK, SCHED_NOT_OUTSTANDING, or SCHED_NO_MEMORY (the task stays
  * handed out: a caller that drops it then stalls the job). */

@@ -226,6 +226,77 @@ END_TEST
 
 /* An explicit flag sequence: only flagged layers apply the skip rule, and a
  * malformed sequence is refused. */
+/* A journal's replay: results logged in the order they were merged, fed
+ * back through sched_take and sched_complete into a fresh scheduler, give
+ * the same film and decisions, and sched_next never hands out a task that
+ * sched_take took. */
+START_TEST(test_take_replays_a_journal)
+{
+    for (int a = 0; a < 5; a++) {
+        sched_config_t c = {.width = 37, .height = 23, .spp = 96, .granularity = 8,
+                            .adaptive = (sched_adaptive_t)a, .uniform_layers = a ? 3 : UINT32_MAX,
+                            .range_pixels = 50};
+        char err[256];
+        sched_t *s = sched_new(&c, err, sizeof err), *b = sched_new(&c, err, sizeof err);
+        ck_assert(s && b);
+        tracer_result_t *r = malloc(64 * sizeof *r);
+        uint64_t *ids = NULL;
+        tracer_result_t *log = NULL;
+        size_t nlog = 0, nres = 0;
+        sched_task_t inflight[8];
+        int n = 0;
+        uint64_t step = 0;
+        for (;;) {
+            sched_task_t t;
+            while (n < 6 && sched_next(s, &t) == SCHED_NEXT_TASK)
+                inflight[n++] = t;
+            if (n == 0)
+                break;
+            rng_stream_t st = rng_stream(7, (uint64_t)a, step++);
+            int pick = (int)(rng_next_float(&st) * n);
+            fake_results(&inflight[pick], r, NULL);
+            ids = realloc(ids, (nlog + 1) * sizeof *ids);
+            log = realloc(log, (nres + inflight[pick].count + 1) * sizeof *log);
+            ids[nlog++] = inflight[pick].id;
+            memcpy(log + nres, r, inflight[pick].count * sizeof *r);
+            nres += inflight[pick].count;
+            ck_assert(sched_complete(s, inflight[pick].id, r, inflight[pick].count, err,
+                                     sizeof err) == SCHED_OK);
+            inflight[pick] = inflight[--n];
+        }
+        ck_assert(sched_done(s));
+        size_t at = 0;
+        for (size_t i = 0; i < nlog; i++) {
+            sched_task_t t;
+            ck_assert_int_eq(sched_take(b, ids[i], &t), SCHED_OK);
+            ck_assert_int_eq(sched_take(b, ids[i], &t), SCHED_NOT_OUTSTANDING);
+            ck_assert_msg(sched_complete(b, ids[i], log + at, t.count, err, sizeof err) == SCHED_OK,
+                          "%s", err);
+            at += t.count;
+            if (i == nlog / 2) { /* nothing taken is handed out again */
+                sched_task_t u;
+                while (sched_next(b, &u) == SCHED_NEXT_TASK)
+                    for (size_t k = 0; k <= i; k++)
+                        ck_assert(u.id != ids[k]);
+                /* put them back: the rest of the journal takes them */
+                const uint64_t cells = (uint64_t)sched_layer_count(b) * sched_range_count(b);
+                for (uint64_t id = 1; id <= cells; id++)
+                    (void)sched_requeue(b, id);
+            }
+        }
+        ck_assert(sched_done(b));
+        ck_assert_uint_eq(sched_pixel_layers_skipped(b), sched_pixel_layers_skipped(s));
+        ck_assert(memcmp(sched_film(b)->pixels, sched_film(s)->pixels,
+                         37 * 23 * sizeof(film_pixel_t)) == 0);
+        free(r);
+        free(ids);
+        free(log);
+        sched_destroy(&s);
+        sched_destroy(&b);
+    }
+}
+END_TEST
+
 START_TEST(test_flag_sequence)
 {
     char err[256];
@@ -1484,6 +1555,7 @@ int main(void)
     tcase_add_test(tc, test_procedure2_by_hand);
     tcase_add_test(tc, test_dependencies_and_priors);
     tcase_add_test(tc, test_order_does_not_matter);
+    tcase_add_test(tc, test_take_replays_a_journal);
     tcase_add_test(tc, test_flag_sequence);
     tcase_add_test(tc, test_target_error_stops);
     tcase_add_test(tc, test_target_window_excludes_self);
