@@ -84,8 +84,6 @@ int film_merge(film_t *f, const tracer_result_t *r)
     if (f->rows->row_stamp)
         f->rows->row_stamp[r->pixel / (uint32_t)f->width] = ++f->rows->stamp;
     p->nonfinite += r->nonfinite;
-    p->pvar = r->pvar;
-    p->layers++;
     if (r->samples == 0)
         return 0;
     p->lum_m2 = merged_m2(p, r);
@@ -130,7 +128,7 @@ uint64_t film_total_samples(const film_t *f)
 {
     uint64_t n = 0;
     for (size_t i = 0; i < (size_t)f->width * (size_t)f->height; i++)
-        n += f->pixels[i].count + f->pixels[i].nonfinite;
+        n += (uint64_t)f->pixels[i].count + f->pixels[i].nonfinite;
     return n;
 }
 

@@ -2,7 +2,9 @@
  *
  * Each pixel keeps its sample count, RGB sums (double, Neumaier-compensated
  * so a million samples keep the mean exact to 1e-12), luminance M2 merged
- * with Chan's formula, the last eq. 4.1 statistic and its NaN/Inf count.
+ * with Chan's formula and its NaN/Inf count. Samples taken (count plus
+ * nonfinite) are also where the pixel's next layer starts in its sample
+ * sequence: every layer but the last takes G.
  * Merging is per pixel, so a render is deterministic as long as each pixel
  * receives its tasks' results in layer order, whatever the thread or worker
  * that produced them.
@@ -16,14 +18,14 @@
 #include "image.h"
 #include "tracer.h"
 
+/* 64 bytes: a 4K film is 530 MB, and the master keeps one per running job
+ * (counts fit 32 bits: a pixel takes at most spp samples, a uint32). */
 typedef struct film_pixel {
-    uint64_t count;     /* finite samples */
-    uint64_t nonfinite; /* NaN/Inf samples left out */
     double sum[3];
-    double comp[3];  /* Neumaier compensation of sum */
-    double lum_m2;   /* sum of squared deviations of luminance from the mean */
-    double pvar;     /* eq. 4.1 of the last merged layer */
-    uint32_t layers; /* tasks merged */
+    double comp[3];     /* Neumaier compensation of sum */
+    double lum_m2;      /* sum of squared deviations of luminance from the mean */
+    uint32_t count;     /* finite samples */
+    uint32_t nonfinite; /* NaN/Inf samples left out */
 } film_pixel_t;
 
 /* Which rows merges touched (film_track_rows): off until asked for. */

@@ -1,10 +1,24 @@
 /* sched.c - see sched.h for the rules that make scheduling deterministic.
  *
  * State per (layer, range): not ready, ready (queued), outstanding, or
- * complete. Layer membership is a bitmap per layer, decided two layers
- * ahead. The eq. 4.1 statistics of the (at most two) layers in flight are
- * kept apart from the snapshot the skip decisions read, and folded into it
- * only when their layer is complete.
+ * complete. Only two layers are ever in flight, the first incomplete one
+ * and the next (rule 1: a layer's pixels are decided when the layer two
+ * before it completes), so the scheduler keeps cell states and membership
+ * for those two only, in a window of two slots (layer l in slot l & 1):
+ * every earlier layer is complete, every later one undecided. What a
+ * complete layer leaves behind lives in the film (the samples a pixel has
+ * taken, which is also where its next layer starts) and in the per-pixel
+ * statistics. So the master's memory grows with the pixels, not with
+ * pixels x layers.
+ *
+ * A decision reads each pixel's statistics as of the layer just completed
+ * (the snapshot). Pixels of the later layer in flight may have merged it
+ * already; those are the only pixels whose statistics have moved past the
+ * snapshot, by exactly one layer, so each merge into that later layer
+ * keeps the value it replaces (the prev_* arrays), and a decision reads a
+ * pixel's current statistics or, where it merged ahead, that kept value.
+ * The rows a decision reads around a pixel (its 3 x 3 or 5 x 5
+ * neighbourhood) are computed into a ring of a few rows, not whole images.
  */
 #include "sched.h"
 
@@ -20,58 +34,62 @@
 
 enum { ST_WAITING = 0, ST_READY, ST_OUT, ST_DONE };
 
-#define SCHED_TASK_SAMPLES 32768                 /* samples a task aims at (range_pixels 0) */
-#define SCHED_MIN_RANGES 64                      /* ... but at least this many ranges */
-#define SCHED_MAX_PIXELS (1u << 28)              /* width x height */
-#define SCHED_MAX_MEMBER_BYTES ((size_t)1 << 30) /* the membership bitmap, layers x pixels */
-#define SCHED_MAX_CELLS ((size_t)1 << 26)        /* layers x ranges */
-#define SCHED_REQUEUE_CAP0 64                    /* requeued ids before the stack grows */
-#define SCHED_RELERR_CONFIDENCE 0.95             /* relerr's half-width (sched.h) */
+#define SCHED_TASK_SAMPLES 32768     /* samples a task aims at (range_pixels 0) */
+#define SCHED_MIN_RANGES 64          /* ... but at least this many ranges */
+#define SCHED_MAX_PIXELS (1u << 28)  /* width x height */
+#define SCHED_REQUEUE_CAP0 64        /* requeued ids before the stack grows */
+#define SCHED_RELERR_CONFIDENCE 0.95 /* relerr's half-width (sched.h) */
+#define SCHED_RING 5                 /* rows a decision keeps: 2 SCHED_TARGET_POOL_RADIUS + 1 */
+
+/* One row of the snapshot a decision reads (decide_layer). */
+typedef struct snap_row {
+    int y;          /* the image row held, -1: none */
+    double *metric; /* the skip rule's statistic (sched.h) */
+    double *rvar;   /* the target error's relative variance */
+    double *rvmax;  /* rvar's maximum over the row's 5-pixel window, itself in */
+    uint32_t *nb;   /* layer means */
+    float *cost;    /* relmse: rays per sample */
+    uint8_t *sel;   /* the skip rule's choice before dilation, -1 row: none yet */
+    int sel_y;
+} snap_row_t;
 
 struct sched {
     sched_config_t cfg;
     char *flags; /* copy of cfg.flags, or NULL */
     uint32_t npix, layers, ranges, range_pixels, uniform;
     film_t *film;
-    uint8_t *member;        /* layers x npix bits: pixel takes part in layer */
-    uint32_t *taken;        /* per pixel: decided layers it takes part in */
-    uint8_t *decided;       /* per layer */
-    double *threshold;      /* per layer */
-    uint8_t *state;         /* layers x ranges */
-    uint32_t *range_done;   /* per layer: ranges complete */
-    uint32_t complete;      /* layers fully complete (the next incomplete layer) */
-    double *var_snapshot;   /* per pixel: the metric as of layer complete-1 (relerr and
-                               relmse: the relative variance of a layer mean, which the
-                               decision pools over the pixel's neighbours) */
-    double *pvar_flight[2]; /* per pixel: the same after a layer in flight, by parity */
-    double *pooled;         /* npix: relerr and relmse's metric from the neighbours */
-    /* The target error (sched.h): per pixel, the relative variance of its
-     * layer means and how many it has (the counts also for relerr and
-     * relmse), as of layer complete-1 and after a layer in flight; from the
-     * snapshot, which pixels meet the target. */
-    double *rvar_snapshot, *rvar_flight[2];
-    uint32_t *nb_snapshot, *nb_flight[2];
-    uint8_t *conv_snapshot;
-    double *pool_row, *pool_max; /* npix each: the window's row maxima, then maxima */
-    uint32_t *batches;           /* per pixel: layers merged (batch means) */
-    double *bmean, *bm2;         /* per pixel: Welford over the layers' luminance means */
-    uint32_t *ubatches;          /* relerr, relmse: the same over the uniform layers only */
-    double *umean, *um2;
+    uint32_t complete;  /* layers fully complete (the next incomplete layer) */
+    uint32_t decided_n; /* layers decided: 0 before the first sched_next, then
+                           complete + 2 (at most all of them) */
+    /* The window: layer l in [complete, decided_n) in slot l & 1. */
+    uint8_t *member[2];     /* npix bits: pixel takes part in the layer */
+    uint8_t *state[2];      /* per range */
+    uint32_t range_done[2]; /* ranges complete */
+    double threshold[2];    /* the skip rule's threshold (0: uniform layer) */
+    tracer_task_t **out[2]; /* per range: records of an issued task */
+    uint32_t *out_count[2];
+    /* Per pixel: what decisions read (sched.h), current as of the pixel's
+     * last merge; what it was before a merge into the later layer in
+     * flight (prev_*); see the top of this file. */
+    double *pvar_cur;    /* thesis: eq. 4.1 of the last merged layer */
+    double *prev_metric; /* any adaptive mode */
+    double *prev_rvar;   /* with a target error */
+    uint32_t *prev_nb;   /* relerr, relmse, target error */
+    float *prev_cost;    /* relmse */
+    uint32_t *batches;   /* relerr, relmse, target: layers merged with samples */
+    uint32_t *ubatches;  /* the same, over the layers its neighbours judge it by */
+    double *umean, *um2; /* Welford over those layers' luminance means */
     /* relmse: what a sample of the pixel costs, in rays, over the same
-     * layers as ubatches (their rays and samples, NaN/Inf ones too); the
-     * rays per sample as of layer complete-1 and after a layer in flight
-     * (0: none yet), which decide_layer reads from the neighbours */
-    uint64_t *urays, *usamples;
-    float *cost_snapshot, *cost_flight[2];
+     * layers as ubatches (their rays and samples, NaN/Inf ones too) */
+    uint64_t *urays;
+    uint32_t *usamples;
+    snap_row_t ring[SCHED_RING];
     double *t_table;  /* t factors by batches - 1, for relerr (0.95) and the target, */
-    double *t_target; /* 0 until first needed (t_factor): ~50 us each, and a submit must
-                         not compute one per layer up front (1M layers: a minute) */
+    double *t_target; /* 0 until first needed (t_factor), grown on demand */
+    size_t t_cap;
     uint64_t converged;
     int stopped_on_target;
-    uint8_t *scratch;    /* npix: dilation */
-    tracer_task_t **out; /* layers x ranges: records of outstanding tasks */
-    uint32_t *out_count;
-    uint64_t *queue; /* ready task ids, FIFO */
+    uint64_t *queue; /* ready task ids, FIFO (entries sched_take took are skipped) */
     size_t q_head, q_tail, q_cap;
     uint64_t *requeued; /* handed back, issued first (LIFO) */
     size_t rq_len, rq_cap;
@@ -85,31 +103,50 @@ static inline uint64_t task_id(const sched_t *s, uint32_t layer, uint32_t range)
 
 static inline int is_member(const sched_t *s, uint32_t layer, uint32_t pixel)
 {
-    size_t bit = (size_t)layer * s->npix + pixel;
-    return (s->member[bit >> 3] >> (bit & 7)) & 1;
+    return (s->member[layer & 1][pixel >> 3] >> (pixel & 7)) & 1;
 }
 
 static inline void set_member(sched_t *s, uint32_t layer, uint32_t pixel)
 {
-    size_t bit = (size_t)layer * s->npix + pixel;
-    s->member[bit >> 3] |= (uint8_t)(1u << (bit & 7));
+    s->member[layer & 1][pixel >> 3] |= (uint8_t)(1u << (pixel & 7));
 }
 
-/* Where pixel p's samples of layer l start: after the samples of the
- * earlier layers it took part in, so that a pixel's samples are always the
- * first ones of its sample sequence, whichever layers the adaptive rule
- * skipped (under the sobol sampler the first 2^m samples of a pixel form a
- * net, an arbitrary set of layers does not: rng.h). Only the last layer may
- * be short, so every earlier one counts G. Layers are decided in order and
- * at most two beyond the last complete one, and a layer's records are made
- * before it completes: taken[p] less the decided layers from l on is the
- * count before l, a pure function of the decisions. */
-static uint64_t first_sample_of(const sched_t *s, uint32_t layer, uint32_t p)
+static inline int in_window(const sched_t *s, uint32_t layer)
 {
-    uint32_t before = s->taken[p];
-    for (uint32_t l = layer; l < s->layers && s->decided[l]; l++)
-        before -= (uint32_t)is_member(s, l, p);
-    return (uint64_t)before * s->cfg.granularity;
+    return layer >= s->complete && layer < s->decided_n;
+}
+
+/* Any cell's state: complete below the window, waiting above it. */
+static uint8_t cell_state(const sched_t *s, uint32_t layer, uint32_t range)
+{
+    if (layer < s->complete)
+        return ST_DONE;
+    if (layer >= s->decided_n)
+        return ST_WAITING;
+    return s->state[layer & 1][range];
+}
+
+static inline void set_state(sched_t *s, uint32_t layer, uint32_t range, uint8_t st)
+{
+    s->state[layer & 1][range] = st;
+}
+
+static size_t member_bytes(const sched_t *s)
+{
+    return ((size_t)s->npix + 7) / 8;
+}
+
+/* Where pixel p's samples of its next layer start: after the samples it has
+ * taken, so that a pixel's samples are always the first ones of its sample
+ * sequence, whichever layers the adaptive rule skipped (under the sobol
+ * sampler the first 2^m samples of a pixel form a net, an arbitrary set of
+ * layers does not: rng.h). Every layer but the last takes G, and a task is
+ * made only once its range's earlier layers are merged (rule 1): the film's
+ * count of samples taken is exactly the samples of the layers before. */
+static uint64_t first_sample_of(const sched_t *s, uint32_t p)
+{
+    const film_pixel_t *fp = &s->film->pixels[p];
+    return (uint64_t)fp->count + fp->nonfinite;
 }
 
 /* Samples a pixel takes in layer l: G, or what is left of spp in the last. */
@@ -152,7 +189,8 @@ static int check_config(const sched_config_t *cfg, char *err, size_t errlen)
         return -1;
     }
     if ((uint64_t)cfg->width * cfg->height > SCHED_MAX_PIXELS) {
-        snprintf(err, errlen, "image too large");
+        snprintf(err, errlen, "image too large (%llu pixels, at most %u)",
+                 (unsigned long long)cfg->width * cfg->height, SCHED_MAX_PIXELS);
         return -1;
     }
     return 0;
@@ -225,8 +263,6 @@ static int copy_flags(sched_t *s, char *err, size_t errlen)
     return 0;
 }
 
-/* The target error's tables (36 bytes a pixel), only for a job that has
- * one; -1 if any is missing. */
 /* One more batch mean x into a Welford accumulator (count, mean, sum of
  * squared deviations). */
 static void welford_add(uint32_t *n, double *mean, double *m2, double x)
@@ -258,83 +294,105 @@ static int weighs_cost(const sched_t *s)
     return s->cfg.adaptive == SCHED_ADAPTIVE_RELMSE;
 }
 
-static int alloc_target_tables(sched_t *s)
+/* Each per-pixel array and whether this job keeps it (by what its mode
+ * reads): one table for allocation, freeing, sched_memory and checkpoints. */
+typedef struct pixel_array {
+    const char *name; /* the checkpoint section's tag (8 characters at most) */
+    size_t offset;    /* of the pointer in sched_t */
+    size_t size;      /* of an element */
+    int (*kept)(const sched_t *s);
+} pixel_array_t;
+
+static int kept_thesis(const sched_t *s)
 {
-    const size_t n = s->npix;
-    if (keeps_counts(s)) {
-        s->nb_snapshot = calloc(n, sizeof(uint32_t));
-        s->nb_flight[0] = calloc(n, sizeof(uint32_t));
-        s->nb_flight[1] = calloc(n, sizeof(uint32_t));
-        if (!s->nb_snapshot || !s->nb_flight[0] || !s->nb_flight[1])
-            return -1;
-    }
-    if (pools_neighbours(s) && !(s->pooled = calloc(n, sizeof(double))))
-        return -1;
-    if (keeps_counts(s)) {
-        s->ubatches = calloc(n, sizeof(uint32_t));
-        s->umean = calloc(n, sizeof(double));
-        s->um2 = calloc(n, sizeof(double));
-        if (!s->ubatches || !s->umean || !s->um2)
-            return -1;
-    }
-    if (weighs_cost(s)) {
-        s->urays = calloc(n, sizeof(uint64_t));
-        s->usamples = calloc(n, sizeof(uint64_t));
-        s->cost_snapshot = calloc(n, sizeof(float));
-        s->cost_flight[0] = calloc(n, sizeof(float));
-        s->cost_flight[1] = calloc(n, sizeof(float));
-        if (!s->urays || !s->usamples || !s->cost_snapshot || !s->cost_flight[0] ||
-            !s->cost_flight[1])
-            return -1;
-    }
-    if (s->cfg.target_error <= 0)
-        return 0;
-    s->conv_snapshot = calloc(n, 1);
-    s->pool_row = calloc(n, sizeof(double));
-    s->pool_max = calloc(n, sizeof(double));
-    s->rvar_snapshot = calloc(n, sizeof(double));
-    for (int k = 0; k < 2; k++)
-        s->rvar_flight[k] = calloc(n, sizeof(double));
-    return !s->conv_snapshot || !s->pool_row || !s->pool_max || !s->rvar_snapshot ||
-                   !s->rvar_flight[0] || !s->rvar_flight[1]
-               ? -1
-               : 0;
+    return s->cfg.adaptive == SCHED_ADAPTIVE_THESIS;
+}
+static int kept_adaptive(const sched_t *s)
+{
+    return s->cfg.adaptive != SCHED_ADAPTIVE_NONE;
+}
+static int kept_target(const sched_t *s)
+{
+    return s->cfg.target_error > 0;
 }
 
-/* Every per-layer, per-cell and per-pixel table, zeroed; -1 if any is
- * missing (sched_destroy frees the rest). */
-static int alloc_tables(sched_t *s, size_t cells, size_t member_bytes)
+#define PIXEL_ARRAY(tag, field, elem, kept)                                                        \
+    {                                                                                              \
+        tag, offsetof(sched_t, field), sizeof(elem), kept                                          \
+    }
+static const pixel_array_t pixel_arrays[] = {
+    PIXEL_ARRAY("batches", batches, uint32_t, keeps_counts),
+    PIXEL_ARRAY("ubat", ubatches, uint32_t, keeps_counts),
+    PIXEL_ARRAY("umean", umean, double, keeps_counts),
+    PIXEL_ARRAY("um2", um2, double, keeps_counts),
+    PIXEL_ARRAY("urays", urays, uint64_t, weighs_cost),
+    PIXEL_ARRAY("usamp", usamples, uint32_t, weighs_cost),
+    PIXEL_ARRAY("pvarcur", pvar_cur, double, kept_thesis),
+    PIXEL_ARRAY("pmetric", prev_metric, double, kept_adaptive),
+    PIXEL_ARRAY("prvar", prev_rvar, double, kept_target),
+    PIXEL_ARRAY("pnb", prev_nb, uint32_t, keeps_counts),
+    PIXEL_ARRAY("pcost", prev_cost, float, weighs_cost),
+};
+#define PIXEL_ARRAYS (sizeof pixel_arrays / sizeof pixel_arrays[0])
+
+static void **array_slot(sched_t *s, const pixel_array_t *a)
 {
+    return (void **)((char *)s + a->offset);
+}
+static const void *array_of(const sched_t *s, const pixel_array_t *a)
+{
+    return *(void *const *)((const char *)s + a->offset);
+}
+/* Bytes of array a in this job (0 when not kept). */
+static size_t array_bytes(const sched_t *s, const pixel_array_t *a)
+{
+    return a->kept(s) ? (size_t)s->npix * a->size : 0;
+}
+
+/* The snapshot rows' buffers (a few image rows each). */
+static int alloc_ring(sched_t *s)
+{
+    const size_t w = s->cfg.width;
+    for (int k = 0; k < SCHED_RING; k++) {
+        snap_row_t *r = &s->ring[k];
+        r->y = r->sel_y = -1;
+        r->metric = malloc(w * sizeof(double));
+        r->rvar = malloc(w * sizeof(double));
+        r->rvmax = malloc(w * sizeof(double));
+        r->nb = malloc(w * sizeof(uint32_t));
+        r->cost = malloc(w * sizeof(float));
+        r->sel = malloc(w);
+        if (!r->metric || !r->rvar || !r->rvmax || !r->nb || !r->cost || !r->sel)
+            return -1;
+    }
+    return 0;
+}
+
+/* Every table, zeroed; -1 if any is missing (sched_destroy frees the rest). */
+static int alloc_tables(sched_t *s)
+{
+    int failed = 0;
     s->film = film_new((int)s->cfg.width, (int)s->cfg.height);
-    s->member = calloc(member_bytes, 1);
-    s->taken = calloc(s->npix, sizeof(uint32_t));
-    s->decided = calloc(s->layers, 1);
-    s->threshold = calloc(s->layers, sizeof(double));
-    s->state = calloc(cells, 1);
-    s->range_done = calloc(s->layers, sizeof(uint32_t));
-    s->var_snapshot = calloc(s->npix, sizeof(double));
-    s->pvar_flight[0] = calloc(s->npix, sizeof(double));
-    s->pvar_flight[1] = calloc(s->npix, sizeof(double));
-    int target_failed = alloc_target_tables(s);
-    s->batches = calloc(s->npix, sizeof(uint32_t));
-    s->bmean = calloc(s->npix, sizeof(double));
-    s->bm2 = calloc(s->npix, sizeof(double));
-    s->scratch = calloc(s->npix, 1);
-    s->t_table = calloc((size_t)s->layers + 1, sizeof(double));
-    s->t_target = calloc((size_t)s->layers + 1, sizeof(double));
-    s->out = calloc(cells, sizeof(tracer_task_t *));
-    s->out_count = calloc(cells, sizeof(uint32_t));
-    s->q_cap = cells + 1;
+    for (int k = 0; k < 2; k++) {
+        s->member[k] = calloc(member_bytes(s), 1);
+        s->state[k] = calloc(s->ranges, 1);
+        s->out[k] = calloc(s->ranges, sizeof(tracer_task_t *));
+        s->out_count[k] = calloc(s->ranges, sizeof(uint32_t));
+        failed |= !s->member[k] || !s->state[k] || !s->out[k] || !s->out_count[k];
+    }
+    for (size_t i = 0; i < PIXEL_ARRAYS; i++)
+        if (pixel_arrays[i].kept(s)) {
+            void **slot = array_slot(s, &pixel_arrays[i]);
+            *slot = calloc(s->npix, pixel_arrays[i].size);
+            failed |= !*slot;
+        }
+    failed |= alloc_ring(s) < 0;
+    /* ready cells are in the window: at most two layers of ranges */
+    s->q_cap = 2 * (size_t)s->ranges + 1;
     s->queue = malloc(s->q_cap * sizeof(uint64_t));
     s->rq_cap = SCHED_REQUEUE_CAP0;
     s->requeued = malloc(s->rq_cap * sizeof(uint64_t));
-    return !s->film || !s->member || !s->taken || !s->decided || !s->threshold || !s->state ||
-                   !s->range_done || !s->var_snapshot || !s->pvar_flight[0] || !s->pvar_flight[1] ||
-                   !s->out || !s->out_count || target_failed || !s->batches || !s->bmean ||
-                   !s->bm2 || !s->scratch || !s->t_table || !s->t_target || !s->queue ||
-                   !s->requeued
-               ? -1
-               : 0;
+    return failed || !s->film || !s->queue || !s->requeued ? -1 : 0;
 }
 
 sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
@@ -352,20 +410,11 @@ sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
         free(s);
         return NULL;
     }
-    size_t cells = (size_t)s->layers * s->ranges;
-    size_t member_bytes = ((size_t)s->layers * s->npix + 7) / 8;
-    if (member_bytes > SCHED_MAX_MEMBER_BYTES || cells > SCHED_MAX_CELLS) {
-        snprintf(err, errlen, "too many layers x pixels (%u layers of %u pixels)", s->layers,
-                 s->npix);
-        free(s->flags);
-        free(s);
-        return NULL;
-    }
     if (s->cfg.confidence <= 0)
         s->cfg.confidence = JOB_DEFAULT_CONFIDENCE;
     if (s->cfg.target_share <= 0)
         s->cfg.target_share = JOB_DEFAULT_TARGET_SHARE;
-    if (alloc_tables(s, cells, member_bytes) < 0) {
+    if (alloc_tables(s) < 0) {
         snprintf(err, errlen, "out of memory");
         sched_destroy(&s);
         return NULL;
@@ -378,50 +427,62 @@ void sched_destroy(sched_t **sp)
     if (!sp || !*sp)
         return;
     sched_t *s = *sp;
-    if (s->out)
-        for (size_t i = 0; i < (size_t)s->layers * s->ranges; i++)
-            free(s->out[i]);
+    for (int k = 0; k < 2; k++) {
+        if (s->out[k])
+            for (uint32_t r = 0; r < s->ranges; r++)
+                free(s->out[k][r]);
+        free(s->out[k]);
+        free(s->out_count[k]);
+        free(s->member[k]);
+        free(s->state[k]);
+    }
+    for (size_t i = 0; i < PIXEL_ARRAYS; i++)
+        free(*array_slot(s, &pixel_arrays[i]));
+    for (int k = 0; k < SCHED_RING; k++) {
+        snap_row_t *r = &s->ring[k];
+        free(r->metric);
+        free(r->rvar);
+        free(r->rvmax);
+        free(r->nb);
+        free(r->cost);
+        free(r->sel);
+    }
     film_destroy(&s->film);
     free(s->flags);
-    free(s->member);
-    free(s->taken);
-    free(s->decided);
-    free(s->threshold);
-    free(s->state);
-    free(s->range_done);
-    free(s->var_snapshot);
-    free(s->pvar_flight[0]);
-    free(s->pvar_flight[1]);
-    free(s->pooled);
-    free(s->ubatches);
-    free(s->umean);
-    free(s->um2);
-    free(s->urays);
-    free(s->usamples);
-    free(s->cost_snapshot);
-    free(s->cost_flight[0]);
-    free(s->cost_flight[1]);
-    free(s->conv_snapshot);
-    free(s->pool_row);
-    free(s->pool_max);
-    for (int k = 0; k < 2; k++) {
-        free(s->rvar_flight[k]);
-        free(s->nb_flight[k]);
-    }
-    free(s->rvar_snapshot);
-    free(s->nb_snapshot);
-    free(s->batches);
-    free(s->bmean);
-    free(s->bm2);
-    free(s->scratch);
     free(s->t_table);
     free(s->t_target);
-    free(s->out);
-    free(s->out_count);
     free(s->queue);
     free(s->requeued);
     free(s);
     *sp = NULL;
+}
+
+size_t sched_memory(const sched_t *s, sched_memory_fn fn, void *ctx)
+{
+    const size_t n = s->npix;
+    size_t total = 0, records = 0, bytes;
+#define REPORT(name, b)                                                                            \
+    do {                                                                                           \
+        bytes = (b);                                                                               \
+        total += bytes;                                                                            \
+        if (fn && bytes)                                                                           \
+            fn(ctx, name, bytes);                                                                  \
+    } while (0)
+    REPORT("film", n * sizeof(film_pixel_t));
+    for (size_t i = 0; i < PIXEL_ARRAYS; i++)
+        REPORT(pixel_arrays[i].name, array_bytes(s, &pixel_arrays[i]));
+    REPORT("window (membership, cells)",
+           2 * (member_bytes(s) + s->ranges * (1 + sizeof(tracer_task_t *) + sizeof(uint32_t))) +
+               s->q_cap * sizeof(uint64_t) + s->rq_cap * sizeof(uint64_t));
+    REPORT("decision rows", (size_t)SCHED_RING * s->cfg.width *
+                                (3 * sizeof(double) + sizeof(uint32_t) + sizeof(float) + 1));
+    REPORT("t tables", 2 * s->t_cap * sizeof(double));
+    for (int k = 0; k < 2; k++)
+        for (uint32_t r = 0; r < s->ranges; r++)
+            records += s->out[k][r] ? s->out_count[k][r] * sizeof(tracer_task_t) : 0;
+    REPORT("records of tasks in flight", records);
+#undef REPORT
+    return total;
 }
 
 uint32_t sched_layer_count(const sched_t *s)
@@ -491,43 +552,78 @@ const char *sched_adaptive_name(sched_adaptive_t a)
 
 int sched_pixel_in_layer(const sched_t *s, uint32_t layer, uint32_t pixel)
 {
-    if (layer >= s->layers || pixel >= s->npix || !s->decided[layer])
+    if (layer >= s->layers || pixel >= s->npix || !in_window(s, layer))
         return -1;
     return is_member(s, layer, pixel);
 }
 
 double sched_threshold(const sched_t *s, uint32_t layer)
 {
-    return layer < s->layers ? s->threshold[layer] : 0.0;
+    if (layer >= s->layers)
+        return 0.0;
+    return in_window(s, layer) ? s->threshold[layer & 1] : NAN;
 }
 
 /* The two-sided t factor at `confidence` for k degrees of freedom, cached in
- * table[k]. 0 means not computed yet: a quantile is never 0 for k >= 1 (and
- * if one ever underflowed it would merely be computed again). */
-static double t_factor(double *table, double confidence, uint32_t k)
+ * *table (grown on demand: k is at most the layers merged so far). 0 means
+ * not computed yet: a quantile is never 0 for k >= 1 (and if one ever
+ * underflowed it would merely be computed again). */
+static double t_factor(sched_t *s, double **table, double confidence, uint32_t k)
 {
-    if (table[k] == 0)
-        table[k] = stats_t_two_sided(confidence, k);
-    return table[k];
+    if (k >= s->t_cap) {
+        size_t cap = s->t_cap ? s->t_cap : 64;
+        while (cap <= k)
+            cap *= 2;
+        double *a = realloc(s->t_table, cap * sizeof(double));
+        if (a)
+            s->t_table = a;
+        double *b = a ? realloc(s->t_target, cap * sizeof(double)) : NULL;
+        if (b)
+            s->t_target = b;
+        if (!a || !b) /* out of memory: correct, only slower */
+            return stats_t_two_sided(confidence, k);
+        memset(a + s->t_cap, 0, (cap - s->t_cap) * sizeof(double));
+        memset(b + s->t_cap, 0, (cap - s->t_cap) * sizeof(double));
+        s->t_cap = cap;
+    }
+    if ((*table)[k] == 0)
+        (*table)[k] = stats_t_two_sided(confidence, k);
+    return (*table)[k];
 }
 
 static void complete_range(sched_t *s, uint32_t layer, uint32_t range);
+
+/* Appends a ready id; when the ring is full, first drops the ids sched_take
+ * handed out already (at most the window's cells are ready at once). */
+static void push_ready(sched_t *s, uint64_t id)
+{
+    if ((s->q_tail + 1) % s->q_cap == s->q_head) {
+        size_t n = 0;
+        for (size_t i = s->q_head; i != s->q_tail; i = (i + 1) % s->q_cap) {
+            uint64_t q = s->queue[i];
+            if (cell_state(s, (uint32_t)((q - 1) / s->ranges), (uint32_t)((q - 1) % s->ranges)) ==
+                ST_READY)
+                s->queue[(s->q_head + n++) % s->q_cap] = q;
+        }
+        s->q_tail = (s->q_head + n) % s->q_cap;
+    }
+    s->queue[s->q_tail] = id;
+    s->q_tail = (s->q_tail + 1) % s->q_cap;
+}
 
 /* (layer, range) can run: queue it, or complete it at once when the layer
  * has none of the range's pixels. */
 static void make_ready(sched_t *s, uint32_t layer, uint32_t range)
 {
-    size_t cell = (size_t)layer * s->ranges + range;
-    if (s->state[cell] != ST_WAITING)
+    if (cell_state(s, layer, range) != ST_WAITING)
         return;
     if (range_members(s, layer, range) == 0) {
-        s->state[cell] = ST_OUT;
+        set_state(s, layer, range, ST_OUT);
         complete_range(s, layer, range);
         return;
     }
-    s->state[cell] = ST_READY;
-    s->queue[s->q_tail] = task_id(s, layer, range);
-    s->q_tail = (s->q_tail + 1) % s->q_cap;
+    set_state(s, layer, range, ST_READY);
+    push_ready(s, task_id(s, layer, range));
 }
 
 /* Whether layer's pixels are chosen by the skip rule (rule 3). */
@@ -543,72 +639,154 @@ static int applies_skip_rule(const sched_t *s, uint32_t layer)
     return flag && layer >= 2 && s->cfg.adaptive != SCHED_ADAPTIVE_NONE;
 }
 
-/* The largest of v over the (2 SCHED_TARGET_POOL_RADIUS + 1)^2 window around
- * each pixel, the pixel itself left out, into out: separable (rows into
- * s->pool_row, then columns) with the pixel in, then the few pixels that
- * are their window's maximum done again without themselves. A pixel with
- * no neighbour at all (a 1 x 1 image) keeps its own value. */
-static void window_max_excluding_self(sched_t *s, const double *v, double *out)
+/* ---- the statistics a decision reads ------------------------------------- */
+
+/* Pixel p's statistics as of its last merge (what sched_complete keeps). */
+static double cur_metric(const sched_t *s, uint32_t p)
 {
-    const int w = (int)s->cfg.width, h = (int)s->cfg.height, r = SCHED_TARGET_POOL_RADIUS;
-    for (int y = 0; y < h; y++)
-        for (int x = 0; x < w; x++) {
-            double m = 0;
-            for (int xx = x - r; xx <= x + r; xx++)
-                if (xx >= 0 && xx < w && v[y * w + xx] > m)
-                    m = v[y * w + xx];
-            s->pool_row[y * w + x] = m;
-        }
-    for (int y = 0; y < h; y++)
-        for (int x = 0; x < w; x++) {
-            double m = 0;
-            for (int yy = y - r; yy <= y + r; yy++)
-                if (yy >= 0 && yy < h && s->pool_row[yy * w + x] > m)
-                    m = s->pool_row[yy * w + x];
-            out[y * w + x] = m;
-        }
-    if (w * h == 1)
-        return;
-    for (int y = 0; y < h; y++)
-        for (int x = 0; x < w; x++) {
-            if (v[y * w + x] < out[y * w + x])
-                continue; /* a neighbour holds the maximum */
-            double m = 0;
-            for (int yy = y - r; yy <= y + r; yy++)
-                for (int xx = x - r; xx <= x + r; xx++)
-                    if (yy >= 0 && yy < h && xx >= 0 && xx < w && (yy != y || xx != x) &&
-                        v[yy * w + xx] > m)
-                        m = v[yy * w + xx];
-            out[y * w + x] = m;
-        }
+    switch (s->cfg.adaptive) {
+    case SCHED_ADAPTIVE_VARIANCE:
+        return s->film->pixels[p].count >= 2 ? film_variance_of_mean(s->film, p) : INFINITY;
+    case SCHED_ADAPTIVE_RELERR:
+    case SCHED_ADAPTIVE_RELMSE: {
+        /* the relative variance of one layer's mean, over the uniform
+         * layers; decide_layer turns its neighbours' into the metric */
+        const uint32_t nu = s->ubatches[p];
+        double scale = fabs(s->umean[p]) + SCHED_RELERR_EPS;
+        return nu >= 2 ? s->um2[p] / (nu - 1) / (scale * scale) : INFINITY;
+    }
+    case SCHED_ADAPTIVE_THESIS:
+        return s->pvar_cur[p];
+    default:
+        return 0.0;
+    }
 }
 
-/* Which pixels meet the target error, from the snapshot, into
- * s->conv_snapshot; returns how many. A pixel's own layer means can look
- * steady long before it meets a rare bright path (a caustic seen through
- * glass) that its neighbours have met: its relative variance is taken as
- * the largest in its window (sched.h, bench/error/target.py). The pixel
- * itself is left out: a pixel that stopped because its own layers looked
- * steady would stop exactly when it had not met the bright path yet, and
- * its mean would be low (test_target_unbiased); only its layer count is
- * its own. Nor may
- * a neighbour's statistics grow with the layers it took, since how many
- * it took depends on this pixel's values through the neighbour's own
- * window: they come from every pixel's first SCHED_TARGET_MIN_LAYERS
- * layers, frozen from then on (sched.h). */
-static uint64_t mark_converged(sched_t *s)
+/* The target error's: a layer mean's relative variance, over its first layers. */
+static double cur_rvar(const sched_t *s, uint32_t p)
 {
-    uint64_t conv = 0;
-    window_max_excluding_self(s, s->rvar_snapshot, s->pool_max);
-    for (uint32_t p = 0; p < s->npix; p++) {
-        uint32_t nb = s->nb_snapshot[p];
-        int c = nb >= SCHED_TARGET_MIN_LAYERS &&
-                t_factor(s->t_target, s->cfg.confidence, nb - 1) * sqrt(s->pool_max[p] / nb) <=
-                    s->cfg.target_error;
-        s->conv_snapshot[p] = (uint8_t)c;
-        conv += (uint64_t)c;
+    const uint32_t nu = s->ubatches[p];
+    double scale = fabs(s->umean[p]) + SCHED_TARGET_EPS;
+    return nu >= SCHED_TARGET_MIN_LAYERS ? s->um2[p] / (nu - 1) / (scale * scale) : INFINITY;
+}
+
+static float cur_cost(const sched_t *s, uint32_t p)
+{
+    return s->usamples[p] ? (float)((double)s->urays[p] / (double)s->usamples[p]) : 0.0f;
+}
+
+/* Before pixel p merges the later layer in flight: keep what it replaces. */
+static void keep_prev(sched_t *s, uint32_t p)
+{
+    if (s->prev_metric)
+        s->prev_metric[p] = cur_metric(s, p);
+    if (s->prev_rvar)
+        s->prev_rvar[p] = cur_rvar(s, p);
+    if (s->prev_nb)
+        s->prev_nb[p] = s->batches[p];
+    if (s->prev_cost)
+        s->prev_cost[p] = cur_cost(s, p);
+}
+
+/* Row y of the snapshot a decision reads (as of layer complete - 1), in the
+ * ring; computed on first use. Pixels that have merged the layer `complete`
+ * already read their prev_* values; pixels that have merged nothing read 0
+ * (what a pixel's statistics were before it took part in a complete
+ * layer: only decisions of layers 0 and 1, which no statistic changes). */
+static snap_row_t *snap_row(sched_t *s, int y)
+{
+    snap_row_t *r = &s->ring[y % SCHED_RING];
+    if (r->y == y)
+        return r;
+    r->y = y;
+    r->sel_y = -1;
+    const uint32_t w = s->cfg.width, ahead = s->complete;
+    const int any_ahead = ahead < s->decided_n;
+    const int target = s->cfg.target_error > 0, counts = keeps_counts(s), cost = weighs_cost(s);
+    for (uint32_t x = 0; x < w; x++) {
+        const uint32_t p = (uint32_t)y * w + x;
+        const film_pixel_t *fp = &s->film->pixels[p];
+        if (fp->count == 0 && fp->nonfinite == 0) {
+            r->metric[x] = r->rvar[x] = 0;
+            r->nb[x] = 0;
+            r->cost[x] = 0;
+        } else if (any_ahead && is_member(s, ahead, p) &&
+                   s->state[ahead & 1][p / s->range_pixels] == ST_DONE) {
+            r->metric[x] = s->prev_metric ? s->prev_metric[p] : 0;
+            r->rvar[x] = target ? s->prev_rvar[p] : 0;
+            r->nb[x] = counts ? s->prev_nb[p] : 0;
+            r->cost[x] = cost ? s->prev_cost[p] : 0;
+        } else {
+            r->metric[x] = cur_metric(s, p);
+            r->rvar[x] = target ? cur_rvar(s, p) : 0;
+            r->nb[x] = counts ? s->batches[p] : 0;
+            r->cost[x] = cost ? cur_cost(s, p) : 0;
+        }
     }
-    return conv;
+    if (target) {
+        const int rad = SCHED_TARGET_POOL_RADIUS;
+        for (int x = 0; x < (int)w; x++) {
+            double m = 0;
+            for (int xx = x - rad; xx <= x + rad; xx++)
+                if (xx >= 0 && xx < (int)w && r->rvar[xx] > m)
+                    m = r->rvar[xx];
+            r->rvmax[x] = m;
+        }
+    }
+    return r;
+}
+
+/* Starts a decision: no row of an earlier one is valid any more. */
+static void ring_reset(sched_t *s)
+{
+    for (int k = 0; k < SCHED_RING; k++)
+        s->ring[k].y = s->ring[k].sel_y = -1;
+}
+
+/* The largest relative variance in the (2 SCHED_TARGET_POOL_RADIUS + 1)^2
+ * window around (x, y), the pixel itself left out (the rows' maxima, then
+ * the columns', with the pixel in; then, only where the pixel is its
+ * window's maximum, again without it). A pixel with no neighbour at all (a
+ * 1 x 1 image) keeps its own value. Needs rows y - 2 .. y + 2 in the ring. */
+static double window_max(sched_t *s, int x, int y)
+{
+    const int w = (int)s->cfg.width, h = (int)s->cfg.height, r = SCHED_TARGET_POOL_RADIUS;
+    double m = 0;
+    for (int yy = y - r; yy <= y + r; yy++)
+        if (yy >= 0 && yy < h && snap_row(s, yy)->rvmax[x] > m)
+            m = snap_row(s, yy)->rvmax[x];
+    if (w * h == 1 || snap_row(s, y)->rvar[x] < m)
+        return m; /* a neighbour holds the maximum */
+    m = 0;
+    for (int yy = y - r; yy <= y + r; yy++) {
+        if (yy < 0 || yy >= h)
+            continue;
+        const double *v = snap_row(s, yy)->rvar;
+        for (int xx = x - r; xx <= x + r; xx++)
+            if (xx >= 0 && xx < w && (yy != y || xx != x) && v[xx] > m)
+                m = v[xx];
+    }
+    return m;
+}
+
+/* Whether pixel (x, y) meets the target error, from the snapshot. A pixel's
+ * own layer means can look steady long before it meets a rare bright path
+ * (a caustic seen through glass) that its neighbours have met: its
+ * relative variance is taken as the largest in its window (sched.h,
+ * bench/error/target.py). The pixel itself is left out: a pixel that
+ * stopped because its own layers looked steady would stop exactly when it
+ * had not met the bright path yet, and its mean would be low
+ * (test_target_unbiased); only its layer count is its own. Nor may a
+ * neighbour's statistics grow with the layers it took, since how many it
+ * took depends on this pixel's values through the neighbour's own window:
+ * they come from every pixel's first SCHED_TARGET_MIN_LAYERS layers,
+ * frozen from then on (sched.h). */
+static int meets_target(sched_t *s, int x, int y)
+{
+    uint32_t nb = snap_row(s, y)->nb[x];
+    return nb >= SCHED_TARGET_MIN_LAYERS &&
+           t_factor(s, &s->t_target, s->cfg.confidence, nb - 1) * sqrt(window_max(s, x, y) / nb) <=
+               s->cfg.target_error;
 }
 
 /* relmse: the rays a sample of the pixel at (x, y) takes, as the mean over
@@ -617,136 +795,158 @@ static uint64_t mark_converged(sched_t *s)
  * rays count with its radiance: the paths that enter glass are both the
  * long and the bright ones). At least 1 (every sample traces its camera
  * ray); 1 while no neighbour has any (a 1 x 1 image: all pixels alike). */
-static double neighbour_cost(const sched_t *s, int x, int y)
+static double neighbour_cost(sched_t *s, int x, int y)
 {
     const int w = (int)s->cfg.width, h = (int)s->cfg.height;
     double sum = 0;
     int k = 0;
-    for (int yy = y - 1; yy <= y + 1; yy++)
+    for (int yy = y - 1; yy <= y + 1; yy++) {
+        if (yy < 0 || yy >= h)
+            continue;
+        const float *c = snap_row(s, yy)->cost;
         for (int xx = x - 1; xx <= x + 1; xx++)
-            if (yy >= 0 && yy < h && xx >= 0 && xx < w && (yy != y || xx != x) &&
-                s->cost_snapshot[yy * w + xx] > 0) {
-                sum += s->cost_snapshot[yy * w + xx];
+            if (xx >= 0 && xx < w && (yy != y || xx != x) && c[xx] > 0) {
+                sum += c[xx];
                 k++;
             }
+    }
     return k && sum > k ? sum / k : 1.0;
 }
 
-/* relerr and relmse's metric for each pixel, into s->pooled, from the
- * snapshot: the relative variance of a layer mean, measured over the uniform
- * layers only, is the mean over the pixel's 3x3 neighbours, the pixel itself
- * left out; its own layer count scales it. Why: a pixel given more layers
- * when its own layers look noisy, and fewer when they look steady, keeps a
- * low estimate longer than a high one (a pixel that has not met a rare
- * bright path looks steady and stops), so its mean comes out low: -3 to -4 %
- * on the glass scene. Its neighbours' variance says about as much about how
+/* The skip rule's statistic for pixel (x, y). relerr and relmse: the
+ * relative variance of a layer mean, measured over the uniform layers only,
+ * is the mean over the pixel's 3x3 neighbours, the pixel itself left out;
+ * its own layer count scales it. Why: a pixel given more layers when its
+ * own layers look noisy, and fewer when they look steady, keeps a low
+ * estimate longer than a high one (a pixel that has not met a rare bright
+ * path looks steady and stops), so its mean comes out low: -3 to -4 % on
+ * the glass scene. Its neighbours' variance says about as much about how
  * noisy it is. Uniform layers only, since a neighbour's other layers were
  * chosen by statistics this pixel's samples took part in (its spike would
  * send the neighbours on sampling, find their spikes, and come back as more
  * layers for it: still -2 to -3 % in test_sched). So nothing that decides
  * how many layers a pixel gets depends on its own samples, and its mean
- * stays unbiased (but for its 1/npix share in the threshold). */
-static void pool_neighbours(sched_t *s)
+ * stays unbiased (but for its 1/npix share in the threshold). thesis and
+ * variance: the pixel's own. */
+static double metric_at(sched_t *s, int x, int y)
 {
+    if (!pools_neighbours(s))
+        return snap_row(s, y)->metric[x];
     const int w = (int)s->cfg.width, h = (int)s->cfg.height;
-    const double *v = s->var_snapshot;
-    for (int y = 0; y < h; y++)
-        for (int x = 0; x < w; x++) {
-            const uint32_t p = (uint32_t)(y * w + x);
-            double sum = 0;
-            int k = 0;
-            for (int yy = y - 1; yy <= y + 1; yy++)
-                for (int xx = x - 1; xx <= x + 1; xx++)
-                    if (yy >= 0 && yy < h && xx >= 0 && xx < w && (yy != y || xx != x)) {
-                        sum += v[yy * w + xx];
-                        k++;
-                    }
-            const double rv = k ? sum / k : v[p]; /* a 1 x 1 image has only itself */
-            const uint32_t nb = s->nb_snapshot[p];
-            if (nb < 2 || !isfinite(rv))
-                s->pooled[p] = INFINITY; /* sampled until it and its neighbours have two */
-            else if (s->cfg.adaptive == SCHED_ADAPTIVE_RELMSE)
-                s->pooled[p] = rv / ((double)nb * nb) / neighbour_cost(s, x, y);
-            else
-                s->pooled[p] =
-                    t_factor(s->t_table, SCHED_RELERR_CONFIDENCE, nb - 1) * sqrt(rv / nb);
-        }
+    double sum = 0;
+    int k = 0;
+    for (int yy = y - 1; yy <= y + 1; yy++) {
+        if (yy < 0 || yy >= h)
+            continue;
+        const double *v = snap_row(s, yy)->metric;
+        for (int xx = x - 1; xx <= x + 1; xx++)
+            if (xx >= 0 && xx < w && (yy != y || xx != x)) {
+                sum += v[xx];
+                k++;
+            }
+    }
+    const snap_row_t *self = snap_row(s, y);
+    const double rv = k ? sum / k : self->metric[x]; /* a 1 x 1 image has only itself */
+    const uint32_t nb = self->nb[x];
+    if (nb < 2 || !isfinite(rv))
+        return INFINITY; /* sampled until it and its neighbours have two */
+    if (s->cfg.adaptive == SCHED_ADAPTIVE_RELMSE)
+        return rv / ((double)nb * nb) / neighbour_cost(s, x, y);
+    return t_factor(s, &s->t_table, SCHED_RELERR_CONFIDENCE, nb - 1) * sqrt(rv / nb);
 }
 
-/* Chooses the pixels of a layer from the snapshot (layers < s->complete). */
+/* Row y's choice by the skip rule alone (before dilation), in its ring row. */
+static const uint8_t *select_row(sched_t *s, int y, uint32_t layer, int skip_rule, double threshold)
+{
+    snap_row_t *r = snap_row(s, y);
+    if (r->sel_y == y)
+        return r->sel;
+    const uint32_t w = s->cfg.width;
+    for (uint32_t x = 0; x < w; x++) {
+        int in = 1;
+        if (skip_rule) {
+            const uint32_t p = (uint32_t)y * w + x;
+            double m = metric_at(s, (int)x, y);
+            in = !(m < threshold);
+            if (!in && s->cfg.random_selection && threshold > 0) {
+                /* near the threshold a pixel is likely kept, far below rarely:
+                 * avoids trapping pixels in a "local solution" (thesis 6) */
+                rng_stream_t rs = rng_stream(s->cfg.seed ^ 0x5eed5e1ec7ULL, p, layer);
+                in = rng_next_double(&rs) < m / threshold;
+            }
+        }
+        r->sel[x] = (uint8_t)in;
+    }
+    r->sel_y = y;
+    return r->sel;
+}
+
+/* Chooses the pixels of layer s->decided_n from the snapshot. */
 static void decide_layer(sched_t *s, uint32_t layer)
 {
-    if (layer >= s->layers || s->decided[layer])
+    if (layer >= s->layers || layer != s->decided_n)
         return;
-    int skip_rule = applies_skip_rule(s, layer);
+    const int w = (int)s->cfg.width, h = (int)s->cfg.height;
+    const int skip_rule = applies_skip_rule(s, layer), target = s->cfg.target_error > 0;
+    ring_reset(s);
+    /* the mean over pixels (eq. 4.3); pixels without a value yet (inf)
+     * are sampled anyway and left out of the mean. One pass for it and the
+     * pixels that meet the target, one to choose. */
     double threshold = 0;
-    const double *metric = s->var_snapshot;
-    if (skip_rule && pools_neighbours(s)) {
-        pool_neighbours(s);
-        metric = s->pooled;
-    }
-    if (skip_rule) {
-        /* the mean over pixels (eq. 4.3); pixels without a value yet (inf)
-         * are sampled anyway and left out of the mean */
-        size_t n = 0;
-        for (uint32_t p = 0; p < s->npix; p++)
-            if (isfinite(metric[p])) {
-                threshold += metric[p];
-                n++;
+    size_t n = 0;
+    uint64_t conv = 0;
+    if (skip_rule || target)
+        for (int y = 0; y < h; y++)
+            for (int x = 0; x < w; x++) {
+                if (skip_rule) {
+                    double m = metric_at(s, x, y);
+                    if (isfinite(m)) {
+                        threshold += m;
+                        n++;
+                    }
+                }
+                if (target)
+                    conv += (uint64_t)meets_target(s, x, y);
             }
-        threshold = n ? threshold / (double)n : 0.0;
-    }
-    s->threshold[layer] = threshold;
-    uint64_t conv = s->cfg.target_error > 0 ? mark_converged(s) : 0;
+    threshold = n ? threshold / (double)n : 0.0;
     s->converged = conv;
-    int stop_all = s->cfg.target_error > 0 && (double)conv >= s->cfg.target_share * s->npix;
+    int stop_all = target && (double)conv >= s->cfg.target_share * s->npix;
     if (stop_all && !s->stopped_on_target)
         s->stopped_on_target = 1;
-    uint8_t *sel = s->scratch;
-    for (uint32_t p = 0; p < s->npix; p++) {
-        double m = metric[p];
-        int in = !skip_rule || !(m < threshold);
-        if (!in && s->cfg.random_selection && threshold > 0) {
-            /* near the threshold a pixel is likely kept, far below rarely:
-             * avoids trapping pixels in a "local solution" (thesis 6) */
-            rng_stream_t r = rng_stream(s->cfg.seed ^ 0x5eed5e1ec7ULL, p, layer);
-            in = rng_next_double(&r) < m / threshold;
-        }
-        sel[p] = (uint8_t)in;
-    }
-    if (skip_rule && s->cfg.dilate) {
-        /* grow the selection by one pixel: noise is seen across pixels, and a
-         * lone skipped pixel or a hard edge of skipped ones shows as a seam */
-        uint32_t w = s->cfg.width, h = s->cfg.height;
-        for (uint32_t y = 0; y < h; y++)
-            for (uint32_t x = 0; x < w; x++) {
-                uint32_t p = y * w + x;
-                if (sel[p] & 1)
-                    continue;
-                int near = 0;
-                for (int dy = -1; dy <= 1 && !near; dy++)
-                    for (int dx = -1; dx <= 1 && !near; dx++) {
-                        int yy = (int)y + dy, xx = (int)x + dx;
-                        if (yy >= 0 && yy < (int)h && xx >= 0 && xx < (int)w)
-                            near = sel[(uint32_t)yy * w + (uint32_t)xx] & 1;
-                    }
-                if (near)
-                    sel[p] |= 2;
+    /* the slot of layer - 2, complete */
+    const int slot = (int)(layer & 1);
+    memset(s->member[slot], 0, member_bytes(s));
+    memset(s->state[slot], ST_WAITING, s->ranges);
+    s->range_done[slot] = 0;
+    s->threshold[slot] = skip_rule ? threshold : 0.0;
+    const int dilate = skip_rule && s->cfg.dilate;
+    for (int y = 0; y < h; y++) {
+        const uint8_t *sel = select_row(s, y, layer, skip_rule, threshold);
+        const uint8_t *up =
+            dilate && y > 0 ? select_row(s, y - 1, layer, skip_rule, threshold) : NULL;
+        const uint8_t *down =
+            dilate && y + 1 < h ? select_row(s, y + 1, layer, skip_rule, threshold) : NULL;
+        for (int x = 0; x < w; x++) {
+            const uint32_t p = (uint32_t)(y * w + x);
+            int chosen = sel[x];
+            /* grow the selection by one pixel: noise is seen across pixels, and
+             * a lone skipped pixel or a hard edge of skipped ones shows as a seam */
+            if (dilate && !chosen)
+                for (int dx = -1; dx <= 1 && !chosen; dx++)
+                    if (x + dx >= 0 && x + dx < w)
+                        chosen = (up && up[x + dx]) || sel[x + dx] || (down && down[x + dx]);
+            int in = chosen && !stop_all && !(target && meets_target(s, x, y));
+            if (in) {
+                set_member(s, layer, p);
+                s->pixel_layers++;
+            } else {
+                s->skipped++;
             }
-    }
-    for (uint32_t p = 0; p < s->npix; p++) {
-        int in = sel[p] != 0 && !stop_all && !(s->cfg.target_error > 0 && s->conv_snapshot[p]);
-        if (in) {
-            set_member(s, layer, p);
-            s->taken[p]++;
-            s->pixel_layers++;
-        } else {
-            s->skipped++;
         }
     }
-    s->decided[layer] = 1;
+    s->decided_n = layer + 1;
     for (uint32_t r = 0; r < s->ranges; r++)
-        if (layer == 0 || s->state[(size_t)(layer - 1) * s->ranges + r] == ST_DONE)
+        if (layer == 0 || cell_state(s, layer - 1, r) == ST_DONE)
             make_ready(s, layer, r);
 }
 
@@ -755,34 +955,19 @@ static void complete_range(sched_t *s, uint32_t layer, uint32_t range)
     /* An explicit stack instead of recursion: completing (l, r) can make
      * (l+1, r) ready, which may be empty and complete at once, and so on. */
     for (;;) {
-        size_t cell = (size_t)layer * s->ranges + range;
-        s->state[cell] = ST_DONE;
-        if (++s->range_done[layer] == s->ranges) {
+        set_state(s, layer, range, ST_DONE);
+        if (++s->range_done[layer & 1] == s->ranges) {
             /* Layers complete in order (rule 1), so this is s->complete. */
-            const double *pv = s->pvar_flight[layer & 1], *rv = s->rvar_flight[layer & 1];
-            const uint32_t *nf = s->nb_flight[layer & 1];
-            const float *cf = s->cost_flight[layer & 1];
-            for (uint32_t p = 0; p < s->npix; p++)
-                if (is_member(s, layer, p)) {
-                    s->var_snapshot[p] = pv[p];
-                    if (rv)
-                        s->rvar_snapshot[p] = rv[p];
-                    if (nf)
-                        s->nb_snapshot[p] = nf[p];
-                    if (cf)
-                        s->cost_snapshot[p] = cf[p];
-                }
             s->complete = layer + 1;
             decide_layer(s, layer + 2);
         }
         uint32_t next = layer + 1;
-        if (next >= s->layers || !s->decided[next])
+        if (next >= s->layers || !in_window(s, next))
             return;
-        size_t ncell = (size_t)next * s->ranges + range;
-        if (s->state[ncell] != ST_WAITING)
+        if (cell_state(s, next, range) != ST_WAITING)
             return;
         if (range_members(s, next, range) == 0) {
-            s->state[ncell] = ST_OUT;
+            set_state(s, next, range, ST_OUT);
             layer = next;
             continue;
         }
@@ -793,7 +978,7 @@ static void complete_range(sched_t *s, uint32_t layer, uint32_t range)
 
 static void start(sched_t *s)
 {
-    if (s->layers > 0 && !s->decided[0]) {
+    if (s->layers > 0 && s->decided_n == 0) {
         decide_layer(s, 0);
         decide_layer(s, 1);
     }
@@ -805,8 +990,8 @@ static void start(sched_t *s)
 static sched_status_t issue(sched_t *s, uint64_t id, sched_task_t *out)
 {
     uint32_t layer = (uint32_t)((id - 1) / s->ranges), range = (uint32_t)((id - 1) % s->ranges);
-    size_t cell = (size_t)layer * s->ranges + range;
-    if (!s->out[cell]) {
+    const int slot = (int)(layer & 1);
+    if (!s->out[slot][range]) {
         uint32_t p0 = range * s->range_pixels, p1 = p0 + s->range_pixels;
         if (p1 > s->npix)
             p1 = s->npix;
@@ -821,20 +1006,30 @@ static sched_status_t issue(sched_t *s, uint64_t id, sched_task_t *out)
                 continue;
             rec[k].pixel = p;
             rec[k].sample_count = take;
-            rec[k].first_sample = first_sample_of(s, layer, p);
+            rec[k].first_sample = first_sample_of(s, p);
             film_prior(s->film, &rec[k]);
             k++;
         }
-        s->out[cell] = rec;
-        s->out_count[cell] = n;
+        s->out[slot][range] = rec;
+        s->out_count[slot][range] = n;
     }
-    s->state[cell] = ST_OUT;
+    set_state(s, layer, range, ST_OUT);
     out->id = id;
     out->layer = layer;
     out->range = range;
-    out->count = s->out_count[cell];
-    out->records = s->out[cell];
+    out->count = s->out_count[slot][range];
+    out->records = s->out[slot][range];
     return SCHED_OK;
+}
+
+/* Whether id names a task of this job, and its cell. */
+static int split_id(const sched_t *s, uint64_t id, uint32_t *layer, uint32_t *range)
+{
+    if (id == 0 || id > (uint64_t)s->layers * s->ranges)
+        return 0;
+    *layer = (uint32_t)((id - 1) / s->ranges);
+    *range = (uint32_t)((id - 1) % s->ranges);
+    return 1;
 }
 
 int sched_next(sched_t *s, sched_task_t *out)
@@ -851,7 +1046,8 @@ int sched_next(sched_t *s, sched_task_t *out)
         } else {
             return s->complete == s->layers ? SCHED_NEXT_ALL_ISSUED : SCHED_NEXT_NONE_READY;
         }
-        if (s->state[id - 1] != ST_READY)
+        uint32_t layer, range;
+        if (!split_id(s, id, &layer, &range) || cell_state(s, layer, range) != ST_READY)
             continue; /* sched_take handed it out already */
         if (issue(s, id, out) != SCHED_OK) {
             /* Put it back where it came from: the caller retries later. */
@@ -868,25 +1064,27 @@ int sched_next(sched_t *s, sched_task_t *out)
 int sched_take(sched_t *s, uint64_t task_id, sched_task_t *out)
 {
     start(s);
-    if (task_id == 0 || task_id > (uint64_t)s->layers * s->ranges ||
-        s->state[task_id - 1] != ST_READY)
+    uint32_t layer, range;
+    if (!split_id(s, task_id, &layer, &range) || cell_state(s, layer, range) != ST_READY)
         return SCHED_NOT_OUTSTANDING;
     return issue(s, task_id, out);
 }
 
-/* SCHED_OK and the task's cell if it is handed out, else SCHED_NOT_OUTSTANDING. */
-static sched_status_t lookup(const sched_t *s, uint64_t id, size_t *cell)
+/* SCHED_OK and the task's layer and range if it is handed out, else
+ * SCHED_NOT_OUTSTANDING. */
+static sched_status_t lookup(const sched_t *s, uint64_t id, uint32_t *layer, uint32_t *range)
 {
-    if (id == 0 || id > (uint64_t)s->layers * s->ranges)
+    if (!split_id(s, id, layer, range) || !in_window(s, *layer))
         return SCHED_NOT_OUTSTANDING;
-    *cell = (size_t)(id - 1);
-    return s->state[*cell] == ST_OUT && s->out[*cell] ? SCHED_OK : SCHED_NOT_OUTSTANDING;
+    return cell_state(s, *layer, *range) == ST_OUT && s->out[*layer & 1][*range]
+               ? SCHED_OK
+               : SCHED_NOT_OUTSTANDING;
 }
 
 int sched_requeue(sched_t *s, uint64_t task_id)
 {
-    size_t cell;
-    if (lookup(s, task_id, &cell) != SCHED_OK)
+    uint32_t layer, range;
+    if (lookup(s, task_id, &layer, &range) != SCHED_OK)
         return SCHED_NOT_OUTSTANDING;
     if (s->rq_len == s->rq_cap) {
         uint64_t *n = realloc(s->requeued, 2 * s->rq_cap * sizeof(uint64_t));
@@ -895,36 +1093,37 @@ int sched_requeue(sched_t *s, uint64_t task_id)
         s->requeued = n;
         s->rq_cap *= 2;
     }
-    s->state[cell] = ST_READY;
+    set_state(s, layer, range, ST_READY);
     s->requeued[s->rq_len++] = task_id;
     return SCHED_OK;
 }
 
 int sched_outstanding(const sched_t *s, uint64_t task_id, sched_task_t *out)
 {
-    size_t cell;
-    if (lookup(s, task_id, &cell) != SCHED_OK)
+    uint32_t layer, range;
+    if (lookup(s, task_id, &layer, &range) != SCHED_OK)
         return SCHED_NOT_OUTSTANDING;
     out->id = task_id;
-    out->layer = (uint32_t)(cell / s->ranges);
-    out->range = (uint32_t)(cell % s->ranges);
-    out->count = s->out_count[cell];
-    out->records = s->out[cell];
+    out->layer = layer;
+    out->range = range;
+    out->count = s->out_count[layer & 1][range];
+    out->records = s->out[layer & 1][range];
     return SCHED_OK;
 }
 
 int sched_check(const sched_t *s, uint64_t task_id, const tracer_result_t *results, uint32_t count,
                 char *err, size_t errlen)
 {
-    size_t cell;
-    if (lookup(s, task_id, &cell) != SCHED_OK) {
+    uint32_t layer, range;
+    if (lookup(s, task_id, &layer, &range) != SCHED_OK) {
         snprintf(err, errlen, "task %llu is not outstanding", (unsigned long long)task_id);
         return SCHED_NOT_OUTSTANDING;
     }
-    const tracer_task_t *rec = s->out[cell];
-    if (count != s->out_count[cell]) {
+    const tracer_task_t *rec = s->out[layer & 1][range];
+    const uint32_t want = s->out_count[layer & 1][range];
+    if (count != want) {
         snprintf(err, errlen, "task %llu: %u results for %u pixels", (unsigned long long)task_id,
-                 count, s->out_count[cell]);
+                 count, want);
         return SCHED_BAD_RESULT;
     }
     /* Check everything before merging anything: a bad result changes nothing,
@@ -980,82 +1179,51 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
     sched_status_t rc = sched_check(s, task_id, results, count, err, errlen);
     if (rc != SCHED_OK)
         return rc;
-    const size_t cell = (size_t)(task_id - 1);
-    const tracer_task_t *rec = s->out[cell];
-    uint32_t layer = (uint32_t)((task_id - 1) / s->ranges),
-             range = (uint32_t)((task_id - 1) % s->ranges);
-    double *pv = s->pvar_flight[layer & 1], *rv = s->rvar_flight[layer & 1];
-    uint32_t *nf = s->nb_flight[layer & 1];
-    float *cf = s->cost_flight[layer & 1];
+    const uint32_t layer = (uint32_t)((task_id - 1) / s->ranges),
+                   range = (uint32_t)((task_id - 1) % s->ranges);
+    const int slot = (int)(layer & 1);
+    const tracer_task_t *rec = s->out[slot][range];
+    /* the later layer in flight: a decision may still read its pixels'
+     * statistics as they were before it (see the top of this file) */
+    const int ahead = layer > s->complete;
     /* batch statistics only where something reads them: this loop runs for
      * every pixel-layer result, millions a second on one master core */
-    const int batches = s->cfg.adaptive == SCHED_ADAPTIVE_RELERR ||
-                        s->cfg.adaptive == SCHED_ADAPTIVE_RELMSE || s->cfg.target_error > 0;
+    const int batches = keeps_counts(s);
     /* a uniform layer: every pixel takes it, whatever any pixel's values */
     const int adaptive_layer = applies_skip_rule(s, layer);
     for (uint32_t i = 0; i < count; i++) {
         uint32_t p = results[i].pixel;
+        if (ahead)
+            keep_prev(s, p);
         film_merge(s->film, &results[i]);
         s->samples_done += rec[i].sample_count;
         s->nonfinite += results[i].nonfinite;
-        if (!batches) {
-            pv[p] =
-                s->cfg.adaptive == SCHED_ADAPTIVE_VARIANCE
-                    ? (s->film->pixels[p].count >= 2 ? film_variance_of_mean(s->film, p) : INFINITY)
-                    : results[i].pvar;
+        if (s->pvar_cur)
+            s->pvar_cur[p] = results[i].pvar;
+        if (!batches)
             continue;
-        }
         /* with a target error, a pixel's first SCHED_TARGET_MIN_LAYERS
-         * layers whatever they are (mark_converged); else its uniform layers */
+         * layers whatever they are (meets_target); else its uniform layers */
         const int judged =
-            s->ubatches &&
-            (s->cfg.target_error > 0 ? s->ubatches[p] < SCHED_TARGET_MIN_LAYERS : !adaptive_layer);
+            s->cfg.target_error > 0 ? s->ubatches[p] < SCHED_TARGET_MIN_LAYERS : !adaptive_layer;
         /* the layer's mean is one batch; Welford over batches */
         if (results[i].samples > 0) {
-            double bm = vmath_luminance(results[i].sum[0], results[i].sum[1], results[i].sum[2]) /
-                        results[i].samples;
-            welford_add(&s->batches[p], &s->bmean[p], &s->bm2[p], bm);
-            if (judged)
-                welford_add(&s->ubatches[p], &s->umean[p], &s->um2[p], bm);
-        }
-        if (cf) {
+            s->batches[p]++;
             if (judged) {
-                s->urays[p] += results[i].rays;
-                s->usamples[p] += rec[i].sample_count;
+                double bm =
+                    vmath_luminance(results[i].sum[0], results[i].sum[1], results[i].sum[2]) /
+                    results[i].samples;
+                welford_add(&s->ubatches[p], &s->umean[p], &s->um2[p], bm);
             }
-            cf[p] = s->usamples[p] ? (float)((double)s->urays[p] / (double)s->usamples[p]) : 0.0f;
         }
-        uint32_t nb = s->batches[p];
-        switch (s->cfg.adaptive) {
-        case SCHED_ADAPTIVE_VARIANCE:
-            pv[p] = s->film->pixels[p].count >= 2 ? film_variance_of_mean(s->film, p) : INFINITY;
-            break;
-        case SCHED_ADAPTIVE_RELERR:
-        case SCHED_ADAPTIVE_RELMSE: {
-            /* the relative variance of one layer's mean, over the uniform
-             * layers; decide_layer turns its neighbours' into the metric */
-            const uint32_t nu = s->ubatches[p];
-            double scale = fabs(s->umean[p]) + SCHED_RELERR_EPS;
-            pv[p] = nu >= 2 ? s->um2[p] / (nu - 1) / (scale * scale) : INFINITY;
-            break;
+        if (s->urays && judged) {
+            s->urays[p] += results[i].rays;
+            s->usamples[p] += rec[i].sample_count;
         }
-        default:
-            pv[p] = results[i].pvar;
-            break;
-        }
-        if (s->cfg.target_error > 0) {
-            /* a layer mean's relative variance, over its first layers */
-            const uint32_t nu = s->ubatches[p];
-            double scale = fabs(s->umean[p]) + SCHED_TARGET_EPS;
-            rv[p] =
-                nu >= SCHED_TARGET_MIN_LAYERS ? s->um2[p] / (nu - 1) / (scale * scale) : INFINITY;
-        }
-        if (nf)
-            nf[p] = nb;
     }
-    free(s->out[cell]);
-    s->out[cell] = NULL;
-    s->out_count[cell] = 0;
+    free(s->out[slot][range]);
+    s->out[slot][range] = NULL;
+    s->out_count[slot][range] = 0;
     complete_range(s, layer, range);
     return SCHED_OK;
 }
@@ -1063,10 +1231,19 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
 /* ---- checkpoints ---------------------------------------------------------- */
 
 /* write and read calls carry at most this much: the pipe or socket behind
- * them need not take a gigabyte bitmap in one call. */
+ * them need not take a gigabyte film in one call. */
 #define SAVE_CHUNK ((size_t)1 << 20)
 
 static const uint8_t save_magic[8] = {'V', 'B', 'S', 'C', 'H', 'E', 'D', '\n'};
+
+/* The oldest stream this build still reads (sched_load_v5 below). */
+#define SCHED_SAVE_VERSION_V5 5
+/* Version 5's film pixel: 64-bit counts, the last eq. 4.1 value, layers. */
+typedef struct film_pixel_v5 {
+    uint64_t count, nonfinite;
+    double sum[3], comp[3], lum_m2, pvar;
+    uint32_t layers;
+} film_pixel_v5_t;
 
 /* The fingerprint: what a restored scheduler must share with the saved one
  * (settings first, so a mismatch names the setting, not what it derives). */
@@ -1119,7 +1296,7 @@ static uint64_t f64_bits(double x)
     return u;
 }
 
-static void fingerprint(const sched_t *s, uint64_t fp[FP_COUNT])
+static void fingerprint(const sched_t *s, uint64_t fp[FP_COUNT], size_t pixel_bytes)
 {
     uint64_t h = 0xcbf29ce484222325ULL; /* FNV-1a of the flag sequence */
     for (uint32_t l = 0; s->flags && l < s->layers; l++)
@@ -1142,7 +1319,7 @@ static void fingerprint(const sched_t *s, uint64_t fp[FP_COUNT])
     fp[FP_PIXELS] = s->npix;
     fp[FP_LAYERS] = s->layers;
     fp[FP_RANGES] = s->ranges;
-    fp[FP_PIXEL_BYTES] = sizeof(film_pixel_t);
+    fp[FP_PIXEL_BYTES] = pixel_bytes;
 }
 
 /* A checksum of the stream, the same however it is cut into calls: words
@@ -1203,11 +1380,6 @@ static void tag_bytes(const char *tag, uint8_t out[8])
     memcpy(out, tag, n < 8 ? n : 8);
 }
 
-static size_t member_bytes(const sched_t *s)
-{
-    return ((size_t)s->layers * s->npix + 7) / 8;
-}
-
 typedef struct saver {
     sched_write_fn write;
     void *ctx;
@@ -1243,6 +1415,18 @@ static int put_section(saver_t *w, const char *tag, const void *data, size_t byt
     return put(w, data, bytes);
 }
 
+/* Zeros, as a section's body (a window slot that holds no layer). */
+static int put_zeros(saver_t *w, size_t bytes)
+{
+    static const uint8_t zero[4096];
+    while (bytes > 0 && w->rc == 0) {
+        size_t n = bytes < sizeof zero ? bytes : sizeof zero;
+        put(w, zero, n);
+        bytes -= n;
+    }
+    return w->rc;
+}
+
 /* Counters, in this order in the "counters" section. */
 enum {
     CT_COMPLETE,
@@ -1252,67 +1436,71 @@ enum {
     CT_PIXEL_LAYERS,
     CT_SKIPPED,
     CT_NONFINITE,
+    CT_DECIDED, /* version 6 */
     CT_COUNT
 };
+#define CT_COUNT_V5 CT_DECIDED
+
+/* The window's layers per slot: layer, or UINT32_MAX for an empty slot. */
+static void window_layers(const sched_t *s, uint32_t layer_of[2])
+{
+    layer_of[0] = layer_of[1] = UINT32_MAX;
+    for (uint32_t l = s->complete; l < s->decided_n; l++)
+        layer_of[l & 1] = l;
+}
 
 int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
 {
     /* Everything here lives on the stack or in *s: this runs in a forked
      * child, where malloc may be locked by a thread that no longer exists. */
     saver_t w = {write, ctx, {0, 0, {0}, 0}, 0};
-    const size_t cells = (size_t)s->layers * s->ranges, n = s->npix;
-    const size_t tn = s->cfg.target_error > 0 ? n : 0; /* the target error's tables */
-    const size_t cn = keeps_counts(s) ? n : 0;         /* layer-mean counts */
-    const size_t un = keeps_counts(s) ? n : 0;         /* uniform layers' statistics */
-    const size_t kn = weighs_cost(s) ? n : 0;          /* their cost */
-    uint32_t vc[2] = {SCHED_SAVE_VERSION, FP_COUNT};
+    const size_t n = s->npix, mb = member_bytes(s);
+    uint32_t vc[2] = {SCHED_SAVE_VERSION, FP_COUNT}, layer_of[2];
     uint64_t fp[FP_COUNT];
-    fingerprint(s, fp);
+    fingerprint(s, fp, sizeof(film_pixel_t));
+    window_layers(s, layer_of);
     const uint64_t ct[CT_COUNT] = {s->complete,     s->converged,    (uint64_t)s->stopped_on_target,
                                    s->samples_done, s->pixel_layers, s->skipped,
-                                   s->nonfinite};
+                                   s->nonfinite,    s->decided_n};
     if (put(&w, save_magic, sizeof save_magic) || put(&w, vc, sizeof vc) ||
         put(&w, fp, sizeof fp) || put_section(&w, "counters", ct, sizeof ct) ||
-        put_section(&w, "film", s->film->pixels, n * sizeof(film_pixel_t)) ||
-        put_section(&w, "member", s->member, member_bytes(s)) ||
-        put_section(&w, "decided", s->decided, s->layers) ||
-        put_section(&w, "thresh", s->threshold, s->layers * sizeof(double)))
+        put_section(&w, "film", s->film->pixels, n * sizeof(film_pixel_t)))
         return w.rc;
-    /* Outstanding tasks go out as ready: their records are not saved, and
+    /* The window, slot by slot; a slot with no layer in it is all zeros.
+     * Outstanding tasks go out as ready: their records are not saved, and
      * sched_next rebuilds them from the film (layer l of a range is merged
      * only when it completes, so the film holds exactly its priors). */
-    if (put_head(&w, "state", cells))
+    if (put_head(&w, "member", 2 * mb))
+        return w.rc;
+    for (int k = 0; k < 2; k++)
+        if (layer_of[k] == UINT32_MAX ? put_zeros(&w, mb) : put(&w, s->member[k], mb))
+            return w.rc;
+    if (put_head(&w, "state", 2 * (size_t)s->ranges))
         return w.rc;
     uint8_t buf[4096];
-    for (size_t c0 = 0; c0 < cells; c0 += sizeof buf) {
-        size_t k = cells - c0 < sizeof buf ? cells - c0 : sizeof buf;
-        for (size_t i = 0; i < k; i++)
-            buf[i] = s->state[c0 + i] == ST_OUT ? ST_READY : s->state[c0 + i];
-        if (put(&w, buf, k))
+    for (int k = 0; k < 2; k++)
+        for (size_t c0 = 0; c0 < s->ranges; c0 += sizeof buf) {
+            size_t m = s->ranges - c0 < sizeof buf ? s->ranges - c0 : sizeof buf;
+            for (size_t i = 0; i < m; i++) {
+                uint8_t st = layer_of[k] == UINT32_MAX ? ST_WAITING : s->state[k][c0 + i];
+                buf[i] = st == ST_OUT ? ST_READY : st;
+            }
+            if (put(&w, buf, m))
+                return w.rc;
+        }
+    uint8_t slots[2 * (sizeof(uint32_t) + sizeof(double))] = {0};
+    for (int k = 0; k < 2; k++)
+        if (layer_of[k] != UINT32_MAX) {
+            memcpy(slots + 4 * k, &s->range_done[k], 4);
+            memcpy(slots + 8 + 8 * k, &s->threshold[k], 8);
+        }
+    if (put_section(&w, "slots", slots, sizeof slots))
+        return w.rc;
+    for (size_t i = 0; i < PIXEL_ARRAYS; i++)
+        if (put_section(&w, pixel_arrays[i].name, array_of(s, &pixel_arrays[i]),
+                        array_bytes(s, &pixel_arrays[i])))
             return w.rc;
-    }
-    if (put_section(&w, "rdone", s->range_done, s->layers * sizeof(uint32_t)) ||
-        put_section(&w, "var", s->var_snapshot, n * sizeof(double)) ||
-        put_section(&w, "pvar0", s->pvar_flight[0], n * sizeof(double)) ||
-        put_section(&w, "pvar1", s->pvar_flight[1], n * sizeof(double)) ||
-        put_section(&w, "rvar", s->rvar_snapshot, tn * sizeof(double)) ||
-        put_section(&w, "rvar0", s->rvar_flight[0], tn * sizeof(double)) ||
-        put_section(&w, "rvar1", s->rvar_flight[1], tn * sizeof(double)) ||
-        put_section(&w, "nbat", s->nb_snapshot, cn * sizeof(uint32_t)) ||
-        put_section(&w, "nbat0", s->nb_flight[0], cn * sizeof(uint32_t)) ||
-        put_section(&w, "nbat1", s->nb_flight[1], cn * sizeof(uint32_t)) ||
-        put_section(&w, "batches", s->batches, n * sizeof(uint32_t)) ||
-        put_section(&w, "bmean", s->bmean, n * sizeof(double)) ||
-        put_section(&w, "bm2", s->bm2, n * sizeof(double)) ||
-        put_section(&w, "ubat", s->ubatches, un * sizeof(uint32_t)) ||
-        put_section(&w, "umean", s->umean, un * sizeof(double)) ||
-        put_section(&w, "um2", s->um2, un * sizeof(double)) ||
-        put_section(&w, "urays", s->urays, kn * sizeof(uint64_t)) ||
-        put_section(&w, "usamp", s->usamples, kn * sizeof(uint64_t)) ||
-        put_section(&w, "cost", s->cost_snapshot, kn * sizeof(float)) ||
-        put_section(&w, "cost0", s->cost_flight[0], kn * sizeof(float)) ||
-        put_section(&w, "cost1", s->cost_flight[1], kn * sizeof(float)) ||
-        put_head(&w, "end", sizeof(uint64_t)))
+    if (put_head(&w, "end", sizeof(uint64_t)))
         return w.rc;
     uint64_t sum = ck_final(&w.ck);
     return put(&w, &sum, sizeof sum);
@@ -1369,18 +1557,12 @@ static int get_section(loader_t *r, const char *tag, void *data, size_t bytes, c
     return get(r, data, bytes, tag, err, errlen);
 }
 
-/* Reads the stream into s (made by sched_new for the caller's config, so
- * every size comes from the config, none from the stream). The checksum is
- * returned, not compared: the consistency checks name a problem better. */
-static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *sum_computed,
-                       char *err, size_t errlen)
+/* The header: magic, version (into *version: 5 or 6), fingerprint. */
+static int load_header(const sched_t *s, loader_t *r, uint32_t *version, char *err, size_t errlen)
 {
-    const size_t cells = (size_t)s->layers * s->ranges, n = s->npix;
-    const size_t tn = s->cfg.target_error > 0 ? n : 0, cn = keeps_counts(s) ? n : 0,
-                 un = keeps_counts(s) ? n : 0, kn = weighs_cost(s) ? n : 0;
     uint8_t magic[8];
     uint32_t vc[2];
-    uint64_t fp[FP_COUNT], want[FP_COUNT], ct[CT_COUNT];
+    uint64_t fp[FP_COUNT], want[FP_COUNT];
     if (get(r, magic, sizeof magic, "header", err, errlen))
         return -1;
     if (memcmp(magic, save_magic, sizeof magic) != 0) {
@@ -1389,19 +1571,23 @@ static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *su
     }
     if (get(r, vc, sizeof vc, "header", err, errlen))
         return -1;
-    if (vc[0] != SCHED_SAVE_VERSION) {
-        snprintf(err, errlen, "checkpoint: format version %u, this build reads version %u only",
-                 vc[0], SCHED_SAVE_VERSION);
+    if (vc[0] != SCHED_SAVE_VERSION && vc[0] != SCHED_SAVE_VERSION_V5) {
+        snprintf(err, errlen,
+                 "checkpoint: format version %u, this build reads versions %u and %u (a newer "
+                 "master wrote it?)",
+                 vc[0], SCHED_SAVE_VERSION_V5, SCHED_SAVE_VERSION);
         return -1;
     }
+    *version = vc[0];
     if (vc[1] != FP_COUNT) {
         snprintf(err, errlen, "checkpoint: %u config fingerprint fields, format version %u has %u",
-                 vc[1], SCHED_SAVE_VERSION, FP_COUNT);
+                 vc[1], vc[0], FP_COUNT);
         return -1;
     }
     if (get(r, fp, sizeof fp, "header", err, errlen))
         return -1;
-    fingerprint(s, want);
+    fingerprint(s, want,
+                vc[0] == SCHED_SAVE_VERSION_V5 ? sizeof(film_pixel_v5_t) : sizeof(film_pixel_t));
     for (int i = 0; i < FP_COUNT; i++) {
         if (fp[i] == want[i])
             continue;
@@ -1421,13 +1607,18 @@ static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *su
         }
         return -1;
     }
-    if (get_section(r, "counters", ct, sizeof ct, err, errlen))
-        return -1;
-    if (ct[CT_COMPLETE] > s->layers || ct[CT_STOPPED] > 1) {
+    return 0;
+}
+
+/* The counters every version has, into s; checked against the config. */
+static int apply_counters(sched_t *s, const uint64_t *ct, char *err, size_t errlen)
+{
+    if (ct[CT_COMPLETE] > s->layers || ct[CT_STOPPED] > 1 || ct[CT_CONVERGED] > s->npix) {
         snprintf(err, errlen,
-                 "checkpoint: counters out of range (%llu layers complete of %u, stopped %llu)",
-                 (unsigned long long)ct[CT_COMPLETE], s->layers,
-                 (unsigned long long)ct[CT_STOPPED]);
+                 "checkpoint: counters out of range (%llu layers complete of %u, stopped %llu, "
+                 "converged %llu of %u pixels)",
+                 (unsigned long long)ct[CT_COMPLETE], s->layers, (unsigned long long)ct[CT_STOPPED],
+                 (unsigned long long)ct[CT_CONVERGED], s->npix);
         return -1;
     }
     s->complete = (uint32_t)ct[CT_COMPLETE];
@@ -1437,36 +1628,279 @@ static int load_stream(sched_t *s, loader_t *r, uint64_t *sum_read, uint64_t *su
     s->pixel_layers = ct[CT_PIXEL_LAYERS];
     s->skipped = ct[CT_SKIPPED];
     s->nonfinite = ct[CT_NONFINITE];
-    if (get_section(r, "film", s->film->pixels, n * sizeof(film_pixel_t), err, errlen) ||
-        get_section(r, "member", s->member, member_bytes(s), err, errlen) ||
-        get_section(r, "decided", s->decided, s->layers, err, errlen) ||
-        get_section(r, "thresh", s->threshold, s->layers * sizeof(double), err, errlen) ||
-        get_section(r, "state", s->state, cells, err, errlen) ||
-        get_section(r, "rdone", s->range_done, s->layers * sizeof(uint32_t), err, errlen) ||
-        get_section(r, "var", s->var_snapshot, n * sizeof(double), err, errlen) ||
-        get_section(r, "pvar0", s->pvar_flight[0], n * sizeof(double), err, errlen) ||
-        get_section(r, "pvar1", s->pvar_flight[1], n * sizeof(double), err, errlen) ||
-        get_section(r, "rvar", s->rvar_snapshot, tn * sizeof(double), err, errlen) ||
-        get_section(r, "rvar0", s->rvar_flight[0], tn * sizeof(double), err, errlen) ||
-        get_section(r, "rvar1", s->rvar_flight[1], tn * sizeof(double), err, errlen) ||
-        get_section(r, "nbat", s->nb_snapshot, cn * sizeof(uint32_t), err, errlen) ||
-        get_section(r, "nbat0", s->nb_flight[0], cn * sizeof(uint32_t), err, errlen) ||
-        get_section(r, "nbat1", s->nb_flight[1], cn * sizeof(uint32_t), err, errlen) ||
-        get_section(r, "batches", s->batches, n * sizeof(uint32_t), err, errlen) ||
-        get_section(r, "bmean", s->bmean, n * sizeof(double), err, errlen) ||
-        get_section(r, "bm2", s->bm2, n * sizeof(double), err, errlen) ||
-        get_section(r, "ubat", s->ubatches, un * sizeof(uint32_t), err, errlen) ||
-        get_section(r, "umean", s->umean, un * sizeof(double), err, errlen) ||
-        get_section(r, "um2", s->um2, un * sizeof(double), err, errlen) ||
-        get_section(r, "urays", s->urays, kn * sizeof(uint64_t), err, errlen) ||
-        get_section(r, "usamp", s->usamples, kn * sizeof(uint64_t), err, errlen) ||
-        get_section(r, "cost", s->cost_snapshot, kn * sizeof(float), err, errlen) ||
-        get_section(r, "cost0", s->cost_flight[0], kn * sizeof(float), err, errlen) ||
-        get_section(r, "cost1", s->cost_flight[1], kn * sizeof(float), err, errlen) ||
-        get_head(r, "end", sizeof(uint64_t), err, errlen))
+    return 0;
+}
+
+/* Version 6 (sched_save): reads the stream into s (made by sched_new for
+ * the caller's config, so every size comes from the config, none from the
+ * stream). */
+static int load_v6(sched_t *s, loader_t *r, char *err, size_t errlen)
+{
+    const size_t n = s->npix, mb = member_bytes(s);
+    uint64_t ct[CT_COUNT];
+    uint8_t slots[2 * (sizeof(uint32_t) + sizeof(double))];
+    if (get_section(r, "counters", ct, sizeof ct, err, errlen) ||
+        apply_counters(s, ct, err, errlen))
         return -1;
-    *sum_computed = ck_final(&r->ck);
-    return get(r, sum_read, sizeof *sum_read, "checksum", err, errlen);
+    uint64_t want_d = ct[CT_DECIDED] == 0                     ? 0
+                      : (uint64_t)s->complete + 2 < s->layers ? (uint64_t)s->complete + 2
+                                                              : s->layers;
+    if (ct[CT_DECIDED] != want_d) {
+        snprintf(err, errlen, "checkpoint: %llu layers decided, expected %llu with %u complete",
+                 (unsigned long long)ct[CT_DECIDED], (unsigned long long)want_d, s->complete);
+        return -1;
+    }
+    s->decided_n = (uint32_t)ct[CT_DECIDED];
+    if (get_section(r, "film", s->film->pixels, n * sizeof(film_pixel_t), err, errlen) ||
+        get_head(r, "member", 2 * mb, err, errlen) ||
+        get(r, s->member[0], mb, "member", err, errlen) ||
+        get(r, s->member[1], mb, "member", err, errlen) ||
+        get_head(r, "state", 2 * (size_t)s->ranges, err, errlen) ||
+        get(r, s->state[0], s->ranges, "state", err, errlen) ||
+        get(r, s->state[1], s->ranges, "state", err, errlen) ||
+        get_section(r, "slots", slots, sizeof slots, err, errlen))
+        return -1;
+    for (int k = 0; k < 2; k++) {
+        memcpy(&s->range_done[k], slots + 4 * k, 4);
+        memcpy(&s->threshold[k], slots + 8 + 8 * k, 8);
+    }
+    for (size_t i = 0; i < PIXEL_ARRAYS; i++)
+        if (get_section(r, pixel_arrays[i].name, *array_slot(s, &pixel_arrays[i]),
+                        array_bytes(s, &pixel_arrays[i]), err, errlen))
+            return -1;
+    return get_head(r, "end", sizeof(uint64_t), err, errlen);
+}
+
+/* Reads n bytes of a section in chunks into buf (at most SAVE_CHUNK), each
+ * passed to fn with its offset in the section. */
+typedef void (*chunk_fn)(sched_t *s, const uint8_t *data, size_t offset, size_t len, void *ctx);
+static int get_chunked(loader_t *r, sched_t *s, const char *tag, size_t bytes, uint8_t *buf,
+                       chunk_fn fn, void *ctx, char *err, size_t errlen)
+{
+    if (get_head(r, tag, bytes, err, errlen))
+        return -1;
+    for (size_t off = 0; off < bytes; off += SAVE_CHUNK) {
+        size_t k = bytes - off < SAVE_CHUNK ? bytes - off : SAVE_CHUNK;
+        if (get(r, buf, k, tag, err, errlen))
+            return -1;
+        if (fn)
+            fn(s, buf, off, k, ctx);
+    }
+    return 0;
+}
+
+/* Version 5 kept every layer: its member bits (layer l at bit l * npix + p),
+ * cell states (l * ranges + r), decided flags, thresholds and range counts
+ * per layer. Only the window's layers are kept from them. */
+static void v5_member(sched_t *s, const uint8_t *d, size_t off, size_t len, void *ctx)
+{
+    (void)ctx;
+    const size_t lo = off * 8, hi = (off + len) * 8; /* the chunk's bits */
+    for (uint32_t l = s->complete; l < s->decided_n; l++) {
+        const size_t b0 = (size_t)l * s->npix, b1 = b0 + s->npix; /* the layer's bits */
+        for (size_t bit = b0 > lo ? b0 : lo; bit < (b1 < hi ? b1 : hi); bit++)
+            if ((d[(bit >> 3) - off] >> (bit & 7)) & 1)
+                set_member(s, l, (uint32_t)(bit - b0));
+    }
+}
+static void v5_state(sched_t *s, const uint8_t *d, size_t off, size_t len, void *ctx)
+{
+    (void)ctx;
+    for (uint32_t l = s->complete; l < s->decided_n; l++) {
+        const size_t c0 = (size_t)l * s->ranges, c1 = c0 + s->ranges;
+        for (size_t c = c0 > off ? c0 : off; c < (c1 < off + len ? c1 : off + len); c++)
+            s->state[l & 1][c - c0] = d[c - off];
+    }
+}
+/* A section that must be all zeros (version 5's batch counts in a mode
+ * that keeps none). */
+static void v5_zeros(sched_t *s, const uint8_t *d, size_t off, size_t len, void *ctx)
+{
+    (void)s;
+    (void)off;
+    for (size_t i = 0; i < len; i++)
+        *(int *)ctx |= d[i] != 0;
+}
+/* Per-layer arrays: the window's layers' elements, in slot order. */
+typedef struct v5_layer_ctx {
+    size_t elem;
+    uint8_t *out; /* 2 elements */
+} v5_layer_ctx_t;
+static void v5_per_layer(sched_t *s, const uint8_t *d, size_t off, size_t len, void *ctx)
+{
+    v5_layer_ctx_t *c = ctx;
+    for (uint32_t l = s->complete; l < s->decided_n; l++)
+        for (size_t b = 0; b < c->elem; b++) {
+            size_t at = (size_t)l * c->elem + b;
+            if (at >= off && at < off + len)
+                c->out[(l & 1) * c->elem + b] = d[at - off];
+        }
+}
+/* The decided flags: how many, as a prefix (checked for being one). */
+typedef struct v5_decided_ctx {
+    uint32_t prefix;
+    int gap; /* a decided layer after an undecided one, or a flag not 0/1 */
+} v5_decided_ctx_t;
+static void v5_decided(sched_t *s, const uint8_t *d, size_t off, size_t len, void *ctx)
+{
+    (void)s;
+    v5_decided_ctx_t *c = ctx;
+    for (size_t i = 0; i < len; i++) {
+        if (d[i] > 1 || (d[i] == 1 && c->prefix != off + i))
+            c->gap = 1;
+        else if (d[i] == 1)
+            c->prefix++;
+    }
+}
+
+/* Version 5 into this version's state. The snapshot and the statistics
+ * after each layer in flight (by parity) become the prev_* values: a pixel
+ * that merged the layer `complete` by then read the snapshot as of layer
+ * complete - 1 in version 5; here it reads prev_*, which must then hold
+ * that, which is the value after the layer complete - 1... as it left the
+ * pixel: its flight value if it took part, the older snapshot if not. */
+static int load_v5(sched_t *s, loader_t *r, char *err, size_t errlen)
+{
+    const size_t n = s->npix, L = s->layers, R = s->ranges;
+    const int target = s->cfg.target_error > 0, counts = keeps_counts(s), cost = weighs_cost(s);
+    const size_t tn = target ? n : 0, cn = counts ? n : 0, kn = cost ? n : 0;
+    uint64_t ct[CT_COUNT_V5];
+    int rc = -1;
+    uint8_t *buf = malloc(SAVE_CHUNK);
+    film_pixel_v5_t *old = malloc(SAVE_CHUNK);
+    double *dv[3] = {calloc(n, sizeof(double)), calloc(n, sizeof(double)),
+                     calloc(n, sizeof(double))};
+    double *rv[3] = {calloc(tn + 1, sizeof(double)), calloc(tn + 1, sizeof(double)),
+                     calloc(tn + 1, sizeof(double))};
+    uint32_t *nv[3] = {calloc(cn + 1, sizeof(uint32_t)), calloc(cn + 1, sizeof(uint32_t)),
+                       calloc(cn + 1, sizeof(uint32_t))};
+    float *cv[3] = {calloc(kn + 1, sizeof(float)), calloc(kn + 1, sizeof(float)),
+                    calloc(kn + 1, sizeof(float))};
+    uint64_t *usamp = calloc(kn + 1, sizeof(uint64_t));
+    uint32_t rdone[2] = {0, 0};
+    v5_decided_ctx_t dc = {0, 0};
+    v5_layer_ctx_t thc = {sizeof(double), (uint8_t *)s->threshold},
+                   rdc = {sizeof(uint32_t), (uint8_t *)rdone};
+    if (!buf || !old || !dv[0] || !dv[1] || !dv[2] || !rv[0] || !rv[1] || !rv[2] || !nv[0] ||
+        !nv[1] || !nv[2] || !cv[0] || !cv[1] || !cv[2] || !usamp) {
+        snprintf(err, errlen, "out of memory");
+        goto out;
+    }
+    if (get_section(r, "counters", ct, sizeof ct, err, errlen) ||
+        apply_counters(s, ct, err, errlen) || get_head(r, "film", n * sizeof *old, err, errlen))
+        goto out;
+    const size_t per = SAVE_CHUNK / sizeof *old;
+    for (size_t p0 = 0; p0 < n; p0 += per) {
+        size_t k = n - p0 < per ? n - p0 : per;
+        if (get(r, old, k * sizeof *old, "film", err, errlen))
+            goto out;
+        for (size_t i = 0; i < k; i++) {
+            film_pixel_t *fp = &s->film->pixels[p0 + i];
+            if (old[i].count > s->cfg.spp || old[i].nonfinite > s->cfg.spp) {
+                snprintf(err, errlen, "checkpoint: film pixel %zu: %llu + %llu samples", p0 + i,
+                         (unsigned long long)old[i].count, (unsigned long long)old[i].nonfinite);
+                goto out;
+            }
+            memcpy(fp->sum, old[i].sum, sizeof fp->sum);
+            memcpy(fp->comp, old[i].comp, sizeof fp->comp);
+            fp->lum_m2 = old[i].lum_m2;
+            fp->count = (uint32_t)old[i].count;
+            fp->nonfinite = (uint32_t)old[i].nonfinite;
+            if (s->pvar_cur)
+                s->pvar_cur[p0 + i] = old[i].pvar;
+        }
+    }
+    /* Version 5's sections come member, decided, ...: the window must be
+     * known before the member bits. It is: decided = complete + 2 (at most
+     * all layers), or none before the first task (checked below). */
+    const size_t member_total = (L * n + 7) / 8;
+    s->decided_n = (uint32_t)(s->complete + 2 < L ? s->complete + 2 : L);
+    if (get_chunked(r, s, "member", member_total, buf, v5_member, NULL, err, errlen) ||
+        get_chunked(r, s, "decided", L, buf, v5_decided, &dc, err, errlen))
+        goto out;
+    if (dc.gap || (dc.prefix != s->decided_n && !(dc.prefix == 0 && s->complete == 0))) {
+        snprintf(err, errlen, "checkpoint: %u layers decided, expected %u with %u complete",
+                 dc.prefix, s->decided_n, s->complete);
+        goto out;
+    }
+    if (dc.prefix == 0) { /* saved before its first task: nothing decided */
+        s->decided_n = 0;
+        memset(s->member[0], 0, member_bytes(s));
+        memset(s->member[1], 0, member_bytes(s));
+    }
+    if (get_chunked(r, s, "thresh", L * sizeof(double), buf, v5_per_layer, &thc, err, errlen) ||
+        get_chunked(r, s, "state", L * R, buf, v5_state, NULL, err, errlen) ||
+        get_chunked(r, s, "rdone", L * sizeof(uint32_t), buf, v5_per_layer, &rdc, err, errlen))
+        goto out;
+    s->range_done[0] = rdone[0];
+    s->range_done[1] = rdone[1];
+    if (get_section(r, "var", dv[0], n * sizeof(double), err, errlen) ||
+        get_section(r, "pvar0", dv[1], n * sizeof(double), err, errlen) ||
+        get_section(r, "pvar1", dv[2], n * sizeof(double), err, errlen) ||
+        get_section(r, "rvar", rv[0], tn * sizeof(double), err, errlen) ||
+        get_section(r, "rvar0", rv[1], tn * sizeof(double), err, errlen) ||
+        get_section(r, "rvar1", rv[2], tn * sizeof(double), err, errlen) ||
+        get_section(r, "nbat", nv[0], cn * sizeof(uint32_t), err, errlen) ||
+        get_section(r, "nbat0", nv[1], cn * sizeof(uint32_t), err, errlen) ||
+        get_section(r, "nbat1", nv[2], cn * sizeof(uint32_t), err, errlen))
+        goto out;
+    /* batches, then its mean and M2, which nothing read (dropped) */
+    int stray_batches = 0;
+    if (s->batches ? get_section(r, "batches", s->batches, n * sizeof(uint32_t), err, errlen)
+                   : get_chunked(r, s, "batches", n * sizeof(uint32_t), buf, v5_zeros,
+                                 &stray_batches, err, errlen))
+        goto out;
+    if (stray_batches) {
+        snprintf(err, errlen, "checkpoint: batch counts in a mode that keeps none");
+        goto out;
+    }
+    if (get_chunked(r, s, "bmean", n * sizeof(double), buf, NULL, NULL, err, errlen) ||
+        get_chunked(r, s, "bm2", n * sizeof(double), buf, NULL, NULL, err, errlen) ||
+        get_section(r, "ubat", s->ubatches, cn * sizeof(uint32_t), err, errlen) ||
+        get_section(r, "umean", s->umean, cn * sizeof(double), err, errlen) ||
+        get_section(r, "um2", s->um2, cn * sizeof(double), err, errlen) ||
+        get_section(r, "urays", s->urays, kn * sizeof(uint64_t), err, errlen) ||
+        get_section(r, "usamp", usamp, kn * sizeof(uint64_t), err, errlen) ||
+        get_section(r, "cost", cv[0], kn * sizeof(float), err, errlen) ||
+        get_section(r, "cost0", cv[1], kn * sizeof(float), err, errlen) ||
+        get_section(r, "cost1", cv[2], kn * sizeof(float), err, errlen) ||
+        get_head(r, "end", sizeof(uint64_t), err, errlen))
+        goto out;
+    for (size_t p = 0; p < kn; p++) {
+        if (usamp[p] > s->cfg.spp) {
+            snprintf(err, errlen, "checkpoint: pixel %zu: %llu uniform-layer samples", p,
+                     (unsigned long long)usamp[p]);
+            goto out;
+        }
+        s->usamples[p] = (uint32_t)usamp[p];
+    }
+    /* prev_*: the statistics as of layer complete - 1 where it merged it */
+    const uint32_t c = s->complete;
+    for (uint32_t p = 0; p < n && s->decided_n > c; p++) {
+        const int k = is_member(s, c, p) && s->state[c & 1][p / s->range_pixels] == ST_DONE
+                          ? 1 + (int)(c & 1)
+                          : 0;
+        if (s->prev_metric)
+            s->prev_metric[p] = dv[k][p];
+        if (s->prev_rvar)
+            s->prev_rvar[p] = rv[k][p];
+        if (s->prev_nb)
+            s->prev_nb[p] = nv[k][p];
+        if (s->prev_cost)
+            s->prev_cost[p] = cv[k][p];
+    }
+    rc = 0;
+out:
+    free(buf);
+    free(old);
+    for (int k = 0; k < 3; k++) {
+        free(dv[k]);
+        free(rv[k]);
+        free(nv[k]);
+        free(cv[k]);
+    }
+    free(usamp);
+    return rc;
 }
 
 static const char *state_name(uint8_t st)
@@ -1483,69 +1917,58 @@ static unsigned popcount8(uint8_t b)
     return n;
 }
 
-/* Cell states, decided layers and their counts: each must follow from the
- * others exactly as the scheduler's own transitions leave them. */
-static int check_cells(const sched_t *s, uint32_t *decided_out, char *err, size_t errlen)
+/* The window: each slot's cells, counts, members and threshold must be what
+ * the scheduler's own transitions leave, and a slot with no layer empty. */
+static int check_window(const sched_t *s, char *err, size_t errlen)
 {
-    const uint32_t L = s->layers, R = s->ranges;
-    const size_t cells = (size_t)L * R;
-    /* saved outstanding tasks come back ready, so never ST_OUT */
-    for (size_t c = 0; c < cells; c++)
-        if (s->state[c] != ST_WAITING && s->state[c] != ST_READY && s->state[c] != ST_DONE) {
-            snprintf(
-                err, errlen,
-                "checkpoint: cell state %u at layer %zu, range %zu is not waiting, ready or done",
-                s->state[c], c / R, c % R);
+    const uint32_t R = s->ranges;
+    const size_t mb = member_bytes(s);
+    uint32_t layer_of[2];
+    window_layers(s, layer_of);
+    for (int k = 0; k < 2; k++) {
+        const uint32_t l = layer_of[k];
+        if (l == UINT32_MAX) {
+            int stray = s->range_done[k] != 0 || s->threshold[k] != 0;
+            for (size_t i = 0; i < mb && !stray; i++)
+                stray = s->member[k][i] != 0;
+            for (uint32_t r = 0; r < R && !stray; r++)
+                stray = s->state[k][r] != ST_WAITING;
+            if (stray) {
+                snprintf(err, errlen,
+                         "checkpoint: window slot %d holds no layer, yet member bits, cell states "
+                         "or counts are set",
+                         k);
+                return -1;
+            }
+            continue;
+        }
+        if (s->npix % 8 && (s->member[k][mb - 1] >> (s->npix % 8)) != 0) {
+            snprintf(err, errlen, "checkpoint: member bits past the last pixel (layer %u)", l);
             return -1;
         }
-    /* decided layers are a prefix: the first two, then two past the complete ones */
-    uint32_t D = 0;
-    while (D < L && s->decided[D] == 1)
-        D++;
-    for (uint32_t l = D; l < L; l++)
-        if (s->decided[l] != 0) {
-            snprintf(err, errlen,
-                     "checkpoint: decided flag %u at layer %u after undecided layer %u",
-                     s->decided[l], l, D);
+        double t = s->threshold[k];
+        if (applies_skip_rule(s, l) ? isnan(t) : t != 0) {
+            snprintf(err, errlen, "checkpoint: threshold %g of layer %u", t, l);
             return -1;
         }
-    uint32_t complete = L;
-    for (uint32_t l = 0; l < L; l++) {
         uint32_t done = 0;
-        for (uint32_t r = 0; r < R; r++)
-            done += s->state[(size_t)l * R + r] == ST_DONE;
-        if (done != s->range_done[l]) {
-            snprintf(err, errlen,
-                     "checkpoint: layer %u has range_done %u but %u cells in state done", l,
-                     s->range_done[l], done);
-            return -1;
-        }
-        if (done < R && complete == L)
-            complete = l;
-    }
-    if (s->complete != complete) {
-        snprintf(err, errlen, "checkpoint: %u layers complete, but the cell states say %u",
-                 s->complete, complete);
-        return -1;
-    }
-    uint64_t want_d = D == 0 ? 0 : (uint64_t)complete + 2 < L ? (uint64_t)complete + 2 : L;
-    if (D != want_d) {
-        snprintf(err, errlen, "checkpoint: %u layers decided, expected %llu with %u complete", D,
-                 (unsigned long long)want_d, complete);
-        return -1;
-    }
-    /* rule 1: a cell runs once its layer is decided and its range's previous
-     * layer is done; then at once (done) if the layer has none of its pixels */
-    for (uint32_t l = 0; l < L; l++)
         for (uint32_t r = 0; r < R; r++) {
-            uint8_t st = s->state[(size_t)l * R + r];
-            int may = s->decided[l] && (l == 0 || s->state[(size_t)(l - 1) * R + r] == ST_DONE);
+            uint8_t st = s->state[k][r];
+            if (st != ST_WAITING && st != ST_READY && st != ST_DONE) {
+                snprintf(err, errlen,
+                         "checkpoint: cell state %u at layer %u, range %u is not waiting, ready or "
+                         "done",
+                         st, l, r);
+                return -1;
+            }
+            /* rule 1: a cell runs once its range's previous layer is done;
+             * then at once (done) if the layer has none of its pixels */
+            int may = l == 0 || cell_state(s, l - 1, r) == ST_DONE;
             if ((st != ST_WAITING) != may) {
                 snprintf(err, errlen,
                          "checkpoint: cell state %s at layer %u, range %u contradicts rule 1 "
-                         "(layer %s, previous layer's cell %s)",
-                         state_name(st), l, r, s->decided[l] ? "decided" : "undecided",
-                         l ? state_name(s->state[(size_t)(l - 1) * R + r]) : "none");
+                         "(previous layer's cell %s)",
+                         state_name(st), l, r, l ? state_name(cell_state(s, l - 1, r)) : "none");
                 return -1;
             }
             if (st == ST_READY && range_members(s, l, r) == 0) {
@@ -1554,109 +1977,37 @@ static int check_cells(const sched_t *s, uint32_t *decided_out, char *err, size_
                          l, r);
                 return -1;
             }
+            done += st == ST_DONE;
         }
-    *decided_out = D;
-    return 0;
-}
-
-/* Layer membership, thresholds and the counters that count them. */
-static int check_layers(const sched_t *s, uint32_t D, char *err, size_t errlen)
-{
-    for (uint32_t l = 0; l < s->layers; l++) {
-        double t = s->threshold[l];
-        if (l < D && applies_skip_rule(s, l) ? isnan(t) : t != 0) {
-            snprintf(err, errlen, "checkpoint: threshold %g of layer %u (%s)", t, l,
-                     l < D ? "decided" : "not decided yet");
+        if (done != s->range_done[k] || done == R) {
+            snprintf(err, errlen,
+                     "checkpoint: layer %u has range_done %u and %u cells done of %u, yet is not "
+                     "complete",
+                     l, s->range_done[k], done, R);
             return -1;
         }
     }
-    /* the member bits of decided layers, and none beyond */
-    const size_t used = (size_t)D * s->npix, bytes = member_bytes(s), full = used / 8;
-    uint64_t pop = 0;
-    int stray = 0;
-    for (size_t i = 0; i < full; i++)
-        pop += popcount8(s->member[i]);
-    if (full < bytes) {
-        uint8_t low = (uint8_t)((1u << (used & 7)) - 1);
-        pop += popcount8(s->member[full] & low);
-        stray = (s->member[full] & (uint8_t)~low) != 0;
-        for (size_t i = full + 1; i < bytes && !stray; i++)
-            stray = s->member[i] != 0;
-    }
-    if (stray) {
-        snprintf(err, errlen, "checkpoint: member bits set in layers not decided yet");
-        return -1;
-    }
-    if (s->pixel_layers != pop || s->skipped != used - pop) {
-        snprintf(err, errlen,
-                 "checkpoint: pixel_layers %llu and skipped %llu, but the member bitmap holds %llu "
-                 "of %zu",
-                 (unsigned long long)s->pixel_layers, (unsigned long long)s->skipped,
-                 (unsigned long long)pop, used);
-        return -1;
-    }
-    if (s->converged > s->npix ||
-        (s->cfg.target_error == 0 && (s->converged || s->stopped_on_target))) {
+    uint64_t window_members = 0;
+    for (int k = 0; k < 2; k++)
+        for (size_t i = 0; layer_of[k] != UINT32_MAX && i < mb; i++)
+            window_members += popcount8(s->member[k][i]);
+    if (s->pixel_layers + s->skipped != (uint64_t)s->decided_n * s->npix ||
+        s->pixel_layers < window_members) {
         snprintf(
-            err, errlen, "checkpoint: converged %llu / stopped %d (of %u pixels, target error %g)",
-            (unsigned long long)s->converged, s->stopped_on_target, s->npix, s->cfg.target_error);
+            err, errlen,
+            "checkpoint: pixel_layers %llu and skipped %llu for %u decided layers of %u pixels",
+            (unsigned long long)s->pixel_layers, (unsigned long long)s->skipped, s->decided_n,
+            s->npix);
+        return -1;
+    }
+    if (s->cfg.target_error == 0 && (s->converged || s->stopped_on_target)) {
+        snprintf(err, errlen, "checkpoint: converged %llu / stopped %d without a target error",
+                 (unsigned long long)s->converged, s->stopped_on_target);
         return -1;
     }
     return 0;
 }
 
-/* What the done cells of layers < D merged: per pixel, the layers it took
- * part in and their samples. */
-static void count_merged(const sched_t *s, uint32_t D, uint32_t *layers, uint64_t *samples)
-{
-    const uint32_t N = s->npix, R = s->ranges;
-    for (uint32_t l = 0; l < D; l++) {
-        uint32_t take = layer_samples(s, l);
-        for (uint32_t r = 0; r < R; r++) {
-            if (s->state[(size_t)l * R + r] != ST_DONE)
-                continue;
-            uint32_t p0 = r * s->range_pixels,
-                     p1 = p0 + s->range_pixels < N ? p0 + s->range_pixels : N;
-            for (uint32_t p = p0; p < p1; p++)
-                if (is_member(s, l, p)) {
-                    layers[p]++;
-                    samples[p] += take;
-                }
-        }
-    }
-}
-
-/* Film pixel p: finite sums, and the layers and samples its cells merged. */
-static int check_film_pixel(const sched_t *s, uint32_t p, uint32_t layers, uint64_t samples,
-                            char *err, size_t errlen)
-{
-    const film_pixel_t *fp = &s->film->pixels[p];
-    static const char *const names[8] = {"sum[0]",  "sum[1]",  "sum[2]", "comp[0]",
-                                         "comp[1]", "comp[2]", "lum_m2", "pvar"};
-    const double v[8] = {fp->sum[0],  fp->sum[1],  fp->sum[2], fp->comp[0],
-                         fp->comp[1], fp->comp[2], fp->lum_m2, fp->pvar};
-    for (int k = 0; k < 8; k++)
-        if (!isfinite(v[k])) {
-            snprintf(err, errlen, "checkpoint: film pixel %u: %s is not finite (%g)", p, names[k],
-                     v[k]);
-            return -1;
-        }
-    if (fp->layers != layers) {
-        snprintf(err, errlen, "checkpoint: film pixel %u merged %u layers, the cell states say %u",
-                 p, fp->layers, layers);
-        return -1;
-    }
-    if (fp->count > samples || fp->nonfinite != samples - fp->count) {
-        snprintf(err, errlen,
-                 "checkpoint: film pixel %u holds %llu + %llu nonfinite samples, its layers %llu",
-                 p, (unsigned long long)fp->count, (unsigned long long)fp->nonfinite,
-                 (unsigned long long)samples);
-        return -1;
-    }
-    return 0;
-}
-
-/* Pixel p's adaptive metrics, converged flags and batch statistics. */
 /* What Welford over at most `most` layer means in range can make. */
 static int welford_plausible(uint32_t n, double mean, double m2, uint32_t most)
 {
@@ -1664,101 +2015,92 @@ static int welford_plausible(uint32_t n, double mean, double m2, uint32_t most)
            (n > 0 || mean == 0) && (n > 1 || m2 == 0);
 }
 
-static int check_pixel_stats(const sched_t *s, uint32_t p, uint32_t layers, char *err,
-                             size_t errlen)
+/* Pixel p: finite film values, samples a whole number of layers (only the
+ * last may be short), statistics that results in range can make. */
+static int check_pixel(const sched_t *s, uint32_t p, char *err, size_t errlen)
 {
-    const double m[3] = {s->var_snapshot[p], s->pvar_flight[0][p], s->pvar_flight[1][p]};
-    for (int k = 0; k < 3; k++)
-        if (isnan(m[k]) || m[k] == -INFINITY || (pools_neighbours(s) && m[k] < 0)) {
-            snprintf(err, errlen, "checkpoint: pixel %u: adaptive metric %g", p, m[k]);
+    const film_pixel_t *fp = &s->film->pixels[p];
+    const uint32_t G = s->cfg.granularity;
+    /* at most the complete layers and those of the window it merged */
+    uint64_t merged = s->complete;
+    for (uint32_t l = s->complete; l < s->decided_n; l++)
+        merged += is_member(s, l, p) && s->state[l & 1][p / s->range_pixels] == ST_DONE;
+    const uint64_t taken = (uint64_t)fp->count + fp->nonfinite,
+                   most = merged * G < s->cfg.spp ? merged * G : s->cfg.spp;
+    static const char *const names[7] = {"sum[0]",  "sum[1]",  "sum[2]", "comp[0]",
+                                         "comp[1]", "comp[2]", "lum_m2"};
+    const double v[7] = {fp->sum[0],  fp->sum[1],  fp->sum[2], fp->comp[0],
+                         fp->comp[1], fp->comp[2], fp->lum_m2};
+    for (int k = 0; k < 7; k++)
+        if (!isfinite(v[k])) {
+            snprintf(err, errlen, "checkpoint: film pixel %u: %s is not finite (%g)", p, names[k],
+                     v[k]);
             return -1;
         }
-    if (keeps_counts(s)) {
-        /* a pixel has no more layer means than layers it took; a relative
-         * variance is >= 0 (infinite before a second layer; the target's,
-         * before SCHED_TARGET_MIN_LAYERS) */
-        const uint32_t finite_from = s->cfg.target_error > 0 ? SCHED_TARGET_MIN_LAYERS : 2;
-        const double *rvs[3] = {s->rvar_snapshot, s->rvar_flight[0], s->rvar_flight[1]};
-        const uint32_t nb[3] = {s->nb_snapshot[p], s->nb_flight[0][p], s->nb_flight[1][p]};
-        for (int k = 0; k < 3; k++) {
-            const double rv = rvs[k] ? rvs[k][p] : 0.0; /* without a target: none kept */
-            if (!(rv >= 0) || nb[k] > layers || (nb[k] >= finite_from && !isfinite(rv))) {
-                snprintf(err, errlen,
-                         "checkpoint: pixel %u: layer-mean statistics (relative variance %g of "
-                         "%u layer means, %u layers taken)",
-                         p, rv, nb[k], layers);
-                return -1;
-            }
+    if (taken > most || (taken % G != 0 && taken % G != s->cfg.spp % G)) {
+        snprintf(err, errlen,
+                 "checkpoint: film pixel %u holds %u + %u nonfinite samples: not whole layers of "
+                 "%u, or more than the %llu layers it can have merged take",
+                 p, fp->count, fp->nonfinite, G, (unsigned long long)merged);
+        return -1;
+    }
+    const uint32_t layers = (uint32_t)((taken + G - 1) / G);
+    if (s->pvar_cur && !(s->pvar_cur[p] >= 0 &&
+                         s->pvar_cur[p] <= (double)G * SCHED_MAX_RADIANCE * SCHED_MAX_RADIANCE)) {
+        snprintf(err, errlen, "checkpoint: pixel %u: eq. 4.1 %g", p, s->pvar_cur[p]);
+        return -1;
+    }
+    if (s->prev_metric) {
+        double m = s->prev_metric[p];
+        if (isnan(m) || m == -INFINITY || (pools_neighbours(s) && m < 0)) {
+            snprintf(err, errlen, "checkpoint: pixel %u: adaptive metric %g", p, m);
+            return -1;
         }
     }
-    /* what results in range can make: a mean of layer luminances in
-     * [0, SCHED_MAX_RADIANCE] (2x: rounding), a sum of squares >= 0,
-     * both 0 before the first batch and the sum still 0 after it.
-     * Anything else can turn the metrics NaN or infinite on the next
-     * merge (Welford's update assumes them) */
-    const int batch = s->cfg.adaptive == SCHED_ADAPTIVE_RELERR ||
-                      s->cfg.adaptive == SCHED_ADAPTIVE_RELMSE || s->cfg.target_error > 0;
-    const uint32_t nb = s->batches[p];
-    if (batch ? !welford_plausible(nb, s->bmean[p], s->bm2[p], layers)
-              : nb != 0 || s->bmean[p] != 0 || s->bm2[p] != 0) {
-        snprintf(err, errlen,
-                 "checkpoint: pixel %u: batch statistics (%u batches of %u layers, mean %g, m2 %g)",
-                 p, s->batches[p], layers, s->bmean[p], s->bm2[p]);
+    if (s->prev_rvar && !(s->prev_rvar[p] >= 0)) {
+        snprintf(err, errlen, "checkpoint: pixel %u: relative variance %g", p, s->prev_rvar[p]);
         return -1;
     }
-    if (s->ubatches && !welford_plausible(s->ubatches[p], s->umean[p], s->um2[p], nb)) {
-        snprintf(err, errlen,
-                 "checkpoint: pixel %u: uniform-layer statistics (%u batches of %u, mean %g, m2 "
-                 "%g)",
-                 p, s->ubatches[p], nb, s->umean[p], s->um2[p]);
-        return -1;
+    if (s->batches) {
+        /* what results in range can make: a mean of layer luminances in
+         * [0, SCHED_MAX_RADIANCE] (2x: rounding), a sum of squares >= 0,
+         * both 0 before the first batch and the sum still 0 after it.
+         * Anything else can turn the metrics NaN or infinite on the next
+         * merge (Welford's update assumes them) */
+        const uint32_t nb = s->batches[p];
+        if (nb > layers || s->prev_nb[p] > nb ||
+            !welford_plausible(s->ubatches[p], s->umean[p], s->um2[p], nb)) {
+            snprintf(err, errlen,
+                     "checkpoint: pixel %u: batch statistics (%u batches of %u layers, %u before "
+                     "the last; %u uniform, mean %g, m2 %g)",
+                     p, nb, layers, s->prev_nb[p], s->ubatches[p], s->umean[p], s->um2[p]);
+            return -1;
+        }
+    }
+    if (s->urays) {
+        const uint64_t rays = s->urays[p], n = s->usamples[p];
+        if (n > taken || rays < n || (n == 0) != (rays == 0)) {
+            snprintf(err, errlen,
+                     "checkpoint: pixel %u: %llu rays for %llu uniform-layer samples of %llu taken",
+                     p, (unsigned long long)rays, (unsigned long long)n, (unsigned long long)taken);
+            return -1;
+        }
+        const float c = s->prev_cost[p];
+        if (!(c == 0 || (c >= 1 && isfinite(c)))) {
+            snprintf(err, errlen, "checkpoint: pixel %u: %g rays per sample", p, (double)c);
+            return -1;
+        }
     }
     return 0;
 }
 
-/* relmse's cost of pixel p: rays of at most the samples merged, at least
- * one a sample, and rays per sample of 0 (none yet) or at least 1. */
-static int check_pixel_cost(const sched_t *s, uint32_t p, uint64_t samples, char *err,
-                            size_t errlen)
+static int check_pixels(const sched_t *s, char *err, size_t errlen)
 {
-    if (!s->urays)
-        return 0;
-    const uint64_t rays = s->urays[p], taken = s->usamples[p];
-    if (taken > samples || rays < taken || (taken == 0) != (rays == 0)) {
-        snprintf(err, errlen,
-                 "checkpoint: pixel %u: %llu rays for %llu uniform-layer samples of %llu merged", p,
-                 (unsigned long long)rays, (unsigned long long)taken, (unsigned long long)samples);
-        return -1;
-    }
-    const float c[3] = {s->cost_snapshot[p], s->cost_flight[0][p], s->cost_flight[1][p]};
-    for (int k = 0; k < 3; k++)
-        if (!(c[k] == 0 || (c[k] >= 1 && isfinite(c[k])))) {
-            snprintf(err, errlen, "checkpoint: pixel %u: %g rays per sample", p, (double)c[k]);
-            return -1;
-        }
-    return 0;
-}
-
-/* The film against the cells that were merged into it, and the per-pixel
- * statistics. */
-static int check_pixels(const sched_t *s, uint32_t D, char *err, size_t errlen)
-{
-    const uint32_t N = s->npix;
-    uint32_t *layers = calloc(N, sizeof *layers);
-    uint64_t *samples = calloc(N, sizeof *samples);
-    int rc = -1;
-    if (!layers || !samples) {
-        snprintf(err, errlen, "out of memory");
-        goto out;
-    }
-    count_merged(s, D, layers, samples);
     uint64_t total = 0, nonfinite = 0;
-    for (uint32_t p = 0; p < N; p++) {
-        if (check_film_pixel(s, p, layers[p], samples[p], err, errlen) < 0 ||
-            check_pixel_stats(s, p, layers[p], err, errlen) < 0 ||
-            check_pixel_cost(s, p, samples[p], err, errlen) < 0)
-            goto out;
-        total += samples[p];
+    for (uint32_t p = 0; p < s->npix; p++) {
+        if (check_pixel(s, p, err, errlen) < 0)
+            return -1;
+        total += (uint64_t)s->film->pixels[p].count + s->film->pixels[p].nonfinite;
         nonfinite += s->film->pixels[p].nonfinite;
     }
     if (total != s->samples_done || nonfinite != s->nonfinite) {
@@ -1767,13 +2109,9 @@ static int check_pixels(const sched_t *s, uint32_t D, char *err, size_t errlen)
             "checkpoint: samples_done %llu and nonfinite %llu, but the film holds %llu and %llu",
             (unsigned long long)s->samples_done, (unsigned long long)s->nonfinite,
             (unsigned long long)total, (unsigned long long)nonfinite);
-        goto out;
+        return -1;
     }
-    rc = 0;
-out:
-    free(layers);
-    free(samples);
-    return rc;
+    return 0;
 }
 
 sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, char *err,
@@ -1784,9 +2122,18 @@ sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, ch
         return NULL;
     loader_t r = {read, ctx, {0, 0, {0}, 0}};
     uint64_t sum_read = 0, sum = 0;
-    uint32_t decided = 0;
-    if (load_stream(s, &r, &sum_read, &sum, err, errlen) || check_cells(s, &decided, err, errlen) ||
-        check_layers(s, decided, err, errlen) || check_pixels(s, decided, err, errlen)) {
+    uint32_t version = 0;
+    if (load_header(s, &r, &version, err, errlen) ||
+        (version == SCHED_SAVE_VERSION ? load_v6(s, &r, err, errlen)
+                                       : load_v5(s, &r, err, errlen))) {
+        sched_destroy(&s);
+        return NULL;
+    }
+    /* The checksum is compared after the consistency checks: they name a
+     * problem better. */
+    sum = ck_final(&r.ck);
+    if (get(&r, &sum_read, sizeof sum_read, "checksum", err, errlen) ||
+        check_window(s, err, errlen) || check_pixels(s, err, errlen)) {
         sched_destroy(&s);
         return NULL;
     }
@@ -1795,18 +2142,13 @@ sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, ch
         sched_destroy(&s);
         return NULL;
     }
-    /* Each pixel's count of decided layers it takes part in: derived, not
-     * saved (first_sample_of). */
-    for (uint32_t l = 0; l < s->layers && s->decided[l]; l++)
-        for (uint32_t p = 0; p < s->npix; p++)
-            s->taken[p] += (uint32_t)is_member(s, l, p);
     /* The ready queue in id order: results merge per pixel in layer order
      * and decisions read snapshots only, so the order tasks are issued in
      * changes nothing. */
-    size_t cells = (size_t)s->layers * s->ranges;
     s->q_head = s->q_tail = 0;
-    for (size_t c = 0; c < cells; c++)
-        if (s->state[c] == ST_READY)
-            s->queue[s->q_tail++] = (uint64_t)c + 1;
+    for (uint32_t l = s->complete; l < s->decided_n; l++)
+        for (uint32_t rr = 0; rr < s->ranges; rr++)
+            if (s->state[l & 1][rr] == ST_READY)
+                s->queue[s->q_tail++] = task_id(s, l, rr);
     return s;
 }

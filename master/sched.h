@@ -236,11 +236,19 @@ int sched_stopped_on_target(const sched_t *s);
 /* The film: per-pixel sums merged so far. */
 const film_t *sched_film(const sched_t *s);
 
-/* Whether pixel p takes part in layer l (decided layers only: l <= the
- * last decided layer), and the threshold used for layer l (0 for uniform
- * layers). For tests and the heat map. */
+/* Whether pixel p takes part in layer l, and the threshold used for layer
+ * l (0 for uniform layers): for the two layers in flight only (the first
+ * incomplete layer and the next, once decided), -1 and NaN for the others,
+ * which the scheduler no longer keeps (complete) or has not decided yet.
+ * For tests. */
 int sched_pixel_in_layer(const sched_t *s, uint32_t layer, uint32_t pixel);
 double sched_threshold(const sched_t *s, uint32_t layer);
+
+/* The scheduler's heap, array by array: fn(ctx, name, bytes) for each one
+ * this job keeps (film, per-pixel statistics, the window of layers in
+ * flight and their task records...); fn may be NULL. Returns the total. */
+typedef void (*sched_memory_fn)(void *ctx, const char *name, size_t bytes);
+size_t sched_memory(const sched_t *s, sched_memory_fn fn, void *ctx);
 
 /* Checkpoints. sched_save streams the scheduler's whole state (the film
  * included) through write(ctx, data, len). It allocates nothing and touches
@@ -256,8 +264,12 @@ double sched_threshold(const sched_t *s, uint32_t layer);
 /* 2: target-error window statistics; 3: layer-mean counts for relerr and
  * relmse, whose saved metric is then a layer mean's relative variance;
  * 4: the target error's too, and its variances from uniform layers;
- * 5: relmse's rays and samples of the uniform layers, and rays per sample */
-#define SCHED_SAVE_VERSION 5
+ * 5: relmse's rays and samples of the uniform layers, and rays per sample;
+ * 6: only the two layers in flight (membership, cells), a 64-byte film
+ * pixel, and each pixel's statistics before its merge into the later layer
+ * in flight in place of version 5's snapshot and per-layer copies. This
+ * build reads version 5 too (sched_load converts it); writes 6 only. */
+#define SCHED_SAVE_VERSION 6
 typedef int (*sched_write_fn)(void *ctx, const void *data, size_t len);
 /* Reads exactly len bytes; returns 0, or non-zero on a short read / error. */
 typedef int (*sched_read_fn)(void *ctx, void *data, size_t len);

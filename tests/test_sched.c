@@ -233,8 +233,12 @@ END_TEST
 START_TEST(test_take_replays_a_journal)
 {
     for (int a = 0; a < 5; a++) {
-        sched_config_t c = {.width = 37, .height = 23, .spp = 96, .granularity = 8,
-                            .adaptive = (sched_adaptive_t)a, .uniform_layers = a ? 3 : UINT32_MAX,
+        sched_config_t c = {.width = 37,
+                            .height = 23,
+                            .spp = 96,
+                            .granularity = 8,
+                            .adaptive = (sched_adaptive_t)a,
+                            .uniform_layers = a ? 3 : UINT32_MAX,
                             .range_pixels = 50};
         char err[256];
         sched_t *s = sched_new(&c, err, sizeof err), *b = sched_new(&c, err, sizeof err);
@@ -370,6 +374,29 @@ static void run_all_costing(sched_t *s, lum_fn f, uint32_t g, cost_fn cost)
 static void run_all(sched_t *s, lum_fn f, uint32_t g)
 {
     run_all_costing(s, f, g, one_ray);
+}
+
+/* Runs tasks one at a time until `layer` is decided (the scheduler keeps
+ * the membership of the two layers in flight only). */
+static void run_until_decided(sched_t *s, lum_fn f, uint32_t g, uint32_t layer)
+{
+    sched_task_t t;
+    tracer_result_t r[64];
+    char err[256];
+    while (sched_pixel_in_layer(s, layer, 0) < 0) {
+        ck_assert_int_eq(sched_next(s, &t), SCHED_NEXT_TASK);
+        for (uint32_t i = 0; i < t.count; i++) {
+            memset(&r[i], 0, sizeof r[i]);
+            r[i].pixel = t.records[i].pixel;
+            r[i].samples = t.records[i].sample_count;
+            r[i].rays = r[i].samples;
+            double l = f(r[i].pixel, t.layer) * r[i].samples;
+            r[i].sum[0] = r[i].sum[1] = r[i].sum[2] = l;
+            r[i].lum_m2 = 0.01 * g;
+            r[i].pvar = f(r[i].pixel, t.layer);
+        }
+        ck_assert_msg(sched_complete(s, t.id, r, t.count, err, sizeof err) == 0, "%s", err);
+    }
 }
 
 /* pixels 0-7 steady, pixels 8-15 jump between layers */
@@ -773,7 +800,7 @@ START_TEST(test_dilation)
                             .dilate = dil};
         sched_t *s = sched_new(&c, err, sizeof err);
         ck_assert_msg(s != NULL, "%s", err);
-        run_all(s, one_hot, 4);
+        run_until_decided(s, one_hot, 4, 3);
         int in_layer3 = 0;
         for (uint32_t p = 0; p < 25; p++)
             in_layer3 += sched_pixel_in_layer(s, 3, p);
@@ -1384,12 +1411,15 @@ START_TEST(test_checkpoint_refuses_garbage)
     uint8_t *st = find_section(&b, "state", &n);
     size_t off = (size_t)(st - b.data);
     expect_refused(&c, &b, off, 7, "state");
-    expect_refused(&c, &b, off + n - 1, 2, "state");
-    expect_refused(&c, &b, off + n - 1, 3, "state");
-    ck_assert_uint_eq(st[n - 1], 0); /* the last layer is not ready yet */
-    /* a decided flag beyond the decided layers */
-    uint8_t *dec = find_section(&b, "decided", &n);
-    expect_refused(&c, &b, (size_t)(dec - b.data) + n - 1, 1, "decided");
+    size_t waiting = 0; /* a cell whose previous layer's cell is not done yet */
+    while (waiting < n && st[waiting] != 0)
+        waiting++;
+    ck_assert_uint_lt(waiting, n);
+    expect_refused(&c, &b, off + waiting, 2, "state"); /* outstanding: never saved */
+    expect_refused(&c, &b, off + waiting, 3, "state"); /* done before its turn */
+    /* more layers decided than the two past the complete ones */
+    uint8_t *dec = find_section(&b, "counters", &n); /* the eighth counter: decided */
+    expect_refused(&c, &b, (size_t)(dec - b.data) + 7 * sizeof(uint64_t), dec[56] + 1, "decided");
     /* a film sum that is not finite: NaN, then +inf (top bytes of a double) */
     uint8_t *film = find_section(&b, "film", &n);
     size_t sum1 =
@@ -1478,12 +1508,11 @@ static void expect_batch_refused(const sched_config_t *c, const membuf_t *b, con
     size_t n, p = 0;
     double x;
     /* the uniform layers' statistics (relerr, relmse) or all layers' */
-    const char *m2tag = tag[0] == 'u' ? "um2" : "bm2";
-    uint8_t *bm2 = find_section(&m, m2tag, &n), *sec = find_section(&m, tag, &n);
+    uint8_t *bm2 = find_section(&m, "um2", &n), *sec = find_section(&m, tag, &n);
     while (p < n / sizeof x && (memcpy(&x, bm2 + p * sizeof x, sizeof x), x <= 0))
         p++; /* a pixel with two batches or more */
     ck_assert_msg(p < n / sizeof x, "no pixel with a batch M2 yet");
-    if (strcmp(tag, "batches") == 0 || strcmp(tag, "ubat") == 0) {
+    if (strcmp(tag, "batches") == 0 || strcmp(tag, "ubat") == 0 || strcmp(tag, "pnb") == 0) {
         uint32_t k = (uint32_t)v;
         memcpy(sec + p * sizeof k, &k, sizeof k);
     } else {
@@ -1497,12 +1526,12 @@ START_TEST(test_checkpoint_refuses_impossible_batches)
 {
     sched_config_t c = ckpt_cases[4].cfg; /* relerr with a target */
     membuf_t b = saved_midway(&c);
-    expect_batch_refused(&c, &b, "bm2", -0.25);
-    expect_batch_refused(&c, &b, "bmean", -8.13636e306);
-    expect_batch_refused(&c, &b, "bmean", 1e300);
-    expect_batch_refused(&c, &b, "batches", 0); /* a mean and an M2, but no batch */
-    expect_batch_refused(&c, &b, "batches", 1); /* an M2 from one batch */
+    expect_batch_refused(&c, &b, "batches", 0);    /* a mean and an M2, but no batch */
+    expect_batch_refused(&c, &b, "batches", 1);    /* an M2 from one batch */
+    expect_batch_refused(&c, &b, "batches", 1000); /* more batches than layers */
+    expect_batch_refused(&c, &b, "pnb", 1000);     /* more before the last than after */
     expect_batch_refused(&c, &b, "um2", -0.25);
+    expect_batch_refused(&c, &b, "umean", -8.13636e306);
     expect_batch_refused(&c, &b, "umean", 1e300);
     expect_batch_refused(&c, &b, "ubat", 1);
     expect_batch_refused(&c, &b, "ubat", 1000); /* more uniform layers than layers */
@@ -1517,14 +1546,17 @@ static void expect_cost_refused(const sched_config_t *c, const membuf_t *b, cons
 {
     membuf_t m = copy_of(b);
     size_t n, p = 0;
-    uint64_t taken = 0;
+    uint32_t taken = 0;
     for (const uint8_t *usamp = find_section(&m, "usamp", &n); taken == 0; p++)
         memcpy(&taken, usamp + p * sizeof taken, sizeof taken);
     p--; /* the first pixel with uniform-layer samples */
     uint8_t *sec = find_section(&m, tag, &n);
-    if (strcmp(tag, "cost") == 0) {
+    if (strcmp(tag, "pcost") == 0) {
         float f = (float)v;
         memcpy(sec + p * sizeof f, &f, sizeof f);
+    } else if (strcmp(tag, "usamp") == 0) {
+        uint32_t k = (uint32_t)v;
+        memcpy(sec + p * sizeof k, &k, sizeof k);
     } else {
         uint64_t k = v < 0 ? taken - 1 : (uint64_t)v; /* -1: one ray short of the samples */
         memcpy(sec + p * sizeof k, &k, sizeof k);
@@ -1542,8 +1574,8 @@ START_TEST(test_checkpoint_refuses_impossible_costs)
     expect_cost_refused(&c, &b, "urays", -1);  /* fewer rays than samples */
     expect_cost_refused(&c, &b, "urays", 0);   /* samples but no rays */
     expect_cost_refused(&c, &b, "usamp", 1e6); /* more samples than merged */
-    expect_cost_refused(&c, &b, "cost", 0.5);  /* under a ray a sample */
-    expect_cost_refused(&c, &b, "cost", NAN);
+    expect_cost_refused(&c, &b, "pcost", 0.5); /* under a ray a sample */
+    expect_cost_refused(&c, &b, "pcost", NAN);
     free(b.data);
 }
 END_TEST
