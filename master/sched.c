@@ -881,6 +881,15 @@ static const uint8_t *select_row(sched_t *s, int y, uint32_t layer, int skip_rul
     return r->sel;
 }
 
+/* Layer is decided: the ranges whose previous layer is done can run. */
+static void decided(sched_t *s, uint32_t layer)
+{
+    s->decided_n = layer + 1;
+    for (uint32_t r = 0; r < s->ranges; r++)
+        if (layer == 0 || cell_state(s, layer - 1, r) == ST_DONE)
+            make_ready(s, layer, r);
+}
+
 /* Chooses the pixels of layer s->decided_n from the snapshot. */
 static void decide_layer(sched_t *s, uint32_t layer)
 {
@@ -896,10 +905,11 @@ static void decide_layer(sched_t *s, uint32_t layer)
     size_t n = 0;
     uint64_t conv = 0;
     if (skip_rule || target)
-        for (int y = 0; y < h; y++)
+        for (int y = 0; y < h; y++) {
+            const double *own = pools_neighbours(s) ? NULL : snap_row(s, y)->metric;
             for (int x = 0; x < w; x++) {
                 if (skip_rule) {
-                    double m = metric_at(s, x, y);
+                    double m = own ? own[x] : metric_at(s, x, y);
                     if (isfinite(m)) {
                         threshold += m;
                         n++;
@@ -908,6 +918,7 @@ static void decide_layer(sched_t *s, uint32_t layer)
                 if (target)
                     conv += (uint64_t)meets_target(s, x, y);
             }
+        }
     threshold = n ? threshold / (double)n : 0.0;
     s->converged = conv;
     int stop_all = target && (double)conv >= s->cfg.target_share * s->npix;
@@ -919,6 +930,14 @@ static void decide_layer(sched_t *s, uint32_t layer)
     memset(s->state[slot], ST_WAITING, s->ranges);
     s->range_done[slot] = 0;
     s->threshold[slot] = skip_rule ? threshold : 0.0;
+    if (!skip_rule && !target) { /* a uniform layer: every pixel, nothing to read */
+        memset(s->member[slot], 0xff, s->npix / 8);
+        for (uint32_t p = s->npix & ~7u; p < s->npix; p++)
+            set_member(s, layer, p);
+        s->pixel_layers += s->npix;
+        decided(s, layer);
+        return;
+    }
     const int dilate = skip_rule && s->cfg.dilate;
     for (int y = 0; y < h; y++) {
         const uint8_t *sel = select_row(s, y, layer, skip_rule, threshold);
@@ -944,10 +963,7 @@ static void decide_layer(sched_t *s, uint32_t layer)
             }
         }
     }
-    s->decided_n = layer + 1;
-    for (uint32_t r = 0; r < s->ranges; r++)
-        if (layer == 0 || cell_state(s, layer - 1, r) == ST_DONE)
-            make_ready(s, layer, r);
+    decided(s, layer);
 }
 
 static void complete_range(sched_t *s, uint32_t layer, uint32_t range)
@@ -1504,6 +1520,19 @@ int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
         return w.rc;
     uint64_t sum = ck_final(&w.ck);
     return put(&w, &sum, sizeof sum);
+}
+
+size_t sched_save_bytes(const sched_t *s)
+{
+    const size_t head = 16; /* a section's tag and length */
+    size_t n = sizeof save_magic + 2 * sizeof(uint32_t) + FP_COUNT * sizeof(uint64_t);
+    n += head + CT_COUNT * sizeof(uint64_t);
+    n += head + (size_t)s->npix * sizeof(film_pixel_t);
+    n += head + 2 * member_bytes(s) + head + 2 * (size_t)s->ranges;
+    n += head + 2 * (sizeof(uint32_t) + sizeof(double));
+    for (size_t i = 0; i < PIXEL_ARRAYS; i++)
+        n += head + array_bytes(s, &pixel_arrays[i]);
+    return n + head + sizeof(uint64_t);
 }
 
 typedef struct loader {

@@ -274,6 +274,9 @@ typedef int (*sched_write_fn)(void *ctx, const void *data, size_t len);
 /* Reads exactly len bytes; returns 0, or non-zero on a short read / error. */
 typedef int (*sched_read_fn)(void *ctx, void *data, size_t len);
 int sched_save(const sched_t *s, sched_write_fn write, void *ctx);
+/* The bytes sched_save writes for s (the same at every point of the job:
+ * every size comes from the config). */
+size_t sched_save_bytes(const sched_t *s);
 /* A scheduler for cfg restored from what sched_save wrote. cfg must be the
  * job's config (the same one the saved scheduler was made with): a saved
  * fingerprint of the derived sizes and settings (pixels, layers, ranges,

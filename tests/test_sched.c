@@ -1041,6 +1041,40 @@ END_TEST
  * factors are computed when first needed). Not timed: 20 of them took about
  * 20 minutes when every t factor was computed up front, and Check's timeout
  * catches that; now they take milliseconds. */
+static void sum_pixel_state(void *ctx, const char *name, size_t bytes)
+{
+    if (!strchr(name, ' ')) /* the film and per-pixel arrays; the window's have spaces */
+        *(size_t *)ctx += bytes;
+}
+
+/* 3840 x 2160 at 65,536 spp (2,048 layers) is accepted, and its film and
+ * statistics take at most 128 bytes a pixel in the default mode, whatever
+ * the layers (the scheduler is not started: that would touch 1 GB). */
+START_TEST(test_production_resolution_fits)
+{
+    static const uint32_t spps[] = {256, 65536, 1048576};
+    for (size_t i = 0; i < sizeof spps / sizeof spps[0]; i++) {
+        sched_config_t c = {.width = 3840,
+                            .height = 2160,
+                            .spp = spps[i],
+                            .granularity = 32,
+                            .adaptive = SCHED_ADAPTIVE_RELMSE,
+                            .uniform_layers = UINT32_MAX};
+        char err[256];
+        sched_t *s = sched_new(&c, err, sizeof err);
+        ck_assert_msg(s != NULL, "%u spp: %s", spps[i], err);
+        size_t pixel_state = 0;
+        size_t total = sched_memory(s, sum_pixel_state, &pixel_state);
+        const double npix = 3840.0 * 2160.0;
+        ck_assert_msg(pixel_state <= 128 * npix, "%.1f bytes a pixel", pixel_state / npix);
+        /* the window: two layers' membership and cells, a few rows */
+        ck_assert_msg(total - pixel_state < 2 * npix, "%.1f bytes a pixel beside the state",
+                      (total - pixel_state) / npix);
+        sched_destroy(&s);
+    }
+}
+END_TEST
+
 START_TEST(test_many_layers_new_is_cheap)
 {
     char err[256];
@@ -1373,6 +1407,7 @@ START_TEST(test_checkpoint_refuses_garbage)
         ck_assert(sim_step(&a));
     ck_assert_int_gt(a.n, 0);
     membuf_t b = save_mem(a.s);
+    ck_assert_uint_eq(b.len, sched_save_bytes(a.s));
     sched_t *s = load_mem(&c, &b, b.len, err, sizeof err);
     ck_assert_msg(s != NULL, "%s", err);
     sched_destroy(&s);
@@ -1604,6 +1639,7 @@ int main(void)
     tcase_add_test(tc, test_results_range_checked);
     tcase_add_test(tc, test_outstanding_and_check);
     tcase_add_test(tc, test_many_layers_new_is_cheap);
+    tcase_add_test(tc, test_production_resolution_fits);
     tcase_add_loop_test(tc, test_checkpoint_resumes_bit_identical, 0,
                         (int)(sizeof ckpt_cases / sizeof ckpt_cases[0]));
     tcase_add_test(tc, test_checkpoint_refuses_garbage);
