@@ -12,15 +12,27 @@
 #      flags; seconds until the job's sample count grows again.
 #   3. Master memory against ended jobs: 10, 100 and 1000 small jobs, with
 #      a state directory (images on disk) and with --state none (in memory).
+#   4. Production resolutions: a running job's bytes a pixel, array by array
+#      (build/bench/bench_memory, bench/results/memory.json); then the Cornell
+#      box at 256x256, 1920x1080 and 3840x2160, 65,536 spp (2,048 layers),
+#      the default sampler, 2 workers x 1 thread, the default checkpoint
+#      interval, for BENCH_DUR_LIFE_S seconds each: every second the
+#      master's RSS, the state directory's size and the bytes it has written
+#      (journal and snapshots) against the results it has merged; the
+#      checkpoint work's CPU (the writer's and the compactions'); at 4K an
+#      A/B of the master's CPU with --state none, and a kill -9 and restart:
+#      seconds until the job runs again.
 #
 # Knobs (environment): BENCH_DUR_SECONDS (25: time limit of each run in 1),
-# BENCH_DUR_JOBS ("10 100 1000"), BENCH_DUR_PORT (18800).
+# BENCH_DUR_JOBS ("10 100 1000"), BENCH_DUR_LIFE_S (90: each run of 4),
+# BENCH_DUR_PORT (18800).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
 SECONDS_RUN="${BENCH_DUR_SECONDS:-25}"
 JOBS="${BENCH_DUR_JOBS:-10 100 1000}"
+LIFE="${BENCH_DUR_LIFE_S:-90}"
 PORT="${BENCH_DUR_PORT:-18800}"
 OUT=build/bench/out-durable
 RESULTS=bench/results
@@ -29,8 +41,9 @@ VB=bin/vbrender
 VBM=bin/vbrender-master
 VBW=bin/vbrender-worker
 CTL=build/bench/bench_ctl
-for b in $VB $VBM $VBW $CTL; do
-    [ -x "$b" ] || { echo "run-durable.sh: $b is missing (make all build/bench/bench_ctl)" >&2; exit 1; }
+MEMB=build/bench/bench_memory
+for b in $VB $VBM $VBW $CTL $MEMB; do
+    [ -x "$b" ] || { echo "run-durable.sh: $b is missing (make all build/bench/bench_ctl build/bench/bench_memory)" >&2; exit 1; }
 done
 rm -rf "$OUT"
 mkdir -p "$OUT" "$RESULTS"
@@ -127,9 +140,67 @@ for mode in state none; do
     stop_all "$MPID" "${WPIDS[@]}"
 done
 
-python3 - "$OUT" "$RESULTS/durable.json" "$SECONDS_RUN" "$CORES" <<'PY'
+# ---- 4. production resolutions --------------------------------------------------
+echo "== memory a pixel (bench_memory)" >&2
+"$MEMB" --json "$RESULTS/memory.json" | tee "$OUT/memory.md"
+cpu_s() { awk '{ print ($14 + $15) / 100 }' "/proc/$1/stat"; }
+# one line a second: t, RSS KiB, state bytes, master CPU s, the master's counters
+sample_run() { # sample_run TAG STATE_DIR|none ID SECONDS
+    local tag=$1 dir=$2 id=$3 secs=$4 t0 now
+    t0=$(date +%s.%N)
+    : >"$OUT/$tag.samples"
+    while :; do
+        now=$(date +%s.%N)
+        if python3 -c "import sys; sys.exit(0 if $now - $t0 >= $secs else 1)"; then break; fi
+        local bytes=0
+        [ "$dir" != none ] && bytes=$(du -sb "$dir" | cut -f1)
+        printf '%s %s %s %s ' "$(python3 -c "print($now - $t0)")" "$(rss_kib "$MPID")" "$bytes" \
+            "$(cpu_s "$MPID")" >>"$OUT/$tag.samples"
+        "$CTL" "$CEP" workers | python3 -c 'import json,sys; print(json.dumps(json.load(sys.stdin)["master"]))' >>"$OUT/$tag.samples"
+        sleep 1
+    done
+    "$CTL" "$CEP" status "$id" >"$OUT/$tag.status.json"
+}
+for size in 256x256 1920x1080 3840x2160; do
+    w=${size%x*}
+    h=${size#*x}
+    scene_of "$w" "$h" "$OUT/cornell-$size.json"
+    modes="state"
+    [ "$size" = 3840x2160 ] && modes="state none"
+    for mode in $modes; do
+        tag="prod-$size-$mode"
+        echo "== $tag: $LIFE s" >&2
+        next_ports
+        dir=none
+        [ $mode = state ] && dir="$OUT/state-prod-$size"
+        start_master "$OUT/$tag.log" --state "$dir"
+        start_workers 2
+        id=$("$VB" submit "$OUT/cornell-$size.json" --spp 65536 --master "$CEP" | tail -n 1)
+        sample_run "$tag" "$dir" "$id" "$LIFE"
+        if [ "$size" = 3840x2160 ] && [ $mode = state ]; then
+            # restart: kill -9, start again, seconds until the job's samples grow
+            kill -9 "$MPID"
+            wait "$MPID" 2>/dev/null || true
+            t0=$(date +%s.%N)
+            start_master "$OUT/$tag.restart.log" --state "$dir"
+            t1=$(date +%s.%N)
+            s0=$("$CTL" "$CEP" status "$id" | python3 -c 'import json,sys; print(json.load(sys.stdin)["samples"])')
+            while :; do
+                s=$("$CTL" "$CEP" status "$id" | python3 -c 'import json,sys; print(json.load(sys.stdin)["samples"])')
+                if python3 -c "import sys; sys.exit(0 if float('$s') > float('$s0') else 1)"; then break; fi
+                sleep 0.05
+            done
+            t2=$(date +%s.%N)
+            echo "$t0 $t1 $t2 $s0" >"$OUT/$tag.restart.times"
+        fi
+        "$VB" cancel "$id" --master "$CEP" >/dev/null || true
+        stop_all "$MPID" "${WPIDS[@]}"
+    done
+done
+
+python3 - "$OUT" "$RESULTS/durable.json" "$SECONDS_RUN" "$CORES" "$LIFE" <<'PY'
 import json, sys
-out, dest, secs, cores = sys.argv[1], sys.argv[2], float(sys.argv[3]), int(sys.argv[4])
+out, dest, secs, cores, life = sys.argv[1], sys.argv[2], float(sys.argv[3]), int(sys.argv[4]), float(sys.argv[5])
 res = {"cores": cores, "time_limit_s": secs, "checkpoint_interval_s": 10, "checkpoint": [], "restart": {}, "memory": {}}
 print("\nCheckpoint overhead (Cornell box, uniform, 2 workers x 1 thread, %g s each, checkpoints every 10 s)" % secs)
 print("| image | samples/s, --state none | samples/s, --state DIR | A/B change | checkpoints | fork ms (max) | writer CPU s per checkpoint | writer CPU share of the cores | checkpoint file |")
@@ -165,6 +236,57 @@ for mode in ("state", "none"):
 for n in sorted(mem):
     print("| %d | %.1f MiB | %.1f MiB |" % (n, mem[n].get("state", 0) / 1024, mem[n].get("none", 0) / 1024))
 res["memory"] = {str(n): v for n, v in mem.items()}
+
+# 4. production resolutions
+def samples(tag):
+    rows = []
+    for line in open("%s/%s.samples" % (out, tag)):
+        t, rss, sbytes, cpu, m = line.split(" ", 4)
+        rows.append((float(t), int(rss), int(sbytes), float(cpu), json.loads(m)))
+    return rows
+res["production"] = []
+print("\nProduction resolutions (Cornell box, 65,536 spp = 2,048 layers, relmse, 2 workers x 1 thread, checkpoints every 10 s, %g s each)" % life)
+print("| image | master RSS (max) | RSS a pixel | results merged | written: journal | written: snapshots | written / merged | state dir (max) | state dir / snapshot | checkpoint CPU, share of one core |")
+print("|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|")
+for size in ("256x256", "1920x1080", "3840x2160"):
+    w, h = (int(v) for v in size.split("x"))
+    rows = samples("prod-%s-state" % size)
+    last = rows[-1][4]
+    merged = last.get("results_bytes_merged", 0)
+    jb = last.get("journal_bytes_written", 0)
+    sb = last.get("snapshot_bytes_written", 0)
+    cpu = last.get("checkpoint_cpu_seconds", 0.0)
+    rss = max(r[1] for r in rows) * 1024
+    sdir = max(r[2] for r in rows)
+    snap = last.get("snapshot_bytes", 0) or 1
+    row = {"image": size, "seconds": rows[-1][0], "rss_max_bytes": rss, "rss_bytes_per_pixel": rss / (w * h),
+           "results_bytes_merged": merged, "journal_bytes_written": jb, "snapshot_bytes_written": sb,
+           "written_over_merged": (jb + sb) / merged if merged else None, "state_dir_max_bytes": sdir,
+           "checkpoint_cpu_s": cpu, "checkpoint_core_share": cpu / rows[-1][0],
+           "series": [{"t": r[0], "rss_kib": r[1], "state_bytes": r[2], "master_cpu_s": r[3],
+                       "journal_bytes_written": r[4].get("journal_bytes_written", 0),
+                       "snapshot_bytes_written": r[4].get("snapshot_bytes_written", 0),
+                       "results_bytes_merged": r[4].get("results_bytes_merged", 0)} for r in rows]}
+    if size == "3840x2160":
+        none = samples("prod-%s-none" % size)
+        a = none[-1][3] / none[-1][0]
+        b = rows[-1][3] / rows[-1][0]
+        row["ab_master_cpu_none"] = a
+        row["ab_master_cpu_state"] = b
+        t0, t1, t2, s0 = open("%s/prod-%s-state.restart.times" % (out, size)).read().split()
+        row["restart_answers_s"] = float(t1) - float(t0)
+        row["restart_busy_s"] = float(t2) - float(t0)
+        row["restart_samples"] = float(s0)
+    res["production"].append(row)
+    print("| %s | %.0f MB | %.0f B | %.1f MB | %.1f MB | %.1f MB | %s | %.1f MB | %s | %.2f %% |" % (
+        size, rss / 1e6, rss / (w * h), merged / 1e6, jb / 1e6, sb / 1e6,
+        "%.2fx" % row["written_over_merged"] if merged else "-", sdir / 1e6,
+        "%.2fx" % (sdir / snap) if last.get("snapshot_bytes") else "-", 100 * cpu / rows[-1][0]))
+p4 = res["production"][-1]
+print("\n4K A/B: the master's CPU (all its threads) %.3f of a core with --state, %.3f with --state none (%+.2f %% of a core)" % (
+    p4["ab_master_cpu_state"], p4["ab_master_cpu_none"], 100 * (p4["ab_master_cpu_state"] - p4["ab_master_cpu_none"])))
+print("4K restart: the master answers %.2f s after its start, the job runs again after %.2f s (resumed at %.0f samples)" % (
+    p4["restart_answers_s"], p4["restart_busy_s"], p4["restart_samples"]))
 json.dump(res, open(dest, "w"), indent=1)
 print("\nwritten to " + dest)
 PY

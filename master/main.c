@@ -71,7 +71,10 @@ static const char usage[] =
     "  --max-queued-per-client N  queued and running jobs of one client "
     "(default " MASTER_DEFAULT_MAX_QUEUED_PER_CLIENT_TEXT ")\n"
     "  --max-pixels N       image width x height of one job "
-    "(default " MASTER_DEFAULT_MAX_PIXELS_TEXT ")\n"
+    "(default " MASTER_DEFAULT_MAX_PIXELS_TEXT ");\n"
+    "                       a running job holds 116 bytes a pixel (relmse; 64 to 124 by\n"
+    "                       mode), 1 GB at 3840x2160, whatever its spp, plus 48 a pixel for\n"
+    "                       tasks out (at most one per pixel)\n"
     "  --max-spp N          samples per pixel of one job (default " MASTER_DEFAULT_MAX_SPP_TEXT
     ")\n"
     "  --max-requests-per-s N  control requests per connection and second "
