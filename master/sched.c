@@ -49,9 +49,13 @@ typedef struct snap_row {
     double *rvmax;  /* rvar's maximum over the row's 5-pixel window, itself in */
     uint32_t *nb;   /* layer means */
     float *cost;    /* relmse: rays per sample */
-    uint8_t *sel;   /* the skip rule's choice before dilation, -1 row: none yet */
-    int sel_y;
 } snap_row_t;
+
+/* One row of the skip rule's choice before dilation (decide_layer). */
+typedef struct sel_row {
+    int y; /* -1: none */
+    uint8_t *sel;
+} sel_row_t;
 
 struct sched {
     sched_config_t cfg;
@@ -84,6 +88,8 @@ struct sched {
     uint64_t *urays;
     uint32_t *usamples;
     snap_row_t ring[SCHED_RING];
+    double *row_metric; /* one row of the skip rule's statistic */
+    sel_row_t sel_ring[3];
     double *t_table;  /* t factors by batches - 1, for relerr (0.95) and the target, */
     double *t_target; /* 0 until first needed (t_factor), grown on demand */
     size_t t_cap;
@@ -353,16 +359,22 @@ static size_t array_bytes(const sched_t *s, const pixel_array_t *a)
 static int alloc_ring(sched_t *s)
 {
     const size_t w = s->cfg.width;
+    if (!(s->row_metric = malloc(w * sizeof(double))))
+        return -1;
     for (int k = 0; k < SCHED_RING; k++) {
         snap_row_t *r = &s->ring[k];
-        r->y = r->sel_y = -1;
+        r->y = -1;
         r->metric = malloc(w * sizeof(double));
         r->rvar = malloc(w * sizeof(double));
         r->rvmax = malloc(w * sizeof(double));
         r->nb = malloc(w * sizeof(uint32_t));
         r->cost = malloc(w * sizeof(float));
-        r->sel = malloc(w);
-        if (!r->metric || !r->rvar || !r->rvmax || !r->nb || !r->cost || !r->sel)
+        if (!r->metric || !r->rvar || !r->rvmax || !r->nb || !r->cost)
+            return -1;
+    }
+    for (int k = 0; k < 3; k++) {
+        s->sel_ring[k].y = -1;
+        if (!(s->sel_ring[k].sel = malloc(w)))
             return -1;
     }
     return 0;
@@ -445,8 +457,10 @@ void sched_destroy(sched_t **sp)
         free(r->rvmax);
         free(r->nb);
         free(r->cost);
-        free(r->sel);
     }
+    for (int k = 0; k < 3; k++)
+        free(s->sel_ring[k].sel);
+    free(s->row_metric);
     film_destroy(&s->film);
     free(s->flags);
     free(s->t_table);
@@ -474,8 +488,10 @@ size_t sched_memory(const sched_t *s, sched_memory_fn fn, void *ctx)
     REPORT("window (membership, cells)",
            2 * (member_bytes(s) + s->ranges * (1 + sizeof(tracer_task_t *) + sizeof(uint32_t))) +
                s->q_cap * sizeof(uint64_t) + s->rq_cap * sizeof(uint64_t));
-    REPORT("decision rows", (size_t)SCHED_RING * s->cfg.width *
-                                (3 * sizeof(double) + sizeof(uint32_t) + sizeof(float) + 1));
+    REPORT("decision rows",
+           s->cfg.width *
+               ((size_t)SCHED_RING * (3 * sizeof(double) + sizeof(uint32_t) + sizeof(float)) +
+                sizeof(double) + 3));
     REPORT("t tables", 2 * s->t_cap * sizeof(double));
     for (int k = 0; k < 2; k++)
         for (uint32_t r = 0; r < s->ranges; r++)
@@ -699,30 +715,56 @@ static snap_row_t *snap_row(sched_t *s, int y)
     if (r->y == y)
         return r;
     r->y = y;
-    r->sel_y = -1;
-    const uint32_t w = s->cfg.width, ahead = s->complete;
+    uint32_t w = s->cfg.width;
+    const uint32_t ahead = s->complete, rp = s->range_pixels;
     const int any_ahead = ahead < s->decided_n;
     const int target = s->cfg.target_error > 0, counts = keeps_counts(s), cost = weighs_cost(s);
+    if (s->complete == 0) { /* layers 0 and 1: nothing merged yet */
+        memset(r->metric, 0, w * sizeof(double));
+        memset(r->rvar, 0, w * sizeof(double));
+        memset(r->nb, 0, w * sizeof(uint32_t));
+        memset(r->cost, 0, w * sizeof(float));
+        w = 0;
+    }
+    /* every pixel's current values, mode by mode (a switch a pixel costs
+     * more than the arithmetic), then the pixels that merged ahead */
+    const uint32_t p0 = (uint32_t)y * s->cfg.width;
+    switch (w ? s->cfg.adaptive : SCHED_ADAPTIVE_NONE) {
+    case SCHED_ADAPTIVE_THESIS:
+        memcpy(r->metric, s->pvar_cur + p0, w * sizeof(double));
+        break;
+    case SCHED_ADAPTIVE_NONE:
+        memset(r->metric, 0, w * sizeof(double));
+        break;
+    default:
+        for (uint32_t x = 0; x < w; x++)
+            r->metric[x] = cur_metric(s, p0 + x);
+        break;
+    }
     for (uint32_t x = 0; x < w; x++) {
-        const uint32_t p = (uint32_t)y * w + x;
-        const film_pixel_t *fp = &s->film->pixels[p];
-        if (fp->count == 0 && fp->nonfinite == 0) {
-            r->metric[x] = r->rvar[x] = 0;
-            r->nb[x] = 0;
-            r->cost[x] = 0;
-        } else if (any_ahead && is_member(s, ahead, p) &&
-                   s->state[ahead & 1][p / s->range_pixels] == ST_DONE) {
+        r->rvar[x] = target ? cur_rvar(s, p0 + x) : 0;
+        r->cost[x] = cost ? cur_cost(s, p0 + x) : 0;
+    }
+    if (counts && w)
+        memcpy(r->nb, s->batches + p0, w * sizeof(uint32_t));
+    else
+        memset(r->nb, 0, w * sizeof(uint32_t));
+    for (uint32_t range = p0 / rp; any_ahead && w && range * rp < p0 + w; range++) {
+        if (s->state[ahead & 1][range] != ST_DONE)
+            continue;
+        const uint32_t a = range * rp > p0 ? range * rp : p0,
+                       b = (range + 1) * rp < p0 + w ? (range + 1) * rp : p0 + w;
+        for (uint32_t p = a; p < b; p++) {
+            if (!is_member(s, ahead, p))
+                continue;
+            const uint32_t x = p - p0;
             r->metric[x] = s->prev_metric ? s->prev_metric[p] : 0;
             r->rvar[x] = target ? s->prev_rvar[p] : 0;
             r->nb[x] = counts ? s->prev_nb[p] : 0;
             r->cost[x] = cost ? s->prev_cost[p] : 0;
-        } else {
-            r->metric[x] = cur_metric(s, p);
-            r->rvar[x] = target ? cur_rvar(s, p) : 0;
-            r->nb[x] = counts ? s->batches[p] : 0;
-            r->cost[x] = cost ? cur_cost(s, p) : 0;
         }
     }
+    w = s->cfg.width;
     if (target) {
         const int rad = SCHED_TARGET_POOL_RADIUS;
         for (int x = 0; x < (int)w; x++) {
@@ -740,7 +782,9 @@ static snap_row_t *snap_row(sched_t *s, int y)
 static void ring_reset(sched_t *s)
 {
     for (int k = 0; k < SCHED_RING; k++)
-        s->ring[k].y = s->ring[k].sel_y = -1;
+        s->ring[k].y = -1;
+    for (int k = 0; k < 3; k++)
+        s->sel_ring[k].y = -1;
 }
 
 /* The largest relative variance in the (2 SCHED_TARGET_POOL_RADIUS + 1)^2
@@ -789,23 +833,23 @@ static int meets_target(sched_t *s, int x, int y)
                s->cfg.target_error;
 }
 
-/* relmse: the rays a sample of the pixel at (x, y) takes, as the mean over
+/* relmse: the rays a sample of pixel x of the middle row takes (rows: the
+ * cost of the rows above, at and below it; NULL past the image), as the mean over
  * its 3x3 neighbours of their uniform layers' rays per sample, the pixel
  * itself left out for the same reason as its variance (its own uniform
  * rays count with its radiance: the paths that enter glass are both the
  * long and the bright ones). At least 1 (every sample traces its camera
  * ray); 1 while no neighbour has any (a 1 x 1 image: all pixels alike). */
-static double neighbour_cost(sched_t *s, int x, int y)
+static double neighbour_cost(const float *const rows[3], int x, int w)
 {
-    const int w = (int)s->cfg.width, h = (int)s->cfg.height;
     double sum = 0;
     int k = 0;
-    for (int yy = y - 1; yy <= y + 1; yy++) {
-        if (yy < 0 || yy >= h)
+    for (int dy = 0; dy < 3; dy++) {
+        const float *c = rows[dy];
+        if (!c)
             continue;
-        const float *c = snap_row(s, yy)->cost;
         for (int xx = x - 1; xx <= x + 1; xx++)
-            if (xx >= 0 && xx < w && (yy != y || xx != x) && c[xx] > 0) {
+            if (xx >= 0 && xx < w && (dy != 1 || xx != x) && c[xx] > 0) {
                 sum += c[xx];
                 k++;
             }
@@ -813,7 +857,7 @@ static double neighbour_cost(sched_t *s, int x, int y)
     return k && sum > k ? sum / k : 1.0;
 }
 
-/* The skip rule's statistic for pixel (x, y). relerr and relmse: the
+/* The skip rule's statistic for the pixels of row y, into out. relerr and relmse: the
  * relative variance of a layer mean, measured over the uniform layers only,
  * is the mean over the pixel's 3x3 neighbours, the pixel itself left out;
  * its own layer count scales it. Why: a pixel given more layers when its
@@ -828,56 +872,73 @@ static double neighbour_cost(sched_t *s, int x, int y)
  * how many layers a pixel gets depends on its own samples, and its mean
  * stays unbiased (but for its 1/npix share in the threshold). thesis and
  * variance: the pixel's own. */
-static double metric_at(sched_t *s, int x, int y)
+static void metric_row(sched_t *s, int y, double *out)
 {
-    if (!pools_neighbours(s))
-        return snap_row(s, y)->metric[x];
     const int w = (int)s->cfg.width, h = (int)s->cfg.height;
-    double sum = 0;
-    int k = 0;
-    for (int yy = y - 1; yy <= y + 1; yy++) {
-        if (yy < 0 || yy >= h)
-            continue;
-        const double *v = snap_row(s, yy)->metric;
-        for (int xx = x - 1; xx <= x + 1; xx++)
-            if (xx >= 0 && xx < w && (yy != y || xx != x)) {
-                sum += v[xx];
-                k++;
-            }
-    }
     const snap_row_t *self = snap_row(s, y);
-    const double rv = k ? sum / k : self->metric[x]; /* a 1 x 1 image has only itself */
-    const uint32_t nb = self->nb[x];
-    if (nb < 2 || !isfinite(rv))
-        return INFINITY; /* sampled until it and its neighbours have two */
-    if (s->cfg.adaptive == SCHED_ADAPTIVE_RELMSE)
-        return rv / ((double)nb * nb) / neighbour_cost(s, x, y);
-    return t_factor(s, &s->t_table, SCHED_RELERR_CONFIDENCE, nb - 1) * sqrt(rv / nb);
+    if (!pools_neighbours(s)) {
+        memcpy(out, self->metric, (size_t)w * sizeof(double));
+        return;
+    }
+    const snap_row_t *up = y > 0 ? snap_row(s, y - 1) : NULL,
+                     *down = y + 1 < h ? snap_row(s, y + 1) : NULL;
+    const double *const v[3] = {up ? up->metric : NULL, self->metric, down ? down->metric : NULL};
+    const float *const c[3] = {up ? up->cost : NULL, self->cost, down ? down->cost : NULL};
+    for (int x = 0; x < w; x++) {
+        double sum = 0;
+        int k = 0;
+        for (int dy = 0; dy < 3; dy++) {
+            if (!v[dy])
+                continue;
+            for (int xx = x - 1; xx <= x + 1; xx++)
+                if (xx >= 0 && xx < w && (dy != 1 || xx != x)) {
+                    sum += v[dy][xx];
+                    k++;
+                }
+        }
+        const double rv = k ? sum / k : self->metric[x]; /* a 1 x 1 image has only itself */
+        const uint32_t nb = self->nb[x];
+        if (nb < 2 || !isfinite(rv))
+            out[x] = INFINITY; /* sampled until it and its neighbours have two */
+        else if (s->cfg.adaptive == SCHED_ADAPTIVE_RELMSE)
+            out[x] = rv / ((double)nb * nb) / neighbour_cost(c, x, w);
+        else
+            out[x] = t_factor(s, &s->t_table, SCHED_RELERR_CONFIDENCE, nb - 1) * sqrt(rv / nb);
+    }
 }
 
 /* Row y's choice by the skip rule alone (before dilation), in its ring row. */
-static const uint8_t *select_row(sched_t *s, int y, uint32_t layer, int skip_rule, double threshold)
+static const uint8_t *select_row(sched_t *s, int y, uint32_t layer, int skip_rule, double threshold,
+                                 const double *metric_of)
 {
-    snap_row_t *r = snap_row(s, y);
-    if (r->sel_y == y)
+    sel_row_t *r = &s->sel_ring[y % 3];
+    if (r->y == y)
         return r->sel;
     const uint32_t w = s->cfg.width;
+    const double *m = NULL;
+    if (skip_rule) {
+        if (metric_of) {
+            m = metric_of + (size_t)y * w;
+        } else {
+            metric_row(s, y, s->row_metric);
+            m = s->row_metric;
+        }
+    }
     for (uint32_t x = 0; x < w; x++) {
         int in = 1;
         if (skip_rule) {
-            const uint32_t p = (uint32_t)y * w + x;
-            double m = metric_at(s, (int)x, y);
-            in = !(m < threshold);
+            in = !(m[x] < threshold);
             if (!in && s->cfg.random_selection && threshold > 0) {
                 /* near the threshold a pixel is likely kept, far below rarely:
                  * avoids trapping pixels in a "local solution" (thesis 6) */
+                const uint32_t p = (uint32_t)y * w + x;
                 rng_stream_t rs = rng_stream(s->cfg.seed ^ 0x5eed5e1ec7ULL, p, layer);
-                in = rng_next_double(&rs) < m / threshold;
+                in = rng_next_double(&rs) < m[x] / threshold;
             }
         }
         r->sel[x] = (uint8_t)in;
     }
-    r->sel_y = y;
+    r->y = y;
     return r->sel;
 }
 
@@ -904,19 +965,31 @@ static void decide_layer(sched_t *s, uint32_t layer)
     double threshold = 0;
     size_t n = 0;
     uint64_t conv = 0;
+    /* What the first pass finds for each pixel, for the second (only while
+     * deciding: 9 bytes a pixel at most; without them the second pass
+     * computes them again) */
+    double *metric_of = skip_rule ? malloc((size_t)s->npix * sizeof(double)) : NULL;
+    uint8_t *conv_of = target ? malloc(s->npix) : NULL;
     if (skip_rule || target)
         for (int y = 0; y < h; y++) {
-            const double *own = pools_neighbours(s) ? NULL : snap_row(s, y)->metric;
+            double *row = metric_of ? metric_of + (size_t)y * (size_t)w : s->row_metric;
+            if (skip_rule)
+                metric_row(s, y, row);
             for (int x = 0; x < w; x++) {
+                const size_t p = (size_t)y * (size_t)w + (size_t)x;
                 if (skip_rule) {
-                    double m = own ? own[x] : metric_at(s, x, y);
+                    double m = row[x];
                     if (isfinite(m)) {
                         threshold += m;
                         n++;
                     }
                 }
-                if (target)
-                    conv += (uint64_t)meets_target(s, x, y);
+                if (target) {
+                    int c = meets_target(s, x, y);
+                    if (conv_of)
+                        conv_of[p] = (uint8_t)c;
+                    conv += (uint64_t)c;
+                }
             }
         }
     threshold = n ? threshold / (double)n : 0.0;
@@ -935,16 +1008,19 @@ static void decide_layer(sched_t *s, uint32_t layer)
         for (uint32_t p = s->npix & ~7u; p < s->npix; p++)
             set_member(s, layer, p);
         s->pixel_layers += s->npix;
+        free(metric_of);
+        free(conv_of);
         decided(s, layer);
         return;
     }
     const int dilate = skip_rule && s->cfg.dilate;
     for (int y = 0; y < h; y++) {
-        const uint8_t *sel = select_row(s, y, layer, skip_rule, threshold);
+        const uint8_t *sel = select_row(s, y, layer, skip_rule, threshold, metric_of);
         const uint8_t *up =
-            dilate && y > 0 ? select_row(s, y - 1, layer, skip_rule, threshold) : NULL;
-        const uint8_t *down =
-            dilate && y + 1 < h ? select_row(s, y + 1, layer, skip_rule, threshold) : NULL;
+            dilate && y > 0 ? select_row(s, y - 1, layer, skip_rule, threshold, metric_of) : NULL;
+        const uint8_t *down = dilate && y + 1 < h
+                                  ? select_row(s, y + 1, layer, skip_rule, threshold, metric_of)
+                                  : NULL;
         for (int x = 0; x < w; x++) {
             const uint32_t p = (uint32_t)(y * w + x);
             int chosen = sel[x];
@@ -954,7 +1030,8 @@ static void decide_layer(sched_t *s, uint32_t layer)
                 for (int dx = -1; dx <= 1 && !chosen; dx++)
                     if (x + dx >= 0 && x + dx < w)
                         chosen = (up && up[x + dx]) || sel[x + dx] || (down && down[x + dx]);
-            int in = chosen && !stop_all && !(target && meets_target(s, x, y));
+            int in =
+                chosen && !stop_all && !(target && (conv_of ? conv_of[p] : meets_target(s, x, y)));
             if (in) {
                 set_member(s, layer, p);
                 s->pixel_layers++;
@@ -963,6 +1040,8 @@ static void decide_layer(sched_t *s, uint32_t layer)
             }
         }
     }
+    free(metric_of);
+    free(conv_of);
     decided(s, layer);
 }
 
