@@ -2036,7 +2036,7 @@ static int check_window(const sched_t *s, char *err, size_t errlen)
     for (int k = 0; k < 2; k++) {
         const uint32_t l = layer_of[k];
         if (l == UINT32_MAX) {
-            int stray = s->range_done[k] != 0 || s->threshold[k] != 0;
+            int stray = s->range_done[k] != 0 || f64_bits(s->threshold[k]) != 0; /* -0 too */
             for (size_t i = 0; i < mb && !stray; i++)
                 stray = s->member[k][i] != 0;
             for (uint32_t r = 0; r < R && !stray; r++)
