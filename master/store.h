@@ -34,7 +34,12 @@
 
 #include "vberr.h"
 
-#define STORE_FORMAT_VERSION 1
+/* 2: snapshot and journal (STORE_KIND_SNAPSHOT, journal.h) in place of
+ * checkpoint and checkpoint.prev. Records of version 1 are still read
+ * (a state directory of the master before is taken over: persist.c); a
+ * newer version than this is refused. */
+#define STORE_FORMAT_VERSION 2
+#define STORE_FORMAT_OLDEST 1
 
 /* What a record holds (the header's kind: a file of one kind is never read
  * as another). */
@@ -42,13 +47,17 @@ typedef enum {
     STORE_KIND_META = 1,
     STORE_KIND_SUBMIT = 2,
     STORE_KIND_CHECKPOINT = 3,
-    STORE_KIND_FINAL = 4
+    STORE_KIND_FINAL = 4,
+    STORE_KIND_SNAPSHOT = 5
 } store_kind_t;
 
 typedef struct store store_t;
 
 /* Opens (creating if needed) the state directory and reads its meta record.
- * NULL with a message when the directory cannot be used. */
+ * NULL with a message when the directory cannot be used, or when its meta
+ * was written by a newer master (a format version past
+ * STORE_FORMAT_VERSION: the message names the file and both versions).
+ * The meta is rewritten at this version. */
 store_t *store_open(const char *dir, char *err, size_t errlen);
 void store_close(store_t **s);
 

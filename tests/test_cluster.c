@@ -1822,6 +1822,18 @@ static daemon_t *start_durable(int *port, const char *name, const char *dir, con
     return spawn(name, NULL, args);
 }
 
+/* The journal's header (master/journal.h): a journal this size holds no commit. */
+#define JOURNAL_HEADER_BYTES 32
+
+/* The size of a job's state file; -1 when it is not there. */
+static long long state_file_size(const char *dir, unsigned long long job, const char *name)
+{
+    char path[PATHLEN + 64];
+    snprintf(path, sizeof path, "%s/jobs/%llu/%s", dir, job, name);
+    struct stat st;
+    return stat(path, &st) == 0 ? (long long)st.st_size : -1;
+}
+
 static int file_exists(const char *dir, unsigned long long job, const char *name)
 {
     char path[PATHLEN + 64];
@@ -1876,8 +1888,8 @@ START_TEST(master_crash)
                   logs_tail());
     ck_assert_msg(WIFSIGNALED(st) && WTERMSIG(st) == SIGKILL, "fault build: %s\n%s",
                   describe_status(st, log, sizeof log), logs_tail());
-    ck_assert_msg(!file_exists(dir, job, "checkpoint"),
-                  "a checkpoint was renamed into place after all");
+    ck_assert_msg(!file_exists(dir, job, "snapshot") && !file_exists(dir, job, "journal"),
+                  "a snapshot was renamed into place after all");
 
     /* 3. mid-job, after checkpoints: the job paced to an eighth of its
      * layers, then on until a checkpoint is renamed into place after that
@@ -1892,16 +1904,17 @@ START_TEST(master_crash)
     cJSON *s = pace_to(&pace, 0.125);
     double merged = json_num(s, "samples");
     cJSON_Delete(s);
-    char ckpt[PATHLEN + 64];
-    snprintf(ckpt, sizeof ckpt, "%s/jobs/%llu/checkpoint", dir, job);
-    struct stat before, now;
-    int had = stat(ckpt, &before) == 0;
+    /* on until the journal holds a commit past that point (durable) */
     double end = now_ms() + JOB_TIMEOUT_MS;
-    while (!(stat(ckpt, &now) == 0 && (!had || now.st_ino != before.st_ino) &&
-             file_exists(dir, job, "checkpoint.prev"))) {
-        ck_assert_msg(now_ms() < end, "no new checkpoint within %d ms\n%s", JOB_TIMEOUT_MS,
+    for (;;) {
+        s = pace_step(&pace);
+        int past = json_num(s, "durable_samples") > merged &&
+                   state_file_size(dir, job, "journal") > JOURNAL_HEADER_BYTES;
+        cJSON_Delete(s);
+        if (past)
+            break;
+        ck_assert_msg(now_ms() < end, "no journal commit within %d ms\n%s", JOB_TIMEOUT_MS,
                       logs_tail());
-        cJSON_Delete(pace_step(&pace));
     }
     /* a client waiting on the job outlives the crash and the restart: it
      * has shown the job (its first line, at 1/8 > 10 %) before the crash */
@@ -1916,7 +1929,8 @@ START_TEST(master_crash)
     kill9(m);
     m = start_durable(&port, "j-master4", dir, NULL);
     s = job_status(port + 1, job);
-    ck_assert_msg(strstr(json_str(s, "recovered"), "checkpoint at") != NULL,
+    ck_assert_msg(strstr(json_str(s, "recovered"), "snapshot") != NULL &&
+                      strstr(json_str(s, "recovered"), "journal commit") != NULL,
                   "status says recovered \"%s\"", json_str(s, "recovered"));
     ck_assert_msg(json_num(s, "samples") >= merged && !job_ended(s),
                   "resumed %s with %g samples, the checkpoint had >= %g", json_str(s, "state"),
@@ -1938,7 +1952,7 @@ START_TEST(master_crash)
     while (!file_exists(dir, job, "final") && now_ms() < end)
         sleep_ms(20);
     ck_assert_msg(file_exists(dir, job, "image.exr") && file_exists(dir, job, "final") &&
-                      !file_exists(dir, job, "checkpoint"),
+                      !file_exists(dir, job, "snapshot") && !file_exists(dir, job, "journal"),
                   "an ended job keeps its image and final status, not its checkpoints");
 
     /* a finished job survives a clean restart; the next id is larger */
@@ -1976,52 +1990,63 @@ START_TEST(master_crash)
 }
 END_TEST
 
-/* A corrupt checkpoint is found at startup, reported in the log and in
- * status, and never merged: the job falls back to the previous checkpoint
- * (or starts over) and still ends with the uninterrupted image. */
-START_TEST(corrupt_checkpoint)
+/* A damaged journal is found at startup, reported in the log, and never
+ * merged: the job replays its snapshot and the journal's commits up to the
+ * damaged record, the journal is cut there, and the job still ends with
+ * the uninterrupted image. corrupt: one byte flipped in the middle of the
+ * journal's commits; torn: its last record cut short, as a crash in the
+ * middle of an append leaves it. */
+static void damaged_journal(int torn)
 {
     static const char *const settings = "--spp 512 --granularity 16 --adaptive none --seed 8";
     char scene[PATHLEN], dir[PATHLEN], ref[PATHLEN], got[PATHLEN], log[65536], path[PATHLEN + 64];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
-    state_dir(dir, sizeof dir, "state-corrupt");
+    state_dir(dir, sizeof dir, torn ? "state-torn" : "state-corrupt");
     int port = slot_port(9);
     daemon_t *m = start_durable(&port, "k-master1", dir, NULL);
     daemon_t *w = start_worker(port, 1, "k-worker", "127.0.0.2");
     wait_workers(port + 1, 1);
-    /* paced: four layers, then on until two checkpoints are on disk, and
-     * the master dies with the job still running (its worker frozen) */
+    /* paced: four layers, then on until the journal holds commits after
+     * its snapshot, and the master dies with the job still running (its
+     * worker frozen) */
     pacer_t pace;
     pace_start(&pace, m, port, &w, 1);
     unsigned long long job = pace_submit(&pace, scene, settings);
     cJSON_Delete(pace_to(&pace, 4 / 32.0));
-    for (double end = now_ms() + JOB_TIMEOUT_MS; !file_exists(dir, job, "checkpoint.prev");) {
-        ck_assert_msg(now_ms() < end, "no two checkpoints within %d ms\n%s", JOB_TIMEOUT_MS,
+    for (double end = now_ms() + JOB_TIMEOUT_MS;
+         state_file_size(dir, job, "journal") <= JOURNAL_HEADER_BYTES;) {
+        ck_assert_msg(now_ms() < end, "no journal commit within %d ms\n%s", JOB_TIMEOUT_MS,
                       logs_tail());
         cJSON_Delete(pace_step(&pace));
     }
     kill9(m);
     pace_thaw(&pace);
-    /* flip one byte in the middle of the newest checkpoint */
-    snprintf(path, sizeof path, "%s/jobs/%llu/checkpoint", dir, job);
-    FILE *f = fopen(path, "r+b");
-    ck_assert_ptr_nonnull(f);
-    fseek(f, 0, SEEK_END);
-    long size = ftell(f);
-    fseek(f, size / 2, SEEK_SET);
-    int c = fgetc(f);
-    fseek(f, size / 2, SEEK_SET);
-    fputc(c ^ 0x5a, f);
-    fclose(f);
+    snprintf(path, sizeof path, "%s/jobs/%llu/journal", dir, job);
+    long long size = state_file_size(dir, job, "journal");
+    if (torn) {
+        ck_assert_int_eq(truncate(path, (off_t)(size - 7)), 0);
+    } else {
+        FILE *f = fopen(path, "r+b");
+        ck_assert_ptr_nonnull(f);
+        long at = (long)(JOURNAL_HEADER_BYTES + (size - JOURNAL_HEADER_BYTES) / 2);
+        fseek(f, at, SEEK_SET);
+        int c = fgetc(f);
+        fseek(f, at, SEEK_SET);
+        fputc(c ^ 0x5a, f);
+        fclose(f);
+    }
     m = start_durable(&port, "k-master2", dir, NULL);
     read_log(m, log, sizeof log);
-    ck_assert_msg(strstr(log, "checksum mismatch"),
-                  "the log does not report the corrupt checkpoint:\n%s", log);
+    ck_assert_msg(strstr(log, "is refused") &&
+                      strstr(log, torn ? "torn record" : "checksum mismatch"),
+                  "the log does not report the damaged journal:\n%s", log);
     cJSON *s = job_status(port + 1, job);
-    ck_assert_msg(strstr(json_str(s, "recovered"), "checkpoint.prev") &&
-                      strstr(json_str(s, "recovered"), "checksum"),
-                  "status says recovered \"%s\"", json_str(s, "recovered"));
+    ck_assert_msg(strstr(json_str(s, "recovered"), "snapshot"), "status says recovered \"%s\"",
+                  json_str(s, "recovered"));
     cJSON_Delete(s);
+    /* cut at the last good record: what is appended next follows it */
+    ck_assert_msg(state_file_size(dir, job, "journal") < size,
+                  "the journal was not cut at its damaged record");
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "corrupt.exr"));
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "corrupt-ref.exr"));
     compare_exr(ref, got);
@@ -2030,7 +2055,19 @@ START_TEST(corrupt_checkpoint)
     remove_state(dir);
     remove_scratch();
 }
+
+START_TEST(corrupt_checkpoint)
+{
+    damaged_journal(0);
+}
 END_TEST
+
+START_TEST(torn_journal)
+{
+    damaged_journal(1);
+}
+END_TEST
+
 /* A failed state write (a full disk, simulated by the fault build while a
  * flag file exists) is logged and shown in status; the job keeps running,
  * nothing durable is damaged, the daemon never exits, and the image is
@@ -3913,6 +3950,7 @@ static const struct {
     {"several_hosts", &several_hosts},
     {"master_crash", &master_crash},
     {"corrupt_checkpoint", &corrupt_checkpoint},
+    {"torn_journal", &torn_journal},
     {"storage_failure", &storage_failure},
     {"churn", &churn},
     {"flood", &flood},
