@@ -371,9 +371,10 @@ int journal_next(journal_reader_t *r, journal_commit_t *c, char *err, size_t err
     }
     uint64_t plen = get_u32(head), seq = get_u64(head + 4);
     if (plen < 8 || plen > JOURNAL_MAX_PAYLOAD || plen > left - JOURNAL_RECORD_OVERHEAD) {
-        set_err(err, errlen, plen > left - JOURNAL_RECORD_OVERHEAD && plen >= 8
-                                 ? "torn record (length %llu, %zu bytes left)"
-                                 : "bad length %llu (%zu bytes left)",
+        set_err(err, errlen,
+                plen > left - JOURNAL_RECORD_OVERHEAD && plen >= 8
+                    ? "torn record (length %llu, %zu bytes left)"
+                    : "bad length %llu (%zu bytes left)",
                 (unsigned long long)plen, left);
         return -1;
     }

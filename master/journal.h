@@ -101,8 +101,8 @@ int journal_create(const char *path, const journal_header_t *h, char *err, size_
 typedef struct journal_reader {
     const uint8_t *data;
     size_t size;
-    size_t pos;      /* the end of the last good commit (the header's end at first) */
-    uint64_t seq;    /* the last good commit's sequence number (0: none) */
+    size_t pos;   /* the end of the last good commit (the header's end at first) */
+    uint64_t seq; /* the last good commit's sequence number (0: none) */
     journal_header_t header;
 } journal_reader_t;
 

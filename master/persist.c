@@ -352,8 +352,11 @@ static void jw_start(master_t *m, double now, int force)
     if (!w || w->busy)
         return;
     for (job_t *j = m->jobs; j; j = j->next) {
+        /* a journal as large as its snapshot waits for the compaction
+         * (persist_tick): it never exceeds the snapshot by more than one
+         * commit */
         if (!j->journal || j->state != JOB_RUNNING || !j->snap_gen || j->need_snapshot ||
-            j->in_write || j->journal_writing)
+            j->in_write || j->journal_writing || j->journal_bytes >= j->snap_bytes)
             continue;
         if (!force && now - j->last_ckpt < m->cfg.checkpoint_s)
             continue;
