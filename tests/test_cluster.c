@@ -2194,10 +2194,10 @@ START_TEST(compaction_crash)
     const char *fault_bin = getenv("VB_FAULT_MASTER");
     ck_assert_msg(fault_bin && access(fault_bin, X_OK) == 0, "VB_FAULT_MASTER is not built");
     /* long enough in layers that compactions come well before the end:
-     * the journal reaches the snapshot's size after a few layers of 128 */
-    static const char *const settings = "--spp 1024 --granularity 8 --adaptive thesis --seed 4";
+     * the journal reaches the snapshot's size after a few layers of 64 */
+    static const char *const settings = "--spp 512 --granularity 8 --adaptive thesis --seed 4";
     char scene[PATHLEN], dir[PATHLEN], ref[PATHLEN], got[PATHLEN], log[65536];
-    scene_file(scene, sizeof scene, 128, NULL, NULL);
+    scene_file(scene, sizeof scene, 64, NULL, NULL);
     state_dir(dir, sizeof dir, "state-compact");
     int port = slot_port(9);
     static const char *const where[2] = {"VB_FAULT_CRASH_IN_COMPACTION=before_rename",
