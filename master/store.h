@@ -5,8 +5,11 @@
  *   DIR/jobs/<id>/submit          the submit request as received (JSON and
  *                                 binary frames): rebuilt into a job exactly
  *                                 as a client's submission is
- *   DIR/jobs/<id>/checkpoint      the scheduler (film included) and the job's
- *   DIR/jobs/<id>/checkpoint.prev counters, as of the last two checkpoints
+ *   DIR/jobs/<id>/snapshot        the scheduler (film included), the job's
+ *                                 counters and a generation number
+ *   DIR/jobs/<id>/journal         the results merged since that snapshot, in
+ *                                 merge order (journal.h: not a record)
+ *   DIR/jobs/<id>/checkpoint      (format 1, read and replaced by a snapshot)
  *   DIR/jobs/<id>/image.exr       the final image (done, failed, cancelled)
  *   DIR/jobs/<id>/final           the job's closing status (JSON)
  *
@@ -19,7 +22,7 @@
  * Files are written crash-safe: a temporary file, fsync, rename, fsync of
  * the directory. A file that fails its checks is reported, never trusted.
  *
- * Checkpoints and final images are written by a forked child (as redis
+ * Snapshots and final images are written by a forked child (as redis
  * writes its RDB file), so the master's event loop never waits on a disk:
  * the child sees a copy-on-write snapshot of the master's memory. One child
  * at a time; it reports each job's outcome through a pipe.

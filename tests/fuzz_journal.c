@@ -132,8 +132,8 @@ static uint64_t get_le(const unsigned char *p, int bytes)
 
 static void mutate(fuzz_buf_t *b, uint64_t *s)
 {
-    static const uint64_t words[] = {0, 1, 2, 7, 8, 12, 20, 38, 46, 0xFFFF, 0x10000, 0x7FFFFFFF,
-                                     0xFFFFFFFF};
+    static const uint64_t words[] = {0,  1,  2,      7,       8,          12,        20,
+                                     38, 46, 0xFFFF, 0x10000, 0x7FFFFFFF, 0xFFFFFFFF};
     static const char *const tokens[] = {"VBJRNL1\n", "{\"rays\":1}", "{}", "\"series\""};
     unsigned kind = (unsigned)(fuzz_rnd(s) % 8);
     if (fuzz_mutate_shared(b, s, kind, tokens, sizeof tokens / sizeof tokens[0]))
@@ -168,8 +168,8 @@ static void repair(fuzz_buf_t *b, uint64_t *s)
 
 int main(int argc, char **argv)
 {
-    static const fuzz_target_t target = {
-        "fuzz_journal", run_one, mutate, repair, {"header", "commits"}, "-journal"};
+    static const fuzz_target_t target = {"fuzz_journal",        run_one,   mutate, repair,
+                                         {"header", "commits"}, "-journal"};
     return fuzz_main(argc, argv, &target);
 }
 
