@@ -68,7 +68,8 @@ int main(int argc, char **argv)
     if (jf)
         fprintf(jf, "{\"granularity\": 32, \"cases\": [");
     printf("| image | spp | layers | adaptive | bytes a pixel | film and statistics | in flight "
-           "(window, task records) | total MB | largest shares |\n|---|--:|--:|---|--:|--:|--:|--:|---|\n");
+           "(window, task records) | total MB | largest shares "
+           "|\n|---|--:|--:|---|--:|--:|--:|--:|---|\n");
     for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++) {
         const bcase_t *k = &cases[c];
         sched_config_t cfg = {.width = k->w,

@@ -349,6 +349,13 @@ static cJSON *ctl_workers(ctl_req_t *r)
         cJSON_AddNumberToObject(st, "checkpoint_cpu_seconds", m->ckpt_cpu_s);
         cJSON_AddNumberToObject(st, "checkpoint_wall_seconds", m->ckpt_wall_s);
         cJSON_AddNumberToObject(st, "checkpoint_fork_ms_max", m->ckpt_fork_ms_max);
+        /* checkpoints as snapshots and journal commits: what they write
+         * against the results they hold (the wire size of the records) */
+        cJSON_AddNumberToObject(st, "journal_commits", (double)m->journal_commits);
+        cJSON_AddNumberToObject(st, "journal_bytes_written", (double)m->journal_bytes_written);
+        cJSON_AddNumberToObject(st, "snapshots_written", (double)m->snapshots_written);
+        cJSON_AddNumberToObject(st, "snapshot_bytes_written", (double)m->snapshot_bytes_written);
+        cJSON_AddNumberToObject(st, "results_bytes_merged", (double)m->results_bytes_merged);
     }
     return b;
 }

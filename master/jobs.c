@@ -6,6 +6,7 @@
 
 #include "compare.h"
 #include "film.h"
+#include "journal.h"
 #include "master_priv.h"
 #include "preview.h"
 #include "scene.h"
@@ -111,6 +112,7 @@ void job_free(job_t *j)
         free(j->cur[c]);
     }
     free(j->series);
+    journal_destroy(&j->journal);
     cJSON_free(j->summary);
     free(j);
 }
@@ -413,6 +415,12 @@ cJSON *job_json(const job_t *j, int with_series)
         add_str(o, "storage_error", j->storage_error);
     if (j->recovered[0])
         add_str(o, "recovered", j->recovered);
+    if (j->journal) {
+        /* the checkpoint on disk: samples it holds, and the snapshot's and
+         * journal's bytes */
+        cJSON_AddNumberToObject(o, "durable_samples", (double)j->ckpt_samples);
+        cJSON_AddNumberToObject(o, "state_bytes", (double)(j->snap_bytes + j->journal_bytes));
+    }
     if (j->owner[0])
         add_str(o, "owner", j->owner);
     if (j->request_id[0])

@@ -402,7 +402,8 @@ void master_destroy(master_t **mp)
     if (m->control_sock)
         zmq_close(m->control_sock);
     offload_destroy(&m->offload); /* before the store it writes to */
-    auth_destroy(&m->auth);       /* after the sockets it guards */
+    persist_destroy(m);
+    auth_destroy(&m->auth); /* after the sockets it guards */
     store_close(&m->store);
     free(m->inflight);
     free(m->buckets);

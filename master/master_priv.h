@@ -9,7 +9,8 @@
  *   peers.c     workers: sending, joining, losing them, their messages, and
  *               dispatch of ready tasks
  *   ctl.c       the control commands, as a table
- *   persist.c   durable state: submissions, checkpoints, final images, and
+ *   persist.c   durable state: submissions, checkpoints (a snapshot and a
+ *               journal of merged results, journal.h), final images, and
  *               recovery at startup (through store.h)
  *   lease.c     task leases in the order sent, and task times (lease.h)
  *   verify.c    verification by replication: a seeded share of tasks goes
@@ -176,8 +177,18 @@ typedef struct job {
     uint64_t ckpt_samples; /* samples in the last durable checkpoint */
     uint64_t ckpt_writing; /* samples in the one being written */
     double last_ckpt;
-    int in_write;      /* in the background write under way: PERSIST_* */
-    int final_durable; /* image and final status are on disk */
+    int in_write; /* in the background write under way: PERSIST_* */
+    /* checkpoints: a snapshot and a journal of what was merged since
+     * (persist.c, journal.h); journal NULL without a store */
+    struct journal *journal;
+    uint64_t snap_gen;        /* generation of the snapshot on disk; 0: none yet */
+    uint64_t snap_bytes;      /* its size */
+    uint64_t journal_bytes;   /* the journal file's size: what is durable in it */
+    int need_snapshot;        /* the journal cannot go on: a snapshot first */
+    int journal_writing;      /* its commits are with the writer thread */
+    uint64_t journal_samples; /* samples those commits bring it to */
+    size_t snap_keep_from;    /* journal_pending at the fork of the snapshot being written */
+    int final_durable;        /* image and final status are on disk */
     char storage_error[VB_ERR_LEN];
     char recovered[VB_ERR_LEN];
     char *summary;           /* status of an ended job whose film is freed, as
@@ -228,11 +239,15 @@ struct master {
     uint64_t reissued_deleted_jobs; /* tasks_reissued of jobs deleted since the start */
     /* background writes of checkpoints only (not final images): what they
      * cost, for the benchmark and the dashboard */
-    int bg_final; /* the write under way includes a final image */
-    uint64_t ckpt_runs;
+    int bg_final;       /* the write under way includes a final image */
+    uint64_t ckpt_runs; /* journal commits written and snapshots forked */
     double ckpt_cpu_s, ckpt_wall_s, ckpt_fork_ms_max;
-    vblog_limiter_t limiter; /* lines a peer can provoke at will */
-    auth_t *auth;            /* NULL: no CURVE */
+    struct persist_writer *writer; /* the journal writer thread (persist.c) */
+    uint64_t journal_bytes_written, journal_commits;
+    uint64_t snapshot_bytes_written, snapshots_written;
+    uint64_t results_bytes_merged; /* wire size of the result records merged */
+    vblog_limiter_t limiter;       /* lines a peer can provoke at will */
+    auth_t *auth;                  /* NULL: no CURVE */
     double last_timer;
     int shutdown;
 };
@@ -421,7 +436,7 @@ void ctl_offload_done(master_t *m);
 int ctl_job_id(const cJSON *req, uint64_t *id);
 
 /* persist.c */
-enum { PERSIST_CHECKPOINT = 1, PERSIST_FINAL = 2 };
+enum { PERSIST_SNAPSHOT = 1, PERSIST_FINAL = 2 };
 /* Writes a submission and gives the job its id (the offload thread). */
 int persist_submission(store_t *store, job_t *j, const void *req, size_t req_size,
                        const submit_frame_t *frames, int nframes, char *err, size_t errlen);
@@ -430,6 +445,12 @@ void persist_image_path(master_t *m, const job_t *j, char *out, size_t outlen);
 void persist_tick(master_t *m, double now, int force);
 void persist_recover(master_t *m);
 void persist_finish(master_t *m); /* at shutdown: last checkpoints, wait */
+/* Stops the journal writer thread (master_destroy). */
+void persist_destroy(master_t *m);
+/* A task's results were merged (sched_complete succeeded): counted, and
+ * journalled in merge order for the next checkpoint. */
+void persist_note(master_t *m, job_t *j, uint64_t task_id, const tracer_result_t *results,
+                  uint32_t count);
 /* A checkpoint's counters (its extras block, parsed) into j; anything but
  * a number in its counter's range counts as 0. */
 void persist_apply_extras(job_t *j, const cJSON *o);

@@ -635,6 +635,7 @@ static void on_result(master_t *m, peer_t *w, proto_msg_t *msg, const char *bad)
         peer_bad_result(m, w, j, id, bad ? bad : err);
         return;
     }
+    persist_note(m, j, id, msg->u.result.records, msg->u.result.count);
     double now = master_now();
     lease_times_add(&j->times, now - (j->epoch + j->sent_ms[c] / 1000.0));
     peer_answered(m, w);

@@ -374,9 +374,9 @@ static const char *check_record(const uint8_t *all, uint64_t size, store_kind_t 
         return "torn (too short)";
     if (memcmp(all, store_magic, 8) != 0)
         return "not a vbrender state file (bad magic)";
-    if (get_u32(all + 8) != STORE_FORMAT_VERSION) {
-        snprintf(why, whylen, "format version %u, this master reads %d", get_u32(all + 8),
-                 STORE_FORMAT_VERSION);
+    if (get_u32(all + 8) < STORE_FORMAT_OLDEST || get_u32(all + 8) > STORE_FORMAT_VERSION) {
+        snprintf(why, whylen, "format version %u, this master reads %d to %d", get_u32(all + 8),
+                 STORE_FORMAT_OLDEST, STORE_FORMAT_VERSION);
         return why;
     }
     if (get_u32(all + 12) != (uint32_t)kind)
@@ -654,6 +654,19 @@ int store_job_ids(const store_t *s, uint64_t **ids, size_t *count, char *err, si
     return 0;
 }
 
+/* The format version in a state file's header; 0 when it has none (missing,
+ * short, another magic). */
+static uint32_t meta_version(const char *path)
+{
+    int fd = open(path, O_RDONLY | O_CLOEXEC);
+    if (fd < 0)
+        return 0;
+    uint8_t h[STORE_HEADER_SIZE];
+    ssize_t n = read(fd, h, sizeof h);
+    close_quietly(fd);
+    return n == (ssize_t)sizeof h && memcmp(h, store_magic, 8) == 0 ? get_u32(h + 8) : 0;
+}
+
 store_t *store_open(const char *dir, char *err, size_t errlen)
 {
     store_t *s = calloc(1, sizeof *s);
@@ -680,6 +693,15 @@ store_t *store_open(const char *dir, char *err, size_t errlen)
     snprintf(path, sizeof path, "%s/meta", s->dir);
     store_rec_t rec;
     s->next_id = 1;
+    uint32_t version = meta_version(path);
+    if (version > STORE_FORMAT_VERSION) {
+        set_err(err, errlen,
+                "%.600s: state format version %u, written by a newer vbrender-master; this one "
+                "reads versions %d to %d (refusing to touch it)",
+                path, version, STORE_FORMAT_OLDEST, STORE_FORMAT_VERSION);
+        free(s);
+        return NULL;
+    }
     if (store_rec_load(path, STORE_KIND_META, &rec, lerr, sizeof lerr) == 0) {
         if (rec.size >= 12) {
             s->next_id = get_u64(rec.data);

@@ -5,8 +5,11 @@
  *   DIR/jobs/<id>/submit          the submit request as received (JSON and
  *                                 binary frames): rebuilt into a job exactly
  *                                 as a client's submission is
- *   DIR/jobs/<id>/checkpoint      the scheduler (film included) and the job's
- *   DIR/jobs/<id>/checkpoint.prev counters, as of the last two checkpoints
+ *   DIR/jobs/<id>/snapshot        the scheduler (film included), the job's
+ *                                 counters and a generation number
+ *   DIR/jobs/<id>/journal         the results merged since that snapshot, in
+ *                                 merge order (journal.h: not a record)
+ *   DIR/jobs/<id>/checkpoint      (format 1, read and replaced by a snapshot)
  *   DIR/jobs/<id>/image.exr       the final image (done, failed, cancelled)
  *   DIR/jobs/<id>/final           the job's closing status (JSON)
  *
@@ -19,7 +22,7 @@
  * Files are written crash-safe: a temporary file, fsync, rename, fsync of
  * the directory. A file that fails its checks is reported, never trusted.
  *
- * Checkpoints and final images are written by a forked child (as redis
+ * Snapshots and final images are written by a forked child (as redis
  * writes its RDB file), so the master's event loop never waits on a disk:
  * the child sees a copy-on-write snapshot of the master's memory. One child
  * at a time; it reports each job's outcome through a pipe.
@@ -34,7 +37,12 @@
 
 #include "vberr.h"
 
-#define STORE_FORMAT_VERSION 1
+/* 2: snapshot and journal (STORE_KIND_SNAPSHOT, journal.h) in place of
+ * checkpoint and checkpoint.prev. Records of version 1 are still read
+ * (a state directory of the master before is taken over: persist.c); a
+ * newer version than this is refused. */
+#define STORE_FORMAT_VERSION 2
+#define STORE_FORMAT_OLDEST 1
 
 /* What a record holds (the header's kind: a file of one kind is never read
  * as another). */
@@ -42,13 +50,17 @@ typedef enum {
     STORE_KIND_META = 1,
     STORE_KIND_SUBMIT = 2,
     STORE_KIND_CHECKPOINT = 3,
-    STORE_KIND_FINAL = 4
+    STORE_KIND_FINAL = 4,
+    STORE_KIND_SNAPSHOT = 5
 } store_kind_t;
 
 typedef struct store store_t;
 
 /* Opens (creating if needed) the state directory and reads its meta record.
- * NULL with a message when the directory cannot be used. */
+ * NULL with a message when the directory cannot be used, or when its meta
+ * was written by a newer master (a format version past
+ * STORE_FORMAT_VERSION: the message names the file and both versions).
+ * The meta is rewritten at this version. */
 store_t *store_open(const char *dir, char *err, size_t errlen);
 void store_close(store_t **s);
 

@@ -327,6 +327,7 @@ static void entry_merge(master_t *m, job_t *j, uint32_t idx, const tracer_result
         entry_drop(m, j, idx);
         return;
     }
+    persist_note(m, j, e->task, res, e->count);
     if (kind == MERGE_VERIFIED)
         j->tasks_verified++;
     else if (kind == MERGE_UNVERIFIED)

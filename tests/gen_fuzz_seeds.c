@@ -7,6 +7,8 @@
  *   tests/data/fuzz-ckpt   checkpoint payloads: schedulers of fuzzmaster.h's
  *                          configs run with synthetic results and saved at
  *                          several points (fresh, tasks out, mid, done)
+ *   tests/data/fuzz-journal  job journals (master/journal.c's writer): with
+ *                          and without pvar, a few commits of merged tasks
  *   tests/data/fuzz-exr    small EXR files: image_write_exr's, and HALF /
  *                          UINT, other compressions and tiled ones written
  *                          with the OpenEXR C API
@@ -36,6 +38,7 @@
 
 #include "fuzzmaster.h"
 #include "image.h"
+#include "journal.h"
 #include "master_priv.h"
 
 typedef struct gen {
@@ -694,6 +697,64 @@ static void gen_exr(gen_t *g)
     }
 }
 
+/* ---- journals ------------------------------------------------------------------- */
+
+/* A journal as the master writes it: the header, then commits of merged
+ * tasks (synthetic results: exact, NaN/Inf counts, large sums) and counters. */
+static void gen_journal(gen_t *g, const char *name, uint32_t flags, int commits)
+{
+    journal_header_t h = {.version = JOURNAL_VERSION, .flags = flags, .generation = 3, .job = 42};
+    uint8_t head[JOURNAL_HEADER_SIZE];
+    journal_header_encode(&h, head);
+    journal_t *j = journal_new(h.job, h.generation, flags);
+    if (!j)
+        die("out of memory");
+    tracer_result_t r[6];
+    uint64_t task = 1;
+    for (int c = 0; c < commits; c++) {
+        for (int t = 0; t < 2; t++, task++) {
+            uint32_t n = (uint32_t)(task % 3 + (t ? 4 : 1));
+            for (uint32_t i = 0; i < n; i++)
+                r[i] = (tracer_result_t){.pixel = i,
+                                         .samples = 8 - (i & 1),
+                                         .nonfinite = i & 1,
+                                         .rays = 8 + i,
+                                         .sum = {0.5 * i, 1e3 + c, i ? 1e30 : 0},
+                                         .lum_m2 = 0.25 * i,
+                                         .pvar = 0.125 * (double)(task + i)};
+            if (journal_note(j, task, r, n) < 0)
+                die("out of memory");
+        }
+        char extras[128];
+        snprintf(extras, sizeof extras,
+                 "{\"seconds\":%d.5,\"rays\":%d,\"busy_us\":%d,\"series\":[[1,2,3,4,5]]}", c,
+                 1000 * (c + 1), 77 * c);
+        if (journal_seal(j, extras, strlen(extras)) < 0)
+            die("out of memory");
+    }
+    uint8_t *body;
+    size_t n;
+    journal_take_unwritten(j, &body, &n);
+    uint8_t *file = malloc(sizeof head + n + 1);
+    if (!file)
+        die("out of memory");
+    memcpy(file, head, sizeof head);
+    if (n)
+        memcpy(file + sizeof head, body, n);
+    emit(g, "journal", name, file, sizeof head + n);
+    free(file);
+    free(body);
+    journal_destroy(&j);
+}
+
+static void gen_journals(gen_t *g)
+{
+    gen_journal(g, "empty", 0, 0);
+    gen_journal(g, "plain-1", 0, 1);
+    gen_journal(g, "plain-3", 0, 3);
+    gen_journal(g, "pvar-2", JOURNAL_PVAR, 2);
+}
+
 int main(int argc, char **argv)
 {
     gen_t g = {0};
@@ -727,6 +788,7 @@ int main(int argc, char **argv)
               "{\"id\":7,\"state\":\"cancelled\",\"scene\":\"mesh.json\",\"error\":\"cancelled by "
               "a client\"}");
     gen_checkpoints(&g);
+    gen_journals(&g);
     if (!g.check)
         gen_exr(&g);
     rmdir(g.tmp);

@@ -1822,6 +1822,18 @@ static daemon_t *start_durable(int *port, const char *name, const char *dir, con
     return spawn(name, NULL, args);
 }
 
+/* The journal's header (master/journal.h): a journal this size holds no commit. */
+#define JOURNAL_HEADER_BYTES 32
+
+/* The size of a job's state file; -1 when it is not there. */
+static long long state_file_size(const char *dir, unsigned long long job, const char *name)
+{
+    char path[PATHLEN + 64];
+    snprintf(path, sizeof path, "%s/jobs/%llu/%s", dir, job, name);
+    struct stat st;
+    return stat(path, &st) == 0 ? (long long)st.st_size : -1;
+}
+
 static int file_exists(const char *dir, unsigned long long job, const char *name)
 {
     char path[PATHLEN + 64];
@@ -1876,8 +1888,8 @@ START_TEST(master_crash)
                   logs_tail());
     ck_assert_msg(WIFSIGNALED(st) && WTERMSIG(st) == SIGKILL, "fault build: %s\n%s",
                   describe_status(st, log, sizeof log), logs_tail());
-    ck_assert_msg(!file_exists(dir, job, "checkpoint"),
-                  "a checkpoint was renamed into place after all");
+    ck_assert_msg(!file_exists(dir, job, "snapshot") && !file_exists(dir, job, "journal"),
+                  "a snapshot was renamed into place after all");
 
     /* 3. mid-job, after checkpoints: the job paced to an eighth of its
      * layers, then on until a checkpoint is renamed into place after that
@@ -1892,16 +1904,17 @@ START_TEST(master_crash)
     cJSON *s = pace_to(&pace, 0.125);
     double merged = json_num(s, "samples");
     cJSON_Delete(s);
-    char ckpt[PATHLEN + 64];
-    snprintf(ckpt, sizeof ckpt, "%s/jobs/%llu/checkpoint", dir, job);
-    struct stat before, now;
-    int had = stat(ckpt, &before) == 0;
+    /* on until the journal holds a commit past that point (durable) */
     double end = now_ms() + JOB_TIMEOUT_MS;
-    while (!(stat(ckpt, &now) == 0 && (!had || now.st_ino != before.st_ino) &&
-             file_exists(dir, job, "checkpoint.prev"))) {
-        ck_assert_msg(now_ms() < end, "no new checkpoint within %d ms\n%s", JOB_TIMEOUT_MS,
+    for (;;) {
+        s = pace_step(&pace);
+        int past = json_num(s, "durable_samples") > merged &&
+                   state_file_size(dir, job, "journal") > JOURNAL_HEADER_BYTES;
+        cJSON_Delete(s);
+        if (past)
+            break;
+        ck_assert_msg(now_ms() < end, "no journal commit within %d ms\n%s", JOB_TIMEOUT_MS,
                       logs_tail());
-        cJSON_Delete(pace_step(&pace));
     }
     /* a client waiting on the job outlives the crash and the restart: it
      * has shown the job (its first line, at 1/8 > 10 %) before the crash */
@@ -1916,7 +1929,8 @@ START_TEST(master_crash)
     kill9(m);
     m = start_durable(&port, "j-master4", dir, NULL);
     s = job_status(port + 1, job);
-    ck_assert_msg(strstr(json_str(s, "recovered"), "checkpoint at") != NULL,
+    ck_assert_msg(strstr(json_str(s, "recovered"), "snapshot") != NULL &&
+                      strstr(json_str(s, "recovered"), "journal commit") != NULL,
                   "status says recovered \"%s\"", json_str(s, "recovered"));
     ck_assert_msg(json_num(s, "samples") >= merged && !job_ended(s),
                   "resumed %s with %g samples, the checkpoint had >= %g", json_str(s, "state"),
@@ -1938,7 +1952,7 @@ START_TEST(master_crash)
     while (!file_exists(dir, job, "final") && now_ms() < end)
         sleep_ms(20);
     ck_assert_msg(file_exists(dir, job, "image.exr") && file_exists(dir, job, "final") &&
-                      !file_exists(dir, job, "checkpoint"),
+                      !file_exists(dir, job, "snapshot") && !file_exists(dir, job, "journal"),
                   "an ended job keeps its image and final status, not its checkpoints");
 
     /* a finished job survives a clean restart; the next id is larger */
@@ -1976,52 +1990,63 @@ START_TEST(master_crash)
 }
 END_TEST
 
-/* A corrupt checkpoint is found at startup, reported in the log and in
- * status, and never merged: the job falls back to the previous checkpoint
- * (or starts over) and still ends with the uninterrupted image. */
-START_TEST(corrupt_checkpoint)
+/* A damaged journal is found at startup, reported in the log, and never
+ * merged: the job replays its snapshot and the journal's commits up to the
+ * damaged record, the journal is cut there, and the job still ends with
+ * the uninterrupted image. corrupt: one byte flipped in the middle of the
+ * journal's commits; torn: its last record cut short, as a crash in the
+ * middle of an append leaves it. */
+static void damaged_journal(int torn)
 {
     static const char *const settings = "--spp 512 --granularity 16 --adaptive none --seed 8";
     char scene[PATHLEN], dir[PATHLEN], ref[PATHLEN], got[PATHLEN], log[65536], path[PATHLEN + 64];
     scene_file(scene, sizeof scene, 32, NULL, NULL);
-    state_dir(dir, sizeof dir, "state-corrupt");
+    state_dir(dir, sizeof dir, torn ? "state-torn" : "state-corrupt");
     int port = slot_port(9);
     daemon_t *m = start_durable(&port, "k-master1", dir, NULL);
     daemon_t *w = start_worker(port, 1, "k-worker", "127.0.0.2");
     wait_workers(port + 1, 1);
-    /* paced: four layers, then on until two checkpoints are on disk, and
-     * the master dies with the job still running (its worker frozen) */
+    /* paced: four layers, then on until the journal holds commits after
+     * its snapshot, and the master dies with the job still running (its
+     * worker frozen) */
     pacer_t pace;
     pace_start(&pace, m, port, &w, 1);
     unsigned long long job = pace_submit(&pace, scene, settings);
     cJSON_Delete(pace_to(&pace, 4 / 32.0));
-    for (double end = now_ms() + JOB_TIMEOUT_MS; !file_exists(dir, job, "checkpoint.prev");) {
-        ck_assert_msg(now_ms() < end, "no two checkpoints within %d ms\n%s", JOB_TIMEOUT_MS,
+    for (double end = now_ms() + JOB_TIMEOUT_MS;
+         state_file_size(dir, job, "journal") <= JOURNAL_HEADER_BYTES;) {
+        ck_assert_msg(now_ms() < end, "no journal commit within %d ms\n%s", JOB_TIMEOUT_MS,
                       logs_tail());
         cJSON_Delete(pace_step(&pace));
     }
     kill9(m);
     pace_thaw(&pace);
-    /* flip one byte in the middle of the newest checkpoint */
-    snprintf(path, sizeof path, "%s/jobs/%llu/checkpoint", dir, job);
-    FILE *f = fopen(path, "r+b");
-    ck_assert_ptr_nonnull(f);
-    fseek(f, 0, SEEK_END);
-    long size = ftell(f);
-    fseek(f, size / 2, SEEK_SET);
-    int c = fgetc(f);
-    fseek(f, size / 2, SEEK_SET);
-    fputc(c ^ 0x5a, f);
-    fclose(f);
+    snprintf(path, sizeof path, "%s/jobs/%llu/journal", dir, job);
+    long long size = state_file_size(dir, job, "journal");
+    if (torn) {
+        ck_assert_int_eq(truncate(path, (off_t)(size - 7)), 0);
+    } else {
+        FILE *f = fopen(path, "r+b");
+        ck_assert_ptr_nonnull(f);
+        long at = (long)(JOURNAL_HEADER_BYTES + (size - JOURNAL_HEADER_BYTES) / 2);
+        fseek(f, at, SEEK_SET);
+        int c = fgetc(f);
+        fseek(f, at, SEEK_SET);
+        fputc(c ^ 0x5a, f);
+        fclose(f);
+    }
     m = start_durable(&port, "k-master2", dir, NULL);
     read_log(m, log, sizeof log);
-    ck_assert_msg(strstr(log, "checksum mismatch"),
-                  "the log does not report the corrupt checkpoint:\n%s", log);
+    ck_assert_msg(strstr(log, "is refused") &&
+                      strstr(log, torn ? "torn record" : "checksum mismatch"),
+                  "the log does not report the damaged journal:\n%s", log);
     cJSON *s = job_status(port + 1, job);
-    ck_assert_msg(strstr(json_str(s, "recovered"), "checkpoint.prev") &&
-                      strstr(json_str(s, "recovered"), "checksum"),
-                  "status says recovered \"%s\"", json_str(s, "recovered"));
+    ck_assert_msg(strstr(json_str(s, "recovered"), "snapshot"), "status says recovered \"%s\"",
+                  json_str(s, "recovered"));
     cJSON_Delete(s);
+    /* cut at the last good record: what is appended next follows it */
+    ck_assert_msg(state_file_size(dir, job, "journal") < size,
+                  "the journal was not cut at its damaged record");
     finish_and_fetch(port + 1, job, tmp(got, sizeof got, "corrupt.exr"));
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "corrupt-ref.exr"));
     compare_exr(ref, got);
@@ -2030,7 +2055,286 @@ START_TEST(corrupt_checkpoint)
     remove_state(dir);
     remove_scratch();
 }
+
+START_TEST(corrupt_checkpoint)
+{
+    damaged_journal(0);
+}
 END_TEST
+
+START_TEST(torn_journal)
+{
+    damaged_journal(1);
+}
+END_TEST
+
+/* The master's counters in `workers` ("master" object): a number. */
+static double master_counter(int cport, const char *name)
+{
+    cJSON *r = ctl(cport, "workers", 0);
+    ck_assert_msg(r != NULL, "no answer to workers\n%s", logs_tail());
+    const cJSON *o = cJSON_GetObjectItemCaseSensitive(r, "master");
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, name);
+    ck_assert_msg(cJSON_IsNumber(v), "the master's counters lack %s", name);
+    double x = v->valuedouble;
+    cJSON_Delete(r);
+    return x;
+}
+
+/* The size of the journal's last commit (JOURNAL_RECORD_OVERHEAD 20 bytes
+ * around its payload), walking its records from the header; 0 for none. */
+static long long last_commit_size(const char *dir, unsigned long long job)
+{
+    char path[PATHLEN + 64];
+    snprintf(path, sizeof path, "%s/jobs/%llu/journal", dir, job);
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return 0;
+    long long last = 0, at = JOURNAL_HEADER_BYTES;
+    uint8_t len[4];
+    while (fseek(f, at, SEEK_SET) == 0 && fread(len, 1, 4, f) == 4) {
+        last = 20 + (long long)(len[0] | len[1] << 8 | len[2] << 16 | (uint32_t)len[3] << 24);
+        at += last;
+    }
+    fclose(f);
+    return last;
+}
+
+/* Checkpoints cost what the results merged since the last one cost, not
+ * the job's whole state: over a paced job of 128 x 128 pixels (several
+ * compactions), the bytes written for checkpoints stay within 1.5 times the
+ * wire size of the results merged plus a constant (the first snapshot, and
+ * the commits' framing and counters), and at every look the journal
+ * exceeds its snapshot by at most its last commit, so the state on disk
+ * stays within twice the snapshot plus a commit. Then the master is killed
+ * and the job resumes to the uninterrupted image. */
+START_TEST(journal_bytes)
+{
+    static const char *const settings = "--spp 256 --granularity 8 --adaptive relmse --seed 21";
+    char scene[PATHLEN], dir[PATHLEN], ref[PATHLEN], got[PATHLEN];
+    scene_file(scene, sizeof scene, 128, NULL, NULL);
+    state_dir(dir, sizeof dir, "state-bytes");
+    int port = slot_port(9);
+    daemon_t *m = start_durable(&port, "q-master1", dir, NULL);
+    daemon_t *w = start_worker(port, 1, "q-worker", "127.0.0.2");
+    wait_workers(port + 1, 1);
+    pacer_t pace;
+    pace_start(&pace, m, port, &w, 1);
+    unsigned long long job = pace_submit(&pace, scene, settings);
+    double end = now_ms() + 4 * JOB_TIMEOUT_MS;
+    long long first_snapshot = -1;
+    int looks = 0;
+    for (;;) {
+        cJSON *s = pace_step(&pace);
+        double at = pace.at;
+        cJSON_Delete(s);
+        long long journal = state_file_size(dir, job, "journal");
+        long long snapshot = state_file_size(dir, job, "snapshot");
+        if (journal > 0 && snapshot > 0) {
+            if (first_snapshot < 0)
+                first_snapshot = snapshot;
+            long long commit = last_commit_size(dir, job);
+            ck_assert_msg(journal <= snapshot + commit + JOURNAL_HEADER_BYTES,
+                          "the journal (%lld bytes) exceeds its snapshot (%lld) by more than its "
+                          "last commit (%lld)",
+                          journal, snapshot, commit);
+            looks++;
+        }
+        double written = master_counter(port + 1, "journal_bytes_written") +
+                         master_counter(port + 1, "snapshot_bytes_written");
+        double results = master_counter(port + 1, "results_bytes_merged");
+        double commits = master_counter(port + 1, "journal_commits");
+        /* the constant: the first snapshot, and per commit its framing and
+         * counters (under 1 KiB of JSON), each also counted once more in the
+         * snapshot that a compaction writes over it */
+        double bound =
+            1.5 * results + (first_snapshot > 0 ? (double)first_snapshot : 0) + 2 * 1024 * commits;
+        ck_assert_msg(first_snapshot < 0 || written <= bound,
+                      "checkpoints wrote %.0f bytes for %.0f bytes of results (%.0f commits, "
+                      "first snapshot %lld)",
+                      written, results, commits, first_snapshot);
+        if (at >= 0.7 && master_counter(port + 1, "snapshots_written") >= 3)
+            break;
+        ck_assert_msg(now_ms() < end, "job %llu at %.0f %% with %.0f snapshots\n%s", job, 100 * at,
+                      master_counter(port + 1, "snapshots_written"), logs_tail());
+    }
+    double results = master_counter(port + 1, "results_bytes_merged");
+    double journal_written = master_counter(port + 1, "journal_bytes_written");
+    printf("journal_bytes: %.0f journal bytes for %.0f result bytes (%.3f), %.0f snapshot bytes "
+           "in %.0f snapshots (first %lld), %d looks\n",
+           journal_written, results, journal_written / results,
+           master_counter(port + 1, "snapshot_bytes_written"),
+           master_counter(port + 1, "snapshots_written"), first_snapshot, looks);
+    ck_assert_msg(journal_written < 0.75 * results, "%.0f journal bytes for %.0f result bytes",
+                  journal_written, results);
+    kill9(m);
+    m = start_durable(&port, "q-master2", dir, NULL);
+    cJSON *s = job_status(port + 1, job);
+    ck_assert_msg(strstr(json_str(s, "recovered"), "snapshot"), "status says recovered \"%s\"",
+                  json_str(s, "recovered"));
+    cJSON_Delete(s);
+    pace_thaw(&pace);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "bytes.exr"));
+    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "bytes-ref.exr"));
+    compare_exr(ref, got);
+    stop_clean(w);
+    stop_clean(m);
+    remove_state(dir);
+    remove_scratch();
+}
+END_TEST
+
+/* The fault build kills the master from the compaction's child: before the
+ * new snapshot is renamed into place (the old snapshot and journal hold),
+ * then, restarted, after it (the new snapshot and the old journal, stale:
+ * ignored). The job resumes each time and ends with the uninterrupted
+ * image. */
+START_TEST(compaction_crash)
+{
+    const char *fault_bin = getenv("VB_FAULT_MASTER");
+    ck_assert_msg(fault_bin && access(fault_bin, X_OK) == 0, "VB_FAULT_MASTER is not built");
+    /* long enough in layers that compactions come well before the end:
+     * the journal reaches the snapshot's size after a few layers of 64 */
+    static const char *const settings = "--spp 512 --granularity 8 --adaptive thesis --seed 4";
+    char scene[PATHLEN], dir[PATHLEN], ref[PATHLEN], got[PATHLEN], log[65536];
+    scene_file(scene, sizeof scene, 64, NULL, NULL);
+    state_dir(dir, sizeof dir, "state-compact");
+    int port = slot_port(9);
+    static const char *const where[2] = {"VB_FAULT_CRASH_IN_COMPACTION=before_rename",
+                                         "VB_FAULT_CRASH_IN_COMPACTION=after_rename"};
+    daemon_t *w = NULL;
+    unsigned long long job = 0;
+    for (int k = 0; k < 2; k++) {
+        char wep[64], cep[64], name[32];
+        snprintf(wep, sizeof wep, "tcp://127.0.0.1:%d", port);
+        snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
+        snprintf(name, sizeof name, "r-fault%d", k);
+        const char *args[] = {"env", where[k],  fault_bin, "--workers",      wep,   "--control",
+                              cep,   "--state", dir,       "--checkpoint-s", "0.2", NULL};
+        daemon_t *m = spawn(name, NULL, args);
+        if (k == 0) {
+            int rc = 1;
+            char out[OUTLEN];
+            for (int tries = 0;
+                 tries < 50 && (rc = client(out, sizeof out, "jobs --master %s", cep)) != 0;
+                 tries++)
+                sleep_ms(100);
+            job = submit(port + 1, scene, settings);
+            w = start_worker(port, 1, "r-worker", "127.0.0.2");
+        }
+        int st = 0;
+        ck_assert_msg(reap(m, JOB_TIMEOUT_MS, &st),
+                      "the fault build did not die in a compaction\n%s", logs_tail());
+        ck_assert_msg(WIFSIGNALED(st) && WTERMSIG(st) == SIGKILL, "fault build: %s\n%s",
+                      describe_status(st, log, sizeof log), logs_tail());
+        if (k == 1)
+            ck_assert_msg(strstr(read_log(m, log, sizeof log), "recovered: snapshot"),
+                          "the second fault build did not resume from a snapshot:\n%s", log);
+    }
+    daemon_t *m = start_durable(&port, "r-master", dir, NULL);
+    read_log(m, log, sizeof log);
+    ck_assert_msg(strstr(log, "is stale"),
+                  "a crash after the snapshot's rename leaves a stale journal:\n%s", log);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "compact.exr"));
+    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "compact-ref.exr"));
+    compare_exr(ref, got);
+    stop_clean(w);
+    stop_clean(m);
+    remove_state(dir);
+    remove_scratch();
+}
+END_TEST
+
+/* A state directory of the master before (format 1, tests/data/state-v1: a
+ * job of small.json at 4096 spp with an old checkpoint) is taken over: the
+ * job resumes from the old checkpoint, a snapshot and journal replace it,
+ * meta is rewritten as format 2, and the image equals a fresh job's of the
+ * same scene and settings, bit for bit. */
+START_TEST(state_v1_migration)
+{
+    char dir[PATHLEN], got[PATHLEN], ref[PATHLEN], scene[PATHLEN], out[OUTLEN], cmd[4 * PATHLEN];
+    state_dir(dir, sizeof dir, "state-v1");
+    tu_root_path(scene, sizeof scene, "tests/data/state-v1/small.json");
+    char src[PATHLEN];
+    tu_root_path(src, sizeof src, "tests/data/state-v1");
+    snprintf(cmd, sizeof cmd, "cp -r '%s' '%s' && chmod -R u+w '%s'", src, dir, dir);
+    ck_assert_int_eq(tu_run(cmd, out, sizeof out), 0);
+    int port = slot_port(9);
+    daemon_t *m = start_durable(&port, "s-master", dir, NULL);
+    ck_assert_msg(log_has(m, "recovered from the old checkpoint (state format 1)", 10000),
+                  "the master does not say it took the old checkpoint over\n%s", logs_tail());
+    daemon_t *w = start_worker(port, 1, "s-worker", "127.0.0.2");
+    pacer_t pace;
+    pace_start(&pace, m, port, &w, 1);
+    pace.job = 1;
+    /* the snapshot is written at once, once the job runs again */
+    for (double end = now_ms() + JOB_TIMEOUT_MS;
+         !(file_exists(dir, 1, "snapshot") && file_exists(dir, 1, "journal") &&
+           !file_exists(dir, 1, "checkpoint"));) {
+        ck_assert_msg(now_ms() < end, "no snapshot in place of the old checkpoint\n%s",
+                      logs_tail());
+        cJSON_Delete(pace_step(&pace));
+    }
+    char meta[PATHLEN + 8];
+    snprintf(meta, sizeof meta, "%s/meta", dir);
+    FILE *f = fopen(meta, "rb");
+    ck_assert_ptr_nonnull(f);
+    uint8_t head[12];
+    ck_assert_int_eq(fread(head, 1, 12, f), 12);
+    fclose(f);
+    ck_assert_msg(head[8] == 2 && head[9] == 0 && head[10] == 0 && head[11] == 0,
+                  "meta is format %u, not 2", head[8]);
+    pace_thaw(&pace);
+    finish_and_fetch(port + 1, 1, tmp(got, sizeof got, "v1.exr"));
+    unsigned long long fresh = submit(port + 1, scene, "--spp 4096");
+    finish_and_fetch(port + 1, fresh, tmp(ref, sizeof ref, "v1-fresh.exr"));
+    compare_exr(ref, got);
+    stop_clean(w);
+    stop_clean(m);
+    remove_state(dir);
+    remove_scratch();
+}
+END_TEST
+
+/* A state directory written by a newer master (meta of format 3) is refused
+ * at startup, naming the file and both versions, and left as it was. */
+START_TEST(state_newer_refused)
+{
+    char dir[PATHLEN], meta[PATHLEN + 8], log[65536], out[OUTLEN], cmd[4 * PATHLEN];
+    state_dir(dir, sizeof dir, "state-v3");
+    char src[PATHLEN];
+    tu_root_path(src, sizeof src, "tests/data/state-v1");
+    snprintf(cmd, sizeof cmd, "cp -r '%s' '%s' && chmod -R u+w '%s'", src, dir, dir);
+    ck_assert_int_eq(tu_run(cmd, out, sizeof out), 0);
+    snprintf(meta, sizeof meta, "%s/meta", dir);
+    FILE *f = fopen(meta, "r+b");
+    ck_assert_ptr_nonnull(f);
+    fseek(f, 8, SEEK_SET);
+    fputc(3, f);
+    fclose(f);
+    int port = slot_port(9);
+    char wep[64], cep[64];
+    snprintf(wep, sizeof wep, "tcp://127.0.0.1:%d", port);
+    snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", port + 1);
+    char bin[PATHLEN];
+    snprintf(bin, sizeof bin, "%s/vbrender-master", getenv("VB_BINDIR"));
+    const char *args[] = {bin, "--workers", wep, "--control", cep, "--state", dir, NULL};
+    daemon_t *m = spawn("t-master", NULL, args);
+    int st = 0;
+    ck_assert_msg(reap(m, 20000, &st), "the master runs on a state directory of format 3");
+    ck_assert_msg(WIFEXITED(st) && WEXITSTATUS(st) != 0, "exit: %s",
+                  describe_status(st, log, sizeof log));
+    read_log(m, log, sizeof log);
+    ck_assert_msg(strstr(log, meta) && strstr(log, "format version 3") &&
+                      strstr(log, "reads versions 1 to 2"),
+                  "the refusal does not name the file and both versions:\n%s", log);
+    ck_assert_msg(file_exists(dir, 1, "checkpoint") && !file_exists(dir, 1, "snapshot"),
+                  "the refused state directory was changed");
+    remove_state(dir);
+    remove_scratch();
+}
+END_TEST
+
 /* A failed state write (a full disk, simulated by the fault build while a
  * flag file exists) is logged and shown in status; the job keeps running,
  * nothing durable is damaged, the daemon never exits, and the image is
@@ -3913,6 +4217,11 @@ static const struct {
     {"several_hosts", &several_hosts},
     {"master_crash", &master_crash},
     {"corrupt_checkpoint", &corrupt_checkpoint},
+    {"torn_journal", &torn_journal},
+    {"journal_bytes", &journal_bytes},
+    {"compaction_crash", &compaction_crash},
+    {"state_v1_migration", &state_v1_migration},
+    {"state_newer_refused", &state_newer_refused},
     {"storage_failure", &storage_failure},
     {"churn", &churn},
     {"flood", &flood},

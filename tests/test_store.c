@@ -9,6 +9,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "journal.h"
 #include "lease.h"
 #include "master_priv.h" /* persist_apply_extras */
 #include "store.h"
@@ -395,6 +396,126 @@ START_TEST(checkpoint_counters_out_of_range)
 }
 END_TEST
 
+/* The journal: what the writer seals reads back commit by commit, task by
+ * task, record by record (pixels and finite counts from the task); a torn
+ * or corrupt last record is refused with the position of the last good one;
+ * a snapshot (journal_restart) drops what it holds. */
+START_TEST(journal_round_trip)
+{
+    for (uint32_t flags = 0; flags <= JOURNAL_PVAR; flags += JOURNAL_PVAR) {
+        journal_t *j = journal_new(9, 2, flags);
+        ck_assert_ptr_nonnull(j);
+        tracer_result_t r[3];
+        tracer_task_t task[3];
+        for (uint32_t i = 0; i < 3; i++) {
+            task[i] = (tracer_task_t){.pixel = 10 + i, .sample_count = 16};
+            r[i] = (tracer_result_t){.pixel = 10 + i,
+                                     .samples = 16 - i,
+                                     .nonfinite = i,
+                                     .rays = 40 + i,
+                                     .sum = {1.0 / 3, 2, 3e20},
+                                     .lum_m2 = 0.5 * i,
+                                     .pvar = 0.25 + i};
+        }
+        ck_assert_int_eq(journal_note(j, 5, r, 3), 0);
+        ck_assert_int_eq(journal_note(j, 6, r, 2), 0);
+        ck_assert_uint_eq(journal_pending(j),
+                          2 * JOURNAL_TASK_HEADER + 5 * (JOURNAL_PIXEL_SIZE + (flags ? 8 : 0)));
+        ck_assert_int_eq(journal_seal(j, "{\"rays\":1}", 10), 0);
+        ck_assert_int_eq(journal_note(j, 7, r + 1, 1), 0);
+        ck_assert_int_eq(journal_seal(j, "{}", 2), 0);
+        journal_header_t h = {
+            .version = JOURNAL_VERSION, .flags = flags, .generation = 2, .job = 9};
+        uint8_t *body;
+        size_t n;
+        journal_take_unwritten(j, &body, &n);
+        ck_assert_uint_eq(journal_unwritten(j), 0);
+        uint8_t *file = malloc(JOURNAL_HEADER_SIZE + n);
+        journal_header_encode(&h, file);
+        memcpy(file + JOURNAL_HEADER_SIZE, body, n);
+        size_t size = JOURNAL_HEADER_SIZE + n;
+        journal_reader_t rd;
+        char err[256];
+        ck_assert_int_eq(journal_reader_init(&rd, file, size, err, sizeof err), 0);
+        ck_assert_uint_eq(rd.header.generation, 2);
+        ck_assert_uint_eq(rd.header.flags, flags);
+        journal_commit_t c;
+        ck_assert_int_eq(journal_next(&rd, &c, err, sizeof err), 1);
+        ck_assert_uint_eq(c.seq, 1);
+        ck_assert(c.extras_len == 10 && memcmp(c.extras, "{\"rays\":1}", 10) == 0);
+        journal_tasks_t it;
+        journal_tasks_init(&it, &c, flags);
+        uint64_t id;
+        uint32_t count;
+        const uint8_t *rec;
+        ck_assert_int_eq(journal_task_next(&it, &id, &count, &rec), 1);
+        ck_assert(id == 5 && count == 3);
+        for (uint32_t i = 0; i < 3; i++) {
+            tracer_result_t back;
+            ck_assert_int_eq(journal_result(rec, i, flags, &task[i], &back), 0);
+            tracer_result_t want = r[i];
+            if (!flags)
+                want.pvar = 0;
+            ck_assert(memcmp(&back, &want, sizeof back) == 0);
+        }
+        ck_assert_int_eq(journal_task_next(&it, &id, &count, &rec), 1);
+        ck_assert(id == 6 && count == 2);
+        ck_assert_int_eq(journal_task_next(&it, &id, &count, &rec), 0);
+        size_t first_end = rd.pos;
+        ck_assert_int_eq(journal_next(&rd, &c, err, sizeof err), 1);
+        ck_assert_uint_eq(c.seq, 2);
+        ck_assert_int_eq(journal_next(&rd, &c, err, sizeof err), 0);
+        /* torn: the second commit cut short */
+        ck_assert_int_eq(journal_reader_init(&rd, file, size - 3, err, sizeof err), 0);
+        ck_assert_int_eq(journal_next(&rd, &c, err, sizeof err), 1);
+        ck_assert_int_eq(journal_next(&rd, &c, err, sizeof err), -1);
+        ck_assert_msg(strstr(err, "torn"), "%s", err);
+        ck_assert_uint_eq(rd.pos, first_end);
+        /* corrupt: a byte of the second commit flipped */
+        file[size - 12] ^= 1;
+        ck_assert_int_eq(journal_reader_init(&rd, file, size, err, sizeof err), 0);
+        ck_assert_int_eq(journal_next(&rd, &c, err, sizeof err), 1);
+        ck_assert_int_eq(journal_next(&rd, &c, err, sizeof err), -1);
+        ck_assert_msg(strstr(err, "checksum"), "%s", err);
+        ck_assert_uint_eq(rd.pos, first_end);
+        /* a newer journal format is refused */
+        file[8] = JOURNAL_VERSION + 1;
+        ck_assert_int_eq(journal_reader_init(&rd, file, size, err, sizeof err), -1);
+        ck_assert_msg(strstr(err, "version"), "%s", err);
+        free(file);
+        free(body);
+        /* a snapshot taken with 1 task noted: only what came after stays */
+        ck_assert_int_eq(journal_note(j, 8, r, 1), 0);
+        size_t at = journal_pending(j);
+        ck_assert_int_eq(journal_note(j, 9, r, 2), 0);
+        journal_restart(j, 3, at);
+        ck_assert_uint_eq(journal_next_seq(j), 1);
+        ck_assert_uint_eq(journal_generation(j), 3);
+        ck_assert_uint_eq(journal_pending(j),
+                          JOURNAL_TASK_HEADER + 2 * (JOURNAL_PIXEL_SIZE + (flags ? 8 : 0)));
+        journal_destroy(&j);
+        ck_assert_ptr_null(j);
+    }
+}
+END_TEST
+
+/* journal_create: a header-only journal, crash-safe. */
+START_TEST(journal_created)
+{
+    char dir[4096], path[4200], err[256];
+    tu_tmp_path(dir, sizeof dir, "journal-create");
+    mkdir(dir, 0700);
+    snprintf(path, sizeof path, "%s/journal", dir);
+    journal_header_t h = {.version = JOURNAL_VERSION, .generation = 7, .job = 3};
+    ck_assert_msg(journal_create(path, &h, err, sizeof err) == 0, "%s", err);
+    struct stat st;
+    ck_assert_int_eq(stat(path, &st), 0);
+    ck_assert_int_eq(st.st_size, JOURNAL_HEADER_SIZE);
+    unlink(path);
+    rmdir(dir);
+}
+END_TEST
+
 static Suite *store_suite(void)
 {
     Suite *s = suite_create("store");
@@ -409,6 +530,8 @@ static Suite *store_suite(void)
     tcase_add_test(tc, lease_fifo);
     tcase_add_test(tc, lease_task_times);
     tcase_add_test(tc, checkpoint_counters_out_of_range);
+    tcase_add_test(tc, journal_round_trip);
+    tcase_add_test(tc, journal_created);
     suite_add_tcase(s, tc);
     return s;
 }
