@@ -419,7 +419,8 @@ cJSON *job_json(const job_t *j, int with_series)
         /* the checkpoint on disk: samples it holds, and the snapshot's and
          * journal's bytes */
         cJSON_AddNumberToObject(o, "durable_samples", (double)j->ckpt_samples);
-        cJSON_AddNumberToObject(o, "state_bytes", (double)(j->snap_bytes + j->journal_bytes));
+        cJSON_AddNumberToObject(o, "state_bytes",
+                                (double)((j->snap_gen ? j->snap_bytes : 0) + j->journal_bytes));
     }
     if (j->owner[0])
         add_str(o, "owner", j->owner);

@@ -114,7 +114,10 @@ static int reserve(jbuf_t *b, size_t more)
     return 0;
 }
 
-/* The record checksum: the first 64 bits of store.h's. */
+/* The record checksum: store.h's 256 bits folded to 64. All four words:
+ * each mixes only two of the sum's four lanes (a byte feeds one lane), so
+ * the first alone missed a change in half the bytes
+ * (test_store's journal_round_trip flips one in each lane). */
 static uint64_t record_sum(const uint8_t *head, const uint8_t *payload, size_t len)
 {
     store_sum_t c;
@@ -123,7 +126,7 @@ static uint64_t record_sum(const uint8_t *head, const uint8_t *payload, size_t l
     store_sum_update(&c, payload, len);
     uint8_t out[32];
     store_sum_final(&c, out);
-    return get_u64(out);
+    return get_u64(out) ^ get_u64(out + 8) ^ get_u64(out + 16) ^ get_u64(out + 24);
 }
 
 /* ---- writing -------------------------------------------------------------------- */
@@ -180,11 +183,18 @@ size_t journal_unwritten(const journal_t *j)
     return j->out.len;
 }
 
+size_t journal_pixel_size(uint32_t flags)
+{
+    return JOURNAL_PIXEL_SIZE + (flags & JOURNAL_NF8 ? 1 : 2) +
+           (flags & JOURNAL_RAYS ? JOURNAL_RAYS_SIZE : 0) +
+           (flags & JOURNAL_PVAR ? JOURNAL_PVAR_SIZE : 0);
+}
+
 int journal_note(journal_t *j, uint64_t task_id, const tracer_result_t *r, uint32_t count)
 {
     if (j->failed)
         return -1;
-    const size_t px = JOURNAL_PIXEL_SIZE + (j->flags & JOURNAL_PVAR ? JOURNAL_PVAR_SIZE : 0);
+    const size_t px = journal_pixel_size(j->flags);
     if (reserve(&j->pend, JOURNAL_TASK_HEADER + (size_t)count * px) < 0) {
         j->failed = 1;
         return -1;
@@ -196,9 +206,14 @@ int journal_note(journal_t *j, uint64_t task_id, const tracer_result_t *r, uint3
         for (int c = 0; c < 3; c++)
             p = put_f64(p, r[i].sum[c]);
         p = put_f64(p, r[i].lum_m2);
-        p = put_u32(p, r[i].rays);
-        /* at most TRACER_MAX_TASK_SAMPLES (sched_complete checked it) */
-        p = put_u16(p, (uint16_t)r[i].nonfinite);
+        /* at most the task's samples (sched_complete checked it): with
+         * JOURNAL_NF8, G <= 255 */
+        if (j->flags & JOURNAL_NF8)
+            *p++ = (uint8_t)r[i].nonfinite;
+        else
+            p = put_u16(p, (uint16_t)r[i].nonfinite);
+        if (j->flags & JOURNAL_RAYS)
+            p = put_u32(p, r[i].rays);
         if (j->flags & JOURNAL_PVAR)
             p = put_f64(p, r[i].pvar);
     }
@@ -349,7 +364,7 @@ int journal_reader_init(journal_reader_t *r, const uint8_t *data, size_t size, c
                 JOURNAL_VERSION);
         return -1;
     }
-    if (r->header.flags & ~(uint32_t)JOURNAL_PVAR) {
+    if (r->header.flags & ~(uint32_t)(JOURNAL_PVAR | JOURNAL_RAYS | JOURNAL_NF8)) {
         set_err(err, errlen, "unknown flags 0x%x", r->header.flags);
         return -1;
     }
@@ -421,7 +436,7 @@ int journal_task_next(journal_tasks_t *it, uint64_t *task_id, uint32_t *count,
         return -1;
     *task_id = get_u64(it->p);
     *count = get_u32(it->p + 8);
-    const size_t px = JOURNAL_PIXEL_SIZE + (it->flags & JOURNAL_PVAR ? JOURNAL_PVAR_SIZE : 0);
+    const size_t px = journal_pixel_size(it->flags);
     left -= JOURNAL_TASK_HEADER;
     if (*count > left / px)
         return -1;
@@ -433,16 +448,27 @@ int journal_task_next(journal_tasks_t *it, uint64_t *task_id, uint32_t *count,
 int journal_result(const uint8_t *records, uint32_t i, uint32_t flags, const tracer_task_t *task,
                    tracer_result_t *out)
 {
-    const size_t px = JOURNAL_PIXEL_SIZE + (flags & JOURNAL_PVAR ? JOURNAL_PVAR_SIZE : 0);
-    const uint8_t *p = records + (size_t)i * px;
+    const uint8_t *p = records + (size_t)i * journal_pixel_size(flags);
     memset(out, 0, sizeof *out);
     for (int c = 0; c < 3; c++)
         out->sum[c] = get_f64(p + 8 * c);
     out->lum_m2 = get_f64(p + 24);
-    out->rays = get_u32(p + 32);
-    out->nonfinite = get_u16(p + 36);
+    p += JOURNAL_PIXEL_SIZE;
+    if (flags & JOURNAL_NF8) {
+        out->nonfinite = *p++;
+    } else {
+        out->nonfinite = get_u16(p);
+        p += 2;
+    }
+    /* without JOURNAL_RAYS nothing the replay merges reads them but the
+     * check that each sample traced at least its camera ray */
+    out->rays = task->sample_count;
+    if (flags & JOURNAL_RAYS) {
+        out->rays = get_u32(p);
+        p += JOURNAL_RAYS_SIZE;
+    }
     if (flags & JOURNAL_PVAR)
-        out->pvar = get_f64(p + 38);
+        out->pvar = get_f64(p);
     if (out->nonfinite > task->sample_count)
         return -1;
     out->pixel = task->pixel;

@@ -14,12 +14,13 @@
  *
  * A commit's payload: u64 byte count of its tasks, the tasks, then the
  * job's counters as JSON (the rest). A task: u64 task id, u32 pixel count,
- * then per pixel the compact record: sum[3] (3 x f64), lum_m2 (f64), rays
- * (u32), nonfinite (u16), and pvar (f64) with JOURNAL_PVAR. The pixel and
- * the finite sample count are not stored: the task's records give the
- * pixels in order and their sample counts (samples = sample_count -
- * nonfinite). 38 bytes a pixel (46 with pvar) where the wire's result
- * record is 56.
+ * then per pixel the compact record: sum[3] (3 x f64), lum_m2 (f64),
+ * nonfinite (u8 with JOURNAL_NF8, else u16), rays (u32) with JOURNAL_RAYS,
+ * and pvar (f64) with JOURNAL_PVAR. The pixel and the finite sample count
+ * are not stored: the task's records give the pixels in order and their
+ * sample counts (samples = sample_count - nonfinite). At G = 32: 33 bytes
+ * a pixel, 37 for relmse, 41 for thesis, where the wire's result record is
+ * 56.
  *
  * journal_t is the writing side in memory (the master's event loop): the
  * merged tasks not yet sealed into a commit, and the framed commits not yet
@@ -38,13 +39,21 @@
 #define JOURNAL_HEADER_SIZE 32
 #define JOURNAL_RECORD_OVERHEAD 20 /* length, sequence, checksum */
 #define JOURNAL_TASK_HEADER 12     /* task id, count */
-#define JOURNAL_PIXEL_SIZE 38      /* sums, M2, rays, nonfinite */
+#define JOURNAL_PIXEL_SIZE 32      /* sums, M2; then nonfinite, rays, pvar by flags */
+#define JOURNAL_RAYS_SIZE 4
 #define JOURNAL_PVAR_SIZE 8
 /* A commit larger than this is refused on read (a torn length field must
  * not make the reader trust the rest of the file). */
 #define JOURNAL_MAX_PAYLOAD ((uint64_t)1 << 31)
 
-enum { JOURNAL_PVAR = 1 };
+/* JOURNAL_PVAR: records carry eq. 4.1's pvar (thesis reads it);
+ * JOURNAL_RAYS: their rays (relmse weighs them; otherwise a replayed result
+ * says one ray a sample, which nothing merged reads: the job's ray count
+ * is in the commit's counters); JOURNAL_NF8: the NaN/Inf count in one byte
+ * (G <= 255), else two. */
+enum { JOURNAL_PVAR = 1, JOURNAL_RAYS = 2, JOURNAL_NF8 = 4 };
+/* Bytes of one pixel's compact record under flags. */
+size_t journal_pixel_size(uint32_t flags);
 
 typedef struct journal_header {
     uint32_t version, flags;

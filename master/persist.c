@@ -183,6 +183,8 @@ typedef struct jw_item {
     uint64_t job;
     char path[4096];
     uint64_t offset; /* the journal's durable size: the write goes there */
+    int create;      /* no file yet (a job's first commit): made with this header */
+    journal_header_t header;
     uint8_t *data;
     size_t len;
     int failed;
@@ -216,6 +218,19 @@ static void jw_write(jw_item_t *it)
     if (injected_write_failure(it->err, sizeof it->err) < 0) {
         it->failed = 1;
         return;
+    }
+    if (it->create) {
+#ifdef VB_FAULT_INJECTION
+        /* Test builds only: the master dies before its first state file of
+         * the job is renamed into place. */
+        if (getenv("VB_FAULT_CRASH_BEFORE_RENAME"))
+            kill(getpid(), SIGKILL);
+#endif
+        if (journal_create(it->path, &it->header, it->err, sizeof it->err) < 0) {
+            it->failed = 1;
+            return;
+        }
+        it->offset = JOURNAL_HEADER_SIZE;
     }
     int fd = open(it->path, O_WRONLY | O_CLOEXEC);
     if (fd < 0) {
@@ -331,7 +346,9 @@ static void jw_collect(master_t *m, int block)
         }
         free(it->data);
         j->storage_error[0] = '\0';
-        j->journal_bytes = it->offset + it->len;
+        j->journal_bytes = (it->create ? JOURNAL_HEADER_SIZE : it->offset) + it->len;
+        if (it->create)
+            m->journal_bytes_written += JOURNAL_HEADER_SIZE;
         j->ckpt_samples = j->journal_samples;
         m->journal_bytes_written += it->len;
         m->journal_commits++;
@@ -355,8 +372,8 @@ static void jw_start(master_t *m, double now, int force)
         /* a journal as large as its snapshot waits for the compaction
          * (persist_tick): it never exceeds the snapshot by more than one
          * commit */
-        if (!j->journal || j->state != JOB_RUNNING || !j->snap_gen || j->need_snapshot ||
-            j->in_write || j->journal_writing || j->journal_bytes >= j->snap_bytes)
+        if (!j->journal || j->state != JOB_RUNNING || j->need_snapshot || j->in_write ||
+            j->journal_writing || j->journal_bytes >= j->snap_bytes)
             continue;
         if (!force && now - j->last_ckpt < m->cfg.checkpoint_s)
             continue;
@@ -385,6 +402,12 @@ static void jw_start(master_t *m, double now, int force)
         it->job = j->id;
         store_job_path(m->store, j->id, "journal", it->path, sizeof it->path);
         it->offset = j->journal_bytes;
+        /* generation 0 (no snapshot yet): the file comes with the first commit */
+        it->create = j->journal_bytes == 0;
+        it->header = (journal_header_t){.version = JOURNAL_VERSION,
+                                        .flags = journal_flags(j->journal),
+                                        .generation = journal_generation(j->journal),
+                                        .job = j->id};
         journal_take_unwritten(j->journal, &it->data, &it->len);
         it->failed = 0;
         it->err[0] = '\0';
@@ -420,18 +443,36 @@ void persist_destroy(master_t *m)
     m->writer = NULL;
 }
 
-/* Records carry pvar where a mode reads it: thesis's skip rule (sched.c,
- * sched_complete). The other modes read the film and their own statistics;
- * the film keeps the last layer's pvar of each pixel but nothing reads it. */
+/* Generation 0 is the job as sched_new makes it, from its submission: no
+ * file. Its journal is compacted, like any, once it holds as many bytes as
+ * a snapshot would (sched_save_bytes, and the record's framing). */
+static uint64_t generation0_bytes(const job_t *j)
+{
+    return (uint64_t)sched_save_bytes(j->sched) + 4096;
+}
+
+/* Records carry what the job's mode reads (journal.h): pvar for thesis's
+ * skip rule, rays for relmse's cost (sched.c, sched_complete); the film
+ * and the other statistics need neither. */
 static uint32_t persist_journal_flags(const job_t *j)
 {
-    return j->adaptive == SCHED_ADAPTIVE_THESIS ? JOURNAL_PVAR : 0;
+    return (j->adaptive == SCHED_ADAPTIVE_THESIS ? JOURNAL_PVAR : 0) |
+           (j->adaptive == SCHED_ADAPTIVE_RELMSE ? JOURNAL_RAYS : 0) |
+           (j->sched_cfg.granularity <= 255 ? JOURNAL_NF8 : 0);
 }
 
 void persist_note(master_t *m, job_t *j, uint64_t task_id, const tracer_result_t *results,
                   uint32_t count)
 {
     m->results_bytes_merged += (uint64_t)count * PROTO_RESULT_RECORD_SIZE;
+    if (!j->journal && m->store && !j->snap_gen && !j->need_snapshot) {
+        /* the job's first merge: its journal (generation 0) starts here,
+         * or a merge before the next tick would be in no checkpoint */
+        j->journal = journal_new(j->id, 0, persist_journal_flags(j));
+        j->snap_bytes = generation0_bytes(j);
+        if (!j->journal)
+            j->need_snapshot = 1; /* out of memory: a snapshot holds everything */
+    }
     if (j->journal && !journal_failed(j->journal) &&
         journal_note(j->journal, task_id, results, count) < 0)
         j->need_snapshot = 1; /* out of memory: a snapshot holds everything */
@@ -445,14 +486,15 @@ typedef struct bg_ctx {
 } bg_ctx_t;
 
 /* Test builds only: the child kills the master at a named point of a
- * compaction (VB_FAULT_CRASH_IN_COMPACTION=before_rename|after_rename; a
- * compaction is a snapshot after the job's first), or before the rename of
- * any snapshot (VB_FAULT_CRASH_BEFORE_RENAME). */
+ * compaction (VB_FAULT_CRASH_IN_COMPACTION=before_rename|after_rename:
+ * every snapshot is one, generation 0 being the job as submitted), or
+ * before the rename of any snapshot (VB_FAULT_CRASH_BEFORE_RENAME; the
+ * journal writer does the same before a job's first journal file). */
 static void fault_point(const char *where, uint64_t generation)
 {
 #ifdef VB_FAULT_INJECTION
     const char *at = getenv("VB_FAULT_CRASH_IN_COMPACTION");
-    int hit = generation >= 2 && at && strcmp(at, where) == 0;
+    int hit = generation >= 1 && at && strcmp(at, where) == 0;
     hit |= strcmp(where, "before_rename") == 0 && getenv("VB_FAULT_CRASH_BEFORE_RENAME");
     if (hit) {
         kill(getppid(), SIGKILL);
@@ -673,18 +715,15 @@ static void remove_doomed(master_t *m)
     m->doomed_n = 0;
 }
 
-/* Whether a running job wants a snapshot now: its first (once it has
- * progress), one the journal cannot go on without, or a compaction (the
- * journal has grown to the snapshot's size). */
+/* Whether a running job wants a snapshot now: one the journal cannot go
+ * on without, or a compaction (the journal has grown to the snapshot's
+ * size; for generation 0, to what a snapshot would take). */
 static int wants_snapshot(const master_t *m, const job_t *j, double now, int force)
 {
     if (j->state != JOB_RUNNING || !j->journal || j->journal_writing)
         return 0;
     if (j->need_snapshot) /* at once, unless the last write failed */
         return force || !j->storage_error[0] || now - j->last_ckpt >= m->cfg.checkpoint_s;
-    if (!j->snap_gen)
-        return sched_samples_done(j->sched) != j->ckpt_samples &&
-               (force || now - j->last_ckpt >= m->cfg.checkpoint_s);
     return j->journal_bytes >= j->snap_bytes;
 }
 
@@ -695,8 +734,10 @@ void persist_tick(master_t *m, double now, int force)
     if (!store_bg_running(m->store) && !(m->writer && m->writer->busy))
         remove_doomed(m);
     for (job_t *j = m->jobs; j; j = j->next)
-        if (!j->journal && j->state == JOB_RUNNING && !j->snap_gen)
+        if (!j->journal && j->state == JOB_RUNNING && !j->snap_gen && !j->need_snapshot) {
             j->journal = journal_new(j->id, 0, persist_journal_flags(j));
+            j->snap_bytes = generation0_bytes(j);
+        }
     jw_start(m, now, force);
     if (store_bg_running(m->store))
         return;
@@ -1119,7 +1160,22 @@ static void recover_progress(master_t *m, job_t *j)
     char path[4096], why[VB_ERR_LEN] = "";
     store_job_path(m->store, j->id, "snapshot", path, sizeof path);
     if (access(path, F_OK) != 0) {
-        if (recover_old_checkpoint(m, j) != 0) {
+        int old = recover_old_checkpoint(m, j);
+        store_job_path(m->store, j->id, "journal", path, sizeof path);
+        if (old == 0 && access(path, F_OK) == 0) {
+            /* generation 0: the journal alone, over the job as submitted */
+            j->snap_gen = 0;
+            j->snap_bytes = generation0_bytes(j);
+            uint64_t commits = replay_journal(m, j, 0);
+            j->ckpt_samples = sched_samples_done(j->sched);
+            snprintf(j->recovered, sizeof j->recovered,
+                     "the journal alone (no snapshot yet): %" PRIu64
+                     " commit%s at %u of %u layers (%" PRIu64 " samples)",
+                     commits, commits == 1 ? "" : "s", sched_layers_complete(j->sched),
+                     sched_layer_count(j->sched), sched_samples_done(j->sched));
+            return;
+        }
+        if (old != 0) {
             /* a snapshot in the new format at once; the old files go then */
             j->journal = journal_new(j->id, 0, persist_journal_flags(j));
             j->need_snapshot = j->journal != NULL;

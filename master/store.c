@@ -11,6 +11,7 @@
 #include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/time.h>
@@ -774,6 +775,7 @@ int store_bg_start(store_t *s, store_bg_fn fn, void *ctx, char *err, size_t errl
     (void)fcntl(p[0], F_SETFD, FD_CLOEXEC);
     fflush(NULL); /* nothing buffered is written twice */
     double t0 = mono_s();
+    const pid_t parent = getpid();
     pid_t pid = fork();
     if (pid < 0) {
         set_err(err, errlen, "fork: %.600s", strerror(errno));
@@ -786,6 +788,12 @@ int store_bg_start(store_t *s, store_bg_fn fn, void *ctx, char *err, size_t errl
         /* the child must not take the master's signals as its own stop */
         signal(SIGTERM, SIG_DFL);
         signal(SIGINT, SIG_IGN);
+        /* nor outlive it: a writer left over from a killed master would
+         * rename its snapshot (and a fresh journal) into place under the
+         * next master, which has replayed and appended to the journal by
+         * then. The check covers a death before the prctl. */
+        if (prctl(PR_SET_PDEATHSIG, SIGKILL) != 0 || getppid() != parent)
+            _exit(1);
         int rc = fn(ctx, p[1]);
         close_quietly(p[1]);
         _exit(rc);

@@ -753,6 +753,8 @@ static void gen_journals(gen_t *g)
     gen_journal(g, "plain-1", 0, 1);
     gen_journal(g, "plain-3", 0, 3);
     gen_journal(g, "pvar-2", JOURNAL_PVAR, 2);
+    gen_journal(g, "relmse-2", JOURNAL_RAYS | JOURNAL_NF8, 2); /* the default mode's */
+    gen_journal(g, "thesis-2", JOURNAL_PVAR | JOURNAL_NF8, 2);
 }
 
 int main(int argc, char **argv)

@@ -402,7 +402,7 @@ END_TEST
  * a snapshot (journal_restart) drops what it holds. */
 START_TEST(journal_round_trip)
 {
-    for (uint32_t flags = 0; flags <= JOURNAL_PVAR; flags += JOURNAL_PVAR) {
+    for (uint32_t flags = 0; flags <= (JOURNAL_PVAR | JOURNAL_RAYS | JOURNAL_NF8); flags++) {
         journal_t *j = journal_new(9, 2, flags);
         ck_assert_ptr_nonnull(j);
         tracer_result_t r[3];
@@ -420,7 +420,7 @@ START_TEST(journal_round_trip)
         ck_assert_int_eq(journal_note(j, 5, r, 3), 0);
         ck_assert_int_eq(journal_note(j, 6, r, 2), 0);
         ck_assert_uint_eq(journal_pending(j),
-                          2 * JOURNAL_TASK_HEADER + 5 * (JOURNAL_PIXEL_SIZE + (flags ? 8 : 0)));
+                          2 * JOURNAL_TASK_HEADER + 5 * journal_pixel_size(flags));
         ck_assert_int_eq(journal_seal(j, "{\"rays\":1}", 10), 0);
         ck_assert_int_eq(journal_note(j, 7, r + 1, 1), 0);
         ck_assert_int_eq(journal_seal(j, "{}", 2), 0);
@@ -454,8 +454,10 @@ START_TEST(journal_round_trip)
             tracer_result_t back;
             ck_assert_int_eq(journal_result(rec, i, flags, &task[i], &back), 0);
             tracer_result_t want = r[i];
-            if (!flags)
+            if (!(flags & JOURNAL_PVAR))
                 want.pvar = 0;
+            if (!(flags & JOURNAL_RAYS)) /* one ray a sample */
+                want.rays = task[i].sample_count;
             ck_assert(memcmp(&back, &want, sizeof back) == 0);
         }
         ck_assert_int_eq(journal_task_next(&it, &id, &count, &rec), 1);
@@ -471,13 +473,19 @@ START_TEST(journal_round_trip)
         ck_assert_int_eq(journal_next(&rd, &c, err, sizeof err), -1);
         ck_assert_msg(strstr(err, "torn"), "%s", err);
         ck_assert_uint_eq(rd.pos, first_end);
-        /* corrupt: a byte of the second commit flipped */
+        /* corrupt: any byte of the second commit's payload flipped (each
+         * byte feeds one of the checksum's four lanes) */
+        for (size_t at = first_end + 12; at < size - 8; at++) {
+            file[at] ^= 1;
+            ck_assert_int_eq(journal_reader_init(&rd, file, size, err, sizeof err), 0);
+            ck_assert_int_eq(journal_next(&rd, &c, err, sizeof err), 1);
+            ck_assert_msg(journal_next(&rd, &c, err, sizeof err) == -1,
+                          "flags %u: byte %zu flipped, accepted", flags, at);
+            ck_assert_msg(strstr(err, "checksum"), "%s", err);
+            ck_assert_uint_eq(rd.pos, first_end);
+            file[at] ^= 1;
+        }
         file[size - 12] ^= 1;
-        ck_assert_int_eq(journal_reader_init(&rd, file, size, err, sizeof err), 0);
-        ck_assert_int_eq(journal_next(&rd, &c, err, sizeof err), 1);
-        ck_assert_int_eq(journal_next(&rd, &c, err, sizeof err), -1);
-        ck_assert_msg(strstr(err, "checksum"), "%s", err);
-        ck_assert_uint_eq(rd.pos, first_end);
         /* a newer journal format is refused */
         file[8] = JOURNAL_VERSION + 1;
         ck_assert_int_eq(journal_reader_init(&rd, file, size, err, sizeof err), -1);
@@ -491,8 +499,7 @@ START_TEST(journal_round_trip)
         journal_restart(j, 3, at);
         ck_assert_uint_eq(journal_next_seq(j), 1);
         ck_assert_uint_eq(journal_generation(j), 3);
-        ck_assert_uint_eq(journal_pending(j),
-                          JOURNAL_TASK_HEADER + 2 * (JOURNAL_PIXEL_SIZE + (flags ? 8 : 0)));
+        ck_assert_uint_eq(journal_pending(j), JOURNAL_TASK_HEADER + 2 * journal_pixel_size(flags));
         journal_destroy(&j);
         ck_assert_ptr_null(j);
     }
