@@ -18,7 +18,8 @@
 #      the default sampler, 2 workers x 1 thread, the default checkpoint
 #      interval, for BENCH_DUR_LIFE_S seconds each: every second the
 #      master's RSS, the state directory's size and the bytes it has written
-#      (journal and snapshots) against the results it has merged; the
+#      (journal and snapshots) against the results it has merged, on past the
+#      job's first compaction (at most BENCH_DUR_LIFE_MAX_S, 900); the
 #      checkpoint work's CPU (the writer's and the compactions'); at 4K an
 #      A/B of the master's CPU with --state none, and a kill -9 and restart:
 #      seconds until the job runs again.
@@ -33,6 +34,7 @@ cd "$ROOT"
 SECONDS_RUN="${BENCH_DUR_SECONDS:-25}"
 JOBS="${BENCH_DUR_JOBS:-10 100 1000}"
 LIFE="${BENCH_DUR_LIFE_S:-90}"
+LIFE_MAX="${BENCH_DUR_LIFE_MAX_S:-900}"
 PORT="${BENCH_DUR_PORT:-18800}"
 OUT=build/bench/out-durable
 RESULTS=bench/results
@@ -145,18 +147,20 @@ echo "== memory a pixel (bench_memory)" >&2
 "$MEMB" --json "$RESULTS/memory.json" | tee "$OUT/memory.md"
 cpu_s() { awk '{ print ($14 + $15) / 100 }' "/proc/$1/stat"; }
 # one line a second: t, RSS KiB, state bytes, master CPU s, the master's counters
-sample_run() { # sample_run TAG STATE_DIR|none ID SECONDS
-    local tag=$1 dir=$2 id=$3 secs=$4 t0 now
+sample_run() { # sample_run TAG STATE_DIR|none ID SECONDS [COMPACTIONS MAX_SECONDS]
+    # SECONDS at least; with COMPACTIONS, on until that many snapshots are written (MAX_SECONDS at most)
+    local tag=$1 dir=$2 id=$3 secs=$4 want=${5:-0} most=${6:-0} t0 now snaps=0
     t0=$(date +%s.%N)
     : >"$OUT/$tag.samples"
     while :; do
         now=$(date +%s.%N)
-        if python3 -c "import sys; sys.exit(0 if $now - $t0 >= $secs else 1)"; then break; fi
+        if python3 -c "import sys; t = $now - $t0; sys.exit(0 if t >= $secs and ($snaps >= $want or t >= $most) else 1)"; then break; fi
         local bytes=0
         [ "$dir" != none ] && bytes=$(du -sb "$dir" | cut -f1)
         printf '%s %s %s %s ' "$(python3 -c "print($now - $t0)")" "$(rss_kib "$MPID")" "$bytes" \
             "$(cpu_s "$MPID")" >>"$OUT/$tag.samples"
         "$CTL" "$CEP" workers | python3 -c 'import json,sys; print(json.dumps(json.load(sys.stdin)["master"]))' >>"$OUT/$tag.samples"
+        snaps=$(tail -n 1 "$OUT/$tag.samples" | cut -d' ' -f5- | python3 -c 'import json,sys; print(int(json.load(sys.stdin).get("snapshots_written", 0)))')
         sleep 1
     done
     "$CTL" "$CEP" status "$id" >"$OUT/$tag.status.json"
@@ -176,7 +180,12 @@ for size in 256x256 1920x1080 3840x2160; do
         start_master "$OUT/$tag.log" --state "$dir"
         start_workers 2
         id=$("$VB" submit "$OUT/cornell-$size.json" --spp 65536 --master "$CEP" | tail -n 1)
-        sample_run "$tag" "$dir" "$id" "$LIFE"
+        if [ $mode = state ]; then
+            # on past the job's first compaction, to see one at every size
+            sample_run "$tag" "$dir" "$id" "$LIFE" 1 "$LIFE_MAX"
+        else
+            sample_run "$tag" "$dir" "$id" "$LIFE"
+        fi
         if [ "$size" = 3840x2160 ] && [ $mode = state ]; then
             # restart: kill -9, start again, seconds until the job's samples grow
             kill -9 "$MPID"
@@ -258,11 +267,13 @@ for size in ("256x256", "1920x1080", "3840x2160"):
     cpu = last.get("checkpoint_cpu_seconds", 0.0)
     rss = max(r[1] for r in rows) * 1024
     sdir = max(r[2] for r in rows)
-    snap = last.get("snapshot_bytes", 0) or 1
+    st = json.load(open("%s/prod-%s-state.status.json" % (out, size)))
+    snap = st.get("snapshot_bytes", 0) or 1
     row = {"image": size, "seconds": rows[-1][0], "rss_max_bytes": rss, "rss_bytes_per_pixel": rss / (w * h),
            "results_bytes_merged": merged, "journal_bytes_written": jb, "snapshot_bytes_written": sb,
            "written_over_merged": (jb + sb) / merged if merged else None, "state_dir_max_bytes": sdir,
-           "checkpoint_cpu_s": cpu, "checkpoint_core_share": cpu / rows[-1][0],
+           "checkpoint_cpu_s": cpu, "checkpoint_core_share": cpu / rows[-1][0], "snapshot_bytes": snap,
+           "samples": st.get("samples"), "layers_done": st.get("layers_done"),
            "series": [{"t": r[0], "rss_kib": r[1], "state_bytes": r[2], "master_cpu_s": r[3],
                        "journal_bytes_written": r[4].get("journal_bytes_written", 0),
                        "snapshot_bytes_written": r[4].get("snapshot_bytes_written", 0),
@@ -281,7 +292,7 @@ for size in ("256x256", "1920x1080", "3840x2160"):
     print("| %s | %.0f MB | %.0f B | %.1f MB | %.1f MB | %.1f MB | %s | %.1f MB | %s | %.2f %% |" % (
         size, rss / 1e6, rss / (w * h), merged / 1e6, jb / 1e6, sb / 1e6,
         "%.2fx" % row["written_over_merged"] if merged else "-", sdir / 1e6,
-        "%.2fx" % (sdir / snap) if last.get("snapshot_bytes") else "-", 100 * cpu / rows[-1][0]))
+        "%.2fx" % (sdir / snap), 100 * cpu / rows[-1][0]))
 p4 = res["production"][-1]
 print("\n4K A/B: the master's CPU (all its threads) %.3f of a core with --state, %.3f with --state none (%+.2f %% of a core)" % (
     p4["ab_master_cpu_state"], p4["ab_master_cpu_none"], 100 * (p4["ab_master_cpu_state"] - p4["ab_master_cpu_none"])))

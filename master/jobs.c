@@ -421,6 +421,9 @@ cJSON *job_json(const job_t *j, int with_series)
         cJSON_AddNumberToObject(o, "durable_samples", (double)j->ckpt_samples);
         cJSON_AddNumberToObject(o, "state_bytes",
                                 (double)((j->snap_gen ? j->snap_bytes : 0) + j->journal_bytes));
+        /* what a snapshot of the job takes: the state directory's unit */
+        if (j->sched)
+            cJSON_AddNumberToObject(o, "snapshot_bytes", (double)sched_save_bytes(j->sched));
     }
     if (j->owner[0])
         add_str(o, "owner", j->owner);

@@ -9,7 +9,9 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "le.h"
 #include "store.h"
+#include "vberr.h"
 
 static const char journal_magic[8] = {'V', 'B', 'J', 'R', 'N', 'L', '1', '\n'};
 
@@ -26,75 +28,6 @@ struct journal {
     jbuf_t pend; /* unsealed tasks */
     jbuf_t out;  /* framed commits not yet written */
 };
-
-static void set_err(char *err, size_t errlen, const char *fmt, ...)
-    __attribute__((format(printf, 3, 4)));
-static void set_err(char *err, size_t errlen, const char *fmt, ...)
-{
-    if (!err || !errlen)
-        return;
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-}
-
-static uint8_t *put_u16(uint8_t *p, uint16_t v)
-{
-    p[0] = (uint8_t)v;
-    p[1] = (uint8_t)(v >> 8);
-    return p + 2;
-}
-
-static uint8_t *put_u32(uint8_t *p, uint32_t v)
-{
-    for (int i = 0; i < 4; i++)
-        p[i] = (uint8_t)(v >> (8 * i));
-    return p + 4;
-}
-
-static uint8_t *put_u64(uint8_t *p, uint64_t v)
-{
-    for (int i = 0; i < 8; i++)
-        p[i] = (uint8_t)(v >> (8 * i));
-    return p + 8;
-}
-
-static uint8_t *put_f64(uint8_t *p, double v)
-{
-    uint64_t u;
-    memcpy(&u, &v, 8);
-    return put_u64(p, u);
-}
-
-static uint16_t get_u16(const uint8_t *p)
-{
-    return (uint16_t)(p[0] | p[1] << 8);
-}
-
-static uint32_t get_u32(const uint8_t *p)
-{
-    uint32_t v = 0;
-    for (int i = 3; i >= 0; i--)
-        v = v << 8 | p[i];
-    return v;
-}
-
-static uint64_t get_u64(const uint8_t *p)
-{
-    uint64_t v = 0;
-    for (int i = 7; i >= 0; i--)
-        v = v << 8 | p[i];
-    return v;
-}
-
-static double get_f64(const uint8_t *p)
-{
-    uint64_t u = get_u64(p);
-    double v;
-    memcpy(&v, &u, 8);
-    return v;
-}
 
 static int reserve(jbuf_t *b, size_t more)
 {
@@ -126,7 +59,7 @@ static uint64_t record_sum(const uint8_t *head, const uint8_t *payload, size_t l
     store_sum_update(&c, payload, len);
     uint8_t out[32];
     store_sum_final(&c, out);
-    return get_u64(out) ^ get_u64(out + 8) ^ get_u64(out + 16) ^ get_u64(out + 24);
+    return le_get_u64(out) ^ le_get_u64(out + 8) ^ le_get_u64(out + 16) ^ le_get_u64(out + 24);
 }
 
 /* ---- writing -------------------------------------------------------------------- */
@@ -200,22 +133,22 @@ int journal_note(journal_t *j, uint64_t task_id, const tracer_result_t *r, uint3
         return -1;
     }
     uint8_t *p = j->pend.data + j->pend.len;
-    p = put_u64(p, task_id);
-    p = put_u32(p, count);
+    p = le_put_u64(p, task_id);
+    p = le_put_u32(p, count);
     for (uint32_t i = 0; i < count; i++) {
         for (int c = 0; c < 3; c++)
-            p = put_f64(p, r[i].sum[c]);
-        p = put_f64(p, r[i].lum_m2);
+            p = le_put_f64(p, r[i].sum[c]);
+        p = le_put_f64(p, r[i].lum_m2);
         /* at most the task's samples (sched_complete checked it): with
          * JOURNAL_NF8, G <= 255 */
         if (j->flags & JOURNAL_NF8)
             *p++ = (uint8_t)r[i].nonfinite;
         else
-            p = put_u16(p, (uint16_t)r[i].nonfinite);
+            p = le_put_u16(p, (uint16_t)r[i].nonfinite);
         if (j->flags & JOURNAL_RAYS)
-            p = put_u32(p, r[i].rays);
+            p = le_put_u32(p, r[i].rays);
         if (j->flags & JOURNAL_PVAR)
-            p = put_f64(p, r[i].pvar);
+            p = le_put_f64(p, r[i].pvar);
     }
     j->pend.len = (size_t)(p - j->pend.data);
     return 0;
@@ -229,17 +162,17 @@ int journal_seal(journal_t *j, const char *extras, size_t extras_len)
     if (plen > JOURNAL_MAX_PAYLOAD || reserve(&j->out, JOURNAL_RECORD_OVERHEAD + plen) < 0)
         return -1;
     uint8_t *head = j->out.data + j->out.len;
-    uint8_t *p = put_u32(head, (uint32_t)plen);
-    p = put_u64(p, j->seq);
+    uint8_t *p = le_put_u32(head, (uint32_t)plen);
+    p = le_put_u64(p, j->seq);
     uint8_t *payload = p;
-    p = put_u64(p, j->pend.len);
+    p = le_put_u64(p, j->pend.len);
     if (j->pend.len)
         memcpy(p, j->pend.data, j->pend.len);
     p += j->pend.len;
     if (extras_len)
         memcpy(p, extras, extras_len);
     p += extras_len;
-    p = put_u64(p, record_sum(head, payload, plen));
+    p = le_put_u64(p, record_sum(head, payload, plen));
     j->out.len = (size_t)(p - j->out.data);
     j->pend.len = 0;
     j->seq++;
@@ -293,10 +226,10 @@ void journal_set_next_seq(journal_t *j, uint64_t seq)
 void journal_header_encode(const journal_header_t *h, uint8_t out[JOURNAL_HEADER_SIZE])
 {
     memcpy(out, journal_magic, 8);
-    uint8_t *p = put_u32(out + 8, h->version);
-    p = put_u32(p, h->flags);
-    p = put_u64(p, h->generation);
-    put_u64(p, h->job);
+    uint8_t *p = le_put_u32(out + 8, h->version);
+    p = le_put_u32(p, h->flags);
+    p = le_put_u64(p, h->generation);
+    le_put_u64(p, h->job);
 }
 
 int journal_create(const char *path, const journal_header_t *h, char *err, size_t errlen)
@@ -307,7 +240,7 @@ int journal_create(const char *path, const journal_header_t *h, char *err, size_
     journal_header_encode(h, head);
     int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
     if (fd < 0) {
-        set_err(err, errlen, "cannot create %.600s: %s", tmp, strerror(errno));
+        vberr_set(err, errlen, "cannot create %.600s: %s", tmp, strerror(errno));
         return -1;
     }
     ssize_t n;
@@ -315,13 +248,13 @@ int journal_create(const char *path, const journal_header_t *h, char *err, size_
         n = write(fd, head, sizeof head);
     while (n < 0 && errno == EINTR);
     if (n != (ssize_t)sizeof head || (fsync(fd) != 0 && errno != EINVAL && errno != EROFS)) {
-        set_err(err, errlen, "%.600s: write failed: %s", tmp, n < 0 ? strerror(errno) : "short");
+        vberr_set(err, errlen, "%.600s: write failed: %s", tmp, n < 0 ? strerror(errno) : "short");
         (void)close(fd); /* abandoned: the failure is reported */
         (void)unlink(tmp);
         return -1;
     }
     if (close(fd) != 0 || rename(tmp, path) != 0) {
-        set_err(err, errlen, "cannot put %.600s into place: %s", path, strerror(errno));
+        vberr_set(err, errlen, "cannot put %.600s into place: %s", path, strerror(errno));
         (void)unlink(tmp);
         return -1;
     }
@@ -335,7 +268,7 @@ int journal_create(const char *path, const journal_header_t *h, char *err, size_
     if (dfd >= 0)
         (void)close(dfd); /* only read from */
     if (rc != 0 && saved != EINVAL && saved != EROFS) {
-        set_err(err, errlen, "cannot fsync the directory of %.600s: %s", path, strerror(saved));
+        vberr_set(err, errlen, "cannot fsync the directory of %.600s: %s", path, strerror(saved));
         return -1;
     }
     return 0;
@@ -348,24 +281,24 @@ int journal_reader_init(journal_reader_t *r, const uint8_t *data, size_t size, c
 {
     memset(r, 0, sizeof *r);
     if (size < JOURNAL_HEADER_SIZE) {
-        set_err(err, errlen, "torn header (%zu bytes)", size);
+        vberr_set(err, errlen, "torn header (%zu bytes)", size);
         return -1;
     }
     if (memcmp(data, journal_magic, 8) != 0) {
-        set_err(err, errlen, "not a vbrender journal (bad magic)");
+        vberr_set(err, errlen, "not a vbrender journal (bad magic)");
         return -1;
     }
-    r->header.version = get_u32(data + 8);
-    r->header.flags = get_u32(data + 12);
-    r->header.generation = get_u64(data + 16);
-    r->header.job = get_u64(data + 24);
+    r->header.version = le_get_u32(data + 8);
+    r->header.flags = le_get_u32(data + 12);
+    r->header.generation = le_get_u64(data + 16);
+    r->header.job = le_get_u64(data + 24);
     if (r->header.version != JOURNAL_VERSION) {
-        set_err(err, errlen, "journal format version %u, this master reads %d", r->header.version,
-                JOURNAL_VERSION);
+        vberr_set(err, errlen, "journal format version %u, this master reads %d", r->header.version,
+                  JOURNAL_VERSION);
         return -1;
     }
     if (r->header.flags & ~(uint32_t)(JOURNAL_PVAR | JOURNAL_RAYS | JOURNAL_NF8)) {
-        set_err(err, errlen, "unknown flags 0x%x", r->header.flags);
+        vberr_set(err, errlen, "unknown flags 0x%x", r->header.flags);
         return -1;
     }
     r->data = data;
@@ -381,32 +314,32 @@ int journal_next(journal_reader_t *r, journal_commit_t *c, char *err, size_t err
         return 0;
     const uint8_t *head = r->data + r->pos;
     if (left < JOURNAL_RECORD_OVERHEAD) {
-        set_err(err, errlen, "torn record (%zu bytes)", left);
+        vberr_set(err, errlen, "torn record (%zu bytes)", left);
         return -1;
     }
-    uint64_t plen = get_u32(head), seq = get_u64(head + 4);
+    uint64_t plen = le_get_u32(head), seq = le_get_u64(head + 4);
     if (plen < 8 || plen > JOURNAL_MAX_PAYLOAD || plen > left - JOURNAL_RECORD_OVERHEAD) {
-        set_err(err, errlen,
-                plen > left - JOURNAL_RECORD_OVERHEAD && plen >= 8
-                    ? "torn record (length %llu, %zu bytes left)"
-                    : "bad length %llu (%zu bytes left)",
-                (unsigned long long)plen, left);
+        vberr_set(err, errlen,
+                  plen > left - JOURNAL_RECORD_OVERHEAD && plen >= 8
+                      ? "torn record (length %llu, %zu bytes left)"
+                      : "bad length %llu (%zu bytes left)",
+                  (unsigned long long)plen, left);
         return -1;
     }
     const uint8_t *payload = head + 12;
-    if (record_sum(head, payload, (size_t)plen) != get_u64(payload + plen)) {
-        set_err(err, errlen, "corrupt record (checksum mismatch)");
+    if (record_sum(head, payload, (size_t)plen) != le_get_u64(payload + plen)) {
+        vberr_set(err, errlen, "corrupt record (checksum mismatch)");
         return -1;
     }
     if (seq != r->seq + 1) {
-        set_err(err, errlen, "record %llu out of sequence (after %llu)", (unsigned long long)seq,
-                (unsigned long long)r->seq);
+        vberr_set(err, errlen, "record %llu out of sequence (after %llu)", (unsigned long long)seq,
+                  (unsigned long long)r->seq);
         return -1;
     }
-    uint64_t tlen = get_u64(payload);
+    uint64_t tlen = le_get_u64(payload);
     if (tlen > plen - 8) {
-        set_err(err, errlen, "record %llu: tasks of %llu bytes in a payload of %llu",
-                (unsigned long long)seq, (unsigned long long)tlen, (unsigned long long)plen);
+        vberr_set(err, errlen, "record %llu: tasks of %llu bytes in a payload of %llu",
+                  (unsigned long long)seq, (unsigned long long)tlen, (unsigned long long)plen);
         return -1;
     }
     c->seq = seq;
@@ -434,8 +367,8 @@ int journal_task_next(journal_tasks_t *it, uint64_t *task_id, uint32_t *count,
         return 0;
     if (left < JOURNAL_TASK_HEADER)
         return -1;
-    *task_id = get_u64(it->p);
-    *count = get_u32(it->p + 8);
+    *task_id = le_get_u64(it->p);
+    *count = le_get_u32(it->p + 8);
     const size_t px = journal_pixel_size(it->flags);
     left -= JOURNAL_TASK_HEADER;
     if (*count > left / px)
@@ -451,24 +384,24 @@ int journal_result(const uint8_t *records, uint32_t i, uint32_t flags, const tra
     const uint8_t *p = records + (size_t)i * journal_pixel_size(flags);
     memset(out, 0, sizeof *out);
     for (int c = 0; c < 3; c++)
-        out->sum[c] = get_f64(p + 8 * c);
-    out->lum_m2 = get_f64(p + 24);
+        out->sum[c] = le_get_f64(p + 8 * c);
+    out->lum_m2 = le_get_f64(p + 24);
     p += JOURNAL_PIXEL_SIZE;
     if (flags & JOURNAL_NF8) {
         out->nonfinite = *p++;
     } else {
-        out->nonfinite = get_u16(p);
+        out->nonfinite = le_get_u16(p);
         p += 2;
     }
     /* without JOURNAL_RAYS nothing the replay merges reads them but the
      * check that each sample traced at least its camera ray */
     out->rays = task->sample_count;
     if (flags & JOURNAL_RAYS) {
-        out->rays = get_u32(p);
+        out->rays = le_get_u32(p);
         p += JOURNAL_RAYS_SIZE;
     }
     if (flags & JOURNAL_PVAR)
-        out->pvar = get_f64(p);
+        out->pvar = le_get_f64(p);
     if (out->nonfinite > task->sample_count)
         return -1;
     out->pixel = task->pixel;

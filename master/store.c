@@ -19,6 +19,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "le.h"
+
 static const char store_magic[8] = {'V', 'B', 'S', 'T', 'A', 'T', 'E', '\n'};
 #define STORE_HEADER_SIZE 16
 #define STORE_SUM_SIZE 32 /* the checksum, 256 bits */
@@ -56,46 +58,6 @@ static double mono_s(void)
 store_bg_stats_t store_bg_last(const store_t *s)
 {
     return s->last;
-}
-
-static void set_err(char *err, size_t errlen, const char *fmt, ...)
-    __attribute__((format(printf, 3, 4)));
-static void set_err(char *err, size_t errlen, const char *fmt, ...)
-{
-    if (!err || !errlen)
-        return;
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-}
-
-static void put_u32(uint8_t *p, uint32_t v)
-{
-    for (int i = 0; i < 4; i++)
-        p[i] = (uint8_t)(v >> (8 * i));
-}
-
-static void put_u64(uint8_t *p, uint64_t v)
-{
-    for (int i = 0; i < 8; i++)
-        p[i] = (uint8_t)(v >> (8 * i));
-}
-
-static uint32_t get_u32(const uint8_t *p)
-{
-    uint32_t v = 0;
-    for (int i = 3; i >= 0; i--)
-        v = v << 8 | p[i];
-    return v;
-}
-
-static uint64_t get_u64(const uint8_t *p)
-{
-    uint64_t v = 0;
-    for (int i = 7; i >= 0; i--)
-        v = v << 8 | p[i];
-    return v;
 }
 
 /* ---- the checksum ------------------------------------------------------------- */
@@ -157,7 +119,7 @@ void store_sum_final(const store_sum_t *c0, uint8_t out[32])
         h ^= h >> 33;
         h *= 0xc4ceb9fe1a85ec53ULL;
         h ^= h >> 33;
-        put_u64(out + 8 * i, h);
+        le_put_u64(out + 8 * i, h);
     }
 }
 
@@ -262,8 +224,8 @@ int store_rec_begin(store_rec_writer_t *w, const char *path, store_kind_t kind)
     store_sum_init(&w->hash);
     uint8_t header[STORE_HEADER_SIZE];
     memcpy(header, store_magic, 8);
-    put_u32(header + 8, STORE_FORMAT_VERSION);
-    put_u32(header + 12, (uint32_t)kind);
+    le_put_u32(header + 8, STORE_FORMAT_VERSION);
+    le_put_u32(header + 12, (uint32_t)kind);
     store_sum_update(&w->hash, header, sizeof header);
     return raw_write(w, header, sizeof header);
 }
@@ -281,7 +243,7 @@ int store_rec_write(void *wp, const void *data, size_t len)
 int store_rec_write_block(store_rec_writer_t *w, const void *data, size_t len)
 {
     uint8_t n[8];
-    put_u64(n, len);
+    le_put_u64(n, len);
     if (store_rec_write(w, n, 8) < 0)
         return -1;
     return len ? store_rec_write(w, data, len) : 0;
@@ -308,7 +270,7 @@ int store_rec_finish(store_rec_writer_t *w)
         return -1;
     }
     uint8_t trailer[STORE_TRAILER_SIZE];
-    put_u64(trailer, w->length);
+    le_put_u64(trailer, w->length);
     store_sum_update(&w->hash, trailer, 8);
     store_sum_final(&w->hash, trailer + 8);
     if (raw_write(w, trailer, sizeof trailer) < 0 || flush_buf(w) < 0) {
@@ -375,14 +337,15 @@ static const char *check_record(const uint8_t *all, uint64_t size, store_kind_t 
         return "torn (too short)";
     if (memcmp(all, store_magic, 8) != 0)
         return "not a vbrender state file (bad magic)";
-    if (get_u32(all + 8) < STORE_FORMAT_OLDEST || get_u32(all + 8) > STORE_FORMAT_VERSION) {
-        snprintf(why, whylen, "format version %u, this master reads %d to %d", get_u32(all + 8),
+    if (le_get_u32(all + 8) < STORE_FORMAT_OLDEST || le_get_u32(all + 8) > STORE_FORMAT_VERSION) {
+        snprintf(why, whylen, "format version %u, this master reads %d to %d", le_get_u32(all + 8),
                  STORE_FORMAT_OLDEST, STORE_FORMAT_VERSION);
         return why;
     }
-    if (get_u32(all + 12) != (uint32_t)kind)
+    if (le_get_u32(all + 12) != (uint32_t)kind)
         return "a record of another kind";
-    if (get_u64(all + size - STORE_TRAILER_SIZE) != size - STORE_HEADER_SIZE - STORE_TRAILER_SIZE)
+    if (le_get_u64(all + size - STORE_TRAILER_SIZE) !=
+        size - STORE_HEADER_SIZE - STORE_TRAILER_SIZE)
         return "torn (length mismatch)";
     uint8_t hash[STORE_SUM_SIZE];
     store_sum_t c;
@@ -401,13 +364,13 @@ int store_rec_parse(const uint8_t *data, size_t size, store_kind_t kind, store_r
     char buf[STORE_REASON_LEN];
     const char *why = check_record(data, size, kind, buf, sizeof buf);
     if (why) {
-        set_err(err, errlen, "%s", why);
+        vberr_set(err, errlen, "%s", why);
         return -1;
     }
     size_t plen = size - STORE_HEADER_SIZE - STORE_TRAILER_SIZE;
     rec->data = malloc(plen ? plen : 1);
     if (!rec->data) {
-        set_err(err, errlen, "out of memory");
+        vberr_set(err, errlen, "out of memory");
         return -1;
     }
     memcpy(rec->data, data + STORE_HEADER_SIZE, plen);
@@ -420,25 +383,25 @@ int store_rec_load(const char *path, store_kind_t kind, store_rec_t *rec, char *
     memset(rec, 0, sizeof *rec);
     int fd = open(path, O_RDONLY | O_CLOEXEC);
     if (fd < 0) {
-        set_err(err, errlen, "%.600s: %s", path,
-                errno == ENOENT ? "no such file" : strerror(errno));
+        vberr_set(err, errlen, "%.600s: %s", path,
+                  errno == ENOENT ? "no such file" : strerror(errno));
         return -1;
     }
     struct stat st;
     if (fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
-        set_err(err, errlen, "%.600s: not a regular file", path);
+        vberr_set(err, errlen, "%.600s: not a regular file", path);
         close_quietly(fd);
         return -1;
     }
     uint64_t size = (uint64_t)st.st_size;
     if (size < STORE_HEADER_SIZE + STORE_TRAILER_SIZE || size > STORE_MAX_RECORD) {
-        set_err(err, errlen, "%.600s: torn (%" PRIu64 " bytes)", path, size);
+        vberr_set(err, errlen, "%.600s: torn (%" PRIu64 " bytes)", path, size);
         close_quietly(fd);
         return -1;
     }
     uint8_t *all = malloc(size);
     if (!all) {
-        set_err(err, errlen, "%.600s: out of memory (%" PRIu64 " bytes)", path, size);
+        vberr_set(err, errlen, "%.600s: out of memory (%" PRIu64 " bytes)", path, size);
         close_quietly(fd);
         return -1;
     }
@@ -455,7 +418,7 @@ int store_rec_load(const char *path, store_kind_t kind, store_rec_t *rec, char *
     char buf[STORE_REASON_LEN];
     const char *why = got != size ? "short read" : check_record(all, size, kind, buf, sizeof buf);
     if (why) {
-        set_err(err, errlen, "%.600s: %s", path, why);
+        vberr_set(err, errlen, "%.600s: %s", path, why);
         free(all);
         return -1;
     }
@@ -483,7 +446,7 @@ int store_rec_read_block(store_rec_t *rec, const uint8_t **data, size_t *len)
     uint8_t n[8];
     if (store_rec_read(rec, n, 8) < 0)
         return -1;
-    uint64_t l = get_u64(n);
+    uint64_t l = le_get_u64(n);
     if (l > rec->size - rec->pos)
         return -1;
     *data = rec->data + rec->pos;
@@ -521,11 +484,11 @@ static int write_meta(store_t *s, char *err, size_t errlen)
     static_assert(sizeof(store_rec_writer_t) < (1 << 17), "writer fits the stack");
     store_rec_writer_t w;
     uint8_t body[12];
-    put_u64(body, s->next_id);
-    put_u32(body + 8, s->boots);
+    le_put_u64(body, s->next_id);
+    le_put_u32(body + 8, s->boots);
     if (store_rec_begin(&w, path, STORE_KIND_META) < 0 ||
         store_rec_write(&w, body, sizeof body) < 0 || store_rec_commit(&w, 0) < 0) {
-        set_err(err, errlen, "%.600s", w.err);
+        vberr_set(err, errlen, "%.600s", w.err);
         return -1;
     }
     return 0;
@@ -550,11 +513,11 @@ int store_job_dir(const store_t *s, uint64_t id, char *err, size_t errlen)
     char path[4096];
     store_job_path(s, id, NULL, path, sizeof path);
     if (mkdir(path, 0700) != 0 && errno != EEXIST) {
-        set_err(err, errlen, "cannot create %.600s: %s", path, strerror(errno));
+        vberr_set(err, errlen, "cannot create %.600s: %s", path, strerror(errno));
         return -1;
     }
     if (fsync_dir_of(path) < 0) {
-        set_err(err, errlen, "cannot fsync the directory of %.600s: %s", path, strerror(errno));
+        vberr_set(err, errlen, "cannot fsync the directory of %.600s: %s", path, strerror(errno));
         return -1;
     }
     return 0;
@@ -568,7 +531,7 @@ int store_job_remove(const store_t *s, uint64_t id, char *err, size_t errlen)
     if (!d)
         return errno == ENOENT
                    ? 0
-                   : (set_err(err, errlen, "cannot open %.600s: %s", path, strerror(errno)), -1);
+                   : (vberr_set(err, errlen, "cannot open %.600s: %s", path, strerror(errno)), -1);
     struct dirent *e;
     int rc = 0;
     while ((e = readdir(d)) != NULL) {
@@ -577,19 +540,19 @@ int store_job_remove(const store_t *s, uint64_t id, char *err, size_t errlen)
         char f[4096 + 260];
         snprintf(f, sizeof f, "%s/%s", path, e->d_name);
         if (unlink(f) != 0 && errno != ENOENT) {
-            set_err(err, errlen, "cannot remove %.600s: %s", f, strerror(errno));
+            vberr_set(err, errlen, "cannot remove %.600s: %s", f, strerror(errno));
             rc = -1;
         }
     }
     closedir(d);
     if (rc == 0 && rmdir(path) != 0 && errno != ENOENT) {
-        set_err(err, errlen, "cannot remove %.600s: %s", path, strerror(errno));
+        vberr_set(err, errlen, "cannot remove %.600s: %s", path, strerror(errno));
         rc = -1;
     }
     if (rc == 0 && fsync_dir_of(path) < 0) {
         /* removed, but a crash may bring the job back at the next start */
-        set_err(err, errlen, "removed %.600s, but cannot fsync its parent directory: %s", path,
-                strerror(errno));
+        vberr_set(err, errlen, "removed %.600s, but cannot fsync its parent directory: %s", path,
+                  strerror(errno));
         rc = -1;
     }
     return rc;
@@ -626,7 +589,7 @@ int store_job_ids(const store_t *s, uint64_t **ids, size_t *count, char *err, si
     *count = 0;
     DIR *d = opendir(path);
     if (!d) {
-        set_err(err, errlen, "cannot open %.600s: %s", path, strerror(errno));
+        vberr_set(err, errlen, "cannot open %.600s: %s", path, strerror(errno));
         return -1;
     }
     size_t cap = 0;
@@ -642,7 +605,7 @@ int store_job_ids(const store_t *s, uint64_t **ids, size_t *count, char *err, si
                 closedir(d);
                 free(*ids);
                 *ids = NULL;
-                set_err(err, errlen, "out of memory");
+                vberr_set(err, errlen, "out of memory");
                 return -1;
             }
             *ids = ni;
@@ -665,20 +628,20 @@ static uint32_t meta_version(const char *path)
     uint8_t h[STORE_HEADER_SIZE];
     ssize_t n = read(fd, h, sizeof h);
     close_quietly(fd);
-    return n == (ssize_t)sizeof h && memcmp(h, store_magic, 8) == 0 ? get_u32(h + 8) : 0;
+    return n == (ssize_t)sizeof h && memcmp(h, store_magic, 8) == 0 ? le_get_u32(h + 8) : 0;
 }
 
 store_t *store_open(const char *dir, char *err, size_t errlen)
 {
     store_t *s = calloc(1, sizeof *s);
     if (!s) {
-        set_err(err, errlen, "out of memory");
+        vberr_set(err, errlen, "out of memory");
         return NULL;
     }
     s->bg_fd = -1;
     if (strlen(dir) == 0 || strlen(dir) >= sizeof s->dir - 64) {
-        set_err(err, errlen, "--state: a directory path of 1 to %zu characters",
-                sizeof s->dir - 64);
+        vberr_set(err, errlen, "--state: a directory path of 1 to %zu characters",
+                  sizeof s->dir - 64);
         free(s);
         return NULL;
     }
@@ -686,7 +649,8 @@ store_t *store_open(const char *dir, char *err, size_t errlen)
     char jobs[4096];
     snprintf(jobs, sizeof jobs, "%s/jobs", s->dir);
     if (mkdir_p(jobs) != 0) {
-        set_err(err, errlen, "cannot create the state directory %.600s: %s", jobs, strerror(errno));
+        vberr_set(err, errlen, "cannot create the state directory %.600s: %s", jobs,
+                  strerror(errno));
         free(s);
         return NULL;
     }
@@ -696,17 +660,17 @@ store_t *store_open(const char *dir, char *err, size_t errlen)
     s->next_id = 1;
     uint32_t version = meta_version(path);
     if (version > STORE_FORMAT_VERSION) {
-        set_err(err, errlen,
-                "%.600s: state format version %u, written by a newer vbrender-master; this one "
-                "reads versions %d to %d (refusing to touch it)",
-                path, version, STORE_FORMAT_OLDEST, STORE_FORMAT_VERSION);
+        vberr_set(err, errlen,
+                  "%.600s: state format version %u, written by a newer vbrender-master; this one "
+                  "reads versions %d to %d (refusing to touch it)",
+                  path, version, STORE_FORMAT_OLDEST, STORE_FORMAT_VERSION);
         free(s);
         return NULL;
     }
     if (store_rec_load(path, STORE_KIND_META, &rec, lerr, sizeof lerr) == 0) {
         if (rec.size >= 12) {
-            s->next_id = get_u64(rec.data);
-            s->boots = get_u32(rec.data + 8);
+            s->next_id = le_get_u64(rec.data);
+            s->boots = le_get_u32(rec.data + 8);
         }
         store_rec_free(&rec);
     } else if (access(path, F_OK) == 0) {
@@ -763,12 +727,12 @@ int store_bg_running(const store_t *s)
 int store_bg_start(store_t *s, store_bg_fn fn, void *ctx, char *err, size_t errlen)
 {
     if (s->bg_pid > 0) {
-        set_err(err, errlen, "a background write is still running");
+        vberr_set(err, errlen, "a background write is still running");
         return -1;
     }
     int p[2];
     if (pipe(p) != 0) {
-        set_err(err, errlen, "pipe: %.600s", strerror(errno));
+        vberr_set(err, errlen, "pipe: %.600s", strerror(errno));
         return -1;
     }
     /* fcntl on a pipe just made fails only with EBADF: unchecked here and below */
@@ -778,7 +742,7 @@ int store_bg_start(store_t *s, store_bg_fn fn, void *ctx, char *err, size_t errl
     const pid_t parent = getpid();
     pid_t pid = fork();
     if (pid < 0) {
-        set_err(err, errlen, "fork: %.600s", strerror(errno));
+        vberr_set(err, errlen, "fork: %.600s", strerror(errno));
         close_quietly(p[0]);
         close_quietly(p[1]);
         return -1;
