@@ -52,6 +52,26 @@ mkdir -p "$OUT" "$RESULTS"
 # shellcheck source=bench/lib.sh
 . bench/lib.sh
 rss_kib() { awk '/^VmRSS:/ { print $2 }' "/proc/$1/status"; }
+samples_of() { "$CTL" "$CEP" status "$1" | python3 -c 'import json,sys; print(json.load(sys.stdin)["samples"])'; }
+# restart_to_busy ID OUTFILE MASTER_ARGS...: kill -9 the master, start it
+# again with the same arguments; writes "t0 t1 t2 s0": the restart, its
+# first answer, the job's samples growing again, and where it resumed
+restart_to_busy() {
+    local id=$1 out=$2 t0 t1 s0 s
+    shift 2
+    kill -9 "$MPID"
+    wait "$MPID" 2>/dev/null || true
+    t0=$(date +%s.%N)
+    start_master "$@"
+    t1=$(date +%s.%N)
+    s0=$(samples_of "$id")
+    while :; do
+        s=$(samples_of "$id")
+        if python3 -c "import sys; sys.exit(0 if float('$s') > float('$s0') else 1)"; then break; fi
+        sleep 0.02
+    done
+    echo "$t0 $t1 $(date +%s.%N) $s0" >"$out"
+}
 jget() { python3 -c 'import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))' "$@"; }
 scene_of() { # scene_of W H FILE
     python3 - "$1" "$2" "$3" <<'PY'
@@ -100,18 +120,7 @@ start_master "$OUT/restart.log" --state "$OUT/state-restart" --checkpoint-s 1
 start_workers 2
 id=$("$VB" submit "$OUT/cornell-256x256.json" --spp 8192 --adaptive none --master "$CEP" | tail -n 1)
 sleep 5
-kill -9 "$MPID"
-wait "$MPID" 2>/dev/null || true
-t0=$(date +%s.%N)
-start_master "$OUT/restart.log" --state "$OUT/state-restart" --checkpoint-s 1
-s0=$("$CTL" "$CEP" status "$id" | python3 -c 'import json,sys; print(json.load(sys.stdin)["samples"])')
-while :; do
-    s=$("$CTL" "$CEP" status "$id" | python3 -c 'import json,sys; print(json.load(sys.stdin)["samples"])')
-    if python3 -c "import sys; sys.exit(0 if float('$s') > float('$s0') else 1)"; then break; fi
-    sleep 0.02
-done
-t1=$(date +%s.%N)
-echo "$t0 $t1 $s0" >"$OUT/restart.times"
+restart_to_busy "$id" "$OUT/restart.times" "$OUT/restart.log" --state "$OUT/state-restart" --checkpoint-s 1
 "$VB" cancel "$id" --master "$CEP" >/dev/null
 stop_all "$MPID" "${WPIDS[@]}"
 
@@ -188,19 +197,7 @@ for size in 256x256 1920x1080 3840x2160; do
         fi
         if [ "$size" = 3840x2160 ] && [ $mode = state ]; then
             # restart: kill -9, start again, seconds until the job's samples grow
-            kill -9 "$MPID"
-            wait "$MPID" 2>/dev/null || true
-            t0=$(date +%s.%N)
-            start_master "$OUT/$tag.restart.log" --state "$dir"
-            t1=$(date +%s.%N)
-            s0=$("$CTL" "$CEP" status "$id" | python3 -c 'import json,sys; print(json.load(sys.stdin)["samples"])')
-            while :; do
-                s=$("$CTL" "$CEP" status "$id" | python3 -c 'import json,sys; print(json.load(sys.stdin)["samples"])')
-                if python3 -c "import sys; sys.exit(0 if float('$s') > float('$s0') else 1)"; then break; fi
-                sleep 0.05
-            done
-            t2=$(date +%s.%N)
-            echo "$t0 $t1 $t2 $s0" >"$OUT/$tag.restart.times"
+            restart_to_busy "$id" "$OUT/$tag.restart.times" "$OUT/$tag.restart.log" --state "$dir"
         fi
         "$VB" cancel "$id" --master "$CEP" >/dev/null || true
         stop_all "$MPID" "${WPIDS[@]}"
@@ -230,7 +227,7 @@ for size in ("256x256", "1920x1080"):
     res["checkpoint"].append(row)
     print("| %s | %.0f | %.0f | %+.1f %% | %d | %.2f | %.3f | %.2f %% | %.1f MB |" % (
         size, row["sps_none"], row["sps_state"], 100 * ab, writes, row["fork_ms"], cpu, 100 * share, nbytes / 1e6))
-t0, t1, s0 = open(out + "/restart.times").read().split()
+t0, _, t1, s0 = open(out + "/restart.times").read().split()
 res["restart"] = {"seconds_to_busy": float(t1) - float(t0), "samples_recovered": float(s0)}
 print("\nRestart to busy: %.2f s from the new master's start to the job's samples growing (it resumed at %.0f samples)" %
       (float(t1) - float(t0), float(s0)))
