@@ -103,6 +103,8 @@ static int handshake_failed(control_t *c)
                HANDSHAKE_NONE) {
         if (r == HANDSHAKE_OK)
             c->closed_in_row = 0;
+        else if (r == HANDSHAKE_LOST)
+            continue; /* a master going away: the request's deadline covers it */
         else if (r != HANDSHAKE_CLOSED || ++c->closed_in_row >= 2) {
             c->failed = 1;
             snprintf(c->handshake_error, sizeof c->handshake_error, "%s", msg);

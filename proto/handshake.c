@@ -12,7 +12,8 @@
 
 #define WATCHED                                                                                    \
     (ZMQ_EVENT_HANDSHAKE_SUCCEEDED | ZMQ_EVENT_HANDSHAKE_FAILED_AUTH |                             \
-     ZMQ_EVENT_HANDSHAKE_FAILED_PROTOCOL | ZMQ_EVENT_HANDSHAKE_FAILED_NO_DETAIL)
+     ZMQ_EVENT_HANDSHAKE_FAILED_PROTOCOL | ZMQ_EVENT_HANDSHAKE_FAILED_NO_DETAIL |               \
+     ZMQ_EVENT_DISCONNECTED)
 
 struct handshake_monitor {
     void *watched;
@@ -132,6 +133,9 @@ handshake_result_t handshake_describe(uint16_t event, uint32_t value, const char
                 "master?",
                 ep, strerror((int)value), who, key_options(who));
         return HANDSHAKE_CLOSED;
+    case ZMQ_EVENT_DISCONNECTED:
+        snprintf(msg, msglen, "the connection to %s was lost", ep);
+        return HANDSHAKE_LOST;
     default:
         return HANDSHAKE_NONE;
     }

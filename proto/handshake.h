@@ -33,7 +33,8 @@ typedef enum {
     HANDSHAKE_REFUSED,  /* the master's ZAP handler refused the key */
     HANDSHAKE_MISMATCH, /* one side uses CURVE, the other does not */
     HANDSHAKE_CLOSED,   /* closed during the handshake, no reason given */
-    HANDSHAKE_PROTOCOL  /* another protocol error */
+    HANDSHAKE_PROTOCOL, /* another protocol error */
+    HANDSHAKE_LOST      /* DISCONNECTED: a connection (after a handshake or during one) closed */
 } handshake_result_t;
 
 /* Watches sock's handshakes (sock: the caller's, not yet connected, so no

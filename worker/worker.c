@@ -84,7 +84,8 @@ struct worker {
     proto_mesh_file_t *decode_meshes; /* a SCENE_BUNDLE's files */
     int refused;
     int curve;                /* keys given: the socket is a CURVE client */
-    handshake_monitor_t *mon; /* sock's handshakes */
+    handshake_monitor_t *mon; /* sock's handshakes and disconnections */
+    int connected;            /* sock's handshake succeeded and it has not been lost since */
     double reopen_at;         /* sock closed after a failed handshake: open it then */
     double handshake_backoff; /* seconds before the next try: 1 doubling to 30 */
     char keys[3][64];         /* copies of the CURVE keys cfg points to */
@@ -590,11 +591,17 @@ static int open_master_socket(worker_t *w, char *err, size_t errlen)
         snprintf(err, errlen, "cannot create a socket: %s", zmq_strerror(errno));
         return -1;
     }
-    int zero = 0, one = 1, ivl = 100, ivl_max = 5000;
+    int zero = 0, ivl = 100, ivl_max = 5000;
     int64_t max_msg = (int64_t)PROTO_MAX_BUNDLE + PROTO_HEADER_SIZE + 4096;
+    /* Not ZMQ_IMMEDIATE, though this socket must queue nothing for a master
+     * that is gone: with it, libzmq 4.3 terminates the socket's pipe from
+     * within a recv when the connection drops (socket_base_t::hiccuped),
+     * and a recv handles such commands every 100th call, which for our
+     * two-frame messages is always between the frames: fq.cpp then asserts
+     * (!_more) and the worker aborts. A lost connection instead closes the
+     * socket, and what was queued with it (on_handshake_events), and HELLO is
+     * resent only over a connection (worker_run). */
     zmq_setsockopt(w->sock, ZMQ_LINGER, &zero, sizeof zero);
-    /* queue nothing for a master that is not there: HELLO is resent instead */
-    zmq_setsockopt(w->sock, ZMQ_IMMEDIATE, &one, sizeof one);
     zmq_setsockopt(w->sock, ZMQ_RECONNECT_IVL, &ivl, sizeof ivl);
     zmq_setsockopt(w->sock, ZMQ_RECONNECT_IVL_MAX, &ivl_max, sizeof ivl_max);
     zmq_setsockopt(w->sock, ZMQ_MAXMSGSIZE, &max_msg, sizeof max_msg);
@@ -628,6 +635,7 @@ static int open_master_socket(worker_t *w, char *err, size_t errlen)
 
 static void close_master_socket(worker_t *w)
 {
+    w->connected = 0;
     handshake_monitor_destroy(&w->mon);
     if (w->sock)
         zmq_close(w->sock);
@@ -648,7 +656,20 @@ static void on_handshake_events(worker_t *w, double now)
             if (w->handshake_backoff > 1.0)
                 logf_(w, "%s", msg);
             w->handshake_backoff = 1.0;
+            w->connected = 1;
             continue;
+        }
+        if (r == HANDSHAKE_LOST) {
+            /* what was queued for that master goes with the socket; a new
+             * one reconnects at once and queues one HELLO for whichever
+             * master answers next */
+            close_master_socket(w);
+            if (w->welcomed)
+                start_over(w, msg);
+            else
+                release_queued(w);
+            w->reopen_at = now;
+            break;
         }
         log_at(w, VBLOG_WARN, "%s; trying again in %.0f s", msg, w->handshake_backoff);
         close_master_socket(w);
@@ -807,8 +828,9 @@ int worker_run(worker_t *w, const atomic_int *stop)
         reopen_if_due(w, now_s());
         double now = now_s();
         if (!w->welcomed) {
-            /* HELLO again with backoff until the master answers */
-            if (now - w->last_hello >= w->hello_backoff) {
+            /* HELLO again with backoff until the master answers; only over
+             * a connection (a socket queues what it cannot send yet) */
+            if (w->connected && now - w->last_hello >= w->hello_backoff) {
                 send_hello(w);
                 w->hello_backoff = w->hello_backoff * 2 > 5.0 ? 5.0 : w->hello_backoff * 2;
             }
