@@ -201,6 +201,7 @@ typedef struct persist_writer {
     int done; /* the thread has finished the batch */
     int stop;
     double cpu_s, wall_s; /* of the last batch */
+    uint8_t *bounce;      /* STORE_WRITE_BUF bytes, aligned: O_DIRECT appends */
 } persist_writer_t;
 
 static double thread_cpu_s(void)
@@ -210,10 +211,59 @@ static double thread_cpu_s(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
+static int pwrite_all(int fd, const uint8_t *data, size_t len, uint64_t at)
+{
+    for (size_t done = 0; done < len;) {
+        ssize_t n = pwrite(fd, data + done, len - done, (off_t)(at + done));
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n <= 0)
+            return -1;
+        done += (size_t)n;
+    }
+    return 0;
+}
+
+/* Appends len bytes at offset on an O_DIRECT descriptor (store.h says
+ * why): whole aligned blocks through the bounce buffer, the first one read
+ * back (its head is the journal's durable end, rewritten as it was: a torn
+ * write of that block leaves those bytes either way), the last one padded,
+ * which the caller cuts off. -1 with errno (EINVAL: the file system refuses
+ * the alignment). */
+static int append_direct(int fd, uint8_t *bounce, uint64_t offset, const uint8_t *data, size_t len)
+{
+    uint64_t at = offset - offset % STORE_ALIGN;
+    size_t have = (size_t)(offset - at);
+    if (have > 0) {
+        ssize_t r = pread(fd, bounce, STORE_ALIGN, (off_t)at);
+        if (r < (ssize_t)have) {
+            if (r >= 0)
+                errno = EIO;
+            return -1;
+        }
+    }
+    for (size_t done = 0; done < len;) {
+        size_t n = len - done < STORE_WRITE_BUF - have ? len - done : STORE_WRITE_BUF - have;
+        memcpy(bounce + have, data + done, n);
+        have += n;
+        done += n;
+        size_t out = have; /* full (aligned), or the last: padded */
+        if (out % STORE_ALIGN) {
+            out += STORE_ALIGN - out % STORE_ALIGN;
+            memset(bounce + have, 0, out - have);
+        }
+        if (pwrite_all(fd, bounce, out, at) < 0)
+            return -1;
+        at += out;
+        have = 0;
+    }
+    return 0;
+}
+
 /* Appends one job's commits at item->offset: whatever a failed write left
  * past it is cut off first, so the file never holds a torn record before a
  * good one. */
-static void jw_write(jw_item_t *it)
+static void jw_write(jw_item_t *it, uint8_t *bounce)
 {
     if (injected_write_failure(it->err, sizeof it->err) < 0) {
         it->failed = 1;
@@ -232,7 +282,12 @@ static void jw_write(jw_item_t *it)
         }
         it->offset = JOURNAL_HEADER_SIZE;
     }
-    int fd = open(it->path, O_WRONLY | O_CLOEXEC);
+    int direct = bounce != NULL;
+    int fd = direct ? store_open_direct(it->path, O_RDWR | O_CLOEXEC) : -1;
+    if (fd < 0) { /* tmpfs, say: no O_DIRECT */
+        direct = 0;
+        fd = open(it->path, O_WRONLY | O_CLOEXEC);
+    }
     if (fd < 0) {
         snprintf(it->err, sizeof it->err, "journal: cannot open %.600s: %s", it->path,
                  strerror(errno));
@@ -241,13 +296,19 @@ static void jw_write(jw_item_t *it)
     }
     const char *what = "truncate";
     int ok = ftruncate(fd, (off_t)it->offset) == 0;
-    for (size_t done = 0; ok && done < it->len;) {
-        ssize_t n = pwrite(fd, it->data + done, it->len - done, (off_t)(it->offset + done));
-        if (n < 0 && errno == EINTR)
-            continue;
+    if (ok && direct) {
         what = "write";
-        ok = n > 0;
-        done += ok ? (size_t)n : 0;
+        ok = append_direct(fd, bounce, it->offset, it->data, it->len) == 0;
+        if (!ok && errno == EINVAL && store_undirect(fd) == 0)
+            direct = 0, ok = 1; /* refused for its alignment: written again below */
+        else if (ok) {
+            what = "truncate";
+            ok = ftruncate(fd, (off_t)(it->offset + it->len)) == 0;
+        }
+    }
+    if (ok && !direct) {
+        what = "write";
+        ok = pwrite_all(fd, it->data, it->len, it->offset) == 0;
     }
     if (ok) {
         what = "fdatasync";
@@ -271,7 +332,7 @@ static void *jw_main(void *arg)
             pthread_mutex_unlock(&w->mu);
             double c0 = thread_cpu_s(), t0 = master_now();
             for (size_t i = 0; i < w->n; i++)
-                jw_write(&w->items[i]);
+                jw_write(&w->items[i], w->bounce);
             double cpu = thread_cpu_s() - c0, wall = master_now() - t0;
             pthread_mutex_lock(&w->mu);
             w->cpu_s = cpu;
@@ -294,9 +355,13 @@ static persist_writer_t *jw_get(master_t *m)
     persist_writer_t *w = calloc(1, sizeof *w);
     if (!w)
         return NULL;
+    void *bounce = NULL;
+    if (posix_memalign(&bounce, STORE_ALIGN, STORE_WRITE_BUF) == 0)
+        w->bounce = bounce; /* else the page cache's way */
     pthread_mutex_init(&w->mu, NULL);
     pthread_cond_init(&w->cv, NULL);
     if (pthread_create(&w->thread, NULL, jw_main, w) != 0) {
+        free(w->bounce);
         pthread_mutex_destroy(&w->mu);
         pthread_cond_destroy(&w->cv);
         free(w);
@@ -437,6 +502,7 @@ void persist_destroy(master_t *m)
     for (size_t i = 0; i < w->n; i++)
         free(w->items[i].data);
     free(w->items);
+    free(w->bounce);
     pthread_mutex_destroy(&w->mu);
     pthread_cond_destroy(&w->cv);
     free(w);

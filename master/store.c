@@ -1,4 +1,5 @@
 /* store.c - see store.h. */
+#define _GNU_SOURCE /* O_DIRECT */
 #include "store.h"
 
 #include <assert.h>
@@ -166,42 +167,85 @@ static int fsync_dir_of(const char *path)
     return rc == 0 || errno == EINVAL || errno == EROFS ? 0 : -1;
 }
 
-static int flush_buf(store_rec_writer_t *w)
+int store_open_direct(const char *path, int flags)
 {
-    if (w->buffered == 0 || w->failed)
-        return w->failed ? -1 : 0;
-    if (write_all(w->fd, w->buf, w->buffered) < 0) {
+    return open(path, flags | O_DIRECT, 0600);
+}
+
+int store_undirect(int fd)
+{
+    int fl = fcntl(fd, F_GETFL);
+    return fl < 0 ? -1 : fcntl(fd, F_SETFL, fl & ~O_DIRECT);
+}
+
+/* A write on an O_DIRECT descriptor that the file system refused for its
+ * alignment (EINVAL): the descriptor goes back to the page cache. */
+static int write_out(store_rec_writer_t *w, const void *data, size_t len)
+{
+    if (write_all(w->fd, data, len) == 0)
+        return 0;
+    if (!(w->direct && errno == EINVAL) || store_undirect(w->fd) < 0)
+        return -1;
+    w->direct = 0;
+    /* a refused write wrote nothing: the file ends where it did */
+    if (lseek(w->fd, (off_t)w->written, SEEK_SET) < 0)
+        return -1;
+    return write_all(w->fd, data, len);
+}
+
+/* Writes the buffer out. An O_DIRECT descriptor takes whole aligned blocks
+ * only: unless last, what is past the last whole block stays buffered; the
+ * last write is padded with zeros, which store_rec_finish cuts off. */
+static int flush_buf(store_rec_writer_t *w, int last)
+{
+    if (w->failed)
+        return -1;
+    size_t n = w->buffered;
+    if (w->direct && !last)
+        n -= n % STORE_ALIGN;
+    if (n == 0)
+        return 0;
+    size_t out = n;
+    if (w->direct && last && n % STORE_ALIGN) {
+        out = n + STORE_ALIGN - n % STORE_ALIGN;
+        memset(w->buf + n, 0, out - n);
+    }
+    if (write_out(w, w->buf, out) < 0) {
         snprintf(w->err, sizeof w->err, "%.600s: write failed: %s", w->tmp, strerror(errno));
         w->failed = 1;
         return -1;
     }
-    w->buffered = 0;
+    w->written += n;
+    memmove(w->buf, w->buf + n, w->buffered - n);
+    w->buffered -= n;
     return 0;
 }
 
 static int raw_write(store_rec_writer_t *w, const void *data, size_t len)
 {
     const uint8_t *p = data;
-    if (len >= sizeof w->buf && !w->failed) {
+    if (len >= STORE_WRITE_BUF && !w->direct && !w->failed) {
         /* a large block (a film) goes straight to the file: copying it
-         * through the buffer first was a tenth of a checkpoint's CPU */
-        if (flush_buf(w) < 0)
+         * through the buffer first was a tenth of a checkpoint's CPU (with
+         * O_DIRECT it must be copied: the film is not aligned) */
+        if (flush_buf(w, 0) < 0)
             return -1;
         if (write_all(w->fd, p, len) < 0) {
             snprintf(w->err, sizeof w->err, "%.600s: write failed: %s", w->tmp, strerror(errno));
             w->failed = 1;
         }
+        w->written += len;
         return w->failed ? -1 : 0;
     }
     while (len > 0 && !w->failed) {
-        size_t room = sizeof w->buf - w->buffered;
+        size_t room = STORE_WRITE_BUF - w->buffered;
         size_t n = len < room ? len : room;
         memcpy(w->buf + w->buffered, p, n);
         w->buffered += n;
         p += n;
         len -= n;
-        if (w->buffered == sizeof w->buf)
-            flush_buf(w); /* a failure sets w->failed, which ends the loop */
+        if (w->buffered == STORE_WRITE_BUF)
+            flush_buf(w, 0); /* a failure sets w->failed, which ends the loop */
     }
     return w->failed ? -1 : 0;
 }
@@ -210,12 +254,20 @@ int store_rec_begin(store_rec_writer_t *w, const char *path, store_kind_t kind)
 {
     w->fd = -1;
     w->failed = 0;
+    w->direct = 0;
     w->length = 0;
+    w->written = 0;
     w->buffered = 0;
+    w->buf = w->space + (STORE_ALIGN - (uintptr_t)w->space % STORE_ALIGN) % STORE_ALIGN;
     w->err[0] = '\0';
     snprintf(w->path, sizeof w->path, "%s", path);
     snprintf(w->tmp, sizeof w->tmp, "%s.tmp.%ld", path, (long)getpid());
-    w->fd = open(w->tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+    const int flags = O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC;
+    w->fd = store_open_direct(w->tmp, flags);
+    if (w->fd >= 0)
+        w->direct = 1;
+    else if (errno == EINVAL) /* a file system without O_DIRECT (tmpfs) */
+        w->fd = open(w->tmp, flags, 0600);
     if (w->fd < 0) {
         snprintf(w->err, sizeof w->err, "cannot create %.600s: %s", w->tmp, strerror(errno));
         w->failed = 1;
@@ -273,7 +325,13 @@ int store_rec_finish(store_rec_writer_t *w)
     le_put_u64(trailer, w->length);
     store_sum_update(&w->hash, trailer, 8);
     store_sum_final(&w->hash, trailer + 8);
-    if (raw_write(w, trailer, sizeof trailer) < 0 || flush_buf(w) < 0) {
+    if (raw_write(w, trailer, sizeof trailer) < 0 || flush_buf(w, 1) < 0) {
+        store_rec_abort(w);
+        return -1;
+    }
+    /* the last O_DIRECT block's padding */
+    if (ftruncate(w->fd, (off_t)w->written) != 0) {
+        snprintf(w->err, sizeof w->err, "%.600s: truncate failed: %s", w->tmp, strerror(errno));
         store_rec_abort(w);
         return -1;
     }
@@ -481,17 +539,22 @@ static int write_meta(store_t *s, char *err, size_t errlen)
 {
     char path[4096];
     snprintf(path, sizeof path, "%s/meta", s->dir);
-    static_assert(sizeof(store_rec_writer_t) < (1 << 17), "writer fits the stack");
-    store_rec_writer_t w;
+    store_rec_writer_t *w = malloc(sizeof *w);
+    if (!w) {
+        vberr_set(err, errlen, "out of memory");
+        return -1;
+    }
     uint8_t body[12];
     le_put_u64(body, s->next_id);
     le_put_u32(body + 8, s->boots);
-    if (store_rec_begin(&w, path, STORE_KIND_META) < 0 ||
-        store_rec_write(&w, body, sizeof body) < 0 || store_rec_commit(&w, 0) < 0) {
-        vberr_set(err, errlen, "%.600s", w.err);
-        return -1;
+    int rc = 0;
+    if (store_rec_begin(w, path, STORE_KIND_META) < 0 ||
+        store_rec_write(w, body, sizeof body) < 0 || store_rec_commit(w, 0) < 0) {
+        vberr_set(err, errlen, "%.600s", w->err);
+        rc = -1;
     }
-    return 0;
+    free(w);
+    return rc;
 }
 
 const char *store_dir(const store_t *s)
