@@ -961,6 +961,12 @@ static job_t *recover_submitted(master_t *m, uint64_t id, char *err, size_t errl
             memcpy(j->owner, owner, olen);
             j->owner[olen] = '\0';
         }
+        /* taken over from a master of format 1, which must not start it
+         * over if it runs on this directory again: it refuses format 2 */
+        char werr[VB_ERR_LEN];
+        if (rec.version < STORE_FORMAT_VERSION &&
+            store_rec_rewrite(path, STORE_KIND_SUBMIT, &rec, werr, sizeof werr) < 0)
+            master_log_at(m, VBLOG_WARN, "job %" PRIu64 ": %s", id, werr);
     }
 out:
     cJSON_Delete(req);

@@ -433,7 +433,26 @@ int store_rec_parse(const uint8_t *data, size_t size, store_kind_t kind, store_r
     }
     memcpy(rec->data, data + STORE_HEADER_SIZE, plen);
     rec->size = plen;
+    rec->version = le_get_u32(data + 8);
     return 0;
+}
+
+int store_rec_rewrite(const char *path, store_kind_t kind, const store_rec_t *rec, char *err,
+                      size_t errlen)
+{
+    store_rec_writer_t *w = malloc(sizeof *w);
+    if (!w) {
+        vberr_set(err, errlen, "out of memory");
+        return -1;
+    }
+    int rc = 0;
+    if (store_rec_begin(w, path, kind) < 0 || store_rec_write(w, rec->data, rec->size) < 0 ||
+        store_rec_commit(w, 0) < 0) {
+        vberr_set(err, errlen, "%.600s", w->err);
+        rc = -1;
+    }
+    free(w);
+    return rc;
 }
 
 int store_rec_load(const char *path, store_kind_t kind, store_rec_t *rec, char *err, size_t errlen)

@@ -134,7 +134,8 @@ void store_rec_abort(store_rec_writer_t *w);
 typedef struct store_rec {
     uint8_t *data; /* the payload */
     size_t size;
-    size_t pos; /* for store_rec_read */
+    size_t pos;       /* for store_rec_read */
+    uint32_t version; /* the format it was written in */
 } store_rec_t;
 
 /* 0 with *rec filled; -1 with a message (missing: "no such file"; torn or
@@ -144,6 +145,11 @@ int store_rec_load(const char *path, store_kind_t kind, store_rec_t *rec, char *
  * file); rec->data is a copy of the payload. */
 int store_rec_parse(const uint8_t *data, size_t size, store_kind_t kind, store_rec_t *rec,
                     char *err, size_t errlen);
+/* Writes rec's payload again at PATH in this format (a record of an older
+ * one, which an older master would still read: it must refuse what this
+ * one has taken over). 0, or -1 with a message. */
+int store_rec_rewrite(const char *path, store_kind_t kind, const store_rec_t *rec, char *err,
+                      size_t errlen);
 /* Same signature as sched_read_fn: reads exactly len bytes, -1 if short. */
 int store_rec_read(void *rec, void *data, size_t len);
 void store_rec_free(store_rec_t *rec);

@@ -2275,6 +2275,18 @@ END_TEST
  * job resumes from the old checkpoint, a snapshot and journal replace it,
  * meta is rewritten as format 2, and the image equals a fresh job's of the
  * same scene and settings, bit for bit. */
+/* The format version in a state file's header. */
+static unsigned state_format_of(const char *path)
+{
+    FILE *f = fopen(path, "rb");
+    ck_assert_msg(f != NULL, "%s: %s", path, strerror(errno));
+    uint8_t head[12];
+    ck_assert_int_eq(fread(head, 1, 12, f), 12);
+    fclose(f);
+    return (unsigned)head[8] | (unsigned)head[9] << 8 | (unsigned)head[10] << 16 |
+           (unsigned)head[11] << 24;
+}
+
 START_TEST(state_v1_migration)
 {
     char dir[PATHLEN], got[PATHLEN], ref[PATHLEN], scene[PATHLEN], out[OUTLEN], cmd[4 * PATHLEN];
@@ -2300,15 +2312,15 @@ START_TEST(state_v1_migration)
                       logs_tail());
         cJSON_Delete(pace_step(&pace));
     }
-    char meta[PATHLEN + 8];
-    snprintf(meta, sizeof meta, "%s/meta", dir);
-    FILE *f = fopen(meta, "rb");
-    ck_assert_ptr_nonnull(f);
-    uint8_t head[12];
-    ck_assert_int_eq(fread(head, 1, 12, f), 12);
-    fclose(f);
-    ck_assert_msg(head[8] == 2 && head[9] == 0 && head[10] == 0 && head[11] == 0,
-                  "meta is format %u, not 2", head[8]);
+    /* meta, and the submission: the master of format 1 refuses the job
+     * now, rather than start it over on its old submission */
+    char path[PATHLEN + 32];
+    snprintf(path, sizeof path, "%s/jobs/1/submit", src);
+    ck_assert_uint_eq(state_format_of(path), 1);
+    snprintf(path, sizeof path, "%s/meta", dir);
+    ck_assert_uint_eq(state_format_of(path), 2);
+    snprintf(path, sizeof path, "%s/jobs/1/submit", dir);
+    ck_assert_uint_eq(state_format_of(path), 2);
     pace_thaw(&pace);
     finish_and_fetch(port + 1, 1, tmp(got, sizeof got, "v1.exr"));
     unsigned long long fresh = submit(port + 1, scene, "--spp 4096");
