@@ -186,7 +186,7 @@ static int run_one(const uint8_t *data, size_t size)
         return 0;
     sched_config_t cfg;
     fuzz_ckpt_config((data[0] & 3) % FUZZ_CKPT_CONFIGS, &cfg);
-    store_rec_t rec = {malloc(size - 1 ? size - 1 : 1), size - 1, 0};
+    store_rec_t rec = {.data = malloc(size - 1 ? size - 1 : 1), .size = size - 1};
     if (!rec.data)
         abort();
     memcpy(rec.data, data + 1, size - 1);
@@ -233,7 +233,7 @@ static int run_one(const uint8_t *data, size_t size)
             m.n = 0;
             if (sched_save(s, mem_write, &m) != 0)
                 abort();
-            store_rec_t again = {m.p, m.n, 0};
+            store_rec_t again = {.data = m.p, .size = m.n};
             sched_t *s2 = sched_load(&cfg, store_rec_read, &again, err, sizeof err);
             if (!s2 && plausible) {
                 fprintf(stderr, "fuzz_ckpt: a resumed scheduler's checkpoint does not load: %s\n",
