@@ -1612,6 +1612,52 @@ START_TEST(sigterm)
 }
 END_TEST
 
+/* How often text occurs in d's log. */
+static int log_count(const daemon_t *d, const char *text)
+{
+    static char log[65536];
+    int n = 0;
+    for (const char *p = read_log(d, log, sizeof log); (p = strstr(p, text)) != NULL; p++)
+        n++;
+    return n;
+}
+
+/* A worker started before its master, and one whose master stops and
+ * another starts on the same port, joins once each time: its socket
+ * queues what it cannot send yet (no ZMQ_IMMEDIATE, which made libzmq
+ * abort the worker when a connection dropped mid-message: worker.c), so
+ * it must not resend HELLO before a connection is made. Each HELLO the
+ * master got twice would log "said hello again". */
+START_TEST(worker_before_master)
+{
+    static const char *const settings = "--spp 64 --adaptive none --seed 3";
+    char scene[PATHLEN], got[PATHLEN];
+    scene_file(scene, sizeof scene, 16, NULL, NULL);
+    const int first_port = slot_port(19);
+    int port = first_port;
+    daemon_t *w = start_worker(port, 1, "x-worker", "127.0.0.2");
+    /* its HELLO backoff (0.1 s doubling) would have queued several by now */
+    sleep_ms(2500);
+    assert_alive(w);
+    for (int round = 0; round < 2; round++) {
+        daemon_t *m = start_master(&port, round ? "x-master2" : "x-master1");
+        ck_assert_msg(port == first_port, "port %d taken: the worker waits on another", first_port);
+        wait_workers(port + 1, 1);
+        /* a job through: every message the worker queued has reached the
+         * master by its end */
+        unsigned long long job = submit(port + 1, scene, settings);
+        finish_and_fetch(port + 1, job, tmp(got, sizeof got, "before-master.exr"));
+        ck_assert_msg(log_count(m, "joined") == 1 && log_count(m, "said hello again") == 0,
+                      "the worker joined %d times (%d said hello again)\n%s",
+                      log_count(m, "joined"), log_count(m, "said hello again"), logs_tail());
+        stop_clean(m);
+        assert_alive(w);
+    }
+    stop_clean(w);
+    remove_scratch();
+}
+END_TEST
+
 /* ---- i. several hosts ------------------------------------------------------------ */
 
 /* Runs a shell command; 0 or the first line of its output in why. */
@@ -4251,6 +4297,7 @@ static const struct {
     {"garbage", &master_garbage},
     {"version", &worker_refuses_version},
     {"sigterm", &sigterm},
+    {"worker_before_master", &worker_before_master},
     {"several_hosts", &several_hosts},
     {"master_crash", &master_crash},
     {"corrupt_checkpoint", &corrupt_checkpoint},

@@ -657,6 +657,9 @@ static void on_handshake_events(worker_t *w, double now)
                 logf_(w, "%s", msg);
             w->handshake_backoff = 1.0;
             w->connected = 1;
+            /* the HELLO it queued goes out now: a retry waits its backoff
+             * from here, not from when it was queued */
+            w->last_hello = now;
             continue;
         }
         if (r == HANDSHAKE_LOST) {
