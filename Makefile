@@ -268,7 +268,7 @@ test-asan:
 # only). atexit_sleep_ms=0: TSan otherwise sleeps 1 s in every exiting
 # process, and every test, client run and daemon is one; all our threads are
 # joined before exit, so the sleep would catch nothing.
-TSAN_CLUSTER_CASES = identical_pixels worker_killed sigterm
+TSAN_CLUSTER_CASES = identical_pixels worker_killed sigterm worker_before_master
 TSAN_TESTS = $(addprefix $(BUILD)/tests/,test_tracer test_cli test_adaptive test_cluster test_serve)
 TSAN_RUN   = $(BUILD)/tests/test_tracer:determinism $(BUILD)/tests/test_cli $(BUILD)/tests/test_adaptive \
              $(addprefix $(BUILD)/tests/test_cluster:,$(TSAN_CLUSTER_CASES)) $(BUILD)/tests/test_serve:live
