@@ -1622,8 +1622,8 @@ static int log_count(const daemon_t *d, const char *text)
     return n;
 }
 
-/* A worker started before its master, and one whose master stops and
- * another starts on the same port, joins once each time: its socket
+/* A worker started while its master is down, and one whose master stops
+ * and another starts on the same port, joins once each time: its socket
  * queues what it cannot send yet (no ZMQ_IMMEDIATE, which made libzmq
  * abort the worker when a connection dropped mid-message: worker.c), so
  * it must not resend HELLO before a connection is made. Each HELLO the
@@ -1633,8 +1633,11 @@ START_TEST(worker_before_master)
     static const char *const settings = "--spp 64 --adaptive none --seed 3";
     char scene[PATHLEN], got[PATHLEN];
     scene_file(scene, sizeof scene, 16, NULL, NULL);
-    const int first_port = slot_port(19);
-    int port = first_port;
+    /* a master first, to find a free port pair, then gone: the worker
+     * must not find somebody else's master there */
+    int port = slot_port(19);
+    stop_clean(start_master(&port, "x-master0"));
+    const int first_port = port;
     daemon_t *w = start_worker(port, 1, "x-worker", "127.0.0.2");
     /* its HELLO backoff (0.1 s doubling) would have queued several by now */
     sleep_ms(2500);
