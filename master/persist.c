@@ -301,14 +301,14 @@ static void jw_write(jw_item_t *it, uint8_t *bounce)
         ok = append_direct(fd, bounce, it->offset, it->data, it->len) == 0;
         if (!ok && errno == EINVAL && store_undirect(fd) == 0)
             direct = 0, ok = 1; /* refused for its alignment: written again below */
-        else if (ok) {
-            what = "truncate";
-            ok = ftruncate(fd, (off_t)(it->offset + it->len)) == 0;
-        }
     }
     if (ok && !direct) {
         what = "write";
         ok = pwrite_all(fd, it->data, it->len, it->offset) == 0;
+    }
+    if (ok) { /* the last block's padding, or what a refused one left */
+        what = "truncate";
+        ok = ftruncate(fd, (off_t)(it->offset + it->len)) == 0;
     }
     if (ok) {
         what = "fdatasync";
