@@ -211,55 +211,6 @@ static double thread_cpu_s(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
-static int pwrite_all(int fd, const uint8_t *data, size_t len, uint64_t at)
-{
-    for (size_t done = 0; done < len;) {
-        ssize_t n = pwrite(fd, data + done, len - done, (off_t)(at + done));
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0)
-            return -1;
-        done += (size_t)n;
-    }
-    return 0;
-}
-
-/* Appends len bytes at offset on an O_DIRECT descriptor (store.h says
- * why): whole aligned blocks through the bounce buffer, the first one read
- * back (its head is the journal's durable end, rewritten as it was: a torn
- * write of that block leaves those bytes either way), the last one padded,
- * which the caller cuts off. -1 with errno (EINVAL: the file system refuses
- * the alignment). */
-static int append_direct(int fd, uint8_t *bounce, uint64_t offset, const uint8_t *data, size_t len)
-{
-    uint64_t at = offset - offset % STORE_ALIGN;
-    size_t have = (size_t)(offset - at);
-    if (have > 0) {
-        ssize_t r = pread(fd, bounce, STORE_ALIGN, (off_t)at);
-        if (r < (ssize_t)have) {
-            if (r >= 0)
-                errno = EIO;
-            return -1;
-        }
-    }
-    for (size_t done = 0; done < len;) {
-        size_t n = len - done < STORE_WRITE_BUF - have ? len - done : STORE_WRITE_BUF - have;
-        memcpy(bounce + have, data + done, n);
-        have += n;
-        done += n;
-        size_t out = have; /* full (aligned), or the last: padded */
-        if (out % STORE_ALIGN) {
-            out += STORE_ALIGN - out % STORE_ALIGN;
-            memset(bounce + have, 0, out - have);
-        }
-        if (pwrite_all(fd, bounce, out, at) < 0)
-            return -1;
-        at += out;
-        have = 0;
-    }
-    return 0;
-}
-
 /* Appends one job's commits at item->offset: whatever a failed write left
  * past it is cut off first, so the file never holds a torn record before a
  * good one. */
@@ -282,43 +233,10 @@ static void jw_write(jw_item_t *it, uint8_t *bounce)
         }
         it->offset = JOURNAL_HEADER_SIZE;
     }
-    int direct = bounce != NULL;
-    int fd = direct ? store_open_direct(it->path, O_RDWR | O_CLOEXEC) : -1;
-    if (fd < 0) { /* tmpfs, say: no O_DIRECT */
-        direct = 0;
-        fd = open(it->path, O_WRONLY | O_CLOEXEC);
-    }
-    if (fd < 0) {
-        snprintf(it->err, sizeof it->err, "journal: cannot open %.600s: %s", it->path,
-                 strerror(errno));
-        it->failed = 1;
-        return;
-    }
-    const char *what = "truncate";
-    int ok = ftruncate(fd, (off_t)it->offset) == 0;
-    if (ok && direct) {
-        what = "write";
-        ok = append_direct(fd, bounce, it->offset, it->data, it->len) == 0;
-        if (!ok && errno == EINVAL && store_undirect(fd) == 0)
-            direct = 0, ok = 1; /* refused for its alignment: written again below */
-    }
-    if (ok && !direct) {
-        what = "write";
-        ok = pwrite_all(fd, it->data, it->len, it->offset) == 0;
-    }
-    if (ok) { /* the last block's padding, or what a refused one left */
-        what = "truncate";
-        ok = ftruncate(fd, (off_t)(it->offset + it->len)) == 0;
-    }
-    if (ok) {
-        what = "fdatasync";
-        ok = fdatasync(fd) == 0 || errno == EINVAL || errno == EROFS;
-    }
-    if (!ok)
-        snprintf(it->err, sizeof it->err, "journal: %s of %.600s failed: %s", what, it->path,
-                 strerror(errno));
-    (void)close(fd); /* after fdatasync, close reports nothing more about the data */
-    it->failed = !ok;
+    char err[VB_ERR_LEN];
+    it->failed = store_append(it->path, it->offset, it->data, it->len, bounce, err, sizeof err) < 0;
+    if (it->failed)
+        snprintf(it->err, sizeof it->err, "journal: %.900s", err);
 }
 
 static void *jw_main(void *arg)
@@ -965,7 +883,7 @@ static job_t *recover_submitted(master_t *m, uint64_t id, char *err, size_t errl
          * over if it runs on this directory again: it refuses format 2 */
         char werr[VB_ERR_LEN];
         if (rec.version < STORE_FORMAT_VERSION &&
-            store_rec_rewrite(path, STORE_KIND_SUBMIT, &rec, werr, sizeof werr) < 0)
+            store_rec_save(path, STORE_KIND_SUBMIT, rec.data, rec.size, werr, sizeof werr) < 0)
             master_log_at(m, VBLOG_WARN, "job %" PRIu64 ": %s", id, werr);
     }
 out:

@@ -167,15 +167,102 @@ static int fsync_dir_of(const char *path)
     return rc == 0 || errno == EINVAL || errno == EROFS ? 0 : -1;
 }
 
-int store_open_direct(const char *path, int flags)
+static int open_direct(const char *path, int flags)
 {
     return open(path, flags | O_DIRECT, 0600);
 }
 
-int store_undirect(int fd)
+static int undirect(int fd)
 {
     int fl = fcntl(fd, F_GETFL);
     return fl < 0 ? -1 : fcntl(fd, F_SETFL, fl & ~O_DIRECT);
+}
+
+static int pwrite_all(int fd, const uint8_t *data, size_t len, uint64_t at)
+{
+    for (size_t done = 0; done < len;) {
+        ssize_t n = pwrite(fd, data + done, len - done, (off_t)(at + done));
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n <= 0)
+            return -1;
+        done += (size_t)n;
+    }
+    return 0;
+}
+
+/* Appends len bytes at offset on an O_DIRECT descriptor: whole aligned
+ * blocks through the bounce buffer, the first one read back (its head is
+ * the file's durable end, rewritten as it was: a torn write of that block
+ * leaves those bytes either way), the last one padded, which the caller
+ * cuts off. -1 with errno (EINVAL: the file system refuses the alignment). */
+static int append_direct(int fd, uint8_t *bounce, uint64_t offset, const uint8_t *data, size_t len)
+{
+    uint64_t at = offset - offset % STORE_ALIGN;
+    size_t have = (size_t)(offset - at);
+    if (have > 0) {
+        ssize_t r = pread(fd, bounce, STORE_ALIGN, (off_t)at);
+        if (r < (ssize_t)have) {
+            if (r >= 0)
+                errno = EIO;
+            return -1;
+        }
+    }
+    for (size_t done = 0; done < len;) {
+        size_t n = len - done < STORE_WRITE_BUF - have ? len - done : STORE_WRITE_BUF - have;
+        memcpy(bounce + have, data + done, n);
+        have += n;
+        done += n;
+        size_t out = have; /* full (aligned), or the last: padded */
+        if (out % STORE_ALIGN) {
+            out += STORE_ALIGN - out % STORE_ALIGN;
+            memset(bounce + have, 0, out - have);
+        }
+        if (pwrite_all(fd, bounce, out, at) < 0)
+            return -1;
+        at += out;
+        have = 0;
+    }
+    return 0;
+}
+
+int store_append(const char *path, uint64_t offset, const void *data, size_t len, uint8_t *bounce,
+                 char *err, size_t errlen)
+{
+    int direct = bounce != NULL;
+    int fd = direct ? open_direct(path, O_RDWR | O_CLOEXEC) : -1;
+    if (fd < 0) { /* tmpfs, say: no O_DIRECT */
+        direct = 0;
+        fd = open(path, O_WRONLY | O_CLOEXEC);
+    }
+    if (fd < 0) {
+        vberr_set(err, errlen, "cannot open %.600s: %s", path, strerror(errno));
+        return -1;
+    }
+    const char *what = "truncate";
+    int ok = ftruncate(fd, (off_t)offset) == 0;
+    if (ok && direct) {
+        what = "write";
+        ok = append_direct(fd, bounce, offset, data, len) == 0;
+        if (!ok && errno == EINVAL && undirect(fd) == 0)
+            direct = 0, ok = 1; /* refused for its alignment: written again below */
+    }
+    if (ok && !direct) {
+        what = "write";
+        ok = pwrite_all(fd, data, len, offset) == 0;
+    }
+    if (ok) { /* the last block's padding, or what a refused one left */
+        what = "truncate";
+        ok = ftruncate(fd, (off_t)(offset + len)) == 0;
+    }
+    if (ok) {
+        what = "fdatasync";
+        ok = fdatasync(fd) == 0 || errno == EINVAL || errno == EROFS;
+    }
+    if (!ok)
+        vberr_set(err, errlen, "%s of %.600s failed: %s", what, path, strerror(errno));
+    (void)close(fd); /* after fdatasync, close reports nothing more about the data */
+    return ok ? 0 : -1;
 }
 
 /* A write on an O_DIRECT descriptor that the file system refused for its
@@ -184,7 +271,7 @@ static int write_out(store_rec_writer_t *w, const void *data, size_t len)
 {
     if (write_all(w->fd, data, len) == 0)
         return 0;
-    if (!(w->direct && errno == EINVAL) || store_undirect(w->fd) < 0)
+    if (!(w->direct && errno == EINVAL) || undirect(w->fd) < 0)
         return -1;
     w->direct = 0;
     /* a refused write wrote nothing: the file ends where it did */
@@ -194,19 +281,16 @@ static int write_out(store_rec_writer_t *w, const void *data, size_t len)
 }
 
 /* Writes the buffer out. An O_DIRECT descriptor takes whole aligned blocks
- * only: unless last, what is past the last whole block stays buffered; the
- * last write is padded with zeros, which store_rec_finish cuts off. */
-static int flush_buf(store_rec_writer_t *w, int last)
+ * only: a flush is either of a full buffer (aligned) or the record's last,
+ * padded with zeros, which store_rec_finish cuts off. */
+static int flush_buf(store_rec_writer_t *w)
 {
     if (w->failed)
         return -1;
-    size_t n = w->buffered;
-    if (w->direct && !last)
-        n -= n % STORE_ALIGN;
+    size_t n = w->buffered, out = n;
     if (n == 0)
         return 0;
-    size_t out = n;
-    if (w->direct && last && n % STORE_ALIGN) {
+    if (w->direct && n % STORE_ALIGN) {
         out = n + STORE_ALIGN - n % STORE_ALIGN;
         memset(w->buf + n, 0, out - n);
     }
@@ -216,8 +300,7 @@ static int flush_buf(store_rec_writer_t *w, int last)
         return -1;
     }
     w->written += n;
-    memmove(w->buf, w->buf + n, w->buffered - n);
-    w->buffered -= n;
+    w->buffered = 0;
     return 0;
 }
 
@@ -228,7 +311,7 @@ static int raw_write(store_rec_writer_t *w, const void *data, size_t len)
         /* a large block (a film) goes straight to the file: copying it
          * through the buffer first was a tenth of a checkpoint's CPU (with
          * O_DIRECT it must be copied: the film is not aligned) */
-        if (flush_buf(w, 0) < 0)
+        if (flush_buf(w) < 0)
             return -1;
         if (write_all(w->fd, p, len) < 0) {
             snprintf(w->err, sizeof w->err, "%.600s: write failed: %s", w->tmp, strerror(errno));
@@ -245,7 +328,7 @@ static int raw_write(store_rec_writer_t *w, const void *data, size_t len)
         p += n;
         len -= n;
         if (w->buffered == STORE_WRITE_BUF)
-            flush_buf(w, 0); /* a failure sets w->failed, which ends the loop */
+            flush_buf(w); /* a failure sets w->failed, which ends the loop */
     }
     return w->failed ? -1 : 0;
 }
@@ -263,7 +346,7 @@ int store_rec_begin(store_rec_writer_t *w, const char *path, store_kind_t kind)
     snprintf(w->path, sizeof w->path, "%s", path);
     snprintf(w->tmp, sizeof w->tmp, "%s.tmp.%ld", path, (long)getpid());
     const int flags = O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC;
-    w->fd = store_open_direct(w->tmp, flags);
+    w->fd = open_direct(w->tmp, flags);
     if (w->fd >= 0)
         w->direct = 1;
     else if (errno == EINVAL) /* a file system without O_DIRECT (tmpfs) */
@@ -325,7 +408,7 @@ int store_rec_finish(store_rec_writer_t *w)
     le_put_u64(trailer, w->length);
     store_sum_update(&w->hash, trailer, 8);
     store_sum_final(&w->hash, trailer + 8);
-    if (raw_write(w, trailer, sizeof trailer) < 0 || flush_buf(w, 1) < 0) {
+    if (raw_write(w, trailer, sizeof trailer) < 0 || flush_buf(w) < 0) {
         store_rec_abort(w);
         return -1;
     }
@@ -437,8 +520,8 @@ int store_rec_parse(const uint8_t *data, size_t size, store_kind_t kind, store_r
     return 0;
 }
 
-int store_rec_rewrite(const char *path, store_kind_t kind, const store_rec_t *rec, char *err,
-                      size_t errlen)
+int store_rec_save(const char *path, store_kind_t kind, const void *data, size_t len, char *err,
+                   size_t errlen)
 {
     store_rec_writer_t *w = malloc(sizeof *w);
     if (!w) {
@@ -446,7 +529,7 @@ int store_rec_rewrite(const char *path, store_kind_t kind, const store_rec_t *re
         return -1;
     }
     int rc = 0;
-    if (store_rec_begin(w, path, kind) < 0 || store_rec_write(w, rec->data, rec->size) < 0 ||
+    if (store_rec_begin(w, path, kind) < 0 || store_rec_write(w, data, len) < 0 ||
         store_rec_commit(w, 0) < 0) {
         vberr_set(err, errlen, "%.600s", w->err);
         rc = -1;
@@ -558,22 +641,10 @@ static int write_meta(store_t *s, char *err, size_t errlen)
 {
     char path[4096];
     snprintf(path, sizeof path, "%s/meta", s->dir);
-    store_rec_writer_t *w = malloc(sizeof *w);
-    if (!w) {
-        vberr_set(err, errlen, "out of memory");
-        return -1;
-    }
     uint8_t body[12];
     le_put_u64(body, s->next_id);
     le_put_u32(body + 8, s->boots);
-    int rc = 0;
-    if (store_rec_begin(w, path, STORE_KIND_META) < 0 ||
-        store_rec_write(w, body, sizeof body) < 0 || store_rec_commit(w, 0) < 0) {
-        vberr_set(err, errlen, "%.600s", w->err);
-        rc = -1;
-    }
-    free(w);
-    return rc;
+    return store_rec_save(path, STORE_KIND_META, body, sizeof body, err, errlen);
 }
 
 const char *store_dir(const store_t *s)

@@ -97,12 +97,14 @@ void store_sum_final(const store_sum_t *c, uint8_t out[32]);
 #define STORE_ALIGN 4096
 #define STORE_WRITE_BUF (1 << 20)
 
-/* open(2) with O_DIRECT (-1 with EINVAL where the file system has none),
- * and the flag taken off again (after a write refused for its alignment);
- * here because O_DIRECT needs _GNU_SOURCE, which master/sched.h, found
- * first for <sched.h>, does not survive. */
-int store_open_direct(const char *path, int flags);
-int store_undirect(int fd);
+/* Appends len bytes to the file at path at offset (its durable size:
+ * whatever lies past it is cut off first, so a torn record never precedes
+ * a good one) and fdatasyncs it. With bounce (STORE_WRITE_BUF bytes,
+ * STORE_ALIGN-aligned) the write is O_DIRECT where the file system takes
+ * it; NULL, or a file system that refuses it, the page cache's way. 0, or
+ * -1 with a message. */
+int store_append(const char *path, uint64_t offset, const void *data, size_t len, uint8_t *bounce,
+                 char *err, size_t errlen);
 
 typedef struct store_rec_writer {
     int fd;
@@ -145,11 +147,10 @@ int store_rec_load(const char *path, store_kind_t kind, store_rec_t *rec, char *
  * file); rec->data is a copy of the payload. */
 int store_rec_parse(const uint8_t *data, size_t size, store_kind_t kind, store_rec_t *rec,
                     char *err, size_t errlen);
-/* Writes rec's payload again at PATH in this format (a record of an older
- * one, which an older master would still read: it must refuse what this
- * one has taken over). 0, or -1 with a message. */
-int store_rec_rewrite(const char *path, store_kind_t kind, const store_rec_t *rec, char *err,
-                      size_t errlen);
+/* A record of one piece, written whole (begin, write, commit): 0, or -1
+ * with a message. */
+int store_rec_save(const char *path, store_kind_t kind, const void *data, size_t len, char *err,
+                   size_t errlen);
 /* Same signature as sched_read_fn: reads exactly len bytes, -1 if short. */
 int store_rec_read(void *rec, void *data, size_t len);
 void store_rec_free(store_rec_t *rec);

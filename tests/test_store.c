@@ -31,7 +31,7 @@ static const char *fresh_dir(char *buf, size_t len, const char *name)
 static void rm_rf(const char *dir)
 {
     char cmd[PATHLEN + 16], out[256];
-    snprintf(cmd, sizeof cmd, "rm -rf '%s'", dir);
+    snprintf(cmd, sizeof cmd, "rm -rf '%.1000s'", dir);
     tu_run(cmd, out, sizeof out);
 }
 
@@ -99,6 +99,24 @@ START_TEST(record_round_trip)
 }
 END_TEST
 
+/* The two directories the size tests write in: one in the test directory
+ * and one on tmpfs (/dev/shm), which may refuse O_DIRECT. */
+static void two_dirs(char dirs[2][PATHLEN], const char *name)
+{
+    fresh_dir(dirs[0], PATHLEN, name);
+    snprintf(dirs[1], PATHLEN, "/dev/shm/vb-%s-%ld", name, (long)getpid());
+}
+
+/* Makes dirs[d] afresh: 0, or -1 where there is no /dev/shm. */
+static int make_dir(char dirs[2][PATHLEN], int d)
+{
+    rm_rf(dirs[d]);
+    if (mkdir(dirs[d], 0700) == 0)
+        return 0;
+    ck_assert_int_eq(d, 1);
+    return -1;
+}
+
 /* Records of every size around the O_DIRECT blocks (store.h) come back
  * whole, the file cut to its length (header 16, trailer 40 bytes): in the
  * test directory, and on tmpfs, which may refuse O_DIRECT (the page cache's
@@ -106,8 +124,7 @@ END_TEST
 START_TEST(record_sizes_across_blocks)
 {
     char dirs[2][PATHLEN], path[PATHLEN + 16], err[1024];
-    fresh_dir(dirs[0], sizeof dirs[0], "sizes");
-    snprintf(dirs[1], sizeof dirs[1], "/dev/shm/vb-store-%ld", (long)getpid());
+    two_dirs(dirs, "sizes");
     const size_t frame = 16 + 40;
     const size_t sizes[] = {0,
                             1,
@@ -122,11 +139,8 @@ START_TEST(record_sizes_across_blocks)
     for (size_t i = 0; i < sizes[7]; i++)
         data[i] = (uint8_t)(i * 131 + 7 + (i >> 12));
     for (int d = 0; d < 2; d++) {
-        rm_rf(dirs[d]);
-        if (mkdir(dirs[d], 0700) != 0) {
-            ck_assert_int_eq(d, 1); /* no /dev/shm here */
+        if (make_dir(dirs, d) < 0)
             continue;
-        }
         for (size_t k = 0; k < sizeof sizes / sizeof sizes[0]; k++) {
             snprintf(path, sizeof path, "%s/rec%zu", dirs[d], k);
             write_rec(path, STORE_KIND_SNAPSHOT, data, sizes[k], 0);
@@ -143,6 +157,67 @@ START_TEST(record_sizes_across_blocks)
         }
         rm_rf(dirs[d]);
     }
+    free(data);
+}
+END_TEST
+
+/* store_append (the journal's writes): appends at every kind of offset
+ * give the file exactly the bytes appended, whatever lay past the offset is
+ * cut, with O_DIRECT (a bounce buffer) and without, here and on tmpfs. */
+START_TEST(append_across_blocks)
+{
+    char dirs[2][PATHLEN], path[PATHLEN + 16], err[1024];
+    two_dirs(dirs, "append");
+    const size_t pieces[] = {
+        32, 1, STORE_ALIGN - 33, 5000, STORE_WRITE_BUF + 17, 3, 2 * STORE_ALIGN};
+    size_t total = 0;
+    for (size_t k = 0; k < sizeof pieces / sizeof pieces[0]; k++)
+        total += pieces[k];
+    uint8_t *data = malloc(total);
+    ck_assert_ptr_nonnull(data);
+    for (size_t i = 0; i < total; i++)
+        data[i] = (uint8_t)(i * 167 + 11 + (i >> 13));
+    void *bounce = NULL;
+    ck_assert_int_eq(posix_memalign(&bounce, STORE_ALIGN, STORE_WRITE_BUF), 0);
+    for (int d = 0; d < 2; d++) {
+        if (make_dir(dirs, d) < 0)
+            continue;
+        for (int direct = 0; direct < 2; direct++) {
+            snprintf(path, sizeof path, "%.1000s/file%d", dirs[d], direct);
+            FILE *f = fopen(path, "wb");
+            ck_assert_ptr_nonnull(f);
+            fclose(f);
+            size_t at = 0;
+            for (size_t k = 0; k < sizeof pieces / sizeof pieces[0]; k++) {
+                ck_assert_msg(store_append(path, at, data + at, pieces[k], direct ? bounce : NULL,
+                                           err, sizeof err) == 0,
+                              "%s", err);
+                at += pieces[k];
+            }
+            /* a piece written again over a longer file: the rest is cut */
+            ck_assert_int_eq(
+                store_append(path, 100, data + 100, 50, direct ? bounce : NULL, err, sizeof err),
+                0);
+            size_t n;
+            uint8_t *got = read_file(path, &n);
+            ck_assert_uint_eq(n, 150);
+            ck_assert_int_eq(memcmp(got, data, 150), 0);
+            free(got);
+            ck_assert_int_eq(store_append(path, 150, data + 150, total - 150,
+                                          direct ? bounce : NULL, err, sizeof err),
+                             0);
+            got = read_file(path, &n);
+            ck_assert_uint_eq(n, total);
+            ck_assert_int_eq(memcmp(got, data, total), 0);
+            free(got);
+        }
+        rm_rf(dirs[d]);
+    }
+    /* a missing file is an error with its name, not a new file */
+    snprintf(path, sizeof path, "%s/none/file", dirs[0]);
+    ck_assert_int_eq(store_append(path, 0, data, 10, bounce, err, sizeof err), -1);
+    ck_assert_msg(strstr(err, "cannot open") && strstr(err, "none/file"), "%s", err);
+    free(bounce);
     free(data);
 }
 END_TEST
@@ -578,6 +653,7 @@ static Suite *store_suite(void)
     tcase_set_timeout(tc, 60);
     tcase_add_test(tc, record_round_trip);
     tcase_add_test(tc, record_sizes_across_blocks);
+    tcase_add_test(tc, append_across_blocks);
     tcase_add_test(tc, record_damage_found);
     tcase_add_test(tc, keep_prev);
     tcase_add_test(tc, job_ids_increase);
