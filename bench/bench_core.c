@@ -82,6 +82,7 @@ static const char usage_text[] =
     "  --spp N             samples per pixel of each timed render (default 64)\n"
     "  --runs R            timed repetitions, best is kept (default 3)\n"
     "  --rays N            rays per raw Embree batch (default 2000000)\n"
+    "  --engine E          scalar (default) or wavefront (tracer.h)\n"
     "  --json FILE         write the results as JSON\n"
     "  -h, --help          this text\n";
 
@@ -283,7 +284,7 @@ typedef struct raw_job {
 } raw_job_t;
 
 /* One thread's share of a timed pass; the ray struct is filled field by
- * field as in tracer.c's intersect() and unoccluded(). */
+ * field as in tracer_priv.h's tracer_intersect() and tracer_unoccluded(). */
 static void *raw_worker(void *argp)
 {
     raw_job_t *j = argp;
@@ -848,6 +849,7 @@ static const char *base_name(const char *path, char *buf, size_t len)
 typedef struct args {
     const char *scene, *json;
     uint64_t threads, spp, runs, rays;
+    tracer_engine_t engine;
 } args_t;
 
 static int parse_args(int argc, char **argv, args_t *a)
@@ -866,6 +868,13 @@ static int parse_args(int argc, char **argv, args_t *a)
             if (!v)
                 return usage_error("--scene needs a file", NULL);
             a->scene = v;
+        } else if (strcmp(o, "--engine") == 0) {
+            if (v && strcmp(v, "wavefront") == 0)
+                a->engine = TRACER_ENGINE_WAVEFRONT;
+            else if (v && strcmp(v, "scalar") == 0)
+                a->engine = TRACER_ENGINE_SCALAR;
+            else
+                return usage_error("--engine needs wavefront or scalar, got", v ? v : "nothing");
         } else if (strcmp(o, "--json") == 0) {
             if (!v)
                 return usage_error("--json needs a file", NULL);
@@ -1234,6 +1243,8 @@ static int write_json(const char *path, const args_t *a, const char *name, const
     cJSON_AddStringToObject(root, "isa", tracer_isa(tr));
     cJSON_AddStringToObject(root, "accel",
                             tracer_accel_for(s) == TRACER_ACCEL_TRILIST ? "trilist" : "embree");
+    cJSON_AddStringToObject(root, "engine",
+                            a->engine == TRACER_ENGINE_SCALAR ? "scalar" : "wavefront");
     cJSON_AddStringToObject(root, "embree_version", RTC_VERSION_STRING);
     cJSON_AddBoolToObject(root, "disturbed", disturbed);
     cJSON_AddItemToObject(root, "ours", ours_json(o, a, s, threads));
@@ -1307,6 +1318,7 @@ int main(int argc, char **argv)
         scene_destroy(&s);
         return 1;
     }
+    tracer_use_engine(tr, a.engine);
     fprintf(stderr, "bench_core: %s: %zu triangles, %zu lights, %dx%d, %d thread(s), %s\n", name,
             s->triangle_count, s->light_count, s->camera.width, s->camera.height, (int)a.threads,
             tracer_isa(tr));

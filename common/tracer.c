@@ -12,7 +12,7 @@
  * is its material's (material_sample, material_eval in material.h).
  *
  * Robustness: hit points come from barycentrics kept off the triangle's
- * edges (inset_from_edges), new rays leave from a point offset by the
+ * edges (tracer_inset_from_edges), new rays leave from a point offset by the
  * Wachter-Binder method along the geometric normal, so there is no
  * scene-scale epsilon; shading normals never let light through the
  * geometric surface; a NaN/Inf sample is counted and left out.
@@ -26,22 +26,14 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "lights.h"
-#include "rng.h"
-#include "trilist.h"
+#include "tracer_priv.h"
+#include "wave.h"
 
 struct tracer_device {
     RTCDevice device;
     char isa[16];
     pthread_mutex_t lock; /* guards error: builds may run on several threads */
     char error[256];      /* last Embree error, written by the callback */
-};
-
-struct tracer {
-    tracer_device_t *dev;
-    RTCScene rtc;     /* the BVH, or NULL when small is used */
-    trilist_t *small; /* a scene tested whole, without a BVH */
-    const scene_t *scene;
 };
 
 static void embree_error(void *user, enum RTCError code, const char *str)
@@ -193,96 +185,6 @@ const char *tracer_isa(const tracer_t *t)
     return t->dev->isa;
 }
 
-/* ---- ray casting -------------------------------------------------------- */
-
-typedef struct hit {
-    uint32_t tri;
-    float t, u, v;
-} hit_t;
-
-static inline int intersect(const tracer_t *tr, vec3_t o, vec3_t d, hit_t *h)
-{
-    if (tr->small)
-        return trilist_intersect(tr->small, o, d, INFINITY, &h->tri, &h->t, &h->u, &h->v);
-    struct RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
-    struct RTCRayHit rh;
-    rh.ray.org_x = o.x;
-    rh.ray.org_y = o.y;
-    rh.ray.org_z = o.z;
-    rh.ray.tnear = 0.0f;
-    rh.ray.dir_x = d.x;
-    rh.ray.dir_y = d.y;
-    rh.ray.dir_z = d.z;
-    rh.ray.time = 0.0f;
-    rh.ray.tfar = INFINITY;
-    rh.ray.mask = 0xffffffffu;
-    rh.ray.id = 0;
-    rh.ray.flags = 0;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(tr->rtc, &ctx, &rh);
-    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID)
-        return 0;
-    h->tri = rh.hit.primID;
-    h->t = rh.ray.tfar;
-    h->u = rh.hit.u;
-    h->v = rh.hit.v;
-    return 1;
-}
-
-/* 1 if the segment o -> o + d (d unnormalised, t in [0, 1)) is free. */
-static inline int unoccluded(const tracer_t *tr, vec3_t o, vec3_t d)
-{
-    if (tr->small)
-        return !trilist_occluded(tr->small, o, d, 0.99999f);
-    struct RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
-    struct RTCRay r;
-    r.org_x = o.x;
-    r.org_y = o.y;
-    r.org_z = o.z;
-    r.tnear = 0.0f;
-    r.dir_x = d.x;
-    r.dir_y = d.y;
-    r.dir_z = d.z;
-    r.time = 0.0f;
-    r.tfar = 0.99999f;
-    r.mask = 0xffffffffu;
-    r.id = 0;
-    r.flags = 0;
-    rtcOccluded1(tr->rtc, &ctx, &r);
-    return r.tfar >= 0.0f;
-}
-
-/* A hit rounded onto a triangle's edge lies on the plane of the face
- * across that edge too, so half the directions leaving it go out through
- * that face at t = 0 and are never stopped: a crack along every edge of a
- * closed mesh (10^-8 of the rays in a closed cube). The shading point keeps
- * at least TRACER_EDGE_INSET of each barycentric coordinate instead, a
- * shift of 2^-16 of the triangle that puts it inside its own face. */
-#define TRACER_EDGE_INSET 0x1p-16f
-
-static inline void inset_from_edges(hit_t *h)
-{
-    /* (comparisons, not fmaxf: that is a libm call without -ffast-math) */
-    float u = h->u < TRACER_EDGE_INSET ? TRACER_EDGE_INSET : h->u;
-    float v = h->v < TRACER_EDGE_INSET ? TRACER_EDGE_INSET : h->v;
-    if (u + v > 1.0f - TRACER_EDGE_INSET) {
-        float k = (1.0f - TRACER_EDGE_INSET) / (u + v);
-        u *= k;
-        v *= k;
-    }
-    h->u = u;
-    h->v = v;
-}
-
-static inline float power_heuristic(float a, float b)
-{
-    float a2 = a * a, b2 = b * b;
-    return a2 / (a2 + b2);
-}
-
 /* ---- the integrators ---------------------------------------------------- */
 
 /* One path of a sample, as it is traced. */
@@ -320,38 +222,16 @@ static void path_start(path_t *path, const camera_t *cam, const tracer_settings_
 
 /* Radiance of an emitter the path hit from its front (cos_o > 0), weighted
  * by MIS against light sampling when that could have found this point. */
-static void add_emission(path_t *path, const scene_t *s, const material_t *m, const hit_t *h,
+static void add_emission(path_t *path, const scene_t *s, const material_t *m, const tracer_hit_t *h,
                          float cos_o, int nee)
 {
     float w = 1.0f;
     if (nee && !path->specular) {
         /* d is unit length, so h->t is the distance */
         float light_pdf = lights_area_pdf(s, h->tri) * h->t * h->t / cos_o;
-        w = power_heuristic(path->prev_pdf, light_pdf);
+        w = tracer_power_heuristic(path->prev_pdf, light_pdf);
     }
     path->L = vec3_add(path->L, vec3_mul(path->beta, vec3_scale(m->radiance, w)));
-}
-
-/* The normals at a hit, turned to the side the ray came from. */
-static material_hit_t orient_normals(const scene_t *s, const hit_t *h, vec3_t wo, float cos_o)
-{
-    vec3_t ng = s->tri_normal[h->tri];
-    material_hit_t mh = {.wo = wo, .front = cos_o > 0.0f};
-    mh.ngf = cos_o < 0.0f ? vec3_neg(ng) : ng;
-    mh.ns = mh.ngf;
-    if (s->tri_smooth[h->tri]) {
-        const uint32_t *vi = s->indices + 3 * h->tri;
-        vec3_t n = vec3_normalize(vec3_barycentric(scene_vertex_normal(s, vi[0]),
-                                                   scene_vertex_normal(s, vi[1]),
-                                                   scene_vertex_normal(s, vi[2]), h->u, h->v));
-        if (vec3_dot(n, mh.ngf) < 0.0f)
-            n = vec3_neg(n);
-        /* A shading normal that hides wo would make the BSDF take light
-         * from behind the surface: fall back to the geometric one. */
-        if (vec3_is_finite(n) && vec3_dot(n, wo) > 0.0f)
-            mh.ns = n;
-    }
-    return mh;
 }
 
 /* Next-event estimation at p on diffuse m: a light and a point on it (two
@@ -377,11 +257,11 @@ static void sample_direct(const tracer_t *tr, path_t *path, const material_t *m,
     vec3_t from = vec3_offset_ray_origin(p, mh->ngf);
     vec3_t target = vec3_offset_ray_origin(q, nl);
     path->rays++;
-    if (!unoccluded(tr, from, vec3_sub(target, from)))
+    if (!tracer_unoccluded(tr, from, vec3_sub(target, from)))
         return;
     const material_t *lm = &s->materials[s->tri_material[lt]];
     float light_pdf = lights_area_pdf(s, lt) * dist2 / cos_l;
-    float w = power_heuristic(light_pdf, bsdf_pdf);
+    float w = tracer_power_heuristic(light_pdf, bsdf_pdf);
     float k = w * cos_s * VMATH_INV_PI / light_pdf;
     path->L =
         vec3_add(path->L, vec3_mul(vec3_mul(path->beta, m->albedo), vec3_scale(lm->radiance, k)));
@@ -406,15 +286,6 @@ static int survives_roulette(path_t *path)
     return 1;
 }
 
-/* Where bounce `depth`'s numbers start under the sobol sampler: after the
- * camera's pair, six per bounce: [0] roulette, [1] unused (it was the light
- * pick, which now shares the light point's pair), [2, 3] the light and the
- * point on it, [4, 5] BSDF sample, so the 2D uses are Sobol pairs (rng.h). */
-static inline uint64_t bounce_dim(uint32_t depth)
-{
-    return 2 + 6 * (uint64_t)depth;
-}
-
 /* One sample of a pixel: its radiance in *out; returns the rays traced.
  * Random numbers are drawn in a fixed order per bounce (light sample,
  * BSDF sample, roulette), so a sample's path depends on its coordinates
@@ -427,12 +298,12 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
     path_t path;
     path_start(&path, &s->camera, st, pixel, sample_index);
     for (uint32_t depth = 0;; depth++) {
-        hit_t h;
+        tracer_hit_t h;
         path.rays++;
-        if (!intersect(tr, path.o, path.d, &h))
+        if (!tracer_intersect(tr, path.o, path.d, &h))
             break;
         const material_t *m = &s->materials[s->tri_material[h.tri]];
-        inset_from_edges(&h);
+        tracer_inset_from_edges(&h);
         vec3_t p = scene_point(s, h.tri, h.u, h.v);
         vec3_t wo = vec3_neg(path.d);
         float cos_o = vec3_dot(s->tri_normal[h.tri], wo);
@@ -445,11 +316,11 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
         /* segments so far: depth + 1; a bounce or a light sample adds one */
         if (st->max_depth && depth + 2 > st->max_depth)
             break;
-        material_hit_t mh = orient_normals(s, &h, wo, cos_o);
-        rng_seek(&path.rng, bounce_dim(depth) + 2);
+        material_hit_t mh = tracer_orient_normals(s, &h, wo, cos_o);
+        rng_seek(&path.rng, tracer_bounce_dim(depth) + 2);
         if (nee && material_is_diffuse(m))
             sample_direct(tr, &path, m, p, &mh);
-        rng_seek(&path.rng, bounce_dim(depth) + 4);
+        rng_seek(&path.rng, tracer_bounce_dim(depth) + 4);
         material_sample_t bs;
         if (!material_sample(m, &mh, &path.rng, &bs))
             break;
@@ -459,7 +330,7 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
         path.prev_pdf = bs.pdf;
         path.specular = bs.specular;
         path.o = vec3_offset_ray_origin(p, bs.transmits ? vec3_neg(mh.ngf) : mh.ngf);
-        rng_seek(&path.rng, bounce_dim(depth));
+        rng_seek(&path.rng, tracer_bounce_dim(depth));
         if (depth + 1 >= TRACER_RR_DEPTH && !survives_roulette(&path))
             break;
         path.d = vec3_normalize(bs.wi);
@@ -500,9 +371,10 @@ static int check_tasks(const camera_t *cam, const tracer_task_t *tasks, size_t c
     return 0;
 }
 
-/* Takes one task's samples into *r; returns the rays traced. */
-static uint64_t trace_task(const tracer_t *t, const tracer_settings_t *st,
-                           const tracer_task_t *task, tracer_result_t *r)
+/* One task's result from its samples' radiance L[0..sample_count) and
+ * rays, taken in sample order. Returns the rays traced. */
+static uint64_t task_result(const tracer_task_t *task, const vec3_t *Ls, const uint32_t *rays_of,
+                            tracer_result_t *r)
 {
     uint64_t rays = 0;
     double running[TRACER_MAX_TASK_SAMPLES];
@@ -514,8 +386,8 @@ static uint64_t trace_task(const tracer_t *t, const tracer_settings_t *st,
     double lum_sum = 0, mean = 0, m2 = 0;
     uint32_t n = 0;
     for (uint32_t i = 0; i < task->sample_count; i++) {
-        vec3_t L;
-        rays += trace_sample(t, st, task->pixel, task->first_sample + i, &L);
+        vec3_t L = Ls[i];
+        rays += rays_of[i];
         if (!vec3_is_finite(L)) {
             r->nonfinite++;
             continue;
@@ -543,22 +415,60 @@ static uint64_t trace_task(const tracer_t *t, const tracer_settings_t *st,
     return rays;
 }
 
+/* The samples' radiance and rays, for every task of the list. */
+typedef struct trace_buffers {
+    vec3_t L[WAVE_MAX_SAMPLES];
+    uint32_t rays[WAVE_MAX_SAMPLES];
+    wave_state_t wave;
+} trace_buffers_t;
+
 int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_task_t *tasks,
                  size_t count, tracer_result_t *results, tracer_stats_t *stats, char *err,
                  size_t errlen)
 {
     if (check_tasks(&t->scene->camera, tasks, count, err, errlen) < 0)
         return -1;
+    trace_buffers_t buf;
+    const scene_t *s = t->scene;
+    const wave_ctx_t ctx = {
+        .tracer = t,
+        .scene = s,
+        .settings = st,
+        .nee = st->integrator == SCENE_INTEGRATOR_PATH && s->light_count > 0,
+    };
     uint64_t rays = 0, samples = 0;
-    for (size_t k = 0; k < count; k++) {
-        rays += trace_task(t, st, &tasks[k], &results[k]);
-        samples += tasks[k].sample_count;
+    /* runs of whole tasks of at most WAVE_MAX_SAMPLES samples */
+    for (size_t first = 0; first < count;) {
+        size_t end = first, total = 0;
+        while (end < count && total + tasks[end].sample_count <= WAVE_MAX_SAMPLES)
+            total += tasks[end++].sample_count;
+        if (t->engine == TRACER_ENGINE_WAVEFRONT) {
+            wave_trace(&ctx, &buf.wave, tasks + first, end - first, buf.L, buf.rays);
+        } else {
+            size_t at = 0;
+            for (size_t k = first; k < end; k++)
+                for (uint32_t i = 0; i < tasks[k].sample_count; i++, at++)
+                    buf.rays[at] =
+                        trace_sample(t, st, tasks[k].pixel, tasks[k].first_sample + i, &buf.L[at]);
+        }
+        size_t at = 0;
+        for (size_t k = first; k < end; k++) {
+            rays += task_result(&tasks[k], buf.L + at, buf.rays + at, &results[k]);
+            samples += tasks[k].sample_count;
+            at += tasks[k].sample_count;
+        }
+        first = end;
     }
     if (stats) {
         stats->rays += rays;
         stats->samples += samples;
     }
     return 0;
+}
+
+void tracer_use_engine(tracer_t *t, tracer_engine_t engine)
+{
+    t->engine = engine;
 }
 
 int tracer_sampler_from_name(const char *name)

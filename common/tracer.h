@@ -127,6 +127,19 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *settings, const tra
                  size_t count, tracer_result_t *results, tracer_stats_t *stats, char *err,
                  size_t errlen);
 
+/* How a tracer runs its samples. Both give the same bits for every sample
+ * (test_tracer compares them sample list by sample list). The scalar
+ * engine is the default: the wavefront one (wave.h), with its SIMD
+ * diffuse kernel, measured 0.85-0.93x its samples/s on the Cornell box and
+ * the same on cornell-glass (bench_core --engine; docs/ARCHITECTURE.md). */
+typedef enum tracer_engine {
+    TRACER_ENGINE_SCALAR,    /* one sample at a time, bounce by bounce */
+    TRACER_ENGINE_WAVEFRONT, /* paths in flight, stage by stage (wave.h) */
+} tracer_engine_t;
+
+/* Chooses the engine; not while another thread traces with t. */
+void tracer_use_engine(tracer_t *t, tracer_engine_t engine);
+
 /* Russian roulette's survival probability for a path of throughput beta
  * that has crossed dielectric interfaces whose eta^2 multiply to eta_scale
  * (1 outside glass). beta carries their 1/eta^2 radiance compression, which

@@ -119,10 +119,9 @@ static film_t *render(const scene_t *s, uint64_t seed, scene_integrator_t integ,
     return render_sampler(s, seed, integ, RNG_SAMPLER_INDEPENDENT, spp, threads, granularity);
 }
 
-/* Every scene shipped in scenes/ loads from a bare clone (its meshes are in
- * scenes/data) and renders to a finite image that is not black: at 32x32
- * and 8 spp, since what is checked is that nothing is missing. */
-START_TEST(test_every_shipped_scene)
+/* Calls fn on every scene shipped in scenes/, its camera made size x size;
+ * fails unless there are at least 5. */
+static void for_each_shipped_scene(int size, void (*fn)(scene_t *sc, const char *name))
 {
     char dir[1024];
     tu_root_path(dir, sizeof dir, "scenes");
@@ -140,8 +139,8 @@ START_TEST(test_every_shipped_scene)
         free(text);
         ck_assert_msg(root != NULL, "%s is not JSON", path);
         cJSON *cam = cJSON_GetObjectItem(root, "camera");
-        cJSON_ReplaceItemInObject(cam, "width", cJSON_CreateNumber(32));
-        cJSON_ReplaceItemInObject(cam, "height", cJSON_CreateNumber(32));
+        cJSON_ReplaceItemInObject(cam, "width", cJSON_CreateNumber(size));
+        cJSON_ReplaceItemInObject(cam, "height", cJSON_CreateNumber(size));
         char *small = cJSON_PrintUnformatted(root);
         cJSON_Delete(root);
         scene_t *sc = NULL;
@@ -150,21 +149,34 @@ START_TEST(test_every_shipped_scene)
             scene_load_string(small, strlen(small), e->d_name, dir, &sc, err, sizeof err) == 0,
             "%s: %s", e->d_name, err);
         cJSON_free(small);
-        film_t *f = render(sc, 1, SCENE_INTEGRATOR_PATH, 8, 1, 8);
-        double sum = 0;
-        for (uint32_t p = 0; p < 32 * 32; p++) {
-            double rgb[3];
-            film_mean(f, p, rgb);
-            sum += rgb[0] + rgb[1] + rgb[2];
-        }
-        ck_assert_msg(isfinite(sum) && sum > 0, "%s renders %g", e->d_name, sum);
-        ck_assert_uint_eq(film_total_nonfinite(f), 0);
-        film_destroy(&f);
+        fn(sc, e->d_name);
         scene_destroy(&sc);
         scenes++;
     }
     closedir(d);
     ck_assert_msg(scenes >= 5, "only %d scenes in %s", scenes, dir);
+}
+
+static void renders_something(scene_t *sc, const char *name)
+{
+    film_t *f = render(sc, 1, SCENE_INTEGRATOR_PATH, 8, 1, 8);
+    double sum = 0;
+    for (uint32_t p = 0; p < 32 * 32; p++) {
+        double rgb[3];
+        film_mean(f, p, rgb);
+        sum += rgb[0] + rgb[1] + rgb[2];
+    }
+    ck_assert_msg(isfinite(sum) && sum > 0, "%s renders %g", name, sum);
+    ck_assert_uint_eq(film_total_nonfinite(f), 0);
+    film_destroy(&f);
+}
+
+/* Every scene shipped in scenes/ loads from a bare clone (its meshes are in
+ * scenes/data) and renders to a finite image that is not black: at 32x32
+ * and 8 spp, since what is checked is that nothing is missing. */
+START_TEST(test_every_shipped_scene)
+{
+    for_each_shipped_scene(32, renders_something);
 }
 END_TEST
 
@@ -1182,6 +1194,85 @@ START_TEST(test_trilist_and_embree_agree_cornell)
 }
 END_TEST
 
+/* Traces the same task list with both engines (tracer.h) and checks that
+ * every result is the same bits: sums, sample and ray counts, the layer
+ * statistics. Tasks of 1 to 61 samples, so runs of tasks split at
+ * WAVE_MAX_SAMPLES and paths of several tasks share the wavefront. */
+static void assert_engines_agree(const scene_t *s, tracer_accel_t accel,
+                                 const tracer_settings_t *st, const char *what)
+{
+    tracer_device_t *dev = NULL;
+    tracer_t *t = NULL;
+    char err[VB_ERR_LEN];
+    ck_assert_msg(tracer_device_new(&dev, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(tracer_new_accel(dev, s, accel, &t, err, sizeof err) == 0, "%s", err);
+    uint32_t npix = (uint32_t)s->camera.width * (uint32_t)s->camera.height;
+    tracer_task_t *tasks = calloc(npix, sizeof *tasks);
+    tracer_result_t *a = calloc(npix, sizeof *a), *b = calloc(npix, sizeof *b);
+    ck_assert(tasks && a && b);
+    for (uint32_t p = 0; p < npix; p++) {
+        tasks[p].pixel = (p * 7u) % npix;
+        tasks[p].sample_count = 1 + (p * 13u) % 61u;
+        tasks[p].first_sample = (p % 3u) * 32u;
+        tasks[p].prior_count = tasks[p].first_sample;
+        tasks[p].prior_sum[0] = 0.25 * (double)tasks[p].first_sample;
+    }
+    tracer_stats_t sa = {0, 0}, sb = {0, 0};
+    tracer_use_engine(t, TRACER_ENGINE_WAVEFRONT);
+    ck_assert_msg(tracer_trace(t, st, tasks, npix, a, &sa, err, sizeof err) == 0, "%s", err);
+    tracer_use_engine(t, TRACER_ENGINE_SCALAR);
+    ck_assert_msg(tracer_trace(t, st, tasks, npix, b, &sb, err, sizeof err) == 0, "%s", err);
+    ck_assert_uint_eq(sa.rays, sb.rays);
+    ck_assert_uint_eq(sa.samples, sb.samples);
+    for (uint32_t p = 0; p < npix; p++)
+        ck_assert_msg(memcmp(&a[p], &b[p], sizeof a[p]) == 0,
+                      "%s: task %u (pixel %u): wavefront %.9g %.9g %.9g (%u rays), scalar %.9g "
+                      "%.9g %.9g (%u rays)",
+                      what, p, tasks[p].pixel, a[p].sum[0], a[p].sum[1], a[p].sum[2], a[p].rays,
+                      b[p].sum[0], b[p].sum[1], b[p].sum[2], b[p].rays);
+    free(tasks);
+    free(a);
+    free(b);
+    tracer_destroy(&t);
+    tracer_device_destroy(&dev);
+}
+
+/* The wavefront engine and the scalar one give the same bits on every
+ * shipped scene (24x24), under both samplers and both integrators, with
+ * and without a depth limit, through the triangle list and Embree. */
+static void engines_agree_on(scene_t *sc, const char *name)
+{
+    static const struct {
+        scene_integrator_t integrator;
+        rng_sampler_t sampler;
+        uint32_t max_depth;
+    } variants[] = {
+        {SCENE_INTEGRATOR_PATH, RNG_SAMPLER_SOBOL, 0},
+        {SCENE_INTEGRATOR_PATH, RNG_SAMPLER_INDEPENDENT, 0},
+        {SCENE_INTEGRATOR_NAIVE, RNG_SAMPLER_SOBOL, 0},
+        {SCENE_INTEGRATOR_PATH, RNG_SAMPLER_SOBOL, 3},
+    };
+    for (size_t v = 0; v < sizeof variants / sizeof variants[0]; v++) {
+        tracer_settings_t st = {.seed = 5 + v,
+                                .integrator = variants[v].integrator,
+                                .max_depth = variants[v].max_depth,
+                                .sampler = variants[v].sampler};
+        char what[512];
+        snprintf(what, sizeof what, "%s, variant %zu", name, v);
+        assert_engines_agree(sc, TRACER_ACCEL_AUTO, &st, what);
+    }
+    if (tracer_accel_for(sc) == TRACER_ACCEL_TRILIST) {
+        tracer_settings_t st = {.seed = 3, .sampler = RNG_SAMPLER_SOBOL};
+        assert_engines_agree(sc, TRACER_ACCEL_EMBREE, &st, name);
+    }
+}
+
+START_TEST(test_engines_agree)
+{
+    for_each_shipped_scene(24, engines_agree_on);
+}
+END_TEST
+
 static Suite *tracer_suite(void)
 {
     Suite *s = suite_create("tracer");
@@ -1210,6 +1301,7 @@ static Suite *tracer_suite(void)
     tcase_add_test(det, test_deterministic_across_threads);
     tcase_add_test(det, test_tasks_independent_of_batching);
     tcase_add_test(det, test_sobol_deterministic_and_agrees);
+    tcase_add_test(det, test_engines_agree);
     tcase_add_loop_test(det, test_pvar_matches_definition, 0, 2);
     suite_add_tcase(s, det);
     TCase *hard = tcase_create("hard cases");

@@ -1,0 +1,147 @@
+/* tracer_priv.h - what tracer.c and the wavefront engine (wave.h) share:
+ * the tracer's structure, ray casting, and the small pieces of shading
+ * whose bits both engines must reproduce exactly (the hit point's inset,
+ * the normals' orientation, the MIS weight, the sampler's layout). Not a
+ * public interface: only common/tracer.c and common/wave*.c include it. */
+#ifndef VB_TRACER_PRIV_H
+#define VB_TRACER_PRIV_H
+
+#include <embree3/rtcore.h>
+#include <math.h>
+
+#include "lights.h"
+#include "rng.h"
+#include "tracer.h"
+#include "trilist.h"
+
+struct tracer {
+    tracer_device_t *dev;
+    RTCScene rtc;     /* the BVH, or NULL when small is used */
+    trilist_t *small; /* a scene tested whole, without a BVH */
+    const scene_t *scene;
+    tracer_engine_t engine;
+};
+
+/* ---- ray casting -------------------------------------------------------- */
+
+typedef struct tracer_hit {
+    uint32_t tri;
+    float t, u, v;
+} tracer_hit_t;
+
+static inline int tracer_intersect(const tracer_t *tr, vec3_t o, vec3_t d, tracer_hit_t *h)
+{
+    if (tr->small)
+        return trilist_intersect(tr->small, o, d, INFINITY, &h->tri, &h->t, &h->u, &h->v);
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    struct RTCRayHit rh;
+    rh.ray.org_x = o.x;
+    rh.ray.org_y = o.y;
+    rh.ray.org_z = o.z;
+    rh.ray.tnear = 0.0f;
+    rh.ray.dir_x = d.x;
+    rh.ray.dir_y = d.y;
+    rh.ray.dir_z = d.z;
+    rh.ray.time = 0.0f;
+    rh.ray.tfar = INFINITY;
+    rh.ray.mask = 0xffffffffu;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(tr->rtc, &ctx, &rh);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID)
+        return 0;
+    h->tri = rh.hit.primID;
+    h->t = rh.ray.tfar;
+    h->u = rh.hit.u;
+    h->v = rh.hit.v;
+    return 1;
+}
+
+/* 1 if the segment o -> o + d (d unnormalised, t in [0, 1)) is free. */
+static inline int tracer_unoccluded(const tracer_t *tr, vec3_t o, vec3_t d)
+{
+    if (tr->small)
+        return !trilist_occluded(tr->small, o, d, 0.99999f);
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    struct RTCRay r;
+    r.org_x = o.x;
+    r.org_y = o.y;
+    r.org_z = o.z;
+    r.tnear = 0.0f;
+    r.dir_x = d.x;
+    r.dir_y = d.y;
+    r.dir_z = d.z;
+    r.time = 0.0f;
+    r.tfar = 0.99999f;
+    r.mask = 0xffffffffu;
+    r.id = 0;
+    r.flags = 0;
+    rtcOccluded1(tr->rtc, &ctx, &r);
+    return r.tfar >= 0.0f;
+}
+
+/* A hit rounded onto a triangle's edge lies on the plane of the face
+ * across that edge too, so half the directions leaving it go out through
+ * that face at t = 0 and are never stopped: a crack along every edge of a
+ * closed mesh (10^-8 of the rays in a closed cube). The shading point keeps
+ * at least TRACER_EDGE_INSET of each barycentric coordinate instead, a
+ * shift of 2^-16 of the triangle that puts it inside its own face. */
+#define TRACER_EDGE_INSET 0x1p-16f
+
+static inline void tracer_inset_from_edges(tracer_hit_t *h)
+{
+    /* (comparisons, not fmaxf: that is a libm call without -ffast-math) */
+    float u = h->u < TRACER_EDGE_INSET ? TRACER_EDGE_INSET : h->u;
+    float v = h->v < TRACER_EDGE_INSET ? TRACER_EDGE_INSET : h->v;
+    if (u + v > 1.0f - TRACER_EDGE_INSET) {
+        float k = (1.0f - TRACER_EDGE_INSET) / (u + v);
+        u *= k;
+        v *= k;
+    }
+    h->u = u;
+    h->v = v;
+}
+
+static inline float tracer_power_heuristic(float a, float b)
+{
+    float a2 = a * a, b2 = b * b;
+    return a2 / (a2 + b2);
+}
+
+/* The normals at a hit, turned to the side the ray came from. */
+static inline material_hit_t tracer_orient_normals(const scene_t *s, const tracer_hit_t *h,
+                                                   vec3_t wo, float cos_o)
+{
+    vec3_t ng = s->tri_normal[h->tri];
+    material_hit_t mh = {.wo = wo, .front = cos_o > 0.0f};
+    mh.ngf = cos_o < 0.0f ? vec3_neg(ng) : ng;
+    mh.ns = mh.ngf;
+    if (s->tri_smooth[h->tri]) {
+        const uint32_t *vi = s->indices + 3 * h->tri;
+        vec3_t n = vec3_normalize(vec3_barycentric(scene_vertex_normal(s, vi[0]),
+                                                   scene_vertex_normal(s, vi[1]),
+                                                   scene_vertex_normal(s, vi[2]), h->u, h->v));
+        if (vec3_dot(n, mh.ngf) < 0.0f)
+            n = vec3_neg(n);
+        /* A shading normal that hides wo would make the BSDF take light
+         * from behind the surface: fall back to the geometric one. */
+        if (vec3_is_finite(n) && vec3_dot(n, wo) > 0.0f)
+            mh.ns = n;
+    }
+    return mh;
+}
+
+/* Where bounce `depth`'s numbers start under the sobol sampler: after the
+ * camera's pair, six per bounce: [0] roulette, [1] unused (it was the light
+ * pick, which now shares the light point's pair), [2, 3] the light and the
+ * point on it, [4, 5] BSDF sample, so the 2D uses are Sobol pairs (rng.h). */
+static inline uint64_t tracer_bounce_dim(uint32_t depth)
+{
+    return 2 + 6 * (uint64_t)depth;
+}
+
+#endif

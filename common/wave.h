@@ -1,0 +1,100 @@
+/* wave.h - the wavefront engine: a task list's samples traced as a stream
+ * of paths, stage by stage.
+ *
+ * Up to WAVE_PATHS paths are in flight, their states in arrays (one entry
+ * per slot). A bounce runs the stages over every live path in turn:
+ * closest hit; the hit's own work (a miss ends the path, an emitter adds
+ * its MIS-weighted radiance, max_depth ends it); shading, one kernel per
+ * material type over the paths that hit it (next-event estimation's
+ * shadow ray and the BSDF sample); the shadow rays; Russian roulette and
+ * the next ray. A path that ends gives its slot to the next sample of the
+ * list. Each path does the very operations tracer.c's scalar engine does,
+ * in its order, so a sample's radiance and ray count are the same bits in
+ * both engines (test_tracer compares them sample by sample): which slot or
+ * lane a path takes, and when, cannot change its value.
+ *
+ * A material's kernel is one file, wave_<material>.c, and one line in
+ * wave.c's table: it reads the hit and the path and writes where the path
+ * goes on, what its throughput becomes, and the shadow ray, if any, with
+ * what the light gives when that ray is free. Not a public interface:
+ * tracer.c calls wave_trace. */
+#ifndef VB_WAVE_H
+#define VB_WAVE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "tracer_priv.h"
+
+/* Paths in flight: enough for every kernel to run whole blocks of
+ * WAVE_LANES while the stages' working set stays in the L1/L2 caches. */
+#define WAVE_PATHS 256
+/* The SIMD kernels' width: 8 floats (AVX2; two SSE registers elsewhere). */
+#define WAVE_LANES 8
+/* The most samples one wave_trace call takes (the caller splits a task
+ * list into runs of whole tasks no larger). */
+#define WAVE_MAX_SAMPLES TRACER_MAX_TASK_SAMPLES
+
+/* What every kernel reads. */
+typedef struct wave_ctx {
+    const tracer_t *tracer;
+    const scene_t *scene;
+    const tracer_settings_t *settings;
+    int nee; /* next-event estimation: the path integrator, with lights */
+} wave_ctx_t;
+
+/* The paths in flight, one entry per slot. */
+typedef struct wave_state {
+    /* the path */
+    rng_stream_t rng[WAVE_PATHS];
+    vec3_t o[WAVE_PATHS], d[WAVE_PATHS]; /* the ray being traced; d unit length */
+    vec3_t L[WAVE_PATHS], beta[WAVE_PATHS];
+    float eta_scale[WAVE_PATHS]; /* product of eta^2 of the transmissions taken */
+    float prev_pdf[WAVE_PATHS];  /* solid-angle pdf of the BSDF sample that made d */
+    uint8_t specular[WAVE_PATHS];
+    uint32_t depth[WAVE_PATHS];
+    uint32_t rays[WAVE_PATHS];
+    uint32_t sample[WAVE_PATHS]; /* its place in the call's sample list */
+    /* the hit, as the hit stage leaves it for the kernels */
+    uint32_t tri[WAVE_PATHS];
+    float u[WAVE_PATHS], v[WAVE_PATHS]; /* kept off the edges (tracer_inset_from_edges) */
+    float cos_o[WAVE_PATHS];            /* geometric normal . wo */
+    /* a kernel's answer */
+    uint8_t alive[WAVE_PATHS];                         /* 0: the path ends at this hit */
+    uint8_t transmits[WAVE_PATHS];                     /* the new ray leaves through the surface */
+    vec3_t wi[WAVE_PATHS];                             /* the new direction, not normalised */
+    uint8_t shadow[WAVE_PATHS];                        /* a shadow ray to test: */
+    vec3_t shadow_o[WAVE_PATHS], shadow_d[WAVE_PATHS]; /* its segment (t in [0, 1)) */
+    vec3_t shadow_L[WAVE_PATHS];                       /* added to L when it is free */
+} wave_state_t;
+
+/* The surface slot s hit, as tracer.c's trace_sample sees it: its
+ * material, the point and the normals oriented to the ray's side. */
+static inline const material_t *wave_surface(const wave_ctx_t *c, const wave_state_t *w, uint16_t s,
+                                             vec3_t *p, material_hit_t *mh)
+{
+    const scene_t *sc = c->scene;
+    tracer_hit_t h = {.tri = w->tri[s], .u = w->u[s], .v = w->v[s]};
+    *p = scene_point(sc, h.tri, h.u, h.v);
+    *mh = tracer_orient_normals(sc, &h, vec3_neg(w->d[s]), w->cos_o[s]);
+    return &sc->materials[sc->tri_material[h.tri]];
+}
+
+/* A material's kernel: shades the n paths in slots[0..n), which all hit
+ * surfaces of its material type, and sets alive, and for the living
+ * beta, eta_scale, prev_pdf, specular, transmits, o (the new origin), wi
+ * and the rng's dimension; shadow, and the shadow ray, for each. */
+typedef void (*wave_kernel_t)(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots,
+                              size_t n);
+
+void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
+void wave_kernel_mirror(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
+void wave_kernel_dielectric(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
+
+/* Traces every sample of tasks[0..count) (at most WAVE_MAX_SAMPLES in
+ * all; checked by the caller): sample i of task k lands at index
+ * (samples of tasks before k) + i of L and rays. w is scratch. */
+void wave_trace(const wave_ctx_t *c, wave_state_t *w, const tracer_task_t *tasks, size_t count,
+                vec3_t *L, uint32_t *rays);
+
+#endif

@@ -1,0 +1,203 @@
+/* wave_diffuse.c - the wavefront kernel of diffuse surfaces (and of
+ * emitters with an albedo): next-event estimation on the emissive
+ * triangles, MIS-weighted against the BSDF, and a cosine-weighted bounce.
+ *
+ * WAVE_LANES paths at a time. What is a lookup or a branch per path (the
+ * sample's numbers, the light picked from the CDF and the point on it, a
+ * smooth normal, sin and cos) is done lane by lane; the arithmetic between
+ * runs on vectors. Each lane does tracer.c's sample_direct and
+ * material_sample_diffuse operation for operation (IEEE operations, the
+ * same order, no FMA: -ffp-contract=off), so the bits are the scalar
+ * engine's. */
+#include "wave.h"
+
+#include <string.h>
+
+typedef float wave_vf __attribute__((vector_size(4 * WAVE_LANES)));
+typedef int32_t wave_vi __attribute__((vector_size(4 * WAVE_LANES)));
+
+typedef struct {
+    wave_vf x, y, z;
+} wave_v3;
+
+/* The helpers take and return vectors of 8 floats by value. They are
+ * static and inlined, so the ABI note GCC gives for such arguments on
+ * hosts without AVX does not apply. */
+#pragma GCC diagnostic ignored "-Wpsabi"
+
+static inline wave_vf vsel(wave_vi m, wave_vf a, wave_vf b)
+{
+    return (wave_vf)(((wave_vi)a & m) | ((wave_vi)b & ~m));
+}
+
+/* sqrtf and fmaxf(0, x) of each lane: the same correctly rounded result
+ * (the compiler emits the vector instruction where the target has it). */
+static inline wave_vf vsqrt(wave_vf x)
+{
+    wave_vf r;
+    for (int j = 0; j < WAVE_LANES; j++)
+        r[j] = sqrtf(x[j]);
+    return r;
+}
+
+static inline wave_vf vmax0(wave_vf x)
+{
+    const wave_vf zero = {0};
+    /* fmaxf(0, NaN) is 0, as here */
+    return vsel(x > zero, x, zero);
+}
+
+static inline wave_vf vdot(wave_v3 a, wave_v3 b)
+{
+    return a.x * b.x + a.y * b.y + a.z * b.z;
+}
+
+/* vmath_offset_coord, lane by lane in vectors */
+static inline wave_vf voffset_coord(wave_vf p, wave_vf n)
+{
+    const wave_vf zero = {0};
+    wave_vf ap = (wave_vf)((wave_vi)p & 0x7fffffff);
+    wave_vi near = ap < 1.0f / 32.0f;
+    wave_vf nearby = p + (1.0f / 65536.0f) * n;
+    wave_vi of = __builtin_convertvector(16.0f * n, wave_vi);
+    wave_vi neg = p < zero;
+    wave_vi bits = (wave_vi)p + ((neg & -of) | (~neg & of));
+    return vsel(near, nearby, (wave_vf)bits);
+}
+
+static inline wave_v3 voffset(wave_v3 p, wave_v3 n)
+{
+    return (wave_v3){voffset_coord(p.x, n.x), voffset_coord(p.y, n.y), voffset_coord(p.z, n.z)};
+}
+
+#define LOAD3(dst, j, v)                                                                           \
+    do {                                                                                           \
+        vec3_t v_ = (v);                                                                           \
+        (dst).x[j] = v_.x;                                                                         \
+        (dst).y[j] = v_.y;                                                                         \
+        (dst).z[j] = v_.z;                                                                         \
+    } while (0)
+#define LANE3(src, j) vec3_make((src).x[j], (src).y[j], (src).z[j])
+
+void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n)
+{
+    const scene_t *sc = c->scene;
+    const wave_vf zero = {0}, one = zero + 1.0f;
+    for (size_t j0 = 0; j0 < n; j0 += WAVE_LANES) {
+        int lanes = n - j0 < WAVE_LANES ? (int)(n - j0) : WAVE_LANES;
+        wave_v3 a = {zero, zero, zero}, b = a, cc = a, ng = a, nsm = a, beta = a, albedo = a, q = a,
+                nl = a, rad = a;
+        wave_vf u = zero, v = zero, cos_o = zero, area_pdf = one, u1 = zero, u2 = zero;
+        wave_vi smooth = {0};
+        /* lane by lane: what each path looks up */
+        for (int j = 0; j < WAVE_LANES; j++) {
+            uint16_t s = slots[j0 + (j < lanes ? (size_t)j : 0)];
+            uint32_t tri = w->tri[s];
+            const uint32_t *vi = sc->indices + 3 * tri;
+            LOAD3(a, j, scene_vertex(sc, vi[0]));
+            LOAD3(b, j, scene_vertex(sc, vi[1]));
+            LOAD3(cc, j, scene_vertex(sc, vi[2]));
+            LOAD3(ng, j, sc->tri_normal[tri]);
+            LOAD3(beta, j, w->beta[s]);
+            LOAD3(albedo, j, sc->materials[sc->tri_material[tri]].albedo);
+            u[j] = w->u[s];
+            v[j] = w->v[s];
+            cos_o[j] = w->cos_o[s];
+            if (j >= lanes)
+                continue;
+            if (sc->tri_smooth[tri]) {
+                /* the shading normal, as the scalar engine finds it */
+                tracer_hit_t h = {.tri = tri, .u = w->u[s], .v = w->v[s]};
+                material_hit_t mh = tracer_orient_normals(sc, &h, vec3_neg(w->d[s]), w->cos_o[s]);
+                smooth[j] = -1;
+                LOAD3(nsm, j, mh.ns);
+            }
+            rng_stream_t *rng = &w->rng[s];
+            uint64_t dim = tracer_bounce_dim(w->depth[s]);
+            rng_seek(rng, dim + 2);
+            if (c->nee) {
+                double ul = rng_next_double(rng);
+                float lu2 = rng_next_float(rng);
+                vec3_t qp;
+                uint32_t lt = lights_sample(sc, ul, lu2, &qp);
+                LOAD3(q, j, qp);
+                LOAD3(nl, j, sc->tri_normal[lt]);
+                LOAD3(rad, j, sc->materials[sc->tri_material[lt]].radiance);
+                area_pdf[j] = lights_area_pdf(sc, lt);
+            }
+            rng_seek(rng, dim + 4);
+            u1[j] = rng_next_float(rng);
+            u2[j] = rng_next_float(rng);
+        }
+        /* the hit point (vec3_barycentric) and the normals (tracer_orient_normals) */
+        wave_vf bw = one - u - v;
+        wave_v3 p = {bw * a.x + u * b.x + v * cc.x, bw * a.y + u * b.y + v * cc.y,
+                     bw * a.z + u * b.z + v * cc.z};
+        wave_vi back = cos_o < zero;
+        wave_v3 ngf = {vsel(back, -ng.x, ng.x), vsel(back, -ng.y, ng.y), vsel(back, -ng.z, ng.z)};
+        wave_v3 ns = {vsel(smooth, nsm.x, ngf.x), vsel(smooth, nsm.y, ngf.y),
+                      vsel(smooth, nsm.z, ngf.z)};
+        wave_v3 from = voffset(p, ngf);
+        /* next-event estimation (sample_direct) */
+        wave_vi shadow = {0};
+        wave_v3 target = {zero, zero, zero}, shadow_L = target;
+        if (c->nee) {
+            wave_v3 to = {q.x - p.x, q.y - p.y, q.z - p.z};
+            wave_vf dist2 = vdot(to, to);
+            wave_vf inv = one / vsqrt(dist2);
+            wave_v3 wl = {to.x * inv, to.y * inv, to.z * inv};
+            wave_vf cos_l = -vdot(nl, wl);
+            /* material_eval */
+            wave_vf cos_s = vdot(ns, wl);
+            shadow = (dist2 > zero) & (cos_l > zero) & (cos_s > zero) & (vdot(ngf, wl) > zero);
+            wave_vf bsdf_pdf = cos_s * VMATH_INV_PI;
+            target = voffset(q, nl);
+            wave_vf light_pdf = area_pdf * dist2 / cos_l;
+            wave_vf a2 = light_pdf * light_pdf, b2 = bsdf_pdf * bsdf_pdf;
+            wave_vf mis = a2 / (a2 + b2);
+            wave_vf k = mis * cos_s * VMATH_INV_PI / light_pdf;
+            shadow_L = (wave_v3){beta.x * albedo.x * (rad.x * k), beta.y * albedo.y * (rad.y * k),
+                                 beta.z * albedo.z * (rad.z * k)};
+        }
+        /* the bounce (material_sample_diffuse, material_sample_cosine) */
+        wave_vf r = vsqrt(u1), phi = 2.0f * VMATH_PI * u2, cosp, sinp;
+        for (int j = 0; j < WAVE_LANES; j++) {
+            cosp[j] = cosf(phi[j]);
+            sinp[j] = sinf(phi[j]);
+        }
+        wave_vf x = r * cosp, y = r * sinp;
+        wave_vf z = vsqrt(vmax0(one - u1));
+        /* vec3_onb */
+        wave_vf sign = (wave_vf)(((wave_vi)ns.z & (int32_t)0x80000000) | (wave_vi)one);
+        wave_vf oa = -1.0f / (sign + ns.z);
+        wave_vf oc = ns.x * ns.y * oa;
+        wave_v3 t = {1.0f + sign * ns.x * ns.x * oa, sign * oc, -sign * ns.x};
+        wave_v3 bt = {oc, sign + ns.y * ns.y * oa, -ns.y};
+        wave_v3 wi = {t.x * x + bt.x * y + ns.x * z, t.y * x + bt.y * y + ns.y * z,
+                      t.z * x + bt.z * y + ns.z * z};
+        wave_vf cos_i = vdot(ns, wi);
+        wave_vi alive = ~(vdot(ngf, wi) <= zero) & ~(cos_i <= zero);
+        wave_vf pdf = cos_i * VMATH_INV_PI;
+        wave_v3 nbeta = {beta.x * albedo.x, beta.y * albedo.y, beta.z * albedo.z};
+        wave_v3 sd = {target.x - from.x, target.y - from.y, target.z - from.z};
+        /* back to the paths */
+        for (int j = 0; j < lanes; j++) {
+            uint16_t s = slots[j0 + (size_t)j];
+            w->shadow[s] = shadow[j] != 0;
+            if (shadow[j]) {
+                w->shadow_o[s] = LANE3(from, j);
+                w->shadow_d[s] = LANE3(sd, j);
+                w->shadow_L[s] = LANE3(shadow_L, j);
+            }
+            w->alive[s] = alive[j] != 0;
+            if (!alive[j])
+                continue;
+            w->beta[s] = LANE3(nbeta, j);
+            w->prev_pdf[s] = pdf[j];
+            w->specular[s] = 0;
+            w->transmits[s] = 0;
+            w->o[s] = LANE3(from, j);
+            w->wi[s] = LANE3(wi, j);
+        }
+    }
+}
