@@ -29,7 +29,9 @@
 /* Paths in flight: enough for every kernel to run whole blocks of
  * WAVE_LANES while the stages' working set stays in the L1/L2 caches. */
 #define WAVE_PATHS 256
-/* The SIMD kernels' width: 8 floats (AVX2; two SSE registers elsewhere). */
+/* The SIMD kernels' width: 8 floats, two SSE registers (the kernels are
+ * built for the baseline target: an AVX2 build, calling into code built
+ * without it, paid for the transitions more than it gained). */
 #define WAVE_LANES 8
 /* The most samples one wave_trace call takes (the caller splits a task
  * list into runs of whole tasks no larger). */

@@ -11,8 +11,6 @@
  * engine's. */
 #include "wave.h"
 
-#include <string.h>
-
 typedef float wave_vf __attribute__((vector_size(4 * WAVE_LANES)));
 typedef int32_t wave_vi __attribute__((vector_size(4 * WAVE_LANES)));
 
@@ -21,8 +19,8 @@ typedef struct {
 } wave_v3;
 
 /* The helpers take and return vectors of 8 floats by value. They are
- * static and inlined, so the ABI note GCC gives for such arguments on
- * hosts without AVX does not apply. */
+ * static and inlined, so the ABI warning compilers give for such
+ * arguments without AVX does not apply. */
 #pragma GCC diagnostic ignored "-Wpsabi"
 
 static inline wave_vf vsel(wave_vi m, wave_vf a, wave_vf b)
