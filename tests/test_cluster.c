@@ -429,8 +429,11 @@ static int client_in(const char *ns, char *out, size_t outlen, const char *fmt, 
 /* Starts a master on 127.0.0.1 (workers at *port, control at *port + 1)
  * with 200 ms heartbeats (a silent worker is dropped after 1 s), and waits
  * until its control socket answers. A port somebody else holds moves it to
- * another pair. */
-static daemon_t *start_master_with(int *port, const char *name, const char *const *extra)
+ * another pair. The command is `launch` (NULL: the usual binary; else
+ * an argv prefix such as {"env", "VAR=1", BIN, NULL}), then the sockets,
+ * then extra. */
+static daemon_t *start_master_cmd(int *port, const char *name, const char *const *launch,
+                                  const char *const *extra)
 {
     char out[OUTLEN];
     for (int attempt = 0; attempt < 3; attempt++, *port += 4000) {
@@ -438,9 +441,14 @@ static daemon_t *start_master_with(int *port, const char *name, const char *cons
         snprintf(bin, sizeof bin, "%s/vbrender-master", bindir());
         snprintf(wep, sizeof wep, "tcp://127.0.0.1:%d", *port);
         snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", *port + 1);
-        const char *args[24] = {bin, "--workers", wep, "--control", cep, "--heartbeat-ms", "200"};
-        int na = 7;
-        for (int i = 0; extra && extra[i] && na < 23; i++)
+        const char *args[32] = {bin};
+        int na = 1;
+        for (int i = 0; launch && launch[i] && na < 8; i++)
+            args[i] = launch[i], na = i + 1;
+        const char *sockets[] = {"--workers", wep, "--control", cep, "--heartbeat-ms", "200"};
+        for (size_t i = 0; i < sizeof sockets / sizeof sockets[0]; i++)
+            args[na++] = sockets[i];
+        for (int i = 0; extra && extra[i] && na < 31; i++)
             args[na++] = extra[i];
         args[na] = NULL;
         daemon_t *m = spawn(name, NULL, args);
@@ -470,6 +478,11 @@ static daemon_t *start_master_with(int *port, const char *name, const char *cons
     }
     ck_abort_msg("no free port pair for the master\n%s", logs_tail());
     return NULL;
+}
+
+static daemon_t *start_master_with(int *port, const char *name, const char *const *extra)
+{
+    return start_master_cmd(port, name, NULL, extra);
 }
 
 /* A master that keeps its jobs in memory (--state none). */
@@ -1855,20 +1868,11 @@ static void remove_state(const char *dir)
     tu_run(cmd, out, sizeof out);
 }
 
-/* A master on *port keeping its state in dir, checkpointing every 0.2 s;
- * bin NULL: the usual binary. */
-static daemon_t *start_durable(int *port, const char *name, const char *dir, const char *bin)
+/* A master on *port keeping its state in dir, checkpointing every 0.2 s. */
+static daemon_t *start_durable(int *port, const char *name, const char *dir)
 {
     const char *extra[] = {"--state", dir, "--checkpoint-s", "0.2", NULL};
-    if (!bin)
-        return start_master_with(port, name, extra);
-    /* the fault build: started like start_master_with, from another binary */
-    char wep[64], cep[64];
-    snprintf(wep, sizeof wep, "tcp://127.0.0.1:%d", *port);
-    snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", *port + 1);
-    const char *args[] = {bin,   "--workers", wep, "--control",      cep,   "--heartbeat-ms",
-                          "200", "--state",   dir, "--checkpoint-s", "0.2", NULL};
-    return spawn(name, NULL, args);
+    return start_master_with(port, name, extra);
 }
 
 /* The journal's header (master/journal.h): a journal this size holds no commit. */
@@ -1911,7 +1915,7 @@ START_TEST(master_crash)
     int port = slot_port(9);
 
     /* 1. killed right after the submission was acknowledged */
-    daemon_t *m = start_durable(&port, "j-master1", dir, NULL);
+    daemon_t *m = start_durable(&port, "j-master1", dir);
     unsigned long long job = submit(port + 1, scene, settings);
     ck_assert_msg(file_exists(dir, job, "submit"), "no submission file before the id was printed");
     kill9(m);
@@ -1943,7 +1947,7 @@ START_TEST(master_crash)
     /* 3. mid-job, after checkpoints: the job paced to an eighth of its
      * layers, then on until a checkpoint is renamed into place after that
      * point (a new inode); the master is killed with the worker frozen */
-    m = start_durable(&port, "j-master3", dir, NULL);
+    m = start_durable(&port, "j-master3", dir);
     read_log(m, log, sizeof log);
     ck_assert_msg(strstr(log, "1 job to resume"), "the restarted master did not find the job:\n%s",
                   log);
@@ -1976,7 +1980,7 @@ START_TEST(master_crash)
     ck_assert_msg(log_has(waiter, "layer ", 20000), "the waiter shows no progress\n%s",
                   logs_tail());
     kill9(m);
-    m = start_durable(&port, "j-master4", dir, NULL);
+    m = start_durable(&port, "j-master4", dir);
     s = job_status(port + 1, job);
     ck_assert_msg(strstr(json_str(s, "recovered"), "snapshot") != NULL &&
                       strstr(json_str(s, "recovered"), "journal commit") != NULL,
@@ -2006,7 +2010,7 @@ START_TEST(master_crash)
 
     /* a finished job survives a clean restart; the next id is larger */
     stop_clean(m);
-    m = start_durable(&port, "j-master5", dir, NULL);
+    m = start_durable(&port, "j-master5", dir);
     s = job_status(port + 1, job);
     ck_assert_msg(state_is(s, "done"), "after a restart the finished job is %s",
                   json_str(s, "state"));
@@ -2072,7 +2076,7 @@ static void damaged_journal(int torn)
     scene_file(scene, sizeof scene, 128, NULL, NULL);
     state_dir(dir, sizeof dir, torn ? "state-torn" : "state-corrupt");
     int port = slot_port(9);
-    daemon_t *m = start_durable(&port, "k-master1", dir, NULL);
+    daemon_t *m = start_durable(&port, "k-master1", dir);
     daemon_t *w = start_worker(port, 1, "k-worker", "127.0.0.2");
     wait_workers(port + 1, 1);
     /* paced: into its first layer, then, the worker frozen, until the
@@ -2106,7 +2110,7 @@ static void damaged_journal(int torn)
         fputc(c ^ 0x5a, f);
         fclose(f);
     }
-    m = start_durable(&port, "k-master2", dir, NULL);
+    m = start_durable(&port, "k-master2", dir);
     read_log(m, log, sizeof log);
     ck_assert_msg(strstr(log, "is refused") &&
                       strstr(log, torn ? "torn record" : "checksum mismatch"),
@@ -2187,7 +2191,7 @@ START_TEST(journal_bytes)
     scene_file(scene, sizeof scene, 128, NULL, NULL);
     state_dir(dir, sizeof dir, "state-bytes");
     int port = slot_port(9);
-    daemon_t *m = start_durable(&port, "q-master1", dir, NULL);
+    daemon_t *m = start_durable(&port, "q-master1", dir);
     daemon_t *w = start_worker(port, 1, "q-worker", "127.0.0.2");
     wait_workers(port + 1, 1);
     pacer_t pace;
@@ -2240,7 +2244,7 @@ START_TEST(journal_bytes)
     ck_assert_msg(journal_written < 0.75 * results, "%.0f journal bytes for %.0f result bytes",
                   journal_written, results);
     kill9(m);
-    m = start_durable(&port, "q-master2", dir, NULL);
+    m = start_durable(&port, "q-master2", dir);
     cJSON *s = job_status(port + 1, job);
     ck_assert_msg(strstr(json_str(s, "recovered"), "snapshot"), "status says recovered \"%s\"",
                   json_str(s, "recovered"));
@@ -2283,16 +2287,16 @@ START_TEST(compaction_crash)
         snprintf(name, sizeof name, "r-fault%d", k);
         const char *args[] = {"env", where[k],  fault_bin, "--workers",      wep,   "--control",
                               cep,   "--state", dir,       "--checkpoint-s", "0.2", NULL};
-        daemon_t *m = spawn(name, NULL, args);
+        daemon_t *m;
         if (k == 0) {
-            int rc = 1;
-            char out[OUTLEN];
-            for (int tries = 0;
-                 tries < 50 && (rc = client(out, sizeof out, "jobs --master %s", cep)) != 0;
-                 tries++)
-                sleep_ms(100);
+            /* a port pair nobody holds (the restart below takes the same) */
+            const char *launch[] = {"env", where[k], fault_bin, NULL};
+            const char *extra[] = {"--state", dir, "--checkpoint-s", "0.2", NULL};
+            m = start_master_cmd(&port, name, launch, extra);
             job = submit(port + 1, scene, settings);
             w = start_worker(port, 1, "r-worker", "127.0.0.2");
+        } else {
+            m = spawn(name, NULL, args);
         }
         int st = 0;
         ck_assert_msg(reap(m, JOB_TIMEOUT_MS, &st),
@@ -2305,7 +2309,7 @@ START_TEST(compaction_crash)
                           "generation 0 (the first compaction died before its rename):\n%s",
                           log);
     }
-    daemon_t *m = start_durable(&port, "r-master", dir, NULL);
+    daemon_t *m = start_durable(&port, "r-master", dir);
     read_log(m, log, sizeof log);
     ck_assert_msg(strstr(log, "is stale"),
                   "a crash after the snapshot's rename leaves a stale journal:\n%s", log);
@@ -2346,7 +2350,7 @@ START_TEST(state_v1_migration)
     snprintf(cmd, sizeof cmd, "cp -r '%s' '%s' && chmod -R u+w '%s'", src, dir, dir);
     ck_assert_int_eq(tu_run(cmd, out, sizeof out), 0);
     int port = slot_port(9);
-    daemon_t *m = start_durable(&port, "s-master", dir, NULL);
+    daemon_t *m = start_durable(&port, "s-master", dir);
     ck_assert_msg(log_has(m, "recovered from the old checkpoint (state format 1)", 10000),
                   "the master does not say it took the old checkpoint over\n%s", logs_tail());
     daemon_t *w = start_worker(port, 1, "s-worker", "127.0.0.2");
@@ -3971,7 +3975,7 @@ START_TEST(preview_job)
     scene_file(scene, sizeof scene, 64, NULL, NULL);
     state_dir(dir, sizeof dir, "state-preview");
     int port = slot_port(16);
-    daemon_t *m = start_durable(&port, "p-master", dir, NULL);
+    daemon_t *m = start_durable(&port, "p-master", dir);
     daemon_t *w = start_worker(port, 1, "p-worker", "127.0.0.2");
     wait_workers(port + 1, 1);
     /* paced: the job runs only in the slices pace_step gives it */
@@ -4055,7 +4059,7 @@ START_TEST(preview_job)
     while (!file_exists(dir, job, "final") && now_ms() < end)
         sleep_ms(20);
     stop_clean(m);
-    start_durable(&port, "p-master2", dir, NULL);
+    start_durable(&port, "p-master2", dir);
     r = preview(port + 1, job, "", &rgb, &spp);
     ck_assert_msg(cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(r, "ok")),
                   "preview after a restart: %s\n%s", json_str(r, "error"), logs_tail());
