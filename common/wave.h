@@ -32,7 +32,7 @@
 /* The SIMD kernels' width: 8 floats, two SSE registers (the kernels are
  * built for the baseline target: an AVX2 build, calling into code built
  * without it, paid for the transitions more than it gained). */
-#define WAVE_LANES 8
+#define WAVE_LANES 4
 /* The most samples one wave_trace call takes (the caller splits a task
  * list into runs of whole tasks no larger). */
 #define WAVE_MAX_SAMPLES TRACER_MAX_TASK_SAMPLES
