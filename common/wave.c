@@ -149,7 +149,7 @@ void wave_trace(const wave_ctx_t *c, wave_state_t *w, const tracer_task_t *tasks
                     free_slots[nfree++] = s;
                     continue;
                 }
-                w->d[s] = vec3_normalize(w->wi[s]);
+                w->d[s] = w->next_d[s];
                 w->depth[s]++;
                 next_live[nlive++] = s;
             }

@@ -64,7 +64,7 @@ typedef struct wave_state {
     /* a kernel's answer */
     uint8_t alive[WAVE_PATHS];                         /* 0: the path ends at this hit */
     uint8_t transmits[WAVE_PATHS];                     /* the new ray leaves through the surface */
-    vec3_t wi[WAVE_PATHS];                             /* the new direction, not normalised */
+    vec3_t next_d[WAVE_PATHS]; /* the new direction, normalised (vec3_normalize) */
     uint8_t shadow[WAVE_PATHS];                        /* a shadow ray to test: */
     vec3_t shadow_o[WAVE_PATHS], shadow_d[WAVE_PATHS]; /* its segment (t in [0, 1)) */
     vec3_t shadow_L[WAVE_PATHS];                       /* added to L when it is free */
@@ -84,7 +84,7 @@ static inline const material_t *wave_surface(const wave_ctx_t *c, const wave_sta
 
 /* A material's kernel: shades the n paths in slots[0..n), which all hit
  * surfaces of its material type, and sets alive, and for the living
- * beta, eta_scale, prev_pdf, specular, transmits, o (the new origin), wi
+ * beta, eta_scale, prev_pdf, specular, transmits, o (the new origin), next_d
  * and the rng's dimension; shadow, and the shadow ray, for each. */
 typedef void (*wave_kernel_t)(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots,
                               size_t n);

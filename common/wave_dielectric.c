@@ -23,6 +23,6 @@ void wave_kernel_dielectric(const wave_ctx_t *c, wave_state_t *w, const uint16_t
         w->specular[s] = 1;
         w->transmits[s] = (uint8_t)bs.transmits;
         w->o[s] = vec3_offset_ray_origin(p, bs.transmits ? vec3_neg(mh.ngf) : mh.ngf);
-        w->wi[s] = bs.wi;
+        w->next_d[s] = vec3_normalize(bs.wi);
     }
 }

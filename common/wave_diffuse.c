@@ -176,6 +176,8 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
         wave_vf cos_i = vdot(ns, wi);
         wave_vi alive = ~(vdot(ngf, wi) <= zero) & ~(cos_i <= zero);
         wave_vf pdf = cos_i * VMATH_INV_PI;
+        wave_vf inv_len = one / vsqrt(vdot(wi, wi)); /* vec3_normalize */
+        wave_v3 next_d = {wi.x * inv_len, wi.y * inv_len, wi.z * inv_len};
         wave_v3 nbeta = {beta.x * albedo.x, beta.y * albedo.y, beta.z * albedo.z};
         wave_v3 sd = {target.x - from.x, target.y - from.y, target.z - from.z};
         /* back to the paths */
@@ -195,7 +197,7 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
             w->specular[s] = 0;
             w->transmits[s] = 0;
             w->o[s] = LANE3(from, j);
-            w->wi[s] = LANE3(wi, j);
+            w->next_d[s] = LANE3(next_d, j);
         }
     }
 }

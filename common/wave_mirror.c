@@ -19,6 +19,6 @@ void wave_kernel_mirror(const wave_ctx_t *c, wave_state_t *w, const uint16_t *sl
         w->specular[s] = 1;
         w->transmits[s] = 0;
         w->o[s] = vec3_offset_ray_origin(p, mh.ngf);
-        w->wi[s] = bs.wi;
+        w->next_d[s] = vec3_normalize(bs.wi);
     }
 }
