@@ -82,7 +82,7 @@ static const char usage_text[] =
     "  --spp N             samples per pixel of each timed render (default 64)\n"
     "  --runs R            timed repetitions, best is kept (default 3)\n"
     "  --rays N            rays per raw Embree batch (default 2000000)\n"
-    "  --engine E          scalar (default) or wavefront (tracer.h)\n"
+    "  --engine E          wavefront (default) or scalar (tracer.h)\n"
     "  --json FILE         write the results as JSON\n"
     "  -h, --help          this text\n";
 

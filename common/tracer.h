@@ -128,13 +128,14 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *settings, const tra
                  size_t errlen);
 
 /* How a tracer runs its samples. Both give the same bits for every sample
- * (test_tracer compares them sample list by sample list). The scalar
- * engine is the default: the wavefront one (wave.h), with its SIMD
- * diffuse kernel, measured 0.85-0.93x its samples/s on the Cornell box and
- * the same on cornell-glass (bench_core --engine; docs/ARCHITECTURE.md). */
+ * (test_tracer compares them sample list by sample list). The wavefront
+ * engine (wave.h) is the default: 1.03x the scalar engine's samples/s on
+ * the Cornell box, cornell-glass and cornell-buddha alike, one thread, best
+ * of alternating rounds (parity within this host's noise at two threads);
+ * the scalar one stays as the reference the wavefront is checked against. */
 typedef enum tracer_engine {
-    TRACER_ENGINE_SCALAR,    /* one sample at a time, bounce by bounce */
     TRACER_ENGINE_WAVEFRONT, /* paths in flight, stage by stage (wave.h) */
+    TRACER_ENGINE_SCALAR,    /* one sample at a time, bounce by bounce */
 } tracer_engine_t;
 
 /* Chooses the engine; not while another thread traces with t. */

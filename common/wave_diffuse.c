@@ -18,11 +18,6 @@ typedef struct {
     wave_vf x, y, z;
 } wave_v3;
 
-/* The helpers take and return vectors of 8 floats by value. They are
- * static and inlined, so the ABI warning compilers give for such
- * arguments without AVX does not apply. */
-#pragma GCC diagnostic ignored "-Wpsabi"
-
 static inline wave_vf vsel(wave_vi m, wave_vf a, wave_vf b)
 {
     return (wave_vf)(((wave_vi)a & m) | ((wave_vi)b & ~m));
