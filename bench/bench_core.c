@@ -64,6 +64,7 @@
 #include "rng.h"
 #include "scene.h"
 #include "tracer.h"
+#include "tracer_priv.h"
 #include "trilist.h"
 #include "vberr.h"
 #include "vmath.h"
@@ -283,8 +284,8 @@ typedef struct raw_job {
     size_t hits; /* hits or occlusions, to report what the batch does */
 } raw_job_t;
 
-/* One thread's share of a timed pass; the ray struct is filled field by
- * field as in tracer_priv.h's tracer_intersect() and tracer_unoccluded(). */
+/* One thread's share of a timed pass, through the calls the tracer makes
+ * (tracer_priv.h). */
 static void *raw_worker(void *argp)
 {
     raw_job_t *j = argp;
@@ -295,56 +296,21 @@ static void *raw_worker(void *argp)
             vec3_t o = vec3_make(b->o[0], b->o[1], b->o[2]),
                    d = vec3_make(b->d[0], b->d[1], b->d[2]);
             if (j->shadow) {
-                hits += trilist_occluded(j->list, o, d, 0.99999f);
+                hits += trilist_occluded(j->list, o, d, TRACER_SHADOW_TFAR);
             } else {
                 uint32_t tri;
                 float t, u, v;
                 hits += trilist_intersect(j->list, o, d, INFINITY, &tri, &t, &u, &v);
             }
         }
-    } else if (j->shadow) {
-        for (size_t i = j->begin; i < j->end; i++) {
-            const bray_t *b = &j->rays[i];
-            struct RTCIntersectContext ctx;
-            rtcInitIntersectContext(&ctx);
-            struct RTCRay r;
-            r.org_x = b->o[0];
-            r.org_y = b->o[1];
-            r.org_z = b->o[2];
-            r.tnear = 0.0f;
-            r.dir_x = b->d[0];
-            r.dir_y = b->d[1];
-            r.dir_z = b->d[2];
-            r.time = 0.0f;
-            r.tfar = 0.99999f;
-            r.mask = 0xffffffffu;
-            r.id = 0;
-            r.flags = 0;
-            rtcOccluded1(j->scene, &ctx, &r);
-            hits += r.tfar < 0.0f;
-        }
     } else {
         for (size_t i = j->begin; i < j->end; i++) {
             const bray_t *b = &j->rays[i];
-            struct RTCIntersectContext ctx;
-            rtcInitIntersectContext(&ctx);
-            struct RTCRayHit rh;
-            rh.ray.org_x = b->o[0];
-            rh.ray.org_y = b->o[1];
-            rh.ray.org_z = b->o[2];
-            rh.ray.tnear = 0.0f;
-            rh.ray.dir_x = b->d[0];
-            rh.ray.dir_y = b->d[1];
-            rh.ray.dir_z = b->d[2];
-            rh.ray.time = 0.0f;
-            rh.ray.tfar = INFINITY;
-            rh.ray.mask = 0xffffffffu;
-            rh.ray.id = 0;
-            rh.ray.flags = 0;
-            rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-            rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-            rtcIntersect1(j->scene, &ctx, &rh);
-            hits += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+            vec3_t o = vec3_make(b->o[0], b->o[1], b->o[2]),
+                   d = vec3_make(b->d[0], b->d[1], b->d[2]);
+            tracer_hit_t h;
+            hits += j->shadow ? !tracer_embree_unoccluded(j->scene, o, d)
+                              : tracer_embree_intersect(j->scene, o, d, &h);
         }
     }
     j->hits = hits;

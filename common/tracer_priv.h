@@ -2,7 +2,8 @@
  * the tracer's structure, ray casting, and the small pieces of shading
  * whose bits both engines must reproduce exactly (the hit point's inset,
  * the normals' orientation, the MIS weight, the sampler's layout). Not a
- * public interface: only common/tracer.c and common/wave*.c include it. */
+ * public interface: common/tracer.c and common/wave*.c include it, and
+ * bench_core, which times the very ray casting calls the tracer makes. */
 #ifndef VB_TRACER_PRIV_H
 #define VB_TRACER_PRIV_H
 
@@ -29,10 +30,14 @@ typedef struct tracer_hit {
     float t, u, v;
 } tracer_hit_t;
 
-static inline int tracer_intersect(const tracer_t *tr, vec3_t o, vec3_t d, tracer_hit_t *h)
+/* Where a shadow segment o -> o + d stops short of its target: the light's
+ * own surface is not an occluder. */
+#define TRACER_SHADOW_TFAR 0.99999f
+
+/* Embree's nearest hit of o + t d on scene sc (bench_core times the same
+ * call on its own scenes). */
+static inline int tracer_embree_intersect(RTCScene sc, vec3_t o, vec3_t d, tracer_hit_t *h)
 {
-    if (tr->small)
-        return trilist_intersect(tr->small, o, d, INFINITY, &h->tri, &h->t, &h->u, &h->v);
     struct RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
     struct RTCRayHit rh;
@@ -50,7 +55,7 @@ static inline int tracer_intersect(const tracer_t *tr, vec3_t o, vec3_t d, trace
     rh.ray.flags = 0;
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(tr->rtc, &ctx, &rh);
+    rtcIntersect1(sc, &ctx, &rh);
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID)
         return 0;
     h->tri = rh.hit.primID;
@@ -60,11 +65,9 @@ static inline int tracer_intersect(const tracer_t *tr, vec3_t o, vec3_t d, trace
     return 1;
 }
 
-/* 1 if the segment o -> o + d (d unnormalised, t in [0, 1)) is free. */
-static inline int tracer_unoccluded(const tracer_t *tr, vec3_t o, vec3_t d)
+/* 1 if Embree finds nothing on o + t d, t in [0, TRACER_SHADOW_TFAR). */
+static inline int tracer_embree_unoccluded(RTCScene sc, vec3_t o, vec3_t d)
 {
-    if (tr->small)
-        return !trilist_occluded(tr->small, o, d, 0.99999f);
     struct RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
     struct RTCRay r;
@@ -76,12 +79,27 @@ static inline int tracer_unoccluded(const tracer_t *tr, vec3_t o, vec3_t d)
     r.dir_y = d.y;
     r.dir_z = d.z;
     r.time = 0.0f;
-    r.tfar = 0.99999f;
+    r.tfar = TRACER_SHADOW_TFAR;
     r.mask = 0xffffffffu;
     r.id = 0;
     r.flags = 0;
-    rtcOccluded1(tr->rtc, &ctx, &r);
+    rtcOccluded1(sc, &ctx, &r);
     return r.tfar >= 0.0f;
+}
+
+static inline int tracer_intersect(const tracer_t *tr, vec3_t o, vec3_t d, tracer_hit_t *h)
+{
+    if (tr->small)
+        return trilist_intersect(tr->small, o, d, INFINITY, &h->tri, &h->t, &h->u, &h->v);
+    return tracer_embree_intersect(tr->rtc, o, d, h);
+}
+
+/* 1 if the segment o -> o + d (d unnormalised, t in [0, 1)) is free. */
+static inline int tracer_unoccluded(const tracer_t *tr, vec3_t o, vec3_t d)
+{
+    if (tr->small)
+        return !trilist_occluded(tr->small, o, d, TRACER_SHADOW_TFAR);
+    return tracer_embree_unoccluded(tr->rtc, o, d);
 }
 
 /* A hit rounded onto a triangle's edge lies on the plane of the face

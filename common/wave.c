@@ -84,9 +84,7 @@ void wave_trace(const wave_ctx_t *c, wave_state_t *w, const tracer_task_t *tasks
     size_t nlive = 0, nfree = WAVE_PATHS;
     for (size_t i = 0; i < WAVE_PATHS; i++)
         free_slots[i] = (uint16_t)(WAVE_PATHS - 1 - i);
-    wave_cursor_t cur = {0, 0, 0};
-    while (cur.task < count && tasks[cur.task].sample_count == 0)
-        cur.task++;
+    wave_cursor_t cur = {0, 0, 0}; /* (tracer_trace refuses tasks of no samples) */
     for (;;) {
         /* fill the free slots with the next samples */
         while (nfree > 0 && cur.task < count) {

@@ -65,10 +65,9 @@ typedef struct wave_state {
     float u[WAVE_PATHS], v[WAVE_PATHS]; /* kept off the edges (tracer_inset_from_edges) */
     float cos_o[WAVE_PATHS];            /* geometric normal . wo */
     /* a kernel's answer */
-    uint8_t alive[WAVE_PATHS];     /* 0: the path ends at this hit */
-    uint8_t transmits[WAVE_PATHS]; /* the new ray leaves through the surface */
-    vec3_t next_d[WAVE_PATHS];     /* the new direction, normalised (vec3_normalize) */
-    uint8_t shadow[WAVE_PATHS];    /* a shadow ray to test: */
+    uint8_t alive[WAVE_PATHS];  /* 0: the path ends at this hit */
+    vec3_t next_d[WAVE_PATHS];  /* the new direction, normalised (vec3_normalize) */
+    uint8_t shadow[WAVE_PATHS]; /* a shadow ray to test: */
     vec3_t shadow_o[WAVE_PATHS], shadow_d[WAVE_PATHS]; /* its segment (t in [0, 1)) */
     vec3_t shadow_L[WAVE_PATHS];                       /* added to L when it is free */
 } wave_state_t;
@@ -85,9 +84,24 @@ static inline const material_t *wave_surface(const wave_ctx_t *c, const wave_sta
     return &sc->materials[sc->tri_material[h.tri]];
 }
 
+/* Slot s goes on along the direction bs sampled from the surface at p:
+ * tracer.c's trace_sample after material_sample, for kernels that sample
+ * path by path. */
+static inline void wave_follow(wave_state_t *w, uint16_t s, vec3_t p, const material_hit_t *mh,
+                               const material_sample_t *bs)
+{
+    w->beta[s] = vec3_mul(w->beta[s], bs->weight);
+    if (bs->transmits)
+        w->eta_scale[s] *= bs->eta * bs->eta;
+    w->prev_pdf[s] = bs->pdf;
+    w->specular[s] = (uint8_t)bs->specular;
+    w->o[s] = vec3_offset_ray_origin(p, bs->transmits ? vec3_neg(mh->ngf) : mh->ngf);
+    w->next_d[s] = vec3_normalize(bs->wi);
+}
+
 /* A material's kernel: shades the n paths in slots[0..n), which all hit
  * surfaces of its material type, and sets alive, and for the living
- * beta, eta_scale, prev_pdf, specular, transmits, o (the new origin), next_d
+ * beta, eta_scale, prev_pdf, specular, o (the new origin), next_d
  * and the rng's dimension; shadow, and the shadow ray, for each. */
 typedef void (*wave_kernel_t)(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots,
                               size_t n);

@@ -12,17 +12,8 @@ void wave_kernel_dielectric(const wave_ctx_t *c, wave_state_t *w, const uint16_t
         material_sample_t bs;
         w->shadow[s] = 0;
         rng_seek(&w->rng[s], tracer_bounce_dim(w->depth[s]) + 4);
-        bs.eta = 1.0f;
         w->alive[s] = material_sample_dielectric(m, &mh, &w->rng[s], &bs);
-        if (!w->alive[s])
-            continue;
-        w->beta[s] = vec3_mul(w->beta[s], bs.weight);
-        if (bs.transmits)
-            w->eta_scale[s] *= bs.eta * bs.eta;
-        w->prev_pdf[s] = bs.pdf;
-        w->specular[s] = 1;
-        w->transmits[s] = (uint8_t)bs.transmits;
-        w->o[s] = vec3_offset_ray_origin(p, bs.transmits ? vec3_neg(mh.ngf) : mh.ngf);
-        w->next_d[s] = vec3_normalize(bs.wi);
+        if (w->alive[s])
+            wave_follow(w, s, p, &mh, &bs);
     }
 }

@@ -190,7 +190,6 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
             w->beta[s] = LANE3(nbeta, j);
             w->prev_pdf[s] = pdf[j];
             w->specular[s] = 0;
-            w->transmits[s] = 0;
             w->o[s] = LANE3(from, j);
             w->next_d[s] = LANE3(next_d, j);
         }

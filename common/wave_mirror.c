@@ -12,13 +12,7 @@ void wave_kernel_mirror(const wave_ctx_t *c, wave_state_t *w, const uint16_t *sl
         material_sample_t bs;
         w->shadow[s] = 0;
         w->alive[s] = material_sample_reflection(&mh, m->albedo, &bs);
-        if (!w->alive[s])
-            continue;
-        w->beta[s] = vec3_mul(w->beta[s], bs.weight);
-        w->prev_pdf[s] = bs.pdf;
-        w->specular[s] = 1;
-        w->transmits[s] = 0;
-        w->o[s] = vec3_offset_ray_origin(p, mh.ngf);
-        w->next_d[s] = vec3_normalize(bs.wi);
+        if (w->alive[s])
+            wave_follow(w, s, p, &mh, &bs);
     }
 }

@@ -441,10 +441,12 @@ static daemon_t *start_master_cmd(int *port, const char *name, const char *const
         snprintf(bin, sizeof bin, "%s/vbrender-master", bindir());
         snprintf(wep, sizeof wep, "tcp://127.0.0.1:%d", *port);
         snprintf(cep, sizeof cep, "tcp://127.0.0.1:%d", *port + 1);
-        const char *args[32] = {bin};
-        int na = 1;
-        for (int i = 0; launch && launch[i] && na < 8; i++)
-            args[i] = launch[i], na = i + 1;
+        const char *args[32];
+        int na = 0;
+        if (!launch)
+            args[na++] = bin;
+        for (; launch && launch[na] && na < 8; na++)
+            args[na] = launch[na];
         const char *sockets[] = {"--workers", wep, "--control", cep, "--heartbeat-ms", "200"};
         for (size_t i = 0; i < sizeof sockets / sizeof sockets[0]; i++)
             args[na++] = sockets[i];
