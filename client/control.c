@@ -12,6 +12,7 @@
 
 #include "frames.h"
 #include "handshake.h"
+#include "mitsuba.h"
 #include "proto.h"
 
 struct control {
@@ -520,21 +521,50 @@ static cJSON *submit_request(const char *scene_path, const cJSON *settings, cons
     return req;
 }
 
+cJSON *control_scene_json(const char *path, const control_defines_t *defines, int *raw_ok,
+                          char *err, size_t errlen)
+{
+    *raw_ok = 0;
+    if (mitsuba_is_scene_path(path))
+        return mitsuba_scene_json(path, defines ? defines->items : NULL,
+                                  defines ? defines->count : 0, err, errlen);
+    if (defines && defines->count > 0) {
+        snprintf(err, errlen, "-D sets a parameter of a Mitsuba scene (.xml), not of %s", path);
+        return NULL;
+    }
+    size_t size = 0;
+    unsigned char *text = read_all(path, &size, err, errlen);
+    if (!text)
+        return NULL;
+    cJSON *scene = cJSON_ParseWithLength((const char *)text, size);
+    free(text);
+    *raw_ok = scene == NULL;
+    if (!scene)
+        snprintf(err, errlen, "%s: not valid JSON", path);
+    return scene;
+}
+
 unsigned long long control_submit(control_t *c, const char *scene_path, const cJSON *settings,
                                   const image_t *reference, control_retry_t *retry, char *err,
                                   size_t errlen)
 {
+    return control_submit_defines(c, scene_path, NULL, settings, reference, retry, err, errlen);
+}
+
+unsigned long long control_submit_defines(control_t *c, const char *scene_path,
+                                          const control_defines_t *defines, const cJSON *settings,
+                                          const image_t *reference, control_retry_t *retry,
+                                          char *err, size_t errlen)
+{
     char request_id[33];
     if (new_request_id(request_id, err, errlen) < 0)
         return 0;
-    size_t size = 0;
-    unsigned char *text = read_all(scene_path, &size, err, errlen);
-    if (!text)
+    /* a JSON scene that does not parse goes as it is: the master says the
+     * same with a line number */
+    int raw_ok = 0;
+    cJSON *scene = control_scene_json(scene_path, defines, &raw_ok, err, errlen);
+    if (!scene && !raw_ok)
         return 0;
-    /* a scene that does not parse goes as it is: the master says the same
-     * with a line number */
-    cJSON *scene = cJSON_ParseWithLength((const char *)text, size);
-    free(text);
     cJSON *req = submit_request(scene_path, settings, request_id);
     submit_frames_t fr = {.count = 1, .owned = 1};
     unsigned long long job = 0;

@@ -81,6 +81,27 @@ unsigned long long control_submit(control_t *c, const char *scene_path, const cJ
                                   const image_t *reference, control_retry_t *retry, char *err,
                                   size_t errlen);
 
+/* A Mitsuba scene's -D name=value parameters (mitsuba.h), for
+ * control_submit and control_scene_json. */
+typedef struct control_defines {
+    const char *const *items;
+    size_t count;
+} control_defines_t;
+
+/* The scene at path as the master will get it: a JSON scene parsed, or a
+ * Mitsuba scene (.xml) converted with defines (may be NULL). NULL with a
+ * message; *raw_ok is set when a JSON file's text did not parse, which
+ * control_submit then sends as it is (the master names the line). */
+cJSON *control_scene_json(const char *path, const control_defines_t *defines, int *raw_ok,
+                          char *err, size_t errlen);
+
+/* control_submit for a scene that may be a Mitsuba file, with its
+ * parameters. */
+unsigned long long control_submit_defines(control_t *c, const char *scene_path,
+                                          const control_defines_t *defines, const cJSON *settings,
+                                          const image_t *reference, control_retry_t *retry,
+                                          char *err, size_t errlen);
+
 /* Fetches a job's image (channels R, G, B, samples, variance) with the
  * job's status in *job (free with cJSON_Delete). NULL with a message. */
 image_t *control_fetch(control_t *c, unsigned long long job, cJSON **job_status, char *err,

@@ -55,9 +55,11 @@
 static const char usage_head[] =
     "usage: vbrender COMMAND ...\n"
     "\n"
-    "  render SCENE.json [-o OUT.exr] [settings] [--workers N] [--threads T]\n"
+    "  render SCENE [-o OUT.exr] [settings] [--workers N] [--threads T]\n"
     "        render on this machine (a master and N local workers in this process)\n"
-    "  submit SCENE.json [settings] [--master EP] [--timeout S]   queue a job; prints its id last\n"
+    "  submit SCENE [settings] [--master EP] [--timeout S]   queue a job; prints its id last\n"
+    "        SCENE: our JSON (SCENE.json) or a Mitsuba 3 file (SCENE.xml; docs/SCENES.md\n"
+    "        lists what of it we render, and anything else is refused with its line)\n"
     "  status [JOB]      a job's state (all jobs without JOB)\n"
     "  wait JOB [--timeout S]   progress until the job ends; exit 1 if it failed or was\n"
     "                    cancelled, or if the master stayed away for S seconds\n"
@@ -84,6 +86,8 @@ static const char usage_head[] =
 
 /* After the settings' lines, which come from their table (settings.h). */
 static const char usage_tail[] =
+    "  -D NAME=VALUE           a Mitsuba scene's parameter, as mitsuba -D (over its\n"
+    "                          <default>)\n"
     "  --reference REF.exr     track the error against REF over time and samples\n"
     "                          (OUT.error.json beside the image)\n"
     "\n"
@@ -146,6 +150,8 @@ static void replace_extension(const char *path, const char *ext, char *out, size
 
 /* ---- arguments ------------------------------------------------------------------ */
 
+#define ARGS_MAX_DEFINES 64
+
 typedef struct args {
     const char *positional;
     const char *output;
@@ -157,6 +163,8 @@ typedef struct args {
     uint64_t workers, threads;
     progress_mode_t progress;
     int have_workers, have_threads;
+    const char *define[ARGS_MAX_DEFINES]; /* -D name=value, for a Mitsuba scene */
+    size_t define_count;
 } args_t;
 
 /* What a command's arguments may hold besides --master, --key,
@@ -217,6 +225,15 @@ static int parse_option(const char *o, const char *v, args_t *a, unsigned allow)
         if (parse_u64(v, 1, RENDER_MAX_THREADS, &a->threads) < 0)
             return option_error("--threads needs an integer from 1 to 256 (got '%s')", v ? v : "");
         a->have_threads = 1;
+    } else if (settings && strncmp(o, "-D", 2) == 0) {
+        /* Mitsuba's -D name=value (or -Dname=value) */
+        const char *d = o[2] ? o + 2 : v;
+        if (!d || !strchr(d, '=') || d[0] == '=')
+            return option_error("-D needs name=value (got '%s')", d ? d : "");
+        if (a->define_count == ARGS_MAX_DEFINES)
+            return option_error("%s", "more than 64 -D parameters");
+        a->define[a->define_count++] = d;
+        return o[2] ? 0 : 1;
     } else if (settings && strcmp(o, "--reference") == 0) {
         if (!v || v[0] == '-')
             return option_error("%s", "--reference needs an EXR file");
@@ -711,10 +728,33 @@ static int render_prepare(int argc, char **argv, args_t *a, char *out_exr, size_
         return 1;
     if (a->workers > a->threads)
         a->threads = a->workers;
-    /* scene warnings are the client's to show: load it once here */
+    /* scene warnings are the client's to show: load it once here (a
+     * Mitsuba scene as the JSON it becomes) */
     char err[VB_ERR_LEN];
     scene_t *scene = NULL;
-    if (scene_load(a->positional, &scene, err, sizeof err) < 0) {
+    control_defines_t defines = {a->define, a->define_count};
+    int raw = 0, rc_load;
+    cJSON *json = control_scene_json(a->positional, &defines, &raw, err, sizeof err);
+    if (json) {
+        char *text = cJSON_PrintUnformatted(json);
+        char dir[4096];
+        snprintf(dir, sizeof dir, "%s", a->positional);
+        char *slash = strrchr(dir, '/');
+        snprintf(slash ? slash : dir, sizeof dir - (size_t)(slash ? slash - dir : 0), "%s",
+                 slash ? "" : ".");
+        const char *base = strrchr(a->positional, '/');
+        rc_load = text ? scene_load_string(text, strlen(text), base ? base + 1 : a->positional, dir,
+                                           &scene, err, sizeof err)
+                       : -1;
+        if (!text)
+            snprintf(err, sizeof err, "out of memory");
+        cJSON_free(text);
+        cJSON_Delete(json);
+    } else {
+        /* a JSON file that does not parse: the loader names the line */
+        rc_load = raw ? scene_load(a->positional, &scene, err, sizeof err) : -1;
+    }
+    if (rc_load < 0) {
         fprintf(stderr, "vbrender: %s\n", err);
         return 1;
     }
@@ -799,7 +839,8 @@ static int render_embedded(const args_t *a, const char *out_exr, int log_level,
         goto done;
     }
     unsigned long long id =
-        control_submit(e.c, a->positional, a->settings, ref, NULL, err, sizeof err);
+        control_submit_defines(e.c, a->positional, &(control_defines_t){a->define, a->define_count},
+                               a->settings, ref, NULL, err, sizeof err);
     image_destroy(&ref);
     if (!id) {
         fprintf(stderr, "vbrender: %s\n", err);
@@ -887,7 +928,8 @@ static int run_submit(control_t *c, const char *cmd, const args_t *a, unsigned l
     }
     control_retry_t retry = {a->timeout_s, say_outage, NULL, 0};
     unsigned long long id =
-        control_submit(c, a->positional, a->settings, ref, &retry, err, sizeof err);
+        control_submit_defines(c, a->positional, &(control_defines_t){a->define, a->define_count},
+                               a->settings, ref, &retry, err, sizeof err);
     image_destroy(&ref);
     if (!id) {
         if (retry.unreachable) /* some try may have reached it */

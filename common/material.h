@@ -33,6 +33,10 @@ typedef struct material {
     vec3_t albedo;   /* diffuse albedo (emitters too), or mirror reflectance */
     vec3_t radiance; /* emitter only */
     float ior;       /* dielectric only: inside over outside */
+    /* diffuse and emitter: black from behind (a hit on the side away from
+     * the geometric normal ends the path), as Mitsuba's BSDFs are unless
+     * wrapped in "twosided". 0 for our own scenes' materials. */
+    uint8_t one_sided;
 } material_t;
 
 /* "diffuse", "emitter", ...; returns -1 for an unknown name. */

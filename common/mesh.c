@@ -317,6 +317,62 @@ int mesh_load(const char *path, mesh_t **out, char *err, size_t errlen)
     return r;
 }
 
+int mesh_smooth_normals(mesh_t *m)
+{
+    double *acc = calloc(3 * m->vertex_count + 1, sizeof(double));
+    float *n = malloc((3 * m->vertex_count + 1) * sizeof(float));
+    if (!acc || !n) {
+        free(acc);
+        free(n);
+        return -1;
+    }
+    for (size_t t = 0; t < m->triangle_count; t++) {
+        const uint32_t *vi = m->indices + 3 * t;
+        double p[3][3];
+        for (int k = 0; k < 3; k++)
+            for (int c = 0; c < 3; c++)
+                p[k][c] = m->positions[3 * vi[k] + c];
+        double e1[3], e2[3], fn[3];
+        for (int c = 0; c < 3; c++) {
+            e1[c] = p[1][c] - p[0][c];
+            e2[c] = p[2][c] - p[0][c];
+        }
+        fn[0] = e1[1] * e2[2] - e1[2] * e2[1];
+        fn[1] = e1[2] * e2[0] - e1[0] * e2[2];
+        fn[2] = e1[0] * e2[1] - e1[1] * e2[0];
+        double len = sqrt(fn[0] * fn[0] + fn[1] * fn[1] + fn[2] * fn[2]);
+        if (!(len > 0) || !isfinite(len))
+            continue; /* a degenerate triangle has no normal to give */
+        for (int k = 0; k < 3; k++) {
+            /* the angle at corner k, between the edges to the other two */
+            double a[3], b[3], la = 0, lb = 0, dot = 0;
+            for (int c = 0; c < 3; c++) {
+                a[c] = p[(k + 1) % 3][c] - p[k][c];
+                b[c] = p[(k + 2) % 3][c] - p[k][c];
+                la += a[c] * a[c];
+                lb += b[c] * b[c];
+                dot += a[c] * b[c];
+            }
+            double cosv = dot / sqrt(la * lb);
+            double angle = acos(cosv < -1 ? -1 : cosv > 1 ? 1 : cosv);
+            if (!isfinite(angle))
+                continue;
+            for (int c = 0; c < 3; c++)
+                acc[3 * vi[k] + c] += fn[c] / len * angle;
+        }
+    }
+    for (size_t v = 0; v < m->vertex_count; v++) {
+        double *a = acc + 3 * v;
+        double len = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+        for (int c = 0; c < 3; c++)
+            n[3 * v + c] = len > 0 && isfinite(len) ? (float)(a[c] / len) : 0.0f;
+    }
+    free(acc);
+    free(m->normals);
+    m->normals = n;
+    return 0;
+}
+
 void mesh_destroy(mesh_t **m)
 {
     if (!m || !*m)

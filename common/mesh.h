@@ -35,6 +35,11 @@ int mesh_load(const char *path, mesh_t **out, char *err, size_t errlen);
 int mesh_load_buffer(const char *name, const unsigned char *data, size_t size, mesh_t **out,
                      char *err, size_t errlen);
 
+/* Gives a mesh without normals smooth vertex normals: each the sum of its
+ * triangles' unit normals weighted by the triangle's angle at the vertex,
+ * normalised (as Mitsuba 3 computes them). Returns -1 when out of memory. */
+int mesh_smooth_normals(mesh_t *m);
+
 /* Frees a mesh and sets *m to NULL. Accepts NULL and *m == NULL. */
 void mesh_destroy(mesh_t **m);
 

@@ -219,6 +219,20 @@ static int parse_render(loader_t *L, const cJSON *root)
 
 /* ---- materials ---------------------------------------------------------- */
 
+/* "twosided": false makes a diffuse surface (or an emitter's albedo)
+ * black from behind; the default, true, reflects on both sides. */
+static int get_twosided(loader_t *L, const cJSON *it, const char *p, material_t *m)
+{
+    const cJSON *t = cJSON_GetObjectItemCaseSensitive(it, "twosided");
+    if (t && !cJSON_IsBool(t)) {
+        char q[PATH_LEN];
+        snprintf(q, sizeof q, "%s.twosided", p);
+        return fail(L, q, "expected true or false");
+    }
+    m->one_sided = (uint8_t)(t && cJSON_IsFalse(t));
+    return 0;
+}
+
 /* The fields of a material by its type, into *m, and its albedo (or
  * reflectance) into v, still to be range-checked. */
 static int parse_material_fields(loader_t *L, const cJSON *it, const char *p, material_t *m,
@@ -226,9 +240,9 @@ static int parse_material_fields(loader_t *L, const cJSON *it, const char *p, ma
 {
     switch (m->type) {
     case MATERIAL_DIFFUSE: {
-        static const char *const keys[] = {"type", "albedo", NULL};
+        static const char *const keys[] = {"type", "albedo", "twosided", NULL};
         check_keys(L, it, p, keys);
-        return get_vec3(L, it, "albedo", p, 1, v);
+        return get_vec3(L, it, "albedo", p, 1, v) < 0 ? -1 : get_twosided(L, it, p, m);
     }
     case MATERIAL_MIRROR: {
         static const char *const keys[] = {"type", "reflectance", NULL};
@@ -236,7 +250,7 @@ static int parse_material_fields(loader_t *L, const cJSON *it, const char *p, ma
         return get_vec3(L, it, "reflectance", p, 0, v);
     }
     case MATERIAL_EMITTER: {
-        static const char *const keys[] = {"type", "radiance", "albedo", NULL};
+        static const char *const keys[] = {"type", "radiance", "albedo", "twosided", NULL};
         check_keys(L, it, p, keys);
         double rad[3];
         if (get_vec3(L, it, "radiance", p, 1, rad) < 0)
@@ -247,7 +261,7 @@ static int parse_material_fields(loader_t *L, const cJSON *it, const char *p, ma
         m->radiance = to_vec3(rad);
         /* a light's own surface may also reflect diffusely (default: black) */
         v[0] = v[1] = v[2] = 0;
-        return get_vec3(L, it, "albedo", p, 0, v);
+        return get_vec3(L, it, "albedo", p, 0, v) < 0 ? -1 : get_twosided(L, it, p, m);
     }
     case MATERIAL_DIELECTRIC: {
         static const char *const keys[] = {"type", "ior", NULL};
@@ -357,8 +371,50 @@ static void rotation(int axis, double deg, double r[3][3])
     r[j][j] = c;
 }
 
+/* "matrix": 16 numbers, a 4x4 affine transform row by row (last row
+ * 0 0 0 1), alone in its transform: what an imported scene (mitsuba.c)
+ * composes. */
+static int parse_matrix(loader_t *L, const cJSON *t, const cJSON *mx, const char *p, xform_t *x)
+{
+    char q[PATH_LEN];
+    snprintf(q, sizeof q, "%s.matrix", p);
+    if (cJSON_GetArraySize(t) != 1)
+        return fail(L, p, "\"matrix\" takes no scale, rotate or translate beside it");
+    double e[16];
+    int n = 0;
+    for (const cJSON *it = cJSON_IsArray(mx) ? mx->child : NULL; it; it = it->next, n++) {
+        if (n == 16 || !cJSON_IsNumber(it) || !isfinite(it->valuedouble))
+            return fail(L, q, "expected 16 finite numbers (a 4x4 matrix, row by row)");
+        e[n] = it->valuedouble;
+    }
+    if (n != 16)
+        return fail(L, q, "expected 16 finite numbers (a 4x4 matrix, row by row)");
+    if (e[12] != 0 || e[13] != 0 || e[14] != 0 || e[15] != 1)
+        return fail(L, q, "the last row must be 0 0 0 1 (an affine transform)");
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 3; j++)
+            x->m[i][j] = e[4 * i + j];
+        x->t[i] = e[4 * i + 3];
+    }
+    const double(*m)[3] = x->m;
+    double det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) -
+                 m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) +
+                 m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    if (!(fabs(det) > 0) || !isfinite(1.0 / det))
+        return fail(L, q, "the matrix is singular");
+    /* normals: the inverse transpose, the cofactors over det */
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) {
+            int i1 = (i + 1) % 3, i2 = (i + 2) % 3, j1 = (j + 1) % 3, j2 = (j + 2) % 3;
+            x->nm[i][j] = (m[i1][j1] * m[i2][j2] - m[i1][j2] * m[i2][j1]) / det;
+        }
+    x->flips = det < 0;
+    return 0;
+}
+
 /* transform: {"scale": s | [sx,sy,sz], "rotate": [x,y,z] degrees (applied X,
- * then Y, then Z), "translate": [x,y,z]}; scale first, translate last. */
+ * then Y, then Z), "translate": [x,y,z]}; scale first, translate last; or
+ * {"matrix": [16 numbers]} (parse_matrix). */
 static int parse_transform(loader_t *L, const cJSON *shape, const char *path, xform_t *x)
 {
     memset(x, 0, sizeof *x);
@@ -371,8 +427,11 @@ static int parse_transform(loader_t *L, const cJSON *shape, const char *path, xf
     snprintf(p, sizeof p, "%s.transform", path);
     if (!cJSON_IsObject(t))
         return fail(L, p, "expected an object");
-    static const char *const keys[] = {"scale", "rotate", "translate", NULL};
+    static const char *const keys[] = {"scale", "rotate", "translate", "matrix", NULL};
     check_keys(L, t, p, keys);
+    const cJSON *mx = cJSON_GetObjectItemCaseSensitive(t, "matrix");
+    if (mx)
+        return parse_matrix(L, t, mx, p, x);
     double sc[3] = {1, 1, 1}, rot[3] = {0, 0, 0};
     const cJSON *s = cJSON_GetObjectItemCaseSensitive(t, "scale");
     if (cJSON_IsNumber(s)) {
@@ -584,10 +643,34 @@ static int shape_triangles(loader_t *L, const cJSON *sh, const char *path, const
 static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xform_t *x,
                       uint32_t mat)
 {
-    static const char *const keys[] = {"type", "material", "file", "transform", NULL};
+    static const char *const keys[] = {"type",    "material",     "file", "transform",
+                                       "normals", "flip_normals", NULL};
     check_keys(L, sh, path, keys);
     const cJSON *f = cJSON_GetObjectItemCaseSensitive(sh, "file");
     char p[PATH_LEN];
+    /* "normals": "file" (the file's vertex normals, else flat), "face"
+     * (flat) or "file_or_smooth" (else angle-weighted vertex normals, as
+     * Mitsuba gives a mesh without them); "flip_normals" turns every face */
+    const cJSON *nj = cJSON_GetObjectItemCaseSensitive(sh, "normals");
+    const cJSON *fj = cJSON_GetObjectItemCaseSensitive(sh, "flip_normals");
+    enum { NORMALS_FILE, NORMALS_FACE, NORMALS_SMOOTH } normals = NORMALS_FILE;
+    if (nj) {
+        const char *v = cJSON_IsString(nj) ? nj->valuestring : "";
+        snprintf(p, sizeof p, "%s.normals", path);
+        if (strcmp(v, "face") == 0)
+            normals = NORMALS_FACE;
+        else if (strcmp(v, "file_or_smooth") == 0)
+            normals = NORMALS_SMOOTH;
+        else if (strcmp(v, "file") != 0)
+            return fail(L, p, "expected \"file\", \"face\" or \"file_or_smooth\"");
+    }
+    if (fj && !cJSON_IsBool(fj)) {
+        snprintf(p, sizeof p, "%s.flip_normals", path);
+        return fail(L, p, "expected true or false");
+    }
+    xform_t xf = *x;
+    xf.flips ^= cJSON_IsTrue(fj);
+    x = &xf;
     snprintf(p, sizeof p, "%s.file", path);
     if (!cJSON_IsString(f) || !*f->valuestring)
         return fail(L, p, "missing (expected a mesh path relative to the scene file)");
@@ -610,6 +693,13 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
             snprintf(full, sizeof full, "%s/%s", L->base_dir, f->valuestring);
         if (mesh_load(full, &m, merr, sizeof merr) < 0)
             return fail(L, p, "%s", merr);
+    }
+    if (normals == NORMALS_FACE) {
+        free(m->normals);
+        m->normals = NULL;
+    } else if (normals == NORMALS_SMOOTH && !m->normals && mesh_smooth_normals(m) < 0) {
+        mesh_destroy(&m);
+        return fail(L, path, "out of memory for the mesh's normals");
     }
     int rc = reserve(L, m->vertex_count, m->triangle_count, m->normals != NULL);
     if (rc == 0) {

@@ -313,6 +313,8 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
             if (vec3_is_zero(m->albedo))
                 break; /* a black emitter absorbs everything */
         }
+        if (m->one_sided && !(cos_o > 0.0f))
+            break; /* a one-sided surface is black from behind */
         /* segments so far: depth + 1; a bounce or a light sample adds one */
         if (st->max_depth && depth + 2 > st->max_depth)
             break;

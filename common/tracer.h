@@ -31,8 +31,10 @@
  * built from a commit that traces different bits, as it refuses another
  * ISA: 2 since the light and the point on it come from one pair of
  * numbers (lights_sample) and new rays leave 16 ulps off the surface
- * (vmath_offset_coord). */
-#define TRACER_VERSION 2
+ * (vmath_offset_coord); 3 since a material may be one-sided (a build
+ * without that would draw such a scene two-sided; our own scenes' bits
+ * are unchanged). */
+#define TRACER_VERSION 3
 /* Russian roulette starts after this many bounces (as Mitsuba 3's default
  * rr_depth, so samples/s compare like with like). */
 #define TRACER_RR_DEPTH 5

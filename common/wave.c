@@ -65,6 +65,8 @@ static int hit_stage(const wave_ctx_t *c, wave_state_t *w, uint16_t s, tracer_hi
         if (vec3_is_zero(m->albedo))
             return 0;
     }
+    if (m->one_sided && !(cos_o > 0.0f))
+        return 0; /* a one-sided surface is black from behind */
     if (c->settings->max_depth && w->depth[s] + 2 > c->settings->max_depth)
         return 0;
     w->tri[s] = h->tri;

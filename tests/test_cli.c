@@ -1032,6 +1032,45 @@ START_TEST(log_level_flag)
 }
 END_TEST
 
+/* ---- Mitsuba scene files ------------------------------------------------ */
+
+/* render takes a Mitsuba file and its -D parameters */
+START_TEST(mitsuba_render)
+{
+    char scene[PATHLEN], exr[PATHLEN];
+    static char out[OUTLEN];
+    tu_root_path(scene, sizeof scene, "scenes/mitsuba/cornell-box.xml");
+    tu_tmp_path(exr, sizeof exr, "cli-mitsuba.exr");
+    unlink(exr);
+    int rc = run(out, sizeof out,
+                 "render '%s' -D res=12 -Dspp=8 -o '%s' --threads 2 --progress none", scene, exr);
+    ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
+    ck_assert_msg(strstr(out, "12x12") && strstr(out, "8 spp"), "summary lacks size/spp:\n%s", out);
+    ck_assert_msg(file_exists(exr), "%s missing", exr);
+    /* -D belongs to Mitsuba files; a bad one is a usage error */
+    rc = run(out, sizeof out, "render '%s' -D nothing --progress none", scene);
+    ck_assert_msg(rc == 2 && strstr(out, "-D needs name=value"), "exit %d:\n%s", rc, out);
+    unlink(exr);
+}
+END_TEST
+
+/* a plugin we do not render: exit 1, the file, the line, the plugin */
+START_TEST(mitsuba_refused)
+{
+    char path[PATHLEN], out[OUTLEN], want[PATHLEN + 64];
+    tu_write_tmp(path, sizeof path, "cli-hair.xml",
+                 "<scene version=\"3.0.0\">\n"
+                 "  <sensor type=\"perspective\"><float name=\"fov\" value=\"40\"/>"
+                 "<film type=\"hdrfilm\"><rfilter type=\"box\"/></film></sensor>\n"
+                 "  <shape type=\"cube\"><bsdf type=\"hair\"/></shape>\n"
+                 "</scene>\n");
+    int rc = run(out, sizeof out, "render '%s' --progress none", path);
+    ck_assert_msg(rc == 1, "exit %d:\n%s", rc, out);
+    snprintf(want, sizeof want, "%s:3: bsdf type \"hair\" is not supported (supported: ", path);
+    ck_assert_msg(strstr(out, want) != NULL, "output lacks %s:\n%s", want, out);
+}
+END_TEST
+
 static Suite *cli_suite(void)
 {
     Suite *su = suite_create("cli");
@@ -1051,11 +1090,13 @@ static Suite *cli_suite(void)
     tcase_add_test(tc, bad_scene);
     tcase_add_test(tc, unwritable_output);
     tcase_add_test(tc, warning_printed);
+    tcase_add_test(tc, mitsuba_refused);
     suite_add_tcase(su, tc);
 
     tc = tcase_create("render");
     tcase_set_timeout(tc, 120);
     tcase_add_test(tc, tiny_render);
+    tcase_add_test(tc, mitsuba_render);
     tcase_add_test(tc, default_output_and_flags);
     tcase_add_test(tc, deterministic_exr);
     tcase_add_test(tc, version_everywhere);

@@ -4295,6 +4295,35 @@ START_TEST(breaker)
     remove_scratch();
 }
 END_TEST
+/* ---- a Mitsuba scene file ----------------------------------------------------------- */
+
+/* `vbrender submit scene.xml` to a master with a worker process: the
+ * client converts the file and bundles its meshes, so the worker, which
+ * loads only the bundle, draws the very image the embedded render does
+ * (-D parameters included). */
+START_TEST(mitsuba_scene)
+{
+    char scene[PATHLEN], ref[PATHLEN], got[PATHLEN];
+    tu_root_path(scene, sizeof scene, "scenes/mitsuba/cornell-box.xml");
+    const char *settings = "-D res=16 --spp 64 --seed 5";
+    render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "mitsuba-ref.exr"));
+    int port = slot_port(20);
+    start_master(&port, "m-master");
+    start_worker(port, 1, "m-worker", "127.0.0.2");
+    wait_workers(port + 1, 1);
+    unsigned long long job = submit(port + 1, scene, settings);
+    finish_and_fetch(port + 1, job, tmp(got, sizeof got, "mitsuba.exr"));
+    compare_exr(ref, got);
+    image_t *img = NULL;
+    char err[1024];
+    ck_assert_msg(image_read_exr(got, &img, err, sizeof err) == 0, "%s", err);
+    ck_assert_int_eq(img->width, 16);
+    image_destroy(&img);
+    stop_all_clean();
+    remove_scratch();
+}
+END_TEST
+
 /* ---- suite ------------------------------------------------------------------------ */
 
 /* The Check cases, each one test: `test_cluster --list` prints their names
@@ -4346,6 +4375,7 @@ static const struct {
     {"stall_malformed", &stall_malformed},
     {"stall_slow", &stall_slow},
     {"breaker", &breaker},
+    {"mitsuba_scene", &mitsuba_scene},
 };
 
 static Suite *cluster_suite(void)

@@ -17,6 +17,7 @@
 
 #include "film.h"
 #include "lights.h"
+#include "mitsuba.h"
 #include "render.h"
 #include "scene.h"
 #include "testutil.h"
@@ -119,42 +120,59 @@ static film_t *render(const scene_t *s, uint64_t seed, scene_integrator_t integ,
     return render_sampler(s, seed, integ, RNG_SAMPLER_INDEPENDENT, spp, threads, granularity);
 }
 
-/* Calls fn on every scene shipped in scenes/, its camera made size x size;
- * fails unless there are at least 5. */
+/* Loads the scene JSON root (its camera made size x size) as `name`, its
+ * meshes relative to dir, and calls fn on it. */
+static void call_on_small(cJSON *root, int size, const char *name, const char *dir,
+                          void (*fn)(scene_t *sc, const char *name))
+{
+    cJSON *cam = cJSON_GetObjectItem(root, "camera");
+    cJSON_ReplaceItemInObject(cam, "width", cJSON_CreateNumber(size));
+    cJSON_ReplaceItemInObject(cam, "height", cJSON_CreateNumber(size));
+    char *small = cJSON_PrintUnformatted(root);
+    scene_t *sc = NULL;
+    char err[VB_ERR_LEN];
+    ck_assert_msg(scene_load_string(small, strlen(small), name, dir, &sc, err, sizeof err) == 0,
+                  "%s: %s", name, err);
+    cJSON_free(small);
+    fn(sc, name);
+    scene_destroy(&sc);
+}
+
+/* Calls fn on every scene shipped in scenes/ (and the Mitsuba scenes in
+ * scenes/mitsuba/, as mitsuba.c reads them), its camera made size x size;
+ * fails unless there are at least 5 and 1. */
 static void for_each_shipped_scene(int size, void (*fn)(scene_t *sc, const char *name))
 {
-    char dir[1024];
-    tu_root_path(dir, sizeof dir, "scenes");
-    DIR *d = opendir(dir);
-    ck_assert_msg(d != NULL, "cannot open %s", dir);
-    int scenes = 0;
-    for (struct dirent *e; (e = readdir(d));) {
-        size_t n = strlen(e->d_name);
-        if (n < 6 || strcmp(e->d_name + n - 5, ".json") != 0)
-            continue;
-        char path[2048];
-        snprintf(path, sizeof path, "%s/%s", dir, e->d_name);
-        char *text = read_file(path);
-        cJSON *root = cJSON_Parse(text);
-        free(text);
-        ck_assert_msg(root != NULL, "%s is not JSON", path);
-        cJSON *cam = cJSON_GetObjectItem(root, "camera");
-        cJSON_ReplaceItemInObject(cam, "width", cJSON_CreateNumber(size));
-        cJSON_ReplaceItemInObject(cam, "height", cJSON_CreateNumber(size));
-        char *small = cJSON_PrintUnformatted(root);
-        cJSON_Delete(root);
-        scene_t *sc = NULL;
-        char err[VB_ERR_LEN];
-        ck_assert_msg(
-            scene_load_string(small, strlen(small), e->d_name, dir, &sc, err, sizeof err) == 0,
-            "%s: %s", e->d_name, err);
-        cJSON_free(small);
-        fn(sc, e->d_name);
-        scene_destroy(&sc);
-        scenes++;
+    for (int mitsuba = 0; mitsuba < 2; mitsuba++) {
+        char dir[1024];
+        tu_root_path(dir, sizeof dir, mitsuba ? "scenes/mitsuba" : "scenes");
+        DIR *d = opendir(dir);
+        ck_assert_msg(d != NULL, "cannot open %s", dir);
+        int scenes = 0;
+        for (struct dirent *e; (e = readdir(d));) {
+            size_t n = strlen(e->d_name);
+            const char *ext = mitsuba ? ".xml" : ".json";
+            if (n <= strlen(ext) || strcmp(e->d_name + n - strlen(ext), ext) != 0)
+                continue;
+            char path[2048], err[VB_ERR_LEN];
+            snprintf(path, sizeof path, "%s/%s", dir, e->d_name);
+            cJSON *root;
+            if (mitsuba) {
+                root = mitsuba_scene_json(path, NULL, 0, err, sizeof err);
+                ck_assert_msg(root != NULL, "%s", err);
+            } else {
+                char *text = read_file(path);
+                root = cJSON_Parse(text);
+                free(text);
+                ck_assert_msg(root != NULL, "%s is not JSON", path);
+            }
+            call_on_small(root, size, e->d_name, dir, fn);
+            cJSON_Delete(root);
+            scenes++;
+        }
+        closedir(d);
+        ck_assert_msg(scenes >= (mitsuba ? 1 : 5), "only %d scenes in %s", scenes, dir);
     }
-    closedir(d);
-    ck_assert_msg(scenes >= 5, "only %d scenes in %s", scenes, dir);
 }
 
 static void renders_something(scene_t *sc, const char *name)
