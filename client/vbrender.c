@@ -42,6 +42,7 @@
 #include "jsonget.h"
 #include "keys.h"
 #include "master.h"
+#include "mitsuba.h"
 #include "progress.h"
 #include "proto.h"
 #include "render.h"
@@ -732,27 +733,28 @@ static int render_prepare(int argc, char **argv, args_t *a, char *out_exr, size_
      * Mitsuba scene as the JSON it becomes) */
     char err[VB_ERR_LEN];
     scene_t *scene = NULL;
-    control_defines_t defines = {a->define, a->define_count};
-    int raw = 0, rc_load;
-    cJSON *json = control_scene_json(a->positional, &defines, &raw, err, sizeof err);
-    if (json) {
-        char *text = cJSON_PrintUnformatted(json);
-        char dir[4096];
-        snprintf(dir, sizeof dir, "%s", a->positional);
-        char *slash = strrchr(dir, '/');
-        snprintf(slash ? slash : dir, sizeof dir - (size_t)(slash ? slash - dir : 0), "%s",
-                 slash ? "" : ".");
-        const char *base = strrchr(a->positional, '/');
-        rc_load = text ? scene_load_string(text, strlen(text), base ? base + 1 : a->positional, dir,
-                                           &scene, err, sizeof err)
-                       : -1;
-        if (!text)
+    int rc_load;
+    if (mitsuba_is_scene_path(a->positional)) {
+        control_defines_t defines = {a->define, a->define_count};
+        int raw = 0;
+        cJSON *json = control_scene_json(a->positional, &defines, &raw, err, sizeof err);
+        char *text = json ? cJSON_PrintUnformatted(json) : NULL;
+        char dir[4096] = ".";
+        const char *slash = strrchr(a->positional, '/');
+        if (slash)
+            snprintf(dir, sizeof dir, "%.*s", (int)(slash - a->positional), a->positional);
+        if (json && !text)
             snprintf(err, sizeof err, "out of memory");
+        rc_load = text ? scene_load_string(text, strlen(text), a->positional, dir, &scene, err,
+                                           sizeof err)
+                       : -1;
         cJSON_free(text);
         cJSON_Delete(json);
+    } else if (a->define_count > 0) {
+        return usage_error("-D sets a parameter of a Mitsuba scene (.xml), not of %s",
+                           a->positional);
     } else {
-        /* a JSON file that does not parse: the loader names the line */
-        rc_load = raw ? scene_load(a->positional, &scene, err, sizeof err) : -1;
+        rc_load = scene_load(a->positional, &scene, err, sizeof err);
     }
     if (rc_load < 0) {
         fprintf(stderr, "vbrender: %s\n", err);

@@ -1050,6 +1050,10 @@ START_TEST(mitsuba_render)
     /* -D belongs to Mitsuba files; a bad one is a usage error */
     rc = run(out, sizeof out, "render '%s' -D nothing --progress none", scene);
     ck_assert_msg(rc == 2 && strstr(out, "-D needs name=value"), "exit %d:\n%s", rc, out);
+    char json[PATHLEN];
+    tu_root_path(json, sizeof json, "scenes/cornell-box.json");
+    rc = run(out, sizeof out, "render '%s' -D spp=4 --progress none", json);
+    ck_assert_msg(rc == 2 && strstr(out, "not of"), "exit %d:\n%s", rc, out);
     unlink(exr);
 }
 END_TEST
