@@ -32,9 +32,14 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 # Determinism: no -ffast-math, no FMA contraction, no -march=native (the same
 # binary must give the same bits on every host it runs on).
+# Our folders are -iquote, not -I: with -Imaster, the C library's
+# #include <sched.h> (from pthread.h) found master/sched.h, and every
+# header it pulls in counted as a system header, left out of the -MMD
+# dependency files (an edit to scene.h did not rebuild client/vbrender.o).
 CFLAGS_COMMON = -std=c11 -Wall -Wextra -Werror -pthread -ffp-contract=off \
                 -fno-math-errno -D_DEFAULT_SOURCE -MMD -MP -g \
-                -Icommon -Iproto -Imaster -Iworker -I/usr/include/OpenEXR -I/usr/include/cjson
+                -iquote common -iquote proto -iquote master -iquote worker \
+                -I/usr/include/OpenEXR -I/usr/include/cjson
 ifeq ($(SAN),1)
   OPT      = -O1 -fsanitize=address,undefined -fno-sanitize-recover=undefined \
              -fno-omit-frame-pointer
