@@ -1,6 +1,7 @@
 /* camera.c - see camera.h. */
 #include "camera.h"
 
+#include <math.h>
 #include <stdio.h>
 
 int camera_init(camera_t *c, vec3_t position, vec3_t look_at, vec3_t up, double fov_deg, int width,
@@ -32,5 +33,41 @@ int camera_init(camera_t *c, vec3_t position, vec3_t look_at, vec3_t up, double 
     c->up = vec3_scale(true_up, tan_half);
     c->width = width;
     c->height = height;
+    c->filter = CAMERA_FILTER_BOX;
+    return 0;
+}
+
+/* The gaussian's CDF on [-r, r], unnormalised: the integral from -r to x
+ * of exp(-t^2 / (2 s^2)) - exp(-r^2 / (2 s^2)). */
+static double gaussian_cdf(double x, double s, double r)
+{
+    double k = 1.0 / (s * sqrt(2.0));
+    double bias = exp(-r * r / (2 * s * s));
+    return s * sqrt(M_PI / 2) * (erf(x * k) + erf(r * k)) - bias * (x + r);
+}
+
+int camera_set_gaussian(camera_t *c, double stddev, char *err, size_t errlen)
+{
+    if (!(stddev > 0 && stddev <= 4)) {
+        snprintf(err, errlen, "the gaussian filter's stddev must be in (0, 4] pixels (got %g)",
+                 stddev);
+        return -1;
+    }
+    double r = 4 * stddev, total = gaussian_cdf(r, stddev, r);
+    c->filter = CAMERA_FILTER_GAUSSIAN;
+    c->filter_icdf[0] = (float)-r;
+    c->filter_icdf[CAMERA_FILTER_TABLE] = (float)r;
+    /* each node by bisection on the exact CDF (it increases strictly) */
+    for (int i = 1; i < CAMERA_FILTER_TABLE; i++) {
+        double want = total * i / CAMERA_FILTER_TABLE, lo = -r, hi = r;
+        for (int it = 0; it < 100 && hi - lo > 1e-12 * r; it++) {
+            double mid = 0.5 * (lo + hi);
+            if (gaussian_cdf(mid, stddev, r) < want)
+                lo = mid;
+            else
+                hi = mid;
+        }
+        c->filter_icdf[i] = (float)(0.5 * (lo + hi));
+    }
     return 0;
 }

@@ -9,6 +9,7 @@
 #ifndef VB_LIGHTS_H
 #define VB_LIGHTS_H
 
+#include <math.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -69,6 +70,31 @@ static inline uint32_t lights_sample(const scene_t *s, double u, float u2, vec3_
     uint32_t tri = s->light_tris[i];
     *q = scene_sample_point(s, tri, u1, u2);
     return tri;
+}
+
+/* Whether a light sample's first number u takes the environment: then u
+ * is rescaled to [0, 1) for lights_env_direction; else, in a scene with
+ * an environment, to [0, 1) for lights_sample. In a scene without one, u
+ * is left as it is (the triangles' samples keep their bits). */
+static inline int lights_pick_env(const scene_t *s, double *u)
+{
+    if (!s->has_env)
+        return 0;
+    double pe = s->env_pick;
+    if (*u < pe) {
+        *u = *u / pe;
+        return 1;
+    }
+    *u = (*u - pe) / (1.0 - pe);
+    return 0;
+}
+
+/* A direction uniform on the sphere (density 1 / (4 pi)) from two numbers. */
+static inline vec3_t lights_env_direction(double u1, float u2)
+{
+    float z = (float)(1.0 - 2.0 * u1);
+    float r = sqrtf(fmaxf(0.0f, 1.0f - z * z)), phi = 2.0f * VMATH_PI * u2;
+    return vec3_make(r * cosf(phi), r * sinf(phi), z);
 }
 
 /* Density per unit area with which lights_sample gives a point on tri

@@ -254,7 +254,13 @@ static int ends_with_obj(const char *name)
 int mesh_load_buffer(const char *name, const unsigned char *data, size_t size, mesh_t **out,
                      char *err, size_t errlen)
 {
-    mesh_ctx c = {name ? name : "(buffer)", err, errlen};
+    return mesh_load_buffer_flags(name, data, size, 0, out, err, errlen);
+}
+
+int mesh_load_buffer_flags(const char *name, const unsigned char *data, size_t size, unsigned flags,
+                           mesh_t **out, char *err, size_t errlen)
+{
+    mesh_ctx c = {name ? name : "(buffer)", err, errlen, flags};
     if (err && errlen)
         err[0] = '\0';
     if (out)
@@ -283,7 +289,12 @@ int mesh_load_buffer(const char *name, const unsigned char *data, size_t size, m
 
 int mesh_load(const char *path, mesh_t **out, char *err, size_t errlen)
 {
-    mesh_ctx c = {path ? path : "(null)", err, errlen};
+    return mesh_load_flags(path, 0, out, err, errlen);
+}
+
+int mesh_load_flags(const char *path, unsigned flags, mesh_t **out, char *err, size_t errlen)
+{
+    mesh_ctx c = {path ? path : "(null)", err, errlen, flags};
     if (out)
         *out = NULL;
     if (!path || !out)
@@ -312,7 +323,7 @@ int mesh_load(const char *path, mesh_t **out, char *err, size_t errlen)
         free(buf);
         return mesh_fail(&c, "read error (got %zu of %zu bytes)", got, size);
     }
-    int r = mesh_load_buffer(path, buf, size, out, err, errlen);
+    int r = mesh_load_buffer_flags(path, buf, size, flags, out, err, errlen);
     free(buf);
     return r;
 }

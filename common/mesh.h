@@ -35,6 +35,16 @@ int mesh_load(const char *path, mesh_t **out, char *err, size_t errlen);
 int mesh_load_buffer(const char *name, const unsigned char *data, size_t size, mesh_t **out,
                      char *err, size_t errlen);
 
+/* mesh_load_flags: also read an OBJ file's vertex normals (vn). A vertex
+ * used with different normals becomes one vertex per normal; a corner
+ * without one gets its faces' mean normal. Off by default: our own scenes'
+ * OBJ meshes have always been read without them. */
+#define MESH_OBJ_NORMALS 1u
+
+int mesh_load_flags(const char *path, unsigned flags, mesh_t **out, char *err, size_t errlen);
+int mesh_load_buffer_flags(const char *name, const unsigned char *data, size_t size, unsigned flags,
+                           mesh_t **out, char *err, size_t errlen);
+
 /* Gives a mesh without normals smooth vertex normals: each the sum of its
  * triangles' unit normals weighted by the triangle's angle at the vertex,
  * normalised (as Mitsuba 3 computes them). Returns -1 when out of memory. */

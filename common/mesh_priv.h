@@ -20,6 +20,7 @@ typedef struct mesh_ctx {
     const char *name; /* file name for messages */
     char *err;
     size_t errlen;
+    unsigned flags; /* MESH_* of mesh.h */
 } mesh_ctx;
 
 /* Writes "name: message" into the caller's buffer; returns -1. */

@@ -124,6 +124,14 @@ static double cie_lerp(const float *table, double nm)
     return (1.0 - w1) * table[i] + w1 * table[i + 1];
 }
 
+/* XYZ to linear sRGB (Rec. 709 primaries, D65 white) */
+static void mitsuba_xyz_to_srgb(double x, double y, double z, double rgb[3])
+{
+    rgb[0] = 3.240479 * x - 1.537150 * y - 0.498535 * z;
+    rgb[1] = -0.969256 * x + 1.875991 * y + 0.041556 * z;
+    rgb[2] = 0.055648 * x - 0.204043 * y + 1.057311 * z;
+}
+
 int mitsuba_spectrum_rgb(const double *nm, const double *values, size_t count, int reflectance,
                          double rgb[3])
 {
@@ -154,10 +162,7 @@ int mitsuba_spectrum_rgb(const double *nm, const double *values, size_t count, i
     double scale = (CIE_MAX - CIE_MIN) / steps;
     for (int c = 0; c < 3; c++)
         xyz[c] *= scale;
-    /* XYZ to linear sRGB (Rec. 709 primaries, D65 white) */
-    rgb[0] = 3.240479 * xyz[0] - 1.537150 * xyz[1] - 0.498535 * xyz[2];
-    rgb[1] = -0.969256 * xyz[0] + 1.875991 * xyz[1] + 0.041556 * xyz[2];
-    rgb[2] = 0.055648 * xyz[0] - 0.204043 * xyz[1] + 1.057311 * xyz[2];
+    mitsuba_xyz_to_srgb(xyz[0], xyz[1], xyz[2], rgb);
     for (int c = 0; c < 3; c++) {
         if (rgb[c] < 0)
             rgb[c] = 0;
@@ -770,6 +775,10 @@ static int get_color(mx_t *x, const mx_node_t *obj, const char *name, int reflec
                              want_one ? "one number" : "one number or three (r, g, b)");
         for (int c = 0; c < 3; c++)
             rgb[c] = nums[c];
+        /* Mitsuba's RGB variants read a uniform radiance <spectrum> as
+         * equal energy: XYZ (v, v, v), in sRGB (1.2048, 0.9483, 0.9089) v */
+        if (strcmp(p->tag, "spectrum") == 0 && !reflectance)
+            mitsuba_xyz_to_srgb(nums[0], nums[0], nums[0], rgb);
         return 1;
     }
     if (strcmp(p->tag, "spectrum") != 0)
@@ -1140,7 +1149,8 @@ static int conv_integrator(conv_t *c, mx_node_t *n, cJSON *render)
     return check_used(c, n);
 }
 
-static int conv_film(conv_t *c, mx_node_t *film, long long *w, long long *h)
+/* *gaussian: the gaussian filter's stddev, or 0 for the box */
+static int conv_film(conv_t *c, mx_node_t *film, long long *w, long long *h, double *gaussian)
 {
     if (!is_type(film, "hdrfilm"))
         return unsupported_type(c, film, "hdrfilm");
@@ -1166,22 +1176,26 @@ static int conv_film(conv_t *c, mx_node_t *film, long long *w, long long *h)
     static const char *const harmless[] = {"component_format",   "file_format",   "banner",
                                            "high_quality_edges", "sample_border", NULL};
     ignore_props(film, harmless);
-    int filter_seen = 0;
+    /* the film's default filter is Mitsuba's gaussian, stddev 0.5 */
+    *gaussian = 0.5;
     for (size_t i = 0; i < film->nkids; i++) {
         mx_node_t *k = film->kids[i];
         if (strcmp(k->tag, "rfilter") != 0)
             continue;
         k->used = 1;
-        filter_seen = 1;
-        if (!is_type(k, "box"))
-            return unsupported_type(c, k, "box");
+        if (is_type(k, "box")) {
+            *gaussian = 0;
+        } else if (is_type(k, "gaussian")) {
+            if (get_float(c->x, k, "stddev", gaussian) < 0)
+                return -1;
+            if (!(*gaussian > 0 && *gaussian <= 4))
+                return NODE_FAIL(c->x, k, "stddev %g is outside (0, 4]", *gaussian);
+        } else {
+            return unsupported_type(c, k, "box, gaussian");
+        }
         if (check_used(c, k) < 0)
             return -1;
     }
-    if (!filter_seen)
-        return NODE_FAIL(c->x, film,
-                         "the film's default reconstruction filter (gaussian) is not "
-                         "supported: add <rfilter type=\"box\"/>");
     return check_used(c, film);
 }
 
@@ -1211,11 +1225,12 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     static const char *const harmless[] = {"focus_distance", NULL};
     ignore_props(n, harmless);
     long long w = 768, h = 576, spp = 0, seed = -1;
+    double gaussian = 0.5;
     for (size_t i = 0; i < n->nkids; i++) {
         mx_node_t *k = n->kids[i];
         if (strcmp(k->tag, "film") == 0) {
             k->used = 1;
-            if (conv_film(c, k, &w, &h) < 0)
+            if (conv_film(c, k, &w, &h, &gaussian) < 0)
                 return -1;
         } else if (strcmp(k->tag, "sampler") == 0) {
             /* its count and seed; the pattern is our own sampler's */
@@ -1233,9 +1248,7 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     for (size_t i = 0; i < n->nkids; i++)
         film_seen |= strcmp(n->kids[i]->tag, "film") == 0;
     if (!film_seen)
-        return NODE_FAIL(c->x, n,
-                         "the sensor needs a <film type=\"hdrfilm\"> (its default "
-                         "filter is not supported)");
+        return NODE_FAIL(c->x, n, "the sensor needs a <film type=\"hdrfilm\">");
     if (check_used(c, n) < 0)
         return -1;
     /* Mitsuba's camera looks down +z with +x to the image's left; ours
@@ -1278,6 +1291,10 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     cJSON_AddNumberToObject(cam, "fov", 2.0 * atan(tan_v) * 180.0 / 3.14159265358979323846);
     cJSON_AddNumberToObject(cam, "width", (double)w);
     cJSON_AddNumberToObject(cam, "height", (double)h);
+    if (gaussian > 0) {
+        cJSON_AddStringToObject(cam, "filter", "gaussian");
+        cJSON_AddNumberToObject(cam, "filter_stddev", gaussian);
+    }
     if (spp > 0)
         cJSON_ReplaceItemInObject(render, "spp", cJSON_CreateNumber((double)spp));
     if (seed >= 0)
@@ -1545,28 +1562,10 @@ static int shape_mesh(conv_t *c, const mx_node_t *n, const char *mat, const mat4
     char path[PATH_MAX];
     if (resolve(c->x, n, c->dir, file, path, sizeof path) < 0)
         return -1;
-    /* our OBJ reader skips vn: a file's own normals (hard edges among
-     * them) would be replaced by smooth ones, so such a file is refused
-     * unless face_normals asks for flat faces anyway */
-    if (!face_normals && strcmp(node_attr(n, "type"), "obj") == 0) {
-        FILE *f = fopen(path, "rb");
-        char line[256];
-        int has_vn = 0;
-        while (f && !has_vn && fgets(line, sizeof line, f))
-            has_vn = strncmp(line, "vn ", 3) == 0 || strncmp(line, "vn\t", 3) == 0;
-        if (f)
-            fclose(f);
-        if (has_vn)
-            return NODE_FAIL(c->x, n,
-                             "the vertex normals (vn) of \"%s\" are not supported (add "
-                             "<boolean name=\"face_normals\" value=\"true\"/> for flat "
-                             "faces)",
-                             file);
-    }
     /* the clip check reads the mesh here; the renderer reads it again */
     mesh_t *mesh = NULL;
     char merr[1024];
-    if (mesh_load(path, &mesh, merr, sizeof merr) < 0)
+    if (mesh_load_flags(path, face_normals ? 0 : MESH_OBJ_NORMALS, &mesh, merr, sizeof merr) < 0)
         return NODE_FAIL(c->x, n, "%s", merr);
     int cut = 0;
     for (size_t t = 0; t < mesh->triangle_count && !cut; t++) {
@@ -1627,7 +1626,7 @@ static int conv_shape(conv_t *c, mx_node_t *n)
             if (emitter)
                 return NODE_FAIL(c->x, k, "the shape has two emitters");
             if (!is_type(o, "area"))
-                return unsupported_type(c, o, "area, on a shape");
+                return unsupported_type(c, o, "area (on a shape)");
             emitter = o;
         } else {
             return NODE_FAIL(c->x, k, "<%s> in a shape is not supported", o->tag);
@@ -1653,6 +1652,27 @@ static int conv_shape(conv_t *c, mx_node_t *n)
                                             : shape_cube(c, n, mat, &m, flip ^ mirror);
     }
     return rc < 0 ? -1 : check_used(c, n);
+}
+
+/* <emitter type="constant">: light from every direction (radiance 1
+ * unless given), our scene's "environment". */
+static int conv_constant(conv_t *c, mx_node_t *n)
+{
+    if (cJSON_GetObjectItemCaseSensitive(c->json, "environment"))
+        return NODE_FAIL(c->x, n, "a second constant emitter");
+    double rad[3] = {1, 1, 1};
+    if (get_color(c->x, n, "radiance", 0, rad) < 0)
+        return -1;
+    for (int k = 0; k < 3; k++)
+        if (!(rad[k] >= 0 && rad[k] <= 1e30))
+            return NODE_FAIL(c->x, n, "radiance %g is outside [0, 1e30]", rad[k]);
+    static const char *const harmless[] = {"sampling_weight", NULL};
+    ignore_props(n, harmless);
+    if (check_used(c, n) < 0)
+        return -1;
+    cJSON *e = cJSON_AddObjectToObject(c->json, "environment");
+    cJSON_AddItemToObject(e, "radiance", vec3_json(rad));
+    return 0;
 }
 
 /* ---- the whole file ------------------------------------------------------------------ */
@@ -1704,8 +1724,12 @@ static int conv_scene(conv_t *c, mx_node_t *scene)
                    node_attr(k, "id")) {
             /* declared for refs; read where a shape takes it. An emitter
              * no shape takes is refused below */
+        } else if (strcmp(k->tag, "emitter") == 0 && is_type(k, "constant")) {
+            k->used = 1;
+            if (conv_constant(c, k) < 0)
+                return -1;
         } else if (strcmp(k->tag, "emitter") == 0) {
-            return unsupported_type(c, k, "area, on a shape");
+            return unsupported_type(c, k, "area on a shape, constant");
         } else {
             const char *type = node_attr(k, "type");
             return NODE_FAIL(x, k, "<%s%s%s%s> is not supported", k->tag, type ? " type=\"" : "",
@@ -1721,7 +1745,7 @@ static int conv_scene(conv_t *c, mx_node_t *scene)
             if (!taken)
                 return is_type(k, "area") ? NODE_FAIL(x, k, "area emitter \"%s\" is on no shape",
                                                       node_attr(k, "id"))
-                                          : unsupported_type(c, k, "area, on a shape");
+                                          : unsupported_type(c, k, "area on a shape, constant");
         }
     }
     if (c->nmats == 0 || cJSON_GetArraySize(c->shapes) == 0)

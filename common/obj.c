@@ -8,6 +8,8 @@
  * spec).
  */
 #include <inttypes.h>
+#include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "mesh_priv.h"
@@ -21,6 +23,13 @@ typedef struct obj_reader {
     size_t faces;
     int64_t max_idx;
     size_t max_line, max_face, max_corner;
+    /* MESH_OBJ_NORMALS: the vn lines, and each triangle corner's vn index
+     * (parallel to the builder's idx; -1 for none) */
+    float *vn;
+    size_t nvn, vncap;
+    int64_t *corner_n;
+    size_t ncorner, cornercap;
+    int any_n;
 } obj_reader;
 
 /* Skips blanks from q up to eol. */
@@ -65,6 +74,59 @@ static int obj_vertex(const mesh_ctx *c, const obj_reader *rd, const char *q, co
     if (mesh_store_vertex(c, b, b->nv, v, 0, rd->line, b->nv + 1) != 0)
         return -1;
     b->nv++;
+    return 0;
+}
+
+/* "vn x y z" with q after the "vn" (MESH_OBJ_NORMALS). */
+static int obj_normal(const mesh_ctx *c, obj_reader *rd, const char *q, const char *eol)
+{
+    double v[3];
+    for (int k = 0; k < 3; k++) {
+        q = obj_skip_blank(q, eol);
+        const char *s = q;
+        q = obj_word_end(q, eol);
+        if (s == q || *s == '#')
+            return mesh_fail_at(c, 0, rd->line, "normal needs 3 coordinates, found %d", k);
+        if (num_parse_double(s, (size_t)(q - s), &v[k]) != 0 || !isfinite(v[k]) ||
+            fabs(v[k]) > 1e30)
+            return mesh_fail_at(c, 0, rd->line, "bad normal coordinate \"%.*s\"",
+                                mesh_quote_len((size_t)(q - s)), s);
+    }
+    if (rd->nvn == rd->vncap) {
+        void *np = mesh_grow(rd->vn, &rd->vncap, rd->nvn + 1, 3 * sizeof(float));
+        if (!np)
+            return mesh_fail(c, "out of memory");
+        rd->vn = np;
+    }
+    for (int k = 0; k < 3; k++)
+        rd->vn[3 * rd->nvn + (size_t)k] = (float)v[k];
+    rd->nvn++;
+    return 0;
+}
+
+/* The vn index of a corner "v/vt/vn" or "v//vn" (n bytes at s), 0-based,
+ * or -1 when it names none. Negative indices count back from the normals
+ * read so far. */
+static int obj_corner_normal(const mesh_ctx *c, const obj_reader *rd, const char *s, size_t n,
+                             int64_t *out)
+{
+    *out = -1;
+    const char *a = memchr(s, '/', n);
+    const char *b = a ? memchr(a + 1, '/', (size_t)(s + n - a - 1)) : NULL;
+    if (!b || b + 1 == s + n)
+        return 0;
+    int64_t x;
+    if (num_parse_int(b + 1, (size_t)(s + n - b - 1), &x) != 0 || x == 0)
+        return mesh_fail_at(c, 0, rd->line, "face %zu: bad normal index in \"%.*s\"", rd->faces,
+                            mesh_quote_len(n), s);
+    if (x < 0)
+        x += (int64_t)rd->nvn;
+    else
+        x -= 1;
+    if (x < 0 || x >= (int64_t)rd->nvn)
+        return mesh_fail_at(c, 0, rd->line, "face %zu: normal index out of range in \"%.*s\"",
+                            rd->faces, mesh_quote_len(n), s);
+    *out = x;
     return 0;
 }
 
@@ -117,7 +179,9 @@ static int obj_face(const mesh_ctx *c, obj_reader *rd, const char *q, const char
                     mesh_builder *b)
 {
     uint32_t first = 0, prev = 0;
+    int64_t first_n = -1, prev_n = -1;
     size_t corner = 0;
+    int normals = (c->flags & MESH_OBJ_NORMALS) != 0;
     rd->faces++;
     for (;; corner++) {
         q = obj_skip_blank(q, eol);
@@ -126,16 +190,33 @@ static int obj_face(const mesh_ctx *c, obj_reader *rd, const char *q, const char
         const char *s = q;
         q = obj_word_end(q, eol);
         uint32_t u = 0;
-        if (obj_corner(c, rd, b, s, (size_t)(q - s), corner, &u) != 0)
+        int64_t un = -1;
+        if (obj_corner(c, rd, b, s, (size_t)(q - s), corner, &u) != 0 ||
+            (normals && obj_corner_normal(c, rd, s, (size_t)(q - s), &un) != 0))
             return -1;
         if (corner == 0) {
             first = u;
+            first_n = un;
         } else if (corner >= 2) {
             if (mesh_reserve_tris(b, 1) != 0)
                 return mesh_fail(c, "out of memory");
             mesh_emit_tri(b, first, prev, u);
+            if (normals) {
+                if (rd->ncorner + 3 > rd->cornercap) {
+                    void *np =
+                        mesh_grow(rd->corner_n, &rd->cornercap, rd->ncorner + 3, sizeof(int64_t));
+                    if (!np)
+                        return mesh_fail(c, "out of memory");
+                    rd->corner_n = np;
+                }
+                rd->corner_n[rd->ncorner++] = first_n;
+                rd->corner_n[rd->ncorner++] = prev_n;
+                rd->corner_n[rd->ncorner++] = un;
+                rd->any_n |= first_n >= 0 || prev_n >= 0 || un >= 0;
+            }
         }
         prev = u;
+        prev_n = un;
     }
     if (corner < 3)
         return mesh_fail_at(c, 0, rd->line, "face %zu has %zu vertices (need at least 3)",
@@ -143,30 +224,102 @@ static int obj_face(const mesh_ctx *c, obj_reader *rd, const char *q, const char
     return 0;
 }
 
-int obj_load(const mesh_ctx *c, const unsigned char *data, size_t size, mesh_builder *b)
+/* MESH_OBJ_NORMALS, once every face is read: one vertex per (position,
+ * normal) pair the corners use, each with its normal (a corner without one
+ * gets a zero normal, which mesh.c repairs from its faces). */
+static int obj_split_by_normal(const mesh_ctx *c, obj_reader *rd, mesh_builder *b)
 {
-    const char *p = (const char *)data, *end = p + size;
-    obj_reader rd;
-    memset(&rd, 0, sizeof rd);
+    size_t n = rd->ncorner, cap = 16;
+    while (cap < 2 * n)
+        cap *= 2;
+    uint64_t *key = malloc(cap * sizeof(uint64_t));
+    uint32_t *slot_vertex = malloc(cap * sizeof(uint32_t));
+    float *pos = malloc((n + 1) * 3 * sizeof(float)), *nrm = malloc((n + 1) * 3 * sizeof(float));
+    if (!key || !slot_vertex || !pos || !nrm) {
+        free(key);
+        free(slot_vertex);
+        free(pos);
+        free(nrm);
+        return mesh_fail(c, "out of memory");
+    }
+    memset(key, 0xff, cap * sizeof(uint64_t)); /* all ones: empty */
+    size_t nv = 0;
+    for (size_t i = 0; i < n; i++) {
+        uint64_t k = ((uint64_t)b->idx[i] << 32) | (uint32_t)(rd->corner_n[i] + 1);
+        size_t h = (size_t)((k * 0x9e3779b97f4a7c15ULL) >> 20) & (cap - 1);
+        while (key[h] != UINT64_MAX && key[h] != k)
+            h = (h + 1) & (cap - 1);
+        if (key[h] == UINT64_MAX) {
+            key[h] = k;
+            slot_vertex[h] = (uint32_t)nv;
+            memcpy(pos + 3 * nv, b->pos + 3 * (size_t)b->idx[i], 3 * sizeof(float));
+            if (rd->corner_n[i] >= 0) {
+                memcpy(nrm + 3 * nv, rd->vn + 3 * (size_t)rd->corner_n[i], 3 * sizeof(float));
+                double l = sqrt((double)nrm[3 * nv] * nrm[3 * nv] +
+                                (double)nrm[3 * nv + 1] * nrm[3 * nv + 1] +
+                                (double)nrm[3 * nv + 2] * nrm[3 * nv + 2]);
+                for (int k2 = 0; k2 < 3; k2++)
+                    nrm[3 * nv + (size_t)k2] = l > 0 ? (float)(nrm[3 * nv + (size_t)k2] / l) : 0;
+            } else {
+                nrm[3 * nv] = nrm[3 * nv + 1] = nrm[3 * nv + 2] = 0;
+            }
+            if (nrm[3 * nv] == 0 && nrm[3 * nv + 1] == 0 && nrm[3 * nv + 2] == 0)
+                b->zero_normals++;
+            nv++;
+        }
+        b->idx[i] = slot_vertex[h];
+    }
+    free(key);
+    free(slot_vertex);
+    free(b->pos);
+    free(b->nrm);
+    b->pos = pos;
+    b->nrm = nrm;
+    b->nv = b->vcap = nv;
+    return 0;
+}
+
+/* Every line of the file, into rd and b. */
+static int obj_read_lines(const mesh_ctx *c, obj_reader *rd, const char *p, const char *end,
+                          mesh_builder *b)
+{
 
     while (p < end) {
-        rd.line++;
+        rd->line++;
         const char *eol = memchr(p, '\n', (size_t)(end - p));
         if (!eol)
             eol = end;
         const char *q = obj_skip_blank(p, eol);
         p = eol < end ? eol + 1 : end;
+        if ((c->flags & MESH_OBJ_NORMALS) && eol - q > 2 && q[0] == 'v' && q[1] == 'n' &&
+            num_is_blank((unsigned char)q[2])) {
+            if (obj_normal(c, rd, q + 2, eol) != 0)
+                return -1;
+            continue;
+        }
         if (q == eol || (q[0] != 'v' && q[0] != 'f') ||
             (eol - q > 1 && !num_is_blank((unsigned char)q[1])))
             continue; /* vn, vt, o, g, s, usemtl, mtllib, #, l, p, blank... */
-        int r = q[0] == 'v' ? obj_vertex(c, &rd, q + 1, eol, b) : obj_face(c, &rd, q + 1, eol, b);
+        int r = q[0] == 'v' ? obj_vertex(c, rd, q + 1, eol, b) : obj_face(c, rd, q + 1, eol, b);
         if (r != 0)
             return -1;
     }
-    if ((uint64_t)rd.max_idx > b->nv)
-        return mesh_fail_at(c, 0, rd.max_line,
+    if ((uint64_t)rd->max_idx > b->nv)
+        return mesh_fail_at(c, 0, rd->max_line,
                             "face %zu, index %zu: vertex %" PRId64
                             " is out of range (the file has %zu vertices)",
-                            rd.max_face, rd.max_corner, rd.max_idx, b->nv);
+                            rd->max_face, rd->max_corner, rd->max_idx, b->nv);
     return 0;
+}
+
+int obj_load(const mesh_ctx *c, const unsigned char *data, size_t size, mesh_builder *b)
+{
+    obj_reader rd;
+    memset(&rd, 0, sizeof rd);
+    int r = obj_read_lines(c, &rd, (const char *)data, (const char *)data + size, b);
+    if (r == 0 && rd.any_n)
+        r = obj_split_by_normal(c, &rd, b);
+    free(rd.vn);
+    free(rd.corner_n);
+    return r;
 }

@@ -165,7 +165,8 @@ static int parse_camera(loader_t *L, const cJSON *root)
         return fail(L, "camera", "missing");
     if (!cJSON_IsObject(cam))
         return fail(L, "camera", "expected an object");
-    static const char *const keys[] = {"position", "look_at", "up", "fov", "width", "height", NULL};
+    static const char *const keys[] = {"position", "look_at",       "up", "fov", "width", "height",
+                                       "filter",   "filter_stddev", NULL};
     check_keys(L, cam, "camera", keys);
     double pos[3], at[3], up[3] = {0, 1, 0}, fov = 0, w = 0, h = 0;
     if (get_vec3(L, cam, "position", "camera", 1, pos) < 0 ||
@@ -182,6 +183,20 @@ static int parse_camera(loader_t *L, const cJSON *root)
     if (camera_init(&L->s->camera, to_vec3(pos), to_vec3(at), to_vec3(up), fov, (int)w, (int)h, msg,
                     sizeof msg) < 0)
         return fail(L, "camera", "%s", msg);
+    /* "filter": "box" (default) or "gaussian" ("filter_stddev" pixels, 0.5) */
+    const cJSON *filter = cJSON_GetObjectItemCaseSensitive(cam, "filter");
+    double stddev = 0.5;
+    if (get_number(L, cam, "filter_stddev", "camera", 0, -INFINITY, INFINITY, &stddev) < 0)
+        return -1;
+    if (filter) {
+        const char *f = cJSON_IsString(filter) ? filter->valuestring : "";
+        if (strcmp(f, "gaussian") == 0) {
+            if (camera_set_gaussian(&L->s->camera, stddev, msg, sizeof msg) < 0)
+                return fail(L, "camera.filter_stddev", "%s", msg);
+        } else if (strcmp(f, "box") != 0) {
+            return fail(L, "camera.filter", "expected \"box\" or \"gaussian\"");
+        }
+    }
     return 0;
 }
 
@@ -215,6 +230,51 @@ static int parse_render(loader_t *L, const cJSON *root)
         s->integrator = (scene_integrator_t)v;
     }
     return 0;
+}
+
+/* "environment": {"radiance": [r, g, b]}: light from every direction no
+ * triangle blocks (finish sets up its sampling). */
+static int parse_environment(loader_t *L, const cJSON *root)
+{
+    const cJSON *e = cJSON_GetObjectItemCaseSensitive(root, "environment");
+    if (!e)
+        return 0;
+    if (!cJSON_IsObject(e))
+        return fail(L, "environment", "expected an object");
+    static const char *const keys[] = {"radiance", NULL};
+    check_keys(L, e, "environment", keys);
+    double rad[3];
+    if (get_vec3(L, e, "radiance", "environment", 1, rad) < 0)
+        return -1;
+    for (int k = 0; k < 3; k++)
+        if (!(rad[k] >= 0 && rad[k] <= 1e30))
+            return fail(L, "environment.radiance", "each must be between 0 and 1e30");
+    L->s->env_radiance = to_vec3(rad);
+    L->s->has_env = vmath_luminance(rad[0], rad[1], rad[2]) > 0;
+    return 0;
+}
+
+/* The environment's share of the light samples: half beside triangle
+ * lights (Mitsuba picks its emitters uniformly too), all without; and the
+ * length of a shadow segment that leaves the scene's bounds from inside. */
+static void finish_environment(scene_t *s)
+{
+    if (!s->has_env)
+        return;
+    s->env_pick = s->light_count > 0 ? 0.5f : 1.0f;
+    for (size_t i = 0; i < s->light_count; i++)
+        s->tri_light_pdf[s->light_tris[i]] *= 1.0f - s->env_pick; /* 1/2: exact */
+    s->env_pdf = (float)(s->env_pick / (4.0 * 3.14159265358979323846));
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t v = 0; v < s->vertex_count; v++)
+        for (int k = 0; k < 3; k++) {
+            lo[k] = fmin(lo[k], s->positions[3 * v + k]);
+            hi[k] = fmax(hi[k], s->positions[3 * v + k]);
+        }
+    double d2 = 0;
+    for (int k = 0; k < 3; k++)
+        d2 += (hi[k] - lo[k]) * (hi[k] - lo[k]);
+    s->env_distance = (float)(2.0 * sqrt(d2) + 1.0);
 }
 
 /* ---- materials ---------------------------------------------------------- */
@@ -648,9 +708,10 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
     check_keys(L, sh, path, keys);
     const cJSON *f = cJSON_GetObjectItemCaseSensitive(sh, "file");
     char p[PATH_LEN];
-    /* "normals": "file" (the file's vertex normals, else flat), "face"
-     * (flat) or "file_or_smooth" (else angle-weighted vertex normals, as
-     * Mitsuba gives a mesh without them); "flip_normals" turns every face */
+    /* "normals": "file" (the file's vertex normals: PLY's, not OBJ's vn;
+     * else flat), "face" (flat) or "file_or_smooth" (PLY's or OBJ's, else
+     * angle-weighted vertex normals, as Mitsuba reads a mesh);
+     * "flip_normals" turns every face */
     const cJSON *nj = cJSON_GetObjectItemCaseSensitive(sh, "normals");
     const cJSON *fj = cJSON_GetObjectItemCaseSensitive(sh, "flip_normals");
     enum { NORMALS_FILE, NORMALS_FACE, NORMALS_SMOOTH } normals = NORMALS_FILE;
@@ -671,6 +732,8 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
     xform_t xf = *x;
     xf.flips ^= cJSON_IsTrue(fj);
     x = &xf;
+    /* "file" keeps what our scenes always had: OBJ vn unread */
+    unsigned mesh_flags = normals == NORMALS_SMOOTH ? MESH_OBJ_NORMALS : 0;
     snprintf(p, sizeof p, "%s.file", path);
     if (!cJSON_IsString(f) || !*f->valuestring)
         return fail(L, p, "missing (expected a mesh path relative to the scene file)");
@@ -683,7 +746,8 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
                 b = &L->blobs[i];
         if (!b)
             return fail(L, p, "mesh \"%s\" is not in the scene bundle", f->valuestring);
-        if (mesh_load_buffer(b->name, b->data, b->size, &m, merr, sizeof merr) < 0)
+        if (mesh_load_buffer_flags(b->name, b->data, b->size, mesh_flags, &m, merr, sizeof merr) <
+            0)
             return fail(L, p, "%s", merr);
     } else {
         char full[4096];
@@ -691,7 +755,7 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
             snprintf(full, sizeof full, "%s", f->valuestring);
         else
             snprintf(full, sizeof full, "%s/%s", L->base_dir, f->valuestring);
-        if (mesh_load(full, &m, merr, sizeof merr) < 0)
+        if (mesh_load_flags(full, mesh_flags, &m, merr, sizeof merr) < 0)
             return fail(L, p, "%s", merr);
     }
     if (normals == NORMALS_FACE) {
@@ -944,7 +1008,7 @@ static int finish(loader_t *L)
     } else if (ls.lights == 0 || !(ls.total > 0) || !isfinite(ls.total)) {
         if (ls.lights && !isfinite(ls.total))
             rc = fail(L, "materials", "total light power overflows");
-        else
+        else if (!s->has_env)
             warn(s,
                  "%s: the scene has no light (no emitter with radiance > 0): the image will be "
                  "black",
@@ -953,6 +1017,8 @@ static int finish(loader_t *L)
         rc = build_light_cdf(L, &ls);
     }
     free(ls.power);
+    if (rc == 0)
+        finish_environment(s);
     return rc;
 }
 
@@ -997,9 +1063,12 @@ static int load(const char *json, size_t len, const char *name, const char *base
     } else if (!cJSON_IsObject(root)) {
         rc = fail(&L, NULL, "expected a JSON object at the top level");
     } else {
-        static const char *const keys[] = {"camera", "render", "materials", "shapes", NULL};
+        static const char *const keys[] = {"camera", "render",      "materials",
+                                           "shapes", "environment", NULL};
         check_keys(&L, root, "", keys);
         rc = parse_camera(&L, root);
+        if (rc == 0)
+            rc = parse_environment(&L, root);
         if (rc == 0)
             rc = parse_render(&L, root);
         if (rc == 0)

@@ -54,6 +54,16 @@ typedef struct scene {
     double *light_cdf; /* light_count entries, last is 1 */
     size_t light_count;
 
+    /* The environment: radiance arriving from every direction where no
+     * triangle blocks it (Mitsuba's constant emitter). A light sample takes
+     * it with probability env_pick, else a triangle (whose tri_light_pdf
+     * then holds the 1 - env_pick). */
+    int has_env;
+    vec3_t env_radiance;
+    float env_pick;
+    float env_pdf;      /* its solid-angle density: env_pick / (4 pi) */
+    float env_distance; /* a shadow segment this long leaves the scene */
+
     size_t dropped_degenerate; /* zero-area triangles left out */
     int warning_count;
     char warnings[SCENE_MAX_WARNINGS][SCENE_WARNING_LEN];

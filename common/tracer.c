@@ -243,6 +243,15 @@ static void sample_direct(const tracer_t *tr, path_t *path, const material_t *m,
     const scene_t *s = tr->scene;
     double ul = rng_next_double(&path->rng);
     float u2 = rng_next_float(&path->rng);
+    if (lights_pick_env(s, &ul)) {
+        vec3_t from, seg, gain;
+        if (!tracer_env_direct(s, m, path->beta, p, mh, ul, u2, &from, &seg, &gain))
+            return;
+        path->rays++;
+        if (tracer_unoccluded(tr, from, seg))
+            path->L = vec3_add(path->L, gain);
+        return;
+    }
     vec3_t q;
     uint32_t lt = lights_sample(s, ul, u2, &q);
     vec3_t to = vec3_sub(q, p);
@@ -294,14 +303,17 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
                              uint64_t sample_index, vec3_t *out)
 {
     const scene_t *s = tr->scene;
-    const int nee = st->integrator == SCENE_INTEGRATOR_PATH && s->light_count > 0;
+    const int nee = st->integrator == SCENE_INTEGRATOR_PATH && (s->light_count > 0 || s->has_env);
     path_t path;
     path_start(&path, &s->camera, st, pixel, sample_index);
     for (uint32_t depth = 0;; depth++) {
         tracer_hit_t h;
         path.rays++;
-        if (!tracer_intersect(tr, path.o, path.d, &h))
+        if (!tracer_intersect(tr, path.o, path.d, &h)) {
+            if (s->has_env)
+                path.L = tracer_env_miss(s, path.L, path.beta, path.specular, path.prev_pdf, nee);
             break;
+        }
         const material_t *m = &s->materials[s->tri_material[h.tri]];
         tracer_inset_from_edges(&h);
         vec3_t p = scene_point(s, h.tri, h.u, h.v);
@@ -436,7 +448,7 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_ta
         .tracer = t,
         .scene = s,
         .settings = st,
-        .nee = st->integrator == SCENE_INTEGRATOR_PATH && s->light_count > 0,
+        .nee = st->integrator == SCENE_INTEGRATOR_PATH && (s->light_count > 0 || s->has_env),
     };
     uint64_t rays = 0, samples = 0;
     /* runs of whole tasks of at most WAVE_MAX_SAMPLES samples */

@@ -153,6 +153,40 @@ static inline material_hit_t tracer_orient_normals(const scene_t *s, const trace
     return mh;
 }
 
+/* Next-event estimation toward the environment, once lights_pick_env took
+ * it: the direction from (u1, u2), its shadow segment from p and what the
+ * path gains when that segment is free, MIS-weighted against the BSDF.
+ * 0 when the BSDF gives that direction nothing. Both engines call it, so
+ * the bits are the same. */
+static inline int tracer_env_direct(const scene_t *s, const material_t *m, vec3_t beta, vec3_t p,
+                                    const material_hit_t *mh, double u1, float u2, vec3_t *from,
+                                    vec3_t *seg, vec3_t *gain)
+{
+    vec3_t wl = lights_env_direction(u1, u2);
+    float cos_s, bsdf_pdf;
+    if (!material_eval(m, mh, wl, &cos_s, &bsdf_pdf))
+        return 0;
+    *from = vec3_offset_ray_origin(p, mh->ngf);
+    *seg = vec3_scale(wl, s->env_distance);
+    float light_pdf = s->env_pdf;
+    float w = tracer_power_heuristic(light_pdf, bsdf_pdf);
+    float k = w * cos_s * VMATH_INV_PI / light_pdf;
+    *gain = vec3_mul(vec3_mul(beta, m->albedo), vec3_scale(s->env_radiance, k));
+    return 1;
+}
+
+/* L after a ray that left the scene: plus the environment's radiance,
+ * weighted against next-event estimation unless the last bounce was
+ * specular (or there is none). */
+static inline vec3_t tracer_env_miss(const scene_t *s, vec3_t L, vec3_t beta, int specular,
+                                     float prev_pdf, int nee)
+{
+    float w = 1.0f;
+    if (nee && !specular)
+        w = tracer_power_heuristic(prev_pdf, s->env_pdf);
+    return vec3_add(L, vec3_mul(beta, vec3_scale(s->env_radiance, w)));
+}
+
 /* Where bounce `depth`'s numbers start under the sobol sampler: after the
  * camera's pair, six per bounce: [0] roulette, [1] unused (it was the light
  * pick, which now shares the light point's pair), [2, 3] the light and the

@@ -368,6 +368,51 @@ START_TEST(same_mesh_obj)
 }
 END_TEST
 
+/* MESH_OBJ_NORMALS: vn read; a position used with two normals becomes two
+ * vertices (a hard edge), one used with one normal stays one; a corner
+ * without a normal gets its face's; bad normal indices are refused. */
+START_TEST(obj_vertex_normals)
+{
+    static const char text[] = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\n"
+                               "vn 0 0 2\nvn 0 -1 0\n"
+                               "f 1//1 2//1 3//1\n"    /* +z */
+                               "f 1/1/-2 3//-2 4//1\n" /* +z, relative */
+                               "f 1//2 2//2 5\n";      /* -y; vertex 5 without */
+    char path[PATHLEN], err[ERRLEN];
+    tu_write_tmp(path, sizeof path, "vn.obj", text);
+    mesh_t *m = NULL;
+    ck_assert_msg(mesh_load_flags(path, MESH_OBJ_NORMALS, &m, err, sizeof err) == 0, "%s", err);
+    /* (1,+z) (2,+z) (3,+z) (4,+z) (1,-y) (2,-y) (5,none) */
+    ck_assert_uint_eq(m->vertex_count, 7);
+    ck_assert_uint_eq(m->triangle_count, 3);
+    ck_assert_ptr_nonnull(m->normals);
+    for (int t = 0; t < 3; t++)
+        for (int k = 0; k < 3; k++) {
+            const float *n = m->normals + 3 * m->indices[3 * t + k];
+            float want_y = t == 2 ? -1.0f : 0.0f, want_z = t == 2 ? 0.0f : 1.0f;
+            ck_assert_msg(fabsf(n[0]) < 1e-6f && fabsf(n[1] - want_y) < 1e-6f &&
+                              fabsf(n[2] - want_z) < 1e-6f,
+                          "triangle %d corner %d: normal (%g %g %g)", t, k, n[0], n[1], n[2]);
+        }
+    /* the first triangle's corners keep their positions */
+    check_pos(m, m->indices[1], 1.0f, 0.0f, 0.0f);
+    mesh_destroy(&m);
+    /* without the flag: as always, vn unread */
+    m = load_ok(path);
+    ck_assert_uint_eq(m->vertex_count, 5);
+    ck_assert_ptr_null(m->normals);
+    mesh_destroy(&m);
+    tu_write_tmp(path, sizeof path, "vn-bad.obj",
+                 "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\n"
+                 "f 1//1 2//1 3//4\n");
+    ck_assert_int_eq(mesh_load_flags(path, MESH_OBJ_NORMALS, &m, err, sizeof err), -1);
+    ck_assert_msg(strstr(err, "line 5") && strstr(err, "normal index out of range"), "%s", err);
+    tu_write_tmp(path, sizeof path, "vn-short.obj", "v 0 0 0\nvn 0 0\n");
+    ck_assert_int_eq(mesh_load_flags(path, MESH_OBJ_NORMALS, &m, err, sizeof err), -1);
+    ck_assert_msg(strstr(err, "line 2") && strstr(err, "normal needs 3"), "%s", err);
+}
+END_TEST
+
 START_TEST(obj_forward_reference)
 {
     /* Positive indices are checked against the final count. */
@@ -867,6 +912,7 @@ static Suite *mesh_suite(void)
     tcase_add_test(tc, same_mesh_binary_le);
     tcase_add_test(tc, same_mesh_binary_be);
     tcase_add_test(tc, same_mesh_obj);
+    tcase_add_test(tc, obj_vertex_normals);
     tcase_add_test(tc, obj_forward_reference);
     tcase_add_test(tc, ascii_numbers_exact);
     tcase_add_test(tc, fan_quad_and_pentagon);

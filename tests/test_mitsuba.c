@@ -10,6 +10,7 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "camera.h"
 #include "film.h"
 #include "image.h"
 #include "mitsuba.h"
@@ -270,11 +271,13 @@ static const refusal_t refusals[] = {
     {"<sensor type=\"perspective\">\n<float name=\"fov\" value=\"abc\"/></sensor>", 4,
      "\"abc\" is not a number", 1},
     {"<sensor type=\"perspective\"><float name=\"fov\" value=\"40\"/>\n"
-     "<film type=\"hdrfilm\"><rfilter type=\"gaussian\"/></film></sensor>",
-     4, "rfilter type \"gaussian\" is not supported (supported: box)", 1},
-    {"<sensor type=\"perspective\"><float name=\"fov\" value=\"40\"/>\n"
-     "<film type=\"hdrfilm\"/></sensor>",
-     4, "default reconstruction filter (gaussian) is not supported", 1},
+     "<film type=\"hdrfilm\"><rfilter type=\"tent\"/></film></sensor>",
+     4, "rfilter type \"tent\" is not supported (supported: box, gaussian)", 1},
+    {"<sensor type=\"perspective\"><float name=\"fov\" value=\"40\"/>\n<film type=\"hdrfilm\">"
+     "<rfilter type=\"gaussian\"><float name=\"stddev\" value=\"9\"/></rfilter></film></sensor>",
+     4, "stddev 9 is outside (0, 4]", 1},
+    {"<emitter type=\"constant\"/>\n<emitter type=\"constant\"/><shape type=\"cube\"/>", 4,
+     "a second constant emitter", 0},
     {"<shape type=\"cube\"/>", 1, "the scene has no <sensor>", 1},
     {"<texture type=\"checkerboard\"/>", 3, "<texture type=\"checkerboard\"> is not supported", 0},
 };
@@ -323,6 +326,121 @@ START_TEST(refused_versions)
     write_file(dir, "old.xml", "<scene version=\"3.0.0\">\n</scene>\n");
     ck_assert(mitsuba_scene_json(path, bad, 1, err, sizeof err) == NULL);
     ck_assert_msg(strstr(err, "expected name=value") != NULL, "%s", err);
+}
+END_TEST
+
+/* ---- the gaussian filter and the environment ---------------------------------------- */
+
+static double gauss_mass(double a, double b, double sd)
+{
+    /* the filter's integral over [a, b], by Simpson's rule on 2,000 steps */
+    double r = 4 * sd, bias = exp(-r * r / (2 * sd * sd)), sum = 0, h = (b - a) / 2000;
+    for (int i = 0; i <= 2000; i++) {
+        double x = a + i * h, f = exp(-x * x / (2 * sd * sd)) - bias;
+        sum += (i == 0 || i == 2000 ? 1 : i % 2 ? 4 : 2) * f;
+    }
+    return sum * h / 3;
+}
+
+/* Filter importance sampling: the positions the gaussian filter gives
+ * evenly spaced numbers fall in each of 16 bins across [-2, 2] pixels (4
+ * stddev) as the filter's own mass there (within 0.5 % of the total);
+ * the box filter keeps the number as it is. */
+START_TEST(gaussian_filter_samples)
+{
+    camera_t cam;
+    char err[256];
+    ck_assert(camera_init(&cam, vec3_make(0, 0, 0), vec3_make(0, 0, 1), vec3_make(0, 1, 0), 40, 8,
+                          8, err, sizeof err) == 0);
+    for (int i = 0; i < 100; i++)
+        ck_assert(camera_filter_pos(&cam, i / 100.0f) == i / 100.0f);
+    ck_assert(camera_set_gaussian(&cam, 0.5, err, sizeof err) == 0);
+    ck_assert(camera_set_gaussian(&cam, 0, err, sizeof err) == -1);
+    enum { N = 200000, BINS = 16 };
+    int count[BINS] = {0};
+    for (int i = 0; i < N; i++) {
+        float x = camera_filter_pos(&cam, (i + 0.5f) / N) - 0.5f;
+        ck_assert_msg(x >= -2.0f && x <= 2.0f, "offset %g outside the radius", x);
+        int b = (int)((x + 2.0f) / 4.0f * BINS);
+        count[b < BINS ? b : BINS - 1]++;
+    }
+    double total = gauss_mass(-2, 2, 0.5);
+    for (int b = 0; b < BINS; b++) {
+        double want = gauss_mass(-2 + 4.0 * b / BINS, -2 + 4.0 * (b + 1) / BINS, 0.5) / total;
+        ck_assert_msg(fabs((double)count[b] / N - want) < 0.005,
+                      "bin %d: %g of the samples, %g "
+                      "of the filter",
+                      b, (double)count[b] / N, want);
+    }
+}
+END_TEST
+
+static film_t *render_xml(const char *rel, const char *const *defs, size_t ndefs, uint32_t spp,
+                          scene_t **scene_out)
+{
+    char path[1024], err[VB_ERR_LEN];
+    tu_root_path(path, sizeof path, rel);
+    cJSON *j = mitsuba_scene_json(path, defs, ndefs, err, sizeof err);
+    ck_assert_msg(j != NULL, "%s", err);
+    char *text = cJSON_PrintUnformatted(j);
+    cJSON_Delete(j);
+    scene_t *s = NULL;
+    ck_assert_msg(scene_load_string(text, strlen(text), rel, ".", &s, err, sizeof err) == 0, "%s",
+                  err);
+    cJSON_free(text);
+    tracer_device_t *dev = NULL;
+    tracer_t *t = NULL;
+    ck_assert_msg(tracer_device_new(&dev, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(tracer_new(dev, s, &t, err, sizeof err) == 0, "%s", err);
+    film_t *f = film_new(s->camera.width, s->camera.height);
+    render_settings_t rs;
+    memset(&rs, 0, sizeof rs);
+    rs.tracer.seed = 3;
+    rs.tracer.integrator = SCENE_INTEGRATOR_PATH;
+    rs.tracer.sampler = RNG_SAMPLER_SOBOL;
+    rs.tracer.max_depth = s->max_depth;
+    rs.spp = spp;
+    rs.granularity = 32;
+    rs.threads = 2;
+    rs.progress = PROGRESS_NONE;
+    render_summary_t sum;
+    ck_assert_msg(render_run(t, f, &rs, &sum, err, sizeof err) == 0, "%s", err);
+    ck_assert_uint_eq(film_total_nonfinite(f), 0);
+    tracer_destroy(&t);
+    tracer_device_destroy(&dev);
+    *scene_out = s;
+    return f;
+}
+
+/* A diffuse plane under a constant environment (next-event estimation
+ * toward it, MIS against the bounce, and the rays that leave the scene):
+ * every pixel exactly reflectance x radiance, whatever the filter. */
+START_TEST(constant_environment)
+{
+    scene_t *s = NULL;
+    film_t *f = render_xml("scenes/mitsuba/furnace-plane.xml", NULL, 0, 256, &s);
+    ck_assert(s->has_env && s->env_pick == 1.0f && s->camera.filter == CAMERA_FILTER_GAUSSIAN);
+    /* the OBJ's vn read: its triangles are smooth, their normal +z */
+    const double want[3] = {0.5, 1.2, 0.35};
+    double mean[3] = {0, 0, 0};
+    for (uint32_t p = 0; p < 16 * 16; p++) {
+        double rgb[3];
+        film_mean(f, p, rgb);
+        for (int c = 0; c < 3; c++) {
+            mean[c] += rgb[c] / 256;
+            ck_assert_msg(fabs(rgb[c] / want[c] - 1) < 0.03, "pixel %u channel %d: %g, want %g", p,
+                          c, rgb[c], want[c]);
+        }
+    }
+    for (int c = 0; c < 3; c++)
+        ck_assert_msg(fabs(mean[c] / want[c] - 1) < 0.003, "mean channel %d: %g, want %g", c,
+                      mean[c], want[c]);
+    int smooth = 0;
+    for (size_t t = 0; t < s->triangle_count; t++)
+        smooth += s->tri_smooth[t];
+    ck_assert_int_eq(smooth, 2);
+    film_destroy(&f);
+    scene_destroy(&s);
 }
 END_TEST
 
@@ -411,8 +529,10 @@ static Suite *mitsuba_suite(void)
     tcase_add_loop_test(tc, refused_with_file_and_line, 0,
                         (int)(sizeof refusals / sizeof refusals[0]));
     tcase_add_test(tc, refused_versions);
+    tcase_add_test(tc, gaussian_filter_samples);
     suite_add_tcase(su, tc);
     tc = tcase_create("image");
+    tcase_add_test(tc, constant_environment);
     tcase_set_timeout(tc, 120);
     tcase_add_test(tc, matches_mitsuba);
     suite_add_tcase(su, tc);
