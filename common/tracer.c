@@ -449,6 +449,7 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_ta
         .scene = s,
         .settings = st,
         .nee = st->integrator == SCENE_INTEGRATOR_PATH && (s->light_count > 0 || s->has_env),
+        .env = s->has_env,
     };
     uint64_t rays = 0, samples = 0;
     /* runs of whole tasks of at most WAVE_MAX_SAMPLES samples */

@@ -109,14 +109,15 @@ void wave_trace(const wave_ctx_t *c, wave_state_t *w, const tracer_task_t *tasks
             tracer_hit_t h;
             material_type_t type;
             w->rays[s]++;
-            int hit = tracer_intersect(c->tracer, w->o[s], w->d[s], &h);
-            if (hit && hit_stage(c, w, s, &h, &type)) {
-                queue[type][queued[type]++] = s;
-                continue;
-            }
-            if (!hit && c->scene->has_env)
+            if (tracer_intersect(c->tracer, w->o[s], w->d[s], &h)) {
+                if (hit_stage(c, w, s, &h, &type)) {
+                    queue[type][queued[type]++] = s;
+                    continue;
+                }
+            } else if (c->env) {
                 w->L[s] = tracer_env_miss(c->scene, w->L[s], w->beta[s], w->specular[s],
                                           w->prev_pdf[s], c->nee);
+            }
             L[w->sample[s]] = w->L[s];
             rays[w->sample[s]] = w->rays[s];
             free_slots[nfree++] = s;

@@ -46,6 +46,7 @@ typedef struct wave_ctx {
     const scene_t *scene;
     const tracer_settings_t *settings;
     int nee; /* next-event estimation: the path integrator, with lights */
+    int env; /* the scene has an environment (scene_t.has_env) */
 } wave_ctx_t;
 
 /* The paths in flight, one entry per slot. */

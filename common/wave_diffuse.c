@@ -82,9 +82,11 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
                 nl = a, rad = a;
         wave_vf u = zero, v = zero, cos_o = zero, area_pdf = one, u1 = zero, u2 = zero;
         wave_vi smooth = {0};
-        int env[WAVE_LANES] = {0};
-        double env_u1[WAVE_LANES] = {0};
-        float env_u2[WAVE_LANES] = {0};
+        /* lanes whose light sample took the environment (lights_pick_env),
+         * and its numbers */
+        unsigned env = 0;
+        double env_u1[WAVE_LANES];
+        float env_u2[WAVE_LANES];
         /* lane by lane: what each path looks up */
         for (int j = 0; j < WAVE_LANES; j++) {
             uint16_t s = slots[j0 + (j < lanes ? (size_t)j : 0)];
@@ -114,23 +116,22 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
             if (c->nee) {
                 double ul = rng_next_double(rng);
                 float lu2 = rng_next_float(rng);
-                if (lights_pick_env(sc, &ul)) {
+                if (c->env && lights_pick_env(sc, &ul)) {
                     /* the environment: this lane's NEE is done path by
                      * path below (tracer_env_direct), its vector lane
                      * left at cos_l 0, which casts no shadow ray */
-                    env[j] = 1;
+                    env |= 1u << j;
                     env_u1[j] = ul;
                     env_u2[j] = lu2;
-                    goto bsdf_numbers;
+                } else {
+                    vec3_t qp;
+                    uint32_t lt = lights_sample(sc, ul, lu2, &qp);
+                    LOAD3(q, j, qp);
+                    LOAD3(nl, j, sc->tri_normal[lt]);
+                    LOAD3(rad, j, sc->materials[sc->tri_material[lt]].radiance);
+                    area_pdf[j] = lights_area_pdf(sc, lt);
                 }
-                vec3_t qp;
-                uint32_t lt = lights_sample(sc, ul, lu2, &qp);
-                LOAD3(q, j, qp);
-                LOAD3(nl, j, sc->tri_normal[lt]);
-                LOAD3(rad, j, sc->materials[sc->tri_material[lt]].radiance);
-                area_pdf[j] = lights_area_pdf(sc, lt);
             }
-        bsdf_numbers:
             rng_seek(rng, dim + 4);
             u1[j] = rng_next_float(rng);
             u2[j] = rng_next_float(rng);
@@ -196,15 +197,6 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
                 w->shadow_o[s] = LANE3(from, j);
                 w->shadow_d[s] = LANE3(sd, j);
                 w->shadow_L[s] = LANE3(shadow_L, j);
-            } else if (env[j]) {
-                const material_t *m = &sc->materials[sc->tri_material[w->tri[s]]];
-                material_hit_t mh = {.wo = vec3_neg(w->d[s]),
-                                     .ngf = LANE3(ngf, j),
-                                     .ns = LANE3(ns, j),
-                                     .front = cos_o[j] > 0.0f};
-                w->shadow[s] = (uint8_t)tracer_env_direct(sc, m, LANE3(beta, j), LANE3(p, j), &mh,
-                                                          env_u1[j], env_u2[j], &w->shadow_o[s],
-                                                          &w->shadow_d[s], &w->shadow_L[s]);
             }
             w->alive[s] = alive[j] != 0;
             if (!alive[j])
@@ -214,6 +206,19 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
             w->specular[s] = 0;
             w->o[s] = LANE3(from, j);
             w->next_d[s] = LANE3(next_d, j);
+        }
+        for (int j = 0; env && j < lanes; j++) {
+            if (!(env >> j & 1))
+                continue;
+            uint16_t s = slots[j0 + (size_t)j];
+            const material_t *m = &sc->materials[sc->tri_material[w->tri[s]]];
+            material_hit_t mh = {.wo = vec3_neg(w->d[s]),
+                                 .ngf = LANE3(ngf, j),
+                                 .ns = LANE3(ns, j),
+                                 .front = cos_o[j] > 0.0f};
+            w->shadow[s] = (uint8_t)tracer_env_direct(sc, m, LANE3(beta, j), LANE3(p, j), &mh,
+                                                      env_u1[j], env_u2[j], &w->shadow_o[s],
+                                                      &w->shadow_d[s], &w->shadow_L[s]);
         }
     }
 }
