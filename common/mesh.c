@@ -254,13 +254,13 @@ static int ends_with_obj(const char *name)
 int mesh_load_buffer(const char *name, const unsigned char *data, size_t size, mesh_t **out,
                      char *err, size_t errlen)
 {
-    return mesh_load_buffer_flags(name, data, size, 0, out, err, errlen);
+    return mesh_load_buffer_flags(name, data, size, 0, 0, out, err, errlen);
 }
 
 int mesh_load_buffer_flags(const char *name, const unsigned char *data, size_t size, unsigned flags,
-                           mesh_t **out, char *err, size_t errlen)
+                           uint32_t shape_index, mesh_t **out, char *err, size_t errlen)
 {
-    mesh_ctx c = {name ? name : "(buffer)", err, errlen, flags};
+    mesh_ctx c = {name ? name : "(buffer)", err, errlen, flags, shape_index};
     if (err && errlen)
         err[0] = '\0';
     if (out)
@@ -274,6 +274,8 @@ int mesh_load_buffer_flags(const char *name, const unsigned char *data, size_t s
     if ((size >= 4 && memcmp(data, "ply\n", 4) == 0) ||
         (size >= 5 && memcmp(data, "ply\r\n", 5) == 0))
         r = ply_load(&c, data, size, &b);
+    else if (size >= 2 && data[0] == 0x1C && data[1] == 0x04)
+        r = serialized_load(&c, data, size, &b);
     else if (ends_with_obj(c.name))
         r = obj_load(&c, data, size, &b);
     else if (size == 0)
@@ -289,12 +291,13 @@ int mesh_load_buffer_flags(const char *name, const unsigned char *data, size_t s
 
 int mesh_load(const char *path, mesh_t **out, char *err, size_t errlen)
 {
-    return mesh_load_flags(path, 0, out, err, errlen);
+    return mesh_load_flags(path, 0, 0, out, err, errlen);
 }
 
-int mesh_load_flags(const char *path, unsigned flags, mesh_t **out, char *err, size_t errlen)
+int mesh_load_flags(const char *path, unsigned flags, uint32_t shape_index, mesh_t **out, char *err,
+                    size_t errlen)
 {
-    mesh_ctx c = {path ? path : "(null)", err, errlen, flags};
+    mesh_ctx c = {path ? path : "(null)", err, errlen, flags, shape_index};
     if (out)
         *out = NULL;
     if (!path || !out)
@@ -323,7 +326,7 @@ int mesh_load_flags(const char *path, unsigned flags, mesh_t **out, char *err, s
         free(buf);
         return mesh_fail(&c, "read error (got %zu of %zu bytes)", got, size);
     }
-    int r = mesh_load_buffer_flags(path, buf, size, flags, out, err, errlen);
+    int r = mesh_load_buffer_flags(path, buf, size, flags, shape_index, out, err, errlen);
     free(buf);
     return r;
 }

@@ -41,9 +41,13 @@ int mesh_load_buffer(const char *name, const unsigned char *data, size_t size, m
  * OBJ meshes have always been read without them. */
 #define MESH_OBJ_NORMALS 1u
 
-int mesh_load_flags(const char *path, unsigned flags, mesh_t **out, char *err, size_t errlen);
+/* mesh_load and mesh_load_buffer with MESH_* flags, and shape_index: which
+ * shape of a file that holds several (Mitsuba's .serialized, recognised by
+ * its 0x041C identifier; 0 for the other formats). */
+int mesh_load_flags(const char *path, unsigned flags, uint32_t shape_index, mesh_t **out, char *err,
+                    size_t errlen);
 int mesh_load_buffer_flags(const char *name, const unsigned char *data, size_t size, unsigned flags,
-                           mesh_t **out, char *err, size_t errlen);
+                           uint32_t shape_index, mesh_t **out, char *err, size_t errlen);
 
 /* Gives a mesh without normals smooth vertex normals: each the sum of its
  * triangles' unit normals weighted by the triangle's angle at the vertex,

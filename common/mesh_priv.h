@@ -20,7 +20,8 @@ typedef struct mesh_ctx {
     const char *name; /* file name for messages */
     char *err;
     size_t errlen;
-    unsigned flags; /* MESH_* of mesh.h */
+    unsigned flags;       /* MESH_* of mesh.h */
+    uint32_t shape_index; /* which shape of a file of several (serialized) */
 } mesh_ctx;
 
 /* Writes "name: message" into the caller's buffer; returns -1. */
@@ -84,5 +85,6 @@ int mesh_store_vertex(const mesh_ctx *c, mesh_builder *b, size_t i, const double
  * message written through c. The builder is freed by the caller either way. */
 int ply_load(const mesh_ctx *c, const unsigned char *data, size_t size, mesh_builder *b);
 int obj_load(const mesh_ctx *c, const unsigned char *data, size_t size, mesh_builder *b);
+int serialized_load(const mesh_ctx *c, const unsigned char *data, size_t size, mesh_builder *b);
 
 #endif

@@ -1559,13 +1559,18 @@ static int shape_mesh(conv_t *c, const mx_node_t *n, const char *mat, const mat4
     int face_normals = 0;
     if (get_bool(c->x, n, "face_normals", &face_normals) < 0)
         return -1;
+    long long shape_index = 0;
+    if (is_type(n, "serialized") &&
+        get_int(c->x, n, "shape_index", 0, UINT32_MAX, &shape_index) < 0)
+        return -1;
     char path[PATH_MAX];
     if (resolve(c->x, n, c->dir, file, path, sizeof path) < 0)
         return -1;
     /* the clip check reads the mesh here; the renderer reads it again */
     mesh_t *mesh = NULL;
     char merr[1024];
-    if (mesh_load_flags(path, face_normals ? 0 : MESH_OBJ_NORMALS, &mesh, merr, sizeof merr) < 0)
+    if (mesh_load_flags(path, face_normals ? 0 : MESH_OBJ_NORMALS, (uint32_t)shape_index, &mesh,
+                        merr, sizeof merr) < 0)
         return NODE_FAIL(c->x, n, "%s", merr);
     int cut = 0;
     for (size_t t = 0; t < mesh->triangle_count && !cut; t++) {
@@ -1592,6 +1597,8 @@ static int shape_mesh(conv_t *c, const mx_node_t *n, const char *mat, const mat4
     /* Mitsuba gives a mesh without normals smooth ones (unless
      * face_normals), and flip_normals turns the faces */
     cJSON_AddStringToObject(s, "normals", face_normals ? "face" : "file_or_smooth");
+    if (shape_index)
+        cJSON_AddNumberToObject(s, "shape_index", (double)shape_index);
     if (flip)
         cJSON_AddBoolToObject(s, "flip_normals", 1);
     cJSON_AddItemToArray(c->shapes, s);
@@ -1600,11 +1607,12 @@ static int shape_mesh(conv_t *c, const mx_node_t *n, const char *mat, const mat4
 
 static int conv_shape(conv_t *c, mx_node_t *n)
 {
-    static const char *const supported = "obj, ply, rectangle, cube";
+    static const char *const supported = "obj, ply, serialized, rectangle, cube";
     const char *type = node_attr(n, "type");
     if (!type)
         return NODE_FAIL(c->x, n, "<shape> has no type");
-    int mesh = strcmp(type, "obj") == 0 || strcmp(type, "ply") == 0;
+    int mesh =
+        strcmp(type, "obj") == 0 || strcmp(type, "ply") == 0 || strcmp(type, "serialized") == 0;
     if (!mesh && strcmp(type, "rectangle") != 0 && strcmp(type, "cube") != 0)
         return unsupported_type(c, n, supported);
     const mx_node_t *bsdf = NULL, *emitter = NULL;

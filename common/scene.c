@@ -703,8 +703,8 @@ static int shape_triangles(loader_t *L, const cJSON *sh, const char *path, const
 static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xform_t *x,
                       uint32_t mat)
 {
-    static const char *const keys[] = {"type",    "material",     "file", "transform",
-                                       "normals", "flip_normals", NULL};
+    static const char *const keys[] = {"type",    "material",     "file",        "transform",
+                                       "normals", "flip_normals", "shape_index", NULL};
     check_keys(L, sh, path, keys);
     const cJSON *f = cJSON_GetObjectItemCaseSensitive(sh, "file");
     char p[PATH_LEN];
@@ -734,6 +734,12 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
     x = &xf;
     /* "file" keeps what our scenes always had: OBJ vn unread */
     unsigned mesh_flags = normals == NORMALS_SMOOTH ? MESH_OBJ_NORMALS : 0;
+    /* "shape_index": which shape of a file of several (Mitsuba's
+     * .serialized); 0 */
+    double shape_d = 0;
+    if (get_integer(L, sh, "shape_index", path, 0, 0, 4294967295.0, &shape_d) < 0)
+        return -1;
+    uint32_t shape_index = (uint32_t)shape_d;
     snprintf(p, sizeof p, "%s.file", path);
     if (!cJSON_IsString(f) || !*f->valuestring)
         return fail(L, p, "missing (expected a mesh path relative to the scene file)");
@@ -746,8 +752,8 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
                 b = &L->blobs[i];
         if (!b)
             return fail(L, p, "mesh \"%s\" is not in the scene bundle", f->valuestring);
-        if (mesh_load_buffer_flags(b->name, b->data, b->size, mesh_flags, &m, merr, sizeof merr) <
-            0)
+        if (mesh_load_buffer_flags(b->name, b->data, b->size, mesh_flags, shape_index, &m, merr,
+                                   sizeof merr) < 0)
             return fail(L, p, "%s", merr);
     } else {
         char full[4096];
@@ -755,7 +761,7 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
             snprintf(full, sizeof full, "%s", f->valuestring);
         else
             snprintf(full, sizeof full, "%s/%s", L->base_dir, f->valuestring);
-        if (mesh_load_flags(full, mesh_flags, &m, merr, sizeof merr) < 0)
+        if (mesh_load_flags(full, mesh_flags, shape_index, &m, merr, sizeof merr) < 0)
             return fail(L, p, "%s", merr);
     }
     if (normals == NORMALS_FACE) {

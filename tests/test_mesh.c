@@ -11,6 +11,7 @@
 #include <string.h>
 #include <time.h>
 #include <unistd.h>
+#include <zlib.h>
 
 #include "mesh.h"
 #include "testutil.h"
@@ -381,7 +382,7 @@ START_TEST(obj_vertex_normals)
     char path[PATHLEN], err[ERRLEN];
     tu_write_tmp(path, sizeof path, "vn.obj", text);
     mesh_t *m = NULL;
-    ck_assert_msg(mesh_load_flags(path, MESH_OBJ_NORMALS, &m, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(mesh_load_flags(path, MESH_OBJ_NORMALS, 0, &m, err, sizeof err) == 0, "%s", err);
     /* (1,+z) (2,+z) (3,+z) (4,+z) (1,-y) (2,-y) (5,none) */
     ck_assert_uint_eq(m->vertex_count, 7);
     ck_assert_uint_eq(m->triangle_count, 3);
@@ -405,11 +406,103 @@ START_TEST(obj_vertex_normals)
     tu_write_tmp(path, sizeof path, "vn-bad.obj",
                  "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\n"
                  "f 1//1 2//1 3//4\n");
-    ck_assert_int_eq(mesh_load_flags(path, MESH_OBJ_NORMALS, &m, err, sizeof err), -1);
+    ck_assert_int_eq(mesh_load_flags(path, MESH_OBJ_NORMALS, 0, &m, err, sizeof err), -1);
     ck_assert_msg(strstr(err, "line 5") && strstr(err, "normal index out of range"), "%s", err);
     tu_write_tmp(path, sizeof path, "vn-short.obj", "v 0 0 0\nvn 0 0\n");
-    ck_assert_int_eq(mesh_load_flags(path, MESH_OBJ_NORMALS, &m, err, sizeof err), -1);
+    ck_assert_int_eq(mesh_load_flags(path, MESH_OBJ_NORMALS, 0, &m, err, sizeof err), -1);
     ck_assert_msg(strstr(err, "line 2") && strstr(err, "normal needs 3"), "%s", err);
+}
+END_TEST
+
+/* One shape of a Mitsuba .serialized file into out: the header, then the
+ * zlib stream of flags, counts, positions (normals when given), indices. */
+static void put_serialized_shape(bytes *out, unsigned version, uint32_t flags, const float *pos,
+                                 const float *nrm, uint64_t nv, const uint32_t *idx, uint64_t nt)
+{
+    static bytes raw;
+    raw.n = 0;
+    put_uint(&raw, flags, 4, 0);
+    if (version == 4)
+        put(&raw, "shape", 6);
+    put_uint(&raw, nv, 8, 0);
+    put_uint(&raw, nt, 8, 0);
+    for (uint64_t i = 0; i < 3 * nv; i++)
+        put_f32(&raw, pos[i], 0);
+    for (uint64_t i = 0; nrm && i < 3 * nv; i++)
+        put_f32(&raw, nrm[i], 0);
+    for (uint64_t i = 0; i < 3 * nt; i++)
+        put_uint(&raw, idx[i], 4, 0);
+    unsigned char z[4096];
+    uLongf zn = sizeof z;
+    ck_assert_int_eq(compress2(z, &zn, raw.d, raw.n, 6), Z_OK);
+    put_uint(out, 0x041C, 2, 0);
+    put_uint(out, version, 2, 0);
+    put(out, z, zn);
+}
+
+/* Mitsuba's .serialized: the shape shape_index names (of two), its
+ * normals; version 3 (uint32 offsets) and 4 (uint64, a name); what a
+ * broken file is refused with. */
+START_TEST(serialized_shapes)
+{
+    static const float tri_pos[] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    static const float quad_pos[] = {0, 0, 2, 1, 0, 2, 1, 1, 2, 0, 1, 2};
+    static const float quad_nrm[] = {0, 0, 2, 0, 0, 2, 0, 0, 2, 0, 0, 2};
+    static const uint32_t tri_idx[] = {0, 1, 2}, quad_idx[] = {0, 1, 2, 0, 2, 3};
+    char path[PATHLEN], err[ERRLEN];
+    for (unsigned version = 3; version <= 4; version++) {
+        static bytes b;
+        b.n = 0;
+        size_t off0 = b.n;
+        put_serialized_shape(&b, version, 0x1000, tri_pos, NULL, 3, tri_idx, 1);
+        size_t off1 = b.n;
+        put_serialized_shape(&b, version, 0x1001, quad_pos, quad_nrm, 4, quad_idx, 2);
+        put_uint(&b, off0, version == 4 ? 8 : 4, 0);
+        put_uint(&b, off1, version == 4 ? 8 : 4, 0);
+        put_uint(&b, 2, 4, 0);
+        write_bytes(path, sizeof path, "two.serialized", &b);
+        mesh_t *m = NULL;
+        ck_assert_msg(mesh_load_flags(path, 0, 1, &m, err, sizeof err) == 0, "%s", err);
+        ck_assert_uint_eq(m->vertex_count, 4);
+        ck_assert_uint_eq(m->triangle_count, 2);
+        check_pos(m, 2, 1, 1, 2);
+        check_tri(m, 1, 0, 2, 3);
+        ck_assert_ptr_nonnull(m->normals);
+        ck_assert(m->normals[2] == 1.0f); /* normalised */
+        mesh_destroy(&m);
+        ck_assert_msg(mesh_load_flags(path, 0, 0, &m, err, sizeof err) == 0, "%s", err);
+        ck_assert_uint_eq(m->triangle_count, 1);
+        ck_assert_ptr_null(m->normals);
+        mesh_destroy(&m);
+        ck_assert_int_eq(mesh_load_flags(path, 0, 2, &m, err, sizeof err), -1);
+        ck_assert_msg(strstr(err, "shape_index 2: the file holds 2 shapes"), "%s", err);
+        /* cut inside the second shape's stream: its offsets still say where */
+        bytes cut = b;
+        memmove(cut.d + off1 + 8, cut.d + off1 + 20, cut.n - off1 - 20);
+        cut.n -= 12;
+        write_bytes(path, sizeof path, "cut.serialized", &cut);
+        ck_assert_int_eq(mesh_load_flags(path, 0, 1, &m, err, sizeof err), -1);
+        ck_assert_msg(strstr(err, "zlib") || strstr(err, "outside the file"), "%s", err);
+        /* an index past the vertices */
+        b.n = 0;
+        static const uint32_t bad_idx[] = {0, 1, 7};
+        put_serialized_shape(&b, version, 0x1000, tri_pos, NULL, 3, bad_idx, 1);
+        put_uint(&b, 0, version == 4 ? 8 : 4, 0);
+        put_uint(&b, 1, 4, 0);
+        write_bytes(path, sizeof path, "bad.serialized", &b);
+        ck_assert_int_eq(mesh_load_flags(path, 0, 0, &m, err, sizeof err), -1);
+        ck_assert_msg(strstr(err, "vertex 7 out of range"), "%s", err);
+    }
+    /* a count that claims more shapes than the file has room for */
+    static bytes b;
+    b.n = 0;
+    put_uint(&b, 0x041C, 2, 0);
+    put_uint(&b, 3, 2, 0);
+    put_uint(&b, 1000000, 4, 0);
+    write_bytes(path, sizeof path, "dict.serialized", &b);
+    mesh_t *m = NULL;
+    ck_assert_int_eq(mesh_load_flags(path, 0, 0, &m, err, sizeof err), -1);
+    ck_assert_msg(strstr(err, "dictionary is corrupt"), "%s", err);
 }
 END_TEST
 
@@ -913,6 +1006,7 @@ static Suite *mesh_suite(void)
     tcase_add_test(tc, same_mesh_binary_be);
     tcase_add_test(tc, same_mesh_obj);
     tcase_add_test(tc, obj_vertex_normals);
+    tcase_add_test(tc, serialized_shapes);
     tcase_add_test(tc, obj_forward_reference);
     tcase_add_test(tc, ascii_numbers_exact);
     tcase_add_test(tc, fan_quad_and_pentagon);
