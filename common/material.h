@@ -37,6 +37,8 @@ typedef struct material {
      * the geometric normal ends the path), as Mitsuba's BSDFs are unless
      * wrapped in "twosided". 0 for our own scenes' materials. */
     uint8_t one_sided;
+    /* diffuse: the texture (scene_t.textures) its albedo comes from, or -1 */
+    int32_t albedo_texture;
 } material_t;
 
 /* "diffuse", "emitter", ...; returns -1 for an unknown name. */

@@ -74,6 +74,7 @@ static void builder_free(mesh_builder *b)
 {
     free(b->pos);
     free(b->nrm);
+    free(b->uv);
     free(b->idx);
     memset(b, 0, sizeof *b);
 }
@@ -231,6 +232,7 @@ static int builder_finish(const mesh_ctx *c, mesh_builder *b, mesh_t **out)
     }
     m->positions = b->pos;
     m->normals = b->nrm;
+    m->uvs = b->uv;
     m->indices = b->idx;
     m->vertex_count = b->nv;
     m->triangle_count = b->nt;
@@ -393,6 +395,7 @@ void mesh_destroy(mesh_t **m)
         return;
     free((*m)->positions);
     free((*m)->normals);
+    free((*m)->uvs);
     free((*m)->indices);
     free(*m);
     *m = NULL;

@@ -19,6 +19,7 @@
 typedef struct mesh {
     float *positions;  /* 3 * vertex_count floats, x y z */
     float *normals;    /* 3 * vertex_count floats, or NULL when absent */
+    float *uvs;        /* 2 * vertex_count floats (MESH_ATTRIBUTES), or NULL */
     uint32_t *indices; /* 3 * triangle_count vertex indices */
     size_t vertex_count;
     size_t triangle_count;
@@ -35,11 +36,13 @@ int mesh_load(const char *path, mesh_t **out, char *err, size_t errlen);
 int mesh_load_buffer(const char *name, const unsigned char *data, size_t size, mesh_t **out,
                      char *err, size_t errlen);
 
-/* mesh_load_flags: also read an OBJ file's vertex normals (vn). A vertex
- * used with different normals becomes one vertex per normal; a corner
- * without one gets its faces' mean normal. Off by default: our own scenes'
- * OBJ meshes have always been read without them. */
-#define MESH_OBJ_NORMALS 1u
+/* mesh_load_flags: also read what a vertex carries besides its normal in
+ * PLY: an OBJ file's vertex normals (vn) and texture coordinates (vt), a
+ * serialized file's texture coordinates. A position used with different
+ * normals or coordinates becomes one vertex per pair; a corner without a
+ * normal gets its faces' mean normal, one without coordinates (0, 0). Off
+ * by default: our own scenes' OBJ meshes have always been read without. */
+#define MESH_ATTRIBUTES 1u
 
 /* mesh_load and mesh_load_buffer with MESH_* flags, and shape_index: which
  * shape of a file that holds several (Mitsuba's .serialized, recognised by

@@ -44,6 +44,7 @@ static inline int mesh_quote_len(size_t len)
 typedef struct mesh_builder {
     float *pos;          /* 3 per vertex */
     float *nrm;          /* 3 per vertex, or NULL */
+    float *uv;           /* 2 per vertex, or NULL (MESH_ATTRIBUTES) */
     size_t nv, vcap;     /* vcap is in vertices */
     uint32_t *idx;       /* 3 per triangle */
     size_t nt, tcap;     /* tcap is in triangles */

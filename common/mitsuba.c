@@ -1228,6 +1228,15 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     double gaussian = 0.5;
     for (size_t i = 0; i < n->nkids; i++) {
         mx_node_t *k = n->kids[i];
+        if (strcmp(k->tag, "ref") == 0) {
+            /* a film or sampler declared elsewhere */
+            const mx_node_t *o = deref(c, k);
+            if (!o)
+                return -1;
+            if (strcmp(o->tag, "film") != 0 && strcmp(o->tag, "sampler") != 0)
+                return NODE_FAIL(c->x, k, "<%s> inside a sensor is not supported", o->tag);
+            k = (mx_node_t *)o;
+        }
         if (strcmp(k->tag, "film") == 0) {
             k->used = 1;
             if (conv_film(c, k, &w, &h, &gaussian) < 0)
@@ -1245,8 +1254,12 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
         }
     }
     int film_seen = 0;
-    for (size_t i = 0; i < n->nkids; i++)
-        film_seen |= strcmp(n->kids[i]->tag, "film") == 0;
+    for (size_t i = 0; i < n->nkids; i++) {
+        const mx_node_t *k = n->kids[i];
+        if (strcmp(k->tag, "ref") == 0)
+            k = find_id(c, node_attr(k, "id"));
+        film_seen |= k && strcmp(k->tag, "film") == 0;
+    }
     if (!film_seen)
         return NODE_FAIL(c->x, n, "the sensor needs a <film type=\"hdrfilm\">");
     if (check_used(c, n) < 0)
@@ -1347,6 +1360,45 @@ static int get_ior(conv_t *c, const mx_node_t *n, const char *name, double def, 
     return 0;
 }
 
+/* A diffuse reflectance: a colour into albedo, or a checkerboard texture
+ * (nested, or a named <ref>) as its JSON object in *texture. */
+static int get_albedo(conv_t *c, const mx_node_t *bsdf, double albedo[3], cJSON **texture)
+{
+    *texture = NULL;
+    mx_node_t *p = prop(bsdf, "reflectance");
+    if (!p)
+        return 0;
+    if (strcmp(p->tag, "ref") != 0 && strcmp(p->tag, "texture") != 0) {
+        p->used = 0; /* get_color reads it */
+        return get_color(c->x, bsdf, "reflectance", 1, albedo) < 0 ? -1 : 0;
+    }
+    const mx_node_t *t = deref(c, p);
+    if (!t)
+        return -1;
+    if (strcmp(t->tag, "texture") != 0)
+        return NODE_FAIL(c->x, p, "reflectance names a <%s>, not a texture", t->tag);
+    if (!is_type(t, "checkerboard"))
+        return unsupported_type(c, t, "checkerboard");
+    double c0[3] = {0.4, 0.4, 0.4}, c1[3] = {0.2, 0.2, 0.2}; /* Mitsuba's defaults */
+    mat4_t m;
+    if (get_color(c->x, t, "color0", 1, c0) < 0 || get_color(c->x, t, "color1", 1, c1) < 0 ||
+        get_transform(c->x, t, "to_uv", &m, NULL) < 0 || check_used(c, t) < 0)
+        return -1;
+    for (int k = 0; k < 3; k++)
+        if (!(c0[k] >= 0 && c0[k] <= 1 && c1[k] >= 0 && c1[k] <= 1))
+            return NODE_FAIL(c->x, t, "checkerboard colours must be in [0, 1]");
+    /* Mitsuba reads a 4x4 to_uv as the 2D transform of its rows and
+     * columns 0, 1 and 3 */
+    double uv[6] = {m.m[0][0], m.m[0][1], m.m[0][3], m.m[1][0], m.m[1][1], m.m[1][3]};
+    *texture = cJSON_CreateObject();
+    cJSON_AddStringToObject(*texture, "type", "checkerboard");
+    cJSON_AddItemToObject(*texture, "color0", vec3_json(c0));
+    cJSON_AddItemToObject(*texture, "color1", vec3_json(c1));
+    cJSON_AddItemToObject(*texture, "to_uv", cJSON_CreateDoubleArray(uv, 6));
+    memcpy(albedo, c0, 3 * sizeof(double));
+    return 0;
+}
+
 /* The JSON material of a (bsdf, area emitter) pair, either may be NULL.
  * Returns 0 and its name in c->mat_name[*index]. */
 static int conv_material(conv_t *c, const mx_node_t *bsdf, const mx_node_t *emitter, size_t *index)
@@ -1414,9 +1466,15 @@ static int conv_material(conv_t *c, const mx_node_t *bsdf, const mx_node_t *emit
         cJSON_AddStringToObject(m, "type", "dielectric");
         cJSON_AddNumberToObject(m, "ior", int_ior / ext_ior);
     } else if (!inner || is_type(inner, "diffuse")) {
-        if (inner && get_color(c->x, inner, "reflectance", 1, albedo) < 0) {
+        cJSON *texture = NULL;
+        if (inner && get_albedo(c, inner, albedo, &texture) < 0) {
             cJSON_Delete(m);
             return -1;
+        }
+        if (texture && emitter) {
+            cJSON_Delete(texture);
+            cJSON_Delete(m);
+            return NODE_FAIL(c->x, emitter, "a textured area emitter is not supported");
         }
         for (int k = 0; k < 3; k++)
             if (!(albedo[k] >= 0 && albedo[k] <= 1)) {
@@ -1441,7 +1499,7 @@ static int conv_material(conv_t *c, const mx_node_t *bsdf, const mx_node_t *emit
         } else {
             cJSON_AddStringToObject(m, "type", "diffuse");
         }
-        cJSON_AddItemToObject(m, "albedo", vec3_json(albedo));
+        cJSON_AddItemToObject(m, "albedo", texture ? texture : vec3_json(albedo));
         /* Mitsuba's BSDFs are black from behind unless wrapped in twosided */
         cJSON_AddBoolToObject(m, "twosided", twosided);
     } else {
@@ -1500,7 +1558,7 @@ static int clip_fail(conv_t *c, const mx_node_t *n)
  * triangle wound so that its normal is Mitsuba's (flipped when the
  * transform mirrors, or when flip_normals asks) */
 static int emit_triangles(conv_t *c, const mx_node_t *n, const char *mat, double (*v)[3], size_t nv,
-                          const int (*tri)[3], size_t nt, int flip)
+                          const int (*tri)[3], size_t nt, int flip, const double (*uv)[2])
 {
     for (size_t t = 0; t < nt; t++) {
         double corner[3][3];
@@ -1515,6 +1573,11 @@ static int emit_triangles(conv_t *c, const mx_node_t *n, const char *mat, double
     cJSON *va = cJSON_AddArrayToObject(s, "vertices");
     for (size_t i = 0; i < nv; i++)
         cJSON_AddItemToArray(va, vec3_json(v[i]));
+    if (uv) {
+        cJSON *ua = cJSON_AddArrayToObject(s, "uvs");
+        for (size_t i = 0; i < nv; i++)
+            cJSON_AddItemToArray(ua, cJSON_CreateDoubleArray(uv[i], 2));
+    }
     cJSON *ia = cJSON_AddArrayToObject(s, "indices");
     for (size_t t = 0; t < nt; t++) {
         int idx[3] = {tri[t][0], flip ? tri[t][2] : tri[t][1], flip ? tri[t][1] : tri[t][2]};
@@ -1532,7 +1595,9 @@ static int shape_rectangle(conv_t *c, const mx_node_t *n, const char *mat, const
     double v[4][3];
     for (int i = 0; i < 4; i++)
         mat4_point(m, local[i], v[i]);
-    return emit_triangles(c, n, mat, v, 4, tri, 2, flip);
+    /* Mitsuba's: (x, y) in [-1, 1]^2 to ((x + 1) / 2, (y + 1) / 2) */
+    static const double uv[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+    return emit_triangles(c, n, mat, v, 4, tri, 2, flip, uv);
 }
 
 static int shape_cube(conv_t *c, const mx_node_t *n, const char *mat, const mat4_t *m, int flip)
@@ -1546,7 +1611,7 @@ static int shape_cube(conv_t *c, const mx_node_t *n, const char *mat, const mat4
     static const int tri[12][3] = {{0, 2, 3}, {0, 3, 1}, {4, 5, 7}, {4, 7, 6},
                                    {0, 1, 5}, {0, 5, 4}, {2, 6, 7}, {2, 7, 3},
                                    {0, 4, 6}, {0, 6, 2}, {1, 3, 7}, {1, 7, 5}};
-    return emit_triangles(c, n, mat, v, 8, tri, 12, flip);
+    return emit_triangles(c, n, mat, v, 8, tri, 12, flip, NULL);
 }
 
 static int shape_mesh(conv_t *c, const mx_node_t *n, const char *mat, const mat4_t *m, int flip)
@@ -1569,7 +1634,7 @@ static int shape_mesh(conv_t *c, const mx_node_t *n, const char *mat, const mat4
     /* the clip check reads the mesh here; the renderer reads it again */
     mesh_t *mesh = NULL;
     char merr[1024];
-    if (mesh_load_flags(path, face_normals ? 0 : MESH_OBJ_NORMALS, (uint32_t)shape_index, &mesh,
+    if (mesh_load_flags(path, face_normals ? 0 : MESH_ATTRIBUTES, (uint32_t)shape_index, &mesh,
                         merr, sizeof merr) < 0)
         return NODE_FAIL(c->x, n, "%s", merr);
     int cut = 0;
@@ -1619,8 +1684,7 @@ static int conv_shape(conv_t *c, mx_node_t *n)
     for (size_t i = 0; i < n->nkids; i++) {
         mx_node_t *k = n->kids[i];
         int is_ref = strcmp(k->tag, "ref") == 0;
-        if (is_ref && node_attr(k, "name"))
-            continue; /* a named ref is a property: refused below */
+        /* a shape's refs name objects (Mitsuba allows <ref name="bsdf">) */
         if (!is_ref && strcmp(k->tag, "bsdf") != 0 && strcmp(k->tag, "emitter") != 0)
             continue;
         const mx_node_t *o = deref(c, k);
@@ -1651,6 +1715,15 @@ static int conv_shape(conv_t *c, mx_node_t *n)
     if (conv_material(c, bsdf, emitter, &mi) < 0)
         return -1;
     const char *mat = c->mat_name[mi];
+    /* texture coordinates: a rectangle's own, a mesh file's (OBJ vt,
+     * serialized); not yet a cube's or a PLY file's */
+    const cJSON *jm = cJSON_GetObjectItemCaseSensitive(c->materials, mat);
+    if (cJSON_IsObject(cJSON_GetObjectItemCaseSensitive(jm, "albedo")) &&
+        (strcmp(type, "cube") == 0 || strcmp(type, "ply") == 0))
+        return NODE_FAIL(c->x, n,
+                         "a texture on a %s shape is not supported (its texture "
+                         "coordinates are not read)",
+                         type);
     int rc;
     if (mesh) {
         rc = shape_mesh(c, n, mat, &m, flip);
@@ -1728,7 +1801,9 @@ static int conv_scene(conv_t *c, mx_node_t *scene)
             k->used = 1;
             if (conv_shape(c, k) < 0)
                 return -1;
-        } else if ((strcmp(k->tag, "bsdf") == 0 || strcmp(k->tag, "emitter") == 0) &&
+        } else if ((strcmp(k->tag, "bsdf") == 0 || strcmp(k->tag, "emitter") == 0 ||
+                    strcmp(k->tag, "texture") == 0 || strcmp(k->tag, "film") == 0 ||
+                    strcmp(k->tag, "sampler") == 0) &&
                    node_attr(k, "id")) {
             /* declared for refs; read where a shape takes it. An emitter
              * no shape takes is refused below */

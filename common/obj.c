@@ -2,10 +2,9 @@
  * how it fills the mesh under construction.
  *
  * Only "v x y z" and "f a b c ..." lines are read (polygons become
- * triangle fans); vn, vt, o, g, s, usemtl, mtllib, l, p and comments are
- * skipped. Positive indices may refer to vertices defined later in the
- * file; negative ones are relative to the vertices defined so far (the
- * spec).
+ * triangle fans), and "vn" and "vt" with MESH_ATTRIBUTES; o, g, s, usemtl,
+ * mtllib, l, p and comments are skipped. Positive indices may refer to vertices defined later in
+ * the file; negative ones are relative to the vertices defined so far (the spec).
  */
 #include <inttypes.h>
 #include <math.h>
@@ -23,13 +22,13 @@ typedef struct obj_reader {
     size_t faces;
     int64_t max_idx;
     size_t max_line, max_face, max_corner;
-    /* MESH_OBJ_NORMALS: the vn lines, and each triangle corner's vn index
-     * (parallel to the builder's idx; -1 for none) */
-    float *vn;
-    size_t nvn, vncap;
-    int64_t *corner_n;
-    size_t ncorner, cornercap;
-    int any_n;
+    /* MESH_ATTRIBUTES: the vn and vt lines, and each triangle corner's vn
+     * and vt index (parallel to the builder's idx; -1 for none) */
+    float *vn, *vt;
+    size_t nvn, vncap, nvt, vtcap;
+    int64_t *corner_n, *corner_t;
+    size_t ncorner, ncap, tcap;
+    int any_attr;
 } obj_reader;
 
 /* Skips blanks from q up to eol. */
@@ -77,55 +76,61 @@ static int obj_vertex(const mesh_ctx *c, const obj_reader *rd, const char *q, co
     return 0;
 }
 
-/* "vn x y z" with q after the "vn" (MESH_OBJ_NORMALS). */
-static int obj_normal(const mesh_ctx *c, obj_reader *rd, const char *q, const char *eol)
+/* "vn x y z" or "vt u v [w]" with q after the keyword (MESH_ATTRIBUTES):
+ * dims numbers appended to *arr. */
+static int obj_attr_line(const mesh_ctx *c, const obj_reader *rd, const char *q, const char *eol,
+                         int dims, float **arr, size_t *count, size_t *cap, const char *what)
 {
     double v[3];
-    for (int k = 0; k < 3; k++) {
+    for (int k = 0; k < dims; k++) {
         q = obj_skip_blank(q, eol);
         const char *s = q;
         q = obj_word_end(q, eol);
         if (s == q || *s == '#')
-            return mesh_fail_at(c, 0, rd->line, "normal needs 3 coordinates, found %d", k);
+            return mesh_fail_at(c, 0, rd->line, "%s needs %d coordinates, found %d", what, dims, k);
         if (num_parse_double(s, (size_t)(q - s), &v[k]) != 0 || !isfinite(v[k]) ||
             fabs(v[k]) > 1e30)
-            return mesh_fail_at(c, 0, rd->line, "bad normal coordinate \"%.*s\"",
+            return mesh_fail_at(c, 0, rd->line, "bad %s coordinate \"%.*s\"", what,
                                 mesh_quote_len((size_t)(q - s)), s);
     }
-    if (rd->nvn == rd->vncap) {
-        void *np = mesh_grow(rd->vn, &rd->vncap, rd->nvn + 1, 3 * sizeof(float));
+    if (*count == *cap) {
+        void *np = mesh_grow(*arr, cap, *count + 1, (size_t)dims * sizeof(float));
         if (!np)
             return mesh_fail(c, "out of memory");
-        rd->vn = np;
+        *arr = np;
     }
-    for (int k = 0; k < 3; k++)
-        rd->vn[3 * rd->nvn + (size_t)k] = (float)v[k];
-    rd->nvn++;
+    for (int k = 0; k < dims; k++)
+        (*arr)[(size_t)dims * *count + (size_t)k] = (float)v[k];
+    (*count)++;
     return 0;
 }
 
-/* The vn index of a corner "v/vt/vn" or "v//vn" (n bytes at s), 0-based,
- * or -1 when it names none. Negative indices count back from the normals
- * read so far. */
-static int obj_corner_normal(const mesh_ctx *c, const obj_reader *rd, const char *s, size_t n,
-                             int64_t *out)
+/* The vt (field 1) or vn (field 2) index of a corner "v/vt/vn", "v/vt"
+ * or "v//vn" (n bytes at s), 0-based, or -1 when it names none. Negative
+ * indices count back from the count read so far. */
+static int obj_corner_attr(const mesh_ctx *c, const obj_reader *rd, const char *s, size_t n,
+                           int field, size_t count, int64_t *out)
 {
     *out = -1;
     const char *a = memchr(s, '/', n);
-    const char *b = a ? memchr(a + 1, '/', (size_t)(s + n - a - 1)) : NULL;
-    if (!b || b + 1 == s + n)
+    if (a && field == 2)
+        a = memchr(a + 1, '/', (size_t)(s + n - a - 1));
+    if (!a || a + 1 == s + n || a[1] == '/')
         return 0;
+    const char *e = memchr(a + 1, '/', (size_t)(s + n - a - 1));
+    size_t len = (size_t)((e ? e : s + n) - (a + 1));
+    const char *what = field == 2 ? "normal" : "texture coordinate";
     int64_t x;
-    if (num_parse_int(b + 1, (size_t)(s + n - b - 1), &x) != 0 || x == 0)
-        return mesh_fail_at(c, 0, rd->line, "face %zu: bad normal index in \"%.*s\"", rd->faces,
+    if (num_parse_int(a + 1, len, &x) != 0 || x == 0)
+        return mesh_fail_at(c, 0, rd->line, "face %zu: bad %s index in \"%.*s\"", rd->faces, what,
                             mesh_quote_len(n), s);
     if (x < 0)
-        x += (int64_t)rd->nvn;
+        x += (int64_t)count;
     else
         x -= 1;
-    if (x < 0 || x >= (int64_t)rd->nvn)
-        return mesh_fail_at(c, 0, rd->line, "face %zu: normal index out of range in \"%.*s\"",
-                            rd->faces, mesh_quote_len(n), s);
+    if (x < 0 || x >= (int64_t)count)
+        return mesh_fail_at(c, 0, rd->line, "face %zu: %s index out of range in \"%.*s\"",
+                            rd->faces, what, mesh_quote_len(n), s);
     *out = x;
     return 0;
 }
@@ -179,9 +184,9 @@ static int obj_face(const mesh_ctx *c, obj_reader *rd, const char *q, const char
                     mesh_builder *b)
 {
     uint32_t first = 0, prev = 0;
-    int64_t first_n = -1, prev_n = -1;
+    int64_t first_n = -1, prev_n = -1, first_t = -1, prev_t = -1;
     size_t corner = 0;
-    int normals = (c->flags & MESH_OBJ_NORMALS) != 0;
+    int attrs = (c->flags & MESH_ATTRIBUTES) != 0;
     rd->faces++;
     for (;; corner++) {
         q = obj_skip_blank(q, eol);
@@ -190,33 +195,48 @@ static int obj_face(const mesh_ctx *c, obj_reader *rd, const char *q, const char
         const char *s = q;
         q = obj_word_end(q, eol);
         uint32_t u = 0;
-        int64_t un = -1;
+        int64_t un = -1, ut = -1;
         if (obj_corner(c, rd, b, s, (size_t)(q - s), corner, &u) != 0 ||
-            (normals && obj_corner_normal(c, rd, s, (size_t)(q - s), &un) != 0))
+            (attrs && (obj_corner_attr(c, rd, s, (size_t)(q - s), 2, rd->nvn, &un) != 0 ||
+                       obj_corner_attr(c, rd, s, (size_t)(q - s), 1, rd->nvt, &ut) != 0)))
             return -1;
         if (corner == 0) {
             first = u;
             first_n = un;
+            first_t = ut;
         } else if (corner >= 2) {
             if (mesh_reserve_tris(b, 1) != 0)
                 return mesh_fail(c, "out of memory");
             mesh_emit_tri(b, first, prev, u);
-            if (normals) {
-                if (rd->ncorner + 3 > rd->cornercap) {
-                    void *np =
-                        mesh_grow(rd->corner_n, &rd->cornercap, rd->ncorner + 3, sizeof(int64_t));
+            if (attrs) {
+                size_t need = rd->ncorner + 3;
+                if (need > rd->ncap) {
+                    void *np = mesh_grow(rd->corner_n, &rd->ncap, need, sizeof(int64_t));
                     if (!np)
                         return mesh_fail(c, "out of memory");
                     rd->corner_n = np;
                 }
-                rd->corner_n[rd->ncorner++] = first_n;
-                rd->corner_n[rd->ncorner++] = prev_n;
-                rd->corner_n[rd->ncorner++] = un;
-                rd->any_n |= first_n >= 0 || prev_n >= 0 || un >= 0;
+                if (need > rd->tcap) {
+                    void *np = mesh_grow(rd->corner_t, &rd->tcap, need, sizeof(int64_t));
+                    if (!np)
+                        return mesh_fail(c, "out of memory");
+                    rd->corner_t = np;
+                }
+                int64_t *cn = rd->corner_n + rd->ncorner, *ct = rd->corner_t + rd->ncorner;
+                cn[0] = first_n;
+                cn[1] = prev_n;
+                cn[2] = un;
+                ct[0] = first_t;
+                ct[1] = prev_t;
+                ct[2] = ut;
+                rd->ncorner = need;
+                for (int k = 0; k < 3; k++)
+                    rd->any_attr |= cn[k] >= 0 || ct[k] >= 0;
             }
         }
         prev = u;
         prev_n = un;
+        prev_t = ut;
     }
     if (corner < 3)
         return mesh_fail_at(c, 0, rd->line, "face %zu has %zu vertices (need at least 3)",
@@ -224,47 +244,56 @@ static int obj_face(const mesh_ctx *c, obj_reader *rd, const char *q, const char
     return 0;
 }
 
-/* MESH_OBJ_NORMALS, once every face is read: one vertex per (position,
- * normal) pair the corners use, each with its normal (a corner without one
- * gets a zero normal, which mesh.c repairs from its faces). */
-static int obj_split_by_normal(const mesh_ctx *c, obj_reader *rd, mesh_builder *b)
+/* MESH_ATTRIBUTES, once every face is read: one vertex per (position,
+ * normal, texture coordinates) the corners use, with its normal (a corner
+ * without one gets a zero normal, which mesh.c repairs from its faces) and
+ * coordinates ((0, 0) without). */
+static int obj_split_vertices(const mesh_ctx *c, obj_reader *rd, mesh_builder *b)
 {
     size_t n = rd->ncorner, cap = 16;
     while (cap < 2 * n)
         cap *= 2;
-    uint64_t *key = malloc(cap * sizeof(uint64_t));
+    uint64_t *key = malloc(cap * 2 * sizeof(uint64_t)); /* (v, vn) and vt */
     uint32_t *slot_vertex = malloc(cap * sizeof(uint32_t));
     float *pos = malloc((n + 1) * 3 * sizeof(float)), *nrm = malloc((n + 1) * 3 * sizeof(float));
-    if (!key || !slot_vertex || !pos || !nrm) {
+    float *uv = rd->nvt ? malloc((n + 1) * 2 * sizeof(float)) : NULL;
+    if (!key || !slot_vertex || !pos || !nrm || (rd->nvt && !uv)) {
         free(key);
         free(slot_vertex);
         free(pos);
         free(nrm);
+        free(uv);
         return mesh_fail(c, "out of memory");
     }
-    memset(key, 0xff, cap * sizeof(uint64_t)); /* all ones: empty */
+    memset(key, 0xff, cap * 2 * sizeof(uint64_t)); /* all ones: empty */
     size_t nv = 0;
     for (size_t i = 0; i < n; i++) {
-        uint64_t k = ((uint64_t)b->idx[i] << 32) | (uint32_t)(rd->corner_n[i] + 1);
-        size_t h = (size_t)((k * 0x9e3779b97f4a7c15ULL) >> 20) & (cap - 1);
-        while (key[h] != UINT64_MAX && key[h] != k)
+        int64_t vn = rd->corner_n[i], vt = rd->corner_t[i];
+        uint64_t k1 = ((uint64_t)b->idx[i] << 32) | (uint32_t)(vn + 1), k2 = (uint64_t)(vt + 1);
+        size_t h =
+            (size_t)(((k1 ^ k2 * 0xc2b2ae3d27d4eb4fULL) * 0x9e3779b97f4a7c15ULL) >> 20) & (cap - 1);
+        while (key[2 * h] != UINT64_MAX && (key[2 * h] != k1 || key[2 * h + 1] != k2))
             h = (h + 1) & (cap - 1);
-        if (key[h] == UINT64_MAX) {
-            key[h] = k;
+        if (key[2 * h] == UINT64_MAX) {
+            key[2 * h] = k1;
+            key[2 * h + 1] = k2;
             slot_vertex[h] = (uint32_t)nv;
             memcpy(pos + 3 * nv, b->pos + 3 * (size_t)b->idx[i], 3 * sizeof(float));
-            if (rd->corner_n[i] >= 0) {
-                memcpy(nrm + 3 * nv, rd->vn + 3 * (size_t)rd->corner_n[i], 3 * sizeof(float));
-                double l = sqrt((double)nrm[3 * nv] * nrm[3 * nv] +
-                                (double)nrm[3 * nv + 1] * nrm[3 * nv + 1] +
-                                (double)nrm[3 * nv + 2] * nrm[3 * nv + 2]);
-                for (int k2 = 0; k2 < 3; k2++)
-                    nrm[3 * nv + (size_t)k2] = l > 0 ? (float)(nrm[3 * nv + (size_t)k2] / l) : 0;
-            } else {
-                nrm[3 * nv] = nrm[3 * nv + 1] = nrm[3 * nv + 2] = 0;
+            float *nn = nrm + 3 * nv;
+            nn[0] = nn[1] = nn[2] = 0;
+            if (vn >= 0) {
+                const float *src = rd->vn + 3 * (size_t)vn;
+                double l = sqrt((double)src[0] * src[0] + (double)src[1] * src[1] +
+                                (double)src[2] * src[2]);
+                for (int k = 0; k < 3 && l > 0; k++)
+                    nn[k] = (float)(src[k] / l);
             }
-            if (nrm[3 * nv] == 0 && nrm[3 * nv + 1] == 0 && nrm[3 * nv + 2] == 0)
+            if (nn[0] == 0 && nn[1] == 0 && nn[2] == 0)
                 b->zero_normals++;
+            if (uv) {
+                uv[2 * nv] = vt >= 0 ? rd->vt[2 * (size_t)vt] : 0.0f;
+                uv[2 * nv + 1] = vt >= 0 ? rd->vt[2 * (size_t)vt + 1] : 0.0f;
+            }
             nv++;
         }
         b->idx[i] = slot_vertex[h];
@@ -273,8 +302,10 @@ static int obj_split_by_normal(const mesh_ctx *c, obj_reader *rd, mesh_builder *
     free(slot_vertex);
     free(b->pos);
     free(b->nrm);
+    free(b->uv);
     b->pos = pos;
     b->nrm = nrm;
+    b->uv = uv;
     b->nv = b->vcap = nv;
     return 0;
 }
@@ -291,9 +322,13 @@ static int obj_read_lines(const mesh_ctx *c, obj_reader *rd, const char *p, cons
             eol = end;
         const char *q = obj_skip_blank(p, eol);
         p = eol < end ? eol + 1 : end;
-        if ((c->flags & MESH_OBJ_NORMALS) && eol - q > 2 && q[0] == 'v' && q[1] == 'n' &&
-            num_is_blank((unsigned char)q[2])) {
-            if (obj_normal(c, rd, q + 2, eol) != 0)
+        if ((c->flags & MESH_ATTRIBUTES) && eol - q > 2 && q[0] == 'v' &&
+            (q[1] == 'n' || q[1] == 't') && num_is_blank((unsigned char)q[2])) {
+            int r = q[1] == 'n' ? obj_attr_line(c, rd, q + 2, eol, 3, &rd->vn, &rd->nvn, &rd->vncap,
+                                                "normal")
+                                : obj_attr_line(c, rd, q + 2, eol, 2, &rd->vt, &rd->nvt, &rd->vtcap,
+                                                "texture coordinate");
+            if (r != 0)
                 return -1;
             continue;
         }
@@ -317,9 +352,11 @@ int obj_load(const mesh_ctx *c, const unsigned char *data, size_t size, mesh_bui
     obj_reader rd;
     memset(&rd, 0, sizeof rd);
     int r = obj_read_lines(c, &rd, (const char *)data, (const char *)data + size, b);
-    if (r == 0 && rd.any_n)
-        r = obj_split_by_normal(c, &rd, b);
+    if (r == 0 && rd.any_attr)
+        r = obj_split_vertices(c, &rd, b);
     free(rd.vn);
+    free(rd.vt);
     free(rd.corner_n);
+    free(rd.corner_t);
     return r;
 }

@@ -44,8 +44,10 @@ typedef struct loader {
     char *err;
     size_t errlen;
     scene_t *s;
-    float *pos, *nrm;
+    float *pos, *nrm, *uv; /* uv: when the scene has textures */
     size_t nv, cap_v;
+    size_t texture_cap;
+    int want_uv; /* a material has a texture: keep texture coordinates */
     uint32_t *idx, *mat;
     size_t nt, cap_t;
 } loader_t;
@@ -279,6 +281,57 @@ static void finish_environment(scene_t *s)
 
 /* ---- materials ---------------------------------------------------------- */
 
+/* A diffuse albedo given as a texture: {"type": "checkerboard", "color0":
+ * [r, g, b], "color1": [r, g, b], "to_uv": [6 numbers]}, appended to the
+ * scene's textures; *index is its place, v its color0 (for the range
+ * check, which color1 passes too). */
+static int parse_texture(loader_t *L, const cJSON *t, const char *p, int32_t *index, double v[3])
+{
+    char q[PATH_LEN];
+    snprintf(q, sizeof q, "%s.albedo", p);
+    const cJSON *type = cJSON_GetObjectItemCaseSensitive(t, "type");
+    if (!cJSON_IsString(type) || strcmp(type->valuestring, "checkerboard") != 0)
+        return fail(L, q, "a texture's \"type\" must be \"checkerboard\"");
+    static const char *const keys[] = {"type", "color0", "color1", "to_uv", NULL};
+    check_keys(L, t, q, keys);
+    double c0[3], c1[3], m[6] = {1, 0, 0, 0, 1, 0};
+    if (get_vec3(L, t, "color0", q, 1, c0) < 0 || get_vec3(L, t, "color1", q, 1, c1) < 0)
+        return -1;
+    const cJSON *uv = cJSON_GetObjectItemCaseSensitive(t, "to_uv");
+    if (uv) {
+        int n = 0;
+        for (const cJSON *e = cJSON_IsArray(uv) ? uv->child : NULL; e; e = e->next, n++)
+            if (n >= 6 || !cJSON_IsNumber(e) || !isfinite(e->valuedouble) ||
+                fabs(e->valuedouble) > 1e30)
+                return fail(L, q, "to_uv: expected 6 finite numbers");
+            else
+                m[n] = e->valuedouble;
+        if (n != 6)
+            return fail(L, q, "to_uv: expected 6 finite numbers");
+    }
+    for (int k = 0; k < 3; k++)
+        if (!(c0[k] >= 0 && c0[k] <= 1 && c1[k] >= 0 && c1[k] <= 1))
+            return fail(L, q, "colours must be in [0, 1]: more would create energy");
+    scene_t *s = L->s;
+    if (s->texture_count == L->texture_cap) {
+        size_t cap = L->texture_cap ? 2 * L->texture_cap : 4;
+        texture_t *nt = realloc(s->textures, cap * sizeof *nt);
+        if (!nt)
+            return fail(L, q, "out of memory");
+        s->textures = nt;
+        L->texture_cap = cap;
+    }
+    texture_t *tx = &s->textures[s->texture_count];
+    tx->color0 = to_vec3(c0);
+    tx->color1 = to_vec3(c1);
+    for (int k = 0; k < 6; k++)
+        tx->to_uv[k] = (float)m[k];
+    *index = (int32_t)s->texture_count++;
+    for (int k = 0; k < 3; k++)
+        v[k] = c0[k];
+    return 0;
+}
+
 /* "twosided": false makes a diffuse surface (or an emitter's albedo)
  * black from behind; the default, true, reflects on both sides. */
 static int get_twosided(loader_t *L, const cJSON *it, const char *p, material_t *m)
@@ -302,6 +355,11 @@ static int parse_material_fields(loader_t *L, const cJSON *it, const char *p, ma
     case MATERIAL_DIFFUSE: {
         static const char *const keys[] = {"type", "albedo", "twosided", NULL};
         check_keys(L, it, p, keys);
+        const cJSON *albedo = cJSON_GetObjectItemCaseSensitive(it, "albedo");
+        if (cJSON_IsObject(albedo))
+            return parse_texture(L, albedo, p, &m->albedo_texture, v) < 0
+                       ? -1
+                       : get_twosided(L, it, p, m);
         return get_vec3(L, it, "albedo", p, 1, v) < 0 ? -1 : get_twosided(L, it, p, m);
     }
     case MATERIAL_MIRROR: {
@@ -360,6 +418,7 @@ static int parse_material(loader_t *L, const cJSON *it)
     material_t *m = &L->s->materials[L->s->material_count];
     memcpy(m->name, it->string, strlen(it->string) + 1);
     m->type = (material_type_t)t;
+    m->albedo_texture = -1;
     double v[3] = {1, 1, 1};
     if (parse_material_fields(L, it, p, m, v) < 0)
         return -1;
@@ -541,6 +600,12 @@ static int reserve(loader_t *L, size_t add_v, size_t add_t, int with_normals)
         if (!p)
             return fail(L, NULL, "out of memory for %zu vertices", cap);
         L->pos = p;
+        if (L->want_uv) {
+            float *u = realloc(L->uv, cap * 2 * sizeof(float));
+            if (!u)
+                return fail(L, NULL, "out of memory for %zu vertices", cap);
+            L->uv = u;
+        }
         if (L->nrm) {
             float *n = realloc(L->nrm, cap * 3 * sizeof(float));
             if (!n)
@@ -575,6 +640,8 @@ static int reserve(loader_t *L, size_t add_v, size_t add_t, int with_normals)
 static void push_vertex(loader_t *L, const xform_t *x, const double p[3], const double *n)
 {
     float *d = L->pos + 3 * L->nv;
+    if (L->uv)
+        L->uv[2 * L->nv] = L->uv[2 * L->nv + 1] = 0.0f;
     for (int i = 0; i < 3; i++)
         d[i] = (float)(x->m[i][0] * p[0] + x->m[i][1] * p[1] + x->m[i][2] * p[2] + x->t[i]);
     if (L->nrm) {
@@ -655,8 +722,8 @@ static int shape_quad(loader_t *L, const cJSON *sh, const char *path, const xfor
 static int shape_triangles(loader_t *L, const cJSON *sh, const char *path, const xform_t *x,
                            uint32_t mat)
 {
-    static const char *const keys[] = {"type",    "material",  "vertices",
-                                       "indices", "transform", NULL};
+    static const char *const keys[] = {"type",      "material", "vertices", "indices",
+                                       "transform", "uvs",      NULL};
     check_keys(L, sh, path, keys);
     const cJSON *va = cJSON_GetObjectItemCaseSensitive(sh, "vertices");
     const cJSON *ia = cJSON_GetObjectItemCaseSensitive(sh, "indices");
@@ -673,12 +740,32 @@ static int shape_triangles(loader_t *L, const cJSON *sh, const char *path, const
         return -1;
     uint32_t base = (uint32_t)L->nv;
     size_t i = 0;
+    /* "uvs": a texture coordinate pair per vertex (optional) */
+    const cJSON *ua = cJSON_GetObjectItemCaseSensitive(sh, "uvs");
+    if (ua && (!cJSON_IsArray(ua) || (size_t)cJSON_GetArraySize(ua) != nv)) {
+        snprintf(p, sizeof p, "%s.uvs", path);
+        return fail(L, p, "expected one [u, v] per vertex (%zu)", nv);
+    }
+    const cJSON *ue = ua ? ua->child : NULL;
     for (const cJSON *e = va->child; e; e = e->next, i++) {
         double v[3];
         snprintf(p, sizeof p, "%s.vertices[%zu]", path, i);
         if (parse_vec3_item(L, e, p, v) < 0)
             return -1;
         push_vertex(L, x, v, NULL);
+        if (ue) {
+            snprintf(p, sizeof p, "%s.uvs[%zu]", path, i);
+            const cJSON *a = cJSON_GetArrayItem(ue, 0), *b = cJSON_GetArrayItem(ue, 1);
+            if (!cJSON_IsArray(ue) || cJSON_GetArraySize(ue) != 2 || !cJSON_IsNumber(a) ||
+                !cJSON_IsNumber(b) || !(fabs(a->valuedouble) <= 1e30) ||
+                !(fabs(b->valuedouble) <= 1e30))
+                return fail(L, p, "expected [u, v], two finite numbers");
+            if (L->uv) {
+                L->uv[2 * (L->nv - 1)] = (float)a->valuedouble;
+                L->uv[2 * (L->nv - 1) + 1] = (float)b->valuedouble;
+            }
+            ue = ue->next;
+        }
     }
     i = 0;
     for (const cJSON *e = ia->child; e; e = e->next, i++) {
@@ -733,7 +820,9 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
     xf.flips ^= cJSON_IsTrue(fj);
     x = &xf;
     /* "file" keeps what our scenes always had: OBJ vn unread */
-    unsigned mesh_flags = normals == NORMALS_SMOOTH ? MESH_OBJ_NORMALS : 0;
+    unsigned mesh_flags = normals == NORMALS_SMOOTH ? MESH_ATTRIBUTES : 0;
+    if (normals == NORMALS_FACE && L->want_uv)
+        mesh_flags = MESH_ATTRIBUTES; /* the coordinates; the normals are dropped below */
     /* "shape_index": which shape of a file of several (Mitsuba's
      * .serialized); 0 */
     double shape_d = 0;
@@ -781,6 +870,10 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
                 for (int i = 0; i < 3; i++)
                     nd[i] = m->normals[3 * v + i];
             push_vertex(L, x, pd, m->normals ? nd : NULL);
+            if (L->uv && m->uvs) {
+                L->uv[2 * (L->nv - 1)] = m->uvs[2 * v];
+                L->uv[2 * (L->nv - 1) + 1] = m->uvs[2 * v + 1];
+            }
         }
         for (size_t t = 0; t < m->triangle_count; t++)
             push_triangle(L, x, base + m->indices[3 * t], base + m->indices[3 * t + 1],
@@ -902,10 +995,11 @@ static void hand_over_arrays(loader_t *L)
     scene_t *s = L->s;
     s->positions = L->pos;
     s->normals = L->nrm;
+    s->uvs = L->uv;
     s->vertex_count = L->nv;
     s->indices = L->idx;
     s->tri_material = L->mat;
-    L->pos = L->nrm = NULL;
+    L->pos = L->nrm = L->uv = NULL;
     L->idx = L->mat = NULL;
 }
 
@@ -1079,6 +1173,7 @@ static int load(const char *json, size_t len, const char *name, const char *base
             rc = parse_render(&L, root);
         if (rc == 0)
             rc = parse_materials(&L, root);
+        L.want_uv = L.s->texture_count > 0;
         if (rc == 0)
             rc = parse_shapes(&L, root);
         if (rc == 0)
@@ -1086,6 +1181,7 @@ static int load(const char *json, size_t len, const char *name, const char *base
     }
     cJSON_Delete(root);
     free(L.pos);
+    free(L.uv);
     free(L.nrm);
     free(L.idx);
     free(L.mat);
@@ -1169,6 +1265,8 @@ void scene_destroy(scene_t **sp)
     free(s->materials);
     free(s->positions);
     free(s->normals);
+    free(s->uvs);
+    free(s->textures);
     free(s->indices);
     free(s->tri_material);
     free(s->tri_normal);

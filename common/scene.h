@@ -27,6 +27,14 @@
 
 typedef enum { SCENE_INTEGRATOR_PATH = 0, SCENE_INTEGRATOR_NAIVE = 1 } scene_integrator_t;
 
+/* A texture: Mitsuba's checkerboard. Texture coordinates (u, v) map to
+ * (u', v') = to_uv (u, v, 1); color0 where the fractional parts of u' and
+ * v' are both above 1/2 or both not, else color1. */
+typedef struct texture {
+    vec3_t color0, color1;
+    float to_uv[6]; /* u' = [0] u + [1] v + [2], v' = [3] u + [4] v + [5] */
+} texture_t;
+
 typedef struct scene {
     camera_t camera;
 
@@ -37,6 +45,12 @@ typedef struct scene {
     uint32_t max_depth; /* 0: unlimited (Russian roulette ends paths) */
 
     material_t *materials;
+    /* the textures materials name (material_t.albedo_texture), and each
+     * vertex's texture coordinates: NULL unless a material has a texture
+     * (a scene pays only for what it uses) */
+    texture_t *textures;
+    size_t texture_count;
+    float *uvs; /* 2 per vertex */
     size_t material_count;
 
     float *positions; /* 3 per vertex, world space */

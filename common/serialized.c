@@ -174,6 +174,27 @@ int serialized_load(const mesh_ctx *c, const unsigned char *data, size_t size, m
     }
     b->vcap = (size_t)nv;
     const unsigned char *pos = raw + at, *nrm = pos + (size_t)nv * 3 * real;
+    const unsigned char *tex = nrm + (flags & SER_NORMALS ? (size_t)nv * 3 * real : 0);
+    if ((flags & SER_TEXCOORDS) && (c->flags & MESH_ATTRIBUTES)) {
+        b->uv = malloc((size_t)nv * 2 * sizeof(float));
+        if (!b->uv) {
+            mesh_fail(c, "out of memory for %llu vertices", (unsigned long long)nv);
+            goto done;
+        }
+        for (size_t i = 0; i < 2 * (size_t)nv; i++) {
+            uint64_t bits = le(tex + i * real, (int)real);
+            double d;
+            if (real == 4) {
+                uint32_t u = (uint32_t)bits;
+                float f;
+                memcpy(&f, &u, 4);
+                d = f;
+            } else {
+                memcpy(&d, &bits, 8);
+            }
+            b->uv[i] = isfinite(d) && fabs(d) < 1e30 ? (float)d : 0.0f;
+        }
+    }
     for (size_t v = 0; v < (size_t)nv; v++) {
         double val[MESH_VALUES] = {0};
         for (int k = 0; k < 3; k++) {

@@ -245,7 +245,7 @@ static void sample_direct(const tracer_t *tr, path_t *path, const material_t *m,
     float u2 = rng_next_float(&path->rng);
     if (lights_pick_env(s, &ul)) {
         vec3_t from, seg, gain;
-        if (!tracer_env_direct(s, m, path->beta, p, mh, ul, u2, &from, &seg, &gain))
+        if (!tracer_env_direct(s, m, m->albedo, path->beta, p, mh, ul, u2, &from, &seg, &gain))
             return;
         path->rays++;
         if (tracer_unoccluded(tr, from, seg))
@@ -331,6 +331,13 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
         if (st->max_depth && depth + 2 > st->max_depth)
             break;
         material_hit_t mh = tracer_orient_normals(s, &h, wo, cos_o);
+        material_t textured;
+        if (m->albedo_texture >= 0) {
+            /* the albedo where it was hit, in a copy the BSDF reads */
+            textured = *m;
+            textured.albedo = texture_albedo(s, m, h.tri, h.u, h.v);
+            m = &textured;
+        }
         rng_seek(&path.rng, tracer_bounce_dim(depth) + 2);
         if (nee && material_is_diffuse(m))
             sample_direct(tr, &path, m, p, &mh);

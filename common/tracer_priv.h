@@ -12,6 +12,7 @@
 
 #include "lights.h"
 #include "rng.h"
+#include "texture.h"
 #include "tracer.h"
 #include "trilist.h"
 
@@ -158,9 +159,9 @@ static inline material_hit_t tracer_orient_normals(const scene_t *s, const trace
  * path gains when that segment is free, MIS-weighted against the BSDF.
  * 0 when the BSDF gives that direction nothing. Both engines call it, so
  * the bits are the same. */
-static inline int tracer_env_direct(const scene_t *s, const material_t *m, vec3_t beta, vec3_t p,
-                                    const material_hit_t *mh, double u1, float u2, vec3_t *from,
-                                    vec3_t *seg, vec3_t *gain)
+static inline int tracer_env_direct(const scene_t *s, const material_t *m, vec3_t albedo,
+                                    vec3_t beta, vec3_t p, const material_hit_t *mh, double u1,
+                                    float u2, vec3_t *from, vec3_t *seg, vec3_t *gain)
 {
     vec3_t wl = lights_env_direction(u1, u2);
     float cos_s, bsdf_pdf;
@@ -171,7 +172,7 @@ static inline int tracer_env_direct(const scene_t *s, const material_t *m, vec3_
     float light_pdf = s->env_pdf;
     float w = tracer_power_heuristic(light_pdf, bsdf_pdf);
     float k = w * cos_s * VMATH_INV_PI / light_pdf;
-    *gain = vec3_mul(vec3_mul(beta, m->albedo), vec3_scale(s->env_radiance, k));
+    *gain = vec3_mul(vec3_mul(beta, albedo), vec3_scale(s->env_radiance, k));
     return 1;
 }
 

@@ -97,7 +97,8 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
             LOAD3(cc, j, scene_vertex(sc, vi[2]));
             LOAD3(ng, j, sc->tri_normal[tri]);
             LOAD3(beta, j, w->beta[s]);
-            LOAD3(albedo, j, sc->materials[sc->tri_material[tri]].albedo);
+            LOAD3(albedo, j,
+                  texture_albedo(sc, &sc->materials[sc->tri_material[tri]], tri, w->u[s], w->v[s]));
             u[j] = w->u[s];
             v[j] = w->v[s];
             cos_o[j] = w->cos_o[s];
@@ -216,9 +217,9 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
                                  .ngf = LANE3(ngf, j),
                                  .ns = LANE3(ns, j),
                                  .front = cos_o[j] > 0.0f};
-            w->shadow[s] = (uint8_t)tracer_env_direct(sc, m, LANE3(beta, j), LANE3(p, j), &mh,
-                                                      env_u1[j], env_u2[j], &w->shadow_o[s],
-                                                      &w->shadow_d[s], &w->shadow_L[s]);
+            w->shadow[s] = (uint8_t)tracer_env_direct(
+                sc, m, LANE3(albedo, j), LANE3(beta, j), LANE3(p, j), &mh, env_u1[j], env_u2[j],
+                &w->shadow_o[s], &w->shadow_d[s], &w->shadow_L[s]);
         }
     }
 }

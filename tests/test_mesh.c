@@ -369,20 +369,20 @@ START_TEST(same_mesh_obj)
 }
 END_TEST
 
-/* MESH_OBJ_NORMALS: vn read; a position used with two normals becomes two
+/* MESH_ATTRIBUTES: vn read; a position used with two normals becomes two
  * vertices (a hard edge), one used with one normal stays one; a corner
  * without a normal gets its face's; bad normal indices are refused. */
 START_TEST(obj_vertex_normals)
 {
     static const char text[] = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\n"
                                "vn 0 0 2\nvn 0 -1 0\n"
-                               "f 1//1 2//1 3//1\n"    /* +z */
-                               "f 1/1/-2 3//-2 4//1\n" /* +z, relative */
-                               "f 1//2 2//2 5\n";      /* -y; vertex 5 without */
+                               "f 1//1 2//1 3//1\n"   /* +z */
+                               "f 1//-2 3//-2 4//1\n" /* +z, relative */
+                               "f 1//2 2//2 5\n";     /* -y; vertex 5 without */
     char path[PATHLEN], err[ERRLEN];
     tu_write_tmp(path, sizeof path, "vn.obj", text);
     mesh_t *m = NULL;
-    ck_assert_msg(mesh_load_flags(path, MESH_OBJ_NORMALS, 0, &m, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(mesh_load_flags(path, MESH_ATTRIBUTES, 0, &m, err, sizeof err) == 0, "%s", err);
     /* (1,+z) (2,+z) (3,+z) (4,+z) (1,-y) (2,-y) (5,none) */
     ck_assert_uint_eq(m->vertex_count, 7);
     ck_assert_uint_eq(m->triangle_count, 3);
@@ -406,10 +406,25 @@ START_TEST(obj_vertex_normals)
     tu_write_tmp(path, sizeof path, "vn-bad.obj",
                  "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\n"
                  "f 1//1 2//1 3//4\n");
-    ck_assert_int_eq(mesh_load_flags(path, MESH_OBJ_NORMALS, 0, &m, err, sizeof err), -1);
+    ck_assert_int_eq(mesh_load_flags(path, MESH_ATTRIBUTES, 0, &m, err, sizeof err), -1);
     ck_assert_msg(strstr(err, "line 5") && strstr(err, "normal index out of range"), "%s", err);
+    /* vt: a position with two coordinates becomes two vertices */
+    tu_write_tmp(path, sizeof path, "vt.obj",
+                 "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n"
+                 "vt 0 0\nvt 1 0\nvt 0 1\nvt 0.5 0.5\n"
+                 "f 1/1 2/2 3/3\nf 2/2 4/4 3/4\n");
+    ck_assert_msg(mesh_load_flags(path, MESH_ATTRIBUTES, 0, &m, err, sizeof err) == 0, "%s", err);
+    ck_assert_uint_eq(m->vertex_count, 5); /* (3, vt 3) and (3, vt 4) */
+    ck_assert_ptr_nonnull(m->uvs);
+    ck_assert(m->normals && m->normals[2] == 1.0f); /* none in the file: from the faces */
+    const float *uv = m->uvs + 2 * m->indices[4];
+    ck_assert(uv[0] == 0.5f && uv[1] == 0.5f);
+    uv = m->uvs + 2 * m->indices[2];
+    ck_assert(uv[0] == 0.0f && uv[1] == 1.0f);
+    ck_assert(m->uvs[2 * m->indices[5]] == 0.5f);
+    mesh_destroy(&m);
     tu_write_tmp(path, sizeof path, "vn-short.obj", "v 0 0 0\nvn 0 0\n");
-    ck_assert_int_eq(mesh_load_flags(path, MESH_OBJ_NORMALS, 0, &m, err, sizeof err), -1);
+    ck_assert_int_eq(mesh_load_flags(path, MESH_ATTRIBUTES, 0, &m, err, sizeof err), -1);
     ck_assert_msg(strstr(err, "line 2") && strstr(err, "normal needs 3"), "%s", err);
 }
 END_TEST

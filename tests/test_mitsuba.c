@@ -17,6 +17,7 @@
 #include "render.h"
 #include "scene.h"
 #include "testutil.h"
+#include "texture.h"
 #include "tracer.h"
 #include "vberr.h"
 
@@ -258,9 +259,15 @@ static const refusal_t refusals[] = {
     {"<shape type=\"obj\"><string name=\"filename\" value=\"nowhere.obj\"/></shape>", 3,
      "file \"nowhere.obj\" not found", 0},
     {"<include filename=\"main.xml\"/>", 3, "nested more than 16 deep", 0},
-    {"<shape type=\"cube\"><bsdf type=\"diffuse\"><ref name=\"reflectance\" id=\"t\"/></bsdf>"
-     "</shape>",
-     3, "a texture for \"reflectance\" is not supported", 0},
+    {"<texture type=\"bitmap\" id=\"t\"/>\n<shape type=\"rectangle\"><bsdf type=\"diffuse\">"
+     "<ref name=\"reflectance\" id=\"t\"/></bsdf></shape>",
+     3, "texture type \"bitmap\" is not supported (supported: checkerboard)", 0},
+    {"<shape type=\"cube\"><bsdf type=\"diffuse\"><texture type=\"checkerboard\" "
+     "name=\"reflectance\"/></bsdf></shape>",
+     3, "a texture on a cube shape is not supported", 0},
+    {"<shape type=\"rectangle\"><emitter type=\"area\"><texture type=\"checkerboard\" "
+     "name=\"radiance\"/></emitter></shape>",
+     3, "a texture for \"radiance\" is not supported", 0},
     {"<shape type=\"cube\"><transform name=\"to_world\"><translate z=\"9.99\"/></transform>"
      "</shape>",
      3, "near_clip", 0},
@@ -451,42 +458,25 @@ static double luminance(const float *r, const float *g, const float *b, size_t i
     return 0.2126 * r[i] + 0.7152 * g[i] + 0.0722 * b[i];
 }
 
-/* The shipped scene at 32x32 against Mitsuba 3.9.1's image of the same
- * file (llvm_ad_rgb, 65,536 spp, tests/data/mitsuba/cornell-box-32.exr,
- * made by bench/peer/mitsuba_scene.py): the image mean within 1 % (about
- * 5 sigma of ours at 1,024 spp) and each 8x8 block's within 4 %, so a
- * mirrored view, a swapped wall colour, a missing one-sided back or a
- * light facing the wrong way fails. */
+/* The shipped scenes at 32x32 against Mitsuba 3.9.1's images of the same
+ * files (llvm_ad_rgb, 65,536 spp, tests/data/mitsuba/, made by
+ * bench/peer/mitsuba_scene.py): the image mean within 1 % (about 5 sigma
+ * of ours at 1,024 spp) and each 8x8 block's within 4 %, so a mirrored
+ * view, a swapped wall colour, a missing one-sided back, a light facing
+ * the wrong way or a texture's pattern off by a cell fails. Measured:
+ * means within 0.2 %, blocks within 1 %. */
+static const char *const compared[][2] = {
+    {"scenes/mitsuba/cornell-box.xml", "tests/data/mitsuba/cornell-box-32.exr"},
+    {"scenes/mitsuba/checker.xml", "tests/data/mitsuba/checker-32.exr"},
+};
+
 START_TEST(matches_mitsuba)
 {
     const char *defs[] = {"res=32"};
-    cJSON *j = shipped(defs, 1);
-    char *text = cJSON_PrintUnformatted(j), err[VB_ERR_LEN];
-    cJSON_Delete(j);
     scene_t *s = NULL;
-    ck_assert_msg(
-        scene_load_string(text, strlen(text), "cornell-box.xml", ".", &s, err, sizeof err) == 0,
-        "%s", err);
-    cJSON_free(text);
-    tracer_device_t *dev = NULL;
-    tracer_t *t = NULL;
-    ck_assert_msg(tracer_device_new(&dev, err, sizeof err) == 0, "%s", err);
-    ck_assert_msg(tracer_new(dev, s, &t, err, sizeof err) == 0, "%s", err);
-    film_t *f = film_new(32, 32);
-    render_settings_t rs;
-    memset(&rs, 0, sizeof rs);
-    rs.tracer.seed = 3;
-    rs.tracer.integrator = SCENE_INTEGRATOR_PATH;
-    rs.tracer.sampler = RNG_SAMPLER_SOBOL;
-    rs.tracer.max_depth = s->max_depth;
-    rs.spp = 1024;
-    rs.granularity = 32;
-    rs.threads = 2;
-    rs.progress = PROGRESS_NONE;
-    render_summary_t sum;
-    ck_assert_msg(render_run(t, f, &rs, &sum, err, sizeof err) == 0, "%s", err);
-    char ref_path[1024];
-    tu_root_path(ref_path, sizeof ref_path, "tests/data/mitsuba/cornell-box-32.exr");
+    film_t *f = render_xml(compared[_i][0], defs, 1, 1024, &s);
+    char ref_path[1024], err[VB_ERR_LEN];
+    tu_root_path(ref_path, sizeof ref_path, compared[_i][1]);
     image_t *ref = NULL;
     ck_assert_msg(image_read_exr(ref_path, &ref, err, sizeof err) == 0, "%s", err);
     ck_assert_int_eq(ref->width, 32);
@@ -505,16 +495,52 @@ START_TEST(matches_mitsuba)
         all_ours += ours;
         all_ref += theirs;
     }
-    ck_assert_msg(fabs(all_ours / all_ref - 1) < 0.01, "image mean %g, Mitsuba's %g",
-                  all_ours / 1024, all_ref / 1024);
+    ck_assert_msg(fabs(all_ours / all_ref - 1) < 0.01, "%s: image mean %g, Mitsuba's %g",
+                  compared[_i][0], all_ours / 1024, all_ref / 1024);
     for (int b = 0; b < 16; b++)
         ck_assert_msg(fabs(block_ours[b] / block_ref[b] - 1) < 0.04,
-                      "block %d (row %d, column %d): mean %g, Mitsuba's %g", b, b / 4, b % 4,
-                      block_ours[b] / 64, block_ref[b] / 64);
+                      "%s: block %d (row %d, column %d): mean %g, Mitsuba's %g", compared[_i][0], b,
+                      b / 4, b % 4, block_ours[b] / 64, block_ref[b] / 64);
     image_destroy(&ref);
     film_destroy(&f);
-    tracer_destroy(&t);
-    tracer_device_destroy(&dev);
+    scene_destroy(&s);
+}
+END_TEST
+
+/* The checkerboard as Mitsuba 3.9.1 evaluates it (its values at these
+ * coordinates, to_uv scale 8 and u offset 0.1), through texture_albedo at
+ * the corners of a triangle whose coordinates are the triangle's own. */
+START_TEST(checkerboard_as_mitsuba)
+{
+    static const char json[] =
+        "{\"camera\": {\"position\": [0, 0, 5], \"look_at\": [0, 0, 0], \"fov\": 30, "
+        "\"width\": 4, \"height\": 4},"
+        " \"materials\": {\"c\": {\"type\": \"diffuse\", \"albedo\": {\"type\": \"checkerboard\","
+        " \"color0\": [0.2, 0.2, 0.2], \"color1\": [0.4, 0.4, 0.4], \"to_uv\": [8, 0, 0.1, 0, 8, "
+        "0]}}},"
+        " \"shapes\": [{\"type\": \"triangles\", \"material\": \"c\","
+        " \"vertices\": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], \"uvs\": [[0, 0], [1, 0], [0, 1]],"
+        " \"indices\": [[0, 1, 2]]}]}";
+    scene_t *s = NULL;
+    char err[VB_ERR_LEN];
+    ck_assert_msg(scene_load_string(json, strlen(json), "tex.json", ".", &s, err, sizeof err) == 0,
+                  "%s", err);
+    ck_assert_uint_eq(s->texture_count, 1);
+    ck_assert_ptr_nonnull(s->uvs);
+    const material_t *m = &s->materials[0];
+    /* (u, v) = barycentrics = texture coordinates here; Mitsuba's answers */
+    static const float at[][3] = {{0.01f, 0.01f, 0.2f}, {0.07f, 0.01f, 0.4f}, {0.01f, 0.07f, 0.4f},
+                                  {0.07f, 0.07f, 0.2f}, {0.1f, 0.2f, 0.2f},   {0.051f, 0.0f, 0.4f}};
+    for (size_t k = 0; k < sizeof at / sizeof at[0]; k++) {
+        vec3_t a = texture_albedo(s, m, 0, at[k][0], at[k][1]);
+        ck_assert_msg(a.x == at[k][2], "(%g, %g): %g, Mitsuba says %g", at[k][0], at[k][1], a.x,
+                      at[k][2]);
+    }
+    /* an untextured material is its albedo */
+    material_t plain = *m;
+    plain.albedo_texture = -1;
+    plain.albedo = vec3_make(0.3f, 0.3f, 0.3f);
+    ck_assert(texture_albedo(s, &plain, 0, 0.5f, 0.5f).y == 0.3f);
     scene_destroy(&s);
 }
 END_TEST
@@ -530,11 +556,12 @@ static Suite *mitsuba_suite(void)
                         (int)(sizeof refusals / sizeof refusals[0]));
     tcase_add_test(tc, refused_versions);
     tcase_add_test(tc, gaussian_filter_samples);
+    tcase_add_test(tc, checkerboard_as_mitsuba);
     suite_add_tcase(su, tc);
     tc = tcase_create("image");
     tcase_add_test(tc, constant_environment);
     tcase_set_timeout(tc, 120);
-    tcase_add_test(tc, matches_mitsuba);
+    tcase_add_loop_test(tc, matches_mitsuba, 0, (int)(sizeof compared / sizeof compared[0]));
     suite_add_tcase(su, tc);
     return su;
 }
