@@ -431,13 +431,24 @@ static int bundle_meshes(cJSON *scene, const char *scene_path, cJSON *names, sub
         shapes = NULL;
     const cJSON *sh;
     int mesh = 0;
-    cJSON_ArrayForEach(sh, shapes)
-    {
-        cJSON *file = cJSON_GetObjectItemCaseSensitive(sh, "file");
-        const cJSON *type = cJSON_GetObjectItemCaseSensitive(sh, "type");
-        if (!cJSON_IsString(type) || strcmp(type->valuestring, "mesh") != 0 ||
-            !cJSON_IsString(file))
-            continue;
+    /* the environment map travels as the meshes do */
+    cJSON *env = scene ? cJSON_GetObjectItemCaseSensitive(scene, "environment") : NULL;
+    cJSON *env_map = cJSON_GetObjectItemCaseSensitive(env, "map");
+    int env_done = !cJSON_IsString(env_map);
+    for (sh = shapes ? shapes->child : NULL;; sh = sh ? sh->next : NULL) {
+        cJSON *file;
+        if (sh) {
+            file = cJSON_GetObjectItemCaseSensitive(sh, "file");
+            const cJSON *type = cJSON_GetObjectItemCaseSensitive(sh, "type");
+            if (!cJSON_IsString(type) || strcmp(type->valuestring, "mesh") != 0 ||
+                !cJSON_IsString(file))
+                continue;
+        } else if (!env_done) {
+            file = env_map;
+            env_done = 1;
+        } else {
+            break;
+        }
         if (mesh == PROTO_MAX_MESHES) {
             snprintf(err, errlen, "%s: more than %d mesh files", scene_path, PROTO_MAX_MESHES);
             return -1;

@@ -29,6 +29,8 @@ typedef struct exr_io {
     char msg[VB_ERR_LEN];
     int have_msg;
     int fd;
+    const unsigned char *mem; /* image_read_exr_buffer: the file in memory */
+    size_t mem_size;
 } exr_io_t;
 
 static void exr_error_cb(exr_const_context_t ctxt, exr_result_t code, const char *msg)
@@ -611,6 +613,65 @@ int image_read_exr(const char *path, image_t **out, char *err, size_t errlen)
         ret = -1;
     } else {
         ret = exr_read_ctx(ctx, out, &io, path, err, errlen);
+    }
+    if (ctx)
+        exr_finish(&ctx);
+    return ret;
+}
+
+/* The library's reads of a file held in memory (image_read_exr_buffer). */
+static int64_t exr_mem_read(exr_const_context_t ctxt, void *userdata, void *buffer, uint64_t sz,
+                            uint64_t offset, exr_stream_error_func_ptr_t error_cb)
+{
+    (void)ctxt;
+    (void)error_cb;
+    const exr_io_t *io = userdata;
+    if (offset >= io->mem_size)
+        return 0;
+    uint64_t n = io->mem_size - offset < sz ? io->mem_size - offset : sz;
+    memcpy(buffer, io->mem + offset, (size_t)n);
+    return (int64_t)n;
+}
+
+static int64_t exr_mem_size(exr_const_context_t ctxt, void *userdata)
+{
+    (void)ctxt;
+    return (int64_t)((const exr_io_t *)userdata)->mem_size;
+}
+
+int image_read_exr_buffer(const char *name, const unsigned char *data, size_t size, image_t **out,
+                          char *err, size_t errlen)
+{
+    if (out)
+        *out = NULL;
+    if (!name || !out || (!data && size)) {
+        image_set_err(err, errlen, "%s: cannot read EXR: bad arguments", name ? name : "(null)");
+        return -1;
+    }
+    static const unsigned char exr_magic[4] = {0x76, 0x2f, 0x31, 0x01};
+    if (size < 4 || memcmp(data, exr_magic, 4) != 0) {
+        image_set_err(err, errlen, "%s: not an OpenEXR file", name);
+        return -1;
+    }
+    exr_io_t io;
+    memset(&io, 0, sizeof io);
+    io.fd = -1;
+    io.mem = data;
+    io.mem_size = size;
+    exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+    init.error_handler_fn = exr_error_cb;
+    init.user_data = &io;
+    init.read_fn = exr_mem_read;
+    init.size_fn = exr_mem_size;
+    init.flags = EXR_CONTEXT_FLAG_DISABLE_CHUNK_RECONSTRUCTION;
+    exr_context_t ctx = NULL;
+    exr_result_t rv = exr_start_read(&ctx, name, &init);
+    int ret;
+    if (rv != EXR_ERR_SUCCESS) {
+        image_set_err(err, errlen, "%s: cannot read EXR header: %s", name, exr_why(&io, rv));
+        ret = -1;
+    } else {
+        ret = exr_read_ctx(ctx, out, &io, name, err, errlen);
     }
     if (ctx)
         exr_finish(&ctx);

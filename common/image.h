@@ -74,6 +74,11 @@ int image_write_exr(const image_t *img, const char *path, char *err, size_t errl
  * beyond IMAGE_MAX_ATTRS, are skipped rather than failing the read. */
 int image_read_exr(const char *path, image_t **out, char *err, size_t errlen);
 
+/* The same from a file held in memory (a job bundle's); name is used in
+ * messages. */
+int image_read_exr_buffer(const char *name, const unsigned char *data, size_t size, image_t **out,
+                          char *err, size_t errlen);
+
 /* Writes an 8-bit sRGB PNG of channels R, G, B (clamped to [0, 1] after the
  * sRGB transfer curve, scaled by exposure first). -1 with a message when the
  * image lacks R, G or B, or on I/O failure. Like the EXR writer, both PNG

@@ -97,6 +97,108 @@ static inline vec3_t lights_env_direction(double u1, float u2)
     return vec3_make(r * cosf(phi), r * sinf(phi), z);
 }
 
+/* ---- the environment map (scene_t.env_map) ---- */
+
+static inline vec3_t lights_env_mul(const float m[9], vec3_t v)
+{
+    return vec3_make(m[0] * v.x + m[1] * v.y + m[2] * v.z, m[3] * v.x + m[4] * v.y + m[5] * v.z,
+                     m[6] * v.x + m[7] * v.y + m[8] * v.z);
+}
+
+/* The map's coordinates of a local direction, as Mitsuba's envmap reads
+ * them: x in [0, env_w) across the columns (pixel centres on the
+ * integers, half a pixel from the seam), y in [0, env_h - 1] down from the
+ * pole (+y) to the other; *cx, *cy the cell. */
+static inline void lights_env_xy(const scene_t *s, vec3_t l, float *x, float *y, int *cx, int *cy)
+{
+    float u = atan2f(l.x, -l.z) * (0.5f * VMATH_INV_PI);
+    float v = acosf(fminf(1.0f, fmaxf(-1.0f, l.y))) * VMATH_INV_PI;
+    u -= 0.5f / (float)s->env_w;
+    u -= floorf(u);
+    *x = u * (float)s->env_w;
+    *y = v * (float)(s->env_h - 1);
+    int ix = (int)*x, iy = (int)*y;
+    *cx = ix < s->env_w - 1 ? ix : s->env_w - 1;
+    *cy = iy < s->env_h - 2 ? iy : s->env_h - 2;
+}
+
+/* Radiance arriving from world direction d (unit length). */
+static inline vec3_t lights_env_radiance(const scene_t *s, vec3_t d)
+{
+    if (!s->env_map)
+        return s->env_radiance;
+    float x, y;
+    int cx, cy;
+    lights_env_xy(s, lights_env_mul(s->env_to_local, d), &x, &y, &cx, &cy);
+    float wx = x - (float)cx, wy = y - (float)cy;
+    size_t row = (size_t)s->env_w + 1;
+    const float *p00 = s->env_rgb + 3 * ((size_t)cy * row + (size_t)cx), *p01 = p00 + 3 * row;
+    float c[3];
+    for (int k = 0; k < 3; k++) {
+        float top = (1.0f - wx) * p00[k] + wx * p00[3 + k];
+        float bottom = (1.0f - wx) * p01[k] + wx * p01[3 + k];
+        c[k] = (1.0f - wy) * top + wy * bottom;
+    }
+    return vec3_make(c[0], c[1], c[2]);
+}
+
+/* Solid-angle density with which a light sample gives world direction d:
+ * the environment's pick times its own density. */
+static inline float lights_env_pdf(const scene_t *s, vec3_t d)
+{
+    if (!s->env_map)
+        return s->env_pdf;
+    vec3_t l = lights_env_mul(s->env_to_local, d);
+    float x, y;
+    int cx, cy;
+    lights_env_xy(s, l, &x, &y, &cx, &cy);
+    float sin_theta = sqrtf(fmaxf(l.x * l.x + l.z * l.z, 1e-12f));
+    return s->env_pick * s->env_cell_pdf[(size_t)cy * (size_t)s->env_w + (size_t)cx] /
+           (2.0f * VMATH_PI * VMATH_PI * sin_theta);
+}
+
+/* Where u in [0, 1) falls in cdf[0..n) (last entry 1), and its place
+ * within that entry's share, rescaled to [0, 1). */
+static inline size_t lights_cdf_pick(const double *cdf, size_t n, double u, double *rest)
+{
+    size_t lo = 0, hi = n - 1;
+    while (lo < hi) {
+        size_t mid = (lo + hi) / 2;
+        if (cdf[mid] > u)
+            hi = mid;
+        else
+            lo = mid + 1;
+    }
+    double a = lo ? cdf[lo - 1] : 0.0, b = cdf[lo];
+    double r = b > a ? (u - a) / (b - a) : 0.5;
+    *rest = r < 0.0 ? 0.0 : r < 1.0 ? r : 0x1.fffffffffffffp-1;
+    return lo;
+}
+
+/* A world direction toward the environment from two numbers, and its
+ * density (lights_env_pdf): the constant one uniform on the sphere; a map
+ * by cell (u1 picks the row, its rest the column, that rest the place
+ * across it), u2 the place down the cell. */
+static inline vec3_t lights_env_sample(const scene_t *s, double u1, float u2, float *pdf)
+{
+    if (!s->env_map) {
+        *pdf = s->env_pdf;
+        return lights_env_direction(u1, u2);
+    }
+    size_t w = (size_t)s->env_w;
+    double r1, r2;
+    size_t j = lights_cdf_pick(s->env_row_cdf, (size_t)s->env_h - 1, u1, &r1);
+    size_t i = lights_cdf_pick(s->env_col_cdf + j * w, w, r1, &r2);
+    float u = (float)(((double)i + r2) / (double)w) + 0.5f / (float)s->env_w;
+    float v = ((float)j + u2) / (float)(s->env_h - 1);
+    float theta = v * VMATH_PI, phi = u * 2.0f * VMATH_PI;
+    float st = sinf(theta), ct = cosf(theta);
+    vec3_t l = vec3_make(sinf(phi) * st, ct, -cosf(phi) * st);
+    vec3_t d = vec3_normalize(lights_env_mul(s->env_to_world, l));
+    *pdf = lights_env_pdf(s, d);
+    return d;
+}
+
 /* Density per unit area with which lights_sample gives a point on tri
  * (0 for a triangle that is not a light). Callers turn it into a
  * solid-angle density as pdf * distance^2 / cos at the light. */

@@ -1036,6 +1036,7 @@ typedef struct conv {
     cJSON *json, *materials, *shapes;
     double cam_pos[3], cam_fwd[3]; /* for the clip planes' check */
     double near_clip, far_clip;
+    double near_reach; /* a point of the view nearer than near_clip is this close to the eye */
     int have_sensor;
 } conv_t;
 
@@ -1316,6 +1317,7 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     memcpy(c->cam_fwd, fwd, sizeof fwd);
     c->near_clip = near;
     c->far_clip = far;
+    c->near_reach = near * sqrt(1 + tan_v * tan_v * (1 + aspect * aspect));
     return 0;
 }
 
@@ -1531,19 +1533,66 @@ static int conv_material(conv_t *c, const mx_node_t *bsdf, const mx_node_t *emit
 
 /* ---- shapes ------------------------------------------------------------------------ */
 
-/* 1 when points p[0..n) could be cut by the sensor's clip planes (some at
- * a depth inside (0, near_clip), or beyond far_clip), as a triangle with
- * those corners would be */
+/* The distance from point q to triangle (a, b, c): Ericson's closest
+ * point (Real-Time Collision Detection, 5.1.5). */
+static double point_triangle_distance(const double q[3], const double a[3], const double b[3],
+                                      const double c[3])
+{
+    double ab[3], ac[3], ap[3], r[3];
+    for (int k = 0; k < 3; k++) {
+        ab[k] = b[k] - a[k];
+        ac[k] = c[k] - a[k];
+        ap[k] = q[k] - a[k];
+    }
+    double d1 = v3_dot(ab, ap), d2 = v3_dot(ac, ap);
+    double bp[3], cp[3];
+    for (int k = 0; k < 3; k++) {
+        bp[k] = q[k] - b[k];
+        cp[k] = q[k] - c[k];
+    }
+    double d3 = v3_dot(ab, bp), d4 = v3_dot(ac, bp), d5 = v3_dot(ab, cp), d6 = v3_dot(ac, cp);
+    double va = d3 * d6 - d5 * d4, vb = d5 * d2 - d1 * d6, vc = d1 * d4 - d3 * d2;
+    if (d1 <= 0 && d2 <= 0) {
+        memcpy(r, a, sizeof r);
+    } else if (d3 >= 0 && d4 <= d3) {
+        memcpy(r, b, sizeof r);
+    } else if (d6 >= 0 && d5 <= d6) {
+        memcpy(r, c, sizeof r);
+    } else if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+        double t = d1 / (d1 - d3);
+        for (int k = 0; k < 3; k++)
+            r[k] = a[k] + t * ab[k];
+    } else if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+        double t = d2 / (d2 - d6);
+        for (int k = 0; k < 3; k++)
+            r[k] = a[k] + t * ac[k];
+    } else if (va <= 0 && d4 - d3 >= 0 && d5 - d6 >= 0) {
+        double t = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        for (int k = 0; k < 3; k++)
+            r[k] = b[k] + t * (c[k] - b[k]);
+    } else {
+        double den = 1 / (va + vb + vc), v = vb * den, w = vc * den;
+        for (int k = 0; k < 3; k++)
+            r[k] = a[k] + ab[k] * v + ac[k] * w;
+    }
+    for (int k = 0; k < 3; k++)
+        r[k] -= q[k];
+    return sqrt(v3_dot(r, r));
+}
+
+/* 1 when triangle p could be cut by the sensor's clip planes where the
+ * camera sees it: some of it nearer than near_clip inside the view
+ * (within near_reach of the eye), or farther than far_clip. */
 static int clipped(const conv_t *c, const double (*p)[3], size_t n)
 {
-    double zmin = INFINITY, zmax = -INFINITY;
-    for (size_t i = 0; i < n; i++) {
+    (void)n;
+    double zmax = -INFINITY;
+    for (int i = 0; i < 3; i++) {
         double d[3] = {p[i][0] - c->cam_pos[0], p[i][1] - c->cam_pos[1], p[i][2] - c->cam_pos[2]};
-        double z = v3_dot(d, c->cam_fwd);
-        zmin = fmin(zmin, z);
-        zmax = fmax(zmax, z);
+        zmax = fmax(zmax, v3_dot(d, c->cam_fwd));
     }
-    return (zmin < c->near_clip && zmax > 0) || zmax > c->far_clip;
+    return zmax > c->far_clip ||
+           point_triangle_distance(c->cam_pos, p[0], p[1], p[2]) < c->near_reach;
 }
 
 static int clip_fail(conv_t *c, const mx_node_t *n)
@@ -1740,7 +1789,7 @@ static int conv_shape(conv_t *c, mx_node_t *n)
 static int conv_constant(conv_t *c, mx_node_t *n)
 {
     if (cJSON_GetObjectItemCaseSensitive(c->json, "environment"))
-        return NODE_FAIL(c->x, n, "a second constant emitter");
+        return NODE_FAIL(c->x, n, "a second environment (constant or envmap) is not supported");
     double rad[3] = {1, 1, 1};
     if (get_color(c->x, n, "radiance", 0, rad) < 0)
         return -1;
@@ -1753,6 +1802,49 @@ static int conv_constant(conv_t *c, mx_node_t *n)
         return -1;
     cJSON *e = cJSON_AddObjectToObject(c->json, "environment");
     cJSON_AddItemToObject(e, "radiance", vec3_json(rad));
+    return 0;
+}
+
+/* <emitter type="envmap">: a latitude-longitude EXR map (filename, scale,
+ * a rotation to_world), our scene's "environment" map. */
+static int conv_envmap(conv_t *c, mx_node_t *n)
+{
+    if (cJSON_GetObjectItemCaseSensitive(c->json, "environment"))
+        return NODE_FAIL(c->x, n, "a second environment (constant or envmap) is not supported");
+    const char *file = NULL;
+    double scale = 1;
+    mat4_t m;
+    if (get_string(c->x, n, "filename", &file) < 0 || get_float(c->x, n, "scale", &scale) < 0 ||
+        get_transform(c->x, n, "to_world", &m, NULL) < 0)
+        return -1;
+    if (!file)
+        return NODE_FAIL(c->x, n, "the envmap needs a filename");
+    size_t len = strlen(file);
+    if (len < 4 || strcasecmp(file + len - 4, ".exr") != 0)
+        return NODE_FAIL(c->x, n, "envmap \"%s\": only OpenEXR maps are supported", file);
+    if (!(scale >= 0 && scale <= 1e30))
+        return NODE_FAIL(c->x, n, "scale %g is outside [0, 1e30]", scale);
+    double r[9];
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < 3; b++)
+            r[3 * a + b] = m.m[a][b];
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < 3; b++) {
+            double dot = r[a] * r[b] + r[3 + a] * r[3 + b] + r[6 + a] * r[6 + b];
+            if (fabs(dot - (a == b)) > 1e-4)
+                return NODE_FAIL(c->x, n, "an envmap's to_world must be a rotation");
+        }
+    char path[PATH_MAX];
+    if (resolve(c->x, n, c->dir, file, path, sizeof path) < 0)
+        return -1;
+    static const char *const harmless[] = {"sampling_weight", NULL};
+    ignore_props(n, harmless);
+    if (check_used(c, n) < 0)
+        return -1;
+    cJSON *e = cJSON_AddObjectToObject(c->json, "environment");
+    cJSON_AddStringToObject(e, "map", path);
+    cJSON_AddNumberToObject(e, "scale", scale);
+    cJSON_AddItemToObject(e, "to_world", cJSON_CreateDoubleArray(r, 9));
     return 0;
 }
 
@@ -1801,7 +1893,9 @@ static int conv_scene(conv_t *c, mx_node_t *scene)
             k->used = 1;
             if (conv_shape(c, k) < 0)
                 return -1;
-        } else if ((strcmp(k->tag, "bsdf") == 0 || strcmp(k->tag, "emitter") == 0 ||
+        } else if ((strcmp(k->tag, "bsdf") == 0 ||
+                    (strcmp(k->tag, "emitter") == 0 && !is_type(k, "constant") &&
+                     !is_type(k, "envmap")) ||
                     strcmp(k->tag, "texture") == 0 || strcmp(k->tag, "film") == 0 ||
                     strcmp(k->tag, "sampler") == 0) &&
                    node_attr(k, "id")) {
@@ -1811,8 +1905,12 @@ static int conv_scene(conv_t *c, mx_node_t *scene)
             k->used = 1;
             if (conv_constant(c, k) < 0)
                 return -1;
+        } else if (strcmp(k->tag, "emitter") == 0 && is_type(k, "envmap")) {
+            k->used = 1;
+            if (conv_envmap(c, k) < 0)
+                return -1;
         } else if (strcmp(k->tag, "emitter") == 0) {
-            return unsupported_type(c, k, "area on a shape, constant");
+            return unsupported_type(c, k, "area on a shape, constant, envmap");
         } else {
             const char *type = node_attr(k, "type");
             return NODE_FAIL(x, k, "<%s%s%s%s> is not supported", k->tag, type ? " type=\"" : "",
@@ -1826,9 +1924,10 @@ static int conv_scene(conv_t *c, mx_node_t *scene)
             for (size_t j = 0; j < c->nmats; j++)
                 taken |= c->mat_emitter[j] == k;
             if (!taken)
-                return is_type(k, "area") ? NODE_FAIL(x, k, "area emitter \"%s\" is on no shape",
-                                                      node_attr(k, "id"))
-                                          : unsupported_type(c, k, "area on a shape, constant");
+                return is_type(k, "area")
+                           ? NODE_FAIL(x, k, "area emitter \"%s\" is on no shape",
+                                       node_attr(k, "id"))
+                           : unsupported_type(c, k, "area on a shape, constant, envmap");
         }
     }
     if (c->nmats == 0 || cJSON_GetArraySize(c->shapes) == 0)

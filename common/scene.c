@@ -16,6 +16,7 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "image.h"
 #include "lights.h"
 #include "mesh.h"
 #include "vberr.h"
@@ -234,8 +235,107 @@ static int parse_render(loader_t *L, const cJSON *root)
     return 0;
 }
 
+/* The environment map's image: from the bundle or beside the scene. */
+static int load_env_image(loader_t *L, const char *file, image_t **img)
+{
+    char msg[VB_ERR_LEN];
+    int rc;
+    if (L->blobs) {
+        const scene_blob_t *b = NULL;
+        for (size_t i = 0; i < L->blob_count && !b; i++)
+            if (strcmp(L->blobs[i].name, file) == 0)
+                b = &L->blobs[i];
+        if (!b)
+            return fail(L, "environment.map", "\"%s\" is not in the scene bundle", file);
+        rc = image_read_exr_buffer(b->name, b->data, b->size, img, msg, sizeof msg);
+    } else {
+        char full[4096];
+        if (file[0] == '/' || !L->base_dir || !*L->base_dir)
+            snprintf(full, sizeof full, "%s", file);
+        else
+            snprintf(full, sizeof full, "%s/%s", L->base_dir, file);
+        rc = image_read_exr(full, img, msg, sizeof msg);
+    }
+    return rc < 0 ? fail(L, "environment.map", "%s", msg) : 0;
+}
+
+/* The map's pixels (scaled, the first column repeated after the last) and
+ * its sampling distribution: each cell between four pixels weighted by
+ * their mean luminance times sin(theta) at its centre. */
+static int build_env_map(loader_t *L, const image_t *img, double scale)
+{
+    scene_t *s = L->s;
+    const float *ch[3] = {image_channel(img, "R"), image_channel(img, "G"),
+                          image_channel(img, "B")};
+    if (!ch[0] || !ch[1] || !ch[2])
+        return fail(L, "environment.map", "the image has no R, G and B channels");
+    int w = img->width, h = img->height;
+    if (w < 2 || h < 3)
+        return fail(L, "environment.map", "the image is %dx%d (at least 2x3)", w, h);
+    size_t row = (size_t)w + 1, cells = (size_t)w * (size_t)(h - 1);
+    s->env_rgb = malloc(row * (size_t)h * 3 * sizeof(float));
+    s->env_row_cdf = malloc((size_t)(h - 1) * sizeof(double));
+    s->env_col_cdf = malloc(cells * sizeof(double));
+    s->env_cell_pdf = malloc(cells * sizeof(float));
+    if (!s->env_rgb || !s->env_row_cdf || !s->env_col_cdf || !s->env_cell_pdf)
+        return fail(L, "environment.map", "out of memory for a %dx%d map", w, h);
+    for (int y = 0; y < h; y++)
+        for (size_t x = 0; x < row; x++)
+            for (int k = 0; k < 3; k++) {
+                float v = ch[k][(size_t)y * (size_t)w + (x < (size_t)w ? x : 0)];
+                if (!(v >= 0) || !isfinite(v))
+                    return fail(L, "environment.map", "pixel (%zu, %d) is negative or not finite",
+                                x, y);
+                float sv = (float)(v * scale);
+                if (!isfinite(sv))
+                    return fail(L, "environment.scale", "the scaled map overflows");
+                s->env_rgb[3 * ((size_t)y * row + x) + (size_t)k] = sv;
+            }
+    double total = 0;
+    double *weight = s->env_col_cdf; /* weights first, then each row's cdf in place */
+    for (int j = 0; j < h - 1; j++) {
+        double sin_theta = sin((j + 0.5) / (h - 1) * 3.14159265358979323846), sum = 0;
+        for (int i = 0; i < w; i++) {
+            double lum = 0;
+            for (int dy = 0; dy < 2; dy++)
+                for (int dx = 0; dx < 2; dx++) {
+                    const float *p = s->env_rgb + 3 * ((size_t)(j + dy) * row + (size_t)(i + dx));
+                    lum += vmath_luminance(p[0], p[1], p[2]);
+                }
+            weight[(size_t)j * (size_t)w + (size_t)i] = lum / 4 * sin_theta;
+            sum += lum / 4 * sin_theta;
+        }
+        s->env_row_cdf[j] = sum;
+        total += sum;
+    }
+    if (!(total > 0) || !isfinite(total))
+        return 0; /* black: no light */
+    double acc = 0;
+    for (int j = 0; j < h - 1; j++) {
+        double row_sum = s->env_row_cdf[j], racc = 0;
+        acc += row_sum;
+        s->env_row_cdf[j] = acc / total;
+        for (int i = 0; i < w; i++) {
+            double *c = &weight[(size_t)j * (size_t)w + (size_t)i];
+            s->env_cell_pdf[(size_t)j * (size_t)w + (size_t)i] =
+                (float)(*c / total * (double)cells);
+            racc += *c;
+            *c = row_sum > 0 ? racc / row_sum : (i + 1.0) / w;
+        }
+        weight[(size_t)j * (size_t)w + (size_t)(w - 1)] = 1.0;
+    }
+    s->env_row_cdf[h - 2] = 1.0;
+    s->env_w = w;
+    s->env_h = h;
+    s->env_map = 1;
+    s->has_env = 1;
+    return 0;
+}
+
 /* "environment": {"radiance": [r, g, b]}: light from every direction no
- * triangle blocks (finish sets up its sampling). */
+ * triangle blocks; or {"map": "file.exr", "scale": s, "to_world": [9
+ * numbers]}: a latitude-longitude map, as Mitsuba's envmap reads one
+ * (finish sets up its sampling). */
 static int parse_environment(loader_t *L, const cJSON *root)
 {
     const cJSON *e = cJSON_GetObjectItemCaseSensitive(root, "environment");
@@ -243,8 +343,45 @@ static int parse_environment(loader_t *L, const cJSON *root)
         return 0;
     if (!cJSON_IsObject(e))
         return fail(L, "environment", "expected an object");
-    static const char *const keys[] = {"radiance", NULL};
+    static const char *const keys[] = {"radiance", "map", "scale", "to_world", NULL};
     check_keys(L, e, "environment", keys);
+    const cJSON *map = cJSON_GetObjectItemCaseSensitive(e, "map");
+    if (map) {
+        if (!cJSON_IsString(map) || !*map->valuestring)
+            return fail(L, "environment.map", "expected an EXR file's name");
+        double scale = 1, m[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+        if (get_number(L, e, "scale", "environment", 0, 0, 1e30, &scale) < 0)
+            return -1;
+        const cJSON *tw = cJSON_GetObjectItemCaseSensitive(e, "to_world");
+        if (tw) {
+            int n = 0;
+            for (const cJSON *it = cJSON_IsArray(tw) ? tw->child : NULL; it; it = it->next, n++)
+                if (n >= 9 || !cJSON_IsNumber(it) || !isfinite(it->valuedouble))
+                    return fail(L, "environment.to_world", "expected 9 finite numbers");
+                else
+                    m[n] = it->valuedouble;
+            if (n != 9)
+                return fail(L, "environment.to_world", "expected 9 finite numbers");
+        }
+        /* a rotation: its inverse is its transpose, within rounding */
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < 3; b++) {
+                double dot = m[a] * m[b] + m[3 + a] * m[3 + b] + m[6 + a] * m[6 + b];
+                if (fabs(dot - (a == b)) > 1e-4)
+                    return fail(L, "environment.to_world", "not a rotation");
+            }
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < 3; b++) {
+                L->s->env_to_world[3 * a + b] = (float)m[3 * a + b];
+                L->s->env_to_local[3 * a + b] = (float)m[3 * b + a];
+            }
+        image_t *img = NULL;
+        if (load_env_image(L, map->valuestring, &img) < 0)
+            return -1;
+        int rc = build_env_map(L, img, scale);
+        image_destroy(&img);
+        return rc;
+    }
     double rad[3];
     if (get_vec3(L, e, "radiance", "environment", 1, rad) < 0)
         return -1;
@@ -1267,6 +1404,10 @@ void scene_destroy(scene_t **sp)
     free(s->normals);
     free(s->uvs);
     free(s->textures);
+    free(s->env_rgb);
+    free(s->env_row_cdf);
+    free(s->env_col_cdf);
+    free(s->env_cell_pdf);
     free(s->indices);
     free(s->tri_material);
     free(s->tri_normal);

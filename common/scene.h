@@ -77,6 +77,18 @@ typedef struct scene {
     float env_pick;
     float env_pdf;      /* its solid-angle density: env_pick / (4 pi) */
     float env_distance; /* a shadow segment this long leaves the scene */
+    /* an environment map (Mitsuba's envmap) instead of a constant: a
+     * latitude-longitude image, env_w x env_h, as env_rgb rows of env_w + 1
+     * pixels (the last repeats the first), radiance scale applied; the
+     * rotation between world and map; and the sampling distribution over
+     * its (env_h - 1) x env_w cells, by luminance x sin(theta) */
+    int env_map;
+    int env_w, env_h;
+    float *env_rgb;
+    float env_to_local[9], env_to_world[9];
+    double *env_row_cdf; /* env_h - 1 */
+    double *env_col_cdf; /* (env_h - 1) x env_w, each row's own */
+    float *env_cell_pdf; /* density in (u, v) of a direction in each cell */
 
     size_t dropped_degenerate; /* zero-area triangles left out */
     int warning_count;

@@ -311,7 +311,8 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
         path.rays++;
         if (!tracer_intersect(tr, path.o, path.d, &h)) {
             if (s->has_env)
-                path.L = tracer_env_miss(s, path.L, path.beta, path.specular, path.prev_pdf, nee);
+                path.L = tracer_env_miss(s, path.L, path.beta, path.d, path.specular, path.prev_pdf,
+                                         nee);
             break;
         }
         const material_t *m = &s->materials[s->tri_material[h.tri]];

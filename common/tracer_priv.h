@@ -163,29 +163,29 @@ static inline int tracer_env_direct(const scene_t *s, const material_t *m, vec3_
                                     vec3_t beta, vec3_t p, const material_hit_t *mh, double u1,
                                     float u2, vec3_t *from, vec3_t *seg, vec3_t *gain)
 {
-    vec3_t wl = lights_env_direction(u1, u2);
+    float light_pdf;
+    vec3_t wl = lights_env_sample(s, u1, u2, &light_pdf);
     float cos_s, bsdf_pdf;
-    if (!material_eval(m, mh, wl, &cos_s, &bsdf_pdf))
+    if (!(light_pdf > 0.0f) || !material_eval(m, mh, wl, &cos_s, &bsdf_pdf))
         return 0;
     *from = vec3_offset_ray_origin(p, mh->ngf);
     *seg = vec3_scale(wl, s->env_distance);
-    float light_pdf = s->env_pdf;
     float w = tracer_power_heuristic(light_pdf, bsdf_pdf);
     float k = w * cos_s * VMATH_INV_PI / light_pdf;
-    *gain = vec3_mul(vec3_mul(beta, albedo), vec3_scale(s->env_radiance, k));
+    *gain = vec3_mul(vec3_mul(beta, albedo), vec3_scale(lights_env_radiance(s, wl), k));
     return 1;
 }
 
 /* L after a ray that left the scene: plus the environment's radiance,
  * weighted against next-event estimation unless the last bounce was
  * specular (or there is none). */
-static inline vec3_t tracer_env_miss(const scene_t *s, vec3_t L, vec3_t beta, int specular,
-                                     float prev_pdf, int nee)
+static inline vec3_t tracer_env_miss(const scene_t *s, vec3_t L, vec3_t beta, vec3_t d,
+                                     int specular, float prev_pdf, int nee)
 {
     float w = 1.0f;
     if (nee && !specular)
-        w = tracer_power_heuristic(prev_pdf, s->env_pdf);
-    return vec3_add(L, vec3_mul(beta, vec3_scale(s->env_radiance, w)));
+        w = tracer_power_heuristic(prev_pdf, lights_env_pdf(s, d));
+    return vec3_add(L, vec3_mul(beta, vec3_scale(lights_env_radiance(s, d), w)));
 }
 
 /* Where bounce `depth`'s numbers start under the sobol sampler: after the

@@ -115,7 +115,7 @@ void wave_trace(const wave_ctx_t *c, wave_state_t *w, const tracer_task_t *tasks
                     continue;
                 }
             } else if (c->env) {
-                w->L[s] = tracer_env_miss(c->scene, w->L[s], w->beta[s], w->specular[s],
+                w->L[s] = tracer_env_miss(c->scene, w->L[s], w->beta[s], w->d[s], w->specular[s],
                                           w->prev_pdf[s], c->nee);
             }
             L[w->sample[s]] = w->L[s];
