@@ -22,6 +22,7 @@
 #include <sys/stat.h>
 
 #include "mesh.h"
+#include "scene.h"
 
 /* ---- spectra ------------------------------------------------------------ */
 
@@ -1144,9 +1145,12 @@ static int conv_integrator(conv_t *c, mx_node_t *n, cJSON *render)
         return NODE_FAIL(c->x, n, "max_depth 0 renders nothing");
     if (hide)
         return NODE_FAIL(c->x, n, "hide_emitters is not supported");
-    /* -1 is unlimited, as our 0; rr_depth moves only the variance (our
-     * roulette starts where ours measured best) */
+    /* -1 is unlimited, as our 0 */
     cJSON_AddNumberToObject(render, "max_depth", depth < 0 ? 0 : (double)depth);
+    /* Mitsuba's rr_depth 1000 and more mean no roulette: ours starts at
+     * the latest by SCENE_MAX_RR_DEPTH, which ends every path */
+    cJSON_AddNumberToObject(render, "rr_depth",
+                            (double)(rr < SCENE_MAX_RR_DEPTH ? rr : SCENE_MAX_RR_DEPTH));
     return check_used(c, n);
 }
 

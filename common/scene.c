@@ -210,18 +210,21 @@ static int parse_render(loader_t *L, const cJSON *root)
     s->seed = 1;
     s->integrator = SCENE_INTEGRATOR_PATH;
     s->max_depth = 0;
+    s->rr_depth = SCENE_RR_DEPTH;
     const cJSON *r = cJSON_GetObjectItemCaseSensitive(root, "render");
     if (!r)
         return 0;
     if (!cJSON_IsObject(r))
         return fail(L, "render", "expected an object");
-    static const char *const keys[] = {"spp", "seed", "integrator", "max_depth", NULL};
+    static const char *const keys[] = {"spp", "seed", "integrator", "max_depth", "rr_depth", NULL};
     check_keys(L, r, "render", keys);
-    double spp = s->spp, seed = (double)s->seed, depth = 0;
+    double spp = s->spp, seed = (double)s->seed, depth = 0, rr = SCENE_RR_DEPTH;
     if (get_integer(L, r, "spp", "render", 0, 1, 4294967295.0, &spp) < 0 ||
         get_integer(L, r, "seed", "render", 0, 0, 9007199254740992.0, &seed) < 0 ||
-        get_integer(L, r, "max_depth", "render", 0, 0, 1e6, &depth) < 0)
+        get_integer(L, r, "max_depth", "render", 0, 0, 1e6, &depth) < 0 ||
+        get_integer(L, r, "rr_depth", "render", 0, 1, SCENE_MAX_RR_DEPTH, &rr) < 0)
         return -1;
+    s->rr_depth = (uint32_t)rr;
     s->spp = (uint32_t)spp;
     s->seed = (uint64_t)seed;
     s->max_depth = (uint32_t)depth;

@@ -30,6 +30,12 @@ typedef enum { SCENE_INTEGRATOR_PATH = 0, SCENE_INTEGRATOR_NAIVE = 1 } scene_int
 /* A texture: Mitsuba's checkerboard. Texture coordinates (u, v) map to
  * (u', v') = to_uv (u, v, 1); color0 where the fractional parts of u' and
  * v' are both above 1/2 or both not, else color1. */
+/* Russian roulette's default start: after this many segments; and its
+ * latest (roulette keeps the estimate unbiased, and it ends every path:
+ * without it two perfect mirrors could hold one forever). */
+#define SCENE_RR_DEPTH 5
+#define SCENE_MAX_RR_DEPTH 1024
+
 typedef struct texture {
     vec3_t color0, color1;
     float to_uv[6]; /* u' = [0] u + [1] v + [2], v' = [3] u + [4] v + [5] */
@@ -43,6 +49,7 @@ typedef struct scene {
     uint64_t seed;
     scene_integrator_t integrator;
     uint32_t max_depth; /* 0: unlimited (Russian roulette ends paths) */
+    uint32_t rr_depth;  /* segments before Russian roulette (SCENE_RR_DEPTH) */
 
     material_t *materials;
     /* the textures materials name (material_t.albedo_texture), and each

@@ -353,7 +353,7 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
         path.specular = bs.specular;
         path.o = vec3_offset_ray_origin(p, bs.transmits ? vec3_neg(mh.ngf) : mh.ngf);
         rng_seek(&path.rng, tracer_bounce_dim(depth));
-        if (depth + 1 >= TRACER_RR_DEPTH && !survives_roulette(&path))
+        if (depth + 1 >= s->rr_depth && !survives_roulette(&path))
             break;
         path.d = vec3_normalize(bs.wi);
     }

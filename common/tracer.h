@@ -35,9 +35,10 @@
  * without that would draw such a scene two-sided; our own scenes' bits
  * are unchanged). */
 #define TRACER_VERSION 3
-/* Russian roulette starts after this many bounces (as Mitsuba 3's default
- * rr_depth, so samples/s compare like with like). */
-#define TRACER_RR_DEPTH 5
+/* Russian roulette starts after this many bounces unless the scene says
+ * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so
+ * samples/s compare like with like). */
+#define TRACER_RR_DEPTH SCENE_RR_DEPTH
 
 typedef struct tracer tracer_t;
 

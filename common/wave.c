@@ -139,7 +139,7 @@ void wave_trace(const wave_ctx_t *c, wave_state_t *w, const tracer_task_t *tasks
                 int goes_on = w->alive[s];
                 if (goes_on) {
                     rng_seek(&w->rng[s], tracer_bounce_dim(w->depth[s]));
-                    if (w->depth[s] + 1 >= TRACER_RR_DEPTH) {
+                    if (w->depth[s] + 1 >= c->scene->rr_depth) {
                         float q = tracer_roulette_probability(w->beta[s], w->eta_scale[s]);
                         if (!(rng_next_float(&w->rng[s]) < q))
                             goes_on = 0;

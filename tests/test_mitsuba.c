@@ -121,6 +121,7 @@ START_TEST(shipped_scene)
     const cJSON *render = get(j, "render");
     ck_assert_int_eq((int)get(render, "spp")->valuedouble, 64);
     ck_assert_int_eq((int)get(render, "max_depth")->valuedouble, 0); /* -1: unlimited */
+    ck_assert_int_eq((int)get(render, "rr_depth")->valuedouble, 5);  /* Mitsuba's default */
     const cJSON *mats = get(j, "materials");
     const cJSON *white = get(mats, "white"), *red = get(mats, "red");
     ck_assert(cJSON_IsTrue(get(white, "twosided")));
