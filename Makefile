@@ -240,6 +240,8 @@ TEST_RUN   = $(filter-out %/test_cluster,$(TEST_BIN)) '$(BUILD)/tests/test_clust
 # seed). Every target does 20000 in under 4 s under ASan; one that gets
 # slow can have fewer, as FUZZ_N_fuzz_NAME = N.
 FUZZ_N    = 20000
+# (fuzz_mitsuba writes each input to a file and reads what it names)
+FUZZ_N_fuzz_mitsuba = 3000
 FUZZ_RUNS = $(foreach f,$(FUZZ_BIN),$(f):$(or $(FUZZ_N_$(notdir $(f))),$(FUZZ_N)))
 
 # (the benchmarks are built too, not run: a change to an API they call
