@@ -15,7 +15,8 @@
 #   make bench   deps, build, core, distributed, durable, verification,
 #                CURVE and preview benchmarks (bench/results/)
 #   make bench-error   the error study: the samplers (run-sampler.sh), adaptive modes
-#                      against uniform and Mitsuba 3
+#                      against uniform and Mitsuba 3, and Mitsuba's own scene files
+#                      (bench/mitsuba-scenes/run.sh, with MITSUBA_DATA)
 #   make format        clang-format every tracked C file in place
 #   make format-check  fail if any tracked C file differs from clang-format's output
 
@@ -351,6 +352,7 @@ bench-error: deps
 	bash bench/run-sampler.sh
 	bash bench/error/run.sh
 	bash bench/error/run.sh --repeat
+	bash bench/mitsuba-scenes/run.sh
 
 clean:
 	rm -rf build build-asan build-tsan build-fuzz bin
