@@ -565,6 +565,25 @@ static int exr_read_ctx(exr_context_t ctx, image_t **out, exr_io_t *io, const ch
     return 0;
 }
 
+/* Opens name with init (a file, or a memory stream through its read
+ * functions) and reads it. */
+static int exr_read_with(const exr_context_initializer_t *init, exr_io_t *io, const char *name,
+                         image_t **out, char *err, size_t errlen)
+{
+    exr_context_t ctx = NULL;
+    exr_result_t rv = exr_start_read(&ctx, name, init);
+    int ret;
+    if (rv != EXR_ERR_SUCCESS) {
+        image_set_err(err, errlen, "%s: cannot read EXR header: %s", name, exr_why(io, rv));
+        ret = -1;
+    } else {
+        ret = exr_read_ctx(ctx, out, io, name, err, errlen);
+    }
+    if (ctx)
+        exr_finish(&ctx);
+    return ret;
+}
+
 int image_read_exr(const char *path, image_t **out, char *err, size_t errlen)
 {
     if (out)
@@ -605,18 +624,7 @@ int image_read_exr(const char *path, image_t **out, char *err, size_t errlen)
      * reconstruction could hand back a partly filled image as success. */
     init.flags = EXR_CONTEXT_FLAG_DISABLE_CHUNK_RECONSTRUCTION;
 
-    exr_context_t ctx = NULL;
-    exr_result_t rv = exr_start_read(&ctx, path, &init);
-    int ret;
-    if (rv != EXR_ERR_SUCCESS) {
-        image_set_err(err, errlen, "%s: cannot read EXR header: %s", path, exr_why(&io, rv));
-        ret = -1;
-    } else {
-        ret = exr_read_ctx(ctx, out, &io, path, err, errlen);
-    }
-    if (ctx)
-        exr_finish(&ctx);
-    return ret;
+    return exr_read_with(&init, &io, path, out, err, errlen);
 }
 
 /* The library's reads of a file held in memory (image_read_exr_buffer). */
@@ -664,16 +672,5 @@ int image_read_exr_buffer(const char *name, const unsigned char *data, size_t si
     init.read_fn = exr_mem_read;
     init.size_fn = exr_mem_size;
     init.flags = EXR_CONTEXT_FLAG_DISABLE_CHUNK_RECONSTRUCTION;
-    exr_context_t ctx = NULL;
-    exr_result_t rv = exr_start_read(&ctx, name, &init);
-    int ret;
-    if (rv != EXR_ERR_SUCCESS) {
-        image_set_err(err, errlen, "%s: cannot read EXR header: %s", name, exr_why(&io, rv));
-        ret = -1;
-    } else {
-        ret = exr_read_ctx(ctx, out, &io, name, err, errlen);
-    }
-    if (ctx)
-        exr_finish(&ctx);
-    return ret;
+    return exr_read_with(&init, &io, name, out, err, errlen);
 }

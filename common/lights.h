@@ -32,19 +32,26 @@ typedef enum {
 lights_status_t lights_build(scene_t *s, const double *power, double total_power, char *err,
                              size_t errlen);
 
-/* The index (into light_tris, light_cdf) of the light whose share of the
- * cumulative power holds u in [0, 1): a binary search in light_cdf. */
-static inline size_t lights_pick_index(const scene_t *s, double u)
+/* The first entry of cdf[0..n) (ascending, the last 1) above u: a binary
+ * search. */
+static inline size_t lights_cdf_search(const double *cdf, size_t n, double u)
 {
-    size_t lo = 0, hi = s->light_count - 1;
+    size_t lo = 0, hi = n - 1;
     while (lo < hi) {
         size_t mid = (lo + hi) / 2;
-        if (s->light_cdf[mid] > u)
+        if (cdf[mid] > u)
             hi = mid;
         else
             lo = mid + 1;
     }
     return lo;
+}
+
+/* The index (into light_tris, light_cdf) of the light whose share of the
+ * cumulative power holds u in [0, 1). */
+static inline size_t lights_pick_index(const scene_t *s, double u)
+{
+    return lights_cdf_search(s->light_cdf, s->light_count, u);
 }
 
 /* Picks a light by power and a point *q on it, uniform by area, from two
@@ -161,14 +168,7 @@ static inline float lights_env_pdf(const scene_t *s, vec3_t d)
  * within that entry's share, rescaled to [0, 1). */
 static inline size_t lights_cdf_pick(const double *cdf, size_t n, double u, double *rest)
 {
-    size_t lo = 0, hi = n - 1;
-    while (lo < hi) {
-        size_t mid = (lo + hi) / 2;
-        if (cdf[mid] > u)
-            hi = mid;
-        else
-            lo = mid + 1;
-    }
+    size_t lo = lights_cdf_search(cdf, n, u);
     double a = lo ? cdf[lo - 1] : 0.0, b = cdf[lo];
     double r = b > a ? (u - a) / (b - a) : 0.5;
     *rest = r < 0.0 ? 0.0 : r < 1.0 ? r : 0x1.fffffffffffffp-1;
