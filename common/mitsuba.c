@@ -1484,6 +1484,7 @@ static int conv_material(conv_t *c, const mx_node_t *bsdf, const mx_node_t *emit
         }
         for (int k = 0; k < 3; k++)
             if (!(albedo[k] >= 0 && albedo[k] <= 1)) {
+                cJSON_Delete(texture);
                 cJSON_Delete(m);
                 return NODE_FAIL(c->x, inner, "reflectance %g is outside [0, 1]", albedo[k]);
             }
