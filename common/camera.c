@@ -34,6 +34,24 @@ int camera_init(camera_t *c, vec3_t position, vec3_t look_at, vec3_t up, double 
     c->width = width;
     c->height = height;
     c->filter = CAMERA_FILTER_BOX;
+    c->aperture = 0.0f;
+    c->focus_distance = 0.0f;
+    c->right_unit = right;
+    c->up_unit = true_up;
+    return 0;
+}
+
+int camera_set_thinlens(camera_t *c, double aperture, double focus_distance, char *err,
+                        size_t errlen)
+{
+    if (!(aperture > 0 && aperture < 1e30) || !(focus_distance > 0 && focus_distance < 1e30)) {
+        snprintf(err, errlen,
+                 "a thin lens needs aperture_radius > 0 and focus_distance > 0 (got %g, %g)",
+                 aperture, focus_distance);
+        return -1;
+    }
+    c->aperture = (float)aperture;
+    c->focus_distance = (float)focus_distance;
     return 0;
 }
 

@@ -7,6 +7,7 @@
 #ifndef VB_CAMERA_H
 #define VB_CAMERA_H
 
+#include <math.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -31,6 +32,11 @@ typedef struct camera {
     vec3_t position, forward, right, up; /* right and up scaled to the film */
     int width, height;
     camera_filter_t filter;
+    /* a thin lens (Mitsuba's thinlens) when aperture > 0: rays leave a disk
+     * of that radius around the position, through the point the pinhole
+     * ray meets at focus_distance along forward */
+    float aperture, focus_distance;
+    vec3_t right_unit, up_unit;
     /* gaussian: the offset from the pixel's centre, in pixels, at
      * u = i / CAMERA_FILTER_TABLE */
     float filter_icdf[CAMERA_FILTER_TABLE + 1];
@@ -57,6 +63,34 @@ static inline float camera_filter_pos(const camera_t *c, float u)
         i = CAMERA_FILTER_TABLE - 1;
     float t = x - (float)i;
     return 0.5f + (1.0f - t) * c->filter_icdf[i] + t * c->filter_icdf[i + 1];
+}
+
+/* Makes c a thin-lens camera: 0 < aperture (radius), 0 < focus_distance.
+ * Returns -1 with a message otherwise. */
+int camera_set_thinlens(camera_t *c, double aperture, double focus_distance, char *err,
+                        size_t errlen);
+
+/* The thin lens's ray for the pinhole direction dir (camera_ray_dir) and
+ * two uniforms on the lens (Shirley and Chiu's concentric disk). */
+static inline void camera_thinlens(const camera_t *c, vec3_t dir, float u1, float u2, vec3_t *o,
+                                   vec3_t *d)
+{
+    float a = 2.0f * u1 - 1.0f, b = 2.0f * u2 - 1.0f, r = 0.0f, phi = 0.0f;
+    if (a != 0.0f || b != 0.0f) {
+        if (fabsf(a) > fabsf(b)) {
+            r = a;
+            phi = (VMATH_PI / 4.0f) * (b / a);
+        } else {
+            r = b;
+            phi = (VMATH_PI / 2.0f) - (VMATH_PI / 4.0f) * (a / b);
+        }
+    }
+    float lx = c->aperture * r * cosf(phi), ly = c->aperture * r * sinf(phi);
+    vec3_t lens =
+        vec3_add(c->position, vec3_add(vec3_scale(c->right_unit, lx), vec3_scale(c->up_unit, ly)));
+    vec3_t focus = vec3_add(c->position, vec3_scale(dir, c->focus_distance));
+    *o = lens;
+    *d = vec3_normalize(vec3_sub(focus, lens));
 }
 
 /* Direction (not normalised) of the ray through the film point of pixel

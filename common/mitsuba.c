@@ -1209,8 +1209,20 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     if (c->have_sensor)
         return NODE_FAIL(c->x, n, "more than one sensor");
     c->have_sensor = 1;
-    if (!is_type(n, "perspective"))
-        return unsupported_type(c, n, "perspective");
+    int thinlens = is_type(n, "thinlens");
+    if (!is_type(n, "perspective") && !thinlens)
+        return unsupported_type(c, n, "perspective, thinlens");
+    double aperture = -1, focus = 10000; /* Mitsuba's default focus distance */
+    if (thinlens) {
+        /* Mitsuba asks for aperture_radius */
+        if (get_float(c->x, n, "aperture_radius", &aperture) < 0 ||
+            get_float(c->x, n, "focus_distance", &focus) < 0)
+            return -1;
+        if (!(aperture > 0))
+            return NODE_FAIL(c->x, n, "a thinlens sensor needs aperture_radius > 0");
+        if (!(focus > 0))
+            return NODE_FAIL(c->x, n, "a thinlens sensor needs focus_distance > 0");
+    }
     double fov = NAN, near = 1e-2, far = 1e4;
     const char *axis = "x";
     mat4_t m;
@@ -1309,6 +1321,10 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     cJSON_AddNumberToObject(cam, "fov", 2.0 * atan(tan_v) * 180.0 / 3.14159265358979323846);
     cJSON_AddNumberToObject(cam, "width", (double)w);
     cJSON_AddNumberToObject(cam, "height", (double)h);
+    if (thinlens) {
+        cJSON_AddNumberToObject(cam, "aperture", aperture);
+        cJSON_AddNumberToObject(cam, "focus_distance", focus);
+    }
     if (gaussian > 0) {
         cJSON_AddStringToObject(cam, "filter", "gaussian");
         cJSON_AddNumberToObject(cam, "filter_stddev", gaussian);

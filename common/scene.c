@@ -168,8 +168,9 @@ static int parse_camera(loader_t *L, const cJSON *root)
         return fail(L, "camera", "missing");
     if (!cJSON_IsObject(cam))
         return fail(L, "camera", "expected an object");
-    static const char *const keys[] = {"position", "look_at",       "up", "fov", "width", "height",
-                                       "filter",   "filter_stddev", NULL};
+    static const char *const keys[] = {"position", "look_at",        "up",     "fov",
+                                       "width",    "height",         "filter", "filter_stddev",
+                                       "aperture", "focus_distance", NULL};
     check_keys(L, cam, "camera", keys);
     double pos[3], at[3], up[3] = {0, 1, 0}, fov = 0, w = 0, h = 0;
     if (get_vec3(L, cam, "position", "camera", 1, pos) < 0 ||
@@ -185,6 +186,13 @@ static int parse_camera(loader_t *L, const cJSON *root)
     char msg[VB_ERR_LEN];
     if (camera_init(&L->s->camera, to_vec3(pos), to_vec3(at), to_vec3(up), fov, (int)w, (int)h, msg,
                     sizeof msg) < 0)
+        return fail(L, "camera", "%s", msg);
+    /* "aperture" (a radius) and "focus_distance": a thin lens */
+    double aperture = 0, focus = 0;
+    if (get_number(L, cam, "aperture", "camera", 0, 0, 1e30, &aperture) < 0 ||
+        get_number(L, cam, "focus_distance", "camera", 0, 0, 1e30, &focus) < 0)
+        return -1;
+    if (aperture > 0 && camera_set_thinlens(&L->s->camera, aperture, focus, msg, sizeof msg) < 0)
         return fail(L, "camera", "%s", msg);
     /* "filter": "box" (default) or "gaussian" ("filter_stddev" pixels, 0.5) */
     const cJSON *filter = cJSON_GetObjectItemCaseSensitive(cam, "filter");

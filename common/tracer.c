@@ -209,9 +209,7 @@ static void path_start(path_t *path, const camera_t *cam, const tracer_settings_
     path->rng = st->sampler == RNG_SAMPLER_SOBOL ? rng_stream_sobol(st->seed, pixel, sample_index)
                                                  : rng_stream(st->seed, pixel, sample_index);
     uint32_t px = pixel % (uint32_t)cam->width, py = pixel / (uint32_t)cam->width;
-    float fu = rng_next_float(&path->rng), fv = rng_next_float(&path->rng);
-    path->o = cam->position;
-    path->d = vec3_normalize(camera_ray_dir(cam, px, py, fu, fv));
+    tracer_camera_ray(cam, &path->rng, px, py, &path->o, &path->d);
     path->L = vec3_make(0, 0, 0);
     path->beta = vec3_make(1, 1, 1);
     path->eta_scale = 1.0f;

@@ -188,6 +188,28 @@ static inline vec3_t tracer_env_miss(const scene_t *s, vec3_t L, vec3_t beta, ve
     return vec3_add(L, vec3_mul(beta, vec3_scale(lights_env_radiance(s, d), w)));
 }
 
+/* The dimension of a thin lens's two numbers: read with rng_bits_at, far
+ * from every bounce's, so the rest of the path draws what it always did. */
+#define TRACER_LENS_DIM (UINT64_MAX - 4)
+
+/* A camera ray of pixel (px, py) from the sample's stream: its film point
+ * from the first two numbers; through a thin lens, the point on the lens
+ * from two of its own (TRACER_LENS_DIM). Both engines start paths here. */
+static inline void tracer_camera_ray(const camera_t *cam, rng_stream_t *rng, uint32_t px,
+                                     uint32_t py, vec3_t *o, vec3_t *d)
+{
+    float fu = rng_next_float(rng), fv = rng_next_float(rng);
+    vec3_t dir = camera_ray_dir(cam, px, py, fu, fv);
+    if (!(cam->aperture > 0.0f)) {
+        *o = cam->position;
+        *d = vec3_normalize(dir);
+        return;
+    }
+    float lu = (float)(rng_bits_at(rng, TRACER_LENS_DIM) >> 40) * 0x1.0p-24f;
+    float lv = (float)(rng_bits_at(rng, TRACER_LENS_DIM + 1) >> 40) * 0x1.0p-24f;
+    camera_thinlens(cam, dir, lu, lv, o, d);
+}
+
 /* Where bounce `depth`'s numbers start under the sobol sampler: after the
  * camera's pair, six per bounce: [0] roulette, [1] unused (it was the light
  * pick, which now shares the light point's pair), [2, 3] the light and the

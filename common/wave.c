@@ -30,9 +30,7 @@ static void start_path(const wave_ctx_t *c, wave_state_t *w, uint16_t s, const t
                     ? rng_stream_sobol(st->seed, task->pixel, sample_index)
                     : rng_stream(st->seed, task->pixel, sample_index);
     uint32_t px = task->pixel % (uint32_t)cam->width, py = task->pixel / (uint32_t)cam->width;
-    float fu = rng_next_float(&w->rng[s]), fv = rng_next_float(&w->rng[s]);
-    w->o[s] = cam->position;
-    w->d[s] = vec3_normalize(camera_ray_dir(cam, px, py, fu, fv));
+    tracer_camera_ray(cam, &w->rng[s], px, py, &w->o[s], &w->d[s]);
     w->L[s] = vec3_make(0, 0, 0);
     w->beta[s] = vec3_make(1, 1, 1);
     w->eta_scale[s] = 1.0f;

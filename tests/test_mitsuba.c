@@ -290,6 +290,9 @@ static const refusal_t refusals[] = {
     {"<emitter type=\"constant\"/>\n<emitter type=\"constant\"/><shape type=\"cube\"/>", 4,
      "a second environment (constant or envmap) is not supported", 0},
     {"<shape type=\"cube\"/>", 1, "the scene has no <sensor>", 1},
+    {"<sensor type=\"thinlens\"><float name=\"fov\" value=\"40\"/>\n"
+     "<film type=\"hdrfilm\"/></sensor>",
+     3, "a thinlens sensor needs aperture_radius > 0", 1},
     {"<texture type=\"checkerboard\"/>", 3, "<texture type=\"checkerboard\"> is not supported", 0},
 };
 
@@ -431,6 +434,7 @@ START_TEST(constant_environment)
     scene_t *s = NULL;
     film_t *f = render_xml("scenes/mitsuba/furnace-plane.xml", NULL, 0, 256, &s);
     ck_assert(s->has_env && s->env_pick == 1.0f && s->camera.filter == CAMERA_FILTER_GAUSSIAN);
+    ck_assert(s->camera.aperture == 0.2f && s->camera.focus_distance == 4.0f); /* a thin lens */
     /* the OBJ's vn read: its triangles are smooth, their normal +z */
     const double want[3] = {0.5, 1.2, 0.35};
     double mean[3] = {0, 0, 0};

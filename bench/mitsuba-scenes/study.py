@@ -86,7 +86,7 @@ def main():
         x = os.path.join(scenes_dir, f)
         name = f[:-4]
         ours = os.path.join(scratch, name + '-ours.exr')
-        r = subprocess.run([VB, 'render', x, '--spp', str(SPP), '--adaptive', 'none',
+        r = subprocess.run([VB, 'render', x, '-D', 'spp=%d' % SPP, '--spp', str(SPP), '--adaptive', 'none',
                             '--sampler', 'independent', '--threads', '2', '-o', ours,
                             '--progress', 'none'], capture_output=True, text=True)
         if r.returncode != 0:
