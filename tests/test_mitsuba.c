@@ -389,8 +389,20 @@ START_TEST(gaussian_filter_samples)
 }
 END_TEST
 
+static film_t *render_xml_with(const char *rel, const char *const *defs, size_t ndefs, uint32_t spp,
+                               scene_integrator_t integrator, rng_sampler_t sampler,
+                               scene_t **scene_out);
+
 static film_t *render_xml(const char *rel, const char *const *defs, size_t ndefs, uint32_t spp,
                           scene_t **scene_out)
+{
+    return render_xml_with(rel, defs, ndefs, spp, SCENE_INTEGRATOR_PATH, RNG_SAMPLER_SOBOL,
+                           scene_out);
+}
+
+static film_t *render_xml_with(const char *rel, const char *const *defs, size_t ndefs, uint32_t spp,
+                               scene_integrator_t integrator, rng_sampler_t sampler,
+                               scene_t **scene_out)
 {
     char path[1024], err[VB_ERR_LEN];
     tu_root_path(path, sizeof path, rel);
@@ -410,8 +422,8 @@ static film_t *render_xml(const char *rel, const char *const *defs, size_t ndefs
     render_settings_t rs;
     memset(&rs, 0, sizeof rs);
     rs.tracer.seed = 3;
-    rs.tracer.integrator = SCENE_INTEGRATOR_PATH;
-    rs.tracer.sampler = RNG_SAMPLER_SOBOL;
+    rs.tracer.integrator = integrator;
+    rs.tracer.sampler = sampler;
     rs.tracer.max_depth = s->max_depth;
     rs.spp = spp;
     rs.granularity = 32;
@@ -533,6 +545,54 @@ START_TEST(environment_map_as_mitsuba)
 }
 END_TEST
 
+/* Each light's next-event estimation, MIS-weighted against the bounce
+ * (the path integrator), against the bounce alone (naive: light counted
+ * only where a path hits it): the same image within 5 sigma, over the
+ * whole image and each quadrant, on the shipped scenes that have an area
+ * light and a constant environment (checker.xml) and an environment map
+ * with a sun (envmap.xml). Independent samples: the variance of a mean is
+ * then the pixels' own. */
+static const char *const mis_scenes[] = {"scenes/mitsuba/checker.xml", "scenes/mitsuba/envmap.xml"};
+
+START_TEST(mis_agrees_with_bsdf_sampling)
+{
+    const char *defs[] = {"res=16"};
+    scene_t *s1 = NULL, *s2 = NULL;
+    film_t *path = render_xml_with(mis_scenes[_i], defs, 1, 4096, SCENE_INTEGRATOR_PATH,
+                                   RNG_SAMPLER_INDEPENDENT, &s1);
+    film_t *naive = render_xml_with(mis_scenes[_i], defs, 1, 4096, SCENE_INTEGRATOR_NAIVE,
+                                    RNG_SAMPLER_INDEPENDENT, &s2);
+    double m[2][5] = {{0}}, v[2][5] = {{0}};
+    for (int which = 0; which < 2; which++) {
+        const film_t *f = which ? naive : path;
+        for (uint32_t p = 0; p < 16 * 16; p++) {
+            double rgb[3];
+            film_mean(f, p, rgb);
+            double lum = 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2];
+            double var = film_variance_of_mean(f, p);
+            int q = (int)((p / 16) / 8 * 2 + (p % 16) / 8);
+            m[which][q] += lum;
+            v[which][q] += var;
+            m[which][4] += lum;
+            v[which][4] += var;
+        }
+    }
+    for (int q = 0; q < 5; q++) {
+        double sigma = sqrt(v[0][q] + v[1][q]);
+        ck_assert_msg(fabs(m[0][q] - m[1][q]) <= 5 * sigma,
+                      "%s, %s: MIS %g, BSDF sampling alone %g, 5 sigma %g", mis_scenes[_i],
+                      q < 4 ? "a quadrant" : "the image", m[0][q], m[1][q], 5 * sigma);
+        /* and the test can tell: the estimates are sharper than the image */
+        ck_assert_msg(5 * sigma < 0.2 * m[0][q], "%s: sigma %g too wide for mean %g",
+                      mis_scenes[_i], sigma, m[0][q]);
+    }
+    film_destroy(&path);
+    film_destroy(&naive);
+    scene_destroy(&s1);
+    scene_destroy(&s2);
+}
+END_TEST
+
 /* ---- the image, against Mitsuba's ------------------------------------------------- */
 
 static double luminance(const float *r, const float *g, const float *b, size_t i)
@@ -647,6 +707,8 @@ static Suite *mitsuba_suite(void)
     suite_add_tcase(su, tc);
     tc = tcase_create("image");
     tcase_add_test(tc, constant_environment);
+    tcase_add_loop_test(tc, mis_agrees_with_bsdf_sampling, 0,
+                        (int)(sizeof mis_scenes / sizeof mis_scenes[0]));
     tcase_set_timeout(tc, 120);
     tcase_add_loop_test(tc, matches_mitsuba, 0, (int)(sizeof compared / sizeof compared[0]));
     suite_add_tcase(su, tc);
