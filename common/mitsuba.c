@@ -1740,15 +1740,64 @@ static int shape_mesh(conv_t *c, const mx_node_t *n, const char *mat, const mat4
     return 0;
 }
 
+/* Mitsuba's analytic sphere as our icosphere: 6 subdivisions (81,920
+ * triangles, exact normals), whose surface lies within 1e-4 of the radius
+ * of the true one; in its own frame (center, radius), then to_world. */
+#define MX_SPHERE_SUBDIVISIONS 6
+
+static int shape_sphere(conv_t *c, const mx_node_t *n, const char *mat, const mat4_t *m, int flip)
+{
+    double center[3] = {0, 0, 0}, radius = 1;
+    mx_node_t *cp = prop(n, "center");
+    if (cp) {
+        if (strcmp(cp->tag, "point") != 0 && strcmp(cp->tag, "vector") != 0)
+            return wrong_kind(c->x, cp, "a <point>");
+        if (xyz_attrs(c->x, cp, 0, center) < 0)
+            return -1;
+    }
+    if (get_float(c->x, n, "radius", &radius) < 0)
+        return -1;
+    if (!(radius > 0 && radius < 1e30))
+        return NODE_FAIL(c->x, n, "radius %g is not positive", radius);
+    if (flip)
+        return NODE_FAIL(c->x, n, "flip_normals on a sphere is not supported");
+    /* the clip planes, on the sphere's bounds in the world */
+    double wc[3], scale = 0;
+    mat4_point(m, center, wc);
+    for (int k = 0; k < 3; k++) {
+        double col =
+            sqrt(m->m[0][k] * m->m[0][k] + m->m[1][k] * m->m[1][k] + m->m[2][k] * m->m[2][k]);
+        scale = fmax(scale, col);
+    }
+    double wr = radius * scale,
+           d[3] = {wc[0] - c->cam_pos[0], wc[1] - c->cam_pos[1], wc[2] - c->cam_pos[2]};
+    if (sqrt(v3_dot(d, d)) - wr < c->near_reach || v3_dot(d, c->cam_fwd) + wr > c->far_clip)
+        return clip_fail(c, n);
+    cJSON *s = cJSON_CreateObject();
+    cJSON_AddStringToObject(s, "type", "sphere");
+    cJSON_AddStringToObject(s, "material", mat);
+    cJSON_AddItemToObject(s, "center", vec3_json(center));
+    cJSON_AddNumberToObject(s, "radius", radius);
+    cJSON_AddNumberToObject(s, "subdivisions", MX_SPHERE_SUBDIVISIONS);
+    cJSON *t = cJSON_AddObjectToObject(s, "transform");
+    double row_major[16];
+    for (int e = 0; e < 16; e++)
+        row_major[e] = m->m[e / 4][e % 4];
+    cJSON_AddItemToObject(t, "matrix", cJSON_CreateDoubleArray(row_major, 16));
+    cJSON_AddItemToArray(c->shapes, s);
+    return 0;
+}
+
 static int conv_shape(conv_t *c, mx_node_t *n)
 {
-    static const char *const supported = "obj, ply, serialized, rectangle, cube";
+    static const char *const supported = "obj, ply, serialized, rectangle, cube, sphere";
     const char *type = node_attr(n, "type");
     if (!type)
         return NODE_FAIL(c->x, n, "<shape> has no type");
     int mesh =
         strcmp(type, "obj") == 0 || strcmp(type, "ply") == 0 || strcmp(type, "serialized") == 0;
-    if (!mesh && strcmp(type, "rectangle") != 0 && strcmp(type, "cube") != 0)
+    int sphere = strcmp(type, "sphere") == 0;
+    if (!mesh && !sphere && strcmp(type, "rectangle") != 0 && strcmp(type, "cube") != 0)
         return unsupported_type(c, n, supported);
     const mx_node_t *bsdf = NULL, *emitter = NULL;
     for (size_t i = 0; i < n->nkids; i++) {
@@ -1789,7 +1838,7 @@ static int conv_shape(conv_t *c, mx_node_t *n)
      * serialized); not yet a cube's or a PLY file's */
     const cJSON *jm = cJSON_GetObjectItemCaseSensitive(c->materials, mat);
     if (cJSON_IsObject(cJSON_GetObjectItemCaseSensitive(jm, "albedo")) &&
-        (strcmp(type, "cube") == 0 || strcmp(type, "ply") == 0))
+        (strcmp(type, "cube") == 0 || strcmp(type, "ply") == 0 || sphere))
         return NODE_FAIL(c->x, n,
                          "a texture on a %s shape is not supported (its texture "
                          "coordinates are not read)",
@@ -1797,6 +1846,8 @@ static int conv_shape(conv_t *c, mx_node_t *n)
     int rc;
     if (mesh) {
         rc = shape_mesh(c, n, mat, &m, flip);
+    } else if (sphere) {
+        rc = shape_sphere(c, n, mat, &m, flip);
     } else {
         int mirror = det3(&m) < 0;
         rc = strcmp(type, "rectangle") == 0 ? shape_rectangle(c, n, mat, &m, flip ^ mirror)

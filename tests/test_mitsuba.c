@@ -252,7 +252,7 @@ static const refusal_t refusals[] = {
     {"<shape type=\"cube\">\n<bsdf type=\"diffuse\">\n<float name=\"foo\" value=\"1\"/>\n"
      "</bsdf></shape>",
      5, "property \"foo\" of bsdf \"diffuse\" is not supported", 0},
-    {"<shape type=\"sphere\"/>", 3, "shape type \"sphere\" is not supported", 0},
+    {"<shape type=\"disk\"/>", 3, "shape type \"disk\" is not supported", 0},
     {"<emitter type=\"spot\"/>", 3, "emitter type \"spot\" is not supported", 0},
     {"<emitter type=\"envmap\">\n<string name=\"filename\" value=\"sky.hdr\"/></emitter>", 3,
      "envmap \"sky.hdr\": only OpenEXR maps are supported", 0},
@@ -293,6 +293,8 @@ static const refusal_t refusals[] = {
     {"<sensor type=\"thinlens\"><float name=\"fov\" value=\"40\"/>\n"
      "<film type=\"hdrfilm\"/></sensor>",
      3, "a thinlens sensor needs aperture_radius > 0", 1},
+    {"<shape type=\"sphere\"><boolean name=\"flip_normals\" value=\"true\"/></shape>", 3,
+     "flip_normals on a sphere is not supported", 0},
     {"<texture type=\"checkerboard\"/>", 3, "<texture type=\"checkerboard\"> is not supported", 0},
 };
 

@@ -52,7 +52,12 @@ def load(path):
 
 
 def mitsuba_render(scene_file, spp, seed, out):
-    sc = mi.load_file(scene_file, spp=spp)
+    try:
+        sc = mi.load_file(scene_file, spp=spp)
+    except RuntimeError as e:  # Mitsuba refuses a parameter the file does not use
+        if 'unused parameters' not in str(e):
+            raise
+        sc = mi.load_file(scene_file)
     mi.render(sc, spp=min(spp, 4), seed=seed)  # warm: the JIT compiles once
     start = time.time()
     img = mi.render(sc, spp=spp, seed=seed)
