@@ -38,6 +38,22 @@ int camera_init(camera_t *c, vec3_t position, vec3_t look_at, vec3_t up, double 
     c->focus_distance = 0.0f;
     c->right_unit = right;
     c->up_unit = true_up;
+    c->ortho = 0;
+    c->ortho_near = 0.0f;
+    return 0;
+}
+
+int camera_set_orthographic(camera_t *c, double half_w, double half_h, double near, char *err,
+                            size_t errlen)
+{
+    if (!(half_w > 0 && half_w < 1e30 && half_h > 0 && half_h < 1e30 && near >= 0 && near < 1e30)) {
+        snprintf(err, errlen, "an orthographic camera needs positive extents and near >= 0");
+        return -1;
+    }
+    c->ortho = 1;
+    c->ortho_near = (float)near;
+    c->right = vec3_scale(c->right_unit, (float)half_w);
+    c->up = vec3_scale(c->up_unit, (float)half_h);
     return 0;
 }
 

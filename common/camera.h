@@ -37,6 +37,11 @@ typedef struct camera {
      * ray meets at focus_distance along forward */
     float aperture, focus_distance;
     vec3_t right_unit, up_unit;
+    /* orthographic (Mitsuba's): rays along forward from the film's point
+     * on a plane (right and up then hold its half extents), ortho_near in
+     * front of position */
+    int ortho;
+    float ortho_near;
     /* gaussian: the offset from the pixel's centre, in pixels, at
      * u = i / CAMERA_FILTER_TABLE */
     float filter_icdf[CAMERA_FILTER_TABLE + 1];
@@ -64,6 +69,12 @@ static inline float camera_filter_pos(const camera_t *c, float u)
     float t = x - (float)i;
     return 0.5f + (1.0f - t) * c->filter_icdf[i] + t * c->filter_icdf[i + 1];
 }
+
+/* Makes c orthographic: the film spans half_w along right and half_h along
+ * up from position, rays start near in front of it. -1 with a message
+ * unless the extents are positive and near >= 0. */
+int camera_set_orthographic(camera_t *c, double half_w, double half_h, double near, char *err,
+                            size_t errlen);
 
 /* Makes c a thin-lens camera: 0 < aperture (radius), 0 < focus_distance.
  * Returns -1 with a message otherwise. */

@@ -1209,9 +1209,9 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     if (c->have_sensor)
         return NODE_FAIL(c->x, n, "more than one sensor");
     c->have_sensor = 1;
-    int thinlens = is_type(n, "thinlens");
-    if (!is_type(n, "perspective") && !thinlens)
-        return unsupported_type(c, n, "perspective, thinlens");
+    int thinlens = is_type(n, "thinlens"), ortho = is_type(n, "orthographic");
+    if (!is_type(n, "perspective") && !thinlens && !ortho)
+        return unsupported_type(c, n, "perspective, thinlens, orthographic");
     double aperture = -1, focus = 10000; /* Mitsuba's default focus distance */
     if (thinlens) {
         /* Mitsuba asks for aperture_radius */
@@ -1232,6 +1232,10 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
         return -1;
     if (prop(n, "focal_length"))
         return NODE_FAIL(c->x, n, "focal_length is not supported (give fov)");
+    if (ortho && !isnan(fov))
+        return NODE_FAIL(c->x, n, "an orthographic sensor has no fov (its to_world scales it)");
+    if (ortho)
+        fov = 90; /* unused: the extents come from to_world */
     if (isnan(fov))
         return NODE_FAIL(c->x, n, "the sensor needs a fov");
     if (!(fov > 0 && fov < 180))
@@ -1289,6 +1293,9 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     mat4_dir(&m, z, fwd);
     mat4_dir(&m, y, up);
     mat4_dir(&m, xx, left);
+    /* orthographic: the film spans [-1, 1] x [-1/aspect, 1/aspect] of the
+     * camera's x and y, which to_world scales */
+    double half_w = sqrt(v3_dot(left, left)), half_h = sqrt(v3_dot(up, up)) * h / w;
     if (v3_normalize(fwd) < 0 || v3_normalize(up) < 0 || v3_normalize(left) < 0)
         return NODE_FAIL(c->x, n, "the sensor's to_world is degenerate");
     v3_cross(fwd, up, right);
@@ -1318,7 +1325,12 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     cJSON_AddItemToObject(cam, "position", vec3_json(pos));
     cJSON_AddItemToObject(cam, "look_at", vec3_json(at));
     cJSON_AddItemToObject(cam, "up", vec3_json(up));
-    cJSON_AddNumberToObject(cam, "fov", 2.0 * atan(tan_v) * 180.0 / 3.14159265358979323846);
+    if (ortho) {
+        double extents[3] = {half_w, half_h, near};
+        cJSON_AddItemToObject(cam, "orthographic", vec3_json(extents));
+    } else {
+        cJSON_AddNumberToObject(cam, "fov", 2.0 * atan(tan_v) * 180.0 / 3.14159265358979323846);
+    }
     cJSON_AddNumberToObject(cam, "width", (double)w);
     cJSON_AddNumberToObject(cam, "height", (double)h);
     if (thinlens) {
@@ -1337,7 +1349,9 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     memcpy(c->cam_fwd, fwd, sizeof fwd);
     c->near_clip = near;
     c->far_clip = far;
-    c->near_reach = near * sqrt(1 + tan_v * tan_v * (1 + aspect * aspect));
+    /* an orthographic camera starts its rays at near_clip, as Mitsuba's:
+     * nothing nearer to check */
+    c->near_reach = ortho ? 0 : near * sqrt(1 + tan_v * tan_v * (1 + aspect * aspect));
     return 0;
 }
 

@@ -168,15 +168,17 @@ static int parse_camera(loader_t *L, const cJSON *root)
         return fail(L, "camera", "missing");
     if (!cJSON_IsObject(cam))
         return fail(L, "camera", "expected an object");
-    static const char *const keys[] = {"position", "look_at",        "up",     "fov",
-                                       "width",    "height",         "filter", "filter_stddev",
-                                       "aperture", "focus_distance", NULL};
+    static const char *const keys[] = {
+        "position", "look_at",        "up",           "fov",
+        "width",    "height",         "filter",       "filter_stddev",
+        "aperture", "focus_distance", "orthographic", NULL};
     check_keys(L, cam, "camera", keys);
     double pos[3], at[3], up[3] = {0, 1, 0}, fov = 0, w = 0, h = 0;
     if (get_vec3(L, cam, "position", "camera", 1, pos) < 0 ||
         get_vec3(L, cam, "look_at", "camera", 1, at) < 0 ||
         get_vec3(L, cam, "up", "camera", 0, up) < 0 ||
-        get_number(L, cam, "fov", "camera", 1, -INFINITY, INFINITY, &fov) < 0 ||
+        get_number(L, cam, "fov", "camera", !cJSON_GetObjectItemCaseSensitive(cam, "orthographic"),
+                   -INFINITY, INFINITY, &fov) < 0 ||
         get_integer(L, cam, "width", "camera", 1, -INFINITY, INFINITY, &w) < 0 ||
         get_integer(L, cam, "height", "camera", 1, -INFINITY, INFINITY, &h) < 0)
         return -1;
@@ -184,9 +186,19 @@ static int parse_camera(loader_t *L, const cJSON *root)
         return fail(L, "camera", "absurd resolution %gx%g (each side 1..%d, at most %u pixels)", w,
                     h, SCENE_MAX_SIDE, SCENE_MAX_PIXELS);
     char msg[VB_ERR_LEN];
+    /* "orthographic": [half width, half height, near]: fov is unused */
+    const cJSON *orth = cJSON_GetObjectItemCaseSensitive(cam, "orthographic");
+    double ortho[3] = {0, 0, 0};
+    if (orth && parse_vec3_item(L, orth, "camera.orthographic", ortho) < 0)
+        return -1;
+    if (orth)
+        fov = 90;
     if (camera_init(&L->s->camera, to_vec3(pos), to_vec3(at), to_vec3(up), fov, (int)w, (int)h, msg,
                     sizeof msg) < 0)
         return fail(L, "camera", "%s", msg);
+    if (orth &&
+        camera_set_orthographic(&L->s->camera, ortho[0], ortho[1], ortho[2], msg, sizeof msg) < 0)
+        return fail(L, "camera.orthographic", "%s", msg);
     /* "aperture" (a radius) and "focus_distance": a thin lens */
     double aperture = 0, focus = 0;
     if (get_number(L, cam, "aperture", "camera", 0, 0, 1e30, &aperture) < 0 ||

@@ -200,6 +200,13 @@ static inline void tracer_camera_ray(const camera_t *cam, rng_stream_t *rng, uin
 {
     float fu = rng_next_float(rng), fv = rng_next_float(rng);
     vec3_t dir = camera_ray_dir(cam, px, py, fu, fv);
+    if (cam->ortho) {
+        /* the film point's offset from the centre, along forward */
+        *o = vec3_add(vec3_add(cam->position, vec3_sub(dir, cam->forward)),
+                      vec3_scale(cam->forward, cam->ortho_near));
+        *d = cam->forward;
+        return;
+    }
     if (!(cam->aperture > 0.0f)) {
         *o = cam->position;
         *d = vec3_normalize(dir);

@@ -290,6 +290,9 @@ static const refusal_t refusals[] = {
     {"<emitter type=\"constant\"/>\n<emitter type=\"constant\"/><shape type=\"cube\"/>", 4,
      "a second environment (constant or envmap) is not supported", 0},
     {"<shape type=\"cube\"/>", 1, "the scene has no <sensor>", 1},
+    {"<sensor type=\"orthographic\">\n<float name=\"fov\" value=\"40\"/>"
+     "<film type=\"hdrfilm\"/></sensor>",
+     3, "an orthographic sensor has no fov", 1},
     {"<sensor type=\"thinlens\"><float name=\"fov\" value=\"40\"/>\n"
      "<film type=\"hdrfilm\"/></sensor>",
      3, "a thinlens sensor needs aperture_radius > 0", 1},
@@ -616,6 +619,7 @@ static const struct {
     {"scenes/mitsuba/cornell-box.xml", "tests/data/mitsuba/cornell-box-32.exr", 1024},
     {"scenes/mitsuba/checker.xml", "tests/data/mitsuba/checker-32.exr", 1024},
     {"scenes/mitsuba/envmap.xml", "tests/data/mitsuba/envmap-32.exr", 2048},
+    {"scenes/mitsuba/ortho.xml", "tests/data/mitsuba/ortho-32.exr", 1024},
 };
 
 START_TEST(matches_mitsuba)
