@@ -129,14 +129,23 @@ static inline void lights_env_xy(const scene_t *s, vec3_t l, float *x, float *y,
     *cy = iy < s->env_h - 2 ? iy : s->env_h - 2;
 }
 
-/* Radiance arriving from world direction d (unit length). */
-static inline vec3_t lights_env_radiance(const scene_t *s, vec3_t d)
+/* Radiance arriving from world direction d (unit length), and into *pdf
+ * the solid-angle density with which a light sample gives d: the
+ * environment's pick times its own density. One lookup of the map's cell
+ * serves both. */
+static inline vec3_t lights_env_eval(const scene_t *s, vec3_t d, float *pdf)
 {
-    if (!s->env_map)
+    if (!s->env_map) {
+        *pdf = s->env_pdf;
         return s->env_radiance;
+    }
+    vec3_t l = lights_env_mul(s->env_to_local, d);
     float x, y;
     int cx, cy;
-    lights_env_xy(s, lights_env_mul(s->env_to_local, d), &x, &y, &cx, &cy);
+    lights_env_xy(s, l, &x, &y, &cx, &cy);
+    float sin_theta = sqrtf(fmaxf(l.x * l.x + l.z * l.z, 1e-12f));
+    *pdf = s->env_pick * s->env_cell_pdf[(size_t)cy * (size_t)s->env_w + (size_t)cx] /
+           (2.0f * VMATH_PI * VMATH_PI * sin_theta);
     float wx = x - (float)cx, wy = y - (float)cy;
     size_t row = (size_t)s->env_w + 1;
     const float *p00 = s->env_rgb + 3 * ((size_t)cy * row + (size_t)cx), *p01 = p00 + 3 * row;
@@ -149,19 +158,18 @@ static inline vec3_t lights_env_radiance(const scene_t *s, vec3_t d)
     return vec3_make(c[0], c[1], c[2]);
 }
 
-/* Solid-angle density with which a light sample gives world direction d:
- * the environment's pick times its own density. */
+/* lights_env_eval's radiance alone, and its density alone. */
+static inline vec3_t lights_env_radiance(const scene_t *s, vec3_t d)
+{
+    float pdf;
+    return lights_env_eval(s, d, &pdf);
+}
+
 static inline float lights_env_pdf(const scene_t *s, vec3_t d)
 {
-    if (!s->env_map)
-        return s->env_pdf;
-    vec3_t l = lights_env_mul(s->env_to_local, d);
-    float x, y;
-    int cx, cy;
-    lights_env_xy(s, l, &x, &y, &cx, &cy);
-    float sin_theta = sqrtf(fmaxf(l.x * l.x + l.z * l.z, 1e-12f));
-    return s->env_pick * s->env_cell_pdf[(size_t)cy * (size_t)s->env_w + (size_t)cx] /
-           (2.0f * VMATH_PI * VMATH_PI * sin_theta);
+    float pdf;
+    lights_env_eval(s, d, &pdf);
+    return pdf;
 }
 
 /* Where u in [0, 1) falls in cdf[0..n) (last entry 1), and its place
@@ -175,14 +183,16 @@ static inline size_t lights_cdf_pick(const double *cdf, size_t n, double u, doub
     return lo;
 }
 
-/* A world direction toward the environment from two numbers, and its
- * density (lights_env_pdf): the constant one uniform on the sphere; a map
+/* A world direction toward the environment from two numbers, its density
+ * and the radiance from it (lights_env_eval): the constant one uniform on the sphere; a map
  * by cell (u1 picks the row, its rest the column, that rest the place
  * across it), u2 the place down the cell. */
-static inline vec3_t lights_env_sample(const scene_t *s, double u1, float u2, float *pdf)
+static inline vec3_t lights_env_sample(const scene_t *s, double u1, float u2, float *pdf,
+                                       vec3_t *radiance)
 {
     if (!s->env_map) {
         *pdf = s->env_pdf;
+        *radiance = s->env_radiance;
         return lights_env_direction(u1, u2);
     }
     size_t w = (size_t)s->env_w;
@@ -195,7 +205,7 @@ static inline vec3_t lights_env_sample(const scene_t *s, double u1, float u2, fl
     float st = sinf(theta), ct = cosf(theta);
     vec3_t l = vec3_make(sinf(phi) * st, ct, -cosf(phi) * st);
     vec3_t d = vec3_normalize(lights_env_mul(s->env_to_world, l));
-    *pdf = lights_env_pdf(s, d);
+    *radiance = lights_env_eval(s, d, pdf);
     return d;
 }
 

@@ -410,8 +410,7 @@ typedef struct reader {
     int include_depth;
 } reader_t;
 
-static int read_file(mx_t *x, const char *path, const mx_node_t *from, mx_node_t *into,
-                     int include_depth);
+static int read_file(mx_t *x, const char *path, mx_node_t *into, int include_depth);
 
 static void stop(reader_t *r)
 {
@@ -515,7 +514,7 @@ static void on_start(void *ud, const XML_Char *tag, const XML_Char **attrs)
                     MX_MAX_INCLUDE_DEPTH);
         else if (resolve(x, n, r->dir, name, path, sizeof path) == 0)
             /* its scene's elements follow the include, in the includer */
-            read_file(x, path, n, r->stack[r->depth - 2], r->include_depth + 1);
+            read_file(x, path, r->stack[r->depth - 2], r->include_depth + 1);
     }
     if (x->failed)
         stop(r);
@@ -530,9 +529,8 @@ static void on_end(void *ud, const XML_Char *tag)
 }
 
 /* Reads one file: its <scene> element, or NULL with the message. */
-static mx_node_t *read_root(mx_t *x, const char *path, const mx_node_t *from, int include_depth)
+static mx_node_t *read_root(mx_t *x, const char *path, int include_depth)
 {
-    (void)from;
     const char *file = remember_file(x, path);
     if (!file) {
         mx_fail(x, path, 0, "too many files (at most %d)", MX_MAX_FILES);
@@ -585,10 +583,9 @@ static mx_node_t *read_root(mx_t *x, const char *path, const mx_node_t *from, in
     return scene;
 }
 
-static int read_file(mx_t *x, const char *path, const mx_node_t *from, mx_node_t *into,
-                     int include_depth)
+static int read_file(mx_t *x, const char *path, mx_node_t *into, int include_depth)
 {
-    mx_node_t *scene = read_root(x, path, from, include_depth);
+    mx_node_t *scene = read_root(x, path, include_depth);
     if (!scene)
         return -1;
     int rc = 0;
@@ -675,16 +672,27 @@ static int wrong_kind(mx_t *x, const mx_node_t *p, const char *want)
                      p->tag);
 }
 
+/* The value of property `name` of obj when its element is <tag> (or
+ * <tag2>, when not NULL): 1 with *p and *v, 0 when absent, -1 (and a
+ * message saying it must be `want`) otherwise. */
+static int typed_value(mx_t *x, const mx_node_t *obj, const char *name, const char *tag,
+                       const char *tag2, const char *want, mx_node_t **p, const char **v)
+{
+    *p = prop(obj, name);
+    if (!*p)
+        return 0;
+    if (strcmp((*p)->tag, tag) != 0 && (!tag2 || strcmp((*p)->tag, tag2) != 0))
+        return wrong_kind(x, *p, want);
+    return value_of(x, *p, v) < 0 ? -1 : 1;
+}
+
 static int get_float(mx_t *x, const mx_node_t *obj, const char *name, double *out)
 {
-    mx_node_t *p = prop(obj, name);
-    if (!p)
-        return 0;
+    mx_node_t *p;
     const char *v = NULL;
-    if (strcmp(p->tag, "float") != 0 && strcmp(p->tag, "integer") != 0)
-        return wrong_kind(x, p, "a <float>");
-    if (value_of(x, p, &v) < 0)
-        return -1;
+    int got = typed_value(x, obj, name, "float", "integer", "a <float>", &p, &v);
+    if (got <= 0)
+        return got;
     if (parse_numbers(v, out, 1) != 1)
         return NODE_FAIL(x, p, "\"%s\" is not a number", v);
     return 0;
@@ -693,14 +701,11 @@ static int get_float(mx_t *x, const mx_node_t *obj, const char *name, double *ou
 static int get_int(mx_t *x, const mx_node_t *obj, const char *name, long long lo, long long hi,
                    long long *out)
 {
-    mx_node_t *p = prop(obj, name);
-    if (!p)
-        return 0;
+    mx_node_t *p;
     const char *v = NULL;
-    if (strcmp(p->tag, "integer") != 0)
-        return wrong_kind(x, p, "an <integer>");
-    if (value_of(x, p, &v) < 0)
-        return -1;
+    int got = typed_value(x, obj, name, "integer", NULL, "an <integer>", &p, &v);
+    if (got <= 0)
+        return got;
     char *end;
     errno = 0;
     long long n = strtoll(v, &end, 10);
@@ -717,31 +722,22 @@ static int get_int(mx_t *x, const mx_node_t *obj, const char *name, long long lo
 
 static int get_bool(mx_t *x, const mx_node_t *obj, const char *name, int *out)
 {
-    mx_node_t *p = prop(obj, name);
-    if (!p)
-        return 0;
+    mx_node_t *p;
     const char *v = NULL;
-    if (strcmp(p->tag, "boolean") != 0)
-        return wrong_kind(x, p, "a <boolean>");
-    if (value_of(x, p, &v) < 0)
-        return -1;
-    if (strcmp(v, "true") == 0)
-        *out = 1;
-    else if (strcmp(v, "false") == 0)
-        *out = 0;
-    else
+    int got = typed_value(x, obj, name, "boolean", NULL, "a <boolean>", &p, &v);
+    if (got <= 0)
+        return got;
+    if (strcmp(v, "true") != 0 && strcmp(v, "false") != 0)
         return NODE_FAIL(x, p, "\"%s\" is not true or false", v);
+    *out = strcmp(v, "true") == 0;
     return 0;
 }
 
 static int get_string(mx_t *x, const mx_node_t *obj, const char *name, const char **out)
 {
-    mx_node_t *p = prop(obj, name);
-    if (!p)
-        return 0;
-    if (strcmp(p->tag, "string") != 0)
-        return wrong_kind(x, p, "a <string>");
-    return value_of(x, p, out);
+    mx_node_t *p;
+    int got = typed_value(x, obj, name, "string", NULL, "a <string>", &p, out);
+    return got < 0 ? -1 : 0;
 }
 
 /* A colour property: <rgb> (one or three numbers), <spectrum> (one
@@ -1618,9 +1614,8 @@ static double point_triangle_distance(const double q[3], const double a[3], cons
 /* 1 when triangle p could be cut by the sensor's clip planes where the
  * camera sees it: some of it nearer than near_clip inside the view
  * (within near_reach of the eye), or farther than far_clip. */
-static int clipped(const conv_t *c, const double (*p)[3], size_t n)
+static int clipped(const conv_t *c, const double (*p)[3])
 {
-    (void)n;
     double zmax = -INFINITY;
     for (int i = 0; i < 3; i++) {
         double d[3] = {p[i][0] - c->cam_pos[0], p[i][1] - c->cam_pos[1], p[i][2] - c->cam_pos[2]};
@@ -1648,7 +1643,7 @@ static int emit_triangles(conv_t *c, const mx_node_t *n, const char *mat, double
         double corner[3][3];
         for (int k = 0; k < 3; k++)
             memcpy(corner[k], v[tri[t][k]], sizeof corner[k]);
-        if (clipped(c, (const double(*)[3])corner, 3))
+        if (clipped(c, (const double(*)[3])corner))
             return clip_fail(c, n);
     }
     cJSON *s = cJSON_CreateObject();
@@ -1729,7 +1724,7 @@ static int shape_mesh(conv_t *c, const mx_node_t *n, const char *mat, const mat4
             double local[3] = {p[0], p[1], p[2]};
             mat4_point(m, local, corner[k]);
         }
-        cut = clipped(c, (const double(*)[3])corner, 3);
+        cut = clipped(c, (const double(*)[3])corner);
     }
     mesh_destroy(&mesh);
     if (cut)
@@ -2053,7 +2048,7 @@ cJSON *mitsuba_scene_json(const char *path, const char *const *defines, size_t d
             goto done;
         }
     }
-    scene = read_root(x, path, NULL, 0);
+    scene = read_root(x, path, 0);
     if (!scene)
         goto done;
     char dir[PATH_MAX];

@@ -36,6 +36,21 @@ static uint64_t le(const unsigned char *p, int bytes)
     return v;
 }
 
+/* Value i of an array of little-endian floats (real 4) or doubles (8). */
+static double real_at(const unsigned char *p, size_t i, size_t real)
+{
+    uint64_t bits = le(p + i * real, (int)real);
+    if (real == 8) {
+        double d;
+        memcpy(&d, &bits, 8);
+        return d;
+    }
+    uint32_t u = (uint32_t)bits;
+    float f;
+    memcpy(&f, &u, 4);
+    return f;
+}
+
 /* Inflates the zlib stream at data[0..size) into a new buffer. */
 static unsigned char *inflate_all(const mesh_ctx *c, const unsigned char *data, size_t size,
                                   size_t *out_size)
@@ -182,42 +197,16 @@ int serialized_load(const mesh_ctx *c, const unsigned char *data, size_t size, m
             goto done;
         }
         for (size_t i = 0; i < 2 * (size_t)nv; i++) {
-            uint64_t bits = le(tex + i * real, (int)real);
-            double d;
-            if (real == 4) {
-                uint32_t u = (uint32_t)bits;
-                float f;
-                memcpy(&f, &u, 4);
-                d = f;
-            } else {
-                memcpy(&d, &bits, 8);
-            }
+            double d = real_at(tex, i, real);
             b->uv[i] = isfinite(d) && fabs(d) < 1e30 ? (float)d : 0.0f;
         }
     }
     for (size_t v = 0; v < (size_t)nv; v++) {
         double val[MESH_VALUES] = {0};
         for (int k = 0; k < 3; k++) {
-            uint64_t bits = le(pos + (3 * v + (size_t)k) * real, (int)real);
-            if (real == 4) {
-                uint32_t u = (uint32_t)bits;
-                float f;
-                memcpy(&f, &u, 4);
-                val[k] = f;
-            } else {
-                memcpy(&val[k], &bits, 8);
-            }
-            if (normals) {
-                bits = le(nrm + (3 * v + (size_t)k) * real, (int)real);
-                if (real == 4) {
-                    uint32_t u = (uint32_t)bits;
-                    float f;
-                    memcpy(&f, &u, 4);
-                    val[MESH_NX + k] = f;
-                } else {
-                    memcpy(&val[MESH_NX + k], &bits, 8);
-                }
-            }
+            val[k] = real_at(pos, 3 * v + (size_t)k, real);
+            if (normals)
+                val[MESH_NX + k] = real_at(nrm, 3 * v + (size_t)k, real);
         }
         if (mesh_store_vertex(c, b, v, val, 0, 0, v) != 0)
             goto done;

@@ -164,7 +164,8 @@ static inline int tracer_env_direct(const scene_t *s, const material_t *m, vec3_
                                     float u2, vec3_t *from, vec3_t *seg, vec3_t *gain)
 {
     float light_pdf;
-    vec3_t wl = lights_env_sample(s, u1, u2, &light_pdf);
+    vec3_t radiance;
+    vec3_t wl = lights_env_sample(s, u1, u2, &light_pdf, &radiance);
     float cos_s, bsdf_pdf;
     if (!(light_pdf > 0.0f) || !material_eval(m, mh, wl, &cos_s, &bsdf_pdf))
         return 0;
@@ -172,7 +173,7 @@ static inline int tracer_env_direct(const scene_t *s, const material_t *m, vec3_
     *seg = vec3_scale(wl, s->env_distance);
     float w = tracer_power_heuristic(light_pdf, bsdf_pdf);
     float k = w * cos_s * VMATH_INV_PI / light_pdf;
-    *gain = vec3_mul(vec3_mul(beta, albedo), vec3_scale(lights_env_radiance(s, wl), k));
+    *gain = vec3_mul(vec3_mul(beta, albedo), vec3_scale(radiance, k));
     return 1;
 }
 
@@ -182,10 +183,11 @@ static inline int tracer_env_direct(const scene_t *s, const material_t *m, vec3_
 static inline vec3_t tracer_env_miss(const scene_t *s, vec3_t L, vec3_t beta, vec3_t d,
                                      int specular, float prev_pdf, int nee)
 {
-    float w = 1.0f;
+    float w = 1.0f, light_pdf;
+    vec3_t radiance = lights_env_eval(s, d, &light_pdf);
     if (nee && !specular)
-        w = tracer_power_heuristic(prev_pdf, lights_env_pdf(s, d));
-    return vec3_add(L, vec3_mul(beta, vec3_scale(lights_env_radiance(s, d), w)));
+        w = tracer_power_heuristic(prev_pdf, light_pdf);
+    return vec3_add(L, vec3_mul(beta, vec3_scale(radiance, w)));
 }
 
 /* The dimension of a thin lens's two numbers: read with rng_bits_at, far

@@ -528,9 +528,11 @@ START_TEST(environment_map_as_mitsuba)
         float pdf;
         double u1 = (i + 0.5) / N;
         float u2 = (float)(((uint64_t)i * 0x9e3779b97f4a7c15ULL >> 40) * 0x1.0p-24);
-        vec3_t d = lights_env_sample(s, u1, u2, &pdf);
+        vec3_t rad;
+        vec3_t d = lights_env_sample(s, u1, u2, &pdf, &rad);
         ck_assert_msg(pdf > 0 && fabs(vec3_length(d) - 1) < 1e-5, "sample %d: pdf %g", i, pdf);
         ck_assert_msg(fabs(lights_env_pdf(s, d) / pdf - 1) < 1e-5, "sample %d: pdf mismatch", i);
+        ck_assert_msg(rad.x == lights_env_radiance(s, d).x, "sample %d: radiance mismatch", i);
         inv_pdf += 1.0 / pdf / N;
         l_over_pdf += lights_env_radiance(s, d).x / pdf / N;
     }
