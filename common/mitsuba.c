@@ -1392,17 +1392,19 @@ static int get_ior(conv_t *c, const mx_node_t *n, const char *name, double def, 
     return 0;
 }
 
-/* A diffuse reflectance: a colour into albedo, or a checkerboard texture
- * (nested, or a named <ref>) as its JSON object in *texture. */
-static int get_albedo(conv_t *c, const mx_node_t *bsdf, double albedo[3], cJSON **texture)
+/* A diffuse reflectance (property `name`): a colour into albedo, or a
+ * checkerboard texture (nested, or a named <ref>) as its JSON object in
+ * *texture. */
+static int get_albedo(conv_t *c, const mx_node_t *bsdf, const char *name, double albedo[3],
+                      cJSON **texture)
 {
     *texture = NULL;
-    mx_node_t *p = prop(bsdf, "reflectance");
+    mx_node_t *p = prop(bsdf, name);
     if (!p)
         return 0;
     if (strcmp(p->tag, "ref") != 0 && strcmp(p->tag, "texture") != 0) {
         p->used = 0; /* get_color reads it */
-        return get_color(c->x, bsdf, "reflectance", 1, albedo) < 0 ? -1 : 0;
+        return get_color(c->x, bsdf, name, 1, albedo) < 0 ? -1 : 0;
     }
     const mx_node_t *t = deref(c, p);
     if (!t)
@@ -1431,6 +1433,138 @@ static int get_albedo(conv_t *c, const mx_node_t *bsdf, double albedo[3], cJSON 
     return 0;
 }
 
+/* A roughness: "distribution" and "alpha" (Mitsuba's defaults, Beckmann
+ * and 0.1) into m's "distribution" and "roughness". An anisotropic one
+ * (alpha_u differing from alpha_v) is refused; sample_visible changes how
+ * Mitsuba samples, not the image, and is read and left. */
+static int conv_roughness(conv_t *c, const mx_node_t *bsdf, cJSON *m)
+{
+    const char *dist = "beckmann";
+    double alpha = 0.1, au = -1, av = -1;
+    int visible = 1;
+    if (get_string(c->x, bsdf, "distribution", &dist) < 0 ||
+        get_float(c->x, bsdf, "alpha", &alpha) < 0 || get_float(c->x, bsdf, "alpha_u", &au) < 0 ||
+        get_float(c->x, bsdf, "alpha_v", &av) < 0 ||
+        get_bool(c->x, bsdf, "sample_visible", &visible) < 0)
+        return -1;
+    if (strcmp(dist, "beckmann") != 0 && strcmp(dist, "ggx") != 0)
+        return NODE_FAIL(c->x, bsdf, "distribution \"%s\" is not supported (beckmann, ggx)", dist);
+    if (au >= 0 || av >= 0) {
+        if (prop(bsdf, "alpha"))
+            return NODE_FAIL(c->x, bsdf, "give either alpha or alpha_u and alpha_v");
+        if (au != av)
+            return NODE_FAIL(c->x, bsdf,
+                             "anisotropic roughness (alpha_u %g, alpha_v %g) is not supported", au,
+                             av);
+        alpha = au;
+    }
+    if (!(alpha >= 0 && alpha <= 4))
+        return NODE_FAIL(c->x, bsdf, "alpha %g is outside [0, 4]", alpha);
+    cJSON_AddStringToObject(m, "distribution", dist);
+    /* Mitsuba clamps alpha to 1e-4: so does our loader; 0 would mean smooth */
+    cJSON_AddNumberToObject(m, "roughness", alpha > 1e-4 ? alpha : 1e-4);
+    return 0;
+}
+
+/* A complex index of refraction's part: a <float>, an <rgb> or a uniform
+ * <spectrum>, read as given (Mitsuba's unbounded spectra). */
+static int get_ior_part(conv_t *c, const mx_node_t *bsdf, const char *name, double out[3])
+{
+    mx_node_t *p = prop(bsdf, name);
+    if (!p)
+        return 0;
+    const char *v = node_attr(p, "value");
+    if (strcmp(p->tag, "spectrum") == 0 && v && strchr(v, ':'))
+        return NODE_FAIL(c->x, p, "a spectral %s is not supported (give an <rgb>)", name);
+    int got = get_color(c->x, bsdf, name, 1, out);
+    if (got > 0)
+        for (int k = 0; k < 3; k++)
+            if (!(out[k] >= 0 && out[k] <= 100))
+                return NODE_FAIL(c->x, p, "%s %g is outside [0, 100]", name, out[k]);
+    return got;
+}
+
+/* conductor and roughconductor: a named material or eta and k (Mitsuba's
+ * default is "none", its perfect mirror), and the specular reflectance. */
+static int conv_conductor(conv_t *c, const mx_node_t *bsdf, cJSON *m)
+{
+    const char *name = NULL;
+    double eta[3] = {0, 0, 0}, k[3] = {1, 1, 1}, spec[3] = {1, 1, 1};
+    if (get_string(c->x, bsdf, "material", &name) < 0)
+        return -1;
+    int got_eta = get_ior_part(c, bsdf, "eta", eta), got_k = get_ior_part(c, bsdf, "k", k);
+    if (got_eta < 0 || got_k < 0 || get_color(c->x, bsdf, "specular_reflectance", 1, spec) < 0)
+        return -1;
+    if (name && (got_eta || got_k) && strcmp(name, "none") != 0)
+        return NODE_FAIL(c->x, bsdf, "give either a material or eta and k, not both");
+    cJSON_AddStringToObject(m, "type", "conductor");
+    if (name && !got_eta && !got_k) {
+        vec3_t e, kk;
+        if (material_conductor_preset(name, &e, &kk) < 0)
+            return NODE_FAIL(c->x, bsdf, "conductor material \"%s\" is not known (known: %s)", name,
+                             material_conductor_presets());
+        cJSON_AddStringToObject(m, "preset", name);
+    } else {
+        if (eta[0] + k[0] == 0 || eta[1] + k[1] == 0 || eta[2] + k[2] == 0)
+            return NODE_FAIL(c->x, bsdf, "eta and k cannot both be 0");
+        cJSON_AddItemToObject(m, "eta", vec3_json(eta));
+        cJSON_AddItemToObject(m, "k", vec3_json(k));
+    }
+    for (int i = 0; i < 3; i++)
+        if (!(spec[i] >= 0 && spec[i] <= 1))
+            return NODE_FAIL(c->x, bsdf, "specular_reflectance %g is outside [0, 1]", spec[i]);
+    cJSON_AddItemToObject(m, "reflectance", vec3_json(spec));
+    return is_type(bsdf, "roughconductor") ? conv_roughness(c, bsdf, m) : 0;
+}
+
+/* plastic and roughplastic: the coat's indices and reflectance, the
+ * base's albedo (a colour or a checkerboard), nonlinear. */
+static int conv_plastic(conv_t *c, const mx_node_t *bsdf, cJSON *m)
+{
+    double int_ior, ext_ior, albedo[3] = {0.5, 0.5, 0.5}, spec[3] = {1, 1, 1};
+    int nonlinear = 0;
+    cJSON *texture = NULL;
+    if (get_ior(c, bsdf, "int_ior", 1.49, &int_ior) < 0 ||
+        get_ior(c, bsdf, "ext_ior", 1.000277, &ext_ior) < 0 ||
+        get_color(c->x, bsdf, "specular_reflectance", 1, spec) < 0 ||
+        get_bool(c->x, bsdf, "nonlinear", &nonlinear) < 0 ||
+        get_albedo(c, bsdf, "diffuse_reflectance", albedo, &texture) < 0)
+        return -1;
+    cJSON_AddStringToObject(m, "type", "plastic");
+    cJSON_AddItemToObject(m, "albedo", texture ? texture : vec3_json(albedo));
+    if (int_ior == ext_ior)
+        return NODE_FAIL(c->x, bsdf, "int_ior and ext_ior must differ");
+    for (int i = 0; i < 3; i++)
+        if (!(albedo[i] >= 0 && albedo[i] <= 1 && spec[i] >= 0 && spec[i] <= 1))
+            return NODE_FAIL(c->x, bsdf, "reflectances must be in [0, 1]");
+    cJSON_AddItemToObject(m, "specular", vec3_json(spec));
+    cJSON_AddNumberToObject(m, "ior", int_ior / ext_ior);
+    cJSON_AddBoolToObject(m, "nonlinear", nonlinear);
+    return is_type(bsdf, "roughplastic") ? conv_roughness(c, bsdf, m) : 0;
+}
+
+/* dielectric and thindielectric: the indices, and reflectance and
+ * transmittance that must be 1. */
+static int conv_dielectric(conv_t *c, const mx_node_t *bsdf, cJSON *m)
+{
+    double int_ior, ext_ior, one[3];
+    if (get_ior(c, bsdf, "int_ior", 1.5046, &int_ior) < 0 ||
+        get_ior(c, bsdf, "ext_ior", 1.000277, &ext_ior) < 0)
+        return -1;
+    for (int which = 0; which < 2; which++) {
+        const char *name = which ? "specular_transmittance" : "specular_reflectance";
+        int got = get_color(c->x, bsdf, name, 0, one);
+        if (got < 0)
+            return -1;
+        if (got && (one[0] != 1 || one[1] != 1 || one[2] != 1))
+            return NODE_FAIL(c->x, bsdf, "%s other than 1 is not supported", name);
+    }
+    cJSON_AddStringToObject(m, "type",
+                            is_type(bsdf, "dielectric") ? "dielectric" : "thindielectric");
+    cJSON_AddNumberToObject(m, "ior", int_ior / ext_ior);
+    return 0;
+}
+
 /* The JSON material of a (bsdf, area emitter) pair, either may be NULL.
  * Returns 0 and its name in c->mat_name[*index]. */
 static int conv_material(conv_t *c, const mx_node_t *bsdf, const mx_node_t *emitter, size_t *index)
@@ -1442,7 +1576,8 @@ static int conv_material(conv_t *c, const mx_node_t *bsdf, const mx_node_t *emit
         }
     if (c->nmats == MX_MAX_MATERIALS)
         return NODE_FAIL(c->x, bsdf ? bsdf : emitter, "more than %d materials", MX_MAX_MATERIALS);
-    static const char *const supported = "diffuse, twosided, dielectric";
+    static const char *const supported = "diffuse, twosided, dielectric, thindielectric, "
+                                         "conductor, roughconductor, plastic, roughplastic";
     const mx_node_t *inner = bsdf;
     int twosided = 0;
     if (bsdf && is_type(bsdf, "twosided")) {
@@ -1463,10 +1598,12 @@ static int conv_material(conv_t *c, const mx_node_t *bsdf, const mx_node_t *emit
             return NODE_FAIL(c->x, bsdf, "a twosided bsdf needs the bsdf it wraps");
         if (check_used(c, bsdf) < 0)
             return -1;
-        if (!is_type(inner, "diffuse"))
+        if (!is_type(inner, "diffuse") && !is_type(inner, "conductor") &&
+            !is_type(inner, "roughconductor") && !is_type(inner, "plastic") &&
+            !is_type(inner, "roughplastic"))
             return NODE_FAIL(c->x, inner,
                              "twosided around \"%s\" is not supported (only around "
-                             "diffuse)",
+                             "diffuse, conductor, roughconductor, plastic, roughplastic)",
                              node_attr(inner, "type") ? node_attr(inner, "type") : "");
     }
     cJSON *m = cJSON_CreateObject();
@@ -1475,31 +1612,30 @@ static int conv_material(conv_t *c, const mx_node_t *bsdf, const mx_node_t *emit
         cJSON_Delete(m);
         return NODE_FAIL(c->x, inner, "<%s> where a bsdf is expected", inner->tag);
     }
-    if (inner && is_type(inner, "dielectric")) {
+    int glossy = inner && (is_type(inner, "dielectric") || is_type(inner, "thindielectric") ||
+                           is_type(inner, "conductor") || is_type(inner, "roughconductor") ||
+                           is_type(inner, "plastic") || is_type(inner, "roughplastic"));
+    if (glossy) {
         if (emitter) {
             cJSON_Delete(m);
-            return NODE_FAIL(c->x, emitter, "an area emitter on a dielectric is not supported");
+            return NODE_FAIL(c->x, emitter, "an area emitter on a %s is not supported",
+                             node_attr(inner, "type"));
         }
-        double int_ior, ext_ior, one[3];
-        if (get_ior(c, inner, "int_ior", 1.5046, &int_ior) < 0 ||
-            get_ior(c, inner, "ext_ior", 1.000277, &ext_ior) < 0) {
+        int fails = is_type(inner, "dielectric") || is_type(inner, "thindielectric")
+                        ? conv_dielectric(c, inner, m)
+                    : is_type(inner, "conductor") || is_type(inner, "roughconductor")
+                        ? conv_conductor(c, inner, m)
+                        : conv_plastic(c, inner, m);
+        if (fails < 0) {
             cJSON_Delete(m);
             return -1;
         }
-        for (int which = 0; which < 2; which++) {
-            const char *name = which ? "specular_transmittance" : "specular_reflectance";
-            int got = get_color(c->x, inner, name, 0, one);
-            if (got < 0 || (got && (one[0] != 1 || one[1] != 1 || one[2] != 1))) {
-                cJSON_Delete(m);
-                return got < 0 ? -1
-                               : NODE_FAIL(c->x, inner, "%s other than 1 is not supported", name);
-            }
-        }
-        cJSON_AddStringToObject(m, "type", "dielectric");
-        cJSON_AddNumberToObject(m, "ior", int_ior / ext_ior);
+        /* Mitsuba's conductors and plastics are black from behind */
+        if (!is_type(inner, "dielectric") && !is_type(inner, "thindielectric"))
+            cJSON_AddBoolToObject(m, "twosided", twosided);
     } else if (!inner || is_type(inner, "diffuse")) {
         cJSON *texture = NULL;
-        if (inner && get_albedo(c, inner, albedo, &texture) < 0) {
+        if (inner && get_albedo(c, inner, "reflectance", albedo, &texture) < 0) {
             cJSON_Delete(m);
             return -1;
         }

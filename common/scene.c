@@ -506,6 +506,106 @@ static int get_twosided(loader_t *L, const cJSON *it, const char *p, material_t 
     return 0;
 }
 
+/* "roughness" (alpha, 0 or absent: the smooth material; else at least
+ * MICROFACET_MIN_ALPHA, as Mitsuba clamps it) and "distribution". */
+static int get_roughness(loader_t *L, const cJSON *it, const char *p, material_t *m)
+{
+    double alpha = 0;
+    if (get_number(L, it, "roughness", p, 0, 0, 4, &alpha) < 0)
+        return -1;
+    m->alpha = alpha > 0 ? fmaxf((float)alpha, MICROFACET_MIN_ALPHA) : 0.0f;
+    m->distribution = MICROFACET_BECKMANN;
+    const cJSON *d = cJSON_GetObjectItemCaseSensitive(it, "distribution");
+    if (!d)
+        return 0;
+    char q[PATH_LEN];
+    snprintf(q, sizeof q, "%s.distribution", p);
+    if (!cJSON_IsString(d) ||
+        (strcmp(d->valuestring, "beckmann") != 0 && strcmp(d->valuestring, "ggx") != 0))
+        return fail(L, q, "expected \"beckmann\" or \"ggx\"");
+    m->distribution = strcmp(d->valuestring, "ggx") == 0 ? MICROFACET_GGX : MICROFACET_BECKMANN;
+    return 0;
+}
+
+/* conductor, plastic and thindielectric (material.h says what each
+ * field means); v gets the reflectance or albedo to range-check. */
+static int parse_glossy_fields(loader_t *L, const cJSON *it, const char *p, material_t *m,
+                               double v[3])
+{
+    char q[PATH_LEN];
+    if (m->type == MATERIAL_THIN_DIELECTRIC) {
+        static const char *const keys[] = {"type", "ior", NULL};
+        check_keys(L, it, p, keys);
+        double ior = 1.5046 / 1.000277; /* Mitsuba's defaults: bk7 in air */
+        if (get_number(L, it, "ior", p, 0, 1.0 / 8, 8.0, &ior) < 0)
+            return -1;
+        m->ior = (float)ior;
+        return 0;
+    }
+    if (m->type == MATERIAL_CONDUCTOR) {
+        static const char *const keys[] = {"type",      "reflectance",  "preset",   "eta", "k",
+                                           "roughness", "distribution", "twosided", NULL};
+        check_keys(L, it, p, keys);
+        const cJSON *preset = cJSON_GetObjectItemCaseSensitive(it, "preset");
+        int has_eta = cJSON_GetObjectItemCaseSensitive(it, "eta") != NULL;
+        snprintf(q, sizeof q, "%s.preset", p);
+        if (preset && has_eta)
+            return fail(L, q, "give either a preset or eta and k, not both");
+        if (preset && !cJSON_IsString(preset))
+            return fail(L, q, "expected a name (%s)", material_conductor_presets());
+        if (material_conductor_preset(preset ? preset->valuestring : "none", &m->eta, &m->k) < 0)
+            return fail(L, q, "unknown conductor \"%s\" (known: %s)", preset->valuestring,
+                        material_conductor_presets());
+        double eta[3], k[3] = {0, 0, 0};
+        if (has_eta) {
+            if (get_vec3(L, it, "eta", p, 1, eta) < 0 || get_vec3(L, it, "k", p, 0, k) < 0)
+                return -1;
+            for (int c = 0; c < 3; c++)
+                if (!(eta[c] >= 0 && eta[c] <= 100 && k[c] >= 0 && k[c] <= 100))
+                    return fail(L, p, "eta and k must be in [0, 100]");
+            if (eta[0] + k[0] == 0 || eta[1] + k[1] == 0 || eta[2] + k[2] == 0)
+                return fail(L, p, "eta and k cannot both be 0");
+            m->eta = to_vec3(eta);
+            m->k = to_vec3(k);
+        } else if (cJSON_GetObjectItemCaseSensitive(it, "k")) {
+            snprintf(q, sizeof q, "%s.k", p);
+            return fail(L, q, "k needs eta");
+        }
+        return get_vec3(L, it, "reflectance", p, 0, v) < 0 || get_roughness(L, it, p, m) < 0
+                   ? -1
+                   : get_twosided(L, it, p, m);
+    }
+    static const char *const keys[] = {"type",         "albedo",    "specular", "ior", "roughness",
+                                       "distribution", "nonlinear", "twosided", NULL};
+    check_keys(L, it, p, keys);
+    double spec[3] = {1, 1, 1}, ior = 1.49 / 1.000277; /* polypropylene in air */
+    v[0] = v[1] = v[2] = 0.5;
+    const cJSON *albedo = cJSON_GetObjectItemCaseSensitive(it, "albedo");
+    if (cJSON_IsObject(albedo) ? parse_texture(L, albedo, p, &m->albedo_texture, v) < 0
+                               : get_vec3(L, it, "albedo", p, 0, v) < 0)
+        return -1;
+    if (get_vec3(L, it, "specular", p, 0, spec) < 0 ||
+        get_number(L, it, "ior", p, 0, 1.0 / 8, 8.0, &ior) < 0 || get_roughness(L, it, p, m) < 0 ||
+        get_twosided(L, it, p, m) < 0)
+        return -1;
+    for (int c = 0; c < 3; c++)
+        if (!(spec[c] >= 0 && spec[c] <= 1))
+            return fail(L, p, "specular components must be in [0, 1] (got %g)", spec[c]);
+    if (ior == 1.0) {
+        snprintf(q, sizeof q, "%s.ior", p);
+        return fail(L, q, "a coat of index 1 is not there: use a diffuse material");
+    }
+    const cJSON *nl = cJSON_GetObjectItemCaseSensitive(it, "nonlinear");
+    if (nl && !cJSON_IsBool(nl)) {
+        snprintf(q, sizeof q, "%s.nonlinear", p);
+        return fail(L, q, "expected true or false");
+    }
+    m->nonlinear = (uint8_t)(nl && cJSON_IsTrue(nl));
+    m->specular = to_vec3(spec);
+    m->ior = (float)ior;
+    return 0;
+}
+
 /* The fields of a material by its type, into *m, and its albedo (or
  * reflectance) into v, still to be range-checked. */
 static int parse_material_fields(loader_t *L, const cJSON *it, const char *p, material_t *m,
@@ -550,6 +650,11 @@ static int parse_material_fields(loader_t *L, const cJSON *it, const char *p, ma
         m->ior = (float)ior;
         return 0;
     }
+    case MATERIAL_CONDUCTOR:
+    case MATERIAL_PLASTIC:
+    case MATERIAL_THIN_DIELECTRIC:
+    case MATERIAL_TYPE_COUNT:
+        return parse_glossy_fields(L, it, p, m, v);
     }
     return 0;
 }
@@ -569,12 +674,15 @@ static int parse_material(loader_t *L, const cJSON *it)
         return fail(L, p, "expected an object with a \"type\"");
     const cJSON *type = cJSON_GetObjectItemCaseSensitive(it, "type");
     if (!cJSON_IsString(type))
-        return fail(L, p, "missing \"type\" (diffuse, emitter, mirror or dielectric)");
+        return fail(L, p,
+                    "missing \"type\" (diffuse, emitter, mirror, dielectric, conductor, "
+                    "plastic or thindielectric)");
     int t = material_type_from_name(type->valuestring);
     if (t < 0)
-        return fail(
-            L, p, "unknown material type \"%s\" (expected diffuse, emitter, mirror or dielectric)",
-            type->valuestring);
+        return fail(L, p,
+                    "unknown material type \"%s\" (expected diffuse, emitter, mirror, dielectric, "
+                    "conductor, plastic or thindielectric)",
+                    type->valuestring);
     material_t *m = &L->s->materials[L->s->material_count];
     memcpy(m->name, it->string, strlen(it->string) + 1);
     m->type = (material_type_t)t;
@@ -585,10 +693,20 @@ static int parse_material(loader_t *L, const cJSON *it)
     if (m->type != MATERIAL_DIELECTRIC)
         for (int k = 0; k < 3; k++)
             if (v[k] < 0 || v[k] > 1)
-                return fail(L, p,
-                            "%s components must be in [0, 1] (got %g): more would create energy",
-                            m->type == MATERIAL_MIRROR ? "reflectance" : "albedo", v[k]);
+                return fail(
+                    L, p, "%s components must be in [0, 1] (got %g): more would create energy",
+                    m->type == MATERIAL_MIRROR || m->type == MATERIAL_CONDUCTOR ? "reflectance"
+                                                                                : "albedo",
+                    v[k]);
     m->albedo = to_vec3(v);
+    float mean = (float)(v[0] + v[1] + v[2]) / 3.0f;
+    if (m->albedo_texture >= 0) {
+        /* Mitsuba's mean of a checkerboard: of its two colours */
+        const texture_t *t = &L->s->textures[m->albedo_texture];
+        mean = (t->color0.x + t->color0.y + t->color0.z + t->color1.x + t->color1.y + t->color1.z) /
+               6.0f;
+    }
+    material_prepare(m, mean, L->s->materials, L->s->material_count);
     L->s->material_count++;
     return 0;
 }

@@ -337,13 +337,27 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
             textured.albedo = texture_albedo(s, m, h.tri, h.u, h.v);
             m = &textured;
         }
-        rng_seek(&path.rng, tracer_bounce_dim(depth) + 2);
-        if (nee && material_is_diffuse(m))
-            sample_direct(tr, &path, m, p, &mh);
-        rng_seek(&path.rng, tracer_bounce_dim(depth) + 4);
         material_sample_t bs;
-        if (!material_sample(m, &mh, &path.rng, &bs))
-            break;
+        if (material_is_glossy(m)) {
+            int shadow;
+            vec3_t from = {0, 0, 0}, seg = from, gain = from;
+            int goes_on = tracer_shade_glossy(s, m, &path.rng, depth, nee, path.beta, p, &mh,
+                                              &shadow, &from, &seg, &gain, &bs);
+            if (shadow) {
+                path.rays++;
+                if (tracer_unoccluded(tr, from, seg))
+                    path.L = vec3_add(path.L, gain);
+            }
+            if (!goes_on)
+                break;
+        } else {
+            rng_seek(&path.rng, tracer_bounce_dim(depth) + 2);
+            if (nee && material_is_diffuse(m))
+                sample_direct(tr, &path, m, p, &mh);
+            rng_seek(&path.rng, tracer_bounce_dim(depth) + 4);
+            if (!material_sample(m, &mh, &path.rng, &bs))
+                break;
+        }
         path.beta = vec3_mul(path.beta, bs.weight);
         if (bs.transmits)
             path.eta_scale *= bs.eta * bs.eta;

@@ -220,12 +220,81 @@ static inline void tracer_camera_ray(const camera_t *cam, rng_stream_t *rng, uin
 }
 
 /* Where bounce `depth`'s numbers start under the sobol sampler: after the
- * camera's pair, six per bounce: [0] roulette, [1] unused (it was the light
- * pick, which now shares the light point's pair), [2, 3] the light and the
- * point on it, [4, 5] BSDF sample, so the 2D uses are Sobol pairs (rng.h). */
+ * camera's pair, six per bounce: [0] roulette, [1] a glossy material's
+ * choice of lobe (it was the light pick, which now shares the light point's
+ * pair), [2, 3] the light and the point on it, [4, 5] BSDF sample, so the
+ * 2D uses are Sobol pairs (rng.h). */
 static inline uint64_t tracer_bounce_dim(uint32_t depth)
 {
     return 2 + 6 * (uint64_t)depth;
+}
+
+/* Next-event estimation at p on a glossy material m (material.h) with
+ * the light-sample numbers (ul, u2): the shadow segment from *from along
+ * *seg and what the path gains when it is free, MIS-weighted against the
+ * BSDF. 0 when there is nothing to test. */
+static inline int tracer_glossy_direct(const scene_t *s, const material_t *m, vec3_t beta, vec3_t p,
+                                       const material_hit_t *mh, double ul, float u2, vec3_t *from,
+                                       vec3_t *seg, vec3_t *gain)
+{
+    vec3_t wl, radiance, target = {0, 0, 0};
+    float light_pdf;
+    int env = lights_pick_env(s, &ul);
+    if (env) {
+        wl = lights_env_sample(s, ul, u2, &light_pdf, &radiance);
+        if (!(light_pdf > 0.0f))
+            return 0;
+    } else {
+        vec3_t q;
+        uint32_t lt = lights_sample(s, ul, u2, &q);
+        vec3_t to = vec3_sub(q, p);
+        float dist2 = vec3_dot(to, to);
+        if (!(dist2 > 0.0f))
+            return 0;
+        vec3_t nl = s->tri_normal[lt];
+        wl = vec3_scale(to, 1.0f / sqrtf(dist2));
+        float cos_l = -vec3_dot(nl, wl);
+        if (!(cos_l > 0.0f))
+            return 0;
+        light_pdf = lights_area_pdf(s, lt) * dist2 / cos_l;
+        radiance = s->materials[s->tri_material[lt]].radiance;
+        target = vec3_offset_ray_origin(q, nl);
+    }
+    vec3_t f_cos;
+    float bsdf_pdf;
+    if (!material_glossy_eval(m, mh, wl, &f_cos, &bsdf_pdf))
+        return 0;
+    *from = vec3_offset_ray_origin(p, mh->ngf);
+    *seg = env ? vec3_scale(wl, s->env_distance) : vec3_sub(target, *from);
+    float w = tracer_power_heuristic(light_pdf, bsdf_pdf);
+    *gain = vec3_mul(vec3_mul(beta, f_cos), vec3_scale(radiance, w / light_pdf));
+    return 1;
+}
+
+/* The shading of a glossy material at a hit, the same in both engines:
+ * the light sample (its numbers at the bounce's [2, 3]; *shadow 1 when
+ * its segment is to be tested, see tracer_glossy_direct) and the BSDF
+ * sample (the lobe's number at [1], the direction's at [4, 5]). Returns 0
+ * when the path ends here. */
+static inline int tracer_shade_glossy(const scene_t *s, const material_t *m, rng_stream_t *rng,
+                                      uint32_t depth, int nee, vec3_t beta, vec3_t p,
+                                      const material_hit_t *mh, int *shadow, vec3_t *from,
+                                      vec3_t *seg, vec3_t *gain, material_sample_t *bs)
+{
+    uint64_t dim = tracer_bounce_dim(depth);
+    *shadow = 0;
+    if (nee && material_glossy_has_lobe(m)) {
+        rng_seek(rng, dim + 2);
+        double ul = rng_next_double(rng);
+        float u2 = rng_next_float(rng);
+        *shadow = tracer_glossy_direct(s, m, beta, p, mh, ul, u2, from, seg, gain);
+    }
+    rng_seek(rng, dim + 1);
+    float u_lobe = rng_next_float(rng);
+    rng_seek(rng, dim + 4);
+    float u1 = rng_next_float(rng);
+    float u2 = rng_next_float(rng);
+    return material_glossy_sample(m, mh, u_lobe, u1, u2, bs);
 }
 
 #endif

@@ -10,6 +10,7 @@
 
 #define VMATH_PI 3.14159265358979323846f
 #define VMATH_INV_PI 0.31830988618379067154f
+#define VMATH_INV_SQRT_PI 0.56418958354775628695f
 
 typedef struct vec3 {
     float x, y, z;

@@ -110,6 +110,7 @@ typedef void (*wave_kernel_t)(const wave_ctx_t *c, wave_state_t *w, const uint16
 void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
 void wave_kernel_mirror(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
 void wave_kernel_dielectric(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
+void wave_kernel_glossy(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
 
 /* Traces every sample of tasks[0..count) (at most WAVE_MAX_SAMPLES in
  * all; checked by the caller): sample i of task k lands at index

@@ -247,8 +247,31 @@ typedef struct refusal {
 } refusal_t;
 
 static const refusal_t refusals[] = {
-    {"<bsdf type=\"conductor\" id=\"c\"/>\n<shape type=\"cube\"><ref id=\"c\"/></shape>", 3,
-     "bsdf type \"conductor\" is not supported (supported: diffuse, twosided, dielectric)", 0},
+    {"<bsdf type=\"hair\" id=\"c\"/>\n<shape type=\"cube\"><ref id=\"c\"/></shape>", 3,
+     "bsdf type \"hair\" is not supported (supported: diffuse, twosided, dielectric, "
+     "thindielectric, conductor, roughconductor, plastic, roughplastic)",
+     0},
+    {"<shape type=\"cube\">\n<bsdf type=\"roughconductor\"><float name=\"alpha_u\" "
+     "value=\"0.1\"/><float name=\"alpha_v\" value=\"0.2\"/></bsdf></shape>",
+     4, "anisotropic roughness (alpha_u 0.1, alpha_v 0.2) is not supported", 0},
+    {"<shape type=\"cube\">\n<bsdf type=\"conductor\"><string name=\"material\" "
+     "value=\"Unobtainium\"/></bsdf></shape>",
+     4, "conductor material \"Unobtainium\" is not known (known: none, a-C, Ag", 0},
+    {"<shape type=\"cube\">\n<bsdf type=\"roughplastic\"><string name=\"distribution\" "
+     "value=\"phong\"/></bsdf></shape>",
+     4, "distribution \"phong\" is not supported (beckmann, ggx)", 0},
+    {"<shape type=\"cube\"><bsdf type=\"plastic\"/>\n<emitter type=\"area\"><rgb "
+     "name=\"radiance\" value=\"1\"/></emitter></shape>",
+     4, "an area emitter on a plastic is not supported", 0},
+    {"<shape type=\"cube\"><bsdf type=\"twosided\">\n<bsdf type=\"thindielectric\"/>"
+     "</bsdf></shape>",
+     4, "twosided around \"thindielectric\" is not supported", 0},
+    {"<shape type=\"cube\"><bsdf type=\"conductor\">\n<spectrum name=\"eta\" "
+     "value=\"400:1, 700:2\"/></bsdf></shape>",
+     4, "a spectral eta is not supported (give an <rgb>)", 0},
+    {"<shape type=\"cube\">\n<bsdf type=\"roughplastic\"><float name=\"int_ior\" "
+     "value=\"1.3\"/><float name=\"ext_ior\" value=\"1.3\"/></bsdf></shape>",
+     4, "int_ior and ext_ior must differ", 0},
     {"<shape type=\"cube\">\n<bsdf type=\"diffuse\">\n<float name=\"foo\" value=\"1\"/>\n"
      "</bsdf></shape>",
      5, "property \"foo\" of bsdf \"diffuse\" is not supported", 0},
@@ -559,7 +582,8 @@ END_TEST
  * light and a constant environment (checker.xml) and an environment map
  * with a sun (envmap.xml). Independent samples: the variance of a mean is
  * then the pixels' own. */
-static const char *const mis_scenes[] = {"scenes/mitsuba/checker.xml", "scenes/mitsuba/envmap.xml"};
+static const char *const mis_scenes[] = {"scenes/mitsuba/checker.xml", "scenes/mitsuba/envmap.xml",
+                                         "scenes/mitsuba/materials.xml"};
 
 START_TEST(mis_agrees_with_bsdf_sampling)
 {
@@ -622,6 +646,7 @@ static const struct {
     {"scenes/mitsuba/checker.xml", "tests/data/mitsuba/checker-32.exr", 1024},
     {"scenes/mitsuba/envmap.xml", "tests/data/mitsuba/envmap-32.exr", 2048},
     {"scenes/mitsuba/ortho.xml", "tests/data/mitsuba/ortho-32.exr", 1024},
+    {"scenes/mitsuba/materials.xml", "tests/data/mitsuba/materials-32.exr", 2048},
 };
 
 START_TEST(matches_mitsuba)

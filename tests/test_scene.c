@@ -326,9 +326,61 @@ START_TEST(bad_material_type)
 {
     char buf[TEXTLEN];
     const char *mats = "\"materials\": {\"white\": {\"type\": \"diffuse\", \"albedo\": [0.5, 0.5, "
-                       "0.5]}, \"light\": {\"type\": \"plastic\", \"radiance\": [1, 1, 1]}}";
+                       "0.5]}, \"light\": {\"type\": \"hair\", \"radiance\": [1, 1, 1]}}";
     expect_fail(build(buf, sizeof buf, CAM_OK, NULL, mats, SHAPES_OK), "mtype.json",
-                "materials.light", "unknown material type", "plastic");
+                "materials.light", "unknown material type", "hair");
+}
+END_TEST
+
+/* The glossy materials: their fields read, their faults named. */
+START_TEST(glossy_materials)
+{
+    char buf[TEXTLEN];
+    const char *mats =
+        "\"materials\": {\"white\": {\"type\": \"conductor\", \"preset\": \"Au\", \"roughness\": "
+        "0.2, \"distribution\": \"ggx\", \"twosided\": false}, \"light\": {\"type\": \"emitter\", "
+        "\"radiance\": [4, 4, 4]}, \"p\": {\"type\": \"plastic\", \"albedo\": [0.2, 0.3, 0.4], "
+        "\"ior\": 1.6, \"nonlinear\": true}, \"t\": {\"type\": \"thindielectric\"}, \"e\": "
+        "{\"type\": \"conductor\", \"eta\": [0.2, 0.9, 1.1], \"k\": [3.9, 2.4, 2.1]}}";
+    scene_t *s = load_ok(build(buf, sizeof buf, CAM_OK, NULL, mats, SHAPES_OK), "glossy.json");
+    const material_t *au = &s->materials[0], *p = &s->materials[2], *t = &s->materials[3],
+                     *e = &s->materials[4];
+    ck_assert_int_eq(au->type, MATERIAL_CONDUCTOR);
+    ck_assert(au->alpha == 0.2f && au->distribution == MICROFACET_GGX && au->one_sided);
+    ck_assert(fabsf(au->eta.x - 0.143036f) < 1e-6f && au->albedo.y == 1.0f);
+    ck_assert_int_eq(p->type, MATERIAL_PLASTIC);
+    ck_assert(p->alpha == 0.0f && p->ior == 1.6f && p->nonlinear && p->specular.z == 1.0f);
+    ck_assert(p->internal > 0.5f && p->internal < 0.7f); /* the smooth coat's fit */
+    ck_assert(t->type == MATERIAL_THIN_DIELECTRIC && fabsf(t->ior - 1.5042f) < 1e-3f);
+    ck_assert(e->eta.y == 0.9f && e->k.z == 2.1f);
+    scene_destroy(&s);
+    static const struct {
+        const char *mat, *says;
+    } bad[] = {
+        {"{\"type\": \"conductor\", \"preset\": \"Mithril\"}", "unknown conductor \"Mithril\""},
+        {"{\"type\": \"conductor\", \"preset\": \"Au\", \"eta\": [1, 1, 1]}",
+         "either a preset or eta and k"},
+        {"{\"type\": \"conductor\", \"k\": [1, 1, 1]}", "k needs eta"},
+        {"{\"type\": \"conductor\", \"eta\": [0, 1, 1], \"k\": [0, 1, 1]}",
+         "eta and k cannot both be 0"},
+        {"{\"type\": \"conductor\", \"roughness\": 5}", "out of range"},
+        {"{\"type\": \"plastic\", \"roughness\": 0.1, \"distribution\": \"phong\"}",
+         "\"beckmann\" or \"ggx\""},
+        {"{\"type\": \"plastic\", \"ior\": 1}", "a coat of index 1"},
+        {"{\"type\": \"plastic\", \"specular\": [2, 1, 1]}", "specular components"},
+        {"{\"type\": \"plastic\", \"albedo\": [1.5, 1, 1]}", "albedo components"},
+        {"{\"type\": \"plastic\", \"nonlinear\": 1}", "true or false"},
+        {"{\"type\": \"conductor\", \"reflectance\": [1, 2, 1]}", "reflectance components"},
+    };
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        char m[512];
+        snprintf(m, sizeof m,
+                 "\"materials\": {\"white\": %s, \"light\": {\"type\": \"emitter\", \"radiance\": "
+                 "[4, 4, 4]}}",
+                 bad[i].mat);
+        expect_fail(build(buf, sizeof buf, CAM_OK, NULL, m, SHAPES_OK), "glossy-bad.json",
+                    "materials.white", bad[i].says, NULL);
+    }
 }
 END_TEST
 
@@ -1105,6 +1157,7 @@ static Suite *scene_suite(void)
     tcase_add_test(tc, bad_camera_basis);
     tcase_add_test(tc, bad_shape_material);
     tcase_add_test(tc, bad_material_type);
+    tcase_add_test(tc, glossy_materials);
     tcase_add_test(tc, bad_shape_type);
     tcase_add_test(tc, bad_mesh_missing);
     tcase_add_test(tc, bad_mesh_malformed);
