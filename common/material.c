@@ -6,8 +6,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-static const char *const type_names[] = {"diffuse",   "emitter", "mirror",        "dielectric",
-                                         "conductor", "plastic", "thindielectric"};
+static const char *const type_names[] = {"diffuse",        "emitter",        "mirror",
+                                         "dielectric",     "conductor",      "plastic",
+                                         "thindielectric", "roughdielectric"};
 
 int material_type_from_name(const char *name)
 {

@@ -25,9 +25,10 @@ typedef enum {
     MATERIAL_MIRROR,
     MATERIAL_DIELECTRIC,
     /* the materials of Mitsuba's scenes (material_glossy_*): */
-    MATERIAL_CONDUCTOR,       /* a metal: smooth, or rough (alpha > 0) */
-    MATERIAL_PLASTIC,         /* a diffuse base under a dielectric coat, smooth or rough */
-    MATERIAL_THIN_DIELECTRIC, /* a thin pane: reflects, or lets light through unbent */
+    MATERIAL_CONDUCTOR,        /* a metal: smooth, or rough (alpha > 0) */
+    MATERIAL_PLASTIC,          /* a diffuse base under a dielectric coat, smooth or rough */
+    MATERIAL_THIN_DIELECTRIC,  /* a thin pane: reflects, or lets light through unbent */
+    MATERIAL_ROUGH_DIELECTRIC, /* rough glass: reflects and refracts through microfacets */
     MATERIAL_TYPE_COUNT
 } material_type_t;
 
@@ -250,7 +251,8 @@ static inline int material_is_glossy(const material_t *m)
 /* 1 when m has a lobe a light sample can reach (not a delta). */
 static inline int material_glossy_has_lobe(const material_t *m)
 {
-    return m->type == MATERIAL_PLASTIC || (m->type == MATERIAL_CONDUCTOR && m->alpha > 0.0f);
+    return m->type == MATERIAL_PLASTIC || m->type == MATERIAL_ROUGH_DIELECTRIC ||
+           (m->type == MATERIAL_CONDUCTOR && m->alpha > 0.0f);
 }
 
 /* The shading normal's frame: local z is n. */
@@ -351,6 +353,35 @@ static inline float material_microfacet_lobe(const microfacet_t *d, vec3_t wo, v
     return D * microfacet_g1(d, wo, H) * microfacet_g1(d, wi, H) / (4.0f * wo.z);
 }
 
+/* Rough glass (Walter et al.'s model, as Mitsuba's roughdielectric) for
+ * local wo (wo.z > 0: the frame's normal is on the viewer's side) and wi
+ * on either side; eta is the far side's index over the near side's.
+ * Returns f cos (radiance: a transmission carries the 1/eta^2 of the
+ * smooth dielectric) and *pdf, or 0 with *pdf 0 when wi gets nothing. */
+static inline float material_rough_dielectric_eval(const microfacet_t *d, float eta, vec3_t wo,
+                                                   vec3_t wi, float *pdf)
+{
+    *pdf = 0.0f;
+    int reflect = wi.z > 0.0f;
+    vec3_t H = vec3_normalize(vec3_add(wo, reflect ? wi : vec3_scale(wi, eta)));
+    if (H.z < 0.0f)
+        H = vec3_neg(H);
+    float dot_o = vec3_dot(wo, H), dot_i = vec3_dot(wi, H);
+    if (!(dot_o > 0.0f) || !(dot_i * wi.z > 0.0f))
+        return 0.0f;
+    float D = microfacet_d(d, H), ct;
+    float F = microfacet_fresnel(dot_o, eta, &ct);
+    float G = microfacet_g1(d, wo, H) * microfacet_g1(d, wi, H);
+    float visible = D * microfacet_g1_visible(d, wo, H) * dot_o / wo.z;
+    if (reflect) {
+        *pdf = visible * F / (4.0f * dot_i);
+        return F * D * G / (4.0f * wo.z);
+    }
+    float denom = dot_o + eta * dot_i;
+    *pdf = fabsf(visible * (1.0f - F) * eta * eta * dot_i / (denom * denom));
+    return fabsf((1.0f - F) * D * G * dot_o * dot_i / (wo.z * denom * denom));
+}
+
 /* m's BSDF toward wi: 0 when m has no lobe there (a delta, wi below the
  * shading or geometric normal); else 1, *f_cos (the BSDF times the cosine
  * at the shading normal) and *pdf, the density with which
@@ -358,13 +389,23 @@ static inline float material_microfacet_lobe(const microfacet_t *d, vec3_t wo, v
 static inline int material_glossy_eval(const material_t *m, const material_hit_t *h, vec3_t wi,
                                        vec3_t *f_cos, float *pdf)
 {
-    if (!material_glossy_has_lobe(m) || !(vec3_dot(h->ngf, wi) > 0.0f))
+    if (!material_glossy_has_lobe(m))
         return 0;
     material_frame_t fr = material_frame(h->ns);
     vec3_t lo = material_to_local(&fr, h->wo), li = material_to_local(&fr, wi);
-    if (!(lo.z > 0.0f) || !(li.z > 0.0f))
-        return 0;
     microfacet_t d = material_microfacet(m);
+    if (m->type == MATERIAL_ROUGH_DIELECTRIC) {
+        /* wi on the side of the geometric normal its lobe is on */
+        float side = vec3_dot(h->ngf, wi);
+        if (!(lo.z > 0.0f) || li.z == 0.0f || !((li.z > 0.0f) == (side > 0.0f)) || side == 0.0f)
+            return 0;
+        float f =
+            material_rough_dielectric_eval(&d, h->front ? m->ior : 1.0f / m->ior, lo, li, pdf);
+        *f_cos = vec3_make(f, f, f);
+        return *pdf > 0.0f;
+    }
+    if (!(vec3_dot(h->ngf, wi) > 0.0f) || !(lo.z > 0.0f) || !(li.z > 0.0f))
+        return 0;
     vec3_t H = vec3_normalize(vec3_add(lo, li));
     float lobe_pdf;
     if (m->type == MATERIAL_CONDUCTOR) {
@@ -414,6 +455,38 @@ static inline int material_glossy_sample(const material_t *m, const material_hit
         out->specular = 1;
         out->transmits = 1;
         return 1;
+    }
+    if (m->type == MATERIAL_ROUGH_DIELECTRIC) {
+        /* a visible normal, then reflection with Fresnel's probability, else refraction */
+        material_frame_t fr = material_frame(h->ns);
+        vec3_t lo = material_to_local(&fr, h->wo);
+        microfacet_t d = material_microfacet(m);
+        float eta = h->front ? m->ior : 1.0f / m->ior;
+        vec3_t mn = microfacet_sample_visible(&d, lo, u1, u2);
+        float c = vec3_dot(lo, mn), ct;
+        float F = microfacet_fresnel(c, eta, &ct);
+        float g1v = microfacet_g1_visible(&d, lo, mn);
+        if (!(c > 0.0f) || !(g1v > 0.0f))
+            return 0;
+        vec3_t li;
+        int reflect = u_lobe <= F;
+        if (reflect)
+            li = vec3_sub(vec3_scale(mn, 2.0f * c), lo);
+        else
+            li = vec3_sub(vec3_scale(mn, c / eta + ct), vec3_scale(lo, 1.0f / eta));
+        float g = microfacet_g1(&d, li, mn) * microfacet_g1(&d, lo, mn) / g1v;
+        out->wi = material_to_world(&fr, li);
+        float side = vec3_dot(h->ngf, out->wi);
+        if (!(g > 0.0f) ||
+            (reflect ? !(side > 0.0f) || !(li.z > 0.0f) : !(side < 0.0f) || !(li.z < 0.0f)))
+            return 0;
+        float k = reflect ? g : g / (eta * eta);
+        out->weight = vec3_make(k, k, k);
+        material_rough_dielectric_eval(&d, eta, lo, li, &out->pdf);
+        out->specular = 0;
+        out->transmits = !reflect;
+        out->eta = reflect ? 1.0f : eta;
+        return out->pdf > 0.0f;
     }
     if (m->type == MATERIAL_CONDUCTOR && !(m->alpha > 0.0f))
         return material_sample_reflection(

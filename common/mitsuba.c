@@ -1127,10 +1127,37 @@ static cJSON *vec3_json(const double v[3])
 
 /* ---- integrator, sensor, film ------------------------------------------------------ */
 
+/* Mitsuba's direct integrator: emitter_samples and bsdf_samples, both
+ * defaulting to shading_samples (1). */
+static int conv_direct(conv_t *c, mx_node_t *n, cJSON *render)
+{
+    long long shading = 1, es = -1, bs = -1;
+    int hide = 0;
+    if (get_int(c->x, n, "shading_samples", 0, SCENE_MAX_DIRECT_SAMPLES, &shading) < 0 ||
+        get_int(c->x, n, "emitter_samples", 0, SCENE_MAX_DIRECT_SAMPLES, &es) < 0 ||
+        get_int(c->x, n, "bsdf_samples", 0, SCENE_MAX_DIRECT_SAMPLES, &bs) < 0 ||
+        get_bool(c->x, n, "hide_emitters", &hide) < 0)
+        return -1;
+    if (prop(n, "shading_samples") && (es >= 0 || bs >= 0))
+        return NODE_FAIL(c->x, n, "give either shading_samples or emitter_samples/bsdf_samples");
+    if (hide)
+        return NODE_FAIL(c->x, n, "hide_emitters is not supported");
+    es = es < 0 ? shading : es;
+    bs = bs < 0 ? shading : bs;
+    if (es + bs == 0)
+        return NODE_FAIL(c->x, n, "emitter_samples and bsdf_samples cannot both be 0");
+    cJSON_ReplaceItemInObject(render, "integrator", cJSON_CreateString("direct"));
+    cJSON_AddNumberToObject(render, "emitter_samples", (double)es);
+    cJSON_AddNumberToObject(render, "bsdf_samples", (double)bs);
+    return check_used(c, n);
+}
+
 static int conv_integrator(conv_t *c, mx_node_t *n, cJSON *render)
 {
+    if (is_type(n, "direct"))
+        return conv_direct(c, n, render);
     if (!is_type(n, "path"))
-        return unsupported_type(c, n, "path");
+        return unsupported_type(c, n, "path, direct");
     long long depth = -1, rr = 5;
     int hide = 0;
     if (get_int(c->x, n, "max_depth", -1, 1000000, &depth) < 0 ||
@@ -1543,8 +1570,9 @@ static int conv_plastic(conv_t *c, const mx_node_t *bsdf, cJSON *m)
     return is_type(bsdf, "roughplastic") ? conv_roughness(c, bsdf, m) : 0;
 }
 
-/* dielectric and thindielectric: the indices, and reflectance and
- * transmittance that must be 1. */
+/* dielectric, thindielectric and roughdielectric: the indices (and the
+ * rough one's roughness), and reflectance and transmittance that must be
+ * 1. */
 static int conv_dielectric(conv_t *c, const mx_node_t *bsdf, cJSON *m)
 {
     double int_ior, ext_ior, one[3];
@@ -1559,10 +1587,13 @@ static int conv_dielectric(conv_t *c, const mx_node_t *bsdf, cJSON *m)
         if (got && (one[0] != 1 || one[1] != 1 || one[2] != 1))
             return NODE_FAIL(c->x, bsdf, "%s other than 1 is not supported", name);
     }
-    cJSON_AddStringToObject(m, "type",
-                            is_type(bsdf, "dielectric") ? "dielectric" : "thindielectric");
+    cJSON_AddStringToObject(m, "type", node_attr(bsdf, "type"));
     cJSON_AddNumberToObject(m, "ior", int_ior / ext_ior);
-    return 0;
+    if (!is_type(bsdf, "roughdielectric"))
+        return 0;
+    if (int_ior == ext_ior)
+        return NODE_FAIL(c->x, bsdf, "int_ior and ext_ior must differ");
+    return conv_roughness(c, bsdf, m);
 }
 
 /* The JSON material of a (bsdf, area emitter) pair, either may be NULL.
@@ -1577,7 +1608,8 @@ static int conv_material(conv_t *c, const mx_node_t *bsdf, const mx_node_t *emit
     if (c->nmats == MX_MAX_MATERIALS)
         return NODE_FAIL(c->x, bsdf ? bsdf : emitter, "more than %d materials", MX_MAX_MATERIALS);
     static const char *const supported = "diffuse, twosided, dielectric, thindielectric, "
-                                         "conductor, roughconductor, plastic, roughplastic";
+                                         "roughdielectric, conductor, roughconductor, plastic, "
+                                         "roughplastic";
     const mx_node_t *inner = bsdf;
     int twosided = 0;
     if (bsdf && is_type(bsdf, "twosided")) {
@@ -1613,15 +1645,17 @@ static int conv_material(conv_t *c, const mx_node_t *bsdf, const mx_node_t *emit
         return NODE_FAIL(c->x, inner, "<%s> where a bsdf is expected", inner->tag);
     }
     int glossy = inner && (is_type(inner, "dielectric") || is_type(inner, "thindielectric") ||
-                           is_type(inner, "conductor") || is_type(inner, "roughconductor") ||
-                           is_type(inner, "plastic") || is_type(inner, "roughplastic"));
+                           is_type(inner, "roughdielectric") || is_type(inner, "conductor") ||
+                           is_type(inner, "roughconductor") || is_type(inner, "plastic") ||
+                           is_type(inner, "roughplastic"));
     if (glossy) {
         if (emitter) {
             cJSON_Delete(m);
             return NODE_FAIL(c->x, emitter, "an area emitter on a %s is not supported",
                              node_attr(inner, "type"));
         }
-        int fails = is_type(inner, "dielectric") || is_type(inner, "thindielectric")
+        int fails = is_type(inner, "dielectric") || is_type(inner, "thindielectric") ||
+                            is_type(inner, "roughdielectric")
                         ? conv_dielectric(c, inner, m)
                     : is_type(inner, "conductor") || is_type(inner, "roughconductor")
                         ? conv_conductor(c, inner, m)
@@ -1631,7 +1665,8 @@ static int conv_material(conv_t *c, const mx_node_t *bsdf, const mx_node_t *emit
             return -1;
         }
         /* Mitsuba's conductors and plastics are black from behind */
-        if (!is_type(inner, "dielectric") && !is_type(inner, "thindielectric"))
+        if (!is_type(inner, "dielectric") && !is_type(inner, "thindielectric") &&
+            !is_type(inner, "roughdielectric"))
             cJSON_AddBoolToObject(m, "twosided", twosided);
     } else if (!inner || is_type(inner, "diffuse")) {
         cJSON *texture = NULL;

@@ -231,19 +231,28 @@ static int parse_render(loader_t *L, const cJSON *root)
     s->integrator = SCENE_INTEGRATOR_PATH;
     s->max_depth = 0;
     s->rr_depth = SCENE_RR_DEPTH;
+    s->direct_emitter_samples = s->direct_bsdf_samples = 1;
     const cJSON *r = cJSON_GetObjectItemCaseSensitive(root, "render");
     if (!r)
         return 0;
     if (!cJSON_IsObject(r))
         return fail(L, "render", "expected an object");
-    static const char *const keys[] = {"spp", "seed", "integrator", "max_depth", "rr_depth", NULL};
+    static const char *const keys[] = {"spp",          "seed",     "integrator",
+                                       "max_depth",    "rr_depth", "emitter_samples",
+                                       "bsdf_samples", NULL};
     check_keys(L, r, "render", keys);
-    double spp = s->spp, seed = (double)s->seed, depth = 0, rr = SCENE_RR_DEPTH;
+    double spp = s->spp, seed = (double)s->seed, depth = 0, rr = SCENE_RR_DEPTH, es = 1, bs = 1;
     if (get_integer(L, r, "spp", "render", 0, 1, 4294967295.0, &spp) < 0 ||
         get_integer(L, r, "seed", "render", 0, 0, 9007199254740992.0, &seed) < 0 ||
         get_integer(L, r, "max_depth", "render", 0, 0, 1e6, &depth) < 0 ||
-        get_integer(L, r, "rr_depth", "render", 0, 1, SCENE_MAX_RR_DEPTH, &rr) < 0)
+        get_integer(L, r, "rr_depth", "render", 0, 1, SCENE_MAX_RR_DEPTH, &rr) < 0 ||
+        get_integer(L, r, "emitter_samples", "render", 0, 0, SCENE_MAX_DIRECT_SAMPLES, &es) < 0 ||
+        get_integer(L, r, "bsdf_samples", "render", 0, 0, SCENE_MAX_DIRECT_SAMPLES, &bs) < 0)
         return -1;
+    if (es + bs == 0)
+        return fail(L, "render", "emitter_samples and bsdf_samples cannot both be 0");
+    s->direct_emitter_samples = (uint32_t)es;
+    s->direct_bsdf_samples = (uint32_t)bs;
     s->rr_depth = (uint32_t)rr;
     s->spp = (uint32_t)spp;
     s->seed = (uint64_t)seed;
@@ -252,7 +261,7 @@ static int parse_render(loader_t *L, const cJSON *root)
     if (in) {
         int v = cJSON_IsString(in) ? scene_integrator_from_name(in->valuestring) : -1;
         if (v < 0)
-            return fail(L, "render.integrator", "expected \"path\" or \"naive\"");
+            return fail(L, "render.integrator", "expected \"path\", \"naive\" or \"direct\"");
         s->integrator = (scene_integrator_t)v;
     }
     return 0;
@@ -533,13 +542,25 @@ static int parse_glossy_fields(loader_t *L, const cJSON *it, const char *p, mate
                                double v[3])
 {
     char q[PATH_LEN];
-    if (m->type == MATERIAL_THIN_DIELECTRIC) {
-        static const char *const keys[] = {"type", "ior", NULL};
+    if (m->type == MATERIAL_THIN_DIELECTRIC || m->type == MATERIAL_ROUGH_DIELECTRIC) {
+        static const char *const keys[] = {"type", "ior", "roughness", "distribution", NULL};
         check_keys(L, it, p, keys);
         double ior = 1.5046 / 1.000277; /* Mitsuba's defaults: bk7 in air */
         if (get_number(L, it, "ior", p, 0, 1.0 / 8, 8.0, &ior) < 0)
             return -1;
         m->ior = (float)ior;
+        if (m->type == MATERIAL_THIN_DIELECTRIC)
+            return 0;
+        if (get_roughness(L, it, p, m) < 0)
+            return -1;
+        if (!cJSON_GetObjectItemCaseSensitive(it, "roughness"))
+            m->alpha = 0.1f; /* Mitsuba's default */
+        if (!(m->alpha > 0.0f) || m->ior == 1.0f) {
+            snprintf(q, sizeof q, "%s.%s", p, m->ior == 1.0f ? "ior" : "roughness");
+            return fail(L, q,
+                        "rough glass needs a roughness above 0 and an index other than 1 "
+                        "(use dielectric for smooth glass)");
+        }
         return 0;
     }
     if (m->type == MATERIAL_CONDUCTOR) {
@@ -653,6 +674,7 @@ static int parse_material_fields(loader_t *L, const cJSON *it, const char *p, ma
     case MATERIAL_CONDUCTOR:
     case MATERIAL_PLASTIC:
     case MATERIAL_THIN_DIELECTRIC:
+    case MATERIAL_ROUGH_DIELECTRIC:
     case MATERIAL_TYPE_COUNT:
         return parse_glossy_fields(L, it, p, m, v);
     }
@@ -676,12 +698,12 @@ static int parse_material(loader_t *L, const cJSON *it)
     if (!cJSON_IsString(type))
         return fail(L, p,
                     "missing \"type\" (diffuse, emitter, mirror, dielectric, conductor, "
-                    "plastic or thindielectric)");
+                    "plastic, thindielectric or roughdielectric)");
     int t = material_type_from_name(type->valuestring);
     if (t < 0)
         return fail(L, p,
                     "unknown material type \"%s\" (expected diffuse, emitter, mirror, dielectric, "
-                    "conductor, plastic or thindielectric)",
+                    "conductor, plastic, thindielectric or roughdielectric)",
                     type->valuestring);
     material_t *m = &L->s->materials[L->s->material_count];
     memcpy(m->name, it->string, strlen(it->string) + 1);
@@ -1562,7 +1584,9 @@ void scene_destroy(scene_t **sp)
 
 const char *scene_integrator_name(scene_integrator_t integrator)
 {
-    return integrator == SCENE_INTEGRATOR_NAIVE ? "naive" : "path";
+    return integrator == SCENE_INTEGRATOR_NAIVE    ? "naive"
+           : integrator == SCENE_INTEGRATOR_DIRECT ? "direct"
+                                                   : "path";
 }
 
 int scene_integrator_from_name(const char *name)
@@ -1571,5 +1595,7 @@ int scene_integrator_from_name(const char *name)
         return SCENE_INTEGRATOR_PATH;
     if (strcmp(name, "naive") == 0)
         return SCENE_INTEGRATOR_NAIVE;
+    if (strcmp(name, "direct") == 0)
+        return SCENE_INTEGRATOR_DIRECT;
     return -1;
 }

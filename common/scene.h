@@ -25,7 +25,16 @@
 #define SCENE_MAX_SIDE 16384
 #define SCENE_MAX_PIXELS (1u << 26)
 
-typedef enum { SCENE_INTEGRATOR_PATH = 0, SCENE_INTEGRATOR_NAIVE = 1 } scene_integrator_t;
+/* path: next-event estimation MIS-weighted against the bounce; naive:
+ * the bounce alone; direct: Mitsuba's direct integrator, one bounce of
+ * light, emitter and BSDF samples MIS-weighted (scene_t.direct_*). */
+typedef enum {
+    SCENE_INTEGRATOR_PATH = 0,
+    SCENE_INTEGRATOR_NAIVE = 1,
+    SCENE_INTEGRATOR_DIRECT = 2
+} scene_integrator_t;
+/* the most emitter or BSDF samples the direct integrator takes per hit */
+#define SCENE_MAX_DIRECT_SAMPLES 64
 
 /* A texture: Mitsuba's checkerboard. Texture coordinates (u, v) map to
  * (u', v') = to_uv (u, v, 1); color0 where the fractional parts of u' and
@@ -50,6 +59,9 @@ typedef struct scene {
     scene_integrator_t integrator;
     uint32_t max_depth; /* 0: unlimited (Russian roulette ends paths) */
     uint32_t rr_depth;  /* segments before Russian roulette (SCENE_RR_DEPTH) */
+    /* the direct integrator: light samples and BSDF samples per hit,
+     * each 0..SCENE_MAX_DIRECT_SAMPLES, not both 0 (default 1 and 1) */
+    uint32_t direct_emitter_samples, direct_bsdf_samples;
 
     material_t *materials;
     /* the textures materials name (material_t.albedo_texture), and each
@@ -157,7 +169,7 @@ int scene_load_bundle(const char *json, size_t len, const char *name, const scen
 void scene_destroy(scene_t **s);
 
 const char *scene_integrator_name(scene_integrator_t integrator);
-/* "path" or "naive"; -1 for anything else. */
+/* "path", "naive" or "direct"; -1 for anything else. */
 int scene_integrator_from_name(const char *name);
 
 #endif

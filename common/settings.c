@@ -17,7 +17,7 @@
  * (tests/test_settings.c checks that they do). */
 static const char *const adaptive_choices[] = {"relmse",   "relerr", "thesis",
                                                "variance", "none",   NULL};
-static const char *const integrator_choices[] = {"path", "naive", NULL};
+static const char *const integrator_choices[] = {"path", "naive", "direct", NULL};
 /* tracer_sampler_from_name's names */
 static const char *const sampler_choices[] = {"sobol", "independent", NULL};
 
@@ -129,12 +129,12 @@ static const settings_def_t table[] = {
      .help = "stop issuing work after this long"},
     {.flag = "--integrator",
      .key = "integrator",
-     .metavar = "path|naive",
+     .metavar = "path|naive|direct",
      .type = SETTINGS_CHOICE,
      .choices = integrator_choices,
      .default_from = SETTINGS_DEFAULT_SCENE,
      .def_text = "the scene's",
-     .help = "path: NEE + MIS; naive: light only when hit"},
+     .help = "path: NEE + MIS; naive: hits only; direct: 1 bounce"},
     {.flag = "--max-depth",
      .key = "max_depth",
      .metavar = "D",

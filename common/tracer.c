@@ -331,12 +331,7 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
             break;
         material_hit_t mh = tracer_orient_normals(s, &h, wo, cos_o);
         material_t textured;
-        if (m->albedo_texture >= 0) {
-            /* the albedo where it was hit, in a copy the BSDF reads */
-            textured = *m;
-            textured.albedo = texture_albedo(s, m, h.tri, h.u, h.v);
-            m = &textured;
-        }
+        m = tracer_textured(s, m, &h, &textured);
         material_sample_t bs;
         if (material_is_glossy(m)) {
             int shadow;
@@ -373,11 +368,135 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
     return path.rays;
 }
 
+/* ---- the direct integrator ---------------------------------------------- */
+
+/* m's BSDF toward wi, for any material: f cos and the density with which
+ * its sampling would choose wi. 0 when m gives wi nothing. */
+static int direct_eval(const material_t *m, const material_hit_t *mh, vec3_t wi, vec3_t *f_cos,
+                       float *pdf)
+{
+    if (material_is_glossy(m))
+        return material_glossy_eval(m, mh, wi, f_cos, pdf);
+    float cos_s;
+    if (!material_eval(m, mh, wi, &cos_s, pdf))
+        return 0;
+    *f_cos = vec3_scale(m->albedo, cos_s * VMATH_INV_PI);
+    return 1;
+}
+
+/* Mitsuba's power heuristic with each strategy's share of the samples. */
+static float direct_mis(float pdf_a, float pdf_b)
+{
+    float a2 = pdf_a * pdf_a, b2 = pdf_b * pdf_b, w = a2 / (a2 + b2);
+    return isfinite(w) ? w : 0.0f;
+}
+
+/* One sample of a pixel under the direct integrator (Mitsuba's `direct`):
+ * what the camera ray sees emitting, then at its hit E light samples and
+ * B BSDF samples (scene_t.direct_*), each MIS-weighted against the other
+ * strategy by the power heuristic, with the strategies' shares E / (E + B)
+ * and B / (E + B) in the densities, as Mitsuba weighs them. Numbers: the
+ * camera's pair, then light sample i at [2 + 2i, 3 + 2i], BSDF sample j's
+ * lobe at 2 + 2E + 3j and its pair after it. Both engines run it (it has
+ * no wavefront kernel: a path of one bounce has no stages to batch). */
+static uint32_t trace_direct(const tracer_t *tr, const tracer_settings_t *st, uint32_t pixel,
+                             uint64_t sample_index, vec3_t *out)
+{
+    const scene_t *s = tr->scene;
+    path_t path;
+    path_start(&path, &s->camera, st, pixel, sample_index);
+    *out = vec3_make(0, 0, 0);
+    tracer_hit_t h;
+    path.rays++;
+    if (!tracer_intersect(tr, path.o, path.d, &h)) {
+        if (s->has_env)
+            *out = lights_env_radiance(s, path.d);
+        return path.rays;
+    }
+    const material_t *m = &s->materials[s->tri_material[h.tri]];
+    tracer_inset_from_edges(&h);
+    vec3_t p = scene_point(s, h.tri, h.u, h.v);
+    vec3_t wo = vec3_neg(path.d), L = vec3_make(0, 0, 0);
+    float cos_o = vec3_dot(s->tri_normal[h.tri], wo);
+    if (m->type == MATERIAL_EMITTER && cos_o > 0.0f)
+        L = m->radiance;
+    if ((m->type == MATERIAL_EMITTER && vec3_is_zero(m->albedo)) ||
+        (m->one_sided && !(cos_o > 0.0f))) {
+        *out = L;
+        return path.rays;
+    }
+    material_hit_t mh = tracer_orient_normals(s, &h, wo, cos_o);
+    material_t textured;
+    m = tracer_textured(s, m, &h, &textured);
+    const uint32_t E = s->direct_emitter_samples, B = s->direct_bsdf_samples;
+    const float frac_lum = (float)E / (float)(E + B), frac_bsdf = (float)B / (float)(E + B);
+    int has_lobe = material_is_glossy(m) ? material_glossy_has_lobe(m) : material_is_diffuse(m);
+    for (uint32_t i = 0; has_lobe && (s->light_count > 0 || s->has_env) && i < E; i++) {
+        rng_seek(&path.rng, 2 + 2 * (uint64_t)i);
+        double ul = rng_next_double(&path.rng);
+        float u2 = rng_next_float(&path.rng), light_pdf, bsdf_pdf;
+        vec3_t wl, radiance, from, seg, f_cos;
+        if (!tracer_sample_light(s, p, mh.ngf, ul, u2, &wl, &light_pdf, &radiance, &from, &seg) ||
+            !direct_eval(m, &mh, wl, &f_cos, &bsdf_pdf))
+            continue;
+        path.rays++;
+        if (!tracer_unoccluded(tr, from, seg))
+            continue;
+        float w = direct_mis(light_pdf * frac_lum, bsdf_pdf * frac_bsdf) / (float)E;
+        L = vec3_add(L, vec3_mul(f_cos, vec3_scale(radiance, w / light_pdf)));
+    }
+    for (uint32_t j = 0; j < B; j++) {
+        uint64_t dim = 2 + 2 * (uint64_t)E + 3 * (uint64_t)j;
+        material_sample_t bs;
+        rng_seek(&path.rng, dim);
+        float u_lobe = rng_next_float(&path.rng);
+        int ok;
+        if (material_is_glossy(m)) {
+            float u1 = rng_next_float(&path.rng), u2 = rng_next_float(&path.rng);
+            ok = material_glossy_sample(m, &mh, u_lobe, u1, u2, &bs);
+        } else {
+            rng_seek(&path.rng, dim + 1);
+            bs.eta = 1.0f;
+            ok = material_sample(m, &mh, &path.rng, &bs);
+        }
+        if (!ok || vec3_is_zero(bs.weight))
+            continue;
+        vec3_t o = vec3_offset_ray_origin(p, bs.transmits ? vec3_neg(mh.ngf) : mh.ngf);
+        vec3_t d = vec3_normalize(bs.wi);
+        tracer_hit_t lh;
+        path.rays++;
+        vec3_t radiance;
+        float emitter_pdf;
+        if (!tracer_intersect(tr, o, d, &lh)) {
+            if (!s->has_env)
+                continue;
+            radiance = lights_env_eval(s, d, &emitter_pdf);
+        } else {
+            const material_t *lm = &s->materials[s->tri_material[lh.tri]];
+            float cos_l = -vec3_dot(s->tri_normal[lh.tri], d);
+            if (lm->type != MATERIAL_EMITTER || !(cos_l > 0.0f))
+                continue;
+            radiance = lm->radiance;
+            emitter_pdf = lights_area_pdf(s, lh.tri) * lh.t * lh.t / cos_l;
+        }
+        if (bs.specular)
+            emitter_pdf = 0.0f;
+        float w = direct_mis(bs.pdf * frac_bsdf, emitter_pdf * frac_lum) / (float)B;
+        if (bs.specular)
+            w = 1.0f / (float)B;
+        L = vec3_add(L, vec3_mul(bs.weight, vec3_scale(radiance, w)));
+    }
+    *out = L;
+    return path.rays;
+}
+
 uint32_t tracer_sample(const tracer_t *t, const tracer_settings_t *settings, uint32_t pixel,
                        uint64_t sample_index, float rgb[3])
 {
     vec3_t L;
-    uint32_t rays = trace_sample(t, settings, pixel, sample_index, &L);
+    uint32_t rays = settings->integrator == SCENE_INTEGRATOR_DIRECT
+                        ? trace_direct(t, settings, pixel, sample_index, &L)
+                        : trace_sample(t, settings, pixel, sample_index, &L);
     rgb[0] = L.x;
     rgb[1] = L.y;
     rgb[2] = L.z;
@@ -477,14 +596,17 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_ta
         size_t end = first, total = 0;
         while (end < count && total + tasks[end].sample_count <= WAVE_MAX_SAMPLES)
             total += tasks[end++].sample_count;
-        if (t->engine == TRACER_ENGINE_WAVEFRONT) {
+        if (t->engine == TRACER_ENGINE_WAVEFRONT && st->integrator != SCENE_INTEGRATOR_DIRECT) {
             wave_trace(&ctx, &buf.wave, tasks + first, end - first, buf.L, buf.rays);
         } else {
             size_t at = 0;
             for (size_t k = first; k < end; k++)
                 for (uint32_t i = 0; i < tasks[k].sample_count; i++, at++)
-                    buf.rays[at] =
-                        trace_sample(t, st, tasks[k].pixel, tasks[k].first_sample + i, &buf.L[at]);
+                    buf.rays[at] = st->integrator == SCENE_INTEGRATOR_DIRECT
+                                       ? trace_direct(t, st, tasks[k].pixel,
+                                                      tasks[k].first_sample + i, &buf.L[at])
+                                       : trace_sample(t, st, tasks[k].pixel,
+                                                      tasks[k].first_sample + i, &buf.L[at]);
         }
         size_t at = 0;
         for (size_t k = first; k < end; k++) {

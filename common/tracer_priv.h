@@ -229,20 +229,19 @@ static inline uint64_t tracer_bounce_dim(uint32_t depth)
     return 2 + 6 * (uint64_t)depth;
 }
 
-/* Next-event estimation at p on a glossy material m (material.h) with
- * the light-sample numbers (ul, u2): the shadow segment from *from along
- * *seg and what the path gains when it is free, MIS-weighted against the
- * BSDF. 0 when there is nothing to test. */
-static inline int tracer_glossy_direct(const scene_t *s, const material_t *m, vec3_t beta, vec3_t p,
-                                       const material_hit_t *mh, double ul, float u2, vec3_t *from,
-                                       vec3_t *seg, vec3_t *gain)
+/* A light sample from p with the numbers (ul, u2): its direction *wl,
+ * solid-angle density *light_pdf (the choice of light included) and
+ * radiance, and the shadow segment from *from along *seg, which leaves p
+ * on wl's side of the geometric normal ngf. 0 when it gives nothing. */
+static inline int tracer_sample_light(const scene_t *s, vec3_t p, vec3_t ngf, double ul, float u2,
+                                      vec3_t *wl, float *light_pdf, vec3_t *radiance, vec3_t *from,
+                                      vec3_t *seg)
 {
-    vec3_t wl, radiance, target = {0, 0, 0};
-    float light_pdf;
+    vec3_t target = {0, 0, 0};
     int env = lights_pick_env(s, &ul);
     if (env) {
-        wl = lights_env_sample(s, ul, u2, &light_pdf, &radiance);
-        if (!(light_pdf > 0.0f))
+        *wl = lights_env_sample(s, ul, u2, light_pdf, radiance);
+        if (!(*light_pdf > 0.0f))
             return 0;
     } else {
         vec3_t q;
@@ -252,23 +251,48 @@ static inline int tracer_glossy_direct(const scene_t *s, const material_t *m, ve
         if (!(dist2 > 0.0f))
             return 0;
         vec3_t nl = s->tri_normal[lt];
-        wl = vec3_scale(to, 1.0f / sqrtf(dist2));
-        float cos_l = -vec3_dot(nl, wl);
+        *wl = vec3_scale(to, 1.0f / sqrtf(dist2));
+        float cos_l = -vec3_dot(nl, *wl);
         if (!(cos_l > 0.0f))
             return 0;
-        light_pdf = lights_area_pdf(s, lt) * dist2 / cos_l;
-        radiance = s->materials[s->tri_material[lt]].radiance;
+        *light_pdf = lights_area_pdf(s, lt) * dist2 / cos_l;
+        *radiance = s->materials[s->tri_material[lt]].radiance;
         target = vec3_offset_ray_origin(q, nl);
     }
-    vec3_t f_cos;
-    float bsdf_pdf;
-    if (!material_glossy_eval(m, mh, wl, &f_cos, &bsdf_pdf))
+    /* (rough glass: a light behind the surface is seen through it) */
+    *from = vec3_offset_ray_origin(p, vec3_dot(ngf, *wl) > 0.0f ? ngf : vec3_neg(ngf));
+    *seg = env ? vec3_scale(*wl, s->env_distance) : vec3_sub(target, *from);
+    return 1;
+}
+
+/* Next-event estimation at p on a glossy material m (material.h) with
+ * the light-sample numbers (ul, u2): the shadow segment from *from along
+ * *seg and what the path gains when it is free, MIS-weighted against the
+ * BSDF. 0 when there is nothing to test. */
+static inline int tracer_glossy_direct(const scene_t *s, const material_t *m, vec3_t beta, vec3_t p,
+                                       const material_hit_t *mh, double ul, float u2, vec3_t *from,
+                                       vec3_t *seg, vec3_t *gain)
+{
+    vec3_t wl, radiance, f_cos;
+    float light_pdf, bsdf_pdf;
+    if (!tracer_sample_light(s, p, mh->ngf, ul, u2, &wl, &light_pdf, &radiance, from, seg) ||
+        !material_glossy_eval(m, mh, wl, &f_cos, &bsdf_pdf))
         return 0;
-    *from = vec3_offset_ray_origin(p, mh->ngf);
-    *seg = env ? vec3_scale(wl, s->env_distance) : vec3_sub(target, *from);
     float w = tracer_power_heuristic(light_pdf, bsdf_pdf);
     *gain = vec3_mul(vec3_mul(beta, f_cos), vec3_scale(radiance, w / light_pdf));
     return 1;
+}
+
+/* m, or when its albedo is a texture, *copy with the albedo where h hit
+ * (the copy the BSDF reads). */
+static inline const material_t *tracer_textured(const scene_t *s, const material_t *m,
+                                                const tracer_hit_t *h, material_t *copy)
+{
+    if (m->albedo_texture < 0)
+        return m;
+    *copy = *m;
+    copy->albedo = texture_albedo(s, m, h->tri, h->u, h->v);
+    return copy;
 }
 
 /* The shading of a glossy material at a hit, the same in both engines:

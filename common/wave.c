@@ -4,10 +4,14 @@
 /* The kernel of each material type (material_type_t order). An emitter
  * with an albedo reflects as a diffuse surface does. */
 static const wave_kernel_t wave_kernels[] = {
-    [MATERIAL_DIFFUSE] = wave_kernel_diffuse,        [MATERIAL_EMITTER] = wave_kernel_diffuse,
-    [MATERIAL_MIRROR] = wave_kernel_mirror,          [MATERIAL_DIELECTRIC] = wave_kernel_dielectric,
-    [MATERIAL_CONDUCTOR] = wave_kernel_glossy,       [MATERIAL_PLASTIC] = wave_kernel_glossy,
+    [MATERIAL_DIFFUSE] = wave_kernel_diffuse,
+    [MATERIAL_EMITTER] = wave_kernel_diffuse,
+    [MATERIAL_MIRROR] = wave_kernel_mirror,
+    [MATERIAL_DIELECTRIC] = wave_kernel_dielectric,
+    [MATERIAL_CONDUCTOR] = wave_kernel_glossy,
+    [MATERIAL_PLASTIC] = wave_kernel_glossy,
     [MATERIAL_THIN_DIELECTRIC] = wave_kernel_glossy,
+    [MATERIAL_ROUGH_DIELECTRIC] = wave_kernel_glossy,
 };
 #define WAVE_KERNELS (sizeof wave_kernels / sizeof wave_kernels[0])
 

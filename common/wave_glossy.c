@@ -1,5 +1,5 @@
 /* wave_glossy.c - the wavefront kernel of the glossy materials (conductor,
- * plastic, thin dielectric: material_glossy_* in material.h), path by
+ * plastic, thin and rough dielectric: material_glossy_* in material.h), path by
  * path. The stages still gather each material's paths into a queue of
  * their own, so a scene without these materials never runs this file; a
  * material that measures faster with a SIMD kernel of its own (as diffuse
@@ -13,14 +13,10 @@ void wave_kernel_glossy(const wave_ctx_t *c, wave_state_t *w, const uint16_t *sl
         uint16_t s = slots[j];
         vec3_t p;
         material_hit_t mh;
-        const material_t *m = wave_surface(c, w, s, &p, &mh);
         material_t textured;
-        if (m->albedo_texture >= 0) {
-            /* the albedo where it was hit, in a copy the BSDF reads (as tracer.c) */
-            textured = *m;
-            textured.albedo = texture_albedo(c->scene, m, w->tri[s], w->u[s], w->v[s]);
-            m = &textured;
-        }
+        tracer_hit_t h = {.tri = w->tri[s], .u = w->u[s], .v = w->v[s]};
+        const material_t *m =
+            tracer_textured(c->scene, wave_surface(c, w, s, &p, &mh), &h, &textured);
         material_sample_t bs;
         int shadow;
         w->alive[s] = (uint8_t)tracer_shade_glossy(c->scene, m, &w->rng[s], w->depth[s], c->nee,

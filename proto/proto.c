@@ -230,8 +230,8 @@ static int check_mesh_unique(const proto_mesh_file_t *meshes, uint32_t i, char *
 
 static int check_integrator(int v, char *err, size_t errlen)
 {
-    if (v != SCENE_INTEGRATOR_PATH && v != SCENE_INTEGRATOR_NAIVE)
-        return fail(err, errlen, "TASK: integrator %d is neither 0 (path) nor 1 (naive)", v);
+    if (v != SCENE_INTEGRATOR_PATH && v != SCENE_INTEGRATOR_NAIVE && v != SCENE_INTEGRATOR_DIRECT)
+        return fail(err, errlen, "TASK: integrator %d is not 0 (path), 1 (naive) or 2 (direct)", v);
     return 0;
 }
 

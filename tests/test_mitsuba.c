@@ -249,7 +249,7 @@ typedef struct refusal {
 static const refusal_t refusals[] = {
     {"<bsdf type=\"hair\" id=\"c\"/>\n<shape type=\"cube\"><ref id=\"c\"/></shape>", 3,
      "bsdf type \"hair\" is not supported (supported: diffuse, twosided, dielectric, "
-     "thindielectric, conductor, roughconductor, plastic, roughplastic)",
+     "thindielectric, roughdielectric, conductor, roughconductor, plastic, roughplastic)",
      0},
     {"<shape type=\"cube\">\n<bsdf type=\"roughconductor\"><float name=\"alpha_u\" "
      "value=\"0.1\"/><float name=\"alpha_v\" value=\"0.2\"/></bsdf></shape>",
@@ -301,7 +301,17 @@ static const refusal_t refusals[] = {
     {"<integrator type=\"path\"><boolean name=\"hide_emitters\" value=\"true\"/></integrator>"
      "\n<shape type=\"cube\"/>",
      3, "hide_emitters is not supported", 0},
-    {"<integrator type=\"volpath\"/>", 3, "integrator type \"volpath\" is not supported", 0},
+    {"<integrator type=\"volpath\"/>", 3,
+     "integrator type \"volpath\" is not supported (supported: path, direct)", 0},
+    {"<integrator type=\"direct\"><integer name=\"shading_samples\" value=\"2\"/>"
+     "<integer name=\"bsdf_samples\" value=\"1\"/></integrator>\n<shape type=\"cube\"/>",
+     3, "give either shading_samples or emitter_samples/bsdf_samples", 0},
+    {"<integrator type=\"direct\"><integer name=\"shading_samples\" value=\"0\"/>"
+     "</integrator>\n<shape type=\"cube\"/>",
+     3, "emitter_samples and bsdf_samples cannot both be 0", 0},
+    {"<integrator type=\"direct\"><integer name=\"emitter_samples\" value=\"65\"/>"
+     "</integrator>\n<shape type=\"cube\"/>",
+     3, "emitter_samples = 65 is out of range [0, 64]", 0},
     {"<sensor type=\"perspective\">\n<float name=\"fov\" value=\"abc\"/></sensor>", 4,
      "\"abc\" is not a number", 1},
     {"<sensor type=\"perspective\"><float name=\"fov\" value=\"40\"/>\n"
@@ -420,11 +430,15 @@ END_TEST
 static film_t *render_xml_with(const char *rel, const char *const *defs, size_t ndefs, uint32_t spp,
                                scene_integrator_t integrator, rng_sampler_t sampler,
                                scene_t **scene_out);
+/* render_xml_with's max_depth instead of the scene's, when not 0 (each
+ * test runs in its own process) */
+static uint32_t max_depth_override;
 
 static film_t *render_xml(const char *rel, const char *const *defs, size_t ndefs, uint32_t spp,
                           scene_t **scene_out)
 {
-    return render_xml_with(rel, defs, ndefs, spp, SCENE_INTEGRATOR_PATH, RNG_SAMPLER_SOBOL,
+    /* (scene_integrator_t)-1: the scene's own */
+    return render_xml_with(rel, defs, ndefs, spp, (scene_integrator_t)-1, RNG_SAMPLER_SOBOL,
                            scene_out);
 }
 
@@ -450,9 +464,9 @@ static film_t *render_xml_with(const char *rel, const char *const *defs, size_t 
     render_settings_t rs;
     memset(&rs, 0, sizeof rs);
     rs.tracer.seed = 3;
-    rs.tracer.integrator = integrator;
+    rs.tracer.integrator = (int)integrator < 0 ? s->integrator : integrator;
     rs.tracer.sampler = sampler;
-    rs.tracer.max_depth = s->max_depth;
+    rs.tracer.max_depth = max_depth_override ? max_depth_override : s->max_depth;
     rs.spp = spp;
     rs.granularity = 32;
     rs.threads = 2;
@@ -585,6 +599,35 @@ END_TEST
 static const char *const mis_scenes[] = {"scenes/mitsuba/checker.xml", "scenes/mitsuba/envmap.xml",
                                          "scenes/mitsuba/materials.xml"};
 
+/* Two 16x16 renders of one image by different estimators agree within 5
+ * sigma over the image and each quadrant; and the test can tell: over the
+ * image (and over each quadrant when quadrants_tell), 5 sigma is below
+ * `tell` of the mean. */
+static void films_agree(const film_t *a, const film_t *b, const char *what, double tell,
+                        int quadrants_tell)
+{
+    double m[2][5] = {{0}}, v[2][5] = {{0}};
+    for (int which = 0; which < 2; which++)
+        for (uint32_t p = 0; p < 16 * 16; p++) {
+            double rgb[3];
+            film_mean(which ? b : a, p, rgb);
+            double lum = 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2];
+            double var = film_variance_of_mean(which ? b : a, p);
+            int q = (int)((p / 16) / 8 * 2 + (p % 16) / 8);
+            m[which][q] += lum;
+            v[which][q] += var;
+            m[which][4] += lum;
+            v[which][4] += var;
+        }
+    for (int q = 0; q < 5; q++) {
+        double sigma = sqrt(v[0][q] + v[1][q]);
+        ck_assert_msg(fabs(m[0][q] - m[1][q]) <= 5 * sigma, "%s, %s: %g against %g, 5 sigma %g",
+                      what, q < 4 ? "a quadrant" : "the image", m[0][q], m[1][q], 5 * sigma);
+        ck_assert_msg((q < 4 && !quadrants_tell) || 5 * sigma < tell * m[0][q],
+                      "%s: sigma %g too wide for mean %g", what, sigma, m[0][q]);
+    }
+}
+
 START_TEST(mis_agrees_with_bsdf_sampling)
 {
     const char *defs[] = {"res=16"};
@@ -593,32 +636,50 @@ START_TEST(mis_agrees_with_bsdf_sampling)
                                    RNG_SAMPLER_INDEPENDENT, &s1);
     film_t *naive = render_xml_with(mis_scenes[_i], defs, 1, 4096, SCENE_INTEGRATOR_NAIVE,
                                     RNG_SAMPLER_INDEPENDENT, &s2);
-    double m[2][5] = {{0}}, v[2][5] = {{0}};
-    for (int which = 0; which < 2; which++) {
-        const film_t *f = which ? naive : path;
-        for (uint32_t p = 0; p < 16 * 16; p++) {
-            double rgb[3];
-            film_mean(f, p, rgb);
-            double lum = 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2];
-            double var = film_variance_of_mean(f, p);
-            int q = (int)((p / 16) / 8 * 2 + (p % 16) / 8);
-            m[which][q] += lum;
-            v[which][q] += var;
-            m[which][4] += lum;
-            v[which][4] += var;
-        }
-    }
-    for (int q = 0; q < 5; q++) {
-        double sigma = sqrt(v[0][q] + v[1][q]);
-        ck_assert_msg(fabs(m[0][q] - m[1][q]) <= 5 * sigma,
-                      "%s, %s: MIS %g, BSDF sampling alone %g, 5 sigma %g", mis_scenes[_i],
-                      q < 4 ? "a quadrant" : "the image", m[0][q], m[1][q], 5 * sigma);
-        /* and the test can tell: the estimates are sharper than the image */
-        ck_assert_msg(5 * sigma < 0.2 * m[0][q], "%s: sigma %g too wide for mean %g",
-                      mis_scenes[_i], sigma, m[0][q]);
-    }
+    char what[256];
+    snprintf(what, sizeof what, "%s: MIS against BSDF sampling alone", mis_scenes[_i]);
+    films_agree(path, naive, what, 0.2, 1);
     film_destroy(&path);
     film_destroy(&naive);
+    scene_destroy(&s1);
+    scene_destroy(&s2);
+}
+END_TEST
+
+/* The direct integrator (Mitsuba's `direct`) against the path integrator
+ * cut to one bounce (max_depth 2: what the camera sees emitting, and light
+ * reflected once), which estimate the same image: with light samples and
+ * BSDF samples MIS-weighted (1 and 1, 2 and 3), light samples alone, BSDF
+ * samples alone, within 5 sigma over the image and each quadrant, on
+ * Veach's scene (scenes/mitsuba/veach-mis.xml: plates from alpha 0.005
+ * to 0.1, lights from radius 0.033 to 0.9). */
+static const struct {
+    const char *emitter, *bsdf;
+    uint32_t spp; /* light samples alone need the most */
+} direct_defs[] = {{"emitter_samples=1", "bsdf_samples=1", 2048},
+                   {"emitter_samples=2", "bsdf_samples=3", 2048},
+                   {"emitter_samples=1", "bsdf_samples=0", 8192},
+                   {"emitter_samples=0", "bsdf_samples=1", 2048}};
+
+START_TEST(direct_agrees_with_one_bounce)
+{
+    const char *defs[] = {"res=16", direct_defs[_i].emitter, direct_defs[_i].bsdf};
+    uint32_t spp = direct_defs[_i].spp;
+    scene_t *s1 = NULL, *s2 = NULL;
+    film_t *direct = render_xml_with("scenes/mitsuba/veach-mis.xml", defs, 3, spp,
+                                     SCENE_INTEGRATOR_DIRECT, RNG_SAMPLER_INDEPENDENT, &s1);
+    ck_assert_int_eq(s1->integrator, SCENE_INTEGRATOR_DIRECT);
+    max_depth_override = 2;
+    film_t *path = render_xml_with("scenes/mitsuba/veach-mis.xml", defs, 3, spp,
+                                   SCENE_INTEGRATOR_PATH, RNG_SAMPLER_INDEPENDENT, &s2);
+    max_depth_override = 0;
+    char what[256];
+    snprintf(what, sizeof what, "direct (%s, %s) against the path to depth 2", defs[1], defs[2]);
+    /* the image to 7 % (light samples alone on near-mirror plates are
+     * Veach's worst case; a quadrant may be wider) */
+    films_agree(direct, path, what, 0.35, 0);
+    film_destroy(&direct);
+    film_destroy(&path);
     scene_destroy(&s1);
     scene_destroy(&s2);
 }
@@ -634,10 +695,14 @@ static double luminance(const float *r, const float *g, const float *b, size_t i
 /* The shipped scenes at 32x32 against Mitsuba 3.9.1's images of the same
  * files (llvm_ad_rgb, 65,536 spp, tests/data/mitsuba/, made by
  * bench/peer/mitsuba_scene.py): the image mean within 1 % (about 5 sigma
- * of ours at 1,024 spp) and each 8x8 block's within 4 %, so a mirrored
- * view, a swapped wall colour, a missing one-sided back, a light facing
- * the wrong way or a texture's pattern off by a cell fails. Measured:
- * means within 0.2 %, blocks within 1 %. */
+ * of ours at 1,024 spp) and each 8x8 block's within 4 % or 5 sigma of
+ * ours, whichever is wider, so a mirrored view, a swapped wall colour, a
+ * missing one-sided back, a light facing the wrong way or a texture's
+ * pattern off by a cell fails. Measured: means within 0.2 %, blocks
+ * within 1 %, but for Veach's scene, whose highlights of tiny lights in
+ * near-mirror plates are rare paths under our light selection by power
+ * (the largest light takes 99 % of the light samples): blocks within
+ * 3.3 % at 8,192 spp over two seeds. */
 static const struct {
     const char *scene, *reference;
     uint32_t spp; /* a bright sun in the map needs more */
@@ -647,6 +712,7 @@ static const struct {
     {"scenes/mitsuba/envmap.xml", "tests/data/mitsuba/envmap-32.exr", 2048},
     {"scenes/mitsuba/ortho.xml", "tests/data/mitsuba/ortho-32.exr", 1024},
     {"scenes/mitsuba/materials.xml", "tests/data/mitsuba/materials-32.exr", 2048},
+    {"scenes/mitsuba/veach-mis.xml", "tests/data/mitsuba/veach-mis-32.exr", 4096},
 };
 
 START_TEST(matches_mitsuba)
@@ -662,7 +728,8 @@ START_TEST(matches_mitsuba)
     const float *R = image_channel(ref, "R"), *G = image_channel(ref, "G"),
                 *B = image_channel(ref, "B");
     ck_assert(R && G && B);
-    double block_ours[16] = {0}, block_ref[16] = {0}, all_ours = 0, all_ref = 0;
+    double block_ours[16] = {0}, block_ref[16] = {0}, block_var[16] = {0}, all_ours = 0,
+           all_ref = 0;
     for (uint32_t p = 0; p < 32 * 32; p++) {
         double rgb[3];
         film_mean(f, p, rgb);
@@ -671,15 +738,18 @@ START_TEST(matches_mitsuba)
         int blk = (int)((p / 32) / 8 * 4 + (p % 32) / 8);
         block_ours[blk] += ours;
         block_ref[blk] += theirs;
+        block_var[blk] += film_variance_of_mean(f, p);
         all_ours += ours;
         all_ref += theirs;
     }
     ck_assert_msg(fabs(all_ours / all_ref - 1) < 0.01, "%s: image mean %g, Mitsuba's %g",
                   compared[_i].scene, all_ours / 1024, all_ref / 1024);
     for (int b = 0; b < 16; b++)
-        ck_assert_msg(fabs(block_ours[b] / block_ref[b] - 1) < 0.04,
-                      "%s: block %d (row %d, column %d): mean %g, Mitsuba's %g", compared[_i].scene,
-                      b, b / 4, b % 4, block_ours[b] / 64, block_ref[b] / 64);
+        ck_assert_msg(fabs(block_ours[b] - block_ref[b]) <
+                          fmax(0.04 * block_ref[b], 5 * sqrt(block_var[b])),
+                      "%s: block %d (row %d, column %d): mean %g, Mitsuba's %g, 5 sigma %g",
+                      compared[_i].scene, b, b / 4, b % 4, block_ours[b] / 64, block_ref[b] / 64,
+                      5 * sqrt(block_var[b]) / 64);
     image_destroy(&ref);
     film_destroy(&f);
     scene_destroy(&s);
@@ -744,6 +814,8 @@ static Suite *mitsuba_suite(void)
                         (int)(sizeof mis_scenes / sizeof mis_scenes[0]));
     tcase_set_timeout(tc, 120);
     tcase_add_loop_test(tc, matches_mitsuba, 0, (int)(sizeof compared / sizeof compared[0]));
+    tcase_add_loop_test(tc, direct_agrees_with_one_bounce, 0,
+                        (int)(sizeof direct_defs / sizeof direct_defs[0]));
     suite_add_tcase(su, tc);
     return su;
 }

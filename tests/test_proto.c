@@ -411,7 +411,7 @@ static const struct {
     {"text_with_nul.hex", -1, "BYE: text byte 1 is NUL"},
     {"count_over_limit.hex", -1, "TASK: count 70000 exceeds 65536"},
     {"truncated_record.hex", -1, "TASK: payload is 128 bytes, 2 records need 152"},
-    {"bad_integrator.hex", -1, "TASK: integrator 2 is neither"},
+    {"bad_integrator.hex", -1, "TASK: integrator 3 is not 0 (path)"},
     {"reserved_set.hex", -1, "TASK: reserved byte 1 is 0x01"},
     {"bad_sampler.hex", -1, "TASK: sampler 2 is neither"},
     {"task_zero_samples.hex", -1, "TASK: record 0: sample_count 0 out of range"},
@@ -835,8 +835,8 @@ START_TEST(enc_rejects_task_result)
     m->u.task.count = PROTO_MAX_TASK_PIXELS + 1;
     expect_encode_fails(m, 256, "TASK: count 65537 exceeds 65536");
     m->u.task.count = 1;
-    m->u.task.settings.integrator = (scene_integrator_t)2;
-    expect_encode_fails(m, 256, "TASK: integrator 2 is neither");
+    m->u.task.settings.integrator = (scene_integrator_t)3;
+    expect_encode_fails(m, 256, "TASK: integrator 3 is not 0 (path)");
     m->u.task.settings.integrator = SCENE_INTEGRATOR_NAIVE;
     m->u.task.settings.sampler = (rng_sampler_t)2;
     expect_encode_fails(m, 256, "TASK: sampler 2 is neither");

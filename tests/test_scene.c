@@ -739,7 +739,24 @@ START_TEST(feature_defaults_and_render)
     ck_assert_uint_eq(s->seed, 9007199254740992ull);
     ck_assert_int_eq(s->integrator, SCENE_INTEGRATOR_NAIVE);
     ck_assert_uint_eq(s->max_depth, 5);
+    ck_assert(s->direct_emitter_samples == 1 && s->direct_bsdf_samples == 1);
     scene_destroy(&s);
+    s = load_ok(build(buf, sizeof buf, CAM_OK,
+                      "\"render\": {\"integrator\": \"direct\", \"emitter_samples\": 3, "
+                      "\"bsdf_samples\": 0}",
+                      MATS_OK, SHAPES_OK),
+                "direct.json");
+    ck_assert_int_eq(s->integrator, SCENE_INTEGRATOR_DIRECT);
+    ck_assert(s->direct_emitter_samples == 3 && s->direct_bsdf_samples == 0);
+    scene_destroy(&s);
+    expect_fail(build(buf, sizeof buf, CAM_OK,
+                      "\"render\": {\"integrator\": \"direct\", \"emitter_samples\": 0, "
+                      "\"bsdf_samples\": 0}",
+                      MATS_OK, SHAPES_OK),
+                "direct0.json", "render", "cannot both be 0", NULL);
+    expect_fail(
+        build(buf, sizeof buf, CAM_OK, "\"render\": {\"bsdf_samples\": 65}", MATS_OK, SHAPES_OK),
+        "direct65.json", "render.bsdf_samples", "out of range", NULL);
 }
 END_TEST
 

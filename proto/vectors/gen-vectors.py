@@ -148,7 +148,7 @@ def task(hash_, seed, integrator, max_depth, layer, records, count=None, reserve
     p = Frame()
     p.raw(hash_, "scene_hash[32]", hash_.hex())
     p.add("Q", seed, "seed", "0x%016x" % seed)
-    p.add("B", integrator, "integrator", "%d%s" % (integrator, {0: " (path)", 1: " (naive)"}.get(integrator, "")))
+    p.add("B", integrator, "integrator", "%d%s" % (integrator, {0: " (path)", 1: " (naive)", 2: " (direct)"}.get(integrator, "")))
     p.add("B", sampler, "sampler", "%d%s" % (sampler, {0: " (independent)", 1: " (sobol)"}.get(sampler, "")))
     p.raw(reserved, "reserved[2]", reserved.hex())
     p.add("I", max_depth, "max_depth")
@@ -263,8 +263,8 @@ def main():
     invalid("truncated_record", task(HASH_A, 1, 0, 0, 0, TASK_RECORDS, cut=24),
             ["TASK of count 2 whose second record stops after prior_count (24 of 48 bytes)",
              "(header payload_size matches the frame)."], "TASK")
-    invalid("bad_integrator", task(HASH_A, 1, 2, 0, 0, TASK_RECORDS[:1]),
-            ["TASK with integrator 2."], "TASK")
+    invalid("bad_integrator", task(HASH_A, 1, 3, 0, 0, TASK_RECORDS[:1]),
+            ["TASK with integrator 3."], "TASK")
     invalid("reserved_set", task(HASH_A, 1, 0, 0, 0, TASK_RECORDS[:1], reserved=b"\1\0"),
             ["TASK with reserved byte 1 set."], "TASK")
     invalid("bad_sampler", task(HASH_A, 1, 0, 0, 0, TASK_RECORDS[:1], sampler=2),
