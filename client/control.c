@@ -431,10 +431,12 @@ static int bundle_meshes(cJSON *scene, const char *scene_path, cJSON *names, sub
         shapes = NULL;
     const cJSON *sh;
     int mesh = 0;
-    /* the environment map travels as the meshes do */
+    /* the environment map and bitmap textures travel as the meshes do */
     cJSON *env = scene ? cJSON_GetObjectItemCaseSensitive(scene, "environment") : NULL;
     cJSON *env_map = cJSON_GetObjectItemCaseSensitive(env, "map");
     int env_done = !cJSON_IsString(env_map);
+    const cJSON *mats = scene ? cJSON_GetObjectItemCaseSensitive(scene, "materials") : NULL;
+    const cJSON *mat = cJSON_IsObject(mats) ? mats->child : NULL;
     for (sh = shapes ? shapes->child : NULL;; sh = sh ? sh->next : NULL) {
         cJSON *file;
         if (sh) {
@@ -446,6 +448,14 @@ static int bundle_meshes(cJSON *scene, const char *scene_path, cJSON *names, sub
         } else if (!env_done) {
             file = env_map;
             env_done = 1;
+        } else if (mat) {
+            const cJSON *albedo = cJSON_GetObjectItemCaseSensitive(mat, "albedo");
+            const cJSON *type = cJSON_GetObjectItemCaseSensitive(albedo, "type");
+            file = cJSON_GetObjectItemCaseSensitive(albedo, "file");
+            mat = mat->next;
+            if (!cJSON_IsString(type) || strcmp(type->valuestring, "bitmap") != 0 ||
+                !cJSON_IsString(file))
+                continue;
         } else {
             break;
         }
@@ -460,7 +470,7 @@ static int bundle_meshes(cJSON *scene, const char *scene_path, cJSON *names, sub
             snprintf(path, sizeof path, "%s/%s", dir, file->valuestring);
         unsigned char *data = read_all(path, &fr->sizes[fr->count], merr, sizeof merr);
         if (!data) {
-            snprintf(err, errlen, "%s: mesh of shapes: %s", scene_path, merr);
+            snprintf(err, errlen, "%s: a file it names: %s", scene_path, merr);
             return -1;
         }
         fr->frames[fr->count++] = data;

@@ -1419,6 +1419,54 @@ static int get_ior(conv_t *c, const mx_node_t *n, const char *name, double def, 
     return 0;
 }
 
+/* Mitsuba reads a 4x4 to_uv as the 2D transform of its rows and columns
+ * 0, 1 and 3. */
+static cJSON *uv_json(const mat4_t *m)
+{
+    double uv[6] = {m->m[0][0], m->m[0][1], m->m[0][3], m->m[1][0], m->m[1][1], m->m[1][3]};
+    return cJSON_CreateDoubleArray(uv, 6);
+}
+
+/* A bitmap texture (PNG, JPEG or OpenEXR; filter_type, wrap_mode, raw,
+ * to_uv) as its JSON object; the file is found as a mesh's is, and the
+ * loader decodes it. */
+static int get_bitmap(conv_t *c, const mx_node_t *t, double albedo[3], cJSON **texture)
+{
+    const char *file = NULL, *filter = "bilinear", *wrap = "repeat";
+    int raw = 0;
+    mat4_t m;
+    if (get_string(c->x, t, "filename", &file) < 0 ||
+        get_string(c->x, t, "filter_type", &filter) < 0 ||
+        get_string(c->x, t, "wrap_mode", &wrap) < 0 || get_bool(c->x, t, "raw", &raw) < 0 ||
+        get_transform(c->x, t, "to_uv", &m, NULL) < 0)
+        return -1;
+    if (!file)
+        return NODE_FAIL(c->x, t, "the bitmap needs a filename");
+    if (strcmp(filter, "bilinear") != 0 && strcmp(filter, "nearest") != 0)
+        return NODE_FAIL(c->x, t, "filter_type \"%s\" is not supported (bilinear, nearest)",
+                         filter);
+    if (strcmp(wrap, "repeat") != 0 && strcmp(wrap, "mirror") != 0 && strcmp(wrap, "clamp") != 0)
+        return NODE_FAIL(c->x, t, "wrap_mode \"%s\" is not supported (repeat, mirror, clamp)",
+                         wrap);
+    char path[PATH_MAX];
+    if (resolve(c->x, t, c->dir, file, path, sizeof path) < 0)
+        return -1;
+    static const char *const harmless[] = {"accel", NULL};
+    ignore_props(t, harmless);
+    if (check_used(c, t) < 0)
+        return -1;
+    *texture = cJSON_CreateObject();
+    cJSON_AddStringToObject(*texture, "type", "bitmap");
+    cJSON_AddStringToObject(*texture, "file", path);
+    cJSON_AddStringToObject(*texture, "filter", filter);
+    cJSON_AddStringToObject(*texture, "wrap", wrap);
+    cJSON_AddBoolToObject(*texture, "raw", raw);
+    cJSON_AddItemToObject(*texture, "to_uv", uv_json(&m));
+    /* (its texels are checked by the loader; this passes the range check) */
+    albedo[0] = albedo[1] = albedo[2] = 0.5;
+    return 0;
+}
+
 /* A diffuse reflectance (property `name`): a colour into albedo, or a
  * checkerboard texture (nested, or a named <ref>) as its JSON object in
  * *texture. */
@@ -1438,8 +1486,10 @@ static int get_albedo(conv_t *c, const mx_node_t *bsdf, const char *name, double
         return -1;
     if (strcmp(t->tag, "texture") != 0)
         return NODE_FAIL(c->x, p, "reflectance names a <%s>, not a texture", t->tag);
+    if (is_type(t, "bitmap"))
+        return get_bitmap(c, t, albedo, texture);
     if (!is_type(t, "checkerboard"))
-        return unsupported_type(c, t, "checkerboard");
+        return unsupported_type(c, t, "checkerboard, bitmap");
     double c0[3] = {0.4, 0.4, 0.4}, c1[3] = {0.2, 0.2, 0.2}; /* Mitsuba's defaults */
     mat4_t m;
     if (get_color(c->x, t, "color0", 1, c0) < 0 || get_color(c->x, t, "color1", 1, c1) < 0 ||
@@ -1448,14 +1498,11 @@ static int get_albedo(conv_t *c, const mx_node_t *bsdf, const char *name, double
     for (int k = 0; k < 3; k++)
         if (!(c0[k] >= 0 && c0[k] <= 1 && c1[k] >= 0 && c1[k] <= 1))
             return NODE_FAIL(c->x, t, "checkerboard colours must be in [0, 1]");
-    /* Mitsuba reads a 4x4 to_uv as the 2D transform of its rows and
-     * columns 0, 1 and 3 */
-    double uv[6] = {m.m[0][0], m.m[0][1], m.m[0][3], m.m[1][0], m.m[1][1], m.m[1][3]};
     *texture = cJSON_CreateObject();
     cJSON_AddStringToObject(*texture, "type", "checkerboard");
     cJSON_AddItemToObject(*texture, "color0", vec3_json(c0));
     cJSON_AddItemToObject(*texture, "color1", vec3_json(c1));
-    cJSON_AddItemToObject(*texture, "to_uv", cJSON_CreateDoubleArray(uv, 6));
+    cJSON_AddItemToObject(*texture, "to_uv", uv_json(&m));
     memcpy(albedo, c0, 3 * sizeof(double));
     return 0;
 }
@@ -1920,6 +1967,17 @@ static int shape_mesh(conv_t *c, const mx_node_t *n, const char *mat, const mat4
     return 0;
 }
 
+/* A <point name="name"> property of n into out, when given. */
+static int point_prop(conv_t *c, const mx_node_t *n, const char *name, double out[3])
+{
+    mx_node_t *p = prop(n, name);
+    if (!p)
+        return 0;
+    if (strcmp(p->tag, "point") != 0 && strcmp(p->tag, "vector") != 0)
+        return wrong_kind(c->x, p, "a <point>");
+    return xyz_attrs(c->x, p, 0, out);
+}
+
 /* Mitsuba's analytic sphere as our icosphere: 6 subdivisions (81,920
  * triangles, exact normals), whose surface lies within 1e-4 of the radius
  * of the true one; in its own frame (center, radius), then to_world. */
@@ -1928,14 +1986,7 @@ static int shape_mesh(conv_t *c, const mx_node_t *n, const char *mat, const mat4
 static int shape_sphere(conv_t *c, const mx_node_t *n, const char *mat, const mat4_t *m, int flip)
 {
     double center[3] = {0, 0, 0}, radius = 1;
-    mx_node_t *cp = prop(n, "center");
-    if (cp) {
-        if (strcmp(cp->tag, "point") != 0 && strcmp(cp->tag, "vector") != 0)
-            return wrong_kind(c->x, cp, "a <point>");
-        if (xyz_attrs(c->x, cp, 0, center) < 0)
-            return -1;
-    }
-    if (get_float(c->x, n, "radius", &radius) < 0)
+    if (point_prop(c, n, "center", center) < 0 || get_float(c->x, n, "radius", &radius) < 0)
         return -1;
     if (!(radius > 0 && radius < 1e30))
         return NODE_FAIL(c->x, n, "radius %g is not positive", radius);
@@ -1968,16 +2019,71 @@ static int shape_sphere(conv_t *c, const mx_node_t *n, const char *mat, const ma
     return 0;
 }
 
+/* A disk or an open cylinder (Mitsuba's: radius, p0 and p1 place the
+ * cylinder's axis) as our JSON shape of the same name, which the loader
+ * tessellates; the clip check on its bounding box's corners. */
+static int shape_round(conv_t *c, const mx_node_t *n, const char *mat, const mat4_t *to_world,
+                       int flip)
+{
+    mat4_t m = *to_world;
+    if (is_type(n, "cylinder")) {
+        double radius = 1, p0[3] = {0, 0, 0}, p1[3] = {0, 0, 1};
+        if (get_float(c->x, n, "radius", &radius) < 0 || point_prop(c, n, "p0", p0) < 0 ||
+            point_prop(c, n, "p1", p1) < 0)
+            return -1;
+        double d[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]};
+        double len = sqrt(v3_dot(d, d));
+        if (!(radius > 0 && radius < 1e30) || !(len > 0 && len < 1e30))
+            return NODE_FAIL(c->x, n, "the cylinder needs a positive radius and p0 != p1");
+        /* translate(p0) * frame(d) * scale(radius, radius, length), d's
+         * frame as Mitsuba's coordinate_system builds it */
+        double z[3] = {d[0] / len, d[1] / len, d[2] / len};
+        double sign = copysign(1.0, z[2]), a = -1.0 / (sign + z[2]), b = z[0] * z[1] * a;
+        double x[3] = {1 + sign * z[0] * z[0] * a, sign * b, -sign * z[0]};
+        double y[3] = {b, sign + z[1] * z[1] * a, -z[1]};
+        mat4_t local = mat4_identity();
+        for (int r = 0; r < 3; r++) {
+            local.m[r][0] = x[r] * radius;
+            local.m[r][1] = y[r] * radius;
+            local.m[r][2] = z[r] * len;
+            local.m[r][3] = p0[r];
+        }
+        m = mat4_mul(to_world, &local);
+    }
+    for (int corner = 0; corner < 8; corner++) {
+        double l[3] = {corner & 1 ? 1 : -1, corner & 2 ? 1 : -1, corner & 4 ? 1 : 0};
+        double w[3][3];
+        for (int k = 0; k < 3; k++)
+            mat4_point(&m, l, w[k]);
+        if (clipped(c, (const double(*)[3])w))
+            return clip_fail(c, n);
+    }
+    cJSON *sh = cJSON_CreateObject();
+    cJSON_AddStringToObject(sh, "type", node_attr(n, "type"));
+    cJSON_AddStringToObject(sh, "material", mat);
+    if (flip)
+        cJSON_AddBoolToObject(sh, "flip_normals", 1);
+    cJSON *t = cJSON_AddObjectToObject(sh, "transform");
+    double row_major[16];
+    for (int e = 0; e < 16; e++)
+        row_major[e] = m.m[e / 4][e % 4];
+    cJSON_AddItemToObject(t, "matrix", cJSON_CreateDoubleArray(row_major, 16));
+    cJSON_AddItemToArray(c->shapes, sh);
+    return 0;
+}
+
 static int conv_shape(conv_t *c, mx_node_t *n)
 {
-    static const char *const supported = "obj, ply, serialized, rectangle, cube, sphere";
+    static const char *const supported =
+        "obj, ply, serialized, rectangle, cube, sphere, disk, cylinder";
     const char *type = node_attr(n, "type");
     if (!type)
         return NODE_FAIL(c->x, n, "<shape> has no type");
     int mesh =
         strcmp(type, "obj") == 0 || strcmp(type, "ply") == 0 || strcmp(type, "serialized") == 0;
     int sphere = strcmp(type, "sphere") == 0;
-    if (!mesh && !sphere && strcmp(type, "rectangle") != 0 && strcmp(type, "cube") != 0)
+    int round = strcmp(type, "disk") == 0 || strcmp(type, "cylinder") == 0;
+    if (!mesh && !sphere && !round && strcmp(type, "rectangle") != 0 && strcmp(type, "cube") != 0)
         return unsupported_type(c, n, supported);
     const mx_node_t *bsdf = NULL, *emitter = NULL;
     for (size_t i = 0; i < n->nkids; i++) {
@@ -2028,6 +2134,8 @@ static int conv_shape(conv_t *c, mx_node_t *n)
         rc = shape_mesh(c, n, mat, &m, flip);
     } else if (sphere) {
         rc = shape_sphere(c, n, mat, &m, flip);
+    } else if (round) {
+        rc = shape_round(c, n, mat, &m, flip);
     } else {
         int mirror = det3(&m) < 0;
         rc = strcmp(type, "rectangle") == 0 ? shape_rectangle(c, n, mat, &m, flip ^ mirror)

@@ -99,6 +99,10 @@ static int obj_attr_line(const mesh_ctx *c, const obj_reader *rd, const char *q,
             return mesh_fail(c, "out of memory");
         *arr = np;
     }
+    /* vt's v counts up from the image's bottom row; ours (and Mitsuba's,
+     * whose OBJ reader flips it too) from its top */
+    if (dims == 2)
+        v[1] = 1.0 - v[1];
     for (int k = 0; k < dims; k++)
         (*arr)[(size_t)dims * *count + (size_t)k] = (float)v[k];
     (*count)++;

@@ -16,6 +16,7 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "bitmap.h"
 #include "image.h"
 #include "lights.h"
 #include "mesh.h"
@@ -450,21 +451,132 @@ static void finish_environment(scene_t *s)
 
 /* ---- materials ---------------------------------------------------------- */
 
-/* A diffuse albedo given as a texture: {"type": "checkerboard", "color0":
- * [r, g, b], "color1": [r, g, b], "to_uv": [6 numbers]}, appended to the
- * scene's textures; *index is its place, v its color0 (for the range
- * check, which color1 passes too). */
+/* A bitmap's bytes: its blob from the bundle, or the file beside the
+ * scene (read whole; *owned is the buffer to free). */
+static int read_asset(loader_t *L, const char *q, const char *file, const unsigned char **data,
+                      size_t *size, unsigned char **owned)
+{
+    *owned = NULL;
+    if (L->blobs) {
+        for (size_t i = 0; i < L->blob_count; i++)
+            if (strcmp(L->blobs[i].name, file) == 0) {
+                *data = L->blobs[i].data;
+                *size = L->blobs[i].size;
+                return 0;
+            }
+        return fail(L, q, "\"%s\" is not in the scene bundle", file);
+    }
+    char full[4096];
+    if (file[0] == '/' || !L->base_dir || !*L->base_dir)
+        snprintf(full, sizeof full, "%s", file);
+    else
+        snprintf(full, sizeof full, "%s/%s", L->base_dir, file);
+    FILE *f = fopen(full, "rb");
+    if (!f)
+        return fail(L, q, "%s: cannot open: %s", full, strerror(errno));
+    struct stat st;
+    if (fstat(fileno(f), &st) != 0 || !S_ISREG(st.st_mode) || st.st_size > (1l << 30)) {
+        fclose(f);
+        return fail(L, q, "%s: not a regular file of at most 1 GiB", full);
+    }
+    unsigned char *buf = malloc((size_t)st.st_size + 1);
+    if (!buf || fread(buf, 1, (size_t)st.st_size, f) != (size_t)st.st_size) {
+        fclose(f);
+        free(buf);
+        return fail(L, q, "%s: cannot read", full);
+    }
+    fclose(f);
+    *data = *owned = buf;
+    *size = (size_t)st.st_size;
+    return 0;
+}
+
+/* A bitmap texture's fields into tx: its file decoded, "filter"
+ * ("bilinear" or "nearest"), "wrap" ("repeat", "mirror" or "clamp"),
+ * "raw" (the stored values, not sRGB-decoded). Texels are clamped to
+ * [0, 1] (an albedo above 1 would create energy; only OpenEXR can hold
+ * one), with a warning; v gets the mean. */
+static int parse_bitmap(loader_t *L, const cJSON *t, const char *q, texture_t *tx, double v[3])
+{
+    const cJSON *file = cJSON_GetObjectItemCaseSensitive(t, "file");
+    const cJSON *filter = cJSON_GetObjectItemCaseSensitive(t, "filter");
+    const cJSON *wrap = cJSON_GetObjectItemCaseSensitive(t, "wrap");
+    const cJSON *raw = cJSON_GetObjectItemCaseSensitive(t, "raw");
+    if (!cJSON_IsString(file) || !*file->valuestring)
+        return fail(L, q, "a bitmap needs \"file\" (a PNG, JPEG or OpenEXR image)");
+    if (filter && (!cJSON_IsString(filter) || (strcmp(filter->valuestring, "bilinear") != 0 &&
+                                               strcmp(filter->valuestring, "nearest") != 0)))
+        return fail(L, q, "filter: expected \"bilinear\" or \"nearest\"");
+    static const char *const wraps[] = {"repeat", "mirror", "clamp"};
+    tx->wrap = TEXTURE_WRAP_REPEAT;
+    if (wrap) {
+        int w = -1;
+        for (int i = 0; i < 3 && cJSON_IsString(wrap); i++)
+            if (strcmp(wrap->valuestring, wraps[i]) == 0)
+                w = i;
+        if (w < 0)
+            return fail(L, q, "wrap: expected \"repeat\", \"mirror\" or \"clamp\"");
+        tx->wrap = (texture_wrap_t)w;
+    }
+    if (raw && !cJSON_IsBool(raw))
+        return fail(L, q, "raw: expected true or false");
+    tx->nearest = (uint8_t)(filter && strcmp(filter->valuestring, "nearest") == 0);
+    const unsigned char *data = NULL;
+    size_t size = 0;
+    unsigned char *owned = NULL;
+    if (read_asset(L, q, file->valuestring, &data, &size, &owned) < 0)
+        return -1;
+    bitmap_t b;
+    char msg[VB_ERR_LEN];
+    int rc =
+        bitmap_decode(file->valuestring, data, size, raw && cJSON_IsTrue(raw), &b, msg, sizeof msg);
+    free(owned);
+    if (rc < 0)
+        return fail(L, q, "%s", msg);
+    size_t n = (size_t)b.width * b.height * 3, clamped = 0;
+    double sum[3] = {0, 0, 0};
+    for (size_t i = 0; i < n; i++) {
+        float x = b.rgb[i];
+        if (!(x >= 0.0f && x <= 1.0f)) {
+            b.rgb[i] = x > 1.0f ? 1.0f : 0.0f; /* (NaN too) */
+            clamped++;
+        }
+        sum[i % 3] += b.rgb[i];
+    }
+    if (clamped)
+        warn(L->s, "%s: %s: %zu texel values outside [0, 1] clamped", L->name, q, clamped);
+    tx->kind = TEXTURE_BITMAP;
+    tx->width = b.width;
+    tx->height = b.height;
+    tx->rgb = b.rgb;
+    for (int k = 0; k < 3; k++)
+        v[k] = sum[k] / (double)(n / 3);
+    /* what a material's sampling weights read (material_prepare) */
+    tx->color0 = tx->color1 = to_vec3(v);
+    return 0;
+}
+
+/* An albedo given as a texture, appended to the scene's textures: a
+ * checkerboard {"type": "checkerboard", "color0": [r, g, b], "color1":
+ * [r, g, b], "to_uv": [6 numbers]}, or a bitmap {"type": "bitmap",
+ * "file": name, "filter", "wrap", "raw", "to_uv"} (parse_bitmap). *index
+ * is its place, v its color0 or mean (for the range check; color1 passes
+ * it too). */
 static int parse_texture(loader_t *L, const cJSON *t, const char *p, int32_t *index, double v[3])
 {
     char q[PATH_LEN];
     snprintf(q, sizeof q, "%s.albedo", p);
     const cJSON *type = cJSON_GetObjectItemCaseSensitive(t, "type");
-    if (!cJSON_IsString(type) || strcmp(type->valuestring, "checkerboard") != 0)
-        return fail(L, q, "a texture's \"type\" must be \"checkerboard\"");
-    static const char *const keys[] = {"type", "color0", "color1", "to_uv", NULL};
-    check_keys(L, t, q, keys);
+    int bitmap = cJSON_IsString(type) && strcmp(type->valuestring, "bitmap") == 0;
+    if (!bitmap && (!cJSON_IsString(type) || strcmp(type->valuestring, "checkerboard") != 0))
+        return fail(L, q, "a texture's \"type\" must be \"checkerboard\" or \"bitmap\"");
+    static const char *const checker_keys[] = {"type", "color0", "color1", "to_uv", NULL};
+    static const char *const bitmap_keys[] = {"type", "file",  "filter", "wrap",
+                                              "raw",  "to_uv", NULL};
+    check_keys(L, t, q, bitmap ? bitmap_keys : checker_keys);
     double c0[3], c1[3], m[6] = {1, 0, 0, 0, 1, 0};
-    if (get_vec3(L, t, "color0", q, 1, c0) < 0 || get_vec3(L, t, "color1", q, 1, c1) < 0)
+    if (!bitmap &&
+        (get_vec3(L, t, "color0", q, 1, c0) < 0 || get_vec3(L, t, "color1", q, 1, c1) < 0))
         return -1;
     const cJSON *uv = cJSON_GetObjectItemCaseSensitive(t, "to_uv");
     if (uv) {
@@ -478,7 +590,7 @@ static int parse_texture(loader_t *L, const cJSON *t, const char *p, int32_t *in
         if (n != 6)
             return fail(L, q, "to_uv: expected 6 finite numbers");
     }
-    for (int k = 0; k < 3; k++)
+    for (int k = 0; !bitmap && k < 3; k++)
         if (!(c0[k] >= 0 && c0[k] <= 1 && c1[k] >= 0 && c1[k] <= 1))
             return fail(L, q, "colours must be in [0, 1]: more would create energy");
     scene_t *s = L->s;
@@ -491,13 +603,20 @@ static int parse_texture(loader_t *L, const cJSON *t, const char *p, int32_t *in
         L->texture_cap = cap;
     }
     texture_t *tx = &s->textures[s->texture_count];
-    tx->color0 = to_vec3(c0);
-    tx->color1 = to_vec3(c1);
+    memset(tx, 0, sizeof *tx);
     for (int k = 0; k < 6; k++)
         tx->to_uv[k] = (float)m[k];
+    if (bitmap) {
+        if (parse_bitmap(L, t, q, tx, v) < 0)
+            return -1;
+    } else {
+        tx->kind = TEXTURE_CHECKERBOARD;
+        tx->color0 = to_vec3(c0);
+        tx->color1 = to_vec3(c1);
+        for (int k = 0; k < 3; k++)
+            v[k] = c0[k];
+    }
     *index = (int32_t)s->texture_count++;
-    for (int k = 0; k < 3; k++)
-        v[k] = c0[k];
     return 0;
 }
 
@@ -1248,6 +1367,75 @@ static int shape_sphere(loader_t *L, const cJSON *sh, const char *path, const xf
     return check_coords(L, path, first);
 }
 
+/* A vertex with texture coordinates (u, v), when the scene keeps them. */
+static void push_vertex_uv(loader_t *L, const xform_t *x, const double p[3], const double *n,
+                           double u, double v)
+{
+    push_vertex(L, x, p, n);
+    if (L->uv) {
+        L->uv[2 * (L->nv - 1)] = (float)u;
+        L->uv[2 * (L->nv - 1) + 1] = (float)v;
+    }
+}
+
+/* Mitsuba's disk and cylinder as triangles: the unit disk in the xy
+ * plane (normal +z, texture coordinates (r, phi / 2 pi) with phi in
+ * [-pi, pi]), or the open cylinder of radius 1 from z 0 to 1 (normals
+ * outward and exact at the vertices, coordinates (phi / 2 pi, z) with phi
+ * in [0, 2 pi)), each around its axis in "segments" (default 512: the
+ * polygon's area is within 3e-5 of the circle's). The seam's vertices
+ * are shared by position, so the surface is watertight there. */
+static int shape_round(loader_t *L, const cJSON *sh, const char *path, const xform_t *x,
+                       uint32_t mat, int cylinder)
+{
+    static const char *const keys[] = {"type",      "material",     "segments",
+                                       "transform", "flip_normals", NULL};
+    check_keys(L, sh, path, keys);
+    double seg = 512;
+    if (get_integer(L, sh, "segments", path, 0, 3, 65536, &seg) < 0)
+        return -1;
+    const cJSON *fl = cJSON_GetObjectItemCaseSensitive(sh, "flip_normals");
+    if (fl && !cJSON_IsBool(fl))
+        return fail(L, path, "flip_normals: expected true or false");
+    int flip = fl && cJSON_IsTrue(fl);
+    double out = flip ? -1 : 1; /* which way the normals face */
+    size_t n = (size_t)seg, rings = cylinder ? 1 : 16;
+    if (reserve(L, (n + 1) * (rings + 1), 2 * n * rings, 1) < 0)
+        return -1;
+    uint32_t first = (uint32_t)L->nv;
+    for (size_t j = 0; j <= rings; j++)
+        for (size_t i = 0; i <= n; i++) {
+            /* the seam's two columns: the same angle, exactly */
+            double t = (i == n ? 0 : (double)i / (double)n);
+            double phi = cylinder ? 2 * M_PI * t : -M_PI + 2 * M_PI * t;
+            double c = cos(phi), sn = sin(phi), f = (double)j / (double)rings;
+            double u = cylinder ? (double)i / (double)n : f;
+            double v = cylinder ? f : (double)i / (double)n - 0.5;
+            if (cylinder) {
+                double pt[3] = {c, sn, f}, nrm[3] = {out * c, out * sn, 0};
+                push_vertex_uv(L, x, pt, nrm, u, v);
+            } else {
+                double pt[3] = {f * c, f * sn, 0}, nrm[3] = {0, 0, out};
+                push_vertex_uv(L, x, pt, nrm, u, v);
+            }
+        }
+    for (size_t j = 0; j < rings; j++)
+        for (size_t i = 0; i < n; i++) {
+            uint32_t a = first + (uint32_t)(j * (n + 1) + i), b = a + 1;
+            uint32_t c = a + (uint32_t)(n + 1), d = c + 1;
+            /* counter-clockwise seen from the normal's side; the disk's
+             * centre ring is a fan (its other half would have no area) */
+            uint32_t t[2][3] = {{a, b, d}, {a, d, c}};
+            if (!cylinder) {
+                uint32_t disk[2][3] = {{a, d, b}, {a, c, d}};
+                memcpy(t, disk, sizeof t);
+            }
+            for (int k = cylinder || j > 0 ? 0 : 1; k < 2; k++)
+                push_triangle(L, x, t[k][0], t[k][flip ? 2 : 1], t[k][flip ? 1 : 2], mat);
+        }
+    return check_coords(L, path, first);
+}
+
 static int parse_shapes(loader_t *L, const cJSON *root)
 {
     const cJSON *shapes = cJSON_GetObjectItemCaseSensitive(root, "shapes");
@@ -1263,7 +1451,7 @@ static int parse_shapes(loader_t *L, const cJSON *root)
             return fail(L, p, "expected an object");
         const cJSON *type = cJSON_GetObjectItemCaseSensitive(sh, "type");
         if (!cJSON_IsString(type))
-            return fail(L, p, "missing \"type\" (quad, triangles, mesh or sphere)");
+            return fail(L, p, "missing \"type\" (quad, triangles, mesh, sphere, disk or cylinder)");
         uint32_t mat = 0;
         xform_t x;
         if (find_material(L, sh, p, &mat) < 0 || parse_transform(L, sh, p, &x) < 0)
@@ -1277,8 +1465,13 @@ static int parse_shapes(loader_t *L, const cJSON *root)
             rc = shape_mesh(L, sh, p, &x, mat);
         else if (strcmp(type->valuestring, "sphere") == 0)
             rc = shape_sphere(L, sh, p, &x, mat);
+        else if (strcmp(type->valuestring, "disk") == 0 ||
+                 strcmp(type->valuestring, "cylinder") == 0)
+            rc = shape_round(L, sh, p, &x, mat, strcmp(type->valuestring, "cylinder") == 0);
         else
-            rc = fail(L, p, "unknown shape type \"%s\" (expected quad, triangles, mesh or sphere)",
+            rc = fail(L, p,
+                      "unknown shape type \"%s\" (expected quad, triangles, mesh, sphere, disk or "
+                      "cylinder)",
                       type->valuestring);
         if (rc < 0)
             return -1;
@@ -1566,6 +1759,8 @@ void scene_destroy(scene_t **sp)
     free(s->positions);
     free(s->normals);
     free(s->uvs);
+    for (size_t i = 0; i < s->texture_count; i++)
+        free(s->textures[i].rgb);
     free(s->textures);
     free(s->env_rgb);
     free(s->env_row_cdf);

@@ -36,18 +36,30 @@ typedef enum {
 /* the most emitter or BSDF samples the direct integrator takes per hit */
 #define SCENE_MAX_DIRECT_SAMPLES 64
 
-/* A texture: Mitsuba's checkerboard. Texture coordinates (u, v) map to
- * (u', v') = to_uv (u, v, 1); color0 where the fractional parts of u' and
- * v' are both above 1/2 or both not, else color1. */
 /* Russian roulette's default start: after this many segments; and its
  * latest (roulette keeps the estimate unbiased, and it ends every path:
  * without it two perfect mirrors could hold one forever). */
 #define SCENE_RR_DEPTH 5
 #define SCENE_MAX_RR_DEPTH 1024
 
+/* A texture (texture.h looks it up). Texture coordinates (u, v) map to
+ * (u', v') = to_uv (u, v, 1). A checkerboard (Mitsuba's): color0 where
+ * the fractional parts of u' and v' are both above 1/2 or both not, else
+ * color1. A bitmap (Mitsuba's): its texels (linear RGB, row 0 at v' = 0)
+ * at (u' width, v' height), bilinear between texel centres or the
+ * nearest, repeated, mirrored or clamped outside [0, 1). */
+typedef enum { TEXTURE_CHECKERBOARD = 0, TEXTURE_BITMAP = 1 } texture_kind_t;
+typedef enum { TEXTURE_WRAP_REPEAT = 0, TEXTURE_WRAP_MIRROR, TEXTURE_WRAP_CLAMP } texture_wrap_t;
+
 typedef struct texture {
+    texture_kind_t kind;
     vec3_t color0, color1;
     float to_uv[6]; /* u' = [0] u + [1] v + [2], v' = [3] u + [4] v + [5] */
+    /* bitmap: width x height texels, 3 floats each (owned by the scene) */
+    int width, height;
+    float *rgb;
+    uint8_t nearest; /* 0: bilinear */
+    texture_wrap_t wrap;
 } texture_t;
 
 typedef struct scene {

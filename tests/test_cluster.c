@@ -4298,13 +4298,14 @@ END_TEST
 /* ---- a Mitsuba scene file ----------------------------------------------------------- */
 
 /* `vbrender submit scene.xml` to a master with a worker process: the
- * client converts the file and bundles its meshes, so the worker, which
- * loads only the bundle, draws the very image the embedded render does
- * (-D parameters included). */
+ * client converts the file and bundles its meshes and bitmap textures
+ * (scenes/mitsuba/bitmap.xml: an OBJ, a JPEG, a PNG), so the worker,
+ * which loads only the bundle, draws the very image the embedded render
+ * does (-D parameters included). */
 START_TEST(mitsuba_scene)
 {
     char scene[PATHLEN], ref[PATHLEN], got[PATHLEN];
-    tu_root_path(scene, sizeof scene, "scenes/mitsuba/cornell-box.xml");
+    tu_root_path(scene, sizeof scene, "scenes/mitsuba/bitmap.xml");
     const char *settings = "-D res=16 --spp 64 --seed 5";
     render_embedded(scene, settings, 1, tmp(ref, sizeof ref, "mitsuba-ref.exr"));
     int port = slot_port(20);

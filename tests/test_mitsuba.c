@@ -275,7 +275,12 @@ static const refusal_t refusals[] = {
     {"<shape type=\"cube\">\n<bsdf type=\"diffuse\">\n<float name=\"foo\" value=\"1\"/>\n"
      "</bsdf></shape>",
      5, "property \"foo\" of bsdf \"diffuse\" is not supported", 0},
-    {"<shape type=\"disk\"/>", 3, "shape type \"disk\" is not supported", 0},
+    {"<shape type=\"hyperboloid\"/>", 3,
+     "shape type \"hyperboloid\" is not supported (supported: obj, ply, serialized, rectangle, "
+     "cube, sphere, disk, cylinder)",
+     0},
+    {"<shape type=\"cylinder\">\n<point name=\"p1\" x=\"0\" y=\"0\" z=\"0\"/></shape>", 3,
+     "the cylinder needs a positive radius and p0 != p1", 0},
     {"<emitter type=\"spot\"/>", 3, "emitter type \"spot\" is not supported", 0},
     {"<emitter type=\"envmap\">\n<string name=\"filename\" value=\"sky.hdr\"/></emitter>", 3,
      "envmap \"sky.hdr\": only OpenEXR maps are supported", 0},
@@ -286,9 +291,20 @@ static const refusal_t refusals[] = {
     {"<shape type=\"obj\"><string name=\"filename\" value=\"nowhere.obj\"/></shape>", 3,
      "file \"nowhere.obj\" not found", 0},
     {"<include filename=\"main.xml\"/>", 3, "nested more than 16 deep", 0},
+    {"<texture type=\"mesh_attribute\" id=\"t\"/>\n<shape type=\"rectangle\"><bsdf "
+     "type=\"diffuse\"><ref name=\"reflectance\" id=\"t\"/></bsdf></shape>",
+     3, "texture type \"mesh_attribute\" is not supported (supported: checkerboard, bitmap)", 0},
     {"<texture type=\"bitmap\" id=\"t\"/>\n<shape type=\"rectangle\"><bsdf type=\"diffuse\">"
      "<ref name=\"reflectance\" id=\"t\"/></bsdf></shape>",
-     3, "texture type \"bitmap\" is not supported (supported: checkerboard)", 0},
+     3, "the bitmap needs a filename", 0},
+    {"<shape type=\"rectangle\"><bsdf type=\"diffuse\">\n<texture type=\"bitmap\" "
+     "name=\"reflectance\"><string name=\"filename\" value=\"a.png\"/><string "
+     "name=\"filter_type\" value=\"ewa\"/></texture></bsdf></shape>",
+     4, "filter_type \"ewa\" is not supported (bilinear, nearest)", 0},
+    {"<shape type=\"rectangle\"><bsdf type=\"diffuse\">\n<texture type=\"bitmap\" "
+     "name=\"reflectance\"><string name=\"filename\" value=\"nowhere.png\"/></texture>"
+     "</bsdf></shape>",
+     4, "file \"nowhere.png\" not found", 0},
     {"<shape type=\"cube\"><bsdf type=\"diffuse\"><texture type=\"checkerboard\" "
      "name=\"reflectance\"/></bsdf></shape>",
      3, "a texture on a cube shape is not supported", 0},
@@ -357,6 +373,41 @@ START_TEST(refused_with_file_and_line)
     ck_assert_msg(strstr(err, want) != NULL, "case %d: \"%s\" does not name %s", _i, err, want);
     ck_assert_msg(strstr(err, r->says) != NULL, "case %d: \"%s\" does not say %s", _i, err,
                   r->says);
+}
+END_TEST
+
+/* A cylinder placed by p0, p1 and radius (Mitsuba's), through the loader:
+ * every vertex at the radius from the axis, between the two ends. */
+START_TEST(cylinder_placed)
+{
+    char dir[1024], path[1200], err[VB_ERR_LEN];
+    scratch_dir(dir, sizeof dir, "mitsuba-cylinder");
+    write_file(dir, "main.xml",
+               "<scene version=\"3.0.0\"><sensor type=\"perspective\"><float name=\"fov\" "
+               "value=\"40\"/><transform name=\"to_world\"><lookat origin=\"0, 0, 20\" "
+               "target=\"0, 0, 0\"/></transform><film type=\"hdrfilm\"/></sensor>"
+               "<shape type=\"cylinder\"><float name=\"radius\" value=\"0.5\"/><point name=\"p0\" "
+               "x=\"1\" y=\"2\" z=\"3\"/><point name=\"p1\" x=\"1\" y=\"4\" z=\"3\"/>"
+               "<transform name=\"to_world\"><translate x=\"1\"/></transform></shape></scene>");
+    snprintf(path, sizeof path, "%s/main.xml", dir);
+    cJSON *j = mitsuba_scene_json(path, NULL, 0, err, sizeof err);
+    ck_assert_msg(j != NULL, "%s", err);
+    char *text = cJSON_PrintUnformatted(j);
+    cJSON_Delete(j);
+    scene_t *s = NULL;
+    ck_assert_msg(scene_load_string(text, strlen(text), "cyl", dir, &s, err, sizeof err) == 0, "%s",
+                  err);
+    cJSON_free(text);
+    ck_assert(s->vertex_count > 1000);
+    for (size_t v = 0; v < s->vertex_count; v++) {
+        vec3_t p = scene_vertex(s, (uint32_t)v);
+        /* the axis runs from (2, 2, 3) to (2, 4, 3) */
+        float dx = p.x - 2, dz = p.z - 3;
+        ck_assert_msg(fabsf(sqrtf(dx * dx + dz * dz) - 0.5f) < 1e-5f && p.y > 2 - 1e-5f &&
+                          p.y < 4 + 1e-5f,
+                      "vertex %zu at (%g, %g, %g)", v, p.x, p.y, p.z);
+    }
+    scene_destroy(&s);
 }
 END_TEST
 
@@ -713,6 +764,7 @@ static const struct {
     {"scenes/mitsuba/ortho.xml", "tests/data/mitsuba/ortho-32.exr", 1024},
     {"scenes/mitsuba/materials.xml", "tests/data/mitsuba/materials-32.exr", 2048},
     {"scenes/mitsuba/veach-mis.xml", "tests/data/mitsuba/veach-mis-32.exr", 4096},
+    {"scenes/mitsuba/bitmap.xml", "tests/data/mitsuba/bitmap-32.exr", 1024},
 };
 
 START_TEST(matches_mitsuba)
@@ -814,6 +866,7 @@ static Suite *mitsuba_suite(void)
                         (int)(sizeof mis_scenes / sizeof mis_scenes[0]));
     tcase_set_timeout(tc, 120);
     tcase_add_loop_test(tc, matches_mitsuba, 0, (int)(sizeof compared / sizeof compared[0]));
+    tcase_add_test(tc, cylinder_placed);
     tcase_add_loop_test(tc, direct_agrees_with_one_bounce, 0,
                         (int)(sizeof direct_defs / sizeof direct_defs[0]));
     suite_add_tcase(su, tc);

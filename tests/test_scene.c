@@ -760,6 +760,81 @@ START_TEST(feature_defaults_and_render)
 }
 END_TEST
 
+/* Mitsuba's disk and cylinder, tessellated: the disk's area within 3e-5
+ * of pi, its normal +z (or -z flipped), its texture coordinates (r, phi /
+ * 2 pi); the cylinder's side 2 pi, normals outward, every vertex on the
+ * unit circle. */
+START_TEST(feature_disk_cylinder)
+{
+    char buf[TEXTLEN];
+    for (int flip = 0; flip < 2; flip++)
+        for (int cyl = 0; cyl < 2; cyl++) {
+            char shapes[512];
+            snprintf(shapes, sizeof shapes,
+                     "\"shapes\": [{\"type\": \"%s\", \"material\": \"white\"%s}, " QUAD_LIGHT "]",
+                     cyl ? "cylinder" : "disk", flip ? ", \"flip_normals\": true" : "");
+            scene_t *s =
+                load_ok(build(buf, sizeof buf, CAM_OK, NULL, MATS_OK, shapes), "round.json");
+            ck_assert_int_eq(s->warning_count, 0); /* no degenerate triangle dropped */
+            double area = 0;
+            size_t n = 0;
+            for (size_t t = 0; t < s->triangle_count; t++) {
+                if (s->tri_material[t] != 0)
+                    continue;
+                const uint32_t *vi = s->indices + 3 * t;
+                vec3_t a = scene_vertex(s, vi[0]), b = scene_vertex(s, vi[1]),
+                       c = scene_vertex(s, vi[2]);
+                area += 0.5 * vec3_length(vec3_cross(vec3_sub(b, a), vec3_sub(c, a)));
+                vec3_t ng = s->tri_normal[t],
+                       mid = vec3_scale(vec3_add(vec3_add(a, b), c), 1 / 3.0f);
+                if (cyl) {
+                    /* outward: along the centroid's radial direction */
+                    float radial = ng.x * mid.x + ng.y * mid.y;
+                    ck_assert_msg(flip ? radial < 0 : radial > 0, "triangle %zu faces %s", t,
+                                  flip ? "out" : "in");
+                    ck_assert(fabsf(vec3_length(vec3_make(a.x, a.y, 0)) - 1) < 1e-6f);
+                    ck_assert(a.z >= 0 && a.z <= 1);
+                } else {
+                    ck_assert(ng.z == (flip ? -1.0f : 1.0f));
+                }
+                n++;
+            }
+            double want = cyl ? 2 * M_PI : M_PI;
+            ck_assert_msg(fabs(area / want - 1) < 3e-5, "%s area %g", cyl ? "cylinder" : "disk",
+                          area);
+            ck_assert_uint_eq(n, cyl ? 2 * 512 : 512 * (2 * 16 - 1));
+            scene_destroy(&s);
+        }
+    /* a textured disk keeps Mitsuba's coordinates: (r, phi / 2 pi) */
+    const char *mats = "\"materials\": {\"white\": {\"type\": \"diffuse\", \"albedo\": {\"type\": "
+                       "\"checkerboard\", \"color0\": [0.1, 0.1, 0.1], \"color1\": [0.9, 0.9, "
+                       "0.9]}}, \"light\": {\"type\": \"emitter\", \"radiance\": [4, 4, 4]}}";
+    scene_t *s = load_ok(build(buf, sizeof buf, CAM_OK, NULL, mats,
+                               "\"shapes\": [{\"type\": \"disk\", \"material\": \"white\", "
+                               "\"segments\": 8}, " QUAD_LIGHT "]"),
+                         "disk-uv.json");
+    ck_assert_ptr_nonnull(s->uvs);
+    /* the disk's vertices come first: 9 columns (the seam twice) of 17 rings */
+    ck_assert_uint_ge(s->vertex_count, 9 * 17);
+    for (size_t v = 0; v < 9 * 17; v++) {
+        vec3_t p = scene_vertex(s, (uint32_t)v);
+        float r = sqrtf(p.x * p.x + p.y * p.y);
+        if (r < 1e-3f)
+            continue; /* the centre: any angle */
+        ck_assert(fabsf(s->uvs[2 * v] - r) < 1e-6f);
+        float phi = atan2f(p.y, p.x) / (2 * (float)M_PI), got = s->uvs[2 * v + 1];
+        /* the seam: -0.5 and 0.5 are the same angle */
+        ck_assert_msg(fabsf(got - phi) < 1e-5f || fabsf(fabsf(got - phi) - 1) < 1e-5f,
+                      "vertex %zu: v %g, phi / 2 pi %g", v, got, phi);
+    }
+    scene_destroy(&s);
+    expect_fail(
+        build(buf, sizeof buf, CAM_OK, NULL, MATS_OK,
+              "\"shapes\": [{\"type\": \"disk\", \"material\": \"white\", \"segments\": 2}]"),
+        "disk2.json", "shapes[0].segments", "out of range", NULL);
+}
+END_TEST
+
 START_TEST(feature_triangles)
 {
     char buf[TEXTLEN];
@@ -1175,6 +1250,7 @@ static Suite *scene_suite(void)
     tcase_add_test(tc, bad_shape_material);
     tcase_add_test(tc, bad_material_type);
     tcase_add_test(tc, glossy_materials);
+    tcase_add_test(tc, feature_disk_cylinder);
     tcase_add_test(tc, bad_shape_type);
     tcase_add_test(tc, bad_mesh_missing);
     tcase_add_test(tc, bad_mesh_malformed);

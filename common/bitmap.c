@@ -1,0 +1,217 @@
+/* bitmap.c - bitmap_decode (bitmap.h): PNG through libpng's simplified
+ * reader, JPEG through libjpeg, OpenEXR through image_read_exr_buffer. */
+#include "bitmap.h"
+
+#include <math.h>
+#include <png.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <stdio.h> /* before jpeglib.h, which uses FILE */
+#include <stdlib.h>
+#include <string.h>
+
+#include <jpeglib.h>
+
+#include "image.h"
+
+float bitmap_srgb_to_linear(float v)
+{
+    return v <= 0.04045f ? v / 12.92f : powf((v + 0.055f) / 1.055f, 2.4f);
+}
+
+void bitmap_free(bitmap_t *b)
+{
+    if (!b)
+        return;
+    free(b->rgb);
+    b->rgb = NULL;
+    b->width = b->height = 0;
+}
+
+static int too_large(const char *name, unsigned w, unsigned h, char *err, size_t errlen)
+{
+    if (w == 0 || h == 0 || (uint64_t)w * h > BITMAP_MAX_TEXELS) {
+        snprintf(err, errlen, "%s: a %ux%u image (1 to %u texels)", name, w, h, BITMAP_MAX_TEXELS);
+        return 1;
+    }
+    return 0;
+}
+
+/* 8-bit RGB rows into linear floats (sRGB-decoded unless raw): a table,
+ * since there are 256 values. */
+static float *from_bytes(const unsigned char *px, size_t texels, int raw)
+{
+    float table[256];
+    for (int i = 0; i < 256; i++)
+        table[i] = raw ? (float)i / 255.0f : bitmap_srgb_to_linear((float)i / 255.0f);
+    float *rgb = malloc(texels * 3 * sizeof *rgb);
+    if (rgb)
+        for (size_t i = 0; i < texels * 3; i++)
+            rgb[i] = table[px[i]];
+    return rgb;
+}
+
+static int decode_png(const char *name, const unsigned char *data, size_t size, int raw,
+                      bitmap_t *out, char *err, size_t errlen)
+{
+    png_image img;
+    memset(&img, 0, sizeof img);
+    img.version = PNG_IMAGE_VERSION;
+    if (!png_image_begin_read_from_memory(&img, data, size)) {
+        snprintf(err, errlen, "%s: not a readable PNG (%s)", name, img.message);
+        return -1;
+    }
+    if (too_large(name, img.width, img.height, err, errlen)) {
+        png_image_free(&img);
+        return -1;
+    }
+    img.format = PNG_FORMAT_RGB;
+    size_t texels = (size_t)img.width * img.height;
+    unsigned char *px = malloc(texels * 3);
+    if (!px) {
+        png_image_free(&img);
+        snprintf(err, errlen, "%s: out of memory", name);
+        return -1;
+    }
+    if (!png_image_finish_read(&img, NULL, px, 0, NULL)) {
+        snprintf(err, errlen, "%s: not a readable PNG (%s)", name, img.message);
+        free(px);
+        return -1;
+    }
+    out->rgb = from_bytes(px, texels, raw);
+    free(px);
+    if (!out->rgb) {
+        snprintf(err, errlen, "%s: out of memory", name);
+        return -1;
+    }
+    out->width = (int)img.width;
+    out->height = (int)img.height;
+    return 0;
+}
+
+/* libjpeg's errors end in a longjmp back to decode_jpeg, with the message. */
+typedef struct jpeg_fail {
+    struct jpeg_error_mgr mgr;
+    jmp_buf back;
+    char text[JMSG_LENGTH_MAX];
+} jpeg_fail_t;
+
+static void jpeg_error_exit(j_common_ptr cinfo)
+{
+    jpeg_fail_t *f = (jpeg_fail_t *)cinfo->err;
+    cinfo->err->format_message(cinfo, f->text);
+    longjmp(f->back, 1);
+}
+
+static void jpeg_quiet(j_common_ptr cinfo, int level)
+{
+    (void)cinfo; /* warnings (a corrupt but readable file) stay off stderr */
+    (void)level;
+}
+
+static int decode_jpeg(const char *name, const unsigned char *data, size_t size, int raw,
+                       bitmap_t *out, char *err, size_t errlen)
+{
+    struct jpeg_decompress_struct cinfo;
+    jpeg_fail_t fail;
+    /* volatile: assigned after setjmp and read after a longjmp */
+    unsigned char *volatile px = NULL;
+    memset(&cinfo, 0, sizeof cinfo);
+    cinfo.err = jpeg_std_error(&fail.mgr);
+    fail.mgr.error_exit = jpeg_error_exit;
+    fail.mgr.emit_message = jpeg_quiet;
+    fail.text[0] = '\0';
+    jpeg_create_decompress(&cinfo);
+    if (setjmp(fail.back)) {
+        snprintf(err, errlen, "%s: not a readable JPEG (%s)", name, fail.text);
+        jpeg_destroy_decompress(&cinfo);
+        free(px);
+        return -1;
+    }
+    jpeg_mem_src(&cinfo, data, (unsigned long)size);
+    jpeg_read_header(&cinfo, TRUE);
+    if (too_large(name, cinfo.image_width, cinfo.image_height, err, errlen)) {
+        jpeg_destroy_decompress(&cinfo);
+        return -1;
+    }
+    cinfo.out_color_space = JCS_RGB;
+    jpeg_start_decompress(&cinfo);
+    if (cinfo.output_components != 3) {
+        snprintf(err, errlen, "%s: a JPEG of %d components (RGB or grey expected)", name,
+                 cinfo.output_components);
+        jpeg_destroy_decompress(&cinfo);
+        return -1;
+    }
+    size_t w = cinfo.output_width, h = cinfo.output_height;
+    px = malloc(w * h * 3);
+    if (!px) {
+        snprintf(err, errlen, "%s: out of memory", name);
+        jpeg_destroy_decompress(&cinfo);
+        return -1;
+    }
+    while (cinfo.output_scanline < cinfo.output_height) {
+        JSAMPROW row = px + (size_t)cinfo.output_scanline * w * 3;
+        jpeg_read_scanlines(&cinfo, &row, 1);
+    }
+    jpeg_finish_decompress(&cinfo);
+    jpeg_destroy_decompress(&cinfo);
+    out->rgb = from_bytes(px, w * h, raw);
+    free(px);
+    if (!out->rgb) {
+        snprintf(err, errlen, "%s: out of memory", name);
+        return -1;
+    }
+    out->width = (int)w;
+    out->height = (int)h;
+    return 0;
+}
+
+static int decode_exr(const char *name, const unsigned char *data, size_t size, bitmap_t *out,
+                      char *err, size_t errlen)
+{
+    image_t *img = NULL;
+    if (image_read_exr_buffer(name, data, size, &img, err, errlen) < 0)
+        return -1;
+    const float *ch[3] = {image_channel(img, "R"), image_channel(img, "G"),
+                          image_channel(img, "B")};
+    const float *y = image_channel(img, "Y");
+    if (!(ch[0] && ch[1] && ch[2]) && !y) {
+        snprintf(err, errlen, "%s: the image has neither R, G and B nor Y channels", name);
+        image_destroy(&img);
+        return -1;
+    }
+    if (too_large(name, (unsigned)img->width, (unsigned)img->height, err, errlen)) {
+        image_destroy(&img);
+        return -1;
+    }
+    size_t texels = (size_t)img->width * img->height;
+    out->rgb = malloc(texels * 3 * sizeof *out->rgb);
+    if (!out->rgb) {
+        snprintf(err, errlen, "%s: out of memory", name);
+        image_destroy(&img);
+        return -1;
+    }
+    for (size_t i = 0; i < texels; i++)
+        for (int c = 0; c < 3; c++)
+            out->rgb[3 * i + c] = ch[0] && ch[1] && ch[2] ? ch[c][i] : y[i];
+    out->width = img->width;
+    out->height = img->height;
+    image_destroy(&img);
+    return 0;
+}
+
+int bitmap_decode(const char *name, const unsigned char *data, size_t size, int raw, bitmap_t *out,
+                  char *err, size_t errlen)
+{
+    memset(out, 0, sizeof *out);
+    static const unsigned char png_sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+    static const unsigned char exr_sig[4] = {0x76, 0x2f, 0x31, 0x01};
+    if (size >= 8 && memcmp(data, png_sig, 8) == 0)
+        return decode_png(name, data, size, raw, out, err, errlen);
+    if (size >= 3 && data[0] == 0xff && data[1] == 0xd8 && data[2] == 0xff)
+        return decode_jpeg(name, data, size, raw, out, err, errlen);
+    if (size >= 4 && memcmp(data, exr_sig, 4) == 0)
+        return decode_exr(name, data, size, out, err, errlen);
+    snprintf(err, errlen, "%s: not a PNG, JPEG or OpenEXR image", name);
+    return -1;
+}
