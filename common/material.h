@@ -60,6 +60,7 @@ typedef struct material {
      * is the smooth material */
     float alpha;
     microfacet_type_t distribution;
+
     /* plastic: the base's internal reflections scale with its albedo */
     uint8_t nonlinear;
     /* plastic, derived by material_prepare: the probability weight of the

@@ -1516,6 +1516,12 @@ static int conv_roughness(conv_t *c, const mx_node_t *bsdf, cJSON *m)
     const char *dist = "beckmann";
     double alpha = 0.1, au = -1, av = -1;
     int visible = 1;
+    mx_node_t *ap = prop(bsdf, "alpha");
+    if (ap && (strcmp(ap->tag, "texture") == 0 || strcmp(ap->tag, "ref") == 0))
+        /* tried: on bsdf_roughdielectric_textured.xml our image came out
+         * 1.2-1.5 % darker than Mitsuba's, with constant alphas matching;
+         * refused until that is understood */
+        return NODE_FAIL(c->x, ap, "a textured alpha is not supported");
     if (get_string(c->x, bsdf, "distribution", &dist) < 0 ||
         get_float(c->x, bsdf, "alpha", &alpha) < 0 || get_float(c->x, bsdf, "alpha_u", &au) < 0 ||
         get_float(c->x, bsdf, "alpha_v", &av) < 0 ||
@@ -2120,11 +2126,12 @@ static int conv_shape(conv_t *c, mx_node_t *n)
     if (conv_material(c, bsdf, emitter, &mi) < 0)
         return -1;
     const char *mat = c->mat_name[mi];
-    /* texture coordinates: a rectangle's own, a mesh file's (OBJ vt,
-     * serialized); not yet a cube's or a PLY file's */
+    /* texture coordinates: a rectangle's, a sphere's, a disk's and a
+     * cylinder's own, a mesh file's (OBJ vt, serialized); not yet a cube's
+     * or a PLY file's */
     const cJSON *jm = cJSON_GetObjectItemCaseSensitive(c->materials, mat);
     if (cJSON_IsObject(cJSON_GetObjectItemCaseSensitive(jm, "albedo")) &&
-        (strcmp(type, "cube") == 0 || strcmp(type, "ply") == 0 || sphere))
+        (strcmp(type, "cube") == 0 || strcmp(type, "ply") == 0))
         return NODE_FAIL(c->x, n,
                          "a texture on a %s shape is not supported (its texture "
                          "coordinates are not read)",

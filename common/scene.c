@@ -562,10 +562,11 @@ static int parse_bitmap(loader_t *L, const cJSON *t, const char *q, texture_t *t
  * "file": name, "filter", "wrap", "raw", "to_uv"} (parse_bitmap). *index
  * is its place, v its color0 or mean (for the range check; color1 passes
  * it too). */
-static int parse_texture(loader_t *L, const cJSON *t, const char *p, int32_t *index, double v[3])
+static int parse_texture(loader_t *L, const cJSON *t, const char *p, const char *field,
+                         int32_t *index, double v[3])
 {
     char q[PATH_LEN];
-    snprintf(q, sizeof q, "%s.albedo", p);
+    snprintf(q, sizeof q, "%s.%s", p, field);
     const cJSON *type = cJSON_GetObjectItemCaseSensitive(t, "type");
     int bitmap = cJSON_IsString(type) && strcmp(type->valuestring, "bitmap") == 0;
     if (!bitmap && (!cJSON_IsString(type) || strcmp(type->valuestring, "checkerboard") != 0))
@@ -721,7 +722,7 @@ static int parse_glossy_fields(loader_t *L, const cJSON *it, const char *p, mate
     double spec[3] = {1, 1, 1}, ior = 1.49 / 1.000277; /* polypropylene in air */
     v[0] = v[1] = v[2] = 0.5;
     const cJSON *albedo = cJSON_GetObjectItemCaseSensitive(it, "albedo");
-    if (cJSON_IsObject(albedo) ? parse_texture(L, albedo, p, &m->albedo_texture, v) < 0
+    if (cJSON_IsObject(albedo) ? parse_texture(L, albedo, p, "albedo", &m->albedo_texture, v) < 0
                                : get_vec3(L, it, "albedo", p, 0, v) < 0)
         return -1;
     if (get_vec3(L, it, "specular", p, 0, spec) < 0 ||
@@ -757,7 +758,7 @@ static int parse_material_fields(loader_t *L, const cJSON *it, const char *p, ma
         check_keys(L, it, p, keys);
         const cJSON *albedo = cJSON_GetObjectItemCaseSensitive(it, "albedo");
         if (cJSON_IsObject(albedo))
-            return parse_texture(L, albedo, p, &m->albedo_texture, v) < 0
+            return parse_texture(L, albedo, p, "albedo", &m->albedo_texture, v) < 0
                        ? -1
                        : get_twosided(L, it, p, m);
         return get_vec3(L, it, "albedo", p, 1, v) < 0 ? -1 : get_twosided(L, it, p, m);
@@ -1303,6 +1304,55 @@ static int shape_mesh(loader_t *L, const cJSON *sh, const char *path, const xfor
     return rc;
 }
 
+/* A vertex with texture coordinates (u, v), when the scene keeps them. */
+static void push_vertex_uv(loader_t *L, const xform_t *x, const double p[3], const double *n,
+                           double u, double v)
+{
+    push_vertex(L, x, p, n);
+    if (L->uv) {
+        L->uv[2 * (L->nv - 1)] = (float)u;
+        L->uv[2 * (L->nv - 1) + 1] = (float)v;
+    }
+}
+
+/* Mitsuba's texture coordinates of a sphere, (phi / 2 pi, theta / pi)
+ * with phi in [0, 2 pi) about +z and theta from +z, at a triangle's three
+ * unit directions: a triangle across the seam (phi 0) takes its corners'
+ * phi on the same side, and a corner at a pole (where phi is any angle)
+ * the other two's mean. */
+static void sphere_uvs(const double n[3][3], double uv[3][2])
+{
+    int pole[3];
+    for (int q = 0; q < 3; q++) {
+        double phi = atan2(n[q][1], n[q][0]);
+        if (phi < 0)
+            phi += 2 * M_PI;
+        uv[q][0] = phi / (2 * M_PI);
+        uv[q][1] = acos(fmax(-1.0, fmin(1.0, n[q][2]))) / M_PI;
+        pole[q] = fabs(n[q][0]) < 1e-12 && fabs(n[q][1]) < 1e-12;
+    }
+    double lo = 1, hi = 0;
+    for (int q = 0; q < 3; q++)
+        if (!pole[q]) {
+            lo = fmin(lo, uv[q][0]);
+            hi = fmax(hi, uv[q][0]);
+        }
+    for (int q = 0; q < 3; q++)
+        if (!pole[q] && hi - lo > 0.5 && uv[q][0] < 0.5)
+            uv[q][0] += 1;
+    for (int q = 0; q < 3; q++)
+        if (pole[q]) {
+            double sum = 0;
+            int cnt = 0;
+            for (int o = 0; o < 3; o++)
+                if (!pole[o]) {
+                    sum += uv[o][0];
+                    cnt++;
+                }
+            uv[q][0] = cnt ? sum / cnt : 0;
+        }
+}
+
 /* An icosphere: the icosahedron subdivided n times, vertices pushed onto the
  * sphere, with exact normals (p - c) / r for smooth shading. Vertices are not
  * shared between faces; they are computed identically on both sides of an
@@ -1345,37 +1395,32 @@ static int shape_sphere(loader_t *L, const cJSON *sh, const char *path, const xf
                         memcpy(bi, alt, sizeof bi);
                     }
                     uint32_t vid[3];
+                    double nrm[3][3], uv[3][2];
                     for (int q = 0; q < 3; q++) {
                         double a = (double)bi[q][0] / (double)k, b = (double)bi[q][1] / (double)k;
-                        double nrm[3], len = 0;
+                        double len = 0;
                         for (int d = 0; d < 3; d++) {
-                            nrm[d] = A[d] * (1 - a - b) + B[d] * a + C[d] * b;
-                            len += nrm[d] * nrm[d];
+                            nrm[q][d] = A[d] * (1 - a - b) + B[d] * a + C[d] * b;
+                            len += nrm[q][d] * nrm[q][d];
                         }
                         len = sqrt(len);
+                        for (int d = 0; d < 3; d++)
+                            nrm[q][d] /= len;
+                    }
+                    if (L->uv)
+                        sphere_uvs(nrm, uv);
+                    for (int q = 0; q < 3; q++) {
                         double pnt[3];
-                        for (int d = 0; d < 3; d++) {
-                            nrm[d] /= len;
-                            pnt[d] = c[d] + r * nrm[d];
-                        }
+                        for (int d = 0; d < 3; d++)
+                            pnt[d] = c[d] + r * nrm[q][d];
                         vid[q] = (uint32_t)L->nv;
-                        push_vertex(L, x, pnt, nrm);
+                        push_vertex_uv(L, x, pnt, nrm[q], L->uv ? uv[q][0] : 0,
+                                       L->uv ? uv[q][1] : 0);
                     }
                     push_triangle(L, x, vid[0], vid[1], vid[2], mat);
                 }
     }
     return check_coords(L, path, first);
-}
-
-/* A vertex with texture coordinates (u, v), when the scene keeps them. */
-static void push_vertex_uv(loader_t *L, const xform_t *x, const double p[3], const double *n,
-                           double u, double v)
-{
-    push_vertex(L, x, p, n);
-    if (L->uv) {
-        L->uv[2 * (L->nv - 1)] = (float)u;
-        L->uv[2 * (L->nv - 1) + 1] = (float)v;
-    }
 }
 
 /* Mitsuba's disk and cylinder as triangles: the unit disk in the xy

@@ -55,13 +55,11 @@ static inline vec3_t texture_bitmap(const texture_t *t, float su, float sv)
     return vec3_add(vec3_scale(top, 1.0f - ty), vec3_scale(bottom, ty));
 }
 
-/* The albedo of material m at barycentric (u, v) of triangle tri. */
-static inline vec3_t texture_albedo(const scene_t *s, const material_t *m, uint32_t tri, float u,
-                                    float v)
+/* Texture `index` of the scene at barycentric (u, v) of triangle tri
+ * (the scene has texture coordinates). */
+static inline vec3_t texture_at(const scene_t *s, int32_t index, uint32_t tri, float u, float v)
 {
-    if (m->albedo_texture < 0 || !s->uvs)
-        return m->albedo;
-    const texture_t *t = &s->textures[m->albedo_texture];
+    const texture_t *t = &s->textures[index];
     const uint32_t *vi = s->indices + 3 * tri;
     const float *a = s->uvs + 2 * vi[0], *b = s->uvs + 2 * vi[1], *c = s->uvs + 2 * vi[2];
     float w = 1.0f - u - v;
@@ -73,6 +71,15 @@ static inline vec3_t texture_albedo(const scene_t *s, const material_t *m, uint3
     /* Mitsuba's checkerboard: which half of its period each coordinate is in */
     int hu = su - floorf(su) > 0.5f, hv = sv - floorf(sv) > 0.5f;
     return hu == hv ? t->color0 : t->color1;
+}
+
+/* The albedo of material m at barycentric (u, v) of triangle tri. */
+static inline vec3_t texture_albedo(const scene_t *s, const material_t *m, uint32_t tri, float u,
+                                    float v)
+{
+    if (m->albedo_texture < 0 || !s->uvs)
+        return m->albedo;
+    return texture_at(s, m->albedo_texture, tri, u, v);
 }
 
 #endif

@@ -275,6 +275,9 @@ static const refusal_t refusals[] = {
     {"<shape type=\"cube\">\n<bsdf type=\"diffuse\">\n<float name=\"foo\" value=\"1\"/>\n"
      "</bsdf></shape>",
      5, "property \"foo\" of bsdf \"diffuse\" is not supported", 0},
+    {"<shape type=\"rectangle\"><bsdf type=\"roughdielectric\">\n<texture name=\"alpha\" "
+     "type=\"checkerboard\"/></bsdf></shape>",
+     4, "a textured alpha is not supported", 0},
     {"<shape type=\"hyperboloid\"/>", 3,
      "shape type \"hyperboloid\" is not supported (supported: obj, ply, serialized, rectangle, "
      "cube, sphere, disk, cylinder)",

@@ -828,6 +828,28 @@ START_TEST(feature_disk_cylinder)
                       "vertex %zu: v %g, phi / 2 pi %g", v, got, phi);
     }
     scene_destroy(&s);
+    /* a textured sphere: (phi / 2 pi, theta / pi) about its centre, phi
+     * in [0, 2 pi) except across the seam, where a triangle's corners go
+     * past 1 */
+    s = load_ok(build(buf, sizeof buf, CAM_OK, NULL, mats,
+                      "\"shapes\": [{\"type\": \"sphere\", \"material\": \"white\", "
+                      "\"center\": [1, 2, 3], \"radius\": 2, \"subdivisions\": 3}, " QUAD_LIGHT
+                      "]"),
+                "sphere-uv.json");
+    for (size_t v = 0; v < 20 * 64 * 3; v++) {
+        vec3_t p = vec3_scale(vec3_sub(scene_vertex(s, (uint32_t)v), vec3_make(1, 2, 3)), 0.5f);
+        float u = s->uvs[2 * v], w = s->uvs[2 * v + 1];
+        ck_assert_msg(fabsf(w - acosf(fmaxf(-1, fminf(1, p.z))) / (float)M_PI) < 1e-5f,
+                      "vertex %zu: v %g", v, w);
+        if (fabsf(p.x) < 1e-6f && fabsf(p.y) < 1e-6f)
+            continue; /* a pole */
+        float phi = atan2f(p.y, p.x) / (2 * (float)M_PI);
+        if (phi < 0)
+            phi += 1;
+        ck_assert_msg(fabsf(u - phi) < 1e-5f || fabsf(u - phi - 1) < 1e-5f,
+                      "vertex %zu: u %g, phi / 2 pi %g", v, u, phi);
+    }
+    scene_destroy(&s);
     expect_fail(
         build(buf, sizeof buf, CAM_OK, NULL, MATS_OK,
               "\"shapes\": [{\"type\": \"disk\", \"material\": \"white\", \"segments\": 2}]"),
