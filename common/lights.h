@@ -96,6 +96,59 @@ static inline int lights_pick_env(const scene_t *s, double *u)
     return 0;
 }
 
+/* After lights_pick_env said no: whether the sample takes a light with no
+ * area; then *k is which and its probability of being picked is *pick
+ * (the environment's share included), else u is rescaled to [0, 1) for
+ * lights_sample. A scene without such lights leaves u as it is. */
+static inline int lights_pick_delta(const scene_t *s, double *u, size_t *k, float *pick)
+{
+    if (!s->delta_count)
+        return 0;
+    double pd = s->delta_pick;
+    if (!(*u < pd)) {
+        *u = (*u - pd) / (1.0 - pd);
+        return 0;
+    }
+    double v = *u / pd;
+    *k = lights_cdf_search(s->delta_cdf, s->delta_count, v);
+    double share = s->delta_cdf[*k] - (*k ? s->delta_cdf[*k - 1] : 0.0);
+    *pick = (float)((s->has_env ? 1.0 - s->env_pick : 1.0) * pd * share);
+    return 1;
+}
+
+/* Light k (a light with no area) seen from p: the direction toward it,
+ * the radiance-times-solid-angle it delivers (intensity / distance^2 with
+ * the spot's falloff, or the irradiance), and the end of the shadow
+ * segment (its position, or far outside the scene). 0 when it gives p
+ * nothing (p on the light, outside the spot's cone). */
+static inline int lights_delta_sample(const scene_t *s, size_t k, vec3_t p, vec3_t *wl,
+                                      vec3_t *light, vec3_t *target)
+{
+    const scene_light_t *l = &s->delta_lights[k];
+    if (l->kind == SCENE_LIGHT_DIRECTIONAL) {
+        *wl = vec3_neg(l->direction);
+        *light = l->intensity;
+        *target = vec3_add(p, vec3_scale(*wl, s->env_distance));
+        return 1;
+    }
+    vec3_t to = vec3_sub(l->position, p);
+    float d2 = vec3_dot(to, to);
+    if (!(d2 > 0.0f))
+        return 0;
+    *wl = vec3_scale(to, 1.0f / sqrtf(d2));
+    float falloff = 1.0f;
+    if (l->kind == SCENE_LIGHT_SPOT) {
+        float c = -vec3_dot(*wl, l->direction);
+        if (!(c > l->cos_cutoff))
+            return 0;
+        if (c < l->cos_beam)
+            falloff = (l->cutoff - acosf(fminf(c, 1.0f))) * l->inv_transition;
+    }
+    *light = vec3_scale(l->intensity, falloff / d2);
+    *target = l->position;
+    return 1;
+}
+
 /* A direction uniform on the sphere (density 1 / (4 pi)) from two numbers. */
 static inline vec3_t lights_env_direction(double u1, float u2)
 {

@@ -2172,6 +2172,68 @@ static int conv_constant(conv_t *c, mx_node_t *n)
     return 0;
 }
 
+/* <emitter type="point">, "spot" and "directional": our scene's "lights"
+ * (position from `position` or to_world's origin; a spot shines and a
+ * directional light travels along to_world's +z, or `direction`). */
+static int conv_delta_light(conv_t *c, mx_node_t *n)
+{
+    int point = is_type(n, "point"), spot = is_type(n, "spot");
+    const char *what = point || spot ? "intensity" : "irradiance";
+    double val[3] = {1, 1, 1}, pos[3] = {0, 0, 0}, dir[3] = {0, 0, 1};
+    double cutoff = 20, beam = -1;
+    mat4_t m;
+    int given = 0;
+    if (get_color(c->x, n, what, 0, val) < 0 || get_transform(c->x, n, "to_world", &m, &given) < 0)
+        return -1;
+    if (point && prop(n, "position")) {
+        if (given)
+            return NODE_FAIL(c->x, n, "give either position or to_world");
+        if (point_prop(c, n, "position", pos) < 0)
+            return -1;
+    } else if (!spot && !point && prop(n, "direction")) {
+        if (given)
+            return NODE_FAIL(c->x, n, "give either direction or to_world");
+        if (point_prop(c, n, "direction", dir) < 0)
+            return -1;
+    } else {
+        static const double o[3] = {0, 0, 0}, z[3] = {0, 0, 1};
+        mat4_point(&m, o, pos);
+        mat4_dir(&m, z, dir);
+    }
+    if (spot && (get_float(c->x, n, "cutoff_angle", &cutoff) < 0 ||
+                 get_float(c->x, n, "beam_width", &beam) < 0))
+        return -1;
+    if (spot && prop(n, "texture"))
+        return NODE_FAIL(c->x, n, "a spot light's texture is not supported");
+    for (int k = 0; k < 3; k++)
+        if (!(val[k] >= 0 && val[k] <= 1e30))
+            return NODE_FAIL(c->x, n, "%s %g is outside [0, 1e30]", what, val[k]);
+    if (!(sqrt(v3_dot(dir, dir)) > 0))
+        return NODE_FAIL(c->x, n, "the light's direction is zero");
+    if (spot && !(cutoff > 0 && cutoff <= 180 && (beam < 0 || beam < cutoff)))
+        return NODE_FAIL(c->x, n, "cutoff_angle must be in (0, 180] and beam_width below it");
+    static const char *const harmless[] = {"sampling_weight", NULL};
+    ignore_props(n, harmless);
+    if (check_used(c, n) < 0)
+        return -1;
+    cJSON *lights = cJSON_GetObjectItemCaseSensitive(c->json, "lights");
+    if (!lights)
+        lights = cJSON_AddArrayToObject(c->json, "lights");
+    cJSON *l = cJSON_CreateObject();
+    cJSON_AddStringToObject(l, "type", node_attr(n, "type"));
+    if (point || spot)
+        cJSON_AddItemToObject(l, "position", vec3_json(pos));
+    if (!point)
+        cJSON_AddItemToObject(l, "direction", vec3_json(dir));
+    cJSON_AddItemToObject(l, what, vec3_json(val));
+    if (spot) {
+        cJSON_AddNumberToObject(l, "cutoff_angle", cutoff);
+        cJSON_AddNumberToObject(l, "beam_width", beam < 0 ? cutoff * 3 / 4 : beam);
+    }
+    cJSON_AddItemToArray(lights, l);
+    return 0;
+}
+
 /* <emitter type="envmap">: a latitude-longitude EXR map (filename, scale,
  * a rotation to_world), our scene's "environment" map. */
 static int conv_envmap(conv_t *c, mx_node_t *n)
@@ -2261,8 +2323,7 @@ static int conv_scene(conv_t *c, mx_node_t *scene)
             if (conv_shape(c, k) < 0)
                 return -1;
         } else if ((strcmp(k->tag, "bsdf") == 0 ||
-                    (strcmp(k->tag, "emitter") == 0 && !is_type(k, "constant") &&
-                     !is_type(k, "envmap")) ||
+                    (strcmp(k->tag, "emitter") == 0 && is_type(k, "area")) ||
                     strcmp(k->tag, "texture") == 0 || strcmp(k->tag, "film") == 0 ||
                     strcmp(k->tag, "sampler") == 0) &&
                    node_attr(k, "id")) {
@@ -2276,8 +2337,15 @@ static int conv_scene(conv_t *c, mx_node_t *scene)
             k->used = 1;
             if (conv_envmap(c, k) < 0)
                 return -1;
+        } else if (strcmp(k->tag, "emitter") == 0 &&
+                   (is_type(k, "point") || is_type(k, "spot") || is_type(k, "directional"))) {
+            k->used = 1;
+            if (conv_delta_light(c, k) < 0)
+                return -1;
         } else if (strcmp(k->tag, "emitter") == 0) {
-            return unsupported_type(c, k, "area on a shape, constant, envmap");
+            return unsupported_type(c, k,
+                                    "area on a shape, constant, envmap, point, spot, "
+                                    "directional");
         } else {
             const char *type = node_attr(k, "type");
             return NODE_FAIL(x, k, "<%s%s%s%s> is not supported", k->tag, type ? " type=\"" : "",
@@ -2294,7 +2362,9 @@ static int conv_scene(conv_t *c, mx_node_t *scene)
                 return is_type(k, "area")
                            ? NODE_FAIL(x, k, "area emitter \"%s\" is on no shape",
                                        node_attr(k, "id"))
-                           : unsupported_type(c, k, "area on a shape, constant, envmap");
+                           : unsupported_type(c, k,
+                                              "area on a shape, constant, envmap, point, spot, "
+                                              "directional");
         }
     }
     if (c->nmats == 0 || cJSON_GetArraySize(c->shapes) == 0)

@@ -426,17 +426,126 @@ static int parse_environment(loader_t *L, const cJSON *root)
     return 0;
 }
 
-/* The environment's share of the light samples: half beside triangle
- * lights (Mitsuba picks its emitters uniformly too), all without; and the
- * length of a shadow segment that leaves the scene's bounds from inside. */
-static void finish_environment(scene_t *s)
+/* "lights": [{"type": "point", "position": [x, y, z], "intensity": [r,
+ * g, b]}, {"type": "spot", "position", "direction" (its axis),
+ * "intensity", "cutoff_angle" (degrees, default 20), "beam_width"
+ * (default 3/4 of the cutoff)}, {"type": "directional", "direction"
+ * (where the light goes), "irradiance"}]: lights with no area
+ * (scene_light_t), as Mitsuba's point, spot and directional emitters. */
+static int parse_lights(loader_t *L, const cJSON *root)
 {
-    if (!s->has_env)
-        return;
-    s->env_pick = s->light_count > 0 ? 0.5f : 1.0f;
+    const cJSON *arr = cJSON_GetObjectItemCaseSensitive(root, "lights");
+    if (!arr)
+        return 0;
+    if (!cJSON_IsArray(arr))
+        return fail(L, "lights", "expected an array");
+    int n = cJSON_GetArraySize(arr);
+    if (n > SCENE_MAX_DELTA_LIGHTS)
+        return fail(L, "lights", "more than %d lights", SCENE_MAX_DELTA_LIGHTS);
+    if (n == 0)
+        return 0;
+    scene_t *s = L->s;
+    s->delta_lights = calloc((size_t)n, sizeof *s->delta_lights);
+    if (!s->delta_lights)
+        return fail(L, "lights", "out of memory");
+    int i = 0;
+    for (const cJSON *it = arr->child; it; it = it->next, i++) {
+        char p[PATH_LEN];
+        snprintf(p, sizeof p, "lights[%d]", i);
+        if (!cJSON_IsObject(it))
+            return fail(L, p, "expected an object with a \"type\"");
+        const cJSON *type = cJSON_GetObjectItemCaseSensitive(it, "type");
+        static const char *const kinds[] = {"point", "spot", "directional"};
+        int kind = -1;
+        for (int k = 0; k < 3 && cJSON_IsString(type); k++)
+            if (strcmp(type->valuestring, kinds[k]) == 0)
+                kind = k;
+        if (kind < 0)
+            return fail(L, p, "\"type\" must be \"point\", \"spot\" or \"directional\"");
+        static const char *const keys[] = {"type",       "position",     "direction",  "intensity",
+                                           "irradiance", "cutoff_angle", "beam_width", NULL};
+        check_keys(L, it, p, keys);
+        scene_light_t *l = &s->delta_lights[i];
+        l->kind = (scene_light_kind_t)kind;
+        double pos[3] = {0, 0, 0}, dir[3] = {0, 0, 1}, val[3];
+        const char *what = kind == SCENE_LIGHT_DIRECTIONAL ? "irradiance" : "intensity";
+        if ((kind != SCENE_LIGHT_DIRECTIONAL && get_vec3(L, it, "position", p, 1, pos) < 0) ||
+            (kind != SCENE_LIGHT_POINT && get_vec3(L, it, "direction", p, 1, dir) < 0) ||
+            get_vec3(L, it, what, p, 1, val) < 0)
+            return -1;
+        for (int k = 0; k < 3; k++)
+            if (!(val[k] >= 0 && val[k] <= 1e30) || !(fabs(pos[k]) < 1e30))
+                return fail(L, p, "%s must be in [0, 1e30] and the position finite", what);
+        double len = sqrt(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
+        if (!(len > 0 && len < 1e30))
+            return fail(L, p, "direction must not be zero");
+        l->position = to_vec3(pos);
+        l->direction =
+            vec3_make((float)(dir[0] / len), (float)(dir[1] / len), (float)(dir[2] / len));
+        l->intensity = to_vec3(val);
+        if (kind == SCENE_LIGHT_SPOT) {
+            double cutoff = 20, beam = -1;
+            if (get_number(L, it, "cutoff_angle", p, 0, 1e-3, 180, &cutoff) < 0 ||
+                get_number(L, it, "beam_width", p, 0, 0, 180, &beam) < 0)
+                return -1;
+            if (beam < 0)
+                beam = cutoff * 3 / 4;
+            if (!(beam < cutoff))
+                return fail(L, p, "beam_width must be below cutoff_angle");
+            double c = cutoff * M_PI / 180, b = beam * M_PI / 180;
+            l->cutoff = (float)c;
+            l->cos_cutoff = (float)cos(c);
+            l->cos_beam = (float)cos(b);
+            l->inv_transition = (float)(1 / (c - b));
+        }
+        s->delta_count++;
+    }
+    return 0;
+}
+
+/* The lights with no area: their share of the light samples, by power
+ * beside the triangles' (power in the units lights_build takes, flux /
+ * pi: a point light's 4 I, a spot's 2 (1 - cos) I out to the middle of
+ * its ramp, a directional light's E r^2 over the scene's bounding radius
+ * r), and the triangles' area pdfs scaled by what is left. */
+static int finish_delta_lights(loader_t *L, double tri_power, double radius)
+{
+    scene_t *s = L->s;
+    if (!s->delta_count)
+        return 0;
+    s->delta_cdf = malloc(s->delta_count * sizeof *s->delta_cdf);
+    if (!s->delta_cdf)
+        return fail(L, "lights", "out of memory");
+    double total = 0;
+    for (size_t i = 0; i < s->delta_count; i++) {
+        const scene_light_t *l = &s->delta_lights[i];
+        double lum = vmath_luminance(l->intensity.x, l->intensity.y, l->intensity.z), w;
+        if (l->kind == SCENE_LIGHT_POINT)
+            w = 4 * lum;
+        else if (l->kind == SCENE_LIGHT_SPOT)
+            w = 2 * (1 - cos(0.5 * (l->cutoff + acos(l->cos_beam)))) * lum;
+        else
+            w = lum * radius * radius;
+        total += w;
+        s->delta_cdf[i] = total;
+    }
+    if (!(total > 0) || !isfinite(total)) {
+        /* all black: never picked */
+        s->delta_count = 0;
+        return 0;
+    }
+    for (size_t i = 0; i < s->delta_count; i++)
+        s->delta_cdf[i] /= total;
+    s->delta_cdf[s->delta_count - 1] = 1.0;
+    s->delta_pick = s->light_count > 0 ? (float)(total / (total + tri_power)) : 1.0f;
     for (size_t i = 0; i < s->light_count; i++)
-        s->tri_light_pdf[s->light_tris[i]] *= 1.0f - s->env_pick; /* 1/2: exact */
-    s->env_pdf = (float)(s->env_pick / (4.0 * 3.14159265358979323846));
+        s->tri_light_pdf[s->light_tris[i]] *= 1.0f - s->delta_pick;
+    return 0;
+}
+
+/* The length of the diagonal of the box around every vertex. */
+static double scene_diagonal(const scene_t *s)
+{
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (size_t v = 0; v < s->vertex_count; v++)
         for (int k = 0; k < 3; k++) {
@@ -446,7 +555,21 @@ static void finish_environment(scene_t *s)
     double d2 = 0;
     for (int k = 0; k < 3; k++)
         d2 += (hi[k] - lo[k]) * (hi[k] - lo[k]);
-    s->env_distance = (float)(2.0 * sqrt(d2) + 1.0);
+    return sqrt(d2);
+}
+
+/* The environment's share of the light samples: half beside triangle
+ * lights (Mitsuba picks its emitters uniformly too), all without; and the
+ * length of a shadow segment that leaves the scene's bounds from inside. */
+static void finish_environment(scene_t *s)
+{
+    if (!s->has_env)
+        return;
+    s->env_pick = s->light_count > 0 || s->delta_count > 0 ? 0.5f : 1.0f;
+    for (size_t i = 0; i < s->light_count; i++)
+        s->tri_light_pdf[s->light_tris[i]] *= 1.0f - s->env_pick; /* 1/2: exact */
+    s->env_pdf = (float)(s->env_pick / (4.0 * 3.14159265358979323846));
+    s->env_distance = (float)(2.0 * scene_diagonal(s) + 1.0);
 }
 
 /* ---- materials ---------------------------------------------------------- */
@@ -1636,6 +1759,7 @@ static int finish(loader_t *L)
         return fail(L, NULL, "out of memory for %zu triangles", nt);
     }
     size_t kept = keep_triangles(s, nt, &ls);
+    double ls_total = ls.lights > 0 && isfinite(ls.total) ? ls.total : 0;
     if (s->dropped_degenerate)
         warn(s, "%s: dropped %zu degenerate (zero-area) triangle%s", L->name, s->dropped_degenerate,
              s->dropped_degenerate == 1 ? "" : "s");
@@ -1646,7 +1770,7 @@ static int finish(loader_t *L)
     } else if (ls.lights == 0 || !(ls.total > 0) || !isfinite(ls.total)) {
         if (ls.lights && !isfinite(ls.total))
             rc = fail(L, "materials", "total light power overflows");
-        else if (!s->has_env)
+        else if (!s->has_env && !s->delta_count)
             warn(s,
                  "%s: the scene has no light (no emitter with radiance > 0): the image will be "
                  "black",
@@ -1655,6 +1779,12 @@ static int finish(loader_t *L)
         rc = build_light_cdf(L, &ls);
     }
     free(ls.power);
+    if (rc == 0 && s->delta_count) {
+        double diagonal = scene_diagonal(s);
+        /* a shadow segment this long leaves the scene (a directional light's) */
+        s->env_distance = (float)(2.0 * diagonal + 1.0);
+        rc = finish_delta_lights(L, ls_total, 0.5 * diagonal);
+    }
     if (rc == 0)
         finish_environment(s);
     return rc;
@@ -1701,12 +1831,14 @@ static int load(const char *json, size_t len, const char *name, const char *base
     } else if (!cJSON_IsObject(root)) {
         rc = fail(&L, NULL, "expected a JSON object at the top level");
     } else {
-        static const char *const keys[] = {"camera", "render",      "materials",
-                                           "shapes", "environment", NULL};
+        static const char *const keys[] = {"camera",      "render", "materials", "shapes",
+                                           "environment", "lights", NULL};
         check_keys(&L, root, "", keys);
         rc = parse_camera(&L, root);
         if (rc == 0)
             rc = parse_environment(&L, root);
+        if (rc == 0)
+            rc = parse_lights(&L, root);
         if (rc == 0)
             rc = parse_render(&L, root);
         if (rc == 0)
@@ -1818,6 +1950,8 @@ void scene_destroy(scene_t **sp)
     free(s->tri_light_pdf);
     free(s->light_tris);
     free(s->light_cdf);
+    free(s->delta_lights);
+    free(s->delta_cdf);
     free(s);
     *sp = NULL;
 }

@@ -62,6 +62,28 @@ typedef struct texture {
     texture_wrap_t wrap;
 } texture_t;
 
+/* A light with no area (Mitsuba's point, spot and directional emitters):
+ * only light samples reach it. Point and spot: intensity (W/sr) from
+ * position, the spot's falling to 0 from beam_width to cutoff off its
+ * axis (Mitsuba's linear ramp in angle); directional: irradiance arriving
+ * along direction from outside the scene. */
+typedef enum {
+    SCENE_LIGHT_POINT = 0,
+    SCENE_LIGHT_SPOT,
+    SCENE_LIGHT_DIRECTIONAL
+} scene_light_kind_t;
+
+typedef struct scene_light {
+    scene_light_kind_t kind;
+    vec3_t position;  /* point, spot */
+    vec3_t direction; /* spot: its axis; directional: where the light goes (unit) */
+    vec3_t intensity; /* point, spot: intensity; directional: irradiance */
+    float cos_cutoff, cos_beam, cutoff, inv_transition; /* spot (radians) */
+} scene_light_t;
+
+/* the most such lights a scene may have */
+#define SCENE_MAX_DELTA_LIGHTS 1024
+
 typedef struct scene {
     camera_t camera;
 
@@ -98,6 +120,14 @@ typedef struct scene {
     uint32_t *light_tris;
     double *light_cdf; /* light_count entries, last is 1 */
     size_t light_count;
+    /* Lights with no area (scene_light_t), chosen by power too: a light
+     * sample that does not take the environment takes one of them with
+     * probability delta_pick (by delta_cdf), else a triangle (whose
+     * tri_light_pdf then holds the 1 - delta_pick). None: delta_pick 0. */
+    scene_light_t *delta_lights;
+    double *delta_cdf;
+    size_t delta_count;
+    float delta_pick;
 
     /* The environment: radiance arriving from every direction where no
      * triangle blocks it (Mitsuba's constant emitter). A light sample takes

@@ -241,9 +241,14 @@ static void sample_direct(const tracer_t *tr, path_t *path, const material_t *m,
     const scene_t *s = tr->scene;
     double ul = rng_next_double(&path->rng);
     float u2 = rng_next_float(&path->rng);
-    if (lights_pick_env(s, &ul)) {
+    size_t which;
+    float pick;
+    int env = lights_pick_env(s, &ul);
+    if (env || lights_pick_delta(s, &ul, &which, &pick)) {
         vec3_t from, seg, gain;
-        if (!tracer_env_direct(s, m, m->albedo, path->beta, p, mh, ul, u2, &from, &seg, &gain))
+        if (env ? !tracer_env_direct(s, m, m->albedo, path->beta, p, mh, ul, u2, &from, &seg, &gain)
+                : !tracer_delta_direct(s, m, m->albedo, path->beta, p, mh, which, pick, &from, &seg,
+                                       &gain))
             return;
         path->rays++;
         if (tracer_unoccluded(tr, from, seg))
@@ -301,7 +306,8 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
                              uint64_t sample_index, vec3_t *out)
 {
     const scene_t *s = tr->scene;
-    const int nee = st->integrator == SCENE_INTEGRATOR_PATH && (s->light_count > 0 || s->has_env);
+    const int nee = st->integrator == SCENE_INTEGRATOR_PATH &&
+                    (s->light_count > 0 || s->has_env || s->delta_count > 0);
     path_t path;
     path_start(&path, &s->camera, st, pixel, sample_index);
     for (uint32_t depth = 0;; depth++) {
@@ -431,18 +437,24 @@ static uint32_t trace_direct(const tracer_t *tr, const tracer_settings_t *st, ui
     const uint32_t E = s->direct_emitter_samples, B = s->direct_bsdf_samples;
     const float frac_lum = (float)E / (float)(E + B), frac_bsdf = (float)B / (float)(E + B);
     int has_lobe = material_is_glossy(m) ? material_glossy_has_lobe(m) : material_is_diffuse(m);
-    for (uint32_t i = 0; has_lobe && (s->light_count > 0 || s->has_env) && i < E; i++) {
+    for (uint32_t i = 0;
+         has_lobe && (s->light_count > 0 || s->has_env || s->delta_count > 0) && i < E; i++) {
         rng_seek(&path.rng, 2 + 2 * (uint64_t)i);
         double ul = rng_next_double(&path.rng);
         float u2 = rng_next_float(&path.rng), light_pdf, bsdf_pdf;
         vec3_t wl, radiance, from, seg, f_cos;
-        if (!tracer_sample_light(s, p, mh.ngf, ul, u2, &wl, &light_pdf, &radiance, &from, &seg) ||
+        int delta;
+        if (!tracer_sample_light(s, p, mh.ngf, ul, u2, &wl, &light_pdf, &radiance, &from, &seg,
+                                 &delta) ||
             !direct_eval(m, &mh, wl, &f_cos, &bsdf_pdf))
             continue;
         path.rays++;
         if (!tracer_unoccluded(tr, from, seg))
             continue;
-        float w = direct_mis(light_pdf * frac_lum, bsdf_pdf * frac_bsdf) / (float)E;
+        /* (a light with no area: BSDF samples cannot find it; Mitsuba
+         * weighs it 1 whatever emitter_samples is, we 1 / E: unbiased) */
+        float w =
+            (delta ? 1.0f : direct_mis(light_pdf * frac_lum, bsdf_pdf * frac_bsdf)) / (float)E;
         L = vec3_add(L, vec3_mul(f_cos, vec3_scale(radiance, w / light_pdf)));
     }
     for (uint32_t j = 0; j < B; j++) {
@@ -587,7 +599,8 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_ta
         .tracer = t,
         .scene = s,
         .settings = st,
-        .nee = st->integrator == SCENE_INTEGRATOR_PATH && (s->light_count > 0 || s->has_env),
+        .nee = st->integrator == SCENE_INTEGRATOR_PATH &&
+               (s->light_count > 0 || s->has_env || s->delta_count > 0),
         .env = s->has_env,
     };
     uint64_t rays = 0, samples = 0;

@@ -177,6 +177,26 @@ static inline int tracer_env_direct(const scene_t *s, const material_t *m, vec3_
     return 1;
 }
 
+/* Next-event estimation toward light k with no area (lights_pick_delta
+ * took it, with probability pick) from a diffuse surface: its shadow
+ * segment and what the path gains when it is free (no MIS: no bounce
+ * could find such a light). 0 when it gives p nothing. Both engines call
+ * it. */
+static inline int tracer_delta_direct(const scene_t *s, const material_t *m, vec3_t albedo,
+                                      vec3_t beta, vec3_t p, const material_hit_t *mh, size_t k,
+                                      float pick, vec3_t *from, vec3_t *seg, vec3_t *gain)
+{
+    vec3_t wl, light, target;
+    float cos_s, bsdf_pdf;
+    if (!lights_delta_sample(s, k, p, &wl, &light, &target) ||
+        !material_eval(m, mh, wl, &cos_s, &bsdf_pdf))
+        return 0;
+    *from = vec3_offset_ray_origin(p, mh->ngf);
+    *seg = vec3_sub(target, *from);
+    *gain = vec3_mul(vec3_mul(beta, albedo), vec3_scale(light, cos_s * VMATH_INV_PI / pick));
+    return 1;
+}
+
 /* L after a ray that left the scene: plus the environment's radiance,
  * weighted against next-event estimation unless the last bounce was
  * specular (or there is none). */
@@ -232,14 +252,21 @@ static inline uint64_t tracer_bounce_dim(uint32_t depth)
 /* A light sample from p with the numbers (ul, u2): its direction *wl,
  * solid-angle density *light_pdf (the choice of light included) and
  * radiance, and the shadow segment from *from along *seg, which leaves p
- * on wl's side of the geometric normal ngf. 0 when it gives nothing. */
+ * on wl's side of the geometric normal ngf. 0 when it gives nothing. A
+ * light with no area (*delta 1) has a density of its choice alone, and
+ * its radiance is what it delivers (intensity / distance^2). */
 static inline int tracer_sample_light(const scene_t *s, vec3_t p, vec3_t ngf, double ul, float u2,
                                       vec3_t *wl, float *light_pdf, vec3_t *radiance, vec3_t *from,
-                                      vec3_t *seg)
+                                      vec3_t *seg, int *delta)
 {
     vec3_t target = {0, 0, 0};
     int env = lights_pick_env(s, &ul);
-    if (env) {
+    size_t k;
+    *delta = !env && lights_pick_delta(s, &ul, &k, light_pdf);
+    if (*delta) {
+        if (!lights_delta_sample(s, k, p, wl, radiance, &target))
+            return 0;
+    } else if (env) {
         *wl = lights_env_sample(s, ul, u2, light_pdf, radiance);
         if (!(*light_pdf > 0.0f))
             return 0;
@@ -275,10 +302,13 @@ static inline int tracer_glossy_direct(const scene_t *s, const material_t *m, ve
 {
     vec3_t wl, radiance, f_cos;
     float light_pdf, bsdf_pdf;
-    if (!tracer_sample_light(s, p, mh->ngf, ul, u2, &wl, &light_pdf, &radiance, from, seg) ||
+    int delta;
+    if (!tracer_sample_light(s, p, mh->ngf, ul, u2, &wl, &light_pdf, &radiance, from, seg,
+                             &delta) ||
         !material_glossy_eval(m, mh, wl, &f_cos, &bsdf_pdf))
         return 0;
-    float w = tracer_power_heuristic(light_pdf, bsdf_pdf);
+    /* (a light with no area: no bounce could find it) */
+    float w = delta ? 1.0f : tracer_power_heuristic(light_pdf, bsdf_pdf);
     *gain = vec3_mul(vec3_mul(beta, f_cos), vec3_scale(radiance, w / light_pdf));
     return 1;
 }

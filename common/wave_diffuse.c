@@ -83,10 +83,12 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
         wave_vf u = zero, v = zero, cos_o = zero, area_pdf = one, u1 = zero, u2 = zero;
         wave_vi smooth = {0};
         /* lanes whose light sample took the environment (lights_pick_env),
-         * and its numbers */
-        unsigned env = 0;
+         * and its numbers; lanes that took a light with no area
+         * (lights_pick_delta), which and with what probability */
+        unsigned env = 0, delta = 0;
         double env_u1[WAVE_LANES];
-        float env_u2[WAVE_LANES];
+        float env_u2[WAVE_LANES], delta_pick[WAVE_LANES];
+        size_t delta_k[WAVE_LANES];
         /* lane by lane: what each path looks up */
         for (int j = 0; j < WAVE_LANES; j++) {
             uint16_t s = slots[j0 + (j < lanes ? (size_t)j : 0)];
@@ -124,6 +126,9 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
                     env |= 1u << j;
                     env_u1[j] = ul;
                     env_u2[j] = lu2;
+                } else if (lights_pick_delta(sc, &ul, &delta_k[j], &delta_pick[j])) {
+                    /* a light with no area: likewise (tracer_delta_direct) */
+                    delta |= 1u << j;
                 } else {
                     vec3_t qp;
                     uint32_t lt = lights_sample(sc, ul, lu2, &qp);
@@ -208,8 +213,8 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
             w->o[s] = LANE3(from, j);
             w->next_d[s] = LANE3(next_d, j);
         }
-        for (int j = 0; env && j < lanes; j++) {
-            if (!(env >> j & 1))
+        for (int j = 0; (env | delta) && j < lanes; j++) {
+            if (!((env | delta) >> j & 1))
                 continue;
             uint16_t s = slots[j0 + (size_t)j];
             const material_t *m = &sc->materials[sc->tri_material[w->tri[s]]];
@@ -217,9 +222,15 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
                                  .ngf = LANE3(ngf, j),
                                  .ns = LANE3(ns, j),
                                  .front = cos_o[j] > 0.0f};
-            w->shadow[s] = (uint8_t)tracer_env_direct(
-                sc, m, LANE3(albedo, j), LANE3(beta, j), LANE3(p, j), &mh, env_u1[j], env_u2[j],
-                &w->shadow_o[s], &w->shadow_d[s], &w->shadow_L[s]);
+            w->shadow[s] =
+                (uint8_t)(env >> j & 1
+                              ? tracer_env_direct(sc, m, LANE3(albedo, j), LANE3(beta, j),
+                                                  LANE3(p, j), &mh, env_u1[j], env_u2[j],
+                                                  &w->shadow_o[s], &w->shadow_d[s], &w->shadow_L[s])
+                              : tracer_delta_direct(sc, m, LANE3(albedo, j), LANE3(beta, j),
+                                                    LANE3(p, j), &mh, delta_k[j], delta_pick[j],
+                                                    &w->shadow_o[s], &w->shadow_d[s],
+                                                    &w->shadow_L[s]));
         }
     }
 }

@@ -284,7 +284,17 @@ static const refusal_t refusals[] = {
      0},
     {"<shape type=\"cylinder\">\n<point name=\"p1\" x=\"0\" y=\"0\" z=\"0\"/></shape>", 3,
      "the cylinder needs a positive radius and p0 != p1", 0},
-    {"<emitter type=\"spot\"/>", 3, "emitter type \"spot\" is not supported", 0},
+    {"<emitter type=\"projector\"/>", 3,
+     "emitter type \"projector\" is not supported (supported: area on a shape, constant, envmap, "
+     "point, spot, directional)",
+     0},
+    {"<emitter type=\"spot\">\n<texture name=\"texture\" type=\"checkerboard\"/></emitter>"
+     "<shape type=\"cube\"/>",
+     3, "a spot light's texture is not supported", 0},
+    {"<emitter type=\"point\"><point name=\"position\" x=\"1\" y=\"1\" z=\"1\"/>\n"
+     "<transform name=\"to_world\"><translate x=\"1\"/></transform></emitter>"
+     "<shape type=\"cube\"/>",
+     3, "give either position or to_world", 0},
     {"<emitter type=\"envmap\">\n<string name=\"filename\" value=\"sky.hdr\"/></emitter>", 3,
      "envmap \"sky.hdr\": only OpenEXR maps are supported", 0},
     {"<shape type=\"cube\">\n\n<bsdf type=\"diffuse\"><rgb name=\"reflectance\" value=\"$x\"/>"
@@ -650,6 +660,8 @@ END_TEST
  * light and a constant environment (checker.xml) and an environment map
  * with a sun (envmap.xml). Independent samples: the variance of a mean is
  * then the pixels' own. */
+/* (not lights.xml: no bounce finds a light with no area; test_tracer's
+ * delta_lights_exact checks those against their closed forms) */
 static const char *const mis_scenes[] = {"scenes/mitsuba/checker.xml", "scenes/mitsuba/envmap.xml",
                                          "scenes/mitsuba/materials.xml"};
 
@@ -768,6 +780,7 @@ static const struct {
     {"scenes/mitsuba/materials.xml", "tests/data/mitsuba/materials-32.exr", 2048},
     {"scenes/mitsuba/veach-mis.xml", "tests/data/mitsuba/veach-mis-32.exr", 4096},
     {"scenes/mitsuba/bitmap.xml", "tests/data/mitsuba/bitmap-32.exr", 1024},
+    {"scenes/mitsuba/lights.xml", "tests/data/mitsuba/lights-32.exr", 2048},
 };
 
 START_TEST(matches_mitsuba)

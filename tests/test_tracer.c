@@ -1291,6 +1291,87 @@ START_TEST(test_engines_agree)
 }
 END_TEST
 
+/* Lights with no area, against their closed forms: a diffuse plane (albedo
+ * 1/2) seen from straight above, lit by a point light of intensity 4 at
+ * height 1 (radiance 2 / (pi d^3)), then by a directional light of
+ * irradiance 2 at 30 degrees (1 cos 30 / pi everywhere); each pixel's mean
+ * against the radiance integrated over its footprint, to 0.5 %. A point
+ * light lying on the plane gives it nothing, and no NaN. */
+static const char delta_fmt[] =
+    "{\"camera\": {\"position\": [0, 0, 5], \"look_at\": [0, 0, 0], \"fov\": 20, \"width\": 6, "
+    "\"height\": 6},"
+    " \"materials\": {\"w\": {\"type\": \"diffuse\", \"albedo\": [0.5, 0.5, 0.5]}},"
+    " \"shapes\": [{\"type\": \"quad\", \"material\": \"w\", \"vertices\": [[-4, -4, 0], [4, -4, "
+    "0], [4, 4, 0], [-4, 4, 0]]}], \"lights\": [%s]}";
+
+START_TEST(delta_lights_exact)
+{
+    static const char *const lights[] = {
+        "{\"type\": \"point\", \"position\": [0, 0, 1], \"intensity\": [4, 4, 4]}",
+        "{\"type\": \"directional\", \"direction\": [0, 0.5, -0.8660254], \"irradiance\": [2, 2, "
+        "2]}",
+        "{\"type\": \"point\", \"position\": [0.5, 0, 0], \"intensity\": [4, 4, 4]}",
+    };
+    char json[2048];
+    for (int c = 0; c < 3; c++) {
+        snprintf(json, sizeof json, delta_fmt, lights[c]);
+        scene_t *s = load_text(json);
+        ck_assert_uint_eq(s->delta_count, 1);
+        ck_assert(s->delta_pick == 1.0f && s->light_count == 0);
+        film_t *f = render_sampler(s, 9, SCENE_INTEGRATOR_PATH, RNG_SAMPLER_SOBOL, 256, 2, 16);
+        ck_assert_uint_eq(film_total_nonfinite(f), 0);
+        double half = 5 * tan(10 * M_PI / 180); /* the plane's half extent in view */
+        for (uint32_t p = 0; p < 36; p++) {
+            double rgb[3];
+            film_mean(f, p, rgb);
+            double want = 0;
+            if (c == 0) {
+                /* the footprint of pixel (px, py): by symmetry its sign does not matter */
+                double x0 = -half + 2 * half * (p % 6) / 6, y0 = -half + 2 * half * (p / 6) / 6;
+                for (int a = 0; a < 32; a++)
+                    for (int b = 0; b < 32; b++) {
+                        double x = x0 + 2 * half / 6 * (a + 0.5) / 32;
+                        double y = y0 + 2 * half / 6 * (b + 0.5) / 32;
+                        double d = sqrt(x * x + y * y + 1);
+                        want += 2 / (M_PI * d * d * d) / 1024;
+                    }
+            } else if (c == 1) {
+                want = 0.8660254 / M_PI;
+            }
+            ck_assert_msg(c == 2 ? rgb[0] == 0 : fabs(rgb[0] / want - 1) < 5e-3,
+                          "light %d, pixel %u: %g, want %g", c, p, rgb[0], want);
+        }
+        film_destroy(&f);
+        scene_destroy(&s);
+    }
+}
+END_TEST
+
+/* A spot's falloff, by hand: full inside beam_width (15 degrees), half
+ * way down the ramp at 17.5, nothing past cutoff_angle (20). */
+START_TEST(spot_falloff)
+{
+    char json[2048];
+    snprintf(json, sizeof json, delta_fmt,
+             "{\"type\": \"spot\", \"position\": [0, 0, 1], \"direction\": [0, 0, -1], "
+             "\"intensity\": [1, 2, 3], \"cutoff_angle\": 20, \"beam_width\": 15}");
+    scene_t *s = load_text(json);
+    static const double deg[] = {0, 10, 17.5, 19.9, 20.5, 60};
+    static const double falloff[] = {1, 1, 0.5, 0.02, 0, 0};
+    for (int i = 0; i < 6; i++) {
+        double t = tan(deg[i] * M_PI / 180);
+        vec3_t p = vec3_make((float)t, 0, 0), wl, light, target;
+        int got = lights_delta_sample(s, 0, p, &wl, &light, &target);
+        double d2 = 1 + t * t;
+        ck_assert_int_eq(got, falloff[i] > 0);
+        if (got)
+            ck_assert_msg(fabs(light.y * d2 / 2 - falloff[i]) < 1e-3, "%g deg: %g, want %g", deg[i],
+                          light.y * d2 / 2, falloff[i]);
+    }
+    scene_destroy(&s);
+}
+END_TEST
+
 static Suite *tracer_suite(void)
 {
     Suite *s = suite_create("tracer");
@@ -1300,6 +1381,8 @@ static Suite *tracer_suite(void)
     tcase_add_test(tc, test_every_shipped_scene);
     tcase_add_test(tc, test_furnace_path_bright);
     tcase_add_test(tc, test_furnace_naive);
+    tcase_add_test(tc, delta_lights_exact);
+    tcase_add_test(tc, spot_falloff);
     tcase_add_test(tc, test_furnace_coloured_albedo);
     tcase_add_test(tc, test_glass_furnace);
     tcase_add_test(tc, test_mirror_furnace);
