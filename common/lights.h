@@ -270,4 +270,89 @@ static inline float lights_area_pdf(const scene_t *s, uint32_t tri)
     return s->tri_light_pdf[tri];
 }
 
+/* The cone sphere sp subtends from p: its axis toward the centre, the
+ * distance to the centre, and 1 - cos of its half angle (exact for tiny
+ * angles: sin^2 / (1 + cos)). 0 when p is inside the sphere. */
+static inline int lights_sphere_cone(const scene_sphere_t *sp, vec3_t p, vec3_t *axis, float *dc,
+                                     float *one_minus_cos)
+{
+    vec3_t to = vec3_sub(sp->center, p);
+    float d2 = vec3_dot(to, to), r2 = sp->radius * sp->radius;
+    if (!(d2 > r2))
+        return 0;
+    *dc = sqrtf(d2);
+    *axis = vec3_scale(to, 1.0f / *dc);
+    float sin2 = r2 / d2, cos_max = sqrtf(1.0f - sin2);
+    *one_minus_cos = sin2 / (1.0f + cos_max);
+    return 1;
+}
+
+/* The solid-angle density with which a light sample from p takes a
+ * direction toward emitting sphere k (0 from inside it). */
+static inline float lights_sphere_pdf(const scene_t *s, int32_t k, vec3_t p)
+{
+    const scene_sphere_t *sp = &s->spheres[k];
+    vec3_t axis;
+    float dc, omc;
+    if (!lights_sphere_cone(sp, p, &axis, &dc, &omc))
+        return 0.0f;
+    return sp->pick / (2.0f * VMATH_PI * omc);
+}
+
+/* The solid-angle density with which a light sample from o would have
+ * found the point at distance t on light triangle tri, hit at cosine
+ * cos_l (> 0) along a unit direction: by area, or through the cone of
+ * the sphere it belongs to. */
+static inline float lights_hit_pdf(const scene_t *s, uint32_t tri, vec3_t o, float t, float cos_l)
+{
+    if (s->tri_sphere && s->tri_sphere[tri] >= 0)
+        return lights_sphere_pdf(s, s->tri_sphere[tri], o);
+    return lights_area_pdf(s, tri) * t * t / cos_l;
+}
+
+/* lights_sample from p: a light (*light_tri, one of its triangles) and a
+ * point *q on it, its normal *nl, and
+ * *area_pdf, the density per area at q (for a triangle lights_area_pdf;
+ * for a sphere's, a direction in the cone from p, its nearest point on
+ * the sphere, and the cone's density turned per area). 0 when the light
+ * gives p nothing (p inside an emitting sphere). */
+static inline int lights_sample_from(const scene_t *s, vec3_t p, double u, float u2, vec3_t *q,
+                                     vec3_t *nl, float *area_pdf, uint32_t *light_tri)
+{
+    uint32_t tri = lights_sample(s, u, u2, q);
+    *light_tri = tri;
+    int32_t k = s->tri_sphere ? s->tri_sphere[tri] : -1;
+    if (k < 0) {
+        *nl = s->tri_normal[tri];
+        *area_pdf = lights_area_pdf(s, tri);
+        return 1;
+    }
+    const scene_sphere_t *sp = &s->spheres[k];
+    vec3_t axis;
+    float dc, omc;
+    if (!lights_sphere_cone(sp, p, &axis, &dc, &omc))
+        return 0;
+    /* the first number, rescaled over the whole sphere's share */
+    float u1 = (float)((u - sp->cdf_lo) / (sp->cdf_hi - sp->cdf_lo));
+    u1 = u1 < 0.0f ? 0.0f : u1 >= 1.0f ? 0x1.fffffep-1f : u1;
+    float one_minus_cos_t = u1 * omc, cos_t = 1.0f - one_minus_cos_t;
+    float sin2_t = one_minus_cos_t * (2.0f - one_minus_cos_t);
+    float sin_t = sqrtf(sin2_t > 0.0f ? sin2_t : 0.0f), phi = 2.0f * VMATH_PI * u2;
+    vec3_t t, b;
+    vec3_onb(axis, &t, &b);
+    vec3_t d =
+        vec3_add(vec3_add(vec3_scale(t, sin_t * cosf(phi)), vec3_scale(b, sin_t * sinf(phi))),
+                 vec3_scale(axis, cos_t));
+    /* the nearest intersection of p + x d with the sphere */
+    float r2 = sp->radius * sp->radius, disc = r2 - dc * dc * sin2_t;
+    float x = dc * cos_t - sqrtf(disc > 0.0f ? disc : 0.0f);
+    *q = vec3_add(p, vec3_scale(d, x));
+    *nl = vec3_normalize(vec3_sub(*q, sp->center));
+    float cos_l = -vec3_dot(*nl, d);
+    if (!(cos_l > 0.0f) || !(x > 0.0f))
+        return 0;
+    *area_pdf = sp->pick / (2.0f * VMATH_PI * omc) * cos_l / (x * x);
+    return 1;
+}
+
 #endif

@@ -52,6 +52,10 @@ typedef struct loader {
     int want_uv; /* a material has a texture: keep texture coordinates */
     uint32_t *idx, *mat;
     size_t nt, cap_t;
+    /* emitting spheres as they are loaded: their triangles [first, first +
+     * count) of the loader's list */
+    scene_sphere_t *sph;
+    size_t *sph_first, *sph_tris, nsph;
 } loader_t;
 
 static int fail(loader_t *L, const char *path, const char *fmt, ...)
@@ -1476,6 +1480,47 @@ static void sphere_uvs(const double n[3][3], double uv[3][2])
         }
 }
 
+/* An emitting sphere, for light samples through the cone it subtends
+ * (scene_sphere_t): when its material emits and its transform keeps it a
+ * sphere (a similarity: orthogonal columns of one length). */
+static int note_sphere_light(loader_t *L, const xform_t *x, const double c[3], double r,
+                             uint32_t mat, size_t first_tri)
+{
+    const material_t *m = &L->s->materials[mat];
+    if (m->type != MATERIAL_EMITTER ||
+        !(vmath_luminance(m->radiance.x, m->radiance.y, m->radiance.z) > 0))
+        return 0;
+    double len[3], dot = 0;
+    for (int j = 0; j < 3; j++)
+        len[j] = sqrt(x->m[0][j] * x->m[0][j] + x->m[1][j] * x->m[1][j] + x->m[2][j] * x->m[2][j]);
+    for (int a = 0; a < 3; a++)
+        for (int b = a + 1; b < 3; b++)
+            dot = fmax(dot, fabs(x->m[0][a] * x->m[0][b] + x->m[1][a] * x->m[1][b] +
+                                 x->m[2][a] * x->m[2][b]) /
+                                (len[a] * len[b]));
+    if (dot > 1e-6 || fabs(len[1] / len[0] - 1) > 1e-6 || fabs(len[2] / len[0] - 1) > 1e-6)
+        return 0; /* an ellipsoid: sampled by area */
+    size_t n = L->nsph + 1;
+    scene_sphere_t *sph = realloc(L->sph, n * sizeof *sph);
+    size_t *fi = sph ? realloc(L->sph_first, n * sizeof *fi) : NULL;
+    if (sph)
+        L->sph = sph;
+    if (fi)
+        L->sph_first = fi;
+    size_t *ct = fi ? realloc(L->sph_tris, n * sizeof *ct) : NULL;
+    if (!ct)
+        return fail(L, NULL, "out of memory");
+    L->sph_tris = ct;
+    double w[3];
+    for (int i = 0; i < 3; i++)
+        w[i] = x->m[i][0] * c[0] + x->m[i][1] * c[1] + x->m[i][2] * c[2] + x->t[i];
+    L->sph[L->nsph] = (scene_sphere_t){.center = to_vec3(w), .radius = (float)(r * len[0])};
+    L->sph_first[L->nsph] = first_tri;
+    L->sph_tris[L->nsph] = L->nt - first_tri;
+    L->nsph++;
+    return 0;
+}
+
 /* An icosphere: the icosahedron subdivided n times, vertices pushed onto the
  * sphere, with exact normals (p - c) / r for smooth shading. Vertices are not
  * shared between faces; they are computed identically on both sides of an
@@ -1502,6 +1547,7 @@ static int shape_sphere(loader_t *L, const cJSON *sh, const char *path, const xf
     if (reserve(L, 3 * ntri, ntri, 1) < 0)
         return -1;
     uint32_t first = (uint32_t)L->nv;
+    size_t first_tri = L->nt;
     /* Each face is split into a (2^n)^2 grid of sub-triangles by barycentric
      * steps; each corner is projected onto the unit sphere. */
     size_t k = (size_t)1 << n;
@@ -1543,7 +1589,9 @@ static int shape_sphere(loader_t *L, const cJSON *sh, const char *path, const xf
                     push_triangle(L, x, vid[0], vid[1], vid[2], mat);
                 }
     }
-    return check_coords(L, path, first);
+    if (check_coords(L, path, first) < 0)
+        return -1;
+    return note_sphere_light(L, x, c, r, mat, first_tri);
 }
 
 /* Mitsuba's disk and cylinder as triangles: the unit disk in the xy
@@ -1708,6 +1756,8 @@ static size_t keep_triangles(scene_t *s, size_t nt, light_sum_t *ls)
         if (kept != t) {
             memmove(s->indices + 3 * kept, v, 3 * sizeof(uint32_t));
             s->tri_material[kept] = s->tri_material[t];
+            if (s->tri_sphere)
+                s->tri_sphere[kept] = s->tri_sphere[t];
         }
         s->tri_normal[kept] =
             vec3_make((float)(n[0] / len), (float)(n[1] / len), (float)(n[2] / len));
@@ -1742,6 +1792,42 @@ static int build_light_cdf(loader_t *L, const light_sum_t *ls)
     return 0;
 }
 
+/* Each emitting sphere's share of the light samples (its triangles'
+ * probabilities, with every other light's share taken out) and its range
+ * of the light CDF (its triangles are consecutive there). */
+static int finish_spheres(loader_t *L)
+{
+    scene_t *s = L->s;
+    if (!L->nsph || !s->light_count)
+        return 0;
+    s->spheres = L->sph;
+    s->sphere_count = L->nsph;
+    L->sph = NULL;
+    for (size_t k = 0; k < s->sphere_count; k++) {
+        s->spheres[k].cdf_lo = 2;
+        s->spheres[k].cdf_hi = -1;
+    }
+    double *pick = calloc(s->sphere_count, sizeof *pick);
+    if (!pick)
+        return fail(L, NULL, "out of memory");
+    for (size_t i = 0; i < s->light_count; i++) {
+        uint32_t t = s->light_tris[i];
+        int32_t k = s->tri_sphere[t];
+        if (k < 0)
+            continue;
+        double n[3], len;
+        face_normal(s, s->indices + 3 * t, n, &len);
+        pick[k] += (double)s->tri_light_pdf[t] * 0.5 * len;
+        scene_sphere_t *sp = &s->spheres[k];
+        sp->cdf_lo = fmin(sp->cdf_lo, i ? s->light_cdf[i - 1] : 0.0);
+        sp->cdf_hi = fmax(sp->cdf_hi, s->light_cdf[i]);
+    }
+    for (size_t k = 0; k < s->sphere_count; k++)
+        s->spheres[k].pick = (float)pick[k];
+    free(pick);
+    return 0;
+}
+
 /* Normals, degenerate triangles and lights, once every shape is in. */
 static int finish(loader_t *L)
 {
@@ -1757,6 +1843,18 @@ static int finish(loader_t *L)
     if (!s->tri_normal || !s->tri_smooth || !s->tri_light_pdf || !ls.power) {
         free(ls.power);
         return fail(L, NULL, "out of memory for %zu triangles", nt);
+    }
+    if (L->nsph) {
+        s->tri_sphere = malloc(nt * sizeof *s->tri_sphere);
+        if (!s->tri_sphere) {
+            free(ls.power);
+            return fail(L, NULL, "out of memory for %zu triangles", nt);
+        }
+        for (size_t t = 0; t < nt; t++)
+            s->tri_sphere[t] = -1;
+        for (size_t k = 0; k < L->nsph; k++)
+            for (size_t t = L->sph_first[k]; t < L->sph_first[k] + L->sph_tris[k]; t++)
+                s->tri_sphere[t] = (int32_t)k;
     }
     size_t kept = keep_triangles(s, nt, &ls);
     double ls_total = ls.lights > 0 && isfinite(ls.total) ? ls.total : 0;
@@ -1787,6 +1885,8 @@ static int finish(loader_t *L)
     }
     if (rc == 0)
         finish_environment(s);
+    if (rc == 0)
+        rc = finish_spheres(L);
     return rc;
 }
 
@@ -1855,6 +1955,9 @@ static int load(const char *json, size_t len, const char *name, const char *base
     free(L.nrm);
     free(L.idx);
     free(L.mat);
+    free(L.sph);
+    free(L.sph_first);
+    free(L.sph_tris);
     if (rc < 0) {
         scene_destroy(&L.s);
         return -1;
@@ -1952,6 +2055,8 @@ void scene_destroy(scene_t **sp)
     free(s->light_cdf);
     free(s->delta_lights);
     free(s->delta_cdf);
+    free(s->spheres);
+    free(s->tri_sphere);
     free(s);
     *sp = NULL;
 }

@@ -84,6 +84,18 @@ typedef struct scene_light {
 /* the most such lights a scene may have */
 #define SCENE_MAX_DELTA_LIGHTS 1024
 
+/* An emitting sphere (a "sphere" shape of an emitter material placed by a
+ * similarity): light samples that pick one of its triangles take a
+ * direction in the cone it subtends instead of a point by area (pbrt's
+ * and Mitsuba's sampling of spheres), with the sphere's whole share of
+ * the light samples, pick, and its range [cdf_lo, cdf_hi) of light_cdf. */
+typedef struct scene_sphere {
+    vec3_t center;
+    float radius;
+    float pick;
+    double cdf_lo, cdf_hi;
+} scene_sphere_t;
+
 typedef struct scene {
     camera_t camera;
 
@@ -128,6 +140,11 @@ typedef struct scene {
     double *delta_cdf;
     size_t delta_count;
     float delta_pick;
+    /* emitting spheres (scene_sphere_t) and each triangle's (its index,
+     * or -1; NULL when the scene has none) */
+    scene_sphere_t *spheres;
+    size_t sphere_count;
+    int32_t *tri_sphere;
 
     /* The environment: radiance arriving from every direction where no
      * triangle blocks it (Mitsuba's constant emitter). A light sample takes

@@ -226,7 +226,7 @@ static void add_emission(path_t *path, const scene_t *s, const material_t *m, co
     float w = 1.0f;
     if (nee && !path->specular) {
         /* d is unit length, so h->t is the distance */
-        float light_pdf = lights_area_pdf(s, h->tri) * h->t * h->t / cos_o;
+        float light_pdf = lights_hit_pdf(s, h->tri, path->o, h->t, cos_o);
         w = tracer_power_heuristic(path->prev_pdf, light_pdf);
     }
     path->L = vec3_add(path->L, vec3_mul(path->beta, vec3_scale(m->radiance, w)));
@@ -255,13 +255,15 @@ static void sample_direct(const tracer_t *tr, path_t *path, const material_t *m,
             path->L = vec3_add(path->L, gain);
         return;
     }
-    vec3_t q;
-    uint32_t lt = lights_sample(s, ul, u2, &q);
+    vec3_t q, nl;
+    float area_pdf;
+    uint32_t lt;
+    if (!lights_sample_from(s, p, ul, u2, &q, &nl, &area_pdf, &lt))
+        return;
     vec3_t to = vec3_sub(q, p);
     float dist2 = vec3_dot(to, to);
     if (!(dist2 > 0.0f))
         return;
-    vec3_t nl = s->tri_normal[lt];
     vec3_t wl = vec3_scale(to, 1.0f / sqrtf(dist2));
     float cos_l = -vec3_dot(nl, wl), cos_s, bsdf_pdf;
     if (!(cos_l > 0.0f) || !material_eval(m, mh, wl, &cos_s, &bsdf_pdf))
@@ -272,7 +274,7 @@ static void sample_direct(const tracer_t *tr, path_t *path, const material_t *m,
     if (!tracer_unoccluded(tr, from, vec3_sub(target, from)))
         return;
     const material_t *lm = &s->materials[s->tri_material[lt]];
-    float light_pdf = lights_area_pdf(s, lt) * dist2 / cos_l;
+    float light_pdf = area_pdf * dist2 / cos_l;
     float w = tracer_power_heuristic(light_pdf, bsdf_pdf);
     float k = w * cos_s * VMATH_INV_PI / light_pdf;
     path->L =
@@ -489,7 +491,7 @@ static uint32_t trace_direct(const tracer_t *tr, const tracer_settings_t *st, ui
             if (lm->type != MATERIAL_EMITTER || !(cos_l > 0.0f))
                 continue;
             radiance = lm->radiance;
-            emitter_pdf = lights_area_pdf(s, lh.tri) * lh.t * lh.t / cos_l;
+            emitter_pdf = lights_hit_pdf(s, lh.tri, o, lh.t, cos_l);
         }
         if (bs.specular)
             emitter_pdf = 0.0f;

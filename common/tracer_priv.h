@@ -271,18 +271,20 @@ static inline int tracer_sample_light(const scene_t *s, vec3_t p, vec3_t ngf, do
         if (!(*light_pdf > 0.0f))
             return 0;
     } else {
-        vec3_t q;
-        uint32_t lt = lights_sample(s, ul, u2, &q);
+        vec3_t q, nl;
+        float area_pdf;
+        uint32_t lt;
+        if (!lights_sample_from(s, p, ul, u2, &q, &nl, &area_pdf, &lt))
+            return 0;
         vec3_t to = vec3_sub(q, p);
         float dist2 = vec3_dot(to, to);
         if (!(dist2 > 0.0f))
             return 0;
-        vec3_t nl = s->tri_normal[lt];
         *wl = vec3_scale(to, 1.0f / sqrtf(dist2));
         float cos_l = -vec3_dot(nl, *wl);
         if (!(cos_l > 0.0f))
             return 0;
-        *light_pdf = lights_area_pdf(s, lt) * dist2 / cos_l;
+        *light_pdf = area_pdf * dist2 / cos_l;
         *radiance = s->materials[s->tri_material[lt]].radiance;
         target = vec3_offset_ray_origin(q, nl);
     }

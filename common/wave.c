@@ -59,7 +59,7 @@ static int hit_stage(const wave_ctx_t *c, wave_state_t *w, uint16_t s, tracer_hi
         if (cos_o > 0.0f) {
             float mis = 1.0f;
             if (c->nee && !w->specular[s]) {
-                float light_pdf = lights_area_pdf(sc, h->tri) * h->t * h->t / cos_o;
+                float light_pdf = lights_hit_pdf(sc, h->tri, w->o[s], h->t, cos_o);
                 mis = tracer_power_heuristic(w->prev_pdf[s], light_pdf);
             }
             w->L[s] = vec3_add(w->L[s], vec3_mul(w->beta[s], vec3_scale(m->radiance, mis)));

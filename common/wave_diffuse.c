@@ -130,12 +130,19 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
                     /* a light with no area: likewise (tracer_delta_direct) */
                     delta |= 1u << j;
                 } else {
-                    vec3_t qp;
-                    uint32_t lt = lights_sample(sc, ul, lu2, &qp);
-                    LOAD3(q, j, qp);
-                    LOAD3(nl, j, sc->tri_normal[lt]);
-                    LOAD3(rad, j, sc->materials[sc->tri_material[lt]].radiance);
-                    area_pdf[j] = lights_area_pdf(sc, lt);
+                    /* (an emitting sphere's cone needs the point: tracer.c's
+                     * sample_direct finds it by scene_point too) */
+                    vec3_t qp, nlp,
+                        pp = sc->spheres ? scene_point(sc, tri, w->u[s], w->v[s])
+                                         : vec3_make(0, 0, 0);
+                    float apdf;
+                    uint32_t lt;
+                    if (lights_sample_from(sc, pp, ul, lu2, &qp, &nlp, &apdf, &lt)) {
+                        LOAD3(q, j, qp);
+                        LOAD3(nl, j, nlp);
+                        LOAD3(rad, j, sc->materials[sc->tri_material[lt]].radiance);
+                        area_pdf[j] = apdf;
+                    }
                 }
             }
             rng_seek(rng, dim + 4);

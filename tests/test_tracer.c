@@ -1372,6 +1372,59 @@ START_TEST(spot_falloff)
 }
 END_TEST
 
+/* An emitting sphere (radius 0.5, radiance 1, centre 2 above a diffuse
+ * plane of albedo 1/2, out of view), sampled through its cone: each pixel against the
+ * closed form albedo L (r / d)^2 cos(theta) (the whole sphere above the
+ * horizon) integrated over its footprint, to 0.5 %; and the cone's density
+ * against the one a light sample reports. */
+START_TEST(sphere_light_exact)
+{
+    static const char json[] =
+        "{\"camera\": {\"position\": [0, 0, 5], \"look_at\": [0, 0, 0], \"fov\": 20, \"width\": "
+        "6, \"height\": 6},"
+        " \"materials\": {\"w\": {\"type\": \"diffuse\", \"albedo\": [0.5, 0.5, 0.5]}, \"l\": "
+        "{\"type\": \"emitter\", \"radiance\": [1, 1, 1]}},"
+        " \"shapes\": [{\"type\": \"quad\", \"material\": \"w\", \"vertices\": [[-4, -4, 0], [4, "
+        "-4, 0], [4, 4, 0], [-4, 4, 0]]}, {\"type\": \"sphere\", \"material\": \"l\", \"center\": "
+        "[0, 2.5, 2], \"radius\": 0.5, \"subdivisions\": 6}]}";
+    scene_t *s = load_text(json);
+    ck_assert_uint_eq(s->sphere_count, 1);
+    ck_assert(fabsf(s->spheres[0].pick - 1.0f) < 1e-5f && s->spheres[0].cdf_lo == 0.0);
+    /* the density a sample reports is the cone's */
+    vec3_t p = vec3_make(0.3f, -0.2f, 0.0f);
+    for (int i = 0; i < 64; i++) {
+        vec3_t q, nl;
+        float area_pdf;
+        uint32_t lt;
+        ck_assert(lights_sample_from(s, p, (i + 0.5) / 64, (float)((i * 37 % 64) + 0.5f) / 64, &q,
+                                     &nl, &area_pdf, &lt));
+        vec3_t to = vec3_sub(q, p);
+        float d2 = vec3_dot(to, to), cos_l = -vec3_dot(nl, vec3_scale(to, 1 / sqrtf(d2)));
+        float solid = area_pdf * d2 / cos_l, want = lights_hit_pdf(s, lt, p, sqrtf(d2), cos_l);
+        ck_assert_msg(fabsf(solid / want - 1) < 1e-3f, "sample %d: %g against %g", i, solid, want);
+        ck_assert(fabsf(vec3_length(vec3_sub(q, vec3_make(0, 2.5f, 2))) - 0.5f) < 1e-5f);
+    }
+    film_t *f = render_sampler(s, 9, SCENE_INTEGRATOR_PATH, RNG_SAMPLER_SOBOL, 1024, 2, 16);
+    double half = 5 * tan(10 * M_PI / 180);
+    for (uint32_t px = 0; px < 36; px++) {
+        double rgb[3], want = 0;
+        film_mean(f, px, rgb);
+        /* row 0 at the top of the image: +y (the camera's up) */
+        double x0 = -half + 2 * half * (px % 6) / 6, y0 = half - 2 * half * (px / 6 + 1) / 6;
+        for (int a = 0; a < 32; a++)
+            for (int b = 0; b < 32; b++) {
+                double x = x0 + 2 * half / 6 * (a + 0.5) / 32;
+                double y = y0 + 2 * half / 6 * (b + 0.5) / 32;
+                double d2 = x * x + (y - 2.5) * (y - 2.5) + 4, cos_t = 2 / sqrt(d2);
+                want += 0.5 * 0.25 / d2 * cos_t / 1024;
+            }
+        ck_assert_msg(fabs(rgb[0] / want - 1) < 5e-3, "pixel %u: %g, want %g", px, rgb[0], want);
+    }
+    film_destroy(&f);
+    scene_destroy(&s);
+}
+END_TEST
+
 static Suite *tracer_suite(void)
 {
     Suite *s = suite_create("tracer");
@@ -1383,6 +1436,7 @@ static Suite *tracer_suite(void)
     tcase_add_test(tc, test_furnace_naive);
     tcase_add_test(tc, delta_lights_exact);
     tcase_add_test(tc, spot_falloff);
+    tcase_add_test(tc, sphere_light_exact);
     tcase_add_test(tc, test_furnace_coloured_albedo);
     tcase_add_test(tc, test_glass_furnace);
     tcase_add_test(tc, test_mirror_furnace);
