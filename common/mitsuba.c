@@ -1141,7 +1141,7 @@ static int conv_direct(conv_t *c, mx_node_t *n, cJSON *render)
     if (prop(n, "shading_samples") && (es >= 0 || bs >= 0))
         return NODE_FAIL(c->x, n, "give either shading_samples or emitter_samples/bsdf_samples");
     if (hide)
-        return NODE_FAIL(c->x, n, "hide_emitters is not supported");
+        cJSON_AddBoolToObject(render, "hide_emitters", 1);
     es = es < 0 ? shading : es;
     bs = bs < 0 ? shading : bs;
     if (es + bs == 0)
@@ -1167,7 +1167,7 @@ static int conv_integrator(conv_t *c, mx_node_t *n, cJSON *render)
     if (depth == 0)
         return NODE_FAIL(c->x, n, "max_depth 0 renders nothing");
     if (hide)
-        return NODE_FAIL(c->x, n, "hide_emitters is not supported");
+        cJSON_AddBoolToObject(render, "hide_emitters", 1);
     /* -1 is unlimited, as our 0 */
     cJSON_AddNumberToObject(render, "max_depth", depth < 0 ? 0 : (double)depth);
     /* Mitsuba's rr_depth 1000 and more mean no roulette: ours starts at

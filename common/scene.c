@@ -242,9 +242,9 @@ static int parse_render(loader_t *L, const cJSON *root)
         return 0;
     if (!cJSON_IsObject(r))
         return fail(L, "render", "expected an object");
-    static const char *const keys[] = {"spp",          "seed",     "integrator",
-                                       "max_depth",    "rr_depth", "emitter_samples",
-                                       "bsdf_samples", NULL};
+    static const char *const keys[] = {"spp",          "seed",          "integrator",
+                                       "max_depth",    "rr_depth",      "emitter_samples",
+                                       "bsdf_samples", "hide_emitters", NULL};
     check_keys(L, r, "render", keys);
     double spp = s->spp, seed = (double)s->seed, depth = 0, rr = SCENE_RR_DEPTH, es = 1, bs = 1;
     if (get_integer(L, r, "spp", "render", 0, 1, 4294967295.0, &spp) < 0 ||
@@ -258,6 +258,10 @@ static int parse_render(loader_t *L, const cJSON *root)
         return fail(L, "render", "emitter_samples and bsdf_samples cannot both be 0");
     s->direct_emitter_samples = (uint32_t)es;
     s->direct_bsdf_samples = (uint32_t)bs;
+    const cJSON *hide = cJSON_GetObjectItemCaseSensitive(r, "hide_emitters");
+    if (hide && !cJSON_IsBool(hide))
+        return fail(L, "render.hide_emitters", "expected true or false");
+    s->hide_emitters = (uint8_t)(hide && cJSON_IsTrue(hide));
     s->rr_depth = (uint32_t)rr;
     s->spp = (uint32_t)spp;
     s->seed = (uint64_t)seed;

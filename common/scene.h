@@ -105,9 +105,12 @@ typedef struct scene {
     scene_integrator_t integrator;
     uint32_t max_depth; /* 0: unlimited (Russian roulette ends paths) */
     uint32_t rr_depth;  /* segments before Russian roulette (SCENE_RR_DEPTH) */
-    /* the direct integrator: light samples and BSDF samples per hit,
-     * each 0..SCENE_MAX_DIRECT_SAMPLES, not both 0 (default 1 and 1) */
+                        /* the direct integrator: light samples and BSDF samples per hit,
+                         * each 0..SCENE_MAX_DIRECT_SAMPLES, not both 0 (default 1 and 1) */
     uint32_t direct_emitter_samples, direct_bsdf_samples;
+    /* Mitsuba's hide_emitters: camera rays pass through emitting triangles
+     * and see no environment (what they light is still lit) */
+    uint8_t hide_emitters;
 
     material_t *materials;
     /* the textures materials name (material_t.albedo_texture), and each

@@ -315,8 +315,9 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
     for (uint32_t depth = 0;; depth++) {
         tracer_hit_t h;
         path.rays++;
-        if (!tracer_intersect(tr, path.o, path.d, &h)) {
-            if (s->has_env)
+        if (depth == 0 ? !tracer_intersect_camera(tr, path.o, path.d, &h, &path.rays)
+                       : !tracer_intersect(tr, path.o, path.d, &h)) {
+            if (s->has_env && !(depth == 0 && s->hide_emitters))
                 path.L = tracer_env_miss(s, path.L, path.beta, path.d, path.specular, path.prev_pdf,
                                          nee);
             break;
@@ -416,8 +417,8 @@ static uint32_t trace_direct(const tracer_t *tr, const tracer_settings_t *st, ui
     *out = vec3_make(0, 0, 0);
     tracer_hit_t h;
     path.rays++;
-    if (!tracer_intersect(tr, path.o, path.d, &h)) {
-        if (s->has_env)
+    if (!tracer_intersect_camera(tr, path.o, path.d, &h, &path.rays)) {
+        if (s->has_env && !s->hide_emitters)
             *out = lights_env_radiance(s, path.d);
         return path.rays;
     }

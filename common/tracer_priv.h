@@ -95,6 +95,26 @@ static inline int tracer_intersect(const tracer_t *tr, vec3_t o, vec3_t d, trace
     return tracer_embree_intersect(tr->rtc, o, d, h);
 }
 
+/* The nearest hit of a camera ray: with the scene's hide_emitters, past
+ * every emitting triangle in the way (*rays counts the rays cast beyond
+ * the first), as Mitsuba's skip_area_emitters. */
+static inline int tracer_intersect_camera(const tracer_t *tr, vec3_t o, vec3_t d, tracer_hit_t *h,
+                                          uint32_t *rays)
+{
+    const scene_t *s = tr->scene;
+    for (int skipped = 0;; skipped++) {
+        if (!tracer_intersect(tr, o, d, h))
+            return 0;
+        if (!s->hide_emitters || skipped == 64 ||
+            s->materials[s->tri_material[h->tri]].type != MATERIAL_EMITTER)
+            return 1;
+        vec3_t ng = s->tri_normal[h->tri];
+        o = vec3_offset_ray_origin(vec3_add(o, vec3_scale(d, h->t)),
+                                   vec3_dot(ng, d) > 0.0f ? ng : vec3_neg(ng));
+        (*rays)++;
+    }
+}
+
 /* 1 if the segment o -> o + d (d unnormalised, t in [0, 1)) is free. */
 static inline int tracer_unoccluded(const tracer_t *tr, vec3_t o, vec3_t d)
 {

@@ -1425,6 +1425,41 @@ START_TEST(sphere_light_exact)
 }
 END_TEST
 
+/* hide_emitters (Mitsuba's): camera rays pass through an emitting quad
+ * (seen from its black back) to the plane it lights; rays that never meet
+ * it draw the same bits either way. */
+START_TEST(hide_emitters_passes_through)
+{
+    static const char fmt[] =
+        "{\"camera\": {\"position\": [0, 0, 5], \"look_at\": [0, 0, 0], \"fov\": 40, \"width\": 8, "
+        "\"height\": 8}, \"render\": {\"hide_emitters\": %s},"
+        " \"materials\": {\"w\": {\"type\": \"diffuse\", \"albedo\": [0.5, 0.5, 0.5]}, \"l\": "
+        "{\"type\": \"emitter\", \"radiance\": [5, 5, 5]}},"
+        " \"shapes\": [{\"type\": \"quad\", \"material\": \"w\", \"vertices\": [[-4, -4, 0], [4, "
+        "-4, 0], [4, 4, 0], [-4, 4, 0]]}, {\"type\": \"quad\", \"material\": \"l\", \"vertices\": "
+        "[[-0.4, -0.4, 1], [-0.4, 0.4, 1], [0.4, 0.4, 1], [0.4, -0.4, 1]]}]}";
+    char json[2048];
+    film_t *f[2];
+    for (int hide = 0; hide < 2; hide++) {
+        snprintf(json, sizeof json, fmt, hide ? "true" : "false");
+        scene_t *s = load_text(json);
+        ck_assert_int_eq(s->hide_emitters, hide);
+        f[hide] = render_sampler(s, 4, SCENE_INTEGRATOR_PATH, RNG_SAMPLER_SOBOL, 64, 1, 16);
+        scene_destroy(&s);
+    }
+    double centre[2][3], corner[2][3];
+    for (int hide = 0; hide < 2; hide++) {
+        film_mean(f[hide], 4 * 8 + 4, centre[hide]);
+        film_mean(f[hide], 0, corner[hide]);
+    }
+    /* the quad's back is black; behind it, the plane it lights */
+    ck_assert(centre[0][0] == 0 && centre[1][0] > 0.1);
+    ck_assert(corner[0][0] > 0 && corner[0][0] == corner[1][0]);
+    film_destroy(&f[0]);
+    film_destroy(&f[1]);
+}
+END_TEST
+
 static Suite *tracer_suite(void)
 {
     Suite *s = suite_create("tracer");
@@ -1437,6 +1472,7 @@ static Suite *tracer_suite(void)
     tcase_add_test(tc, delta_lights_exact);
     tcase_add_test(tc, spot_falloff);
     tcase_add_test(tc, sphere_light_exact);
+    tcase_add_test(tc, hide_emitters_passes_through);
     tcase_add_test(tc, test_furnace_coloured_albedo);
     tcase_add_test(tc, test_glass_furnace);
     tcase_add_test(tc, test_mirror_furnace);
