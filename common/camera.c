@@ -33,6 +33,9 @@ int camera_init(camera_t *c, vec3_t position, vec3_t look_at, vec3_t up, double 
     c->up = vec3_scale(true_up, tan_half);
     c->width = width;
     c->height = height;
+    c->film_width = width;
+    c->film_height = height;
+    c->crop_x = c->crop_y = 0;
     c->filter = CAMERA_FILTER_BOX;
     c->aperture = 0.0f;
     c->focus_distance = 0.0f;
@@ -103,5 +106,19 @@ int camera_set_gaussian(camera_t *c, double stddev, char *err, size_t errlen)
         }
         c->filter_icdf[i] = (float)(0.5 * (lo + hi));
     }
+    return 0;
+}
+
+int camera_set_crop(camera_t *c, int x, int y, int w, int h, char *err, size_t errlen)
+{
+    if (x < 0 || y < 0 || w < 1 || h < 1 || x > c->film_width - w || y > c->film_height - h) {
+        snprintf(err, errlen, "crop window (%d, %d) %dx%d leaves the %dx%d film", x, y, w, h,
+                 c->film_width, c->film_height);
+        return -1;
+    }
+    c->crop_x = x;
+    c->crop_y = y;
+    c->width = w;
+    c->height = h;
     return 0;
 }

@@ -30,7 +30,10 @@ typedef enum camera_filter {
 
 typedef struct camera {
     vec3_t position, forward, right, up; /* right and up scaled to the film */
-    int width, height;
+    int width, height;                   /* the image: the crop window of the film */
+    /* the film rays are laid out over, and the window of it the image is
+     * (Mitsuba's crop; the whole film unless camera_set_crop) */
+    int film_width, film_height, crop_x, crop_y;
     camera_filter_t filter;
     /* a thin lens (Mitsuba's thinlens) when aperture > 0: rays leave a disk
      * of that radius around the position, through the point the pinhole
@@ -55,6 +58,11 @@ int camera_init(camera_t *c, vec3_t position, vec3_t look_at, vec3_t up, double 
 /* Sets a gaussian pixel filter of standard deviation stddev pixels (its
  * radius is 4 stddev). Returns -1 with a message unless 0 < stddev <= 4. */
 int camera_set_gaussian(camera_t *c, double stddev, char *err, size_t errlen);
+
+/* Renders only the window (x, y, w, h) of the film camera_init laid out:
+ * the image becomes w x h (width, height), its rays those of the film's
+ * pixels there. -1 with a message when the window leaves the film. */
+int camera_set_crop(camera_t *c, int x, int y, int w, int h, char *err, size_t errlen);
 
 /* Where a sample with uniform u falls along one axis, from the pixel's
  * lower edge: u itself for the box filter. */
@@ -111,8 +119,8 @@ static inline vec3_t camera_ray_dir(const camera_t *c, uint32_t px, uint32_t py,
 {
     u1 = camera_filter_pos(c, u1);
     u2 = camera_filter_pos(c, u2);
-    float sx = 2.0f * ((float)px + u1) / (float)c->width - 1.0f;
-    float sy = 1.0f - 2.0f * ((float)py + u2) / (float)c->height;
+    float sx = 2.0f * ((float)(px + (uint32_t)c->crop_x) + u1) / (float)c->film_width - 1.0f;
+    float sy = 1.0f - 2.0f * ((float)(py + (uint32_t)c->crop_y) + u2) / (float)c->film_height;
     return vec3_add(c->forward, vec3_add(vec3_scale(c->right, sx), vec3_scale(c->up, sy)));
 }
 

@@ -1178,7 +1178,8 @@ static int conv_integrator(conv_t *c, mx_node_t *n, cJSON *render)
 }
 
 /* *gaussian: the gaussian filter's stddev, or 0 for the box */
-static int conv_film(conv_t *c, mx_node_t *film, long long *w, long long *h, double *gaussian)
+static int conv_film(conv_t *c, mx_node_t *film, long long *w, long long *h, double *gaussian,
+                     long long crop[4])
 {
     if (!is_type(film, "hdrfilm"))
         return unsupported_type(c, film, "hdrfilm");
@@ -1193,8 +1194,14 @@ static int conv_film(conv_t *c, mx_node_t *film, long long *w, long long *h, dou
         get_int(c->x, film, "crop_width", 1, 65536, &cw) < 0 ||
         get_int(c->x, film, "crop_height", 1, 65536, &ch) < 0)
         return -1;
-    if (cx || cy || cw != *w || ch != *h)
-        return NODE_FAIL(c->x, film, "a crop window is not supported");
+    if (cx + cw > *w || cy + ch > *h)
+        return NODE_FAIL(c->x, film,
+                         "the crop window (%lld, %lld) %lldx%lld leaves the %lldx%lld film", cx, cy,
+                         cw, ch, *w, *h);
+    crop[0] = cx;
+    crop[1] = cy;
+    crop[2] = cw;
+    crop[3] = ch;
     const char *pf = "rgb";
     if (get_string(c->x, film, "pixel_format", &pf) < 0)
         return -1;
@@ -1268,7 +1275,7 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     /* a pinhole: the focus distance changes nothing */
     static const char *const harmless[] = {"focus_distance", NULL};
     ignore_props(n, harmless);
-    long long w = 768, h = 576, spp = 0, seed = -1;
+    long long w = 768, h = 576, spp = 0, seed = -1, crop[4] = {0, 0, 768, 576};
     double gaussian = 0.5;
     for (size_t i = 0; i < n->nkids; i++) {
         mx_node_t *k = n->kids[i];
@@ -1283,7 +1290,7 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
         }
         if (strcmp(k->tag, "film") == 0) {
             k->used = 1;
-            if (conv_film(c, k, &w, &h, &gaussian) < 0)
+            if (conv_film(c, k, &w, &h, &gaussian, crop) < 0)
                 return -1;
         } else if (strcmp(k->tag, "sampler") == 0) {
             /* its count and seed; the pattern is our own sampler's */
@@ -1356,6 +1363,10 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     }
     cJSON_AddNumberToObject(cam, "width", (double)w);
     cJSON_AddNumberToObject(cam, "height", (double)h);
+    if (crop[0] || crop[1] || crop[2] != w || crop[3] != h) {
+        double cv[4] = {(double)crop[0], (double)crop[1], (double)crop[2], (double)crop[3]};
+        cJSON_AddItemToObject(cam, "crop", cJSON_CreateDoubleArray(cv, 4));
+    }
     if (thinlens) {
         cJSON_AddNumberToObject(cam, "aperture", aperture);
         cJSON_AddNumberToObject(cam, "focus_distance", focus);

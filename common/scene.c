@@ -176,7 +176,8 @@ static int parse_camera(loader_t *L, const cJSON *root)
     static const char *const keys[] = {
         "position", "look_at",        "up",           "fov",
         "width",    "height",         "filter",       "filter_stddev",
-        "aperture", "focus_distance", "orthographic", NULL};
+        "aperture", "focus_distance", "orthographic", "crop",
+        NULL};
     check_keys(L, cam, "camera", keys);
     double pos[3], at[3], up[3] = {0, 1, 0}, fov = 0, w = 0, h = 0;
     if (get_vec3(L, cam, "position", "camera", 1, pos) < 0 ||
@@ -211,6 +212,24 @@ static int parse_camera(loader_t *L, const cJSON *root)
         return -1;
     if (aperture > 0 && camera_set_thinlens(&L->s->camera, aperture, focus, msg, sizeof msg) < 0)
         return fail(L, "camera", "%s", msg);
+    /* "crop": [x, y, width, height] of the film: the image is that window */
+    const cJSON *crop = cJSON_GetObjectItemCaseSensitive(cam, "crop");
+    if (crop) {
+        double v[4];
+        int n = 0;
+        for (const cJSON *e = cJSON_IsArray(crop) ? crop->child : NULL; e && n < 5;
+             e = e->next, n++)
+            if (n < 4 && cJSON_IsNumber(e) && e->valuedouble == floor(e->valuedouble) &&
+                fabs(e->valuedouble) < 1e9)
+                v[n] = e->valuedouble;
+            else
+                n = 5;
+        if (n != 4)
+            return fail(L, "camera.crop", "expected 4 integers: x, y, width, height");
+        if (camera_set_crop(&L->s->camera, (int)v[0], (int)v[1], (int)v[2], (int)v[3], msg,
+                            sizeof msg) < 0)
+            return fail(L, "camera.crop", "%s", msg);
+    }
     /* "filter": "box" (default) or "gaussian" ("filter_stddev" pixels, 0.5) */
     const cJSON *filter = cJSON_GetObjectItemCaseSensitive(cam, "filter");
     double stddev = 0.5;

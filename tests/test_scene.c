@@ -857,6 +857,27 @@ START_TEST(feature_disk_cylinder)
 }
 END_TEST
 
+/* "crop": the image is a window of the film; outside it, refused */
+START_TEST(camera_crop)
+{
+    char buf[TEXTLEN];
+    const char *cam = "\"camera\": {\"position\": [0, 0, -5], \"look_at\": [0, 0, 0], \"fov\": 40, "
+                      "\"width\": 32, \"height\": 24, \"crop\": [4, 2, 10, 8]}";
+    scene_t *s = load_ok(build(buf, sizeof buf, cam, NULL, MATS_OK, SHAPES_OK), "crop.json");
+    ck_assert(s->camera.width == 10 && s->camera.height == 8 && s->camera.film_width == 32 &&
+              s->camera.crop_x == 4 && s->camera.crop_y == 2);
+    scene_destroy(&s);
+    const char *bad = "\"camera\": {\"position\": [0, 0, -5], \"look_at\": [0, 0, 0], \"fov\": 40, "
+                      "\"width\": 32, \"height\": 24, \"crop\": [30, 2, 10, 8]}";
+    expect_fail(build(buf, sizeof buf, bad, NULL, MATS_OK, SHAPES_OK), "crop-bad.json",
+                "camera.crop", "leaves the 32x24 film", NULL);
+    const char *odd = "\"camera\": {\"position\": [0, 0, -5], \"look_at\": [0, 0, 0], \"fov\": 40, "
+                      "\"width\": 32, \"height\": 24, \"crop\": [1, 2, 3]}";
+    expect_fail(build(buf, sizeof buf, odd, NULL, MATS_OK, SHAPES_OK), "crop-odd.json",
+                "camera.crop", "expected 4 integers", NULL);
+}
+END_TEST
+
 START_TEST(feature_triangles)
 {
     char buf[TEXTLEN];
@@ -1273,6 +1294,7 @@ static Suite *scene_suite(void)
     tcase_add_test(tc, bad_material_type);
     tcase_add_test(tc, glossy_materials);
     tcase_add_test(tc, feature_disk_cylinder);
+    tcase_add_test(tc, camera_crop);
     tcase_add_test(tc, bad_shape_type);
     tcase_add_test(tc, bad_mesh_missing);
     tcase_add_test(tc, bad_mesh_malformed);
