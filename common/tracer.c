@@ -315,8 +315,9 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
     for (uint32_t depth = 0;; depth++) {
         tracer_hit_t h;
         path.rays++;
-        if (depth == 0 ? !tracer_intersect_camera(tr, path.o, path.d, &h, &path.rays)
-                       : !tracer_intersect(tr, path.o, path.d, &h)) {
+        if (s->hide_emitters && depth == 0
+                ? !tracer_intersect_camera(tr, path.o, path.d, &h, &path.rays)
+                : !tracer_intersect(tr, path.o, path.d, &h)) {
             if (s->has_env && !(depth == 0 && s->hide_emitters))
                 path.L = tracer_env_miss(s, path.L, path.beta, path.d, path.specular, path.prev_pdf,
                                          nee);
@@ -605,6 +606,7 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_ta
         .nee = st->integrator == SCENE_INTEGRATOR_PATH &&
                (s->light_count > 0 || s->has_env || s->delta_count > 0),
         .env = s->has_env,
+        .hide_camera = s->hide_emitters,
     };
     uint64_t rays = 0, samples = 0;
     /* runs of whole tasks of at most WAVE_MAX_SAMPLES samples */

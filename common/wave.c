@@ -111,14 +111,14 @@ void wave_trace(const wave_ctx_t *c, wave_state_t *w, const tracer_task_t *tasks
             tracer_hit_t h;
             material_type_t type;
             w->rays[s]++;
-            if (w->depth[s] == 0
+            if (c->hide_camera && w->depth[s] == 0
                     ? tracer_intersect_camera(c->tracer, w->o[s], w->d[s], &h, &w->rays[s])
                     : tracer_intersect(c->tracer, w->o[s], w->d[s], &h)) {
                 if (hit_stage(c, w, s, &h, &type)) {
                     queue[type][queued[type]++] = s;
                     continue;
                 }
-            } else if (c->env && !(w->depth[s] == 0 && c->scene->hide_emitters)) {
+            } else if (c->env && !(c->hide_camera && w->depth[s] == 0)) {
                 w->L[s] = tracer_env_miss(c->scene, w->L[s], w->beta[s], w->d[s], w->specular[s],
                                           w->prev_pdf[s], c->nee);
             }

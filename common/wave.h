@@ -45,8 +45,9 @@ typedef struct wave_ctx {
     const tracer_t *tracer;
     const scene_t *scene;
     const tracer_settings_t *settings;
-    int nee; /* next-event estimation: the path integrator, with lights */
-    int env; /* the scene has an environment (scene_t.has_env) */
+    int nee;         /* next-event estimation: the path integrator, with lights */
+    int env;         /* the scene has an environment (scene_t.has_env) */
+    int hide_camera; /* scene_t.hide_emitters: camera rays pass emitters */
 } wave_ctx_t;
 
 /* The paths in flight, one entry per slot. */
