@@ -245,7 +245,7 @@ static void sample_direct(const tracer_t *tr, path_t *path, const material_t *m,
     float pick;
     int env = lights_pick_env(s, &ul);
     if (env || lights_pick_delta(s, &ul, &which, &pick)) {
-        vec3_t from, seg, gain;
+        vec3_t from = {0, 0, 0}, seg = from, gain = from;
         if (env ? !tracer_env_direct(s, m, m->albedo, path->beta, p, mh, ul, u2, &from, &seg, &gain)
                 : !tracer_delta_direct(s, m, m->albedo, path->beta, p, mh, which, pick, &from, &seg,
                                        &gain))
