@@ -28,10 +28,10 @@ void bitmap_free(bitmap_t *b)
     b->width = b->height = 0;
 }
 
-static int too_large(const char *name, unsigned w, unsigned h, char *err, size_t errlen)
+static int too_large(const char *name, unsigned w, unsigned h, size_t max, char *err, size_t errlen)
 {
-    if (w == 0 || h == 0 || (uint64_t)w * h > BITMAP_MAX_TEXELS) {
-        snprintf(err, errlen, "%s: a %ux%u image (1 to %u texels)", name, w, h, BITMAP_MAX_TEXELS);
+    if (w == 0 || h == 0 || (uint64_t)w * h > max) {
+        snprintf(err, errlen, "%s: a %ux%u image (1 to %zu texels)", name, w, h, max);
         return 1;
     }
     return 0;
@@ -51,7 +51,7 @@ static float *from_bytes(const unsigned char *px, size_t texels, int raw)
     return rgb;
 }
 
-static int decode_png(const char *name, const unsigned char *data, size_t size, int raw,
+static int decode_png(const char *name, const unsigned char *data, size_t size, int raw, size_t max,
                       bitmap_t *out, char *err, size_t errlen)
 {
     png_image img;
@@ -59,9 +59,10 @@ static int decode_png(const char *name, const unsigned char *data, size_t size, 
     img.version = PNG_IMAGE_VERSION;
     if (!png_image_begin_read_from_memory(&img, data, size)) {
         snprintf(err, errlen, "%s: not a readable PNG (%s)", name, img.message);
+        png_image_free(&img);
         return -1;
     }
-    if (too_large(name, img.width, img.height, err, errlen)) {
+    if (too_large(name, img.width, img.height, max, err, errlen)) {
         png_image_free(&img);
         return -1;
     }
@@ -75,6 +76,7 @@ static int decode_png(const char *name, const unsigned char *data, size_t size, 
     }
     if (!png_image_finish_read(&img, NULL, px, 0, NULL)) {
         snprintf(err, errlen, "%s: not a readable PNG (%s)", name, img.message);
+        png_image_free(&img); /* (a no-op when libpng freed it already) */
         free(px);
         return -1;
     }
@@ -110,7 +112,7 @@ static void jpeg_quiet(j_common_ptr cinfo, int level)
 }
 
 static int decode_jpeg(const char *name, const unsigned char *data, size_t size, int raw,
-                       bitmap_t *out, char *err, size_t errlen)
+                       size_t max, bitmap_t *out, char *err, size_t errlen)
 {
     struct jpeg_decompress_struct cinfo;
     jpeg_fail_t fail;
@@ -130,7 +132,7 @@ static int decode_jpeg(const char *name, const unsigned char *data, size_t size,
     }
     jpeg_mem_src(&cinfo, data, (unsigned long)size);
     jpeg_read_header(&cinfo, TRUE);
-    if (too_large(name, cinfo.image_width, cinfo.image_height, err, errlen)) {
+    if (too_large(name, cinfo.image_width, cinfo.image_height, max, err, errlen)) {
         jpeg_destroy_decompress(&cinfo);
         return -1;
     }
@@ -166,11 +168,11 @@ static int decode_jpeg(const char *name, const unsigned char *data, size_t size,
     return 0;
 }
 
-static int decode_exr(const char *name, const unsigned char *data, size_t size, bitmap_t *out,
-                      char *err, size_t errlen)
+static int decode_exr(const char *name, const unsigned char *data, size_t size, size_t max,
+                      bitmap_t *out, char *err, size_t errlen)
 {
     image_t *img = NULL;
-    if (image_read_exr_buffer(name, data, size, &img, err, errlen) < 0)
+    if (image_read_exr_buffer_capped(name, data, size, (long long)max, &img, err, errlen) < 0)
         return -1;
     const float *ch[3] = {image_channel(img, "R"), image_channel(img, "G"),
                           image_channel(img, "B")};
@@ -180,7 +182,7 @@ static int decode_exr(const char *name, const unsigned char *data, size_t size, 
         image_destroy(&img);
         return -1;
     }
-    if (too_large(name, (unsigned)img->width, (unsigned)img->height, err, errlen)) {
+    if (too_large(name, (unsigned)img->width, (unsigned)img->height, max, err, errlen)) {
         image_destroy(&img);
         return -1;
     }
@@ -200,18 +202,18 @@ static int decode_exr(const char *name, const unsigned char *data, size_t size, 
     return 0;
 }
 
-int bitmap_decode(const char *name, const unsigned char *data, size_t size, int raw, bitmap_t *out,
-                  char *err, size_t errlen)
+int bitmap_decode(const char *name, const unsigned char *data, size_t size, int raw,
+                  size_t max_texels, bitmap_t *out, char *err, size_t errlen)
 {
     memset(out, 0, sizeof *out);
     static const unsigned char png_sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
     static const unsigned char exr_sig[4] = {0x76, 0x2f, 0x31, 0x01};
     if (size >= 8 && memcmp(data, png_sig, 8) == 0)
-        return decode_png(name, data, size, raw, out, err, errlen);
+        return decode_png(name, data, size, raw, max_texels, out, err, errlen);
     if (size >= 3 && data[0] == 0xff && data[1] == 0xd8 && data[2] == 0xff)
-        return decode_jpeg(name, data, size, raw, out, err, errlen);
+        return decode_jpeg(name, data, size, raw, max_texels, out, err, errlen);
     if (size >= 4 && memcmp(data, exr_sig, 4) == 0)
-        return decode_exr(name, data, size, out, err, errlen);
+        return decode_exr(name, data, size, max_texels, out, err, errlen);
     snprintf(err, errlen, "%s: not a PNG, JPEG or OpenEXR image", name);
     return -1;
 }

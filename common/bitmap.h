@@ -21,10 +21,12 @@ typedef struct bitmap {
 } bitmap_t;
 
 /* Decodes the file `name` held in data[0..size) by its signature (PNG,
- * JPEG or OpenEXR) into *out. Returns 0, or -1 with a message naming the
- * file and what is wrong. */
-int bitmap_decode(const char *name, const unsigned char *data, size_t size, int raw, bitmap_t *out,
-                  char *err, size_t errlen);
+ * JPEG or OpenEXR) into *out, refusing an image of more than max_texels
+ * texels (BITMAP_MAX_TEXELS for a scene; the fuzz target passes less, to
+ * stay within its memory limit) before decoding it. Returns 0, or -1 with
+ * a message naming the file and what is wrong. */
+int bitmap_decode(const char *name, const unsigned char *data, size_t size, int raw,
+                  size_t max_texels, bitmap_t *out, char *err, size_t errlen);
 
 /* Frees the texels; accepts a zeroed bitmap. */
 void bitmap_free(bitmap_t *b);

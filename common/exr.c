@@ -31,6 +31,7 @@ typedef struct exr_io {
     int fd;
     const unsigned char *mem; /* image_read_exr_buffer: the file in memory */
     size_t mem_size;
+    long long max_pixels; /* the most pixels to accept; 0: IMAGE_MAX_PIXELS */
 } exr_io_t;
 
 static void exr_error_cb(exr_const_context_t ctxt, exr_result_t code, const char *msg)
@@ -535,7 +536,8 @@ static int exr_read_ctx(exr_context_t ctx, image_t **out, exr_io_t *io, const ch
     }
     long long w = (long long)dw.max.x - dw.min.x + 1;
     long long h = (long long)dw.max.y - dw.min.y + 1;
-    if (w <= 0 || h <= 0 || w > IMAGE_MAX_SIDE || h > IMAGE_MAX_SIDE || w * h > IMAGE_MAX_PIXELS) {
+    long long max_pixels = io->max_pixels ? io->max_pixels : IMAGE_MAX_PIXELS;
+    if (w <= 0 || h <= 0 || w > IMAGE_MAX_SIDE || h > IMAGE_MAX_SIDE || w * h > max_pixels) {
         image_set_err(err, errlen, "%s: unsupported image size %lldx%lld", path, w, h);
         return -1;
     }
@@ -650,6 +652,12 @@ static int64_t exr_mem_size(exr_const_context_t ctxt, void *userdata)
 int image_read_exr_buffer(const char *name, const unsigned char *data, size_t size, image_t **out,
                           char *err, size_t errlen)
 {
+    return image_read_exr_buffer_capped(name, data, size, IMAGE_MAX_PIXELS, out, err, errlen);
+}
+
+int image_read_exr_buffer_capped(const char *name, const unsigned char *data, size_t size,
+                                 long long max_pixels, image_t **out, char *err, size_t errlen)
+{
     if (out)
         *out = NULL;
     if (!name || !out || (!data && size)) {
@@ -666,6 +674,7 @@ int image_read_exr_buffer(const char *name, const unsigned char *data, size_t si
     io.fd = -1;
     io.mem = data;
     io.mem_size = size;
+    io.max_pixels = max_pixels;
     exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
     init.error_handler_fn = exr_error_cb;
     init.user_data = &io;

@@ -78,6 +78,10 @@ int image_read_exr(const char *path, image_t **out, char *err, size_t errlen);
  * messages. */
 int image_read_exr_buffer(const char *name, const unsigned char *data, size_t size, image_t **out,
                           char *err, size_t errlen);
+/* The same, refusing an image of more than max_pixels pixels before any
+ * of it is allocated (a bitmap texture's cap). */
+int image_read_exr_buffer_capped(const char *name, const unsigned char *data, size_t size,
+                                 long long max_pixels, image_t **out, char *err, size_t errlen);
 
 /* Writes an 8-bit sRGB PNG of channels R, G, B (clamped to [0, 1] after the
  * sRGB transfer curve, scaled by exposure first). -1 with a message when the

@@ -678,8 +678,8 @@ static int parse_bitmap(loader_t *L, const cJSON *t, const char *q, texture_t *t
         return -1;
     bitmap_t b;
     char msg[VB_ERR_LEN];
-    int rc =
-        bitmap_decode(file->valuestring, data, size, raw && cJSON_IsTrue(raw), &b, msg, sizeof msg);
+    int rc = bitmap_decode(file->valuestring, data, size, raw && cJSON_IsTrue(raw),
+                           BITMAP_MAX_TEXELS, &b, msg, sizeof msg);
     free(owned);
     if (rc < 0)
         return fail(L, q, "%s", msg);

@@ -87,18 +87,20 @@ START_TEST(png_decoded)
     unsigned char *png = png_bytes(px, 2, 2, &n);
     bitmap_t b;
     char err[256];
-    ck_assert_msg(bitmap_decode("t.png", png, n, 0, &b, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(bitmap_decode("t.png", png, n, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) == 0,
+                  "%s", err);
     ck_assert(b.width == 2 && b.height == 2);
     ck_assert(b.rgb[0] == 1.0f && b.rgb[1] == 0.0f && b.rgb[4] == 1.0f && b.rgb[8] == 1.0f);
     /* row 1, column 1: sRGB 128 in linear */
     ck_assert(fabsf(b.rgb[9] - bitmap_srgb_to_linear(128.0f / 255.0f)) < 1e-7f);
     bitmap_free(&b);
     /* raw: the stored values */
-    ck_assert(bitmap_decode("t.png", png, n, 1, &b, err, sizeof err) == 0);
+    ck_assert(bitmap_decode("t.png", png, n, 1, BITMAP_MAX_TEXELS, &b, err, sizeof err) == 0);
     ck_assert(fabsf(b.rgb[9] - 128.0f / 255.0f) < 1e-7f);
     bitmap_free(&b);
     /* cut short: refused with the name */
-    ck_assert(bitmap_decode("cut.png", png, n / 2, 0, &b, err, sizeof err) == -1);
+    ck_assert(bitmap_decode("cut.png", png, n / 2, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) ==
+              -1);
     ck_assert_msg(strstr(err, "cut.png") && strstr(err, "not a readable PNG"), "%s", err);
     ck_assert_ptr_null(b.rgb);
     free(png);
@@ -111,7 +113,8 @@ START_TEST(jpeg_decoded)
     unsigned char *jpg = jpeg_bytes(5, 3, 200, &n);
     bitmap_t b;
     char err[256];
-    ck_assert_msg(bitmap_decode("t.jpg", jpg, n, 0, &b, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(bitmap_decode("t.jpg", jpg, n, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) == 0,
+                  "%s", err);
     ck_assert(b.width == 5 && b.height == 3);
     /* a flat grey survives JPEG to within a level */
     for (int i = 0; i < 15 * 3; i++)
@@ -119,12 +122,13 @@ START_TEST(jpeg_decoded)
                       b.rgb[i]);
     bitmap_free(&b);
     /* a truncated stream: libjpeg's error, not a crash or an exit */
-    ck_assert(bitmap_decode("cut.jpg", jpg, 40, 0, &b, err, sizeof err) == -1);
+    ck_assert(bitmap_decode("cut.jpg", jpg, 40, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) == -1);
     ck_assert_msg(strstr(err, "cut.jpg") && strstr(err, "not a readable JPEG"), "%s", err);
     free(jpg);
     /* neither: named */
     const unsigned char junk[16] = "GIF89a.........";
-    ck_assert(bitmap_decode("x.gif", junk, sizeof junk, 0, &b, err, sizeof err) == -1);
+    ck_assert(
+        bitmap_decode("x.gif", junk, sizeof junk, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) == -1);
     ck_assert_msg(strstr(err, "x.gif: not a PNG, JPEG or OpenEXR image"), "%s", err);
 }
 END_TEST
@@ -149,7 +153,8 @@ START_TEST(exr_decoded_and_size_capped)
     size_t n = fread(buf, 1, sizeof buf, f);
     fclose(f);
     bitmap_t b;
-    ck_assert_msg(bitmap_decode("t.exr", buf, n, 0, &b, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(bitmap_decode("t.exr", buf, n, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) == 0,
+                  "%s", err);
     /* linear as stored (half floats hold these exactly), row 0 on top */
     ck_assert(b.width == 3 && b.height == 2 && b.rgb[3 * 4] == 1.0f && b.rgb[1] == 2.0f);
     bitmap_free(&b);
@@ -166,7 +171,7 @@ START_TEST(exr_decoded_and_size_capped)
     unsigned char be[4] = {(unsigned char)(crc >> 24), (unsigned char)(crc >> 16),
                            (unsigned char)(crc >> 8), (unsigned char)crc};
     memcpy(ihdr + 17, be, 4);
-    ck_assert(bitmap_decode("big.png", png, n, 0, &b, err, sizeof err) == -1);
+    ck_assert(bitmap_decode("big.png", png, n, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) == -1);
     ck_assert_msg(strstr(err, "big.png: a 5000x5000 image"), "%s", err);
     free(png);
 }
