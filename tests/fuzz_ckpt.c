@@ -1,7 +1,7 @@
 /* fuzz_ckpt.c - fuzz target for checkpoints: the payload of a checkpoint
  * record as master/persist.c (recover_progress) reads it, a block of
  * counters (JSON, persist_apply_extras) and then the scheduler's stream
- * (sched_load in master/sched.c).
+ * (sched_load in master/sched_save.c).
  *
  * An input is one byte K, then the payload. K & 3 picks the scheduler
  * config the job was made with (fuzzmaster.h: A, B, C; 3 is A); K & 4 set:

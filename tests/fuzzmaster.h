@@ -10,7 +10,7 @@
  *    checksum right, and a decoder checks them first (the record's) or
  *    last (the stream's): an input can ask for them to be made right, so
  *    that the fuzzer reaches what comes after. They copy store.c's record
- *    layout (with its store_sum) and sched.c's stream checksum;
+ *    layout (with its store_sum) and sched_save.c's stream checksum;
  *    gen_fuzz_seeds compares them with the real writers' output, so a
  *    change there is noticed;
  *  - the size bound on submissions (fuzz_submit_too_big).
@@ -107,7 +107,7 @@ static inline void fuzz_seal_record(store_kind_t kind, const uint8_t *payload, s
     store_sum_final(&c, out + FUZZ_REC_HEADER + n + 8);
 }
 
-/* sched.c's stream checksum: 8-byte words (the last one zero-padded), each
+/* sched_save.c's stream checksum: 8-byte words (the last one zero-padded), each
  * folded in by a bijection, then the length, then a final mix. */
 static inline uint64_t fuzz_sched_checksum(const uint8_t *p, size_t n)
 {

@@ -459,7 +459,7 @@ static void check_loads(const uint8_t *file, size_t n, const sched_config_t *cfg
     memcpy(copy, rec.data + start, rec.size - start);
     fuzz_fix_sched_checksum(copy, rec.size - start);
     if (memcmp(copy, rec.data + start, rec.size - start) != 0)
-        die("fuzzmaster.h's fuzz_sched_checksum no longer matches sched.c's checksum");
+        die("fuzzmaster.h's fuzz_sched_checksum no longer matches sched_save.c's checksum");
     free(copy);
     sched_t *s = sched_load(cfg, store_rec_read, &rec, err, sizeof err);
     if (!s)
