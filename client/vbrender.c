@@ -535,6 +535,20 @@ static void print_summary(const cJSON *job, int workers, int threads)
         render_si(json_num(job, "samples") / secs, a2, sizeof a2),
         render_si(json_num(job, "rays"), a3, sizeof a3),
         render_si(json_num(job, "rays") / secs, a4, sizeof a4), json_num(job, "nonfinite"));
+    if (cJSON_GetObjectItemCaseSensitive(job, "pixels_at_cap")) {
+        /* which pixels the rule stopped and which only the cap did: a pixel
+         * at the cap is one the target error could not vouch for */
+        const double pixels = json_num(job, "width") * json_num(job, "height"),
+                     at_cap = json_num(job, "pixels_at_cap");
+        fprintf(stderr,
+                "vbrender: target error %g: %.0f of %.0f pixels stopped below the cap "
+                "(%.1f %%), %.0f ran to the cap of %.0f spp%s\n",
+                json_num(job, "target_error"), pixels - at_cap, pixels,
+                pixels > 0 ? 100.0 * (pixels - at_cap) / pixels : 0.0, at_cap, json_num(job, "spp"),
+                cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(job, "stopped_on_target"))
+                    ? " (the job stopped once its target share of pixels had met the target)"
+                    : "");
+    }
 }
 
 /* ---- render: the embedded master and workers ------------------------------------ */

@@ -72,7 +72,11 @@ static const settings_def_t table[] = {
      .default_from = SETTINGS_DEFAULT_OTHER,
      .def = JOB_DEFAULT_TARGET_ERROR,
      .def_text = "none",
-     .help = "stop a pixel when its confidence half-width <= E x mean"},
+     .help = "stop a pixel when its confidence half-width\n"
+             "<= E x mean. Light that no path has found yet\n"
+             "(a pixel seen only by rare paths) looks converged:\n"
+             "no rule can vouch for it. The summary counts the\n"
+             "pixels the rule stopped and those that ran to --spp"},
     {.flag = "--confidence",
      .key = "confidence",
      .metavar = "C",

@@ -384,6 +384,7 @@ static void error_json(const job_t *j, cJSON *o, int with_series)
         cJSON_AddNumberToObject(o, "target_error", j->target_error);
         cJSON_AddNumberToObject(o, "converged_pixels", (double)sched_converged(j->sched));
         cJSON_AddBoolToObject(o, "stopped_on_target", sched_stopped_on_target(j->sched));
+        cJSON_AddNumberToObject(o, "pixels_at_cap", (double)sched_pixels_at_cap(j->sched));
     }
     if (j->series_n > 0) {
         const double *last = j->series + JOB_SERIES_COLUMNS * (j->series_n - 1);

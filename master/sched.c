@@ -369,6 +369,10 @@ int sched_stopped_on_target(const sched_t *s)
 {
     return s->stopped_on_target;
 }
+uint64_t sched_pixels_at_cap(const sched_t *s)
+{
+    return s->at_cap;
+}
 
 int sched_pixel_in_layer(const sched_t *s, uint32_t layer, uint32_t pixel)
 {
@@ -675,6 +679,7 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
             sched_keep_prev(s, p);
         film_merge(s->film, &results[i]);
         s->samples_done += rec[i].sample_count;
+        s->at_cap += first_sample_of(s, p) == s->cfg.spp;
         s->nonfinite += results[i].nonfinite;
         if (s->pvar_cur)
             s->pvar_cur[p] = results[i].pvar;

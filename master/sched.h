@@ -232,6 +232,11 @@ uint64_t sched_pixel_layers_skipped(const sched_t *s);
  * whether the job stopped on the target rather than at spp. */
 uint64_t sched_converged(const sched_t *s);
 int sched_stopped_on_target(const sched_t *s);
+/* Pixels that have taken every sample spp allows. With a target error, the
+ * pixels its rule has not stopped (a pixel whose light no path has found
+ * yet looks converged and stops early, so this is a lower bound on the
+ * pixels the rule could not judge). */
+uint64_t sched_pixels_at_cap(const sched_t *s);
 
 /* The film: per-pixel sums merged so far. */
 const film_t *sched_film(const sched_t *s);

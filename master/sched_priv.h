@@ -86,6 +86,7 @@ struct sched {
     uint64_t *requeued; /* handed back, issued first (LIFO) */
     size_t rq_len, rq_cap;
     uint64_t samples_done, pixel_layers, skipped, nonfinite;
+    uint64_t at_cap; /* pixels whose samples taken reached spp (not saved: from the film) */
 };
 
 static inline uint64_t task_id(const sched_t *s, uint32_t layer, uint32_t range)

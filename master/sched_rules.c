@@ -43,8 +43,8 @@ static void own_thesis(const sched_t *s, uint32_t p0, uint32_t n, double *out)
 static void own_variance(const sched_t *s, uint32_t p0, uint32_t n, double *out)
 {
     for (uint32_t i = 0; i < n; i++)
-        out[i] = s->film->pixels[p0 + i].count >= 2 ? film_variance_of_mean(s->film, p0 + i)
-                                                    : INFINITY;
+        out[i] =
+            s->film->pixels[p0 + i].count >= 2 ? film_variance_of_mean(s->film, p0 + i) : INFINITY;
 }
 
 /* relerr and relmse: the relative variance of one layer's mean, over the
@@ -177,7 +177,8 @@ snap_row_t *sched_snap_row(sched_t *s, int y)
     uint32_t w = s->cfg.width;
     const uint32_t ahead = s->complete, rp = s->range_pixels;
     const int any_ahead = ahead < s->decided_n;
-    const int target = s->cfg.target_error > 0, counts = sched_keeps_counts(s), cost = sched_weighs_cost(s);
+    const int target = s->cfg.target_error > 0, counts = sched_keeps_counts(s),
+              cost = sched_weighs_cost(s);
     if (s->complete == 0) { /* layers 0 and 1: nothing merged yet */
         memset(r->metric, 0, w * sizeof(double));
         memset(r->rvar, 0, w * sizeof(double));
@@ -415,8 +416,8 @@ void sched_decide_layer(sched_t *s, uint32_t layer)
                 for (int dx = -1; dx <= 1 && !chosen; dx++)
                     if (x + dx >= 0 && x + dx < w)
                         chosen = (up && up[x + dx]) || sel[x + dx] || (down && down[x + dx]);
-            int in =
-                chosen && !stop_all && !(target && (conv_of ? conv_of[p] : sched_meets_target(s, x, y)));
+            int in = chosen && !stop_all &&
+                     !(target && (conv_of ? conv_of[p] : sched_meets_target(s, x, y)));
             if (in) {
                 set_member(s, layer, p);
                 s->pixel_layers++;

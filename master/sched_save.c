@@ -556,7 +556,8 @@ static void v5_decided(sched_t *s, const uint8_t *d, size_t off, size_t len, voi
 static int load_v5(sched_t *s, loader_t *r, char *err, size_t errlen)
 {
     const size_t n = s->npix, L = s->layers, R = s->ranges;
-    const int target = s->cfg.target_error > 0, counts = sched_keeps_counts(s), cost = sched_weighs_cost(s);
+    const int target = s->cfg.target_error > 0, counts = sched_keeps_counts(s),
+              cost = sched_weighs_cost(s);
     const size_t tn = target ? n : 0, cn = counts ? n : 0, kn = cost ? n : 0;
     uint64_t ct[CT_COUNT_V5];
     int rc = -1;
@@ -935,6 +936,10 @@ sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, ch
         snprintf(err, errlen, "checkpoint: checksum mismatch (the stream is corrupt)");
         sched_destroy(&s);
         return NULL;
+    }
+    for (uint32_t p = 0; p < s->npix; p++) {
+        const film_pixel_t *fp = &s->film->pixels[p];
+        s->at_cap += (uint64_t)fp->count + fp->nonfinite == s->cfg.spp;
     }
     /* The ready queue in id order: results merge per pixel in layer order
      * and decisions read snapshots only, so the order tasks are issued in

@@ -100,6 +100,7 @@ int sched_meets_target(sched_t *s, int x, int y)
 {
     uint32_t nb = sched_snap_row(s, y)->nb[x];
     return nb >= SCHED_TARGET_MIN_LAYERS &&
-           sched_t_factor(s, &s->t_target, s->cfg.confidence, nb - 1) * sqrt(window_max(s, x, y) / nb) <=
+           sched_t_factor(s, &s->t_target, s->cfg.confidence, nb - 1) *
+                   sqrt(window_max(s, x, y) / nb) <=
                s->cfg.target_error;
 }

@@ -134,8 +134,10 @@ START_TEST(test_target_error_stops_early)
     ck_assert(image_read_exr(img, &im, err, sizeof err) == 0);
     const float *n = image_channel(im, "samples");
     double total = 0, lo = 1e30, hi = 0;
+    int at_cap = 0;
     for (int i = 0; i < 24 * 24; i++) {
         total += n[i];
+        at_cap += n[i] == 4096;
         lo = n[i] < lo ? n[i] : lo;
         hi = n[i] > hi ? n[i] : hi;
     }
@@ -145,6 +147,13 @@ START_TEST(test_target_error_stops_early)
                   "a pixel stopped after %g samples (before %d layers)", lo,
                   SCHED_TARGET_MIN_LAYERS);
     ck_assert_msg(hi > lo, "every pixel took %g samples", lo);
+    /* the summary says which pixels the rule stopped and which ran to the cap */
+    char want[160];
+    snprintf(want, sizeof want, "target error 0.3: %d of %d pixels stopped below the cap",
+             24 * 24 - at_cap, 24 * 24);
+    ck_assert_msg(strstr(out, want) != NULL, "no \"%s\" in: %s", want, out);
+    snprintf(want, sizeof want, "%d ran to the cap of 4096 spp", at_cap);
+    ck_assert_msg(strstr(out, want) != NULL, "no \"%s\" in: %s", want, out);
     image_destroy(&im);
 }
 END_TEST

@@ -440,6 +440,8 @@ START_TEST(test_target_error_stops)
                           (unsigned long long)f->pixels[p].count);
     }
     ck_assert_uint_eq(sched_converged(s), steady_alone);
+    /* the rule stopped the steady pixels alone; the rest ran to the cap */
+    ck_assert_uint_eq(sched_pixels_at_cap(s), 16 - steady_alone);
     ck_assert(!sched_stopped_on_target(s)); /* not all converged */
     sched_destroy(&s);
     /* a share the converged pixels reach: the job itself stops early */
@@ -449,6 +451,7 @@ START_TEST(test_target_error_stops)
     ck_assert(sched_done(s));
     ck_assert(sched_stopped_on_target(s));
     ck_assert(sched_film(s)->pixels[15].count < 64);
+    ck_assert_uint_eq(sched_pixels_at_cap(s), 0);
     sched_destroy(&s);
 }
 END_TEST
@@ -1259,6 +1262,7 @@ static void assert_same_job(const sched_t *a, const sched_t *b, const char *what
     ck_assert_uint_eq(sched_pixel_layers_skipped(a), sched_pixel_layers_skipped(b));
     ck_assert_uint_eq(sched_converged(a), sched_converged(b));
     ck_assert_int_eq(sched_stopped_on_target(a), sched_stopped_on_target(b));
+    ck_assert_uint_eq(sched_pixels_at_cap(a), sched_pixels_at_cap(b));
     ck_assert_uint_eq(sched_samples_done(a), sched_samples_done(b));
     ck_assert_uint_eq(sched_nonfinite(a), sched_nonfinite(b));
     ck_assert_uint_eq(sched_layers_complete(a), sched_layers_complete(b));
