@@ -352,6 +352,8 @@ bench-error: deps
 	bash bench/run-sampler.sh
 	bash bench/error/run.sh
 	bash bench/error/run.sh --repeat
+	bash bench/error/run.sh --calibrate
+	bash bench/error/run.sh --coverage
 	bash bench/mitsuba-scenes/run.sh
 
 clean:

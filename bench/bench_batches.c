@@ -2,11 +2,12 @@
  * stopping rules offline (bench/error/target.py).
  *
  *   bench_batches SCENE.json OUT.f64 --layers L [--granularity G] [--seed S]
- *                 [--sampler sobol|independent] [--threads T]
+ *                 [--sampler sobol|independent] [--replicates R] [--threads T]
  *                 [--counts COUNTS.u32] [--summary]
  *
  * Traces layers 0..L-1 of every pixel exactly as a uniform job's tasks do
- * (first_sample = layer * G, G samples, the job's seed and sampler), so the
+ * (layer l's first sample as rng_replicate_first_sample places it for the
+ * job's replicates, G samples, the job's seed and sampler), so the
  * numbers are the batch means the master's --target-error rule sees, bit for
  * bit. OUT is L x pixels little-endian doubles, layer-major: luminance of the
  * layer's finite samples' mean (0 when none was finite), NaN past a pixel's
@@ -23,6 +24,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "rng.h"
 #include "scene.h"
 #include "tracer.h"
 #include "vmath.h"
@@ -31,6 +33,8 @@ typedef struct {
     const tracer_t *tracer;
     tracer_settings_t settings;
     uint32_t npix, layers, granularity, threads, index;
+    uint32_t replicates;    /* the job's (default 1: a study passes the master's,
+                               JOB_DEFAULT_REPLICATES, to mirror its jobs) */
     const uint32_t *counts; /* per pixel, or NULL: layers for all */
     int summary;
     double *out; /* layers x npix, or 3 x npix with summary */
@@ -74,7 +78,8 @@ static void *trace_rows(void *arg)
                 if (layer < pixel_layers(j, p)) {
                     tasks[n].pixel = p;
                     tasks[n].sample_count = j->granularity;
-                    tasks[n].first_sample = (uint64_t)layer * j->granularity;
+                    tasks[n].first_sample = rng_replicate_first_sample(
+                        (uint64_t)layer * j->granularity, j->granularity, j->replicates);
                     n++;
                 }
             if (n == 0)
@@ -93,9 +98,11 @@ static void *trace_rows(void *arg)
 
 static int usage(void)
 {
-    fprintf(stderr, "usage: bench_batches SCENE.json OUT.f64 --layers L [--granularity G] "
-                    "[--seed S] [--sampler sobol|independent] [--threads T] [--counts FILE] "
-                    "[--summary]\n");
+    fprintf(
+        stderr,
+        "usage: bench_batches SCENE.json OUT.f64 --layers L [--granularity G] "
+        "[--seed S] [--sampler sobol|independent] [--replicates R] [--threads T] [--counts FILE] "
+        "[--summary]\n");
     return 2;
 }
 
@@ -119,6 +126,8 @@ static int parse(int argc, char **argv, job_t *base, const char **scene, const c
             *counts = v;
         else if (strcmp(k, "--layers") == 0)
             base->layers = (uint32_t)strtoul(v, NULL, 10);
+        else if (strcmp(k, "--replicates") == 0)
+            base->replicates = (uint32_t)strtoul(v, NULL, 10);
         else if (strcmp(k, "--granularity") == 0)
             base->granularity = (uint32_t)strtoul(v, NULL, 10);
         else if (strcmp(k, "--seed") == 0)
@@ -131,8 +140,11 @@ static int parse(int argc, char **argv, job_t *base, const char **scene, const c
             return -1;
     }
     if (base->layers == 0 || base->granularity == 0 ||
-        base->granularity > TRACER_MAX_TASK_SAMPLES || base->threads == 0 || base->threads > 256)
+        base->granularity > TRACER_MAX_TASK_SAMPLES || base->threads == 0 || base->threads > 256 ||
+        base->replicates == 0 || base->replicates > RNG_MAX_REPLICATES)
         return -1;
+    if (base->settings.sampler == RNG_SAMPLER_INDEPENDENT)
+        base->replicates = 1; /* as the master: independent samples need none */
     return 0;
 }
 
@@ -179,7 +191,7 @@ static int trace_all(const tracer_t *tr, const job_t *base, double *out)
 
 int main(int argc, char **argv)
 {
-    job_t base = {.layers = 0, .granularity = 32, .threads = 2};
+    job_t base = {.layers = 0, .granularity = 32, .threads = 2, .replicates = 1};
     base.settings.seed = 1;
     base.settings.sampler = RNG_SAMPLER_SOBOL;
     base.settings.integrator = SCENE_INTEGRATOR_PATH;

@@ -464,6 +464,8 @@ static int write_outputs(image_t *img, const cJSON *job, const char *out_exr, ch
     image_set_double(img, "vb.render_seconds", json_num(job, "seconds"));
     image_set_int(img, "vb.spp", (int32_t)fmin(json_num(job, "spp"), 2147483647.0));
     image_set_int(img, "vb.granularity", (int32_t)json_num(job, "granularity"));
+    /* what the variance channel is: calibrated by replicates (2 or more) or not */
+    image_set_int(img, "vb.replicates", (int32_t)json_num(job, "replicates"));
     image_set_double(img, "vb.nonfinite_samples", json_num(job, "nonfinite"));
     char png[4096], heat[4096];
     replace_extension(out_exr, ".png", png, sizeof png);

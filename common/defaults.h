@@ -54,6 +54,11 @@
 #define JOB_DEFAULT_GRANULARITY 32    /* samples per pixel per layer */
 #define JOB_DEFAULT_ADAPTIVE "relmse" /* the study: bench/RESULTS.md, docs/ADAPTIVE.md */
 #define JOB_DEFAULT_SAMPLER "sobol"   /* Owen-scrambled Sobol, one sequence per pixel */
+/* Independent replicates of a pixel's sequence (rng_replicate_first_sample):
+ * two cost 2-10 % relMSE at equal spp on the Cornell scenes (256 to 1024
+ * spp, nothing on glass) and give the calibrated error of the variance
+ * channel; more cost more (bench/error/calibrate.py, docs/ADAPTIVE.md). */
+#define JOB_DEFAULT_REPLICATES 2
 #define JOB_DEFAULT_CONFIDENCE 0.95
 #define JOB_DEFAULT_TARGET_SHARE 1
 #define JOB_DEFAULT_TARGET_ERROR 0 /* 0: no error target */

@@ -108,6 +108,35 @@ static inline rng_stream_t rng_stream_sobol(uint64_t seed, uint64_t pixel, uint6
     return s;
 }
 
+/* Random replication (issue 24): a pixel's samples as R independent
+ * replicates, so that the spread of their means estimates the error of
+ * the pixel's mean (under sobol, the samples of one sequence are not
+ * independent, and their own variance overstates that error 10 to 30x:
+ * bench/error/calibrate.py). Whole layers go to the replicates in turn:
+ * the pixel's layer k (G samples) is replicate k mod R's layer k div R,
+ * at sample index r 2^RNG_REPLICATE_SHIFT + (k div R) G. Bits 24 and up
+ * of an index choose the sequence (rng_stream_sobol), so each replicate
+ * is its own scramble, and its layers are a prefix of its sequence (a net
+ * as they add up, whichever layers the adaptive rule skips). R = 1 is the
+ * index of before: the samples taken so far. `taken` is what the pixel has
+ * taken, a whole number of layers. */
+#define RNG_REPLICATE_SHIFT 48
+#define RNG_MAX_REPLICATES 16
+static inline uint64_t rng_replicate_first_sample(uint64_t taken, uint32_t granularity,
+                                                  uint32_t replicates)
+{
+    if (replicates <= 1)
+        return taken;
+    uint64_t k = taken / granularity;
+    return ((k % replicates) << RNG_REPLICATE_SHIFT) + (k / replicates) * granularity;
+}
+
+/* The replicate a layer's first sample index belongs to. */
+static inline uint32_t rng_replicate_of(uint64_t first_sample)
+{
+    return (uint32_t)(first_sample >> RNG_REPLICATE_SHIFT);
+}
+
 /* Moves a sobol stream to dimension `dim`, so that each use of a number
  * (a bounce's light point, its BSDF sample...) keeps its own dimension
  * whatever was drawn before it. The independent stream ignores it and

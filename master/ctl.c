@@ -435,7 +435,7 @@ static cJSON *ctl_fetch(ctl_req_t *r)
     job_t *j = r->job;
     if (!j->sched)
         return read_stored_image(r, NULL);
-    image_t *img = film_to_image(sched_film(j->sched));
+    image_t *img = sched_image(j->sched);
     if (!img)
         return error_body("fetch: out of memory");
     send_image(m, r->id, j, img);

@@ -337,6 +337,8 @@ static void settings_json(const job_t *j, cJSON *o)
     add_str(o, "seed", seed);
     add_str(o, "integrator", scene_integrator_name(j->tracer.integrator));
     add_str(o, "sampler", tracer_sampler_name(j->tracer.sampler));
+    cJSON_AddNumberToObject(o, "replicates",
+                            j->sched_cfg.replicates > 1 ? (double)j->sched_cfg.replicates : 1.0);
     cJSON_AddNumberToObject(o, "layers", sched_layer_count(j->sched));
     cJSON_AddNumberToObject(o, "uniform_layers", sched_uniform_layers(j->sched));
 }

@@ -326,7 +326,10 @@ typedef struct submit_limits {
 } submit_limits_t;
 /* Builds a queued job (no id yet) from a submit request and its binary
  * frames: validates the whole scene, loaded from the bundle exactly as a
- * worker will load it, and every setting. NULL with a message. */
+ * worker will load it, and every setting. NULL with a message. limits
+ * NULL: a stored request, recovered (accepted once under the limits of its
+ * day; without "replicates" it is from a master of before them, and its
+ * job has none). */
 job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes,
                     const submit_limits_t *limits, char *err, size_t errlen);
 /* A mesh file name as a bundle may carry it (proto/PROTOCOL.md): 1 to

@@ -64,8 +64,21 @@ static void do_submit(offload_t *o, offload_item_t *it)
         /* shorter than it->err by the prefix added below, so the message
          * always fits whole */
         char err[VB_ERR_LEN - 64];
-        if (persist_submission(o->store, j, frames[0].data, frames[0].size, frames + 1,
-                               it->nframes - 1, err, sizeof err) < 0) {
+        /* the stored request names the job's replicates: recovered without
+         * them it would be taken for an older master's (submit_parse) */
+        char *text = NULL;
+        if (!cJSON_GetObjectItemCaseSensitive(it->req, "replicates") &&
+            (!cJSON_AddNumberToObject(it->req, "replicates", JOB_DEFAULT_REPLICATES) ||
+             !(text = cJSON_PrintUnformatted(it->req)))) {
+            snprintf(it->err, sizeof it->err, "out of memory");
+            job_free(j);
+            return;
+        }
+        int rc = persist_submission(o->store, j, text ? text : frames[0].data,
+                                    text ? strlen(text) : frames[0].size, frames + 1,
+                                    it->nframes - 1, err, sizeof err);
+        free(text);
+        if (rc < 0) {
             snprintf(it->err, sizeof it->err, "the master cannot store the job: %s", err);
             job_free(j);
             return;

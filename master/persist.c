@@ -550,7 +550,7 @@ static int write_final(master_t *m, const job_t *j, char *err, size_t errlen)
 {
     char path[4096];
     store_job_path(m->store, j->id, "image.exr", path, sizeof path);
-    image_t *img = film_to_image(sched_film(j->sched));
+    image_t *img = sched_image(j->sched);
     if (!img) {
         snprintf(err, errlen, "out of memory for the image");
         return -1;

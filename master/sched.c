@@ -24,6 +24,7 @@
 #include <string.h>
 
 #include "defaults.h"
+#include "rng.h"
 #include "sched_priv.h"
 #include "vmath.h"
 
@@ -33,11 +34,17 @@
  * sampler the first 2^m samples of a pixel form a net, an arbitrary set of
  * layers does not: rng.h). Every layer but the last takes G, and a task is
  * made only once its range's earlier layers are merged (rule 1): the film's
- * count of samples taken is exactly the samples of the layers before. */
-static uint64_t first_sample_of(const sched_t *s, uint32_t p)
+ * count of samples taken is exactly the samples of the layers before.
+ * With replicates, that many samples are spread over the replicates' own
+ * sequences (rng_replicate_first_sample). */
+static uint64_t taken_of(const sched_t *s, uint32_t p)
 {
     const film_pixel_t *fp = &s->film->pixels[p];
     return (uint64_t)fp->count + fp->nonfinite;
+}
+static uint64_t first_sample_of(const sched_t *s, uint32_t p)
+{
+    return rng_replicate_first_sample(taken_of(s, p), s->cfg.granularity, sched_replicates(s));
 }
 
 /* Samples a pixel takes in layer l: G, or what is left of spp in the last. */
@@ -53,6 +60,10 @@ static int check_config(const sched_config_t *cfg, char *err, size_t errlen)
 {
     if (cfg->width == 0 || cfg->height == 0 || cfg->spp == 0) {
         snprintf(err, errlen, "image size and spp must be positive");
+        return -1;
+    }
+    if (cfg->replicates > RNG_MAX_REPLICATES) {
+        snprintf(err, errlen, "replicates must be 1..%d", RNG_MAX_REPLICATES);
         return -1;
     }
     if (cfg->granularity == 0 || cfg->granularity > TRACER_MAX_TASK_SAMPLES) {
@@ -156,10 +167,18 @@ static int kept_target(const sched_t *s)
 {
     return s->cfg.target_error > 0;
 }
+static int kept_replicates(const sched_t *s)
+{
+    return sched_replicates(s) > 1;
+}
+static uint32_t replicates_but_one(const sched_t *s)
+{
+    return sched_replicates(s) - 1;
+}
 
 #define PIXEL_ARRAY(tag, field, elem, kept)                                                        \
     {                                                                                              \
-        tag, offsetof(sched_t, field), sizeof(elem), kept                                          \
+        tag, offsetof(sched_t, field), sizeof(elem), kept, NULL, 0                                 \
     }
 const pixel_array_t sched_pixel_arrays[] = {
     PIXEL_ARRAY("batches", batches, uint32_t, sched_keeps_counts),
@@ -173,6 +192,7 @@ const pixel_array_t sched_pixel_arrays[] = {
     PIXEL_ARRAY("prvar", prev_rvar, double, kept_target),
     PIXEL_ARRAY("pnb", prev_nb, uint32_t, sched_keeps_counts),
     PIXEL_ARRAY("pcost", prev_cost, float, sched_weighs_cost),
+    {"rep", offsetof(sched_t, rep_lum), sizeof(double), kept_replicates, replicates_but_one, 1},
 };
 const size_t sched_pixel_array_count = sizeof sched_pixel_arrays / sizeof sched_pixel_arrays[0];
 
@@ -215,7 +235,7 @@ static int alloc_tables(sched_t *s)
     for (size_t i = 0; i < sched_pixel_array_count; i++)
         if (sched_pixel_arrays[i].kept(s)) {
             void **slot = sched_array_slot(s, &sched_pixel_arrays[i]);
-            *slot = calloc(s->npix, sched_pixel_arrays[i].size);
+            *slot = calloc(1, sched_array_bytes(s, &sched_pixel_arrays[i]));
             failed |= !*slot;
         }
     failed |= alloc_ring(s) < 0;
@@ -679,7 +699,11 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
             sched_keep_prev(s, p);
         film_merge(s->film, &results[i]);
         s->samples_done += rec[i].sample_count;
-        s->at_cap += first_sample_of(s, p) == s->cfg.spp;
+        s->at_cap += taken_of(s, p) == s->cfg.spp;
+        const uint32_t rep = rng_replicate_of(rec[i].first_sample);
+        if (rep > 0) /* replicate 0's sum is the film's less the others' */
+            s->rep_lum[(size_t)p * (sched_replicates(s) - 1) + rep - 1] +=
+                vmath_luminance(results[i].sum[0], results[i].sum[1], results[i].sum[2]);
         s->nonfinite += results[i].nonfinite;
         if (s->pvar_cur)
             s->pvar_cur[p] = results[i].pvar;

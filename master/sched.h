@@ -131,6 +131,11 @@ typedef struct sched_config {
     double target_error;
     double confidence;   /* 0: JOB_DEFAULT_CONFIDENCE (0.95) */
     double target_share; /* 0: 1.0 */
+    /* Independent replicates per pixel (rng_replicate_first_sample): layer
+     * k of a pixel is replicate k mod R's. 0 or 1: one sequence. With two
+     * or more the scheduler keeps each replicate's luminance sum, and
+     * sched_image's variance channel is the calibrated error they give. */
+    uint32_t replicates;
 } sched_config_t;
 
 typedef struct sched sched_t;
@@ -232,6 +237,19 @@ uint64_t sched_pixel_layers_skipped(const sched_t *s);
  * whether the job stopped on the target rather than at spp. */
 uint64_t sched_converged(const sched_t *s);
 int sched_stopped_on_target(const sched_t *s);
+/* The image so far: the film's channels (film_to_image), its variance
+ * channel calibrated when the job has replicates (sched_variance_of_mean).
+ * NULL when out of memory. */
+image_t *sched_image(const sched_t *s);
+
+/* The variance of each pixel's mean luminance, into out[width x height].
+ * With replicates (sched_config_t): calibrated, the variance their spread
+ * gives, averaged over the 5 x 5 pixels around it (sched_error.c says
+ * why); where no pixel of the window has two layers yet, and without
+ * replicates, the film's own (film_variance_of_mean), which under sobol
+ * overstates the error 10-50x. -1 when out of memory. */
+int sched_variance_of_mean(const sched_t *s, float *out);
+
 /* Pixels that have taken every sample spp allows. With a target error, the
  * pixels its rule has not stopped (a pixel whose light no path has found
  * yet looks converged and stops early, so this is a lower bound on the
@@ -272,9 +290,13 @@ size_t sched_memory(const sched_t *s, sched_memory_fn fn, void *ctx);
  * 5: relmse's rays and samples of the uniform layers, and rays per sample;
  * 6: only the two layers in flight (membership, cells), a 64-byte film
  * pixel, and each pixel's statistics before its merge into the later layer
- * in flight in place of version 5's snapshot and per-layer copies. This
- * build reads version 5 too (sched_load converts it); writes 6 only. */
+ * in flight in place of version 5's snapshot and per-layer copies;
+ * 7: version 6 and the replicates' luminance sums ("rep"), written for a job
+ * with replicates (an older master refuses it by its version) and 6 for
+ * one without (the same bytes as before). This build reads 5 too
+ * (sched_load converts it). */
 #define SCHED_SAVE_VERSION 6
+#define SCHED_SAVE_VERSION_REPLICATES 7
 typedef int (*sched_write_fn)(void *ctx, const void *data, size_t len);
 /* Reads exactly len bytes; returns 0, or non-zero on a short read / error. */
 typedef int (*sched_read_fn)(void *ctx, void *data, size_t len);

@@ -73,6 +73,9 @@ struct sched {
      * layers as ubatches (their rays and samples, NaN/Inf ones too) */
     uint64_t *urays;
     uint32_t *usamples;
+    /* with replicates: per pixel, the luminance sums of replicates 1 .. R - 1
+     * (replicate 0's is the film's sum less these) */
+    double *rep_lum;
     snap_row_t ring[SCHED_RING];
     double *row_metric; /* one row of the skip rule's statistic */
     sel_row_t sel_ring[3];
@@ -146,6 +149,11 @@ typedef struct pixel_array {
     size_t offset;    /* of the pointer in sched_t */
     size_t size;      /* of an element */
     int (*kept)(const sched_t *s);
+    /* elements per pixel (NULL: one) */
+    uint32_t (*per_pixel)(const sched_t *s);
+    /* 1: a checkpoint has the section only where the job keeps it (a newer
+     * array: streams of before it, and of jobs without it, stay as they were) */
+    int only_if_kept;
 } pixel_array_t;
 
 /* The per-pixel arrays (sched.c): allocation, freeing, sched_memory and
@@ -164,7 +172,7 @@ static inline const void *sched_array_of(const sched_t *s, const pixel_array_t *
 /* Bytes of array a in this job (0 when not kept). */
 static inline size_t sched_array_bytes(const sched_t *s, const pixel_array_t *a)
 {
-    return a->kept(s) ? (size_t)s->npix * a->size : 0;
+    return a->kept(s) ? (size_t)s->npix * a->size * (a->per_pixel ? a->per_pixel(s) : 1) : 0;
 }
 
 /* One more batch mean x into a Welford accumulator (count, mean, sum of
@@ -181,6 +189,12 @@ static inline void sched_welford_add(uint32_t *n, double *mean, double *m2, doub
 
 /* Layer is decided: the ranges whose previous layer is done can run. */
 void sched_decided(sched_t *s, uint32_t layer);
+
+/* Replicates of the job (rng_replicate_first_sample): 1 for none. */
+static inline uint32_t sched_replicates(const sched_t *s)
+{
+    return s->cfg.replicates > 1 ? s->cfg.replicates : 1;
+}
 
 /* ---- sched_rules.c ---- */
 

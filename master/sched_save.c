@@ -1,5 +1,5 @@
 /* sched_save.c - checkpoints: a scheduler saved as a stream (sched_save)
- * and restored from one (sched_load), version 6 and the version 5 streams
+ * and restored from one (sched_load), versions 6 and 7 and the version 5 streams
  * of older masters, and the consistency checks a restored state must pass
  * before a job resumes from it (a corrupt or hostile file is refused with
  * the section and value that are wrong, never trusted). */
@@ -10,6 +10,7 @@
 
 #include "rng.h"
 #include "sched_priv.h"
+#include "vmath.h"
 
 /* write and read calls carry at most this much: the pipe or socket behind
  * them need not take a gigabyte film in one call. */
@@ -230,13 +231,21 @@ static void window_layers(const sched_t *s, uint32_t layer_of[2])
         layer_of[l & 1] = l;
 }
 
+/* Whether a checkpoint of this job has array a's section. */
+static int saved(const sched_t *s, const pixel_array_t *a)
+{
+    return !a->only_if_kept || a->kept(s);
+}
+
 int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
 {
     /* Everything here lives on the stack or in *s: this runs in a forked
      * child, where malloc may be locked by a thread that no longer exists. */
     saver_t w = {write, ctx, {0, 0, {0}, 0}, 0};
     const size_t n = s->npix, mb = member_bytes(s);
-    uint32_t vc[2] = {SCHED_SAVE_VERSION, FP_COUNT}, layer_of[2];
+    uint32_t vc[2] = {sched_replicates(s) > 1 ? SCHED_SAVE_VERSION_REPLICATES : SCHED_SAVE_VERSION,
+                      FP_COUNT},
+             layer_of[2];
     uint64_t fp[FP_COUNT];
     fingerprint(s, fp, sizeof(film_pixel_t));
     window_layers(s, layer_of);
@@ -278,7 +287,8 @@ int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
     if (put_section(&w, "slots", slots, sizeof slots))
         return w.rc;
     for (size_t i = 0; i < sched_pixel_array_count; i++)
-        if (put_section(&w, sched_pixel_arrays[i].name, sched_array_of(s, &sched_pixel_arrays[i]),
+        if (saved(s, &sched_pixel_arrays[i]) &&
+            put_section(&w, sched_pixel_arrays[i].name, sched_array_of(s, &sched_pixel_arrays[i]),
                         sched_array_bytes(s, &sched_pixel_arrays[i])))
             return w.rc;
     if (put_head(&w, "end", sizeof(uint64_t)))
@@ -296,7 +306,8 @@ size_t sched_save_bytes(const sched_t *s)
     n += head + 2 * member_bytes(s) + head + 2 * (size_t)s->ranges;
     n += head + 2 * (sizeof(uint32_t) + sizeof(double));
     for (size_t i = 0; i < sched_pixel_array_count; i++)
-        n += head + sched_array_bytes(s, &sched_pixel_arrays[i]);
+        if (saved(s, &sched_pixel_arrays[i]))
+            n += head + sched_array_bytes(s, &sched_pixel_arrays[i]);
     return n + head + sizeof(uint64_t);
 }
 
@@ -351,7 +362,7 @@ static int get_section(loader_t *r, const char *tag, void *data, size_t bytes, c
     return get(r, data, bytes, tag, err, errlen);
 }
 
-/* The header: magic, version (into *version: 5 or 6), fingerprint. */
+/* The header: magic, version (into *version: 5, 6 or 7), fingerprint. */
 static int load_header(const sched_t *s, loader_t *r, uint32_t *version, char *err, size_t errlen)
 {
     uint8_t magic[8];
@@ -365,11 +376,27 @@ static int load_header(const sched_t *s, loader_t *r, uint32_t *version, char *e
     }
     if (get(r, vc, sizeof vc, "header", err, errlen))
         return -1;
-    if (vc[0] != SCHED_SAVE_VERSION && vc[0] != SCHED_SAVE_VERSION_V5) {
+    if (vc[0] != SCHED_SAVE_VERSION && vc[0] != SCHED_SAVE_VERSION_V5 &&
+        vc[0] != SCHED_SAVE_VERSION_REPLICATES) {
         snprintf(err, errlen,
-                 "checkpoint: format version %u, this build reads versions %u and %u (a newer "
+                 "checkpoint: format version %u, this build reads versions %u to %u (a newer "
                  "master wrote it?)",
-                 vc[0], SCHED_SAVE_VERSION_V5, SCHED_SAVE_VERSION);
+                 vc[0], SCHED_SAVE_VERSION_V5, SCHED_SAVE_VERSION_REPLICATES);
+        return -1;
+    }
+    /* a job's replicates and its stream's version go together (sched_save) */
+    const int want_version =
+        sched_replicates(s) > 1 ? SCHED_SAVE_VERSION_REPLICATES : SCHED_SAVE_VERSION;
+    if (vc[0] != SCHED_SAVE_VERSION_V5 && (int)vc[0] != want_version) {
+        snprintf(err, errlen,
+                 "checkpoint: format version %u is for a job %s replicates, this config has %u",
+                 vc[0], vc[0] == SCHED_SAVE_VERSION_REPLICATES ? "with" : "without",
+                 sched_replicates(s));
+        return -1;
+    }
+    if (vc[0] == SCHED_SAVE_VERSION_V5 && sched_replicates(s) > 1) {
+        snprintf(err, errlen, "checkpoint: format version 5 has no replicates, this config has %u",
+                 sched_replicates(s));
         return -1;
     }
     *version = vc[0];
@@ -459,7 +486,8 @@ static int load_v6(sched_t *s, loader_t *r, char *err, size_t errlen)
         memcpy(&s->threshold[k], slots + 8 + 8 * k, 8);
     }
     for (size_t i = 0; i < sched_pixel_array_count; i++)
-        if (get_section(r, sched_pixel_arrays[i].name, *sched_array_slot(s, &sched_pixel_arrays[i]),
+        if (saved(s, &sched_pixel_arrays[i]) &&
+            get_section(r, sched_pixel_arrays[i].name, *sched_array_slot(s, &sched_pixel_arrays[i]),
                         sched_array_bytes(s, &sched_pixel_arrays[i]), err, errlen))
             return -1;
     return get_head(r, "end", sizeof(uint64_t), err, errlen);
@@ -840,6 +868,23 @@ static int check_pixel(const sched_t *s, uint32_t p, char *err, size_t errlen)
         return -1;
     }
     const uint32_t layers = (uint32_t)((taken + G - 1) / G);
+    /* each replicate's sum: a part of the film's (its samples are the film's) */
+    const uint32_t reps = sched_replicates(s);
+    if (reps > 1) {
+        const double whole = vmath_luminance(fp->sum[0], fp->sum[1], fp->sum[2]);
+        double part = 0;
+        for (uint32_t r = 1; r < reps; r++) {
+            const double v = s->rep_lum[(size_t)p * (reps - 1) + r - 1];
+            part += v;
+            if (!(v >= 0) || (layers <= r && v != 0) || !(part <= whole * (1 + 1e-9) + 1e-300)) {
+                snprintf(err, errlen,
+                         "checkpoint: pixel %u: replicate %u's luminance sum %g (the pixel's %g, "
+                         "%u layers)",
+                         p, r, v, whole, layers);
+                return -1;
+            }
+        }
+    }
     if (s->pvar_cur && !(s->pvar_cur[p] >= 0 &&
                          s->pvar_cur[p] <= (double)G * SCHED_MAX_RADIANCE * SCHED_MAX_RADIANCE)) {
         snprintf(err, errlen, "checkpoint: pixel %u: eq. 4.1 %g", p, s->pvar_cur[p]);
@@ -919,8 +964,8 @@ sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, ch
     uint64_t sum_read = 0, sum = 0;
     uint32_t version = 0;
     if (load_header(s, &r, &version, err, errlen) ||
-        (version == SCHED_SAVE_VERSION ? load_v6(s, &r, err, errlen)
-                                       : load_v5(s, &r, err, errlen))) {
+        (version != SCHED_SAVE_VERSION_V5 ? load_v6(s, &r, err, errlen)
+                                          : load_v5(s, &r, err, errlen))) {
         sched_destroy(&s);
         return NULL;
     }

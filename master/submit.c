@@ -175,8 +175,10 @@ static int submit_scene(job_t *j, const submit_frame_t *json, const scene_blob_t
 }
 
 /* The job's settings over the scene's defaults (checked against the
- * settings table, settings.h), and the scheduler. */
-static int submit_settings(job_t *j, const cJSON *req, char *err, size_t errlen)
+ * settings table, settings.h), and the scheduler. `recovered`: the request
+ * is one this or an older master stored (persist.c); one without
+ * "replicates" is from before replicates, whose jobs had none. */
+static int submit_settings(job_t *j, const cJSON *req, int recovered, char *err, size_t errlen)
 {
     if (settings_check_request(req, err, errlen) < 0)
         return -1;
@@ -194,6 +196,11 @@ static int submit_settings(job_t *j, const cJSON *req, char *err, size_t errlen)
         settings_string(req, "integrator", scene_integrator_name(j->tracer.integrator)));
     j->tracer.sampler = (rng_sampler_t)tracer_sampler_from_name(
         settings_string(req, "sampler", JOB_DEFAULT_SAMPLER));
+    /* independent samples need no replicates: their own variance is the error */
+    const uint32_t replicates =
+        j->tracer.sampler == RNG_SAMPLER_INDEPENDENT
+            ? 1
+            : (uint32_t)settings_number(req, "replicates", recovered ? 1 : JOB_DEFAULT_REPLICATES);
     const char *flags = settings_string(req, "flags", NULL);
     if (flags && !(j->flags = strdup(flags))) {
         snprintf(err, errlen, "out of memory");
@@ -213,7 +220,8 @@ static int submit_settings(job_t *j, const cJSON *req, char *err, size_t errlen)
         .seed = j->tracer.seed,
         .target_error = j->target_error,
         .confidence = settings_number(req, "confidence", JOB_DEFAULT_CONFIDENCE),
-        .target_share = settings_number(req, "target_share", JOB_DEFAULT_TARGET_SHARE)};
+        .target_share = settings_number(req, "target_share", JOB_DEFAULT_TARGET_SHARE),
+        .replicates = replicates};
     char schederr[VB_ERR_LEN - 32];
     j->sched = sched_new(&j->sched_cfg, schederr, sizeof schederr);
     if (!j->sched) {
@@ -330,7 +338,7 @@ job_t *submit_parse(const cJSON *req, const submit_frame_t *frames, int nframes,
     if (submit_request_id(j, req, err, errlen) < 0 ||
         submit_bundle(j, meshes, frames + 1, mesh_count, blobs, err, errlen) < 0 ||
         submit_scene(j, &frames[0], blobs, err, errlen) < 0 ||
-        submit_settings(j, req, err, errlen) < 0 ||
+        submit_settings(j, req, limits == NULL, err, errlen) < 0 ||
         (refspec && submit_reference(j, frames + 1 + mesh_count, err, errlen) < 0) ||
         submit_hash(j, err, errlen) < 0) {
         job_free(j);

@@ -101,12 +101,16 @@ static void check_task(const sched_t *s, const sched_config_t *cfg, const sched_
         t->id != 1 + (uint64_t)t->layer * sched_range_count(s) + t->range || t->count < 1 ||
         t->count > npix)
         abort();
+    const uint32_t reps = cfg->replicates > 1 ? cfg->replicates : 1, G = cfg->granularity;
     for (uint32_t i = 0; i < t->count; i++) {
         const tracer_task_t *k = &t->records[i];
-        if (k->pixel >= npix || k->sample_count < 1 || k->sample_count > cfg->granularity ||
-            k->first_sample % cfg->granularity != 0 ||
-            k->first_sample > (uint64_t)t->layer * cfg->granularity ||
-            k->first_sample + k->sample_count > cfg->spp)
+        /* the replicate's index, and the pixel's layers taken before it
+         * (rng_replicate_first_sample) */
+        const uint64_t r = rng_replicate_of(k->first_sample),
+                       index = k->first_sample - (r << RNG_REPLICATE_SHIFT),
+                       taken = r + reps * (index / G);
+        if (k->pixel >= npix || k->sample_count < 1 || k->sample_count > G || r >= reps ||
+            index % G != 0 || taken > t->layer || taken * G + k->sample_count > cfg->spp)
             abort();
     }
 }

@@ -34,8 +34,9 @@
 #define FUZZ_CKPT_CONFIGS 3
 
 /* Small images, every adaptive rule and option somewhere: A the thesis's
- * rule over 4 ranges; B relerr with a target error, dilation and random
- * selection, one pixel a range; C the variance rule with a flag sequence. */
+ * rule over 4 ranges; B relerr with a target error, dilation, random
+ * selection and 2 replicates (a version 7 stream), one pixel a range; C
+ * the variance rule with a flag sequence. */
 static inline void fuzz_ckpt_config(unsigned which, sched_config_t *c)
 {
     memset(c, 0, sizeof *c);
@@ -62,7 +63,8 @@ static inline void fuzz_ckpt_config(unsigned which, sched_config_t *c)
                               .seed = 3,
                               .target_error = 0.05,
                               .confidence = 0.9,
-                              .target_share = 0.8};
+                              .target_share = 0.8,
+                              .replicates = 2};
         break;
     default:
         *c = (sched_config_t){.width = 3,

@@ -158,6 +158,57 @@ START_TEST(test_target_error_stops_early)
 }
 END_TEST
 
+/* sum (a - b)^2 over sum (var_a + var_b), over the pixels of PAIRS pairs of
+ * renders of one scene under distinct seeds: 1 when the variance channel
+ * is the error of each mean. (A sum, not a per-pixel statistic: the
+ * film's own variance is wrong most where it is largest, at the light's
+ * edges, where stratification takes out nearly all of it.) */
+#define PAIRS 3
+static double error_over_predicted(const char *scene, const char *extra)
+{
+    double d2 = 0, pred = 0;
+    for (int pair = 0; pair < PAIRS; pair++) {
+        image_t *im[2];
+        for (int k = 0; k < 2; k++) {
+            char img[1024], out[OUTLEN], args[4096], err[256];
+            tu_tmp_path(img, sizeof img, k ? "calibrated-b.exr" : "calibrated-a.exr");
+            snprintf(args, sizeof args, "'%s' -o '%s' --spp 128 --adaptive none --seed %d %s",
+                     scene, img, 11 + 2 * pair + k, extra);
+            render(args, out);
+            im[k] = NULL;
+            ck_assert_msg(image_read_exr(img, &im[k], err, sizeof err) == 0, "%s", err);
+        }
+        for (int i = 0; i < 24 * 24; i++) {
+            double l[2];
+            for (int k = 0; k < 2; k++) {
+                l[k] = 0.3 * image_channel(im[k], "R")[i] + 0.59 * image_channel(im[k], "G")[i] +
+                       0.11 * image_channel(im[k], "B")[i];
+                pred += image_channel(im[k], "variance")[i];
+            }
+            d2 += (l[0] - l[1]) * (l[0] - l[1]);
+        }
+        image_destroy(&im[0]);
+        image_destroy(&im[1]);
+    }
+    return d2 / pred;
+}
+
+/* The EXR's variance channel is the error of the pixel's mean: renders
+ * under distinct seeds differ by what their channels predict (by default,
+ * with the replicates' calibration; bench/error/calibrate.py measures it
+ * per pixel); with one sequence (--replicates 1) the channel, the
+ * samples' own variance, overstates it about 20x (0.04 to 0.07 here). */
+START_TEST(test_variance_channel_calibrated)
+{
+    char scene[1024];
+    small_cornell(scene, sizeof scene);
+    const double calibrated = error_over_predicted(scene, "");
+    ck_assert_msg(calibrated > 0.4 && calibrated < 2.5, "error / predicted %g, want 1", calibrated);
+    const double one_sequence = error_over_predicted(scene, "--replicates 1");
+    ck_assert_msg(one_sequence < 0.2, "one sequence: error / predicted %g", one_sequence);
+}
+END_TEST
+
 static image_t *render_read(const char *scene, const char *name, const char *extra)
 {
     char img[1024], out[OUTLEN], args[4096], err[256];
@@ -206,6 +257,7 @@ int main(void)
     tcase_set_timeout(tc, 300);
     tcase_add_test(tc, test_reference_series);
     tcase_add_test(tc, test_target_error_stops_early);
+    tcase_add_test(tc, test_variance_channel_calibrated);
     tcase_add_test(tc, test_modes_deterministic);
     suite_add_tcase(s, tc);
     SRunner *sr = srunner_create(s);

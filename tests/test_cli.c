@@ -22,6 +22,7 @@
 #include <unistd.h>
 #include <zmq.h>
 
+#include "defaults.h"
 #include "image.h"
 #include "testutil.h"
 
@@ -344,6 +345,9 @@ START_TEST(tiny_render)
     a = image_attr(img, "vb.spp");
     ck_assert_ptr_nonnull(a);
     ck_assert_int_eq(a->i, 4);
+    a = image_attr(img, "vb.replicates"); /* the default: the variance channel is calibrated */
+    ck_assert_ptr_nonnull(a);
+    ck_assert_int_eq(a->i, JOB_DEFAULT_REPLICATES);
     image_destroy(&img);
     unlink(exr);
     unlink(png);

@@ -2378,7 +2378,8 @@ START_TEST(state_v1_migration)
     ck_assert_uint_eq(state_format_of(path), 2);
     pace_thaw(&pace);
     finish_and_fetch(port + 1, 1, tmp(got, sizeof got, "v1.exr"));
-    unsigned long long fresh = submit(port + 1, scene, "--spp 4096");
+    /* a job of before replicates has none: the fresh one asks for none */
+    unsigned long long fresh = submit(port + 1, scene, "--spp 4096 --replicates 1");
     finish_and_fetch(port + 1, fresh, tmp(ref, sizeof ref, "v1-fresh.exr"));
     compare_exr(ref, got);
     stop_clean(w);

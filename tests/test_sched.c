@@ -456,6 +456,68 @@ START_TEST(test_target_error_stops)
 }
 END_TEST
 
+/* Layer means by replicate: 0.4 in replicate 0's layers, 0.6 in 1's. */
+static double by_replicate(uint32_t p, uint32_t layer)
+{
+    (void)p;
+    return layer % 2 ? 0.6 : 0.4;
+}
+
+/* What replicates do: a pixel's layer k is replicate k mod R's layer
+ * k div R (its first sample index, rng_replicate_first_sample), and the
+ * variance of the mean is the replicates' spread: on a 1 x 1 image, whose
+ * window is the pixel, exactly sum w_r^2 (m_r - m)^2 / (1 - sum w_r^2). */
+START_TEST(test_replicates)
+{
+    for (uint32_t spp = 6; spp <= 8; spp += 2) { /* 3 layers (unequal) and 4 (equal) */
+        sched_config_t c = {.width = 1,
+                            .height = 1,
+                            .spp = spp,
+                            .granularity = 2,
+                            .adaptive = SCHED_ADAPTIVE_NONE,
+                            .uniform_layers = UINT32_MAX,
+                            .range_pixels = 1,
+                            .replicates = 2};
+        char err[256];
+        sched_t *s = sched_new(&c, err, sizeof err);
+        ck_assert_msg(s != NULL, "%s", err);
+        sched_task_t t;
+        tracer_result_t r;
+        int rc;
+        while ((rc = sched_next(s, &t)) != SCHED_NEXT_ALL_ISSUED) {
+            ck_assert_int_eq(rc, SCHED_NEXT_TASK);
+            const uint64_t k = t.layer;
+            ck_assert_uint_eq(t.records[0].first_sample,
+                              ((k % 2) << RNG_REPLICATE_SHIFT) + k / 2 * 2);
+            memset(&r, 0, sizeof r);
+            r.pixel = 0;
+            r.samples = r.rays = t.records[0].sample_count;
+            r.sum[0] = r.sum[1] = r.sum[2] = by_replicate(0, t.layer) * r.samples;
+            r.lum_m2 = 0.01;
+            ck_assert_msg(sched_complete(s, t.id, &r, 1, err, sizeof err) == 0, "%s", err);
+        }
+        const double w1 = spp == 8 ? 0.5 : 1.0 / 3, w0 = 1 - w1, m = 0.4 * w0 + 0.6 * w1;
+        const double want = (w0 * w0 * (0.4 - m) * (0.4 - m) + w1 * w1 * (0.6 - m) * (0.6 - m)) /
+                            (1 - w0 * w0 - w1 * w1);
+        float v = -1;
+        ck_assert_int_eq(sched_variance_of_mean(s, &v), 0);
+        ck_assert_msg(fabs(v - want) < 1e-6 * want, "%u spp: %g, want %g", spp, v, want);
+        /* the image carries it */
+        image_t *img = sched_image(s);
+        ck_assert(img != NULL && image_channel(img, "variance")[0] == v);
+        image_destroy(&img);
+        sched_destroy(&s);
+        /* one sequence: the film's own variance, and samples in order */
+        c.replicates = 1;
+        s = sched_new(&c, err, sizeof err);
+        run_all(s, by_replicate, 2);
+        ck_assert_int_eq(sched_variance_of_mean(s, &v), 0);
+        ck_assert(v == (float)film_variance_of_mean(sched_film(s), 0));
+        sched_destroy(&s);
+    }
+}
+END_TEST
+
 /* every pixel steady but pixel 10, which jumps between layers */
 static double one_noisy(uint32_t p, uint32_t layer)
 {
@@ -1266,6 +1328,13 @@ static void assert_same_job(const sched_t *a, const sched_t *b, const char *what
     ck_assert_uint_eq(sched_samples_done(a), sched_samples_done(b));
     ck_assert_uint_eq(sched_nonfinite(a), sched_nonfinite(b));
     ck_assert_uint_eq(sched_layers_complete(a), sched_layers_complete(b));
+    /* the replicates' sums too, through the error they give */
+    float *va = malloc(n * sizeof(float)), *vb = malloc(n * sizeof(float));
+    ck_assert(va && vb && sched_variance_of_mean(a, va) == 0 && sched_variance_of_mean(b, vb) == 0);
+    ck_assert_msg(memcmp(va, vb, n * sizeof(float)) == 0,
+                  "%s, restored at step %llu: error differs", what, (unsigned long long)at);
+    free(va);
+    free(vb);
     for (uint32_t l = 0; l < sched_layer_count(a); l++) {
         double ta = sched_threshold(a, l), tb = sched_threshold(b, l);
         ck_assert_msg(memcmp(&ta, &tb, sizeof ta) == 0, "%s: threshold of layer %u differs", what,
@@ -1304,6 +1373,9 @@ static const ckpt_case_t ckpt_cases[] = {
     {"relmse, flag sequence",
      {CK_BASE, .adaptive = SCHED_ADAPTIVE_RELMSE, .uniform_layers = UINT32_MAX,
       .flags = "000101101101"}},
+    /* a checkpoint of version 7: the replicates' sums */
+    {"relmse, 3 replicates",
+     {CK_BASE, .adaptive = SCHED_ADAPTIVE_RELMSE, .uniform_layers = 3, .replicates = 3}},
 };
 
 /* THE property of checkpoints: a job saved after any event (tasks out,
@@ -1375,6 +1447,41 @@ static uint8_t *find_section(const membuf_t *b, const char *tag, size_t *len)
     ck_abort_msg("no section %s", tag);
     return NULL;
 }
+
+/* A job without replicates saves version 6, as before them (an older
+ * master reads it); one with them version 7, with their sums. Each loads
+ * only into a config with the same replicates, refused otherwise with a
+ * message that says so. */
+START_TEST(test_checkpoint_replicates_versions)
+{
+    for (uint32_t reps = 1; reps <= 2; reps++) {
+        sched_config_t c = {CK_BASE, .adaptive = SCHED_ADAPTIVE_NONE, .uniform_layers = 3,
+                            .replicates = reps};
+        char err[256] = "";
+        sim_t a = {.workers = 2, .seed = 5};
+        a.s = sched_new(&c, err, sizeof err);
+        ck_assert_msg(a.s != NULL, "%s", err);
+        for (int i = 0; i < 40; i++)
+            sim_step(&a);
+        membuf_t buf = save_mem(a.s);
+        uint32_t version;
+        memcpy(&version, buf.data + 8, sizeof version);
+        ck_assert_uint_eq(version, reps > 1 ? SCHED_SAVE_VERSION_REPLICATES : SCHED_SAVE_VERSION);
+        size_t len;
+        if (reps > 1)
+            ck_assert(find_section(&buf, "rep", &len) != NULL && len == 11 * 9 * sizeof(double));
+        sched_t *b = load_mem(&c, &buf, buf.len, err, sizeof err);
+        ck_assert_msg(b != NULL, "%s", err);
+        sched_destroy(&b);
+        c.replicates = reps > 1 ? 1 : 2;
+        b = load_mem(&c, &buf, buf.len, err, sizeof err);
+        ck_assert(b == NULL);
+        ck_assert_msg(strstr(err, "replicates") != NULL, "%s", err);
+        free(buf.data);
+        sched_destroy(&a.s);
+    }
+}
+END_TEST
 
 /* Loads a copy of b changed by one byte at off (to v); must fail naming `want`. */
 static void expect_refused(const sched_config_t *c, const membuf_t *b, size_t off, uint8_t v,
@@ -1629,6 +1736,7 @@ int main(void)
     tcase_add_test(tc, test_take_replays_a_journal);
     tcase_add_test(tc, test_flag_sequence);
     tcase_add_test(tc, test_target_error_stops);
+    tcase_add_test(tc, test_replicates);
     tcase_add_test(tc, test_target_window_excludes_self);
     tcase_add_test(tc, test_relerr_and_variance_modes);
     tcase_add_test(tc, test_relmse_balances_sqrt_variance);
@@ -1647,6 +1755,7 @@ int main(void)
     tcase_add_loop_test(tc, test_checkpoint_resumes_bit_identical, 0,
                         (int)(sizeof ckpt_cases / sizeof ckpt_cases[0]));
     tcase_add_test(tc, test_checkpoint_refuses_garbage);
+    tcase_add_test(tc, test_checkpoint_replicates_versions);
     tcase_add_test(tc, test_checkpoint_refuses_impossible_batches);
     tcase_add_test(tc, test_checkpoint_refuses_impossible_costs);
     suite_add_tcase(s, tc);

@@ -6,7 +6,8 @@
 # Needs bin/vbrender (make all). Settings come from the environment
 # (VB_STUDY_QUICK=1 for a ~3-minute smoke run; the rest in bench/error/study.py).
 # `run.sh --repeat` runs bench/error/repeat.py instead: uniform, relmse and
-# relerr again at three more seeds (about 21 minutes).
+# relerr again at three more seeds (about 21 minutes); `--calibrate` and
+# `--coverage` the calibration and target-error studies of issue 24.
 # Writes bench/results/error.json, bench/results/error/*.png and the bench/RESULTS.md
 # section between <!-- bench:error:begin --> and <!-- bench:error:end -->.
 set -euo pipefail
@@ -31,5 +32,16 @@ fi
 if [ "${1:-}" = "--repeat" ]; then
     shift
     exec "$MITSUBA_PEER_PYTHON" bench/error/repeat.py "$@"
+fi
+# --calibrate: bench/error/calibrate.py (does the variance channel predict the
+# error? about 15 minutes); --coverage: bench/error/coverage.py (does the
+# target error hold on every pixel? about an hour)
+if [ "${1:-}" = "--calibrate" ]; then
+    shift
+    exec "$MITSUBA_PEER_PYTHON" bench/error/calibrate.py "$@"
+fi
+if [ "${1:-}" = "--coverage" ]; then
+    shift
+    exec "$MITSUBA_PEER_PYTHON" bench/error/coverage.py "$@"
 fi
 exec "$MITSUBA_PEER_PYTHON" bench/error/study.py "$@"

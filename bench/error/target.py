@@ -151,13 +151,22 @@ def sized_scene(name, size):
     return dst
 
 
-def batches(scene, size, tag, layers, seed, counts=None, summary=False):
+# The master's replicates per pixel (common/defaults.h JOB_DEFAULT_REPLICATES): the
+# runs a rule is simulated on mirror the master's jobs; a reference may take any.
+REPLICATES = env_int("VB_TARGET_REPLICATES", 2)
+
+
+def batches(scene, size, tag, layers, seed, counts=None, summary=False, replicates=None):
     """Runs bench_batches once (cached by its arguments) and returns the array."""
     npix = size * size
-    key = f"{os.path.basename(scene)[:-5]}-{tag}-{layers}-{seed}{'-sum' if summary else ''}"
+    replicates = REPLICATES if replicates is None else replicates
+    rtag = "" if replicates == 1 else f"-rep{replicates}"
+    key = f"{os.path.basename(scene)[:-5]}-{tag}-{layers}-{seed}{rtag}{'-sum' if summary else ''}"
     out = os.path.join(WORK, key + ".f64")
     cmd = [BATCHES, scene, out, "--layers", str(layers), "--granularity", str(CFG["granularity"]),
            "--seed", str(seed), "--threads", str(CFG["threads"])]
+    if replicates != 1:
+        cmd += ["--replicates", str(replicates)]
     if counts is not None:
         cpath = os.path.join(WORK, key + ".counts")
         counts.astype("<u4").tofile(cpath)
