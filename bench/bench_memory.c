@@ -14,6 +14,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "defaults.h"
 #include "sched.h"
 
 typedef struct item {
@@ -78,7 +79,9 @@ int main(int argc, char **argv)
                               .granularity = 32,
                               .adaptive = k->adaptive,
                               .uniform_layers = UINT32_MAX,
-                              .target_error = k->target};
+                              .target_error = k->target,
+                              /* as a master's job (submit.c): the replicates' sums */
+                              .replicates = JOB_DEFAULT_REPLICATES};
         char err[256];
         sched_t *s = sched_new(&cfg, err, sizeof err);
         if (!s) {
