@@ -34,7 +34,8 @@ throughout (the `variance` channel is luminance's).
     bench/venv/bin/python bench/error/calibrate.py      (after make all)
 Environment: VB_CAL_SCENES (comma list), VB_CAL_SIZE (32), VB_CAL_SPPS
 (256,1024), VB_CAL_K (16), VB_CAL_REPS (2,4,8), VB_CAL_WINDOWS (5,9),
-VB_CAL_THREADS (all cores). Writes bench/results/calibration.json.
+VB_CAL_THREADS (all cores). A scene "mitsuba/NAME" is the shipped
+scenes/mitsuba/NAME.xml at -D res=SIZE. Writes bench/results/calibration.json.
 """
 import json
 import os
@@ -85,13 +86,21 @@ def read_exr(path):
     return {n: a[:, :, i] for i, n in enumerate(names)}
 
 
+def scene_args(name):
+    """The render's scene arguments: a JSON scene resized (target.py), or a shipped
+    Mitsuba file ("mitsuba/NAME", scenes/mitsuba/NAME.xml) at -D res=SIZE."""
+    if name.startswith("mitsuba/"):
+        return [os.path.join(ROOT, "scenes", name + ".xml"), "-D", f"res={SIZE}"]
+    return [target.sized_scene(name, SIZE)]
+
+
 def render(scene, spp, seed, tag, replicates=1):
     """(luminance, variance channel) of one uniform render, cached by its settings."""
     rtag = "" if replicates == 1 else f"-rep{replicates}"
     out = os.path.join(WORK, "runs", f"{tag}-{spp}spp-seed{seed}{rtag}.exr")
     if not os.path.exists(out):
         os.makedirs(os.path.dirname(out), exist_ok=True)
-        cmd = [VB, "render", scene, "-o", out, "--spp", str(spp), "--adaptive", "none",
+        cmd = [VB, "render", *scene, "-o", out, "--spp", str(spp), "--adaptive", "none",
                "--seed", str(seed), "--threads", str(THREADS), "--progress", "none",
                "--replicates", str(replicates)]
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
@@ -119,7 +128,8 @@ def judge(x, pred, truth, truth_var, mask):
 
 
 def study_scene(name):
-    scene = target.sized_scene(name, SIZE)
+    scene = scene_args(name)
+    name = name.replace("/", "-")
     rows = []
     for n in SPPS:
         seed0 = 1000
