@@ -2,6 +2,7 @@
  * reader, JPEG through libjpeg, OpenEXR through image_read_exr_buffer. */
 #include "bitmap.h"
 
+#include <ctype.h>
 #include <math.h>
 #include <png.h>
 #include <setjmp.h>
@@ -51,9 +52,41 @@ static float *from_bytes(const unsigned char *px, size_t texels, int raw)
     return rgb;
 }
 
+/* Every chunk's declared length within the file. libpng allocates a
+ * chunk's buffer by its length before it reads it, and its simplified API
+ * sets no limit on that (png_set_chunk_malloc_max needs the full API): a
+ * 200-byte file whose chunk claims 1.9 GB made it allocate 1.9 GB
+ * (fuzz_bitmap). Only the chunk frames are read here, 12 bytes each; libpng
+ * does all the decoding. */
+static int png_chunks_fit(const char *name, const unsigned char *data, size_t size, char *err,
+                          size_t errlen)
+{
+    size_t at = 8; /* past the signature */
+    while (at + 8 <= size) {
+        const uint32_t len = (uint32_t)data[at] << 24 | (uint32_t)data[at + 1] << 16 |
+                             (uint32_t)data[at + 2] << 8 | data[at + 3];
+        const unsigned char *type = data + at + 4;
+        if (len > size - at - 8 || size - at - 8 - len < 4) { /* data, then a 4-byte CRC */
+            const int named =
+                isalpha(type[0]) && isalpha(type[1]) && isalpha(type[2]) && isalpha(type[3]);
+            snprintf(err, errlen,
+                     "%s: not a readable PNG (chunk %.4s at byte %zu claims %u bytes, the file "
+                     "has %zu after it)",
+                     name, named ? (const char *)type : "????", at, len, size - at - 8);
+            return -1;
+        }
+        if (memcmp(type, "IEND", 4) == 0)
+            return 0;
+        at += 12 + (size_t)len;
+    }
+    return 0; /* truncated before IEND: libpng says so */
+}
+
 static int decode_png(const char *name, const unsigned char *data, size_t size, int raw, size_t max,
                       bitmap_t *out, char *err, size_t errlen)
 {
+    if (png_chunks_fit(name, data, size, err, errlen) < 0)
+        return -1;
     png_image img;
     memset(&img, 0, sizeof img);
     img.version = PNG_IMAGE_VERSION;

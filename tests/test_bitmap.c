@@ -103,6 +103,19 @@ START_TEST(png_decoded)
               -1);
     ck_assert_msg(strstr(err, "cut.png") && strstr(err, "not a readable PNG"), "%s", err);
     ck_assert_ptr_null(b.rgb);
+    /* a chunk that claims far more than the file holds (fuzz_bitmap: libpng
+     * allocated the 1.9 GB it claimed): refused before libpng sees it */
+    unsigned char lying[33 + 16];
+    memcpy(lying, png, 33); /* the signature and IHDR */
+    const unsigned char text[16] = {0x70, 0x00, 0x00, 0x25, 't', 'E', 'X', 't',
+                                    'a',  'b',  'c',  'd',  0,   0,   0,   0};
+    memcpy(lying + 33, text, sizeof text);
+    ck_assert(bitmap_decode("lying.png", lying, sizeof lying, 0, BITMAP_MAX_TEXELS, &b, err,
+                            sizeof err) == -1);
+    ck_assert_msg(strstr(err, "lying.png") &&
+                      strstr(err, "chunk tEXt at byte 33 claims 1879048229"),
+                  "%s", err);
+    ck_assert_ptr_null(b.rgb);
     free(png);
 }
 END_TEST
