@@ -37,8 +37,9 @@ static double replicate_variance(const sched_t *s, uint32_t p)
     if (layers < 2 || fp->count == 0)
         return -1;
     double sum_r[RNG_MAX_REPLICATES], n_r[RNG_MAX_REPLICATES];
-    double rest = vmath_luminance(fp->sum[0] + fp->comp[0], fp->sum[1] + fp->comp[1],
-                                  fp->sum[2] + fp->comp[2]);
+    const double total = vmath_luminance(fp->sum[0] + fp->comp[0], fp->sum[1] + fp->comp[1],
+                                         fp->sum[2] + fp->comp[2]);
+    sum_r[0] = total; /* replicate 0's: the pixel's less the others' */
     for (uint32_t r = 0; r < R; r++) {
         /* replicate r has the pixel's layers k = r, r + R, ...; the last
          * layer may be short of G */
@@ -46,17 +47,13 @@ static double replicate_variance(const sched_t *s, uint32_t p)
         n_r[r] = (double)(lr * G);
         if (lr > 0 && (layers - 1) % R == r)
             n_r[r] -= (double)(layers * G - taken);
-        sum_r[r] = r ? s->rep_lum[(size_t)p * (R - 1) + r - 1] : 0;
-        rest -= sum_r[r];
+        if (r > 0) {
+            sum_r[r] = s->rep_lum[(size_t)p * (R - 1) + r - 1];
+            sum_r[0] -= sum_r[r];
+        }
     }
-    sum_r[0] = rest;
-    double n = 0, mean = 0, w2 = 0;
-    for (uint32_t r = 0; r < R; r++)
-        n += n_r[r];
-    for (uint32_t r = 0; r < R; r++)
-        if (n_r[r] > 0)
-            mean += sum_r[r] / n;
-    double v = 0;
+    double n = (double)taken, w2 = 0, v = 0;
+    const double mean = total / n;
     for (uint32_t r = 0; r < R; r++) {
         if (n_r[r] <= 0)
             continue;

@@ -1,14 +1,15 @@
 /* sched_priv.h - what the scheduler's files share (not an interface: the
  * interface is sched.h).
  *
- * The scheduler is four files, one concept each:
+ * The scheduler is five files, one concept each:
  * - sched.c: task states, the window of two layers, dispatch order, and
  *   merging results;
  * - sched_rules.c: the adaptive rules (one table, one function per rule),
  *   the statistics a decision reads, and the decision itself;
  * - sched_target.c: target-error stopping;
  * - sched_save.c: checkpoints (save, load, and the checks a loaded state
- *   passes).
+ *   passes);
+ * - sched_error.c: the per-pixel error the image carries (the replicates').
  */
 #ifndef VB_SCHED_PRIV_H
 #define VB_SCHED_PRIV_H
