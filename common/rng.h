@@ -43,7 +43,11 @@ typedef enum rng_sampler {
 /* Dimensions below this are quasi-random under the sobol sampler: the
  * camera pair and the first RNG_SOBOL_BOUNCES bounces of tracer.c's layout.
  * Two: on the Cornell box, one, two and four bounces gave the same relMSE
- * at 64 spp (within 5 %), and each pair costs about 25 ns a sample. */
+ * at 64 spp (within 5 %), and each pair costs about 25 ns a sample. Every
+ * bounce (64) took 2-4 % off the Cornell box's relMSE at 256 and 1024 spp
+ * and nothing measurable off the glass scene's, for 12 % and 5 % more time
+ * a sample (64x64, 2 and 1 replicates, 6 seeds; bench/RESULTS.md,
+ * "Sampler"): a loss at equal time. */
 #define RNG_SOBOL_BOUNCES 2
 #define RNG_SOBOL_DIMS (2 + 6 * RNG_SOBOL_BOUNCES)
 /* Samples of a pixel per Sobol sequence: 2^24, far past any reference's
