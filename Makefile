@@ -354,6 +354,7 @@ bench-error: deps
 	bash bench/error/run.sh --repeat
 	bash bench/error/run.sh --calibrate
 	bash bench/error/run.sh --coverage
+	bash bench/error/run.sh --peer-best
 	bash bench/mitsuba-scenes/run.sh
 
 clean:

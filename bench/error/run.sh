@@ -7,7 +7,9 @@
 # (VB_STUDY_QUICK=1 for a ~3-minute smoke run; the rest in bench/error/study.py).
 # `run.sh --repeat` runs bench/error/repeat.py instead: uniform, relmse and
 # relerr again at three more seeds (about 21 minutes); `--calibrate` and
-# `--coverage` the calibration and target-error studies of issue 24.
+# `--coverage` the calibration and target-error studies of issue 24;
+# `--peer-best` equal time against Mitsuba 3 at its best sampler on each
+# scene (bench/error/peer_best.py).
 # Writes bench/results/error.json, bench/results/error/*.png and the bench/RESULTS.md
 # section between <!-- bench:error:begin --> and <!-- bench:error:end -->.
 set -euo pipefail
@@ -39,6 +41,10 @@ fi
 if [ "${1:-}" = "--calibrate" ]; then
     shift
     exec "$MITSUBA_PEER_PYTHON" bench/error/calibrate.py "$@"
+fi
+if [ "${1:-}" = "--peer-best" ]; then
+    shift
+    exec "$MITSUBA_PEER_PYTHON" bench/error/peer_best.py "$@"
 fi
 if [ "${1:-}" = "--coverage" ]; then
     shift

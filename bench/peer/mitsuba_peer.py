@@ -10,6 +10,8 @@ Peer renderer for speed and accuracy benchmarks. Run inside bench/venv with
 bench/peer/env.sh sourced (see bench/peer/README.md):
 
   mitsuba_peer.py SCENE.json --mode speed  --spp N --threads T [--runs K]
+  (SCENE may also be a Mitsuba scene file, SCENE.xml: loaded as it is, with
+  --sampler for its sampler's type, --spp for $spp and --width for $res)
   mitsuba_peer.py SCENE.json --mode render --spp N --threads T --seed S --out FILE.exr
   mitsuba_peer.py SCENE.json --mode sweep  --spp-list 16,32,... --threads T --seed S --out-dir DIR
   mitsuba_peer.py SCENE.json --mode agree  --spp N --passes K --threads T --seed S --out FILE.exr
@@ -30,6 +32,7 @@ import argparse
 import json
 import math
 import os
+import re
 import statistics
 import sys
 import tempfile
@@ -399,6 +402,28 @@ def mode_render(mi, np, a, render, info):
     print(f"seconds {t:.3f}", file=sys.stderr)
 
 
+def load_xml(mi, a):
+    """A Mitsuba scene file as it is, but for its sampler's type (--sampler)
+    and, where given, its $res (--width). Its files are found beside it
+    (the copy that Mitsuba loads lives in a temporary folder)."""
+    with open(a.scene) as f:
+        text = f.read()
+    text, n = re.subn(r'<sampler\s+type="[^"]*"', f'<sampler type="{a.sampler}"', text, count=1)
+    if n != 1:
+        raise SystemExit(f"{a.scene}: no <sampler type=...> to set")
+    mi.Thread.thread().file_resolver().append(os.path.dirname(os.path.abspath(a.scene)))
+    params = {"spp": str(a.spp)}
+    if a.width:
+        params["res"] = str(a.width)
+    with tempfile.TemporaryDirectory(prefix="mitsuba_peer_") as tmp:
+        path = os.path.join(tmp, os.path.basename(a.scene))
+        with open(path, "w") as f:
+            f.write(text)
+        scene = mi.load_file(path, **params)
+    size = scene.sensors()[0].film().size()
+    return scene, int(size[0]), int(size[1])
+
+
 def main():
     a = parse_args()
     import drjit as dr
@@ -410,15 +435,18 @@ def main():
     mi.set_log_level(mi.LogLevel.Warn)
     dr.set_thread_count(a.threads)  # again, in case the backend reset it on init
 
-    with open(a.scene) as f:
-        scene_json = json.load(f)
     spps = a.spps if a.mode == "sweep" else [a.spp]
     check_sample_counts(mi, a.sampler, spps)
     scene_dir = os.path.dirname(os.path.abspath(a.scene))
-    with tempfile.TemporaryDirectory(prefix="mitsuba_peer_") as tmp:
-        sd, w, h = build_scene_dict(mi, scene_json, scene_dir, tmp, a.spp, a.seed, a.width,
-                                    a.height, a.sampler)
-        scene = mi.load_dict(sd)
+    if a.scene.endswith(".xml"):
+        scene, w, h = load_xml(mi, a)
+    else:
+        with open(a.scene) as f:
+            scene_json = json.load(f)
+        with tempfile.TemporaryDirectory(prefix="mitsuba_peer_") as tmp:
+            sd, w, h = build_scene_dict(mi, scene_json, scene_dir, tmp, a.spp, a.seed, a.width,
+                                        a.height, a.sampler)
+            scene = mi.load_dict(sd)
 
     def render(seed, spp=None):
         t0 = time.perf_counter()

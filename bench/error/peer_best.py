@@ -1,0 +1,289 @@
+"""Equal time against Mitsuba 3 at its best sampler (issue 24, item 5).
+
+The study (study.py) times Mitsuba with one sampler, multijitter, chosen
+once on two scenes. A peer must be compared at its best on each scene, so
+this runs, per scene (VB_PEER_SCENES, default every shipped scene: each
+scenes/*.json, and each scenes/mitsuba/*.xml as mitsuba/NAME, which both
+renderers read as it is, at $res = the study's size), at the study's size,
+references and timing guard:
+
+- ours: `vbrender render` with our defaults (2 workers x 1 thread), max
+  2 VB_PEER_SPP samples a pixel (the adaptive default stops many pixels
+  early: its curve must reach the time Mitsuba took for VB_PEER_SPP), its
+  error curve against the reference; the whole command is timed, its
+  start (master, workers, the scene's load) included, as a user runs it;
+- Mitsuba 3 (llvm_ad_rgb, 2 threads, warm: mitsuba_peer.py's sweep renders
+  each count once untimed first) with each of its five samplers, at the
+  sample counts that sampler takes as they are (orthogonal: squares of
+  primes; ldsampler: powers of 4; stratified: squares; multijitter: a x a or
+  a x (a + 1)), up to VB_PEER_SPP;
+- Mitsuba's best sampler on the scene: the lowest relMSE at equal time
+  (geometric mean over 5 times spread over the range every sampler's sweep
+  covers), so the choice is made on the scene itself;
+- our relMSE over that sampler's at the times it took for its last two
+  counts, and its time over ours to equal relMSE (geometric mean over the
+  levels both reach: above 1, we are faster);
+- a log-log plot of relMSE against seconds, every curve:
+  bench/results/error/peer-best-<scene>.png.
+
+Writes bench/results/peer-best.json (a run of some scenes replaces theirs
+and keeps the others' while the settings are the same) and the table between the
+bench:peer-best markers of bench/RESULTS.md. Alone: `bash bench/error/run.sh
+--peer-best` (VB_STUDY_SIZE, VB_STUDY_REF_SPP as the study; about 3 minutes
+a scene at 64x64 on 2 cores, after its reference); `--from-json` rewrites the
+table from the JSON.
+"""
+import json
+import math
+import os
+import re
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import study as S  # noqa: E402  (the study's settings, references and helpers)
+
+# every shipped scene: our own format (scenes/*.json, by name) and Mitsuba's
+# (scenes/mitsuba/*.xml, as mitsuba/NAME)
+SCENES = os.environ.get("VB_PEER_SCENES", ",".join(
+    sorted(f[:-5] for f in os.listdir(os.path.join(S.ROOT, "scenes")) if f.endswith(".json")) +
+    sorted("mitsuba/" + f[:-4] for f in os.listdir(os.path.join(S.ROOT, "scenes", "mitsuba"))
+           if f.endswith(".xml")))).split(",")
+MAX_SPP = int(os.environ.get("VB_PEER_SPP", "1024"))
+SEED = 31
+OUT = os.path.join(S.WORK, "quick", "peer-best.json") if S.QUICK else \
+    os.path.join(S.ROOT, "bench", "results", "peer-best.json")
+RUNS = os.path.join(S.WORK, "quick", "peer-best") if S.QUICK else os.path.join(S.WORK, "peer-best")
+MARK_BEGIN, MARK_END = "<!-- bench:peer-best:begin -->", "<!-- bench:peer-best:end -->"
+
+
+def is_prime(p):
+    return p >= 2 and all(p % d for d in range(2, int(p ** 0.5) + 1))
+
+
+def sampler_counts(sampler, top):
+    """The sample counts each Mitsuba sampler takes as they are, from 16 up to
+    top, about 2x apart (mitsuba_peer.py refuses a count it would round)."""
+    if sampler == "independent":
+        c = [16 << k for k in range(12)]
+    elif sampler == "stratified":
+        c = [a * a for a in (4, 6, 8, 12, 16, 23, 32, 45, 64)]
+    elif sampler == "multijitter":
+        c = [16, 30, 64, 132, 256, 506, 1024, 2070, 4096]
+    elif sampler == "orthogonal":
+        c = [p * p for p in (5, 7, 11, 17, 23, 31, 47, 67) if is_prime(p)]
+    elif sampler == "ldsampler":
+        c = [16, 64, 256, 1024, 4096]
+    else:
+        raise ValueError(sampler)
+    return [n for n in c if n <= top]
+
+
+SAMPLERS = ["independent", "stratified", "multijitter", "orthogonal", "ldsampler"]
+
+
+def sized_xml(name):
+    """A copy of scenes/NAME.xml at the study's size ($res) that finds its
+    files where the original does (a <path> to its folder, which both
+    renderers read)."""
+    src = os.path.join(S.ROOT, "scenes", name + ".xml")
+    with open(src) as f:
+        text = f.read()
+    text, n = re.subn(r'(<default\s+name="res"\s+value=")[^"]*"', r'\g<1>%d"' % S.CFG["size"], text)
+    if n != 1:
+        raise SystemExit(f"{src}: no <default name=\"res\"> to set the size by")
+    text = re.sub(r"(<scene\b[^>]*>)", r'\1\n    <path value="%s"/>' % os.path.dirname(src), text, count=1)
+    os.makedirs(os.path.join(S.WORK, "scenes"), exist_ok=True)
+    dst = os.path.join(S.WORK, "scenes", f"{name.replace('/', '-')}-{S.CFG['size']}.xml")
+    if not os.path.exists(dst) or open(dst).read() != text:
+        with open(dst, "w") as f:
+            f.write(text)
+    return dst
+
+
+def mitsuba_sweep(name, scene, sampler, r, ref_meta):
+    py = os.environ.get("MITSUBA_PEER_PYTHON", sys.executable)
+    script = os.path.join(S.ROOT, "bench", "peer", "mitsuba_peer.py")
+    size = str(S.CFG["size"])
+    out_dir = os.path.join(RUNS, f"{name}-{sampler}")
+    cmd = [py, script, scene, "--mode", "sweep", "--threads", "2", "--width", size,
+           "--height", size,
+           "--sampler", sampler, "--spp-list", ",".join(map(str, sampler_counts(sampler, MAX_SPP))),
+           "--seed", str(SEED), "--out-dir", out_dir]
+    best = None
+    for attempt in range(2):
+        S.log(f"{name} mitsuba {sampler}: spp {sampler_counts(sampler, MAX_SPP)}")
+        p, st = S.run_measured(cmd, timed=True)
+        if best is None or st["other_cpu_cores"] < best[1]["other_cpu_cores"]:
+            best = (p, st)
+        if st["other_cpu_cores"] <= S.CFG["busy_retry_cores"]:
+            break
+        S.log(f"  other processes used {st['other_cpu_cores']:.2f} cores; again")
+    p, st = best
+    sw = json.loads(p.stdout.strip().splitlines()[-1])
+    pts = []
+    for run in sw["runs"]:
+        raw = S.relmse(S.rgb(S.read_exr(run["out"])), r)
+        pts.append({"spp": run["spp"], "seconds": run["seconds"], "relmse_raw": raw,
+                    "relmse": max(raw - ref_meta["relmse_est"], 1e-12)})
+    return {"runs": pts, "stats": st, "version": sw.get("version"),
+            "t": np.array([q["seconds"] for q in pts]), "relmse": np.array([q["relmse"] for q in pts])}
+
+
+def best_sampler(curves):
+    """The sampler with the lowest relMSE at equal time: geometric mean of
+    each curve (log-log interpolation) at 5 times spread over the range
+    every curve covers."""
+    lo = max(float(c["t"][0]) for c in curves.values())
+    hi = min(float(c["t"][-1]) for c in curves.values())
+    if not hi > lo:  # no common range: the lowest relMSE x time at the last point
+        return min(curves, key=lambda k: curves[k]["relmse"][-1] * curves[k]["t"][-1]), {}
+    times = np.geomspace(lo, hi, 5)
+    score = {}
+    for k, c in curves.items():
+        ys = [S.interp_loglog(c["t"], c["relmse"], float(t)) for t in times]
+        score[k] = float(np.exp(np.mean(np.log(ys))))
+    # a sweep with a non-finite image (a NaN score) is never the best
+    return min(score, key=lambda k: score[k] if math.isfinite(score[k]) else math.inf), score
+
+
+def compare(ours, mits):
+    """Our curve against Mitsuba's best one: our relMSE over its at the times
+    it took for its last two counts, and its time over ours to equal relMSE."""
+    marks = []
+    for q in mits["runs"][-2:]:
+        o = S.interp_loglog(ours["t"], ours["relmse"], q["seconds"])
+        marks.append({"mitsuba_spp": q["spp"], "seconds": q["seconds"], "mitsuba": q["relmse"],
+                      "ours": o, "ratio": o / q["relmse"] if o else None})
+    lo = max(float(np.min(ours["relmse"])), float(np.min(mits["relmse"])))
+    hi = min(float(np.max(ours["relmse"])), float(np.max(mits["relmse"])))
+    levels = []
+    if hi > lo:
+        for lev in np.geomspace(hi, lo, 6)[1:-1]:
+            tm = S.first_reach(mits["t"], mits["relmse"], lev)
+            to = S.first_reach(ours["t"], ours["relmse"], lev)
+            if tm and to:
+                levels.append({"relmse": float(lev), "mitsuba_s": tm, "ours_s": to, "ratio": tm / to})
+    geo = float(np.exp(np.mean([np.log(x["ratio"]) for x in levels]))) if levels else None
+    return {"at_mitsuba_times": marks, "time_levels": levels, "time_geomean": geo}
+
+
+def plot(name, ours, curves, best, path, ref_meta):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    ax.loglog(ours["t"], ours["relmse"], "-", color="C2", lw=2, label="vbrender, defaults")
+    for i, (k, c) in enumerate(curves.items()):
+        ax.loglog(c["t"], c["relmse"], "o-" if k == best else ".--", color=f"C{3 + i}",
+                  lw=2 if k == best else 0.8, ms=4 if k == best else 3,
+                  label=f"Mitsuba 3, {k}" + (" (its best here)" if k == best else ""))
+    ax.axhline(ref_meta["relmse_est"], color="0.6", ls=":", label="reference's own error")
+    ax.set_xlabel("seconds (2 cores each)")
+    ax.set_ylabel("relMSE vs reference")
+    ax.grid(True, which="both", alpha=0.25)
+    ax.legend(fontsize=7)
+    ax.set_title(f"{name}: relMSE against time, {S.CFG['size']}x{S.CFG['size']}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=70)
+    plt.close(fig)
+
+
+def table(R):
+    c = R["config"]
+    L = [f"vbrender with its defaults (`vbrender render`, 2 workers x 1 thread, max {c['max_spp']} spp) "
+         f"against Mitsuba 3 (`llvm_ad_rgb`, path, 2 threads, warm) with each of its five samplers at the "
+         f"counts each takes as it is, up to {c['max_spp']} spp, {c['size']}x{c['size']} pixels, "
+         f"against the study's references "
+         f"({c['ref_spp']} spp, their own error subtracted). Mitsuba's best: its lowest relMSE at equal time "
+         f"on the scene. Ratios: our relMSE over its best's at the times it took for its last two counts "
+         f"(below 1: we are ahead), and its time over ours to equal relMSE (above 1: we are faster). "
+         f"Our whole command is timed, its start included; Mitsuba's renders are timed warm. "
+         f"Commit {R['commit']}, {R['date']}, {R['seconds']:.0f} s in all (`bench/error/peer_best.py`); plots "
+         f"`bench/results/error/peer-best-<scene>.png`.", "",
+         "| scene | Mitsuba's best | its relMSE at equal time, per sampler (independent, stratified, "
+         "multijitter, orthogonal, ldsampler; geomean, best = 1) | ours / its best at its time for (spp) "
+         "| its time / ours to equal relMSE |",
+         "|---|---|---|---|--:|"]
+    for name, sc in R["scenes"].items():
+        sco = sc["score"]
+        b = sco.get(sc["best"]) if sco else None
+        per = " / ".join(f"{sco[k] / b:.2f}" if sco and b else "-" for k in SAMPLERS)
+        cmp_ = sc["compare"]
+        marks = ", ".join(f"{m['ratio']:.2f} ({m['mitsuba_spp']})" if m["ratio"] else f"- ({m['mitsuba_spp']})"
+                          for m in cmp_["at_mitsuba_times"])
+        geo = f"{cmp_['time_geomean']:.2f}" if cmp_["time_geomean"] else "-"
+        L.append(f"| {name} | {sc['best']} | {per} | {marks} | {geo} |")
+    return "\n".join(L)
+
+
+def write_results_md(text):
+    path = os.path.join(S.ROOT, "bench", "RESULTS.md")
+    with open(path) as f:
+        md = f.read()
+    block = f"{MARK_BEGIN}\n{text}\n{MARK_END}"
+    if MARK_BEGIN in md:
+        md = re.sub(re.escape(MARK_BEGIN) + ".*?" + re.escape(MARK_END), lambda _: block, md, flags=re.S)
+    else:
+        md = md.rstrip("\n") + "\n\n## Equal time against Mitsuba 3 at its best (`bench/error/peer_best.py`)\n\n" + \
+            block + "\n"
+    with open(path, "w") as f:
+        f.write(md)
+
+
+def main():
+    if "--from-json" in sys.argv:
+        with open(OUT) as f:
+            R = json.load(f)
+        text = table(R)
+        print(text)
+        if not S.QUICK:
+            write_results_md(text)
+        return
+    t0 = time.time()
+    os.makedirs(RUNS, exist_ok=True)
+    os.makedirs(S.PLOTS, exist_ok=True)
+    config = {"size": S.CFG["size"], "ref_spp": S.CFG["ref_spp"], "max_spp": MAX_SPP,
+              "granularity": S.CFG["granularity"], "workers": 2, "threads": 1,
+              "mitsuba_threads": 2, "seed": SEED}
+    R = {"benchmark": "peer-best", "config": config, "scenes": {}, "seconds": 0.0}
+    if os.path.exists(OUT):
+        with open(OUT) as f:
+            old = json.load(f)
+        if old.get("config") == config:  # the other scenes' figures stay
+            R = old
+    R.update({"commit": S.git_commit(), "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
+    for name in SCENES:
+        flat = name.replace("/", "-")  # a file name of its own for mitsuba/NAME
+        scene = sized_xml(name) if name.startswith("mitsuba/") else S.sized_scene(name)
+        ref, ref_meta = S.make_reference(flat, scene)
+        r = S.rgb(S.read_exr(ref))
+        ours = S.study_run(flat, scene, ref, ref_meta, "peer-best-default", 2 * MAX_SPP,
+                           S.CFG["default_mode"], 2, 1)
+        curves = {k: mitsuba_sweep(flat, scene, k, r, ref_meta) for k in SAMPLERS}
+        best, score = best_sampler(curves)
+        cmp_ = compare(ours, curves[best])
+        plot(name, ours, curves, best, os.path.join(S.PLOTS, f"peer-best-{flat}.png"), ref_meta)
+        R["scenes"][name] = {
+            "best": best, "score": score, "compare": cmp_,
+            "ours": {"t": ours["t"].tolist(), "n": ours["n"].tolist(), "relmse": ours["relmse"].tolist(),
+                     "command": ours["command"], "summary": ours["summary"], "stats": ours["stats"]},
+            "mitsuba": {k: {"runs": c["runs"], "stats": c["stats"], "version": c["version"]}
+                        for k, c in curves.items()},
+            "reference": {"exr": S.rel(ref), "relmse_est": ref_meta["relmse_est"]}}
+        S.log(f"{name}: Mitsuba's best {best}; ours/its {[m['ratio'] for m in cmp_['at_mitsuba_times']]}, "
+              f"its time/ours {cmp_['time_geomean']}")
+        R["scenes"][name]["commit"] = R["commit"]
+    R["seconds"] = R.get("seconds", 0.0) + time.time() - t0
+    with open(OUT, "w") as f:
+        json.dump(R, f, indent=1, default=float)
+    text = table(R)
+    print(text)
+    if not S.QUICK:
+        write_results_md(text)
+
+
+if __name__ == "__main__":
+    main()
