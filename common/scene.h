@@ -135,9 +135,10 @@ typedef struct scene {
     uint32_t *light_tris;
     double *light_cdf; /* light_count entries, last is 1 */
     size_t light_count;
-    /* Lights with no area (scene_light_t), chosen by power too: a light
+    /* Lights with no area (scene_light_t), each one emitter beside the
+     * emitting triangles together (as Mitsuba picks its emitters): a light
      * sample that does not take the environment takes one of them with
-     * probability delta_pick (by delta_cdf), else a triangle (whose
+     * probability delta_pick (by delta_cdf, alike), else a triangle (whose
      * tri_light_pdf then holds the 1 - delta_pick). None: delta_pick 0. */
     scene_light_t *delta_lights;
     double *delta_cdf;
@@ -151,8 +152,9 @@ typedef struct scene {
 
     /* The environment: radiance arriving from every direction where no
      * triangle blocks it (Mitsuba's constant emitter). A light sample takes
-     * it with probability env_pick, else a triangle (whose tri_light_pdf
-     * then holds the 1 - env_pick). */
+     * it with probability env_pick (one emitter among the lights with no
+     * area and the emitting triangles together), else a triangle (whose
+     * tri_light_pdf then holds the 1 - env_pick) or a light with no area. */
     int has_env;
     vec3_t env_radiance;
     float env_pick;

@@ -34,8 +34,11 @@
  * (vmath_offset_coord); 3 since a material may be one-sided (a build
  * without that would draw such a scene two-sided; our own scenes' bits
  * are unchanged); 4 since the glossy materials and the direct integrator
- * (a build without them cannot trace such a scene or task). */
-#define TRACER_VERSION 4
+ * (a build without them cannot trace such a scene or task); 5 since a light
+ * sample picks the environment and each light with no area as one emitter
+ * each (scene.c finish_delta_lights: scenes with those lights draw other
+ * numbers; our own scenes' bits are unchanged). */
+#define TRACER_VERSION 5
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so
  * samples/s compare like with like). */

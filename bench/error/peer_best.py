@@ -180,15 +180,8 @@ def plot(name, ours, curves, best, path, ref_meta):
         ax.loglog(c["t"], c["relmse"], "o-" if k == best else ".--", color=f"C{3 + i}",
                   lw=2 if k == best else 0.8, ms=4 if k == best else 3,
                   label=f"Mitsuba 3, {k}" + (" (its best here)" if k == best else ""))
-    ax.axhline(ref_meta["relmse_est"], color="0.6", ls=":", label="reference's own error")
-    ax.set_xlabel("seconds (2 cores each)")
-    ax.set_ylabel("relMSE vs reference")
-    ax.grid(True, which="both", alpha=0.25)
-    ax.legend(fontsize=7)
-    ax.set_title(f"{name}: relMSE against time, {S.CFG['size']}x{S.CFG['size']}", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=70)
-    plt.close(fig)
+    S.finish_time_plot(fig, ax, ref_meta, "seconds (2 cores each)",
+                       f"{name}: relMSE against time, {S.CFG['size']}x{S.CFG['size']}", path)
 
 
 def table(R):

@@ -525,12 +525,19 @@ def plot_peer(name, ours, mits, path, ref_meta):
         ax.loglog(s["t"], s["relmse"], "-", color=c, label=s["label"])
     ax.loglog(mits["t"], mits["relmse"], "o-", color="C3",
               label=f"Mitsuba 3 llvm_ad_rgb, path, {CFG['mitsuba_sampler']}")
+    finish_time_plot(fig, ax, ref_meta, "seconds (2 threads)", f"{name}: relMSE against time, 2 cores each",
+                     path)
+
+
+def finish_time_plot(fig, ax, ref_meta, xlabel, title, path):
+    """A relMSE-against-seconds plot's reference line, axes, legend and file."""
+    import matplotlib.pyplot as plt
     ax.axhline(ref_meta["relmse_est"], color="0.6", ls=":", label="reference's own error")
-    ax.set_xlabel("seconds (2 threads)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("relMSE vs vbrender reference")
     ax.grid(True, which="both", alpha=0.25)
     ax.legend(fontsize=7)
-    ax.set_title(f"{name}: relMSE against time, 2 cores each", fontsize=9)
+    ax.set_title(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=70)
     plt.close(fig)
