@@ -5,8 +5,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 
-lights_status_t lights_build(scene_t *s, const double *power, double total_power, char *err,
-                             size_t errlen)
+lights_status_t lights_build(scene_t *s, const double *power, double total_power,
+                             const double *group_power, char *err, size_t errlen)
 {
     size_t lights = 0;
     for (size_t t = 0; t < s->triangle_count; t++)
@@ -21,12 +21,15 @@ lights_status_t lights_build(scene_t *s, const double *power, double total_power
     for (size_t t = 0; t < s->triangle_count; t++) {
         if (power[t] <= 0)
             continue;
-        acc += power[t];
+        const material_t *m = &s->materials[s->tri_material[t]];
+        double group = group_power ? group_power[s->tri_material[t]] : 1.0;
+        acc += group_power ? power[t] / group : power[t];
         s->light_tris[s->light_count] = (uint32_t)t;
         s->light_cdf[s->light_count++] = acc / total_power;
-        /* pdf per unit area of picking a point on t: (power / total) / area */
-        const material_t *m = &s->materials[s->tri_material[t]];
-        double pdf = vmath_luminance(m->radiance.x, m->radiance.y, m->radiance.z) / total_power;
+        /* pdf per unit area of picking a point on t: (weight / total) /
+         * area, the power being the area times the radiance's luminance */
+        double pdf = vmath_luminance(m->radiance.x, m->radiance.y, m->radiance.z) /
+                     (group_power ? group * total_power : total_power);
         s->tri_light_pdf[t] = (float)pdf;
         /* The tracer divides by this in single precision: lights whose
          * sizes differ by ~1e19 (or a light of area ~1e-38) cannot be

@@ -1,5 +1,6 @@
-/* lights.h - the scene's lights: its emissive triangles, chosen in
- * proportion to their power, and a uniform point on the one chosen.
+/* lights.h - the scene's lights: its emissive triangles, each emitting
+ * material one emitter picked alike and a triangle of it by power (or all
+ * by power, one material alone), and a uniform point on the one chosen.
  *
  * lights_build turns the per-triangle power the loader measured into the
  * distribution the scene keeps (light_tris, light_cdf, light_count and the
@@ -26,11 +27,15 @@ typedef enum {
 
 /* Builds the light distribution of s from power[t], the emitted power of
  * each of s's triangle_count triangles (0 for a non-light), and their sum
- * total_power (> 0 and finite). Returns LIGHTS_OK, or a failure with a
+ * total_power (> 0 and finite). With group_power (one entry a material:
+ * the power of its triangles, 0 for a non-light), each emitting material
+ * is one group of the total_power groups, picked alike, and a triangle
+ * of it by power within it (Mitsuba 3 picks its emitters alike, and a
+ * point on the one picked by area). Returns LIGHTS_OK, or a failure with a
  * message in err; what was allocated is in s either way, for
  * scene_destroy. */
-lights_status_t lights_build(scene_t *s, const double *power, double total_power, char *err,
-                             size_t errlen);
+lights_status_t lights_build(scene_t *s, const double *power, double total_power,
+                             const double *group_power, char *err, size_t errlen);
 
 /* The first entry of cdf[0..n) (ascending, the last 1) above u: a binary
  * search. */

@@ -1806,8 +1806,25 @@ static size_t keep_triangles(scene_t *s, size_t nt, light_sum_t *ls)
  * (lights_build, common/lights.c). */
 static int build_light_cdf(loader_t *L, const light_sum_t *ls)
 {
+    /* Each emitting material one emitter, picked alike, as Mitsuba 3 picks
+     * its emitters: by power, Veach's small bright lights (veach-mis.xml)
+     * got 0.2 % of the light samples each beside his big one, and our
+     * relMSE at equal spp was 6.5-8x Mitsuba's. One material alone keeps
+     * the power weights, so its bits are those of before. */
+    scene_t *s = L->s;
+    double *group = calloc(s->material_count, sizeof *group);
+    if (!group)
+        return fail(L, NULL, "out of memory");
+    for (size_t t = 0; t < s->triangle_count; t++)
+        group[s->tri_material[t]] += ls->power[t];
+    size_t groups = 0;
+    for (size_t k = 0; k < s->material_count; k++)
+        groups += group[k] > 0;
     char msg[VB_ERR_LEN];
-    lights_status_t rc = lights_build(L->s, ls->power, ls->total, msg, sizeof msg);
+    lights_status_t rc = groups > 1
+                             ? lights_build(s, ls->power, (double)groups, group, msg, sizeof msg)
+                             : lights_build(s, ls->power, ls->total, NULL, msg, sizeof msg);
+    free(group);
     if (rc != LIGHTS_OK)
         return fail(L, rc == LIGHTS_OUT_OF_RANGE ? "shapes" : NULL, "%s", msg);
     return 0;

@@ -131,7 +131,9 @@ typedef struct scene {
     float *tri_light_pdf;   /* per triangle: area pdf of light sampling (0: not a light) */
     size_t triangle_count;
 
-    /* Lights: emissive triangles, chosen proportionally to power. */
+    /* Lights: emissive triangles, each emitting material one emitter
+     * picked alike (as Mitsuba picks its emitters), a triangle by power
+     * within it; one material alone: by power (lights_build). */
     uint32_t *light_tris;
     double *light_cdf; /* light_count entries, last is 1 */
     size_t light_count;

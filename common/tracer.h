@@ -35,9 +35,10 @@
  * without that would draw such a scene two-sided; our own scenes' bits
  * are unchanged); 4 since the glossy materials and the direct integrator
  * (a build without them cannot trace such a scene or task); 5 since a light
- * sample picks the environment and each light with no area as one emitter
- * each (scene.c finish_delta_lights: scenes with those lights draw other
- * numbers; our own scenes' bits are unchanged). */
+ * sample picks its emitter as Mitsuba does, the environment, each light
+ * with no area and each emitting material alike (scene.c
+ * finish_delta_lights, build_light_cdf: scenes with more than one draw
+ * other numbers; our own scenes, one emitter each, keep their bits). */
 #define TRACER_VERSION 5
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so

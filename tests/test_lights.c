@@ -48,7 +48,7 @@ static scene_t *two_lights(void)
     s->tri_material[1] = s->tri_material[3] = 1;
     double power[4] = {0, 1.0, 0, 3.0};
     char err[ERRLEN];
-    ck_assert_int_eq(lights_build(s, power, 4.0, err, sizeof err), LIGHTS_OK);
+    ck_assert_int_eq(lights_build(s, power, 4.0, NULL, err, sizeof err), LIGHTS_OK);
     return s;
 }
 
@@ -73,13 +73,54 @@ START_TEST(distribution_follows_power)
 }
 END_TEST
 
+/* With group_power, each emitting material is one emitter, picked alike,
+ * a triangle by power within it (as Mitsuba picks its emitters): a dim
+ * light of two triangles and a bright one of one get half the samples
+ * each, and every area pdf times its area is the triangle's own share. */
+START_TEST(distribution_by_emitter)
+{
+    scene_t *s = flat_scene(4);
+    s->materials = realloc(s->materials, 3 * sizeof *s->materials);
+    ck_assert_ptr_nonnull(s->materials);
+    s->material_count = 3;
+    s->materials[2] = s->materials[1];
+    s->materials[2].radiance = vec3_make(10, 10, 10);
+    s->tri_material[0] = s->tri_material[1] = 1;
+    s->tri_material[3] = 2;
+    /* area 0.5 each: power 0.5, 0.5 (material 1) and 5 (material 2) */
+    double power[4] = {0.5, 0.5, 0, 5.0}, group[3] = {0, 1.0, 5.0};
+    char err[ERRLEN];
+    ck_assert_int_eq(lights_build(s, power, 2.0, group, err, sizeof err), LIGHTS_OK);
+    ck_assert_uint_eq(s->light_count, 3);
+    ck_assert_double_eq_tol(s->light_cdf[0], 0.25, 1e-15);
+    ck_assert_double_eq_tol(s->light_cdf[1], 0.5, 1e-15);
+    ck_assert_double_eq(s->light_cdf[2], 1.0);
+    const double share[4] = {0.25, 0.25, 0, 0.5};
+    for (uint32_t t = 0; t < 4; t++)
+        ck_assert_msg(fabs(lights_area_pdf(s, t) * 0.5 - share[t]) < 1e-7,
+                      "triangle %u: pdf %g x area 0.5, want %g", t, lights_area_pdf(s, t),
+                      share[t]);
+    /* and by power, the bright one took 5/6 */
+    scene_t *p = flat_scene(4);
+    p->materials = realloc(p->materials, 3 * sizeof *p->materials);
+    ck_assert_ptr_nonnull(p->materials);
+    p->material_count = 3;
+    p->materials[2] = s->materials[2];
+    memcpy(p->tri_material, s->tri_material, 4 * sizeof *p->tri_material);
+    ck_assert_int_eq(lights_build(p, power, 6.0, NULL, err, sizeof err), LIGHTS_OK);
+    ck_assert_float_eq_tol(lights_area_pdf(p, 3) * 0.5f, 5.0f / 6.0f, 1e-6f);
+    scene_destroy(&p);
+    scene_destroy(&s);
+}
+END_TEST
+
 START_TEST(points_lie_on_the_light)
 {
     scene_t *s = flat_scene(3);
     s->tri_material[2] = 1;
     double power[3] = {0, 0, 0.5};
     char err[ERRLEN];
-    ck_assert_int_eq(lights_build(s, power, 0.5, err, sizeof err), LIGHTS_OK);
+    ck_assert_int_eq(lights_build(s, power, 0.5, NULL, err, sizeof err), LIGHTS_OK);
     ck_assert_uint_eq(s->light_count, 1);
     double mean_x = 0, mean_y = 0;
     const int n = 64;
@@ -151,7 +192,7 @@ START_TEST(out_of_float_range)
     s->materials[1].radiance = vec3_make(1e-40f, 1e-40f, 1e-40f);
     double power[2] = {0.5e-40, 1e300};
     char err[ERRLEN] = "";
-    ck_assert_int_eq(lights_build(s, power, 1e300, err, sizeof err), LIGHTS_OUT_OF_RANGE);
+    ck_assert_int_eq(lights_build(s, power, 1e300, NULL, err, sizeof err), LIGHTS_OUT_OF_RANGE);
     ck_assert_ptr_nonnull(strstr(err, "single-precision"));
     scene_destroy(&s);
 }
@@ -162,6 +203,7 @@ static Suite *lights_suite(void)
     Suite *su = suite_create("lights");
     TCase *tc = tcase_create("distribution");
     tcase_add_test(tc, distribution_follows_power);
+    tcase_add_test(tc, distribution_by_emitter);
     tcase_add_test(tc, points_lie_on_the_light);
     tcase_add_test(tc, reuse_stratifies_over_all_lights);
     tcase_add_test(tc, out_of_float_range);
