@@ -761,8 +761,8 @@ static int render_prepare(int argc, char **argv, args_t *a, char *out_exr, size_
             snprintf(dir, sizeof dir, "%.*s", (int)(slash - a->positional), a->positional);
         if (json && !text)
             snprintf(err, sizeof err, "out of memory");
-        rc_load = text ? scene_load_string(text, strlen(text), a->positional, dir, &scene, err,
-                                           sizeof err)
+        rc_load = text ? scene_check_string(text, strlen(text), a->positional, dir, &scene, err,
+                                            sizeof err)
                        : -1;
         cJSON_free(text);
         cJSON_Delete(json);
@@ -770,7 +770,7 @@ static int render_prepare(int argc, char **argv, args_t *a, char *out_exr, size_
         return usage_error("-D sets a parameter of a Mitsuba scene (.xml), not of %s",
                            a->positional);
     } else {
-        rc_load = scene_load(a->positional, &scene, err, sizeof err);
+        rc_load = scene_check(a->positional, &scene, err, sizeof err);
     }
     if (rc_load < 0) {
         fprintf(stderr, "vbrender: %s\n", err);

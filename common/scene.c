@@ -56,6 +56,7 @@ typedef struct loader {
      * count) of the loader's list */
     scene_sphere_t *sph;
     size_t *sph_first, *sph_tris, nsph;
+    int check_only; /* scene_check*: no tables precomputed for tracing */
 } loader_t;
 
 static int fail(loader_t *L, const char *path, const char *fmt, ...)
@@ -996,7 +997,8 @@ static int parse_material(loader_t *L, const cJSON *it)
         mean = (t->color0.x + t->color0.y + t->color0.z + t->color1.x + t->color1.y + t->color1.z) /
                6.0f;
     }
-    material_prepare(m, mean, L->s->materials, L->s->material_count);
+    if (!L->check_only)
+        material_prepare(m, mean, L->s->materials, L->s->material_count);
     L->s->material_count++;
     return 0;
 }
@@ -1943,8 +1945,8 @@ static void line_col(const char *text, size_t off, int *line, int *col)
 }
 
 static int load(const char *json, size_t len, const char *name, const char *base_dir,
-                const scene_blob_t *blobs, size_t blob_count, scene_t **out, char *err,
-                size_t errlen)
+                const scene_blob_t *blobs, size_t blob_count, int check_only, scene_t **out,
+                char *err, size_t errlen)
 {
     *out = NULL;
     loader_t L = {.name = name ? name : "<scene>",
@@ -1952,8 +1954,11 @@ static int load(const char *json, size_t len, const char *name, const char *base
                   .err = err,
                   .errlen = errlen,
                   .blobs = blobs,
-                  .blob_count = blob_count};
+                  .blob_count = blob_count,
+                  .check_only = check_only};
     L.s = calloc(1, sizeof(scene_t));
+    if (L.s)
+        L.s->checked_only = check_only;
     if (!L.s)
         return fail(&L, NULL, "out of memory");
     const char *end = NULL;
@@ -2006,18 +2011,33 @@ static int load(const char *json, size_t len, const char *name, const char *base
 int scene_load_string(const char *json, size_t len, const char *name, const char *base_dir,
                       scene_t **out, char *err, size_t errlen)
 {
-    return load(json, len, name, base_dir, NULL, 0, out, err, errlen);
+    return load(json, len, name, base_dir, NULL, 0, 0, out, err, errlen);
 }
+
+int scene_check_string(const char *json, size_t len, const char *name, const char *base_dir,
+                       scene_t **out, char *err, size_t errlen)
+{
+    return load(json, len, name, base_dir, NULL, 0, 1, out, err, errlen);
+}
+
+/* an empty bundle still resolves against blobs, never the file system */
+static const scene_blob_t no_blobs = {"", NULL, 0};
 
 int scene_load_bundle(const char *json, size_t len, const char *name, const scene_blob_t *blobs,
                       size_t blob_count, scene_t **out, char *err, size_t errlen)
 {
-    /* an empty bundle still resolves against blobs, never the file system */
-    static const scene_blob_t none = {"", NULL, 0};
-    return load(json, len, name, NULL, blob_count ? blobs : &none, blob_count, out, err, errlen);
+    return load(json, len, name, NULL, blob_count ? blobs : &no_blobs, blob_count, 0, out, err,
+                errlen);
 }
 
-int scene_load(const char *path, scene_t **out, char *err, size_t errlen)
+int scene_check_bundle(const char *json, size_t len, const char *name, const scene_blob_t *blobs,
+                       size_t blob_count, scene_t **out, char *err, size_t errlen)
+{
+    return load(json, len, name, NULL, blob_count ? blobs : &no_blobs, blob_count, 1, out, err,
+                errlen);
+}
+
+static int load_file(const char *path, int check_only, scene_t **out, char *err, size_t errlen)
 {
     *out = NULL;
     FILE *f = fopen(path, "rb");
@@ -2062,9 +2082,19 @@ int scene_load(const char *path, scene_t **out, char *err, size_t errlen)
         *slash = '\0';
     else
         snprintf(dir, sizeof dir, ".");
-    int rc = scene_load_string(buf, (size_t)size, path, dir, out, err, errlen);
+    int rc = load(buf, (size_t)size, path, dir, NULL, 0, check_only, out, err, errlen);
     free(buf);
     return rc;
+}
+
+int scene_load(const char *path, scene_t **out, char *err, size_t errlen)
+{
+    return load_file(path, 0, out, err, errlen);
+}
+
+int scene_check(const char *path, scene_t **out, char *err, size_t errlen)
+{
+    return load_file(path, 1, out, err, errlen);
 }
 
 void scene_destroy(scene_t **sp)

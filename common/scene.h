@@ -178,6 +178,7 @@ typedef struct scene {
     size_t dropped_degenerate; /* zero-area triangles left out */
     int warning_count;
     char warnings[SCENE_MAX_WARNINGS][SCENE_WARNING_LEN];
+    int checked_only; /* from scene_check*: not to be traced (tracer_new refuses it) */
 } scene_t;
 
 /* Vertex i's position, and its normal (the zero vector when it has none). */
@@ -230,6 +231,18 @@ typedef struct scene_blob {
  * the master. A name not among the blobs is an error. */
 int scene_load_bundle(const char *json, size_t len, const char *name, const scene_blob_t *blobs,
                       size_t blob_count, scene_t **out, char *err, size_t errlen);
+
+/* The three loads above for a party that checks a scene and reads its
+ * settings but never traces it (the client before it submits, the master
+ * when it takes a job): the same checks and messages, without what a
+ * material precomputes for tracing (a rough plastic's coat tables, 0.15 to
+ * 0.5 s each, which `vbrender render` computed once for each of its three
+ * parties). tracer_new refuses such a scene. */
+int scene_check(const char *path, scene_t **out, char *err, size_t errlen);
+int scene_check_string(const char *json, size_t len, const char *name, const char *base_dir,
+                       scene_t **out, char *err, size_t errlen);
+int scene_check_bundle(const char *json, size_t len, const char *name, const scene_blob_t *blobs,
+                       size_t blob_count, scene_t **out, char *err, size_t errlen);
 
 /* Frees the scene and sets *s to NULL; accepts NULL. */
 void scene_destroy(scene_t **s);

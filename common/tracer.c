@@ -115,6 +115,10 @@ int tracer_new_accel(tracer_device_t *dev, const scene_t *scene, tracer_accel_t 
                      tracer_t **out, char *err, size_t errlen)
 {
     *out = NULL;
+    if (scene->checked_only) {
+        snprintf(err, errlen, "the scene was loaded to be checked (scene_check*), not traced");
+        return -1;
+    }
     tracer_t *t = calloc(1, sizeof *t);
     if (!t) {
         snprintf(err, errlen, "out of memory");

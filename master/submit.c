@@ -159,8 +159,8 @@ static int submit_scene(job_t *j, const submit_frame_t *json, const scene_blob_t
     j->json[j->json_size] = '\0';
     scene_t *scene = NULL;
     char serr[VB_ERR_LEN - 16];
-    if (scene_load_bundle(j->json, j->json_size, j->name, blobs, j->mesh_count, &scene, serr,
-                          sizeof serr) < 0) {
+    if (scene_check_bundle(j->json, j->json_size, j->name, blobs, j->mesh_count, &scene, serr,
+                           sizeof serr) < 0) {
         snprintf(err, errlen, "bad scene: %s", serr);
         return -1;
     }

@@ -12,6 +12,7 @@
 
 #include "scene.h"
 #include "testutil.h"
+#include "tracer.h"
 
 #define PATHLEN 1024
 #define ERRLEN 1024
@@ -329,6 +330,55 @@ START_TEST(bad_material_type)
                        "0.5]}, \"light\": {\"type\": \"hair\", \"radiance\": [1, 1, 1]}}";
     expect_fail(build(buf, sizeof buf, CAM_OK, NULL, mats, SHAPES_OK), "mtype.json",
                 "materials.light", "unknown material type", "hair");
+}
+END_TEST
+
+/* scene_check: what the client and the master load to check a job (they
+ * never trace it): the same scene and settings, the same faults named, but
+ * no rough-plastic coat tables (a million samples each), and no tracer. */
+START_TEST(checked_only)
+{
+    char buf[TEXTLEN], err[ERRLEN] = "";
+    const char *mats =
+        "\"materials\": {\"white\": {\"type\": \"plastic\", \"albedo\": [0.2, 0.3, 0.4], "
+        "\"roughness\": 0.1}, \"light\": {\"type\": \"emitter\", \"radiance\": [4, 4, 4]}}";
+    const char *json =
+        build(buf, sizeof buf, CAM_OK, "\"render\": {\"spp\": 96, \"seed\": 5}", mats, SHAPES_OK);
+    scene_t *full = load_ok(json, "coat.json"), *checked = NULL;
+    ck_assert_msg(
+        scene_check_string(json, strlen(json), "coat.json", NULL, &checked, err, sizeof err) == 0,
+        "%s", err);
+    ck_assert(!full->checked_only && checked->checked_only);
+    ck_assert(checked->camera.width == 32 && checked->camera.height == 24);
+    ck_assert(checked->spp == full->spp && checked->seed == full->seed && checked->spp == 96);
+    ck_assert(checked->triangle_count == full->triangle_count &&
+              checked->material_count == full->material_count);
+    /* the coat: computed for tracing, left out when checking */
+    ck_assert(full->materials[0].coat_t[MATERIAL_COAT_RES - 1] > 0.5f &&
+              full->materials[0].internal > 0.0f);
+    ck_assert(checked->materials[0].coat_t[MATERIAL_COAT_RES - 1] == 0.0f);
+    tracer_device_t *dev = NULL;
+    tracer_t *t = NULL;
+    ck_assert_msg(tracer_device_new(&dev, err, sizeof err) == 0, "%s", err);
+    ck_assert_int_eq(tracer_new(dev, checked, &t, err, sizeof err), -1);
+    ck_assert_msg(strstr(err, "checked") != NULL, "%s", err);
+    ck_assert_msg(tracer_new(dev, full, &t, err, sizeof err) == 0, "%s", err);
+    tracer_destroy(&t);
+    tracer_device_destroy(&dev);
+    scene_destroy(&checked);
+    scene_destroy(&full);
+    /* a fault: the same message either way */
+    const char *bad = build(buf, sizeof buf, CAM_OK, NULL,
+                            "\"materials\": {\"white\": {\"type\": \"plastic\", \"ior\": 1}, "
+                            "\"light\": {\"type\": \"emitter\", \"radiance\": [4, 4, 4]}}",
+                            SHAPES_OK);
+    char err2[ERRLEN] = "";
+    ck_assert_int_eq(scene_load_string(bad, strlen(bad), "bad.json", NULL, &full, err, sizeof err),
+                     -1);
+    ck_assert_int_eq(
+        scene_check_string(bad, strlen(bad), "bad.json", NULL, &checked, err2, sizeof err2), -1);
+    ck_assert_str_eq(err, err2);
+    ck_assert(full == NULL && checked == NULL);
 }
 END_TEST
 
@@ -1325,6 +1375,7 @@ static Suite *scene_suite(void)
     tcase_add_test(tc, feature_mirror_scale);
     tcase_add_test(tc, feature_sphere);
     tcase_add_test(tc, feature_materials);
+    tcase_add_test(tc, checked_only);
     suite_add_tcase(su, tc);
 
     tc = tcase_create("robustness");
