@@ -10,8 +10,10 @@ references and timing guard:
 - ours: `vbrender render` with our defaults (2 workers x 1 thread), max
   2 VB_PEER_SPP samples a pixel (the adaptive default stops many pixels
   early: its curve must reach the time Mitsuba took for VB_PEER_SPP), its
-  error curve against the reference; the whole command is timed, its
-  start (master, workers, the scene's load) included, as a user runs it;
+  error curve against the reference, on the job's own clock: from its
+  first task handed out, so the workers' loading of the scene counts, the
+  processes' start and the client's and the master's check of the scene
+  do not;
 - Mitsuba 3 (llvm_ad_rgb, 2 threads, warm: mitsuba_peer.py's sweep renders
   each count once untimed first) with each of its five samplers, at the
   sample counts that sampler takes as they are (orthogonal: squares of
@@ -193,7 +195,8 @@ def table(R):
          f"({c['ref_spp']} spp, their own error subtracted). Mitsuba's best: its lowest relMSE at equal time "
          f"on the scene. Ratios: our relMSE over its best's at the times it took for its last two counts "
          f"(below 1: we are ahead), and its time over ours to equal relMSE (above 1: we are faster). "
-         f"Our whole command is timed, its start included; Mitsuba's renders are timed warm. "
+         f"Our time is the job's clock, from its first task (the workers' scene loading counts); "
+         f"Mitsuba's renders are timed warm. "
          f"Commit {R['commit']}, {R['date']}, {R['seconds']:.0f} s in all (`bench/error/peer_best.py`); plots "
          f"`bench/results/error/peer-best-<scene>.png`.", "",
          "| scene | Mitsuba's best | its relMSE at equal time, per sampler (independent, stratified, "
