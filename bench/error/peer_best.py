@@ -154,22 +154,7 @@ def best_sampler(curves):
 def compare(ours, mits):
     """Our curve against Mitsuba's best one: our relMSE over its at the times
     it took for its last two counts, and its time over ours to equal relMSE."""
-    marks = []
-    for q in mits["runs"][-2:]:
-        o = S.interp_loglog(ours["t"], ours["relmse"], q["seconds"])
-        marks.append({"mitsuba_spp": q["spp"], "seconds": q["seconds"], "mitsuba": q["relmse"],
-                      "ours": o, "ratio": o / q["relmse"] if o else None})
-    lo = max(float(np.min(ours["relmse"])), float(np.min(mits["relmse"])))
-    hi = min(float(np.max(ours["relmse"])), float(np.max(mits["relmse"])))
-    levels = []
-    if hi > lo:
-        for lev in np.geomspace(hi, lo, 6)[1:-1]:
-            tm = S.first_reach(mits["t"], mits["relmse"], lev)
-            to = S.first_reach(ours["t"], ours["relmse"], lev)
-            if tm and to:
-                levels.append({"relmse": float(lev), "mitsuba_s": tm, "ours_s": to, "ratio": tm / to})
-    geo = float(np.exp(np.mean([np.log(x["ratio"]) for x in levels]))) if levels else None
-    return {"at_mitsuba_times": marks, "time_levels": levels, "time_geomean": geo}
+    return S.curve_against_peer(ours, mits, mits["runs"][-2:])
 
 
 def plot(name, ours, curves, best, path, ref_meta):

@@ -772,12 +772,21 @@ def peer_compare(s, mits, pts):
     """One of our runs against Mitsuba's sweep: our relMSE over Mitsuba's at
     the time Mitsuba took for each mark (256, 1024 spp), and Mitsuba's time
     over ours to equal relMSE at levels both reach."""
+    c = curve_against_peer(s, mits, [q for q in pts if q["spp"] in CFG["mitsuba_marks"]])
+    c["ours_samples_per_second"] = float(s["n"][-1] / s["t"][-1])
+    return c
+
+
+def curve_against_peer(s, mits, marks_at):
+    """Our curve s (t, relmse) against a peer's (t, relmse): our relMSE over
+    its at the times of its points marks_at (spp, seconds, relmse), and its
+    time over ours to equal relMSE at 4 levels both reach, with their
+    geometric mean."""
     marks = []
-    for q in pts:
-        if q["spp"] in CFG["mitsuba_marks"]:
-            ours = interp_loglog(s["t"], s["relmse"], q["seconds"])
-            marks.append({"mitsuba_spp": q["spp"], "seconds": q["seconds"], "mitsuba": q["relmse"],
-                          "ours": ours, "ratio": ours / q["relmse"] if ours else None})
+    for q in marks_at:
+        ours = interp_loglog(s["t"], s["relmse"], q["seconds"])
+        marks.append({"mitsuba_spp": q["spp"], "seconds": q["seconds"], "mitsuba": q["relmse"],
+                      "ours": ours, "ratio": ours / q["relmse"] if ours else None})
     lo = max(float(np.min(s["relmse"])), float(np.min(mits["relmse"])))
     hi = min(float(np.max(s["relmse"])), float(np.max(mits["relmse"])))
     levels = []
@@ -788,8 +797,7 @@ def peer_compare(s, mits, pts):
             if tm and to:
                 levels.append({"relmse": float(lev), "mitsuba_s": tm, "ours_s": to, "ratio": tm / to})
     return {"at_mitsuba_times": marks, "time_levels": levels,
-            "time_geomean": float(np.exp(np.mean([np.log(x["ratio"]) for x in levels]))) if levels else None,
-            "ours_samples_per_second": float(s["n"][-1] / s["t"][-1])}
+            "time_geomean": float(np.exp(np.mean([np.log(x["ratio"]) for x in levels]))) if levels else None}
 
 
 # ---------------------------------------------------------------- tables
