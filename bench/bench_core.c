@@ -8,10 +8,13 @@
  *      traces exactly the extension rays of the same path-length
  *      distribution (same materials, same Russian roulette) and no shadow
  *      rays;
- *   2. raw Embree: rtcIntersect1 over a precomputed batch of extension rays
- *      and rtcOccluded1 over a batch of shadow rays, built exactly as
+ *   2. raw Embree: the tracer's packets (tracer_intersect_packet,
+ *      tracer_unoccluded_packet: rtcIntersect8 / rtcOccluded8 over
+ *      TRACER_PACKET consecutive rays) over a precomputed batch of extension
+ *      rays and a batch of shadow rays, on a scene built exactly as
  *      common/tracer.c builds its scene, timed separately on --threads
- *      pthreads, for two ray distributions:
+ *      pthreads (and, for reference, one ray a call: rtcIntersect1 /
+ *      rtcOccluded1, JSON "path_one_by_one"), for two ray distributions:
  *        "path": the rays of real diffuse random walks from the camera
  *                (what our tracer traces, replayed without any shading);
  *        "area": origins uniform by area on the non-black-emitter
@@ -214,6 +217,7 @@ typedef struct embree {
     RTCScene scene;
     char isa[16];
     trilist_t *list; /* if set, rays go to the triangle list instead */
+    int one_by_one;  /* rtcIntersect1 / rtcOccluded1, not the tracer's packets */
 } embree_t;
 
 /* e->device configured as tracer_device_new configures it (the ISA pinned). */
@@ -278,6 +282,7 @@ static int closest_hit(const embree_t *e, vec3_t o, vec3_t d, uint32_t *tri, flo
 typedef struct raw_job {
     RTCScene scene;
     const trilist_t *list;
+    int one_by_one;
     const bray_t *rays;
     size_t begin, end;
     int shadow;
@@ -301,6 +306,29 @@ static void *raw_worker(void *argp)
                 uint32_t tri;
                 float t, u, v;
                 hits += trilist_intersect(j->list, o, d, INFINITY, &tri, &t, &u, &v);
+            }
+        }
+    } else if (!j->one_by_one) {
+        /* packets of consecutive rays, through the tracer's own calls */
+        const tracer_t tr = {.rtc = j->scene};
+        for (size_t i = j->begin; i < j->end; i += TRACER_PACKET) {
+            size_t m = j->end - i < TRACER_PACKET ? j->end - i : TRACER_PACKET;
+            tracer_packet_t pk;
+            for (size_t q = 0; q < m; q++) {
+                const bray_t *b = &j->rays[i + q];
+                pk.o[q] = vec3_make(b->o[0], b->o[1], b->o[2]);
+                pk.d[q] = vec3_make(b->d[0], b->d[1], b->d[2]);
+            }
+            int got[TRACER_PACKET];
+            if (j->shadow) {
+                tracer_unoccluded_packet(&tr, &pk, m, got);
+                for (size_t q = 0; q < m; q++)
+                    hits += !got[q];
+            } else {
+                tracer_hit_t h[TRACER_PACKET];
+                tracer_intersect_packet(&tr, &pk, m, got, h);
+                for (size_t q = 0; q < m; q++)
+                    hits += (size_t)got[q];
             }
         }
     } else {
@@ -344,6 +372,7 @@ static int raw_time(const embree_t *e, const batch_t *b, int shadow, int threads
         for (int k = 0; k < threads; k++) {
             jobs[k].scene = e->scene;
             jobs[k].list = e->list;
+            jobs[k].one_by_one = e->one_by_one;
             jobs[k].rays = b->rays;
             jobs[k].begin = b->count * (size_t)k / (size_t)threads;
             jobs[k].end = b->count * (size_t)(k + 1) / (size_t)threads;
@@ -962,7 +991,7 @@ static int measure_ours(const tracer_t *tr, const scene_t *s, const args_t *a, o
 /* Raw Embree on two ray distributions; dist[0] ("path") also on a BVH
  * without ROBUST (into *fast). */
 typedef struct raw {
-    dist_result_t dist[2], fast, list, sorted, user;
+    dist_result_t dist[2], fast, list, sorted, user, one_by_one;
     int runs;
     long rss_total;
 } raw_t;
@@ -977,6 +1006,15 @@ static void print_dist(const char *name, double tgen, const dist_result_t *d)
             100 * d->ext.utilization, 100 * d->sh.utilization,
             d->ext.utilization < UNDISTURBED || d->sh.utilization < UNDISTURBED ? " (disturbed)"
                                                                                 : "");
+}
+
+/* One more way of casting the path rays, after print_dist's line. */
+static void print_way(const char *way, const dist_result_t *d)
+{
+    fprintf(
+        stderr,
+        "  raw path, %s: extension %.3f M rays/s, shadow %.3f M rays/s, our mix %.3f M rays/s\n",
+        way, d->ext.rays_per_second / 1e6, d->sh.rays_per_second / 1e6, d->mix / 1e6);
 }
 
 static void set_mix(dist_result_t *d, double f_ext)
@@ -1008,6 +1046,7 @@ static int measure_other_ways(const scene_t *s, const embree_t *e, const batch_t
     embree_t eu;
     clusters_t c;
     memset(&eu, 0, sizeof eu);
+    eu.one_by_one = 1; /* the callbacks take one ray */
     if (clusters_build(s, &eu, &c) < 0) {
         fprintf(stderr, "bench_core: cannot build the clustered scene\n");
         embree_free(&eu);
@@ -1069,11 +1108,20 @@ static int measure_dist(const scene_t *s, const args_t *a, int k, const embree_t
     print_dist(k == 0 ? "path" : "area", tgen, d);
     if (k == 0) {
         set_mix(&r->fast, f_ext);
-        fprintf(stderr,
-                "  raw path, BVH without ROBUST: extension %.3f M rays/s, shadow %.3f M rays/s, "
-                "our mix %.3f M rays/s\n",
-                r->fast.ext.rays_per_second / 1e6, r->fast.sh.rays_per_second / 1e6,
-                r->fast.mix / 1e6);
+        print_way("BVH without ROBUST", &r->fast);
+    }
+    if (k == 0 && !elist->list) {
+        embree_t single = *e;
+        single.one_by_one = 1;
+        if (raw_time(&single, &ext, 0, threads, r->runs, &r->one_by_one.ext) < 0 ||
+            raw_time(&single, &sh, 1, threads, r->runs, &r->one_by_one.sh) < 0) {
+            fprintf(stderr, "bench_core: cannot start threads\n");
+            batch_free(&ext);
+            batch_free(&sh);
+            return -1;
+        }
+        set_mix(&r->one_by_one, f_ext);
+        print_way("one ray a call (rtcIntersect1/rtcOccluded1)", &r->one_by_one);
     }
     if (k == 0 && !elist->list && measure_other_ways(s, e, &ext, &sh, threads, f_ext, r) < 0) {
         batch_free(&ext);
@@ -1171,7 +1219,11 @@ static cJSON *raw_embree_json(const raw_t *r, const args_t *a, int threads)
         j, "path",
         dist_json(&r->dist[0], threads,
                   "rays of diffuse random walks from the camera, as the path integrator "
-                  "traces them (camera, bounce and next-event shadow rays)"));
+                  "traces them (camera, bounce and next-event shadow rays), cast as the tracer "
+                  "casts them: Embree packets of consecutive rays (TRACER_PACKET)"));
+    add_dist_if_run(j, "path_one_by_one", &r->one_by_one, threads,
+                    "the path rays on the ROBUST BVH one ray a call (rtcIntersect1 / "
+                    "rtcOccluded1), as the tracer cast them before packets");
     cJSON_AddItemToObject(j, "area",
                           dist_json(&r->dist[1], threads,
                                     "origins uniform by area on non-black-emitter triangles, "

@@ -47,7 +47,10 @@ def ceiling_table(core, peer_runs):
         m = peer_runs.get((r["scene_name"], 1))
         rps = r["ours"]["rays_per_sample"]
         cells = []
-        for key in ("path", "path_sorted", "path_watertight_user", "path_not_robust"):
+        for key in ("path", "path_one_by_one", "path_sorted", "path_watertight_user", "path_not_robust"):
+            if key not in raw:  # results from before packets
+                cells.append("-")
+                continue
             mix = raw[key]["mix_rays_per_second_per_core"]
             cap = mix / rps
             cells.append(f"{mega(mix, 1)} ({ratio(cap, m['samples_per_second_per_core']) if m else '-'})")
@@ -57,15 +60,17 @@ def ceiling_table(core, peer_runs):
     return "\n".join([
         "**The ceiling ray casting sets** (issue 9; 1 thread): our ray mix on each way of casting that "
         "stays watertight, and, in brackets, the samples/s it would allow with shading, sampling and "
-        "bookkeeping free (mix / rays per sample) over Mitsuba 3's samples/s. \"Sorted\": the same rays "
-        "sorted by direction octant and origin Morton code (the sort not timed: the most a sorting "
+        "bookkeeping free (mix / rays per sample) over Mitsuba 3's samples/s. \"ROBUST\": in Embree "
+        "packets of 8 consecutive rays, as the tracer casts them; \"one ray a call\": rtcIntersect1 / "
+        "rtcOccluded1, as it cast them before. \"Sorted\": the same rays "
+        "sorted by direction octant and origin Morton code, in packets (the sort not timed: the most a sorting "
         "wavefront tracer could gain from coherence). \"Watertight clusters\": an Embree BVH (default "
         "flags) over clusters of 16 triangles in Morton order, each tested by trilist's watertight "
-        "kernel through Embree's user-geometry callbacks. \"Not ROBUST\": Embree's own test, which lets "
+        "kernel through Embree's user-geometry callbacks, one ray a call. \"Not ROBUST\": Embree's own test, which lets "
         "rays through cracks (the table below), for reference.",
         "",
-        "| Scene | Rays/sample | ROBUST | ROBUST, sorted | Watertight clusters | Not ROBUST (leaks) |",
-        "|---|--:|--:|--:|--:|--:|",
+        "| Scene | Rays/sample | ROBUST | ROBUST, one ray a call | ROBUST, sorted | Watertight clusters | Not ROBUST (leaks) |",
+        "|---|--:|--:|--:|--:|--:|--:|",
     ] + rows)
 
 
@@ -105,8 +110,9 @@ def table(core, max_triangles):
         f"{mach.get('cpu')}, {mach.get('cores')} cores, Embree {mach.get('embree')} ({mach.get('isa')}); "
         f"commit {core.get('commit')}, {core.get('date')}; whole benchmark {core.get('bench_seconds', 0):.0f} s.",
         "Raw ray casting: what the tracer casts rays with, alone, over 2M precomputed rays recorded from "
-        "diffuse random walks from the camera (the rays our tracer traces): Embree's rtcIntersect1 / "
-        "rtcOccluded1, or \"(list)\" the triangle list without a BVH (common/trilist.h) that the tracer "
+        "diffuse random walks from the camera (the rays our tracer traces): Embree's rtcIntersect8 / "
+        "rtcOccluded8 on packets of 8 consecutive rays (the tracer casts its rays in packets of 8), "
+        "or \"(list)\" the triangle list without a BVH (common/trilist.h) that the tracer "
         f"uses for scenes of up to {max_triangles} triangles; \"Ours / raw\" compares our rays/s, "
         "shading and sampling included, with the raw rate of our own extension/shadow mix "
         "(1 / sum(fraction / rate)). Peak memory: ru_maxrss of the benchmark process after the renders.",

@@ -38,8 +38,11 @@
  * sample picks its emitter as Mitsuba does, the environment, each light
  * with no area and each emitting material alike (scene.c
  * finish_delta_lights, build_light_cdf: scenes with more than one draw
- * other numbers; our own scenes, one emitter each, keep their bits). */
-#define TRACER_VERSION 5
+ * other numbers; our own scenes, one emitter each, keep their bits); 6
+ * since the wavefront engine casts Embree rays in packets of 8 (tracer_priv.h
+ * TRACER_PACKET: the same bits as one ray a call on every ray we tested,
+ * but Embree does not promise it, so a worker of each kind stays apart). */
+#define TRACER_VERSION 6
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so
  * samples/s compare like with like). */

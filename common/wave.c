@@ -79,90 +79,167 @@ static int hit_stage(const wave_ctx_t *c, wave_state_t *w, uint16_t s, tracer_hi
     return 1;
 }
 
+/* Ends slot s's path: its radiance and rays to the sample list, the slot
+ * to the free list. */
+static void finish_path(wave_state_t *w, uint16_t s, vec3_t *L, uint32_t *rays,
+                        uint16_t *free_slots, size_t *nfree)
+{
+    L[w->sample[s]] = w->L[s];
+    rays[w->sample[s]] = w->rays[s];
+    free_slots[(*nfree)++] = s;
+}
+
+/* The closest-hit stage of one chunk: its rays cast in packets, in sample
+ * order; the paths that go on are queued for their material's kernel and
+ * stay in the chunk, the others end. */
+static void chunk_hits(const wave_ctx_t *c, wave_state_t *w, wave_chunk_t *ch,
+                       uint16_t (*queue)[WAVE_PATHS], size_t *queued, vec3_t *L, uint32_t *rays,
+                       uint16_t *free_slots, size_t *nfree)
+{
+    size_t kept = 0;
+    /* a chunk's paths are all at the same bounce */
+    int camera_hides = c->hide_camera && w->depth[ch->live[0]] == 0;
+    for (size_t j0 = 0; j0 < ch->n; j0 += TRACER_PACKET) {
+        size_t m = ch->n - j0 < TRACER_PACKET ? ch->n - j0 : TRACER_PACKET;
+        tracer_hit_t h[TRACER_PACKET];
+        int hit[TRACER_PACKET];
+        if (camera_hides) {
+            for (size_t i = 0; i < m; i++) {
+                uint16_t s = ch->live[j0 + i];
+                w->rays[s]++;
+                hit[i] = tracer_intersect_camera(c->tracer, w->o[s], w->d[s], &h[i], &w->rays[s]);
+            }
+        } else {
+            tracer_packet_t pk;
+            for (size_t i = 0; i < m; i++) {
+                uint16_t s = ch->live[j0 + i];
+                w->rays[s]++;
+                pk.o[i] = w->o[s];
+                pk.d[i] = w->d[s];
+            }
+            tracer_intersect_packet(c->tracer, &pk, m, hit, h);
+        }
+        for (size_t i = 0; i < m; i++) {
+            uint16_t s = ch->live[j0 + i];
+            material_type_t type;
+            if (hit[i]) {
+                if (hit_stage(c, w, s, &h[i], &type)) {
+                    queue[type][queued[type]++] = s;
+                    ch->live[kept++] = s;
+                    continue;
+                }
+            } else if (c->env && !camera_hides) {
+                w->L[s] = tracer_env_miss(c->scene, w->L[s], w->beta[s], w->d[s], w->specular[s],
+                                          w->prev_pdf[s], c->nee);
+            }
+            finish_path(w, s, L, rays, free_slots, nfree);
+        }
+    }
+    ch->n = (uint16_t)kept;
+}
+
+/* After shading, for one chunk: its shadow rays cast in packets, in
+ * sample order; then Russian roulette and the next ray, or the path's end. */
+static void chunk_continue(const wave_ctx_t *c, wave_state_t *w, wave_chunk_t *ch, vec3_t *L,
+                           uint32_t *rays, uint16_t *free_slots, size_t *nfree)
+{
+    tracer_packet_t pk;
+    uint16_t in_packet[TRACER_PACKET];
+    size_t m = 0;
+    for (size_t j = 0; j <= ch->n; j++) {
+        if (j < ch->n && w->shadow[ch->live[j]]) {
+            uint16_t s = ch->live[j];
+            w->rays[s]++;
+            pk.o[m] = w->shadow_o[s];
+            pk.d[m] = w->shadow_d[s];
+            in_packet[m++] = s;
+        }
+        if (m == TRACER_PACKET || (j == ch->n && m > 0)) {
+            int clear[TRACER_PACKET];
+            tracer_unoccluded_packet(c->tracer, &pk, m, clear);
+            for (size_t i = 0; i < m; i++)
+                if (clear[i])
+                    w->L[in_packet[i]] = vec3_add(w->L[in_packet[i]], w->shadow_L[in_packet[i]]);
+            m = 0;
+        }
+    }
+    size_t kept = 0;
+    for (size_t j = 0; j < ch->n; j++) {
+        uint16_t s = ch->live[j];
+        int goes_on = w->alive[s];
+        if (goes_on) {
+            rng_seek(&w->rng[s], tracer_bounce_dim(w->depth[s]));
+            if (w->depth[s] + 1 >= c->scene->rr_depth) {
+                float q = tracer_roulette_probability(w->beta[s], w->eta_scale[s]);
+                if (!(rng_next_float(&w->rng[s]) < q))
+                    goes_on = 0;
+                else
+                    w->beta[s] = vec3_scale(w->beta[s], 1.0f / q);
+            }
+        }
+        if (!goes_on) {
+            finish_path(w, s, L, rays, free_slots, nfree);
+            continue;
+        }
+        w->d[s] = w->next_d[s];
+        w->depth[s]++;
+        ch->live[kept++] = s;
+    }
+    ch->n = (uint16_t)kept;
+}
+
 void wave_trace(const wave_ctx_t *c, wave_state_t *w, const tracer_task_t *tasks, size_t count,
                 vec3_t *L, uint32_t *rays)
 {
-    uint16_t live[WAVE_PATHS], next_live[WAVE_PATHS], free_slots[WAVE_PATHS];
+    uint16_t free_slots[WAVE_PATHS];
     uint16_t queue[WAVE_KERNELS][WAVE_PATHS];
     size_t queued[WAVE_KERNELS];
-    size_t nlive = 0, nfree = WAVE_PATHS;
+    size_t nfree = WAVE_PATHS, nchunks = 0;
+    wave_chunk_t *chunks = w->chunks;
     for (size_t i = 0; i < WAVE_PATHS; i++)
         free_slots[i] = (uint16_t)(WAVE_PATHS - 1 - i);
     wave_cursor_t cur = {0, 0, 0}; /* (tracer_trace refuses tasks of no samples) */
     for (;;) {
-        /* fill the free slots with the next samples */
-        while (nfree > 0 && cur.task < count) {
-            uint16_t s = free_slots[--nfree];
-            start_path(c, w, s, &tasks[cur.task], cur.index, cur.flat);
-            live[nlive++] = s;
-            cur.flat++;
-            if (++cur.index == tasks[cur.task].sample_count) {
+        /* start the next chunks (the next samples of one task, at most
+         * WAVE_CHUNK) while there are slots for them */
+        while (cur.task < count) {
+            uint32_t left = tasks[cur.task].sample_count - cur.index;
+            size_t size = left < WAVE_CHUNK ? left : WAVE_CHUNK;
+            if (nfree < size)
+                break;
+            wave_chunk_t *ch = &chunks[nchunks++];
+            ch->n = 0;
+            for (size_t i = 0; i < size; i++) {
+                uint16_t s = free_slots[--nfree];
+                start_path(c, w, s, &tasks[cur.task], cur.index, cur.flat);
+                ch->live[ch->n++] = s;
+                cur.flat++;
+                cur.index++;
+            }
+            if (cur.index == tasks[cur.task].sample_count) {
                 cur.index = 0;
                 cur.task++;
             }
         }
-        if (nlive == 0)
+        if (nchunks == 0)
             break;
         for (size_t k = 0; k < WAVE_KERNELS; k++)
             queued[k] = 0;
         /* closest hit, and the hit's own work */
-        for (size_t j = 0; j < nlive; j++) {
-            uint16_t s = live[j];
-            tracer_hit_t h;
-            material_type_t type;
-            w->rays[s]++;
-            if (c->hide_camera && w->depth[s] == 0
-                    ? tracer_intersect_camera(c->tracer, w->o[s], w->d[s], &h, &w->rays[s])
-                    : tracer_intersect(c->tracer, w->o[s], w->d[s], &h)) {
-                if (hit_stage(c, w, s, &h, &type)) {
-                    queue[type][queued[type]++] = s;
-                    continue;
-                }
-            } else if (c->env && !(c->hide_camera && w->depth[s] == 0)) {
-                w->L[s] = tracer_env_miss(c->scene, w->L[s], w->beta[s], w->d[s], w->specular[s],
-                                          w->prev_pdf[s], c->nee);
-            }
-            L[w->sample[s]] = w->L[s];
-            rays[w->sample[s]] = w->rays[s];
-            free_slots[nfree++] = s;
-        }
+        for (size_t k = 0; k < nchunks; k++)
+            chunk_hits(c, w, &chunks[k], queue, queued, L, rays, free_slots, &nfree);
         /* shading, one kernel per material type present */
         for (size_t k = 0; k < WAVE_KERNELS; k++)
             if (queued[k])
                 wave_kernels[k](c, w, queue[k], queued[k]);
-        /* shadow rays, Russian roulette, the next ray */
-        nlive = 0;
-        for (size_t k = 0; k < WAVE_KERNELS; k++) {
-            for (size_t j = 0; j < queued[k]; j++) {
-                uint16_t s = queue[k][j];
-                if (w->shadow[s]) {
-                    w->rays[s]++;
-                    if (tracer_unoccluded(c->tracer, w->shadow_o[s], w->shadow_d[s]))
-                        w->L[s] = vec3_add(w->L[s], w->shadow_L[s]);
-                }
-                int goes_on = w->alive[s];
-                if (goes_on) {
-                    rng_seek(&w->rng[s], tracer_bounce_dim(w->depth[s]));
-                    if (w->depth[s] + 1 >= c->scene->rr_depth) {
-                        float q = tracer_roulette_probability(w->beta[s], w->eta_scale[s]);
-                        if (!(rng_next_float(&w->rng[s]) < q))
-                            goes_on = 0;
-                        else
-                            w->beta[s] = vec3_scale(w->beta[s], 1.0f / q);
-                    }
-                }
-                if (!goes_on) {
-                    L[w->sample[s]] = w->L[s];
-                    rays[w->sample[s]] = w->rays[s];
-                    free_slots[nfree++] = s;
-                    continue;
-                }
-                w->d[s] = w->next_d[s];
-                w->depth[s]++;
-                next_live[nlive++] = s;
-            }
+        /* shadow rays, Russian roulette, the next ray; chunks whose paths
+         * have all ended leave */
+        size_t kept = 0;
+        for (size_t k = 0; k < nchunks; k++) {
+            chunk_continue(c, w, &chunks[k], L, rays, free_slots, &nfree);
+            if (chunks[k].n > 0)
+                chunks[kept++] = chunks[k];
         }
-        for (size_t j = 0; j < nlive; j++)
-            live[j] = next_live[j];
+        nchunks = kept;
     }
 }

@@ -7,8 +7,9 @@
  * its MIS-weighted radiance, max_depth ends it); shading, one kernel per
  * material type over the paths that hit it (next-event estimation's
  * shadow ray and the BSDF sample); the shadow rays; Russian roulette and
- * the next ray. A path that ends gives its slot to the next sample of the
- * list. Each path does the very operations tracer.c's scalar engine does,
+ * the next ray. Paths start in chunks of one task's samples, whose rays
+ * are cast in packets (WAVE_CHUNK); a chunk starts when there are free
+ * slots for all of it. Each path does the very operations tracer.c's scalar engine does,
  * in its order, so a sample's radiance and ray count are the same bits in
  * both engines (test_tracer compares them sample by sample): which slot or
  * lane a path takes, and when, cannot change its value.
@@ -29,8 +30,16 @@
 /* Paths in flight: enough for whole blocks of WAVE_LANES in each kernel,
  * few enough that a hit's triangle data is still cached when its kernel
  * runs. 64 measured best over 32, 128 and 256 on cornell-buddha (100k
- * triangles: 0.94x the scalar engine at 256) and no worse on the others. */
+ * triangles: 0.94x the scalar engine at 256) and no worse on the others;
+ * with chunks and packets, 128 and 256 measured the same as 64 within 3 %
+ * (cornell-buddha, cornell-glass), and 64 with chunks of 16 4 % slower. */
 #define WAVE_PATHS 64
+/* The most samples of one task started together as a chunk. A chunk's
+ * paths are at the same bounce at every step, and its rays are cast in
+ * packets of TRACER_PACKET in sample order: which rays share a packet
+ * depends on the task alone, never on the other tasks in the list, so a
+ * worker's image does not depend on how tasks were dealt to workers. */
+#define WAVE_CHUNK 32
 /* The SIMD kernels' width: 4 floats, one SSE register. The kernels are
  * built for the baseline target: 8 floats there were lowered through the
  * stack, and an AVX2 clone, calling into code built without AVX, paid more
@@ -50,8 +59,15 @@ typedef struct wave_ctx {
     int hide_camera; /* scene_t.hide_emitters: camera rays pass emitters */
 } wave_ctx_t;
 
+/* A chunk's paths still going, their slots in sample order. */
+typedef struct wave_chunk {
+    uint16_t live[WAVE_CHUNK];
+    uint16_t n;
+} wave_chunk_t;
+
 /* The paths in flight, one entry per slot. */
 typedef struct wave_state {
+    wave_chunk_t chunks[WAVE_PATHS]; /* the chunks in flight (one path each at least) */
     /* the path */
     rng_stream_t rng[WAVE_PATHS];
     vec3_t o[WAVE_PATHS], d[WAVE_PATHS]; /* the ray being traced; d unit length */
