@@ -91,7 +91,7 @@ static inline int tracer_embree_unoccluded(RTCScene sc, vec3_t o, vec3_t d)
 /* Rays cast together: one Embree packet of AVX2's width (the ISA the
  * device is pinned to). Embree's packet traversal measured 1.2-1.3x its
  * one-ray calls on our recorded path rays (bench_core "packets of 8";
- * shadow rays 1.4-1.5x), and gave each of those 6.6 million rays the very
+ * shadow rays 1.5-1.6x), and gave each of those 6.6 million rays the very
  * hit, t, u and v bits of rtcIntersect1 / rtcOccluded1. The wavefront
  * engine fixes which rays share a packet by their task and sample alone
  * (wave.c), so the image does not depend on it either way. */
