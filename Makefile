@@ -26,7 +26,7 @@ CC       ?= cc
 BIN       = bin
 
 DEB_PACKAGES = build-essential pkg-config libembree-dev libzmq3-dev \
-               libopenexr-dev libcjson-dev libexpat1-dev zlib1g-dev libjpeg-dev check libsubunit-dev libpng-dev \
+               libopenexr-dev libcjson-dev libexpat1-dev zlib1g-dev libjpeg-dev libstb-dev check libsubunit-dev libpng-dev \
                libsodium-dev nftables clang libclang-rt-14-dev clang-format \
                libmicrohttpd-dev chromium fonts-liberation
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
@@ -79,7 +79,7 @@ ifeq ($(FUZZ),1)
 endif
 CFLAGS   ?=
 CFLAGS   += $(CFLAGS_COMMON) $(OPT)
-LDLIBS_CORE = -lembree3 -lOpenEXRCore -lpng16 -lcjson -lexpat -ljpeg -lz -lm -lpthread
+LDLIBS_CORE = -lembree3 -lOpenEXRCore -lpng16 -lstb -lcjson -lexpat -ljpeg -lz -lm -lpthread
 LDLIBS_NET  = -lzmq -lsodium
 LDLIBS_CHECK = -lcheck -lsubunit -lrt -lm -lpthread
 

@@ -1,5 +1,6 @@
 /* bitmap.c - bitmap_decode (bitmap.h): PNG through libpng's simplified
- * reader, JPEG through libjpeg, OpenEXR through image_read_exr_buffer. */
+ * reader, JPEG through libjpeg, OpenEXR through image_read_exr_buffer,
+ * Radiance HDR (RGBE) through stb_image (Debian's libstb). */
 #include "bitmap.h"
 
 #include <ctype.h>
@@ -12,6 +13,7 @@
 #include <string.h>
 
 #include <jpeglib.h>
+#include <stb/stb_image.h>
 
 #include "image.h"
 
@@ -235,6 +237,100 @@ static int decode_exr(const char *name, const unsigned char *data, size_t size, 
     return 0;
 }
 
+/* Whether an RGBE file of w x h texels holds all of its texels. stb_image
+ * reads a flat file past its end without a word (the missing texels are
+ * whatever its stack held) and a run-length one as zeros, so the payload
+ * is walked first, as stb's decoder will walk it: after the header (its
+ * lines up to the first empty one) and the resolution line, scanlines of
+ * runs (2, 2, width) for a width in [8, 32768), else w x h flat texels. */
+static int hdr_complete(const unsigned char *data, size_t size, int w, int h)
+{
+    const unsigned char *end = data + size, *p = NULL;
+    for (const unsigned char *q = data; q + 1 < end; q++)
+        if (q[0] == '\n' && q[1] == '\n') {
+            p = q + 2;
+            break;
+        }
+    while (p && p < end && *p != '\n')
+        p++;
+    if (!p || p >= end)
+        return 0;
+    p++;
+    int runs = w >= 8 && w < 32768 && end - p >= 4 && p[0] == 2 && p[1] == 2 && !(p[2] & 0x80);
+    if (!runs)
+        return (size_t)(end - p) / 4 >= (size_t)w * (size_t)h;
+    for (int y = 0; y < h; y++) {
+        if (end - p < 4 || p[0] != 2 || p[1] != 2 || ((p[2] << 8) | p[3]) != w)
+            return 0;
+        p += 4;
+        for (int k = 0; k < 4; k++)
+            for (int x = 0; x < w;) {
+                if (p >= end)
+                    return 0;
+                int count = *p++;
+                if (count > 128) {
+                    count -= 128;
+                    p++; /* the run's value */
+                } else {
+                    p += count; /* literals */
+                }
+                if (count == 0 || count > w - x || p > end)
+                    return 0;
+                x += count;
+            }
+    }
+    return 1;
+}
+
+/* A Radiance RGBE file: each texel's mantissas times 2^(exponent - 136),
+ * as Greg Ward's and Mitsuba's readers decode it. Its size and its
+ * completeness are checked before anything is decoded. */
+static int decode_hdr(const char *name, const unsigned char *data, size_t size, size_t max,
+                      bitmap_t *out, char *err, size_t errlen)
+{
+    int w = 0, h = 0, comp = 0;
+    if (size > INT32_MAX) {
+        snprintf(err, errlen, "%s: a Radiance HDR file over 2 GB", name);
+        return -1;
+    }
+    if (!stbi_info_from_memory(data, (int)size, &w, &h, &comp)) {
+        snprintf(err, errlen, "%s: not a readable Radiance HDR image (%s)", name,
+                 stbi_failure_reason());
+        return -1;
+    }
+    if (too_large(name, (unsigned)w, (unsigned)h, max, err, errlen))
+        return -1;
+    if (!hdr_complete(data, size, w, h)) {
+        snprintf(err, errlen, "%s: the Radiance HDR image is truncated or its runs are corrupt",
+                 name);
+        return -1;
+    }
+    float *rgb = stbi_loadf_from_memory(data, (int)size, &w, &h, &comp, 3);
+    if (!rgb) {
+        snprintf(err, errlen, "%s: the Radiance HDR image cannot be decoded (%s)", name,
+                 stbi_failure_reason());
+        return -1;
+    }
+    size_t texels = (size_t)w * (size_t)h;
+    out->rgb = malloc(texels * 3 * sizeof *out->rgb);
+    if (!out->rgb) {
+        snprintf(err, errlen, "%s: out of memory", name);
+        stbi_image_free(rgb);
+        return -1;
+    }
+    memcpy(out->rgb, rgb, texels * 3 * sizeof *out->rgb);
+    stbi_image_free(rgb);
+    out->width = w;
+    out->height = h;
+    return 0;
+}
+
+int bitmap_is_hdr(const unsigned char *data, size_t size)
+{
+    return (size >= 10 && memcmp(data, "#?RADIANCE", 10) == 0) ||
+           (size >= 6 && memcmp(data, "#?RGBE", 6) == 0);
+}
+
 int bitmap_decode(const char *name, const unsigned char *data, size_t size, int raw,
                   size_t max_texels, bitmap_t *out, char *err, size_t errlen)
 {
@@ -247,6 +343,8 @@ int bitmap_decode(const char *name, const unsigned char *data, size_t size, int 
         return decode_jpeg(name, data, size, raw, max_texels, out, err, errlen);
     if (size >= 4 && memcmp(data, exr_sig, 4) == 0)
         return decode_exr(name, data, size, max_texels, out, err, errlen);
-    snprintf(err, errlen, "%s: not a PNG, JPEG or OpenEXR image", name);
+    if (bitmap_is_hdr(data, size))
+        return decode_hdr(name, data, size, max_texels, out, err, errlen);
+    snprintf(err, errlen, "%s: not a PNG, JPEG, OpenEXR or Radiance HDR image", name);
     return -1;
 }

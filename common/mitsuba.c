@@ -2245,7 +2245,7 @@ static int conv_delta_light(conv_t *c, mx_node_t *n)
     return 0;
 }
 
-/* <emitter type="envmap">: a latitude-longitude EXR map (filename, scale,
+/* <emitter type="envmap">: a latitude-longitude OpenEXR or Radiance HDR map (filename, scale,
  * a rotation to_world), our scene's "environment" map. */
 static int conv_envmap(conv_t *c, mx_node_t *n)
 {
@@ -2259,9 +2259,11 @@ static int conv_envmap(conv_t *c, mx_node_t *n)
         return -1;
     if (!file)
         return NODE_FAIL(c->x, n, "the envmap needs a filename");
-    size_t len = strlen(file);
-    if (len < 4 || strcasecmp(file + len - 4, ".exr") != 0)
-        return NODE_FAIL(c->x, n, "envmap \"%s\": only OpenEXR maps are supported", file);
+    const char *ext = strrchr(file, '.');
+    if (!ext || (strcasecmp(ext, ".exr") != 0 && strcasecmp(ext, ".hdr") != 0 &&
+                 strcasecmp(ext, ".rgbe") != 0))
+        return NODE_FAIL(c->x, n, "envmap \"%s\": only OpenEXR and Radiance HDR maps are supported",
+                         file);
     if (!(scale >= 0 && scale <= 1e30))
         return NODE_FAIL(c->x, n, "scale %g is outside [0, 1e30]", scale);
     double r[9];

@@ -296,30 +296,6 @@ static int parse_render(loader_t *L, const cJSON *root)
     return 0;
 }
 
-/* The environment map's image: from the bundle or beside the scene. */
-static int load_env_image(loader_t *L, const char *file, image_t **img)
-{
-    char msg[VB_ERR_LEN];
-    int rc;
-    if (L->blobs) {
-        const scene_blob_t *b = NULL;
-        for (size_t i = 0; i < L->blob_count && !b; i++)
-            if (strcmp(L->blobs[i].name, file) == 0)
-                b = &L->blobs[i];
-        if (!b)
-            return fail(L, "environment.map", "\"%s\" is not in the scene bundle", file);
-        rc = image_read_exr_buffer(b->name, b->data, b->size, img, msg, sizeof msg);
-    } else {
-        char full[4096];
-        if (file[0] == '/' || !L->base_dir || !*L->base_dir)
-            snprintf(full, sizeof full, "%s", file);
-        else
-            snprintf(full, sizeof full, "%s/%s", L->base_dir, file);
-        rc = image_read_exr(full, img, msg, sizeof msg);
-    }
-    return rc < 0 ? fail(L, "environment.map", "%s", msg) : 0;
-}
-
 /* The map's pixels (scaled, the first column repeated after the last) and
  * its sampling distribution: each cell between four pixels weighted by
  * their mean luminance times sin(theta) at its centre. */
@@ -397,6 +373,12 @@ static int build_env_map(loader_t *L, const image_t *img, double scale)
  * triangle blocks; or {"map": "file.exr", "scale": s, "to_world": [9
  * numbers]}: a latitude-longitude map, as Mitsuba's envmap reads one
  * (finish sets up its sampling). */
+/* The most texels an environment map may have: a 16K x 8K map (1.5 GB of
+ * floats), larger than any texture, since a sky carries the lighting. */
+#define ENV_MAX_TEXELS ((size_t)16384 * 8192)
+
+static int load_env_image(loader_t *L, const char *file, image_t **img);
+
 static int parse_environment(loader_t *L, const cJSON *root)
 {
     const cJSON *e = cJSON_GetObjectItemCaseSensitive(root, "environment");
@@ -409,7 +391,8 @@ static int parse_environment(loader_t *L, const cJSON *root)
     const cJSON *map = cJSON_GetObjectItemCaseSensitive(e, "map");
     if (map) {
         if (!cJSON_IsString(map) || !*map->valuestring)
-            return fail(L, "environment.map", "expected an EXR file's name");
+            return fail(L, "environment.map",
+                        "expected an image file's name (OpenEXR or Radiance HDR)");
         double scale = 1, m[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
         if (get_number(L, e, "scale", "environment", 0, 0, 1e30, &scale) < 0)
             return -1;
@@ -638,6 +621,46 @@ static int read_asset(loader_t *L, const char *q, const char *file, const unsign
     *data = *owned = buf;
     *size = (size_t)st.st_size;
     return 0;
+}
+
+/* The environment map's image, from the bundle or beside the scene: an
+ * OpenEXR file, or a Radiance HDR one (bitmap_decode), as Mitsuba's
+ * envmap reads both. */
+static int load_env_image(loader_t *L, const char *file, image_t **img)
+{
+    const unsigned char *data = NULL;
+    size_t size = 0;
+    unsigned char *owned = NULL;
+    if (read_asset(L, "environment.map", file, &data, &size, &owned) < 0)
+        return -1;
+    char msg[VB_ERR_LEN];
+    int rc;
+    if (bitmap_is_hdr(data, size)) {
+        bitmap_t b;
+        rc = bitmap_decode(file, data, size, 0, ENV_MAX_TEXELS, &b, msg, sizeof msg);
+        if (rc == 0) {
+            *img = image_new(b.width, b.height);
+            float *ch[3] = {NULL, NULL, NULL};
+            if (*img)
+                for (int c = 0; c < 3; c++)
+                    ch[c] = image_add_channel(*img, c == 0 ? "R" : c == 1 ? "G" : "B");
+            if (!ch[0] || !ch[1] || !ch[2]) {
+                image_destroy(img);
+                snprintf(msg, sizeof msg, "%s: out of memory", file);
+                rc = -1;
+            } else {
+                size_t texels = (size_t)b.width * (size_t)b.height;
+                for (size_t i = 0; i < texels; i++)
+                    for (int c = 0; c < 3; c++)
+                        ch[c][i] = b.rgb[3 * i + c];
+            }
+            bitmap_free(&b);
+        }
+    } else {
+        rc = image_read_exr_buffer(file, data, size, img, msg, sizeof msg);
+    }
+    free(owned);
+    return rc < 0 ? fail(L, "environment.map", "%s", msg) : 0;
 }
 
 /* A bitmap texture's fields into tx: its file decoded, "filter"

@@ -1,19 +1,22 @@
 /* fuzz_bitmap.c - fuzz target for the bitmap textures' decoders
  * (bitmap_decode in common/bitmap.c: PNG through libpng, JPEG through
- * libjpeg, OpenEXR through image_read_exr_buffer): what a worker does with
- * the texture files a scene bundle carries.
+ * libjpeg, OpenEXR through image_read_exr_buffer, Radiance HDR through
+ * stb_image after our check that its texels are all there): what a
+ * worker does with the texture and environment files a scene bundle
+ * carries.
  *
  * LLVMFuzzerTestOneInput aborts if a result breaks the API's promises: on
  * failure no texels and a message naming the file; on success a size
  * within BITMAP_MAX_TEXELS and texels that are numbers (8-bit sources in
- * [0, 1]). Only our code is instrumented: a fault inside the libraries
- * shows up only when it crashes. Build with -DVB_LIBFUZZER and
- * -fsanitize=fuzzer for libFuzzer.
+ * [0, 1], Radiance HDR ones finite and not negative). Only our code is instrumented: a fault inside
+ * the libraries shows up only when it crashes. Build with -DVB_LIBFUZZER and -fsanitize=fuzzer for
+ * libFuzzer.
  *
  * Without VB_LIBFUZZER the standalone driver (fuzzdriver.h) runs it:
  *
  *     fuzz_bitmap CORPUS_DIR N      (tests/data/fuzz-bitmap: PNGs, one with
- *                                    alpha, JPEGs, one grey)
+ *                                    alpha, JPEGs, one grey, Radiance HDRs,
+ *                                    one run-length encoded, one flat)
  */
 #include <math.h>
 #include <stddef.h>
@@ -49,9 +52,11 @@ static int run_one(const uint8_t *data, size_t size)
     if (!b.rgb || b.width < 1 || b.height < 1 ||
         (uint64_t)b.width * (uint64_t)b.height > BITMAP_MAX_TEXELS / 4096)
         abort();
-    int eight_bit = size >= 3 && data[0] != 0x76; /* not OpenEXR */
+    int hdr = bitmap_is_hdr(data, size);
+    int eight_bit = size >= 3 && data[0] != 0x76 && !hdr; /* not OpenEXR */
     for (size_t i = 0; i < (size_t)b.width * b.height * 3; i++)
-        if (eight_bit && !(b.rgb[i] >= 0.0f && b.rgb[i] <= 1.0f))
+        if ((eight_bit && !(b.rgb[i] >= 0.0f && b.rgb[i] <= 1.0f)) ||
+            (hdr && !(b.rgb[i] >= 0.0f && isfinite(b.rgb[i]))))
             abort();
     bitmap_free(&b);
     return 1;
@@ -73,9 +78,29 @@ static void mutate(fuzz_buf_t *b, uint64_t *s)
 {
     /* chunk and marker names the decoders branch on */
     static const char *const tokens[] = {
-        "IHDR",     "IDAT",     "IEND",     "PLTE",     "tRNS",       "gAMA",
-        "sRGB",     "iCCP",     "\xff\xd8", "\xff\xc0", "\xff\xc2",   "\xff\xc4",
-        "\xff\xda", "\xff\xdb", "\xff\xd9", "channels", "dataWindow",
+        "IHDR",
+        "IDAT",
+        "IEND",
+        "PLTE",
+        "tRNS",
+        "gAMA",
+        "sRGB",
+        "iCCP",
+        "\xff\xd8",
+        "\xff\xc0",
+        "\xff\xc2",
+        "\xff\xc4",
+        "\xff\xda",
+        "\xff\xdb",
+        "\xff\xd9",
+        "channels",
+        "dataWindow",
+        "#?RADIANCE\n",
+        "#?RGBE\n",
+        "FORMAT=32-bit_rle_rgbe\n\n",
+        "-Y ",
+        " +X ",
+        "\x02\x02\x00\x08",
     };
     size_t n = b->n;
     unsigned kind = (unsigned)(fuzz_rnd(s) % 8);

@@ -1,5 +1,6 @@
 /* test_bitmap.c - Check suite for bitmap textures: bitmap.c's decoders
- * (PNG, JPEG, OpenEXR; sRGB to linear; refusals of bad files), the
+ * (PNG, JPEG, OpenEXR, Radiance HDR; sRGB to linear; refusals of bad
+ * files), the
  * lookups of texture.h (nearest and bilinear, repeat, mirror and clamp)
  * against values worked out by hand, and the scene loader's "bitmap"
  * albedo, from a file beside the scene and from a bundle. */
@@ -15,6 +16,8 @@
 
 #include "bitmap.h"
 #include "image.h"
+#include "lights.h"
+#include "scene.h"
 #include "testutil.h"
 #include "texture.h"
 
@@ -142,7 +145,7 @@ START_TEST(jpeg_decoded)
     const unsigned char junk[16] = "GIF89a.........";
     ck_assert(
         bitmap_decode("x.gif", junk, sizeof junk, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) == -1);
-    ck_assert_msg(strstr(err, "x.gif: not a PNG, JPEG or OpenEXR image"), "%s", err);
+    ck_assert_msg(strstr(err, "x.gif: not a PNG, JPEG, OpenEXR or Radiance HDR image"), "%s", err);
 }
 END_TEST
 
@@ -187,6 +190,145 @@ START_TEST(exr_decoded_and_size_capped)
     ck_assert(bitmap_decode("big.png", png, n, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) == -1);
     ck_assert_msg(strstr(err, "big.png: a 5000x5000 image"), "%s", err);
     free(png);
+}
+END_TEST
+
+/* A Radiance HDR file of w x h texels from its RGBE bytes as they are
+ * stored (flat, or run-length scanlines as the caller wrote them), in
+ * memory (*size bytes, malloc'd). */
+static unsigned char *hdr_bytes(int w, int h, const unsigned char *pixels, size_t npixels,
+                                size_t *size)
+{
+    char head[128];
+    int n =
+        snprintf(head, sizeof head, "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y %d +X %d\n", h, w);
+    unsigned char *buf = malloc((size_t)n + npixels);
+    ck_assert_ptr_nonnull(buf);
+    memcpy(buf, head, (size_t)n);
+    memcpy(buf + n, pixels, npixels);
+    *size = (size_t)n + npixels;
+    return buf;
+}
+
+/* RGBE texels decode to mantissa x 2^(exponent - 136), as Greg Ward's
+ * reader (and Mitsuba's) decodes them: flat texels, and a run-length
+ * encoded scanline; row 0 on top. A truncated file and a header claiming
+ * 5000x5000 texels are refused with the file's name. */
+START_TEST(hdr_decoded)
+{
+    /* 3x2, flat: exponent 129 is 2^-7, 0 is black */
+    const unsigned char flat[6 * 4] = {128, 64, 255, 129, 1,   2, 3, 136, 0, 0, 0, 0,
+                                       10,  20, 30,  140, 255, 0, 0, 128, 7, 7, 7, 120};
+    size_t n;
+    unsigned char *file = hdr_bytes(3, 2, flat, sizeof flat, &n);
+    bitmap_t b;
+    char err[256];
+    ck_assert(bitmap_is_hdr(file, n));
+    ck_assert_msg(bitmap_decode("t.hdr", file, n, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) == 0,
+                  "%s", err);
+    ck_assert(b.width == 3 && b.height == 2);
+    for (int i = 0; i < 6; i++)
+        for (int c = 0; c < 3; c++) {
+            const unsigned char *px = flat + 4 * i;
+            float want = px[3] ? ldexpf((float)px[c], px[3] - 136) : 0.0f;
+            ck_assert_msg(b.rgb[3 * i + c] == want, "texel %d channel %d: %a, want %a", i, c,
+                          b.rgb[3 * i + c], want);
+        }
+    ck_assert(b.rgb[0] == 1.0f && b.rgb[1] == 0.5f && b.rgb[3] == 1.0f);
+    bitmap_free(&b);
+    /* truncated: half the texels missing */
+    ck_assert(bitmap_decode("cut.hdr", file, n - 12, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) ==
+              -1);
+    ck_assert_msg(strstr(err, "cut.hdr"), "%s", err);
+    free(file);
+    /* 8x1, run-length encoded: the scanline's 2 2 0 8 marker, then each
+     * channel in turn: a run of 8 (128 + 8, then the value) or 8 literals */
+    const unsigned char rle[] = {2, 2, 0, 8, 128 + 8, 200, 128 + 8, 100,     8,  1,
+                                 2, 3, 4, 5, 6,       7,   255,     128 + 8, 130};
+    file = hdr_bytes(8, 1, rle, sizeof rle, &n);
+    ck_assert_msg(bitmap_decode("rle.hdr", file, n, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) == 0,
+                  "%s", err);
+    ck_assert(b.width == 8 && b.height == 1);
+    for (int i = 0; i < 8; i++) {
+        float blue = (float)(i < 7 ? i + 1 : 255) / 64.0f;
+        ck_assert_msg(b.rgb[3 * i] == 3.125f && b.rgb[3 * i + 1] == 1.5625f &&
+                          b.rgb[3 * i + 2] == blue,
+                      "texel %d: %g %g %g", i, b.rgb[3 * i], b.rgb[3 * i + 1], b.rgb[3 * i + 2]);
+    }
+    bitmap_free(&b);
+    /* the same with its last run cut short */
+    ck_assert(bitmap_decode("cut.hdr", file, n - 1, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) ==
+              -1);
+    ck_assert_msg(strstr(err, "cut.hdr: the Radiance HDR image is truncated"), "%s", err);
+    free(file);
+    /* a header claiming 5000x5000: refused before any texel is decoded */
+    file = hdr_bytes(5000, 5000, flat, sizeof flat, &n);
+    ck_assert(bitmap_decode("big.hdr", file, n, 0, BITMAP_MAX_TEXELS, &b, err, sizeof err) == -1);
+    ck_assert_msg(strstr(err, "big.hdr: a 5000x5000 image"), "%s", err);
+    free(file);
+}
+END_TEST
+
+/* An environment map read from a Radiance HDR file gives the very
+ * radiance of the same map read from OpenEXR (texels RGBE holds exactly:
+ * red 1 + column + 10 row, green and blue 1, all at exponent 2^-3), in
+ * every direction looked up. */
+START_TEST(hdr_environment_as_exr)
+{
+    enum { W = 4, H = 3 };
+    image_t *img = image_new(W, H);
+    float *r = image_add_channel(img, "R"), *g = image_add_channel(img, "G"),
+          *bl = image_add_channel(img, "B");
+    unsigned char rgbe[W * H * 4];
+    for (int j = 0; j < H; j++)
+        for (int i = 0; i < W; i++) {
+            int k = j * W + i;
+            r[k] = (float)(1 + i + 10 * j);
+            g[k] = bl[k] = 1.0f;
+            rgbe[4 * k] = (unsigned char)(8 * (1 + i + 10 * j));
+            rgbe[4 * k + 1] = rgbe[4 * k + 2] = 8;
+            rgbe[4 * k + 3] = 133;
+        }
+    char exr[1024], hdr[1024], dir[1024], err[512], json[1024];
+    tu_tmp_path(exr, sizeof exr, "env43.exr");
+    ck_assert_msg(image_write_exr(img, exr, err, sizeof err) == 0, "%s", err);
+    image_destroy(&img);
+    size_t n;
+    unsigned char *file = hdr_bytes(W, H, rgbe, sizeof rgbe, &n);
+    tu_tmp_path(hdr, sizeof hdr, "env43.hdr");
+    FILE *f = fopen(hdr, "wb");
+    ck_assert(f && fwrite(file, 1, n, f) == n);
+    fclose(f);
+    free(file);
+    snprintf(dir, sizeof dir, "%s", hdr);
+    *strrchr(dir, '/') = '\0';
+    scene_t *s[2] = {NULL, NULL};
+    const char *names[2] = {"env43.exr", "env43.hdr"};
+    for (int k = 0; k < 2; k++) {
+        snprintf(json, sizeof json,
+                 "{\"camera\": {\"position\": [0, 0, 5], \"look_at\": [0, 0, 0], \"fov\": 30, "
+                 "\"width\": 4, \"height\": 4}, \"environment\": {\"map\": \"%s\", \"scale\": 0.5},"
+                 " \"materials\": {\"m\": {\"type\": \"diffuse\", \"albedo\": [0.5, 0.5, 0.5]}},"
+                 " \"shapes\": [{\"type\": \"quad\", \"material\": \"m\", \"vertices\": [[0, 0, "
+                 "0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}]}",
+                 names[k]);
+        ck_assert_msg(
+            scene_load_string(json, strlen(json), "env.json", dir, &s[k], err, sizeof err) == 0,
+            "%s: %s", names[k], err);
+        ck_assert(s[k]->has_env && s[k]->env_map);
+    }
+    for (int t = 0; t < 40; t++)
+        for (int q = 0; q < 80; q++) {
+            double th = (t + 0.5) / 40 * M_PI, ph = (q + 0.5) / 80 * 2 * M_PI;
+            vec3_t d =
+                vec3_make((float)(sin(th) * cos(ph)), (float)cos(th), (float)(sin(th) * sin(ph)));
+            vec3_t a = lights_env_radiance(s[0], d), b = lights_env_radiance(s[1], d);
+            ck_assert_msg(a.x == b.x && a.y == b.y && a.z == b.z && a.x > 0,
+                          "direction (%d, %d): EXR %g %g %g, HDR %g %g %g", t, q, a.x, a.y, a.z,
+                          b.x, b.y, b.z);
+        }
+    scene_destroy(&s[0]);
+    scene_destroy(&s[1]);
 }
 END_TEST
 
@@ -301,7 +443,7 @@ START_TEST(scene_bitmap)
         {"nowhere.png", "", "cannot open"},
         {"quad.png", ", \"wrap\": \"spiral\"", "wrap: expected"},
         {"quad.png", ", \"raw\": 1", "raw: expected true or false"},
-        {"t.json", "", "not a PNG, JPEG or OpenEXR image"},
+        {"t.json", "", "not a PNG, JPEG, OpenEXR or Radiance HDR image"},
     };
     tu_write_tmp(path, sizeof path, "t.json", "{}");
     for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
@@ -323,6 +465,8 @@ static Suite *bitmap_suite(void)
     tcase_add_test(tc, png_decoded);
     tcase_add_test(tc, jpeg_decoded);
     tcase_add_test(tc, exr_decoded_and_size_capped);
+    tcase_add_test(tc, hdr_decoded);
+    tcase_add_test(tc, hdr_environment_as_exr);
     tcase_add_test(tc, lookups_by_hand);
     tcase_add_test(tc, scene_bitmap);
     suite_add_tcase(s, tc);

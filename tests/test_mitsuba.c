@@ -295,8 +295,8 @@ static const refusal_t refusals[] = {
      "<transform name=\"to_world\"><translate x=\"1\"/></transform></emitter>"
      "<shape type=\"cube\"/>",
      3, "give either position or to_world", 0},
-    {"<emitter type=\"envmap\">\n<string name=\"filename\" value=\"sky.hdr\"/></emitter>", 3,
-     "envmap \"sky.hdr\": only OpenEXR maps are supported", 0},
+    {"<emitter type=\"envmap\">\n<string name=\"filename\" value=\"sky.png\"/></emitter>", 3,
+     "envmap \"sky.png\": only OpenEXR and Radiance HDR maps are supported", 0},
     {"<shape type=\"cube\">\n\n<bsdf type=\"diffuse\"><rgb name=\"reflectance\" value=\"$x\"/>"
      "</bsdf></shape>",
      5, "parameter \"$x\" is not defined", 0},
@@ -855,6 +855,9 @@ static const struct {
     {"scenes/mitsuba/checker.xml", "tests/data/mitsuba/checker-32.exr", 1024, NULL},
     {"scenes/mitsuba/envmap.xml", "tests/data/mitsuba/envmap-32.exr", 2048, NULL},
     {"scenes/mitsuba/envmap.xml", "tests/data/mitsuba/envmap-hidden-32.exr", 2048, "hide=true"},
+    /* the same map as Mitsuba wrote it in Radiance HDR, read by each */
+    {"scenes/mitsuba/envmap.xml", "tests/data/mitsuba/envmap-hdr-32.exr", 2048,
+     "map=textures/sky.hdr"},
     {"scenes/mitsuba/ortho.xml", "tests/data/mitsuba/ortho-32.exr", 1024, NULL},
     {"scenes/mitsuba/materials.xml", "tests/data/mitsuba/materials-32.exr", 2048, NULL},
     {"scenes/mitsuba/veach-mis.xml", "tests/data/mitsuba/veach-mis-32.exr", 4096, NULL},
