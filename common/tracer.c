@@ -21,10 +21,12 @@
 
 #include <embree3/rtcore.h>
 #include <math.h>
+#include <pmmintrin.h> /* _MM_DENORMALS_ZERO_ON */
 #include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <xmmintrin.h> /* _mm_getcsr, _MM_FLUSH_ZERO_ON */
 
 #include "tracer_priv.h"
 #include "wave.h"
@@ -618,6 +620,12 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_ta
         size_t end = first, total = 0;
         while (end < count && total + tasks[end].sample_count <= WAVE_MAX_SAMPLES)
             total += tasks[end++].sample_count;
+        /* Denormals flushed to zero, in and out, while paths are traced,
+         * as Embree asks of every thread that calls it (a denormal can
+         * cost a hundred cycles an operation); the caller's mode comes
+         * back before the task statistics. Both engines trace under it. */
+        const unsigned int csr = _mm_getcsr();
+        _mm_setcsr(csr | _MM_FLUSH_ZERO_ON | _MM_DENORMALS_ZERO_ON);
         if (t->engine == TRACER_ENGINE_WAVEFRONT && st->integrator != SCENE_INTEGRATOR_DIRECT) {
             wave_trace(&ctx, &buf.wave, tasks + first, end - first, buf.L, buf.rays);
         } else {
@@ -630,6 +638,7 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_ta
                                        : trace_sample(t, st, tasks[k].pixel,
                                                       tasks[k].first_sample + i, &buf.L[at]);
         }
+        _mm_setcsr(csr);
         size_t at = 0;
         for (size_t k = first; k < end; k++) {
             rays += task_result(&tasks[k], buf.L + at, buf.rays + at, &results[k]);

@@ -41,8 +41,10 @@
  * other numbers; our own scenes, one emitter each, keep their bits); 6
  * since the wavefront engine casts Embree rays in packets of 8 (tracer_priv.h
  * TRACER_PACKET: the same bits as one ray a call on every ray we tested,
- * but Embree does not promise it, so a worker of each kind stays apart). */
-#define TRACER_VERSION 6
+ * but Embree does not promise it, so a worker of each kind stays apart); 7
+ * since paths are traced with denormals flushed to zero (tracer_trace: a
+ * value that would have been denormal is 0; our scenes keep their bits). */
+#define TRACER_VERSION 7
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so
  * samples/s compare like with like). */

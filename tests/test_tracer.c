@@ -14,6 +14,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <xmmintrin.h>
 
 #include "film.h"
 #include "lights.h"
@@ -1300,6 +1301,44 @@ START_TEST(test_packets_match_single_rays)
 }
 END_TEST
 
+/* Paths are traced with denormals flushed to zero (as Embree asks), in
+ * both engines: an emitter of denormal radiance, seen straight on, gives
+ * exactly black; and tracer_trace gives the caller its own floating-point
+ * mode back. */
+START_TEST(test_denormals_flushed_while_tracing)
+{
+    const char *json =
+        "{\"camera\": {\"position\": [0, 0, 3], \"look_at\": [0, 0, 0], \"fov\": 20, "
+        "\"width\": 2, \"height\": 2},"
+        " \"materials\": {\"l\": {\"type\": \"emitter\", \"radiance\": [1e-39, 2e-39, 1e-39]}},"
+        " \"shapes\": [{\"type\": \"quad\", \"material\": \"l\", \"vertices\": [[-5, -5, 0], "
+        "[5, -5, 0], [5, 5, 0], [-5, 5, 0]]}]}";
+    scene_t *s = load_text(json);
+    ck_assert(s->materials[0].radiance.y > 0.0f && s->materials[0].radiance.y < 0x1p-126f);
+    tracer_device_t *dev = NULL;
+    tracer_t *t = NULL;
+    char err[VB_ERR_LEN];
+    ck_assert_msg(tracer_device_new(&dev, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(tracer_new(dev, s, &t, err, sizeof err) == 0, "%s", err);
+    const unsigned int before = _mm_getcsr();
+    for (int engine = 0; engine < 2; engine++) {
+        tracer_use_engine(t, engine ? TRACER_ENGINE_SCALAR : TRACER_ENGINE_WAVEFRONT);
+        tracer_task_t task = {.pixel = 1, .sample_count = 8};
+        tracer_result_t r;
+        tracer_settings_t st = {
+            .seed = 1, .integrator = SCENE_INTEGRATOR_PATH, .sampler = RNG_SAMPLER_SOBOL};
+        ck_assert_msg(tracer_trace(t, &st, &task, 1, &r, NULL, err, sizeof err) == 0, "%s", err);
+        ck_assert_uint_eq(r.samples, 8);
+        ck_assert_msg(r.sum[0] == 0 && r.sum[1] == 0 && r.sum[2] == 0, "engine %d: %g %g %g",
+                      engine, r.sum[0], r.sum[1], r.sum[2]);
+        ck_assert_uint_eq(_mm_getcsr(), before);
+    }
+    tracer_destroy(&t);
+    tracer_device_destroy(&dev);
+    scene_destroy(&s);
+}
+END_TEST
+
 /* Traces the same task list with both engines (tracer.h) and checks that
  * every result is the same bits: sums, sample and ray counts, the layer
  * statistics. Tasks of 1 to 61 samples, so runs of tasks split at
@@ -1600,6 +1639,7 @@ static Suite *tracer_suite(void)
     tcase_add_test(hard, test_closed_cube_no_leak);
     tcase_add_test(hard, test_trilist_and_embree_agree_cornell);
     tcase_add_test(hard, test_packets_match_single_rays);
+    tcase_add_test(hard, test_denormals_flushed_while_tracing);
     suite_add_tcase(s, hard);
     return s;
 }
