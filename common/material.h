@@ -92,8 +92,9 @@ const char *material_conductor_presets(void);
 /* Cosine-weighted direction about n from two uniforms; pdf = cos / pi. */
 static inline vec3_t material_sample_cosine(vec3_t n, float u1, float u2)
 {
-    float r = sqrtf(u1), phi = 2.0f * VMATH_PI * u2;
-    float x = r * cosf(phi), y = r * sinf(phi);
+    float r = sqrtf(u1), sp, cp;
+    vmath_sincos_turn(u2, &sp, &cp);
+    float x = r * cp, y = r * sp;
     float z = sqrtf(fmaxf(0.0f, 1.0f - u1));
     vec3_t t, b;
     vec3_onb(n, &t, &b);

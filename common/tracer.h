@@ -43,8 +43,10 @@
  * TRACER_PACKET: the same bits as one ray a call on every ray we tested,
  * but Embree does not promise it, so a worker of each kind stays apart); 7
  * since paths are traced with denormals flushed to zero (tracer_trace: a
- * value that would have been denormal is 0; our scenes keep their bits). */
-#define TRACER_VERSION 7
+ * value that would have been denormal is 0; our scenes keep their bits); 8
+ * since the cosine bounce takes its sin and cos from a polynomial
+ * (vmath_sincos_turn), not libm's calls: our scenes' bits change. */
+#define TRACER_VERSION 8
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so
  * samples/s compare like with like). */

@@ -12,6 +12,18 @@
 #define VMATH_INV_PI 0.31830988618379067154f
 #define VMATH_INV_SQRT_PI 0.56418958354775628695f
 
+/* The Taylor coefficients of sin and cos of (pi / 2) g in g, as floats:
+ * vmath_sincos_turn's polynomials. */
+#define VMATH_TURN_S1 0x1.921fb6p+0f
+#define VMATH_TURN_S3 -0x1.4abbcep-1f
+#define VMATH_TURN_S5 0x1.466bc6p-4f
+#define VMATH_TURN_S7 -0x1.32d2ccp-8f
+#define VMATH_TURN_S9 0x1.507834p-13f
+#define VMATH_TURN_C2 -0x1.3bd3ccp+0f
+#define VMATH_TURN_C4 0x1.03c1f0p-2f
+#define VMATH_TURN_C6 -0x1.55d3c8p-6f
+#define VMATH_TURN_C8 0x1.e1f506p-11f
+
 typedef struct vec3 {
     float x, y, z;
 } vec3_t;
@@ -68,6 +80,32 @@ static inline int vec3_is_zero(vec3_t a)
 static inline int vec3_is_finite(vec3_t a)
 {
     return isfinite(a.x) && isfinite(a.y) && isfinite(a.z);
+}
+
+/* sin and cos of 2 pi u, u in [0, 1): the quarter turn u falls in, and
+ * the rest, g in [-1/2, 1/2) of a quarter turn (both exact: 4u and the
+ * subtractions are), into degree-9 and degree-8 polynomials, within
+ * 1e-7 of the true values. Only IEEE additions and multiplications in a
+ * fixed order, so the wavefront kernel's vector copy of it
+ * (wave_diffuse.c) gives the same bits, on every host (libm's sinf and
+ * cosf are calls, one lane at a time, and pick an FMA variant where the
+ * CPU has FMA). */
+static inline void vmath_sincos_turn(float u, float *s, float *c)
+{
+    float x = 4.0f * u;
+    int q = (int)x;
+    float f = x - (float)q;
+    int up = f >= 0.5f;
+    float g = up ? f - 1.0f : f, g2 = g * g;
+    q = (q + up) & 3;
+    float ps =
+        g *
+        (VMATH_TURN_S1 +
+         g2 * (VMATH_TURN_S3 + g2 * (VMATH_TURN_S5 + g2 * (VMATH_TURN_S7 + g2 * VMATH_TURN_S9))));
+    float pc = 1.0f + g2 * (VMATH_TURN_C2 +
+                            g2 * (VMATH_TURN_C4 + g2 * (VMATH_TURN_C6 + g2 * VMATH_TURN_C8)));
+    *s = q == 0 ? ps : q == 1 ? pc : q == 2 ? -ps : -pc;
+    *c = q == 0 ? pc : q == 1 ? -ps : q == 2 ? -pc : ps;
 }
 
 /* The point at barycentrics (u, v) of triangle (a, b, c): (1-u-v) a + u b + v c. */

@@ -4,8 +4,8 @@
  *
  * WAVE_LANES paths at a time. What is a lookup or a branch per path (the
  * sample's numbers, the light picked from the CDF and the point on it, a
- * smooth normal, sin and cos) is done lane by lane; the arithmetic between
- * runs on vectors. Each lane does tracer.c's sample_direct and
+ * smooth normal) is done lane by lane; the arithmetic between, sin and cos
+ * included (vmath_sincos_turn), runs on vectors. Each lane does tracer.c's sample_direct and
  * material_sample_diffuse operation for operation (IEEE operations, the
  * same order, no FMA: -ffp-contract=off), so the bits are the scalar
  * engine's. */
@@ -43,6 +43,27 @@ static inline wave_vf vmax0(wave_vf x)
 static inline wave_vf vdot(wave_v3 a, wave_v3 b)
 {
     return a.x * b.x + a.y * b.y + a.z * b.z;
+}
+
+/* vmath_sincos_turn, lane by lane in vectors: the same operations */
+static inline void vsincos_turn(wave_vf u, wave_vf *s, wave_vf *c)
+{
+    wave_vf x = 4.0f * u;
+    wave_vi q = __builtin_convertvector(x, wave_vi); /* truncates, as (int) */
+    wave_vf f = x - __builtin_convertvector(q, wave_vf);
+    wave_vi up = f >= 0.5f;
+    wave_vf g = vsel(up, f - 1.0f, f), g2 = g * g;
+    q = (q - up) & 3; /* (up is -1 where true) */
+    wave_vf ps =
+        g *
+        (VMATH_TURN_S1 +
+         g2 * (VMATH_TURN_S3 + g2 * (VMATH_TURN_S5 + g2 * (VMATH_TURN_S7 + g2 * VMATH_TURN_S9))));
+    wave_vf pc = 1.0f + g2 * (VMATH_TURN_C2 +
+                              g2 * (VMATH_TURN_C4 + g2 * (VMATH_TURN_C6 + g2 * VMATH_TURN_C8)));
+    wave_vf nps = -ps, npc = -pc; /* sign flips, as the scalar's */
+    wave_vi q0 = q == 0, q1 = q == 1, q2 = q == 2;
+    *s = vsel(q0, ps, vsel(q1, pc, vsel(q2, nps, npc)));
+    *c = vsel(q0, pc, vsel(q1, nps, vsel(q2, npc, ps)));
 }
 
 /* vmath_offset_coord, lane by lane in vectors */
@@ -180,11 +201,8 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
                                  beta.z * albedo.z * (rad.z * k)};
         }
         /* the bounce (material_sample_diffuse, material_sample_cosine) */
-        wave_vf r = vsqrt(u1), phi = 2.0f * VMATH_PI * u2, cosp, sinp;
-        for (int j = 0; j < WAVE_LANES; j++) {
-            cosp[j] = cosf(phi[j]);
-            sinp[j] = sinf(phi[j]);
-        }
+        wave_vf r = vsqrt(u1), sinp, cosp;
+        vsincos_turn(u2, &sinp, &cosp);
         wave_vf x = r * cosp, y = r * sinp;
         wave_vf z = vsqrt(vmax0(one - u1));
         /* vec3_onb */

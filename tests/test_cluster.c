@@ -54,6 +54,7 @@
 #include "keys.h"
 #include "proto.h"
 #include "testutil.h"
+#include "tracer.h"
 #include "vblog.h"
 
 #define PATHLEN 1024
@@ -1019,6 +1020,51 @@ static void compare_exr(const char *a, const char *b)
     }
     image_destroy(&ia);
     image_destroy(&ib);
+}
+
+/* a and b the same image within their noise, where their bits cannot be
+ * the same: every pixel's luminance within 6 of the two variance
+ * channels' sigma (the calibrated error of each mean), the whole image's
+ * within 1 %, and the same number of samples in all. */
+static void compare_exr_within_noise(const char *a, const char *b)
+{
+    image_t *im[2] = {NULL, NULL};
+    const char *path[2] = {a, b};
+    char err[1024];
+    const float *ch[2][5];
+    static const char *const want[] = {"R", "G", "B", "samples", "variance"};
+    for (int k = 0; k < 2; k++) {
+        ck_assert_msg(image_read_exr(path[k], &im[k], err, sizeof err) == 0, "%s", err);
+        for (int c = 0; c < 5; c++) {
+            ch[k][c] = image_channel(im[k], want[c]);
+            ck_assert_msg(ch[k][c] != NULL, "%s lacks channel %s", path[k], want[c]);
+        }
+    }
+    ck_assert(im[0]->width == im[1]->width && im[0]->height == im[1]->height);
+    size_t npix = (size_t)im[0]->width * (size_t)im[0]->height;
+    double mean[2] = {0, 0}, samples[2] = {0, 0}, zmax = 0;
+    for (size_t p = 0; p < npix; p++) {
+        double lum[2];
+        for (int k = 0; k < 2; k++) {
+            lum[k] = 0.2126 * ch[k][0][p] + 0.7152 * ch[k][1][p] + 0.0722 * ch[k][2][p];
+            mean[k] += lum[k] / (double)npix;
+            samples[k] += ch[k][3][p];
+        }
+        double sigma = sqrt((double)ch[0][4][p] + (double)ch[1][4][p]);
+        if (sigma > 0)
+            zmax = fmax(zmax, fabs(lum[0] - lum[1]) / sigma);
+        ck_assert_msg(fabs(lum[0] - lum[1]) <= 6 * sigma + 1e-6 * fabs(lum[0]),
+                      "pixel %zu: luminance %.6g in %s, %.6g in %s, sigma %.3g", p, lum[0], a,
+                      lum[1], b, sigma);
+    }
+    fprintf(stderr, "within noise: largest |difference| / sigma %.2f, image means %.5g and %.5g\n",
+            zmax, mean[0], mean[1]);
+    ck_assert_msg(fabs(mean[0] / mean[1] - 1) < 0.01, "image mean %.6g in %s, %.6g in %s", mean[0],
+                  a, mean[1], b);
+    ck_assert_msg(samples[0] == samples[1], "%.0f samples in %s, %.0f in %s", samples[0], a,
+                  samples[1], b);
+    image_destroy(&im[0]);
+    image_destroy(&im[1]);
 }
 
 /* Replaces the first `from` in text (of capacity cap) with `to`. */
@@ -2342,6 +2388,10 @@ static unsigned state_format_of(const char *path)
            (unsigned)head[11] << 24;
 }
 
+/* The last TRACER_VERSION whose samples of tests/data/state-v1's scene are
+ * those its checkpoint holds (it was written at version 2). */
+#define STATE_V1_SAME_BITS_THROUGH 7
+
 START_TEST(state_v1_migration)
 {
     char dir[PATHLEN], got[PATHLEN], ref[PATHLEN], scene[PATHLEN], out[OUTLEN], cmd[4 * PATHLEN];
@@ -2381,7 +2431,15 @@ START_TEST(state_v1_migration)
     /* a job of before replicates has none: the fresh one asks for none */
     unsigned long long fresh = submit(port + 1, scene, "--spp 4096 --replicates 1");
     finish_and_fetch(port + 1, fresh, tmp(ref, sizeof ref, "v1-fresh.exr"));
-    compare_exr(ref, got);
+    /* The checkpoint's layers were traced by the tracer of its day. Until
+     * our scenes' bits changed (TRACER_VERSION 8: the cosine bounce's
+     * polynomial sin and cos), the resumed job was the fresh one bit for
+     * bit; since, its first layers are the old tracer's, so the two agree
+     * within their noise and in their samples. */
+    if (TRACER_VERSION <= STATE_V1_SAME_BITS_THROUGH)
+        compare_exr(ref, got);
+    else
+        compare_exr_within_noise(ref, got);
     stop_clean(w);
     stop_clean(m);
     remove_state(dir);
