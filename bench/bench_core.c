@@ -15,7 +15,8 @@
  *      common/tracer.c builds its scene, timed separately on --threads
  *      pthreads (and, for reference, one ray a call: rtcIntersect1 /
  *      rtcOccluded1, JSON "path_one_by_one"), for two ray distributions:
- *        "path": the rays of real diffuse random walks from the camera
+ *        "path": the rays of real random walks from the camera (diffuse
+ *                bounces, and through glass)
  *                (what our tracer traces, replayed without any shading);
  *        "area": origins uniform by area on the non-black-emitter
  *                triangles, cosine directions about the winding normal,
@@ -431,12 +432,15 @@ static void push_shadow(const scene_t *s, batch_t *sh, vec3_t p, vec3_t ngf, vec
     }
 }
 
-/* "path": the rays of diffuse random walks from the camera, built like the
+/* "path": the rays of random walks from the camera, built like the
  * path integrator's (camera ray, next-event shadow ray at each diffuse
  * vertex, cosine bounce about the shading normal, Russian roulette after
- * TRACER_RR_DEPTH bounces on the throughput). Pixels in scanline order,
- * one sample per pixel per pass, until the extension batch is full. Walks
- * stop at mirror/dielectric surfaces (neither benchmark scene has one). */
+ * TRACER_RR_DEPTH bounces on the throughput, tracer_roulette_probability).
+ * Pixels in scanline order, one sample per pixel per pass, until the
+ * extension batch is full. Walks go on through glass and off mirrors as
+ * the path integrator does (material_sample, no shadow ray there), so
+ * cornell-glass's batch holds the rays inside its glass object; they stop
+ * at the glossy materials, which no core scene has. */
 static void build_path_batch(const scene_t *s, const embree_t *e, uint64_t seed, batch_t *ext,
                              batch_t *sh)
 {
@@ -450,6 +454,7 @@ static void build_path_batch(const scene_t *s, const embree_t *e, uint64_t seed,
             vec3_t d = vec3_normalize(camera_ray_dir(cam, pixel % (uint32_t)cam->width,
                                                      pixel / (uint32_t)cam->width, fu, fv));
             vec3_t beta = vec3_make(1, 1, 1);
+            float eta_scale = 1.0f;
             for (uint32_t depth = 0; ext->count < ext->cap; depth++) {
                 batch_push(ext, o, d);
                 uint32_t tri;
@@ -462,8 +467,9 @@ static void build_path_batch(const scene_t *s, const embree_t *e, uint64_t seed,
                     break;
                 if (s->max_depth && depth + 2 > s->max_depth)
                     break;
-                if (m->type != MATERIAL_DIFFUSE && m->type != MATERIAL_EMITTER)
-                    break;
+                if (m->type != MATERIAL_DIFFUSE && m->type != MATERIAL_EMITTER &&
+                    m->type != MATERIAL_MIRROR && m->type != MATERIAL_DIELECTRIC)
+                    break; /* (the glossy materials: no core scene has one) */
                 vec3_t p = scene_point(s, tri, hu, hv);
                 vec3_t ng = s->tri_normal[tri];
                 vec3_t wo = vec3_neg(d);
@@ -478,16 +484,32 @@ static void build_path_batch(const scene_t *s, const embree_t *e, uint64_t seed,
                     if (vec3_is_finite(n) && vec3_dot(n, wo) > 0.0f)
                         ns = n;
                 }
-                if (s->light_count > 0)
-                    push_shadow(s, sh, p, ngf, ns, &rng);
-                float u1 = rng_next_float(&rng), u2 = rng_next_float(&rng);
-                vec3_t wi = material_sample_cosine(ns, u1, u2);
-                if (vec3_dot(ngf, wi) <= 0.0f || vec3_dot(ns, wi) <= 0.0f)
-                    break;
-                beta = vec3_mul(beta, m->albedo);
-                o = vec3_offset_ray_origin(p, ngf);
+                vec3_t wi;
+                if (m->type == MATERIAL_MIRROR || m->type == MATERIAL_DIELECTRIC) {
+                    /* through glass and off mirrors as the path integrator
+                     * goes (no shadow ray from a specular surface) */
+                    material_hit_t mh = {
+                        .wo = wo, .ngf = ngf, .ns = ns, .front = vec3_dot(ng, wo) > 0.0f};
+                    material_sample_t bs;
+                    if (!material_sample(m, &mh, &rng, &bs))
+                        break;
+                    wi = bs.wi;
+                    beta = vec3_mul(beta, bs.weight);
+                    if (bs.transmits)
+                        eta_scale *= bs.eta * bs.eta;
+                    o = vec3_offset_ray_origin(p, bs.transmits ? vec3_neg(ngf) : ngf);
+                } else {
+                    if (s->light_count > 0)
+                        push_shadow(s, sh, p, ngf, ns, &rng);
+                    float u1 = rng_next_float(&rng), u2 = rng_next_float(&rng);
+                    wi = material_sample_cosine(ns, u1, u2);
+                    if (vec3_dot(ngf, wi) <= 0.0f || vec3_dot(ns, wi) <= 0.0f)
+                        break;
+                    beta = vec3_mul(beta, m->albedo);
+                    o = vec3_offset_ray_origin(p, ngf);
+                }
                 if (depth + 1 >= TRACER_RR_DEPTH) {
-                    float q = fminf(0.95f, vec3_max_comp(beta));
+                    float q = tracer_roulette_probability(beta, eta_scale);
                     if (!(rng_next_float(&rng) < q))
                         break;
                     beta = vec3_scale(beta, 1.0f / q);
@@ -1218,7 +1240,8 @@ static cJSON *raw_embree_json(const raw_t *r, const args_t *a, int threads)
     cJSON_AddItemToObject(
         j, "path",
         dist_json(&r->dist[0], threads,
-                  "rays of diffuse random walks from the camera, as the path integrator "
+                  "rays of random walks from the camera (diffuse bounces, through glass), as the "
+                  "path integrator "
                   "traces them (camera, bounce and next-event shadow rays), cast as the tracer "
                   "casts them: Embree packets of consecutive rays (TRACER_PACKET)"));
     add_dist_if_run(j, "path_one_by_one", &r->one_by_one, threads,

@@ -110,7 +110,7 @@ def table(core, max_triangles):
         f"{mach.get('cpu')}, {mach.get('cores')} cores, Embree {mach.get('embree')} ({mach.get('isa')}); "
         f"commit {core.get('commit')}, {core.get('date')}; whole benchmark {core.get('bench_seconds', 0):.0f} s.",
         "Raw ray casting: what the tracer casts rays with, alone, over 2M precomputed rays recorded from "
-        "diffuse random walks from the camera (the rays our tracer traces): Embree's rtcIntersect8 / "
+        "random walks from the camera, diffuse bounces and through glass (the rays our tracer traces): Embree's rtcIntersect8 / "
         "rtcOccluded8 on packets of 8 consecutive rays (the tracer casts its rays in packets of 8), "
         "or \"(list)\" the triangle list without a BVH (common/trilist.h) that the tracer "
         f"uses for scenes of up to {max_triangles} triangles; \"Ours / raw\" compares our rays/s, "
