@@ -776,50 +776,64 @@ START_TEST(test_tasks_independent_of_batching)
     cJSON *root = cornell_json(16);
     scene_t *s = load_json(root);
     cJSON_Delete(root);
-    tracer_t *t = NULL;
-    tracer_device_t *dev = NULL;
-    char err[256];
-    ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
-    ck_assert(tracer_new(dev, s, &t, err, sizeof err) == 0);
-    tracer_settings_t st = {5, SCENE_INTEGRATOR_PATH, 0, RNG_SAMPLER_INDEPENDENT};
-    tracer_task_t tasks[8];
-    for (int i = 0; i < 8; i++) {
-        memset(&tasks[i], 0, sizeof tasks[i]);
-        tasks[i].pixel = (uint32_t)(i * 29 + 3);
-        tasks[i].sample_count = 32;
-        tasks[i].first_sample = 64;
-        tasks[i].prior_count = 64;
-        tasks[i].prior_sum[0] = 3.0 + i;
-        tasks[i].prior_sum[1] = 2.0;
-        tasks[i].prior_sum[2] = 1.0;
+    /* through the triangle list, and through Embree, whose rays go in
+     * packets of a chunk's paths (wave.h): tasks of 20 to 69 samples, so
+     * some are two or three chunks */
+    const tracer_accel_t accels[] = {TRACER_ACCEL_TRILIST, TRACER_ACCEL_EMBREE};
+    for (int a = 0; a < 2; a++) {
+        tracer_t *t = NULL;
+        tracer_device_t *dev = NULL;
+        char err[256];
+        ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
+        ck_assert(tracer_new_accel(dev, s, accels[a], &t, err, sizeof err) == 0);
+        tracer_settings_t st = {5, SCENE_INTEGRATOR_PATH, 0,
+                                a ? RNG_SAMPLER_SOBOL : RNG_SAMPLER_INDEPENDENT};
+        tracer_task_t tasks[8], reversed[8];
+        uint32_t total = 0;
+        for (int i = 0; i < 8; i++) {
+            memset(&tasks[i], 0, sizeof tasks[i]);
+            tasks[i].pixel = (uint32_t)(i * 29 + 3);
+            tasks[i].sample_count = 20 + 7 * (uint32_t)i;
+            tasks[i].first_sample = 64;
+            tasks[i].prior_count = 64;
+            tasks[i].prior_sum[0] = 3.0 + i;
+            tasks[i].prior_sum[1] = 2.0;
+            tasks[i].prior_sum[2] = 1.0;
+            total += tasks[i].sample_count;
+            reversed[7 - i] = tasks[i];
+        }
+        tracer_result_t batch[8], backwards[8], single;
+        tracer_stats_t stats = {0, 0};
+        ck_assert(tracer_trace(t, &st, tasks, 8, batch, &stats, err, sizeof err) == 0);
+        ck_assert_uint_eq(stats.samples, total);
+        ck_assert(stats.rays >= stats.samples);
+        /* each record's rays are its samples' own: they add up to the call's */
+        uint64_t record_rays = 0;
+        for (int i = 0; i < 8; i++) {
+            ck_assert_uint_ge(batch[i].rays, tasks[i].sample_count);
+            record_rays += batch[i].rays;
+        }
+        ck_assert_uint_eq(record_rays, stats.rays);
+        ck_assert(tracer_trace(t, &st, reversed, 8, backwards, NULL, err, sizeof err) == 0);
+        for (int i = 7; i >= 0; i--) {
+            ck_assert(tracer_trace(t, &st, &tasks[i], 1, &single, NULL, err, sizeof err) == 0);
+            ck_assert_msg(memcmp(&single, &batch[i], sizeof single) == 0,
+                          "accel %d: task %d differs", a, i);
+            ck_assert_msg(memcmp(&backwards[7 - i], &batch[i], sizeof single) == 0,
+                          "accel %d: task %d differs in the reversed list", a, i);
+            ck_assert_uint_eq(single.samples + single.nonfinite, tasks[i].sample_count);
+            ck_assert(single.pvar >= 0);
+        }
+        /* bad tasks are refused, not traced */
+        tasks[0].pixel = 16 * 16;
+        ck_assert(tracer_trace(t, &st, tasks, 1, batch, NULL, err, sizeof err) == -1);
+        ck_assert_msg(strstr(err, "outside") != NULL, "%s", err);
+        tasks[0].pixel = 0;
+        tasks[0].sample_count = TRACER_MAX_TASK_SAMPLES + 1;
+        ck_assert(tracer_trace(t, &st, tasks, 1, batch, NULL, err, sizeof err) == -1);
+        tracer_destroy(&t);
+        tracer_device_destroy(&dev);
     }
-    tracer_result_t batch[8], single;
-    tracer_stats_t stats = {0, 0};
-    ck_assert(tracer_trace(t, &st, tasks, 8, batch, &stats, err, sizeof err) == 0);
-    ck_assert_uint_eq(stats.samples, 8 * 32);
-    ck_assert(stats.rays >= stats.samples);
-    /* each record's rays are its samples' own: they add up to the call's */
-    uint64_t record_rays = 0;
-    for (int i = 0; i < 8; i++) {
-        ck_assert_uint_ge(batch[i].rays, 32);
-        record_rays += batch[i].rays;
-    }
-    ck_assert_uint_eq(record_rays, stats.rays);
-    for (int i = 7; i >= 0; i--) {
-        ck_assert(tracer_trace(t, &st, &tasks[i], 1, &single, NULL, err, sizeof err) == 0);
-        ck_assert_msg(memcmp(&single, &batch[i], sizeof single) == 0, "task %d differs", i);
-        ck_assert_uint_eq(single.samples + single.nonfinite, 32);
-        ck_assert(single.pvar >= 0);
-    }
-    /* bad tasks are refused, not traced */
-    tasks[0].pixel = 16 * 16;
-    ck_assert(tracer_trace(t, &st, tasks, 1, batch, NULL, err, sizeof err) == -1);
-    ck_assert_msg(strstr(err, "outside") != NULL, "%s", err);
-    tasks[0].pixel = 0;
-    tasks[0].sample_count = TRACER_MAX_TASK_SAMPLES + 1;
-    ck_assert(tracer_trace(t, &st, tasks, 1, batch, NULL, err, sizeof err) == -1);
-    tracer_destroy(&t);
-    tracer_device_destroy(&dev);
     scene_destroy(&s);
 }
 END_TEST
