@@ -102,6 +102,29 @@ typedef struct tracer_packet {
     vec3_t o[TRACER_PACKET], d[TRACER_PACKET];
 } tracer_packet_t;
 
+/* The packet's first n rays as Embree's 8-wide ray, t in [0, tfar); the
+ * idle lanes carry a copy of ray 0, masked off in valid. */
+static inline void tracer_embree_ray8(const tracer_packet_t *p, size_t n, float tfar,
+                                      struct RTCRay8 *r, int *valid)
+{
+    for (size_t i = 0; i < TRACER_PACKET; i++) {
+        size_t k = i < n ? i : 0;
+        valid[i] = i < n ? -1 : 0;
+        r->org_x[i] = p->o[k].x;
+        r->org_y[i] = p->o[k].y;
+        r->org_z[i] = p->o[k].z;
+        r->tnear[i] = 0.0f;
+        r->dir_x[i] = p->d[k].x;
+        r->dir_y[i] = p->d[k].y;
+        r->dir_z[i] = p->d[k].z;
+        r->time[i] = 0.0f;
+        r->tfar[i] = tfar;
+        r->mask[i] = 0xffffffffu;
+        r->id[i] = 0;
+        r->flags[i] = 0;
+    }
+}
+
 /* The nearest hits of the packet's first n rays: hit[i] is 1 and h[i] the
  * hit when ray i hits something (tracer_intersect for each). */
 static inline void tracer_intersect_packet(const tracer_t *tr, const tracer_packet_t *p, size_t n,
@@ -115,21 +138,8 @@ static inline void tracer_intersect_packet(const tracer_t *tr, const tracer_pack
     }
     _Alignas(32) int valid[TRACER_PACKET];
     struct RTCRayHit8 rh;
+    tracer_embree_ray8(p, n, INFINITY, &rh.ray, valid);
     for (size_t i = 0; i < TRACER_PACKET; i++) {
-        size_t k = i < n ? i : 0; /* idle lanes carry a copy, masked off */
-        valid[i] = i < n ? -1 : 0;
-        rh.ray.org_x[i] = p->o[k].x;
-        rh.ray.org_y[i] = p->o[k].y;
-        rh.ray.org_z[i] = p->o[k].z;
-        rh.ray.tnear[i] = 0.0f;
-        rh.ray.dir_x[i] = p->d[k].x;
-        rh.ray.dir_y[i] = p->d[k].y;
-        rh.ray.dir_z[i] = p->d[k].z;
-        rh.ray.time[i] = 0.0f;
-        rh.ray.tfar[i] = INFINITY;
-        rh.ray.mask[i] = 0xffffffffu;
-        rh.ray.id[i] = 0;
-        rh.ray.flags[i] = 0;
         rh.hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
         rh.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
     }
@@ -156,22 +166,7 @@ static inline void tracer_unoccluded_packet(const tracer_t *tr, const tracer_pac
     }
     _Alignas(32) int valid[TRACER_PACKET];
     struct RTCRay8 r;
-    for (size_t i = 0; i < TRACER_PACKET; i++) {
-        size_t k = i < n ? i : 0;
-        valid[i] = i < n ? -1 : 0;
-        r.org_x[i] = p->o[k].x;
-        r.org_y[i] = p->o[k].y;
-        r.org_z[i] = p->o[k].z;
-        r.tnear[i] = 0.0f;
-        r.dir_x[i] = p->d[k].x;
-        r.dir_y[i] = p->d[k].y;
-        r.dir_z[i] = p->d[k].z;
-        r.time[i] = 0.0f;
-        r.tfar[i] = TRACER_SHADOW_TFAR;
-        r.mask[i] = 0xffffffffu;
-        r.id[i] = 0;
-        r.flags[i] = 0;
-    }
+    tracer_embree_ray8(p, n, TRACER_SHADOW_TFAR, &r, valid);
     struct RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
     rtcOccluded8(valid, tr->rtc, &ctx, &r);
