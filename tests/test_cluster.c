@@ -2109,6 +2109,26 @@ static long long first_commit_size(const char *dir, unsigned long long job)
     return rec && JOURNAL_HEADER_BYTES + rec <= size ? rec : 0;
 }
 
+/* Where the journal's last whole record ends (each record: a 4-byte
+ * payload length, 8 bytes of sequence, the payload and an 8-byte sum):
+ * a kill -9 may have left an append under way after it. */
+static long long whole_records_end(const char *path)
+{
+    FILE *f = fopen(path, "rb");
+    ck_assert_ptr_nonnull(f);
+    fseek(f, 0, SEEK_END);
+    long long size = ftell(f), pos = JOURNAL_HEADER_BYTES;
+    uint8_t len[4];
+    while (pos + 20 <= size && fseek(f, (long)pos, SEEK_SET) == 0 && fread(len, 1, 4, f) == 4) {
+        long long plen = len[0] | len[1] << 8 | len[2] << 16 | (long long)len[3] << 24;
+        if (plen < 8 || pos + 20 + plen > size)
+            break;
+        pos += 20 + plen;
+    }
+    fclose(f);
+    return pos;
+}
+
 /* A damaged journal is found at startup, reported in the log, and never
  * merged: the job replays its snapshot and the journal's commits up to the
  * damaged record, the journal is cut there, and the job still ends with
@@ -2145,7 +2165,10 @@ static void damaged_journal(int torn)
     kill9(m);
     pace_thaw(&pace);
     snprintf(path, sizeof path, "%s/jobs/%llu/journal", dir, job);
-    long long size = state_file_size(dir, job, "journal");
+    /* the damage is ours alone: an append the kill interrupted is cut off
+     * first (else the master may find that one, not the record we tear) */
+    long long size = whole_records_end(path);
+    ck_assert_int_eq(truncate(path, (off_t)size), 0);
     if (torn) {
         ck_assert_int_eq(truncate(path, (off_t)(size - 7)), 0);
     } else {
