@@ -8,9 +8,11 @@
  *      traces exactly the extension rays of the same path-length
  *      distribution (same materials, same Russian roulette) and no shadow
  *      rays;
- *   2. raw Embree: the tracer's packets (tracer_intersect_packet,
- *      tracer_unoccluded_packet: rtcIntersect8 / rtcOccluded8 over
- *      TRACER_PACKET consecutive rays) over a precomputed batch of extension
+ *   2. raw ray casting: the tracer's calls (tracer_intersect_packet:
+ *      our traversal of a BVH Embree builds, bvh.h, where the host has
+ *      AVX2; tracer_unoccluded_packet: rtcOccluded8 over TRACER_PACKET
+ *      consecutive rays; JSON "path_embree_packets": rtcIntersect8 for the
+ *      closest hits too, "path_own_bvh": bvh.h for both) over a precomputed batch of extension
  *      rays and a batch of shadow rays, on a scene built exactly as
  *      common/tracer.c builds its scene, timed separately on --threads
  *      pthreads (and, for reference, one ray a call: rtcIntersect1 /
@@ -61,6 +63,7 @@
 #include <sys/resource.h>
 #include <time.h>
 
+#include "bvh.h"
 #include "film.h"
 #include "lights.h"
 #include "material.h"
@@ -217,8 +220,10 @@ typedef struct embree {
     RTCDevice device;
     RTCScene scene;
     char isa[16];
-    trilist_t *list; /* if set, rays go to the triangle list instead */
-    int one_by_one;  /* rtcIntersect1 / rtcOccluded1, not the tracer's packets */
+    trilist_t *list;   /* if set, rays go to the triangle list instead */
+    bvh_t *bvh;        /* if set, all rays go to our traversal of Embree's BVH */
+    bvh_t *tracer_bvh; /* the tracer's: closest hits through it, shadow rays Embree's */
+    int one_by_one;    /* rtcIntersect1 / rtcOccluded1, not the tracer's packets */
 } embree_t;
 
 /* e->device configured as tracer_device_new configures it (the ISA pinned). */
@@ -283,6 +288,7 @@ static int closest_hit(const embree_t *e, vec3_t o, vec3_t d, uint32_t *tri, flo
 typedef struct raw_job {
     RTCScene scene;
     const trilist_t *list;
+    const bvh_t *bvh, *tracer_bvh;
     int one_by_one;
     const bray_t *rays;
     size_t begin, end;
@@ -296,7 +302,20 @@ static void *raw_worker(void *argp)
 {
     raw_job_t *j = argp;
     size_t hits = 0;
-    if (j->list) {
+    if (j->bvh) {
+        for (size_t i = j->begin; i < j->end; i++) {
+            const bray_t *b = &j->rays[i];
+            vec3_t o = vec3_make(b->o[0], b->o[1], b->o[2]),
+                   d = vec3_make(b->d[0], b->d[1], b->d[2]);
+            if (j->shadow) {
+                hits += bvh_occluded(j->bvh, o, d, TRACER_SHADOW_TFAR);
+            } else {
+                uint32_t tri;
+                float t, u, v;
+                hits += bvh_intersect(j->bvh, o, d, INFINITY, &tri, &t, &u, &v);
+            }
+        }
+    } else if (j->list) {
         for (size_t i = j->begin; i < j->end; i++) {
             const bray_t *b = &j->rays[i];
             vec3_t o = vec3_make(b->o[0], b->o[1], b->o[2]),
@@ -311,7 +330,7 @@ static void *raw_worker(void *argp)
         }
     } else if (!j->one_by_one) {
         /* packets of consecutive rays, through the tracer's own calls */
-        const tracer_t tr = {.rtc = j->scene};
+        const tracer_t tr = {.rtc = j->scene, .bvh = (bvh_t *)j->tracer_bvh};
         for (size_t i = j->begin; i < j->end; i += TRACER_PACKET) {
             size_t m = j->end - i < TRACER_PACKET ? j->end - i : TRACER_PACKET;
             tracer_packet_t pk;
@@ -373,6 +392,8 @@ static int raw_time(const embree_t *e, const batch_t *b, int shadow, int threads
         for (int k = 0; k < threads; k++) {
             jobs[k].scene = e->scene;
             jobs[k].list = e->list;
+            jobs[k].bvh = e->bvh;
+            jobs[k].tracer_bvh = e->tracer_bvh;
             jobs[k].one_by_one = e->one_by_one;
             jobs[k].rays = b->rays;
             jobs[k].begin = b->count * (size_t)k / (size_t)threads;
@@ -1013,7 +1034,7 @@ static int measure_ours(const tracer_t *tr, const scene_t *s, const args_t *a, o
 /* Raw Embree on two ray distributions; dist[0] ("path") also on a BVH
  * without ROBUST (into *fast). */
 typedef struct raw {
-    dist_result_t dist[2], fast, list, sorted, user, one_by_one;
+    dist_result_t dist[2], fast, list, sorted, user, one_by_one, own, packets;
     int runs;
     long rss_total;
 } raw_t;
@@ -1065,6 +1086,29 @@ static int measure_other_ways(const scene_t *s, const embree_t *e, const batch_t
     batch_free(&ssh);
     if (rc < 0)
         return -1;
+    embree_t eo = *e;
+    eo.tracer_bvh = NULL;
+    char err[256];
+    double tb = now_seconds();
+    eo.bvh = bvh_new(e->device, s->positions, s->indices, s->triangle_count, err, sizeof err);
+    tb = now_seconds() - tb;
+    if (!eo.bvh) {
+        fprintf(stderr, "bench_core: %s\n", err);
+        return -1;
+    }
+    if (raw_time(&eo, ext, 0, threads, r->runs, &r->own.ext) < 0 ||
+        raw_time(&eo, sh, 1, threads, r->runs, &r->own.sh) < 0)
+        rc = -1;
+    set_mix(&r->own, f_ext);
+    fprintf(stderr,
+            "  raw path, our watertight traversal of Embree's BVH (%.2f s to build, %.1f MB): "
+            "extension %.3f, shadow %.3f, our mix %.3f M rays/s (%.4f%% hit, ROBUST %.4f%%; "
+            "%.4f%% occluded, ROBUST %.4f%%)\n",
+            tb, bvh_bytes(eo.bvh) / 1e6, r->own.ext.rays_per_second / 1e6,
+            r->own.sh.rays_per_second / 1e6, r->own.mix / 1e6, 100 * r->own.ext.hit_fraction,
+            100 * r->dist[0].ext.hit_fraction, 100 * r->own.sh.hit_fraction,
+            100 * r->dist[0].sh.hit_fraction);
+    bvh_destroy(&eo.bvh);
     embree_t eu;
     clusters_t c;
     memset(&eu, 0, sizeof eu);
@@ -1132,8 +1176,22 @@ static int measure_dist(const scene_t *s, const args_t *a, int k, const embree_t
         set_mix(&r->fast, f_ext);
         print_way("BVH without ROBUST", &r->fast);
     }
+    if (k == 0 && !elist->list && e->tracer_bvh) {
+        embree_t packets = *e;
+        packets.tracer_bvh = NULL;
+        if (raw_time(&packets, &ext, 0, threads, r->runs, &r->packets.ext) < 0 ||
+            raw_time(&packets, &sh, 1, threads, r->runs, &r->packets.sh) < 0) {
+            fprintf(stderr, "bench_core: cannot start threads\n");
+            batch_free(&ext);
+            batch_free(&sh);
+            return -1;
+        }
+        set_mix(&r->packets, f_ext);
+        print_way("ROBUST, Embree's packets for both kinds (the tracer before bvh.h)", &r->packets);
+    }
     if (k == 0 && !elist->list) {
         embree_t single = *e;
+        single.tracer_bvh = NULL;
         single.one_by_one = 1;
         if (raw_time(&single, &ext, 0, threads, r->runs, &r->one_by_one.ext) < 0 ||
             raw_time(&single, &sh, 1, threads, r->runs, &r->one_by_one.sh) < 0) {
@@ -1178,6 +1236,15 @@ static int measure_raw(const scene_t *s, const args_t *a, double f_ext, raw_t *r
         fprintf(stderr, "bench_core: cannot build the Embree scene\n");
         rc = -1;
     }
+    char err[256];
+    if (rc == 0 && tracer_accel_for(s) == TRACER_ACCEL_EMBREE && bvh_supported()) {
+        e.tracer_bvh =
+            bvh_new(e.device, s->positions, s->indices, s->triangle_count, err, sizeof err);
+        if (!e.tracer_bvh) {
+            fprintf(stderr, "bench_core: %s\n", err);
+            rc = -1;
+        }
+    }
     /* the list only where the tracer uses it: on a big scene it is 100x
      * slower than the BVH and would take minutes for nothing */
     if (tracer_accel_for(s) == TRACER_ACCEL_TRILIST) {
@@ -1190,6 +1257,7 @@ static int measure_raw(const scene_t *s, const args_t *a, double f_ext, raw_t *r
     for (int k = 0; k < 2 && rc == 0; k++)
         rc = measure_dist(s, a, k, &e, &efast, &elist, f_ext, r);
     r->rss_total = peak_rss_kb();
+    bvh_destroy(&e.tracer_bvh);
     embree_free(&e);
     embree_free(&efast);
     trilist_destroy(&elist.list);
@@ -1243,7 +1311,15 @@ static cJSON *raw_embree_json(const raw_t *r, const args_t *a, int threads)
                   "rays of random walks from the camera (diffuse bounces, through glass), as the "
                   "path integrator "
                   "traces them (camera, bounce and next-event shadow rays), cast as the tracer "
-                  "casts them: Embree packets of consecutive rays (TRACER_PACKET)"));
+                  "casts them: closest hits by our watertight traversal of a BVH Embree builds "
+                  "(bvh.h) on an AVX2 host, shadow rays in Embree packets of consecutive rays "
+                  "(TRACER_PACKET)"));
+    add_dist_if_run(j, "path_embree_packets", &r->packets, threads,
+                    "the path rays on the ROBUST BVH in Embree packets of 8 for both kinds, as "
+                    "the tracer cast them before bvh.h");
+    add_dist_if_run(j, "path_own_bvh", &r->own, threads,
+                    "the path rays, both kinds, by our watertight traversal of a BVH Embree "
+                    "builds (bvh.h), one ray a call");
     add_dist_if_run(j, "path_one_by_one", &r->one_by_one, threads,
                     "the path rays on the ROBUST BVH one ray a call (rtcIntersect1 / "
                     "rtcOccluded1), as the tracer cast them before packets");

@@ -23,6 +23,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "bvh.h"
 #include "rng.h"
 #include "scene.h"
 #include "trilist.h"
@@ -274,12 +275,64 @@ static leaks_t count_leaks(RTCDevice dev, const mesh_t *m, const rays_t *r, int 
     return out;
 }
 
+/* The same kind of rays, n of them made and cast a chunk at a time (10^8
+ * would not fit in memory), on our traversal of a BVH Embree builds
+ * (bvh.h, what the tracer uses for closest hits): each ray a closest hit,
+ * and a shadow segment to twice as far, which the sphere must block. The
+ * rate is the closest hits' alone, making the rays not timed. */
+typedef struct bvh_leaks {
+    size_t misses, unblocked;
+    double mrays;
+    const char *kernel;
+} bvh_leaks_t;
+
+static int count_leaks_bvh(RTCDevice dev, const mesh_t *m, size_t n, bvh_leaks_t *out)
+{
+    char err[256];
+    bvh_t *b = bvh_new(dev, m->g.pos, m->g.idx, m->g.nt, err, sizeof err);
+    if (!b) {
+        fprintf(stderr, "bench_trilist: %s\n", err);
+        return -1;
+    }
+    memset(out, 0, sizeof *out);
+    out->kernel = bvh_kernel(b);
+    enum { CHUNK = 1 << 20 };
+    vec3_t *o = xrealloc(NULL, CHUNK * sizeof *o), *d = xrealloc(NULL, CHUNK * sizeof *d);
+    rng_stream_t rng = rng_stream(13, 0, 0);
+    double seconds = 0;
+    for (size_t done = 0; done < n;) {
+        size_t k = n - done < CHUNK ? n - done : CHUNK;
+        for (size_t i = 0; i < k; i++) {
+            o[i] = inside_point(m, &rng);
+            float z = 1.0f - 2.0f * rng_next_float(&rng), phi = 6.2831853f * rng_next_float(&rng);
+            float rr = sqrtf(fmaxf(0.0f, 1.0f - z * z));
+            d[i] = vec3_make(rr * cosf(phi), rr * sinf(phi), z);
+        }
+        double t0 = now_seconds();
+        for (size_t i = 0; i < k; i++) {
+            uint32_t tri;
+            float t, u, v;
+            out->misses += !bvh_intersect(b, o[i], d[i], INFINITY, &tri, &t, &u, &v);
+        }
+        seconds += now_seconds() - t0;
+        for (size_t i = 0; i < k; i++)
+            out->unblocked += !bvh_occluded(b, o[i], vec3_scale(d[i], 4.0f), 1.0f);
+        done += k;
+    }
+    out->mrays = (double)n / seconds / 1e6;
+    free(o);
+    free(d);
+    bvh_destroy(&b);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
-    size_t nrays = 500000, leak_rays = 10000000;
+    size_t nrays = 500000, leak_rays = 10000000, bvh_leak_rays = 100000000;
     const char *json_path = NULL;
     for (int i = 1; i < argc; i++) {
-        if ((strcmp(argv[i], "--rays") == 0 || strcmp(argv[i], "--leak-rays") == 0) &&
+        if ((strcmp(argv[i], "--rays") == 0 || strcmp(argv[i], "--leak-rays") == 0 ||
+             strcmp(argv[i], "--bvh-leak-rays") == 0) &&
             i + 1 < argc) {
             const char *opt = argv[i];
             char *end;
@@ -288,11 +341,14 @@ int main(int argc, char **argv)
                 fprintf(stderr, "bench_trilist: %s: want 1..1e8, got '%s'\n", opt, argv[i]);
                 return 2;
             }
-            *(strcmp(opt, "--rays") == 0 ? &nrays : &leak_rays) = (size_t)v;
+            *(strcmp(opt, "--rays") == 0        ? &nrays
+              : strcmp(opt, "--leak-rays") == 0 ? &leak_rays
+                                                : &bvh_leak_rays) = (size_t)v;
         } else if (strcmp(argv[i], "--json") == 0 && i + 1 < argc) {
             json_path = argv[++i];
         } else {
-            fprintf(stderr, "usage: bench_trilist [--rays N] [--leak-rays N] [--json OUT.json]\n");
+            fprintf(stderr, "usage: bench_trilist [--rays N] [--leak-rays N] [--bvh-leak-rays N] "
+                            "[--json OUT.json]\n");
             return 2;
         }
     }
@@ -366,6 +422,20 @@ int main(int argc, char **argv)
         cJSON_AddNumberToObject(e, "mrays", k.mrays);
     }
     free_rays(&r);
+    if (bvh_supported()) {
+        bvh_leaks_t k;
+        if (count_leaks_bvh(dev, &sphere, bvh_leak_rays, &k) < 0)
+            return 1;
+        printf("| our traversal of Embree's BVH (bvh.h, %s), %zu rays | %zu (shadow segments "
+               "not blocked: %zu) | %.2f |\n",
+               k.kernel, bvh_leak_rays, k.misses, k.unblocked, k.mrays);
+        cJSON *e = cJSON_AddObjectToObject(lk, "own_bvh");
+        cJSON_AddNumberToObject(e, "rays", (double)bvh_leak_rays);
+        cJSON_AddNumberToObject(e, "misses", (double)k.misses);
+        cJSON_AddNumberToObject(e, "shadow_unblocked", (double)k.unblocked);
+        cJSON_AddNumberToObject(e, "mrays", k.mrays);
+        cJSON_AddStringToObject(e, "kernel", k.kernel);
+    }
     closedmesh_free(&sphere.g);
     rtcReleaseDevice(dev);
     int rc = 0;

@@ -47,7 +47,8 @@ def ceiling_table(core, peer_runs):
         m = peer_runs.get((r["scene_name"], 1))
         rps = r["ours"]["rays_per_sample"]
         cells = []
-        for key in ("path", "path_one_by_one", "path_sorted", "path_watertight_user", "path_not_robust"):
+        for key in ("path", "path_embree_packets", "path_own_bvh", "path_one_by_one", "path_sorted",
+                    "path_watertight_user", "path_not_robust"):
             if key not in raw:  # results from before packets
                 cells.append("-")
                 continue
@@ -60,17 +61,21 @@ def ceiling_table(core, peer_runs):
     return "\n".join([
         "**The ceiling ray casting sets** (issue 9; 1 thread): our ray mix on each way of casting that "
         "stays watertight, and, in brackets, the samples/s it would allow with shading, sampling and "
-        "bookkeeping free (mix / rays per sample) over Mitsuba 3's samples/s. \"ROBUST\": in Embree "
-        "packets of 8 consecutive rays, as the tracer casts them; \"one ray a call\": rtcIntersect1 / "
-        "rtcOccluded1, as it cast them before. \"Sorted\": the same rays "
+        "bookkeeping free (mix / rays per sample) over Mitsuba 3's samples/s. \"The tracer's\": as the "
+        "tracer casts them, closest hits by our watertight traversal of a BVH Embree builds (common/bvh.h, "
+        "on an AVX2 host), shadow rays in Embree ROBUST packets of 8 consecutive rays; \"ROBUST "
+        "packets\": Embree's packets for both kinds, as the tracer cast them before bvh.h; \"Our "
+        "traversal\": bvh.h for both kinds; \"one ray a call\": rtcIntersect1 / "
+        "rtcOccluded1 on the ROBUST BVH. \"Sorted\": the same rays "
         "sorted by direction octant and origin Morton code, in packets (the sort not timed: the most a sorting "
         "wavefront tracer could gain from coherence). \"Watertight clusters\": an Embree BVH (default "
         "flags) over clusters of 16 triangles in Morton order, each tested by trilist's watertight "
         "kernel through Embree's user-geometry callbacks, one ray a call. \"Not ROBUST\": Embree's own test, which lets "
         "rays through cracks (the table below), for reference.",
         "",
-        "| Scene | Rays/sample | ROBUST | ROBUST, one ray a call | ROBUST, sorted | Watertight clusters | Not ROBUST (leaks) |",
-        "|---|--:|--:|--:|--:|--:|--:|",
+        "| Scene | Rays/sample | The tracer's | ROBUST packets | Our traversal | ROBUST, one ray a call | "
+        "ROBUST, sorted | Watertight clusters | Not ROBUST (leaks) |",
+        "|---|--:|--:|--:|--:|--:|--:|--:|--:|",
     ] + rows)
 
 
@@ -110,14 +115,16 @@ def table(core, max_triangles):
         f"{mach.get('cpu')}, {mach.get('cores')} cores, Embree {mach.get('embree')} ({mach.get('isa')}); "
         f"commit {core.get('commit')}, {core.get('date')}; whole benchmark {core.get('bench_seconds', 0):.0f} s.",
         "Raw ray casting: what the tracer casts rays with, alone, over 2M precomputed rays recorded from "
-        "random walks from the camera, diffuse bounces and through glass (the rays our tracer traces): Embree's rtcIntersect8 / "
-        "rtcOccluded8 on packets of 8 consecutive rays (the tracer casts its rays in packets of 8), "
+        "random walks from the camera, diffuse bounces and through glass (the rays our tracer traces), cast "
+        "as the tracer casts them: closest hits by our watertight traversal of a BVH Embree builds "
+        "(common/bvh.h), shadow rays by Embree's rtcOccluded8 on packets of 8 consecutive rays, "
         "or \"(list)\" the triangle list without a BVH (common/trilist.h) that the tracer "
         f"uses for scenes of up to {max_triangles} triangles; \"Ours / raw\" compares our rays/s, "
         "shading and sampling included, with the raw rate of our own extension/shadow mix "
         "(1 / sum(fraction / rate)). Peak memory: ru_maxrss of the benchmark process after the renders.",
     ]
-    robust = [f"{r['scene_name']} {mega(r['raw_embree']['path']['mix_rays_per_second_per_core'], 1)}"
+    robust = [f"{r['scene_name']} "
+              f"{mega(r['raw_embree'].get('path_embree_packets', r['raw_embree']['path'])['mix_rays_per_second_per_core'], 1)}"
               for r in core["runs"] if r["threads"] == 1]
     fast = [f"{r['scene_name']} {mega(r['raw_embree']['path_not_robust']['mix_rays_per_second_per_core'], 1)}"
             for r in core["runs"] if r["threads"] == 1 and "path_not_robust" in r["raw_embree"]]
@@ -176,8 +183,14 @@ def trilist_table(results_dir):
             "| Embree scene flags | Rays through a crack | M rays/s |",
             "|---|--:|--:|",
             f"| default (what Mitsuba 3 uses) | {k['default']['misses']} | {k['default']['mrays']:.2f} |",
-            f"| RTC_SCENE_FLAG_ROBUST (ours) | {k['robust']['misses']} | {k['robust']['mrays']:.2f} |",
+            f"| RTC_SCENE_FLAG_ROBUST (ours: shadow rays) | {k['robust']['misses']} | {k['robust']['mrays']:.2f} |",
         ]
+        own = k.get("own_bvh")
+        if own:
+            lines.append(
+                f"| our traversal of Embree's BVH (common/bvh.h, closest hits; {own['rays'] / 1e6:g} M rays, "
+                f"{own['kernel']}; shadow segments not blocked: {own['shadow_unblocked']}) | {own['misses']} | "
+                f"{own['mrays']:.2f} |")
     return "\n".join(lines)
 
 

@@ -1,4 +1,5 @@
-/* tracer.c - ray casting (Embree's BVH, or trilist.h for a small scene),
+/* tracer.c - ray casting (a BVH Embree builds, traversed by bvh.h for
+ * closest hits and by Embree for shadow rays, or trilist.h for a small scene),
  * the two integrators and the per-pixel statistics.
  *
  * `path`: unidirectional path tracing with next-event estimation on the
@@ -170,6 +171,18 @@ int tracer_new_accel(tracer_device_t *dev, const scene_t *scene, tracer_accel_t 
         tracer_destroy(&t);
         return -1;
     }
+    /* closest hits through our traversal (tracer_priv.h), where the host
+     * runs it: the ISA is in the build id, so hosts of either kind never
+     * share a job */
+    if (bvh_supported()) {
+        t->bvh = bvh_new(dev->device, scene->positions, scene->indices, scene->triangle_count, e,
+                         sizeof e);
+        if (!t->bvh) {
+            snprintf(err, errlen, "cannot build the BVH: %s", e);
+            tracer_destroy(&t);
+            return -1;
+        }
+    }
     *out = t;
     return 0;
 }
@@ -181,6 +194,7 @@ void tracer_destroy(tracer_t **tp)
     tracer_t *t = *tp;
     if (t->rtc)
         rtcReleaseScene(t->rtc);
+    bvh_destroy(&t->bvh);
     trilist_destroy(&t->small);
     free(t);
     *tp = NULL;

@@ -45,8 +45,11 @@
  * since paths are traced with denormals flushed to zero (tracer_trace: a
  * value that would have been denormal is 0; our scenes keep their bits); 8
  * since the cosine bounce takes its sin and cos from a polynomial
- * (vmath_sincos_turn), not libm's calls: our scenes' bits change. */
-#define TRACER_VERSION 8
+ * (vmath_sincos_turn), not libm's calls: our scenes' bits change; 9 since
+ * a scene of more than TRILIST_MAX_TRIANGLES finds its closest hits by our
+ * traversal of a BVH Embree builds (bvh.h: trilist's triangle test, not
+ * Embree's), on AVX2 hosts. */
+#define TRACER_VERSION 9
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so
  * samples/s compare like with like). */

@@ -26,6 +26,8 @@ failed=0
 skipped=0
 status=0
 times=""
+failed_names=""
+failure_lines=""
 start_all=$(date +%s.%N)
 # Seconds since $1 (date +%s.%N), to a tenth.
 since() { awk -v a="$1" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }'; }
@@ -80,16 +82,17 @@ run_item() {
 
 # Prints item $1 (done) and adds up its counts.
 report_item() {
-    local i=$1 t=${paths[$1]} c=${args[$1]} rc out s name slow line n f e k
+    local i=$1 t=${paths[$1]} c=${args[$1]} rc out s name slow line n f e k failed0
     rc=$(cat "$work/$i.rc")
     out=$(cat "$work/$i.out")
     s=$(cat "$work/$i.s")
     if [ "${kinds[i]}" = fuzz ]; then
         echo "== $t (corpus + $c mutations)"
         printf '%s\n' "$out"
-        if [ "$rc" = 0 ]; then passed=$((passed + 1)); else failed=$((failed + 1)); status=1; fi
         name=${t##*/}
+        if [ "$rc" = 0 ]; then passed=$((passed + 1)); else failed=$((failed + 1)); status=1; failed_names="$failed_names $name"; fi
     else
+        failed0=$failed
         if [ -n "$c" ]; then echo "== $t ($c)"; else echo "== $t"; fi
         printf '%s\n' "$out"
         slow=$(awk -F'[<>]' '/<id>/ { id = $3 } /<duration>/ && id != "" { printf "%s %s\n", $3, id; id = "" }' \
@@ -114,8 +117,12 @@ report_item() {
             echo "$t: no Check summary (crashed?)"
             failed=$((failed + 1))
         fi
-        [ "$rc" = 0 ] || status=1
         name=${t##*/}${c:+:$c}
+        [ "$rc" = 0 ] || status=1
+        if [ "$rc" != 0 ] || [ "$failed" != "$failed0" ]; then
+            failed_names="$failed_names $name"
+            failure_lines="$failure_lines$(printf '%s\n' "$out" | grep -E ':[0-9]+:[FE]:' | head -n 3)\n"
+        fi
     fi
     echo "-- $name: $s s"
     times="$times$name $s\n"
@@ -147,6 +154,12 @@ if [ $skipped -gt 0 ]; then
     echo "tests: $passed passed, $failed failed, $skipped skipped"
 else
     echo "tests: $passed passed, $failed failed"
+fi
+# (CI shows only the tail of the output: name what failed here, so that the
+# failure's own lines, printed above, can be found)
+if [ -n "$failed_names" ]; then
+    printf '%b' "$failure_lines" | grep -v '^$'
+    echo "failed:$failed_names"
 fi
 [ $failed = 0 ] || status=1
 exit $status
