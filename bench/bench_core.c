@@ -1237,7 +1237,7 @@ static int measure_raw(const scene_t *s, const args_t *a, double f_ext, raw_t *r
         rc = -1;
     }
     char err[256];
-    if (rc == 0 && tracer_accel_for(s) == TRACER_ACCEL_EMBREE && bvh_supported()) {
+    if (rc == 0 && tracer_accel_for(s) == TRACER_ACCEL_EMBREE && tracer_own_traversal(s)) {
         e.tracer_bvh =
             bvh_new(e.device, s->positions, s->indices, s->triangle_count, err, sizeof err);
         if (!e.tracer_bvh) {

@@ -48,7 +48,7 @@
  * (vmath_sincos_turn), not libm's calls: our scenes' bits change; 9 since
  * a scene of more than TRILIST_MAX_TRIANGLES finds its closest hits by our
  * traversal of a BVH Embree builds (bvh.h: trilist's triangle test, not
- * Embree's), on AVX2 hosts. */
+ * Embree's), on AVX2 hosts, unless it has smooth glass. */
 #define TRACER_VERSION 9
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so
@@ -56,6 +56,11 @@
 #define TRACER_RR_DEPTH SCENE_RR_DEPTH
 
 typedef struct tracer tracer_t;
+
+/* 1 when a BVH scene's closest hits go through our traversal (bvh.h):
+ * the host runs it (AVX2) and no triangle is smooth glass (tracer.c says
+ * why); 0 when Embree's packets cast them. */
+int tracer_own_traversal(const scene_t *s);
 
 /* The Embree device: one per process, shared by every tracer in it (a
  * worker's cached scenes, the embedded render's workers). Its ISA is pinned

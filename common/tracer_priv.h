@@ -101,10 +101,11 @@ static inline int tracer_embree_unoccluded(RTCScene sc, vec3_t o, vec3_t d)
  * Each stage casts the way that measured faster (issue 23): on a host with
  * AVX2, closest hits go through our traversal of a BVH Embree built
  * (bvh.h), one ray at a time: 1.47x Embree's ROBUST packets on the
- * Buddha's recorded extension rays, 0.98x on cornell-glass's (bench_core
- * "our watertight traversal"); shadow rays stay in Embree's ROBUST packets
- * (ours: 1.1x on the Buddha, 0.64x on glass, whose shadow rays to the one
- * light are coherent enough for packets). */
+ * Buddha's recorded extension rays, but 0.96x on cornell-glass's, so a
+ * scene with smooth glass keeps Embree's packets (tracer_new_accel);
+ * shadow rays stay in Embree's ROBUST packets (ours: 1.1x on the Buddha,
+ * 0.64x on glass, whose shadow rays to the one light are coherent enough
+ * for packets). */
 #define TRACER_PACKET 8
 
 /* A packet's rays: origins, unit directions (shadow rays: segments). */
