@@ -168,7 +168,8 @@ typedef struct rates {
 
 #define RUNS 5
 
-static rates_t time_trilist(const trilist_t *l, const rays_t *r)
+/* The list l, or when b is set our traversal of Embree's BVH (bvh.h). */
+static rates_t time_trilist(const trilist_t *l, const bvh_t *b, const rays_t *r)
 {
     rates_t out = {0};
     double best_e = INFINITY, best_s = INFINITY;
@@ -178,11 +179,14 @@ static rates_t time_trilist(const trilist_t *l, const rays_t *r)
         for (size_t i = 0; i < r->n; i++) {
             uint32_t tri;
             float t, u, v;
-            hits += (size_t)trilist_intersect(l, r->o[i], r->d[i], INFINITY, &tri, &t, &u, &v);
+            hits +=
+                (size_t)(b ? bvh_intersect(b, r->o[i], r->d[i], INFINITY, &tri, &t, &u, &v)
+                           : trilist_intersect(l, r->o[i], r->d[i], INFINITY, &tri, &t, &u, &v));
         }
         double t1 = now_seconds();
         for (size_t i = 0; i < r->n; i++)
-            hits += (size_t)trilist_occluded(l, r->so[i], r->sd[i], 0.99999f);
+            hits += (size_t)(b ? bvh_occluded(b, r->so[i], r->sd[i], 0.99999f)
+                               : trilist_occluded(l, r->so[i], r->sd[i], 0.99999f));
         double t2 = now_seconds();
         best_e = fmin(best_e, t1 - t0);
         best_s = fmin(best_s, t2 - t1);
@@ -370,7 +374,8 @@ int main(int argc, char **argv)
     cJSON_AddNumberToObject(root, "max_triangles", TRILIST_MAX_TRIANGLES);
     const char *kernel = "";
     printf("| Mesh | Triangles | List ext M rays/s | Embree ext | List / Embree | List shadow | "
-           "Embree shadow | List / Embree |\n|---|--:|--:|--:|--:|--:|--:|--:|\n");
+           "Embree shadow | List / Embree | Our BVH ext | Our BVH shadow |\n"
+           "|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|\n");
     for (size_t k = 0; k < count; k++) {
         mesh_t *m = &meshes[k];
         trilist_t *l = trilist_new(m->g.pos, m->g.idx, m->g.nt);
@@ -381,12 +386,23 @@ int main(int argc, char **argv)
         kernel = trilist_kernel(l);
         RTCScene sc = embree_scene(dev, m, 1);
         rays_t r = make_rays(m, nrays);
-        rates_t a = time_trilist(l, &r), b = time_embree(sc, &r);
+        rates_t a = time_trilist(l, NULL, &r), b = time_embree(sc, &r), c = {0};
+        char err[256];
+        bvh_t *own =
+            bvh_supported() ? bvh_new(dev, m->g.pos, m->g.idx, m->g.nt, err, sizeof err) : NULL;
+        if (own) {
+            c = time_trilist(NULL, own, &r);
+            if (c.hits != a.hits)
+                fprintf(stderr, "bench_trilist: %s: %zu hits on the list, %zu on our BVH\n",
+                        m->name, a.hits, c.hits);
+            bvh_destroy(&own);
+        }
         if (a.hits != b.hits)
             fprintf(stderr, "bench_trilist: %s: %zu hits on the list, %zu on Embree\n", m->name,
                     a.hits, b.hits);
-        printf("| %s | %zu | %.2f | %.2f | %.2f | %.2f | %.2f | %.2f |\n", m->name, m->g.nt, a.ext,
-               b.ext, a.ext / b.ext, a.shadow, b.shadow, a.shadow / b.shadow);
+        printf("| %s | %zu | %.2f | %.2f | %.2f | %.2f | %.2f | %.2f | %.2f | %.2f |\n", m->name,
+               m->g.nt, a.ext, b.ext, a.ext / b.ext, a.shadow, b.shadow, a.shadow / b.shadow, c.ext,
+               c.shadow);
         fflush(stdout);
         cJSON *row = cJSON_CreateObject();
         cJSON_AddStringToObject(row, "mesh", m->name);
@@ -395,6 +411,10 @@ int main(int argc, char **argv)
         cJSON_AddNumberToObject(row, "embree_ext_mrays", b.ext);
         cJSON_AddNumberToObject(row, "list_shadow_mrays", a.shadow);
         cJSON_AddNumberToObject(row, "embree_shadow_mrays", b.shadow);
+        if (c.ext > 0) {
+            cJSON_AddNumberToObject(row, "own_bvh_ext_mrays", c.ext);
+            cJSON_AddNumberToObject(row, "own_bvh_shadow_mrays", c.shadow);
+        }
         cJSON_AddItemToArray(rows, row);
         free_rays(&r);
         rtcReleaseScene(sc);
