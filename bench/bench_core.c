@@ -8,11 +8,11 @@
  *      traces exactly the extension rays of the same path-length
  *      distribution (same materials, same Russian roulette) and no shadow
  *      rays;
- *   2. raw ray casting: the tracer's calls (tracer_intersect_packet:
- *      our traversal of a BVH Embree builds, bvh.h, where the host has
- *      AVX2; tracer_unoccluded_packet: rtcOccluded8 over TRACER_PACKET
- *      consecutive rays; JSON "path_embree_packets": rtcIntersect8 for the
- *      closest hits too, "path_own_bvh": bvh.h for both) over a precomputed batch of extension
+ *   2. raw ray casting: the tracer's calls (tracer_intersect_packet,
+ *      tracer_unoccluded_packet: our traversal of a BVH Embree builds,
+ *      bvh.h, where the tracer uses it, or rtcIntersect8 / rtcOccluded8
+ *      over TRACER_PACKET consecutive rays; JSON "path_embree_packets":
+ *      Embree's packets, "path_own_bvh": bvh.h) over a precomputed batch of extension
  *      rays and a batch of shadow rays, on a scene built exactly as
  *      common/tracer.c builds its scene, timed separately on --threads
  *      pthreads (and, for reference, one ray a call: rtcIntersect1 /
@@ -222,7 +222,7 @@ typedef struct embree {
     char isa[16];
     trilist_t *list;   /* if set, rays go to the triangle list instead */
     bvh_t *bvh;        /* if set, all rays go to our traversal of Embree's BVH */
-    bvh_t *tracer_bvh; /* the tracer's: closest hits through it, shadow rays Embree's */
+    bvh_t *tracer_bvh; /* the tracer's (TRACER_ACCEL_BVH): all rays through it */
     int one_by_one;    /* rtcIntersect1 / rtcOccluded1, not the tracer's packets */
 } embree_t;
 
@@ -1237,7 +1237,7 @@ static int measure_raw(const scene_t *s, const args_t *a, double f_ext, raw_t *r
         rc = -1;
     }
     char err[256];
-    if (rc == 0 && tracer_accel_for(s) == TRACER_ACCEL_EMBREE && tracer_own_traversal(s)) {
+    if (rc == 0 && tracer_accel_for(s) == TRACER_ACCEL_BVH) {
         e.tracer_bvh =
             bvh_new(e.device, s->positions, s->indices, s->triangle_count, err, sizeof err);
         if (!e.tracer_bvh) {
@@ -1311,12 +1311,12 @@ static cJSON *raw_embree_json(const raw_t *r, const args_t *a, int threads)
                   "rays of random walks from the camera (diffuse bounces, through glass), as the "
                   "path integrator "
                   "traces them (camera, bounce and next-event shadow rays), cast as the tracer "
-                  "casts them: closest hits by our watertight traversal of a BVH Embree builds "
-                  "(bvh.h) on an AVX2 host, shadow rays in Embree packets of consecutive rays "
-                  "(TRACER_PACKET)"));
+                  "casts them: on a scene the tracer casts through our watertight traversal of a "
+                  "BVH Embree builds (accel \"bvh\"), that; otherwise Embree packets of "
+                  "consecutive rays (TRACER_PACKET)"));
     add_dist_if_run(j, "path_embree_packets", &r->packets, threads,
-                    "the path rays on the ROBUST BVH in Embree packets of 8 for both kinds, as "
-                    "the tracer cast them before bvh.h");
+                    "the path rays on the ROBUST BVH in Embree packets of 8, as the tracer casts "
+                    "them on a scene with smooth glass (and cast them all before bvh.h)");
     add_dist_if_run(j, "path_own_bvh", &r->own, threads,
                     "the path rays, both kinds, by our watertight traversal of a BVH Embree "
                     "builds (bvh.h), one ray a call");
@@ -1359,7 +1359,9 @@ static int write_json(const char *path, const args_t *a, const char *name, const
     cJSON_AddNumberToObject(root, "threads", threads);
     cJSON_AddStringToObject(root, "isa", tracer_isa(tr));
     cJSON_AddStringToObject(root, "accel",
-                            tracer_accel_for(s) == TRACER_ACCEL_TRILIST ? "trilist" : "embree");
+                            tracer_accel_for(s) == TRACER_ACCEL_TRILIST ? "trilist"
+                            : tracer_accel_for(s) == TRACER_ACCEL_BVH   ? "bvh"
+                                                                        : "embree");
     cJSON_AddStringToObject(root, "engine",
                             a->engine == TRACER_ENGINE_SCALAR ? "scalar" : "wavefront");
     cJSON_AddStringToObject(root, "embree_version", RTC_VERSION_STRING);

@@ -62,10 +62,10 @@ def ceiling_table(core, peer_runs):
         "**The ceiling ray casting sets** (issue 9; 1 thread): our ray mix on each way of casting that "
         "stays watertight, and, in brackets, the samples/s it would allow with shading, sampling and "
         "bookkeeping free (mix / rays per sample) over Mitsuba 3's samples/s. \"The tracer's\": as the "
-        "tracer casts them, closest hits by our watertight traversal of a BVH Embree builds (common/bvh.h, "
-        "on an AVX2 host), shadow rays in Embree ROBUST packets of 8 consecutive rays; \"ROBUST "
-        "packets\": Embree's packets for both kinds, as the tracer cast them before bvh.h; \"Our "
-        "traversal\": bvh.h for both kinds; \"one ray a call\": rtcIntersect1 / "
+        "tracer casts them: by our watertight traversal of a BVH Embree builds (common/bvh.h, on an AVX2 "
+        "host), or on a scene with smooth glass in Embree ROBUST packets of 8 consecutive rays; \"ROBUST "
+        "packets\": Embree's packets, as the tracer cast every scene's rays before bvh.h; \"Our "
+        "traversal\": bvh.h; \"one ray a call\": rtcIntersect1 / "
         "rtcOccluded1 on the ROBUST BVH. \"Sorted\": the same rays "
         "sorted by direction octant and origin Morton code, in packets (the sort not timed: the most a sorting "
         "wavefront tracer could gain from coherence). \"Watertight clusters\": an Embree BVH (default "
@@ -116,8 +116,9 @@ def table(core, max_triangles):
         f"commit {core.get('commit')}, {core.get('date')}; whole benchmark {core.get('bench_seconds', 0):.0f} s.",
         "Raw ray casting: what the tracer casts rays with, alone, over 2M precomputed rays recorded from "
         "random walks from the camera, diffuse bounces and through glass (the rays our tracer traces), cast "
-        "as the tracer casts them: closest hits by our watertight traversal of a BVH Embree builds "
-        "(common/bvh.h), shadow rays by Embree's rtcOccluded8 on packets of 8 consecutive rays, "
+        "as the tracer casts them: by our watertight traversal of a BVH Embree builds (common/bvh.h), or "
+        "on a scene with smooth glass by Embree's rtcIntersect8 / rtcOccluded8 on packets of 8 consecutive "
+        "rays, "
         "or \"(list)\" the triangle list without a BVH (common/trilist.h) that the tracer "
         f"uses for scenes of up to {max_triangles} triangles; \"Ours / raw\" compares our rays/s, "
         "shading and sampling included, with the raw rate of our own extension/shadow mix "
@@ -174,7 +175,7 @@ def trilist_table(results_dir):
     lines.append("")
     lines.append(f"The tracer uses the list up to {t['max_triangles']} triangles (TRILIST_MAX_TRIANGLES). "
                  "\"Our BVH\": our traversal of a BVH Embree builds (common/bvh.h), which the tracer uses "
-                 "for closest hits above that count.")
+                 "above that count, unless the scene has smooth glass.")
     k = t.get("leaks")
     if k:
         lines += [
@@ -186,12 +187,12 @@ def trilist_table(results_dir):
             "| Embree scene flags | Rays through a crack | M rays/s |",
             "|---|--:|--:|",
             f"| default (what Mitsuba 3 uses) | {k['default']['misses']} | {k['default']['mrays']:.2f} |",
-            f"| RTC_SCENE_FLAG_ROBUST (ours: shadow rays) | {k['robust']['misses']} | {k['robust']['mrays']:.2f} |",
+            f"| RTC_SCENE_FLAG_ROBUST (ours, on a scene with smooth glass) | {k['robust']['misses']} | {k['robust']['mrays']:.2f} |",
         ]
         own = k.get("own_bvh")
         if own:
             lines.append(
-                f"| our traversal of Embree's BVH (common/bvh.h, closest hits; {own['rays'] / 1e6:g} M rays, "
+                f"| our traversal of Embree's BVH (common/bvh.h; {own['rays'] / 1e6:g} M rays, "
                 f"{own['kernel']}; shadow segments not blocked: {own['shadow_unblocked']}) | {own['misses']} | "
                 f"{own['mrays']:.2f} |")
     return "\n".join(lines)

@@ -284,7 +284,7 @@ const char *bvh_kernel(const bvh_t *b)
 int bvh_supported(void)
 {
     __builtin_cpu_init();
-    return __builtin_cpu_supports("avx2");
+    return __builtin_cpu_supports("avx2") != 0; /* (a flag bit, not 1) */
 }
 
 bvh_t *bvh_new(RTCDevice device, const float *positions, const uint32_t *indices, size_t count,

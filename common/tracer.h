@@ -48,8 +48,10 @@
  * (vmath_sincos_turn), not libm's calls: our scenes' bits change; 9 since
  * a scene of more than TRILIST_MAX_TRIANGLES finds its closest hits by our
  * traversal of a BVH Embree builds (bvh.h: trilist's triangle test, not
- * Embree's), on AVX2 hosts, unless it has smooth glass. */
-#define TRACER_VERSION 9
+ * Embree's), on AVX2 hosts, unless it has smooth glass; 10 since such a
+ * scene's shadow rays go through it too (Embree builds no scene of its
+ * own for it). */
+#define TRACER_VERSION 10
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so
  * samples/s compare like with like). */
@@ -57,9 +59,9 @@
 
 typedef struct tracer tracer_t;
 
-/* 1 when a BVH scene's closest hits go through our traversal (bvh.h):
- * the host runs it (AVX2) and no triangle is smooth glass (tracer.c says
- * why); 0 when Embree's packets cast them. */
+/* 1 when a scene too big for the triangle list is traced by our traversal
+ * (bvh.h): the host runs it (AVX2) and no triangle is smooth glass
+ * (tracer.c says why); 0 when Embree's packets cast its rays. */
 int tracer_own_traversal(const scene_t *s);
 
 /* The Embree device: one per process, shared by every tracer in it (a
@@ -121,11 +123,14 @@ typedef enum tracer_accel {
     TRACER_ACCEL_AUTO,    /* tracer_accel_for(scene) */
     TRACER_ACCEL_EMBREE,  /* Embree's BVH */
     TRACER_ACCEL_TRILIST, /* every triangle tested, SIMD (trilist.h) */
+    TRACER_ACCEL_BVH,     /* our traversal of a BVH Embree builds (bvh.h; AVX2) */
 } tracer_accel_t;
 
 /* What tracer_new uses for a scene: the triangle list up to
- * TRILIST_MAX_TRIANGLES triangles, Embree above. A function of the scene
- * alone, so every worker of a job traces the same bits. */
+ * TRILIST_MAX_TRIANGLES triangles; above, our traversal (bvh.h) where
+ * tracer_own_traversal says so, Embree's otherwise. A function of the
+ * scene (and the host's ISA, which the build id carries) alone, so every
+ * worker of a job traces the same bits. */
 tracer_accel_t tracer_accel_for(const scene_t *scene);
 
 /* Builds the BVH for a scene on a device. Both are borrowed and must

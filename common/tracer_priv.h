@@ -19,8 +19,8 @@
 
 struct tracer {
     tracer_device_t *dev;
-    RTCScene rtc;     /* Embree's BVH, or NULL when small is used */
-    bvh_t *bvh;       /* our traversal of a BVH Embree built: closest hits */
+    RTCScene rtc;     /* Embree's BVH (TRACER_ACCEL_EMBREE), or NULL */
+    bvh_t *bvh;       /* our traversal of a BVH Embree built, or NULL */
     trilist_t *small; /* a scene tested whole, without a BVH */
     const scene_t *scene;
     tracer_engine_t engine;
@@ -98,14 +98,13 @@ static inline int tracer_embree_unoccluded(RTCScene sc, vec3_t o, vec3_t d)
  * engine fixes which rays share a packet by their task and sample alone
  * (wave.c), so the image does not depend on it either way.
  *
- * Each stage casts the way that measured faster (issue 23): on a host with
- * AVX2, closest hits go through our traversal of a BVH Embree built
- * (bvh.h), one ray at a time: 1.47x Embree's ROBUST packets on the
- * Buddha's recorded extension rays, but 0.96x on cornell-glass's, so a
- * scene with smooth glass keeps Embree's packets (tracer_new_accel);
- * shadow rays stay in Embree's ROBUST packets (ours: 1.1x on the Buddha,
- * 0.64x on glass, whose shadow rays to the one light are coherent enough
- * for packets). */
+ * A scene casts the way that measured faster (issue 23): on a host with
+ * AVX2, through our traversal of a BVH Embree built (bvh.h), one ray at a
+ * time: 1.47x Embree's ROBUST packets on the Buddha's recorded extension
+ * rays, its shadow rays 1.0-1.1x; but a scene with smooth glass keeps
+ * Embree's packets (tracer_own_traversal): ours cast cornell-glass's
+ * extension rays 0.96x and its shadow rays 0.64x as fast, rays through
+ * glass and to its one light being coherent enough for packets. */
 #define TRACER_PACKET 8
 
 /* A packet's rays: origins, unit directions (shadow rays: segments). */
@@ -176,6 +175,11 @@ static inline void tracer_intersect_packet(const tracer_t *tr, const tracer_pack
 static inline void tracer_unoccluded_packet(const tracer_t *tr, const tracer_packet_t *p, size_t n,
                                             int *clear)
 {
+    if (tr->bvh) {
+        for (size_t i = 0; i < n; i++)
+            clear[i] = !bvh_occluded(tr->bvh, p->o[i], p->d[i], TRACER_SHADOW_TFAR);
+        return;
+    }
     if (tr->small) {
         for (size_t i = 0; i < n; i++)
             clear[i] = !trilist_occluded(tr->small, p->o[i], p->d[i], TRACER_SHADOW_TFAR);
@@ -223,6 +227,8 @@ static inline int tracer_intersect_camera(const tracer_t *tr, vec3_t o, vec3_t d
 /* 1 if the segment o -> o + d (d unnormalised, t in [0, 1)) is free. */
 static inline int tracer_unoccluded(const tracer_t *tr, vec3_t o, vec3_t d)
 {
+    if (tr->bvh)
+        return !bvh_occluded(tr->bvh, o, d, TRACER_SHADOW_TFAR);
     if (tr->small)
         return !trilist_occluded(tr->small, o, d, TRACER_SHADOW_TFAR);
     return tracer_embree_unoccluded(tr->rtc, o, d);

@@ -776,11 +776,11 @@ START_TEST(test_tasks_independent_of_batching)
     cJSON *root = cornell_json(16);
     scene_t *s = load_json(root);
     cJSON_Delete(root);
-    /* through the triangle list, and through Embree, whose rays go in
-     * packets of a chunk's paths (wave.h): tasks of 20 to 69 samples, so
-     * some are two or three chunks */
-    const tracer_accel_t accels[] = {TRACER_ACCEL_TRILIST, TRACER_ACCEL_EMBREE};
-    for (int a = 0; a < 2; a++) {
+    /* through the triangle list, through our BVH, and through Embree, whose
+     * rays go in packets of a chunk's paths (wave.h): tasks of 20 to 69
+     * samples, so some are two or three chunks */
+    const tracer_accel_t accels[] = {TRACER_ACCEL_TRILIST, TRACER_ACCEL_EMBREE, TRACER_ACCEL_BVH};
+    for (int a = 0; a < 2 + bvh_supported(); a++) {
         tracer_t *t = NULL;
         tracer_device_t *dev = NULL;
         char err[256];
@@ -1187,9 +1187,10 @@ START_TEST(test_closed_cube_no_leak)
     scene_t *s = load_text(patched);
     ck_assert_uint_eq(s->triangle_count, 24);
     ck_assert_int_eq(tracer_accel_for(s), TRACER_ACCEL_TRILIST);
-    const tracer_accel_t accels[] = {TRACER_ACCEL_TRILIST, TRACER_ACCEL_EMBREE};
-    for (int a = 0; a < 2; a++) {
-        /* Embree's ROBUST mode is slower: a tenth of the rays */
+    const tracer_accel_t accels[] = {TRACER_ACCEL_TRILIST, TRACER_ACCEL_EMBREE, TRACER_ACCEL_BVH};
+    static const char *names[] = {"trilist", "embree", "bvh"};
+    for (int a = 0; a < 2 + bvh_supported(); a++) {
+        /* Embree's ROBUST mode and a BVH are slower: a tenth of the rays */
         uint64_t want = a == 0 ? LEAK_TEST_RAYS : LEAK_TEST_RAYS / 10, rays = 0;
         /* about 11 rays per sample in this box at albedo 0.8 */
         uint32_t spp = (uint32_t)(want / (16 * 16 * 10) + 32) / 32 * 32;
@@ -1200,8 +1201,7 @@ START_TEST(test_closed_cube_no_leak)
             double rgb[3];
             film_mean(f, i, rgb);
             ck_assert_msg(rgb[0] == 0.0 && rgb[1] == 0.0 && rgb[2] == 0.0,
-                          "%s: pixel %u sees light through the cube: %g", a ? "embree" : "trilist",
-                          i, rgb[0]);
+                          "%s: pixel %u sees light through the cube: %g", names[a], i, rgb[0]);
         }
         film_destroy(&f);
     }
@@ -1222,6 +1222,12 @@ START_TEST(test_trilist_and_embree_agree_cornell)
     film_t *b = render_accel(s, TRACER_ACCEL_EMBREE, 10, SCENE_INTEGRATOR_PATH,
                              RNG_SAMPLER_INDEPENDENT, 256, 2, 32, NULL);
     assert_films_agree(a, b, 8, 0.0, "trilist vs embree");
+    if (bvh_supported()) {
+        film_t *c = render_accel(s, TRACER_ACCEL_BVH, 11, SCENE_INTEGRATOR_PATH,
+                                 RNG_SAMPLER_INDEPENDENT, 256, 2, 32, NULL);
+        assert_films_agree(a, c, 8, 0.0, "trilist vs our bvh");
+        film_destroy(&c);
+    }
     film_destroy(&a);
     film_destroy(&b);
     scene_destroy(&s);
@@ -1423,6 +1429,8 @@ static void engines_agree_on(scene_t *sc, const char *name)
     if (tracer_accel_for(sc) == TRACER_ACCEL_TRILIST) {
         tracer_settings_t st = {.seed = 3, .sampler = RNG_SAMPLER_SOBOL};
         assert_engines_agree(sc, TRACER_ACCEL_EMBREE, &st, name);
+        if (bvh_supported())
+            assert_engines_agree(sc, TRACER_ACCEL_BVH, &st, name);
     }
 }
 
