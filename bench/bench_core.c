@@ -221,8 +221,7 @@ typedef struct embree {
     RTCScene scene;
     char isa[16];
     trilist_t *list;   /* if set, rays go to the triangle list instead */
-    bvh_t *bvh;        /* if set, all rays go to our traversal of Embree's BVH */
-    bvh_t *tracer_bvh; /* the tracer's (TRACER_ACCEL_BVH): all rays through it */
+    bvh_t *tracer_bvh; /* if set, rays go to our traversal (bvh.h), as TRACER_ACCEL_BVH */
     int one_by_one;    /* rtcIntersect1 / rtcOccluded1, not the tracer's packets */
 } embree_t;
 
@@ -288,7 +287,7 @@ static int closest_hit(const embree_t *e, vec3_t o, vec3_t d, uint32_t *tri, flo
 typedef struct raw_job {
     RTCScene scene;
     const trilist_t *list;
-    const bvh_t *bvh, *tracer_bvh;
+    const bvh_t *tracer_bvh;
     int one_by_one;
     const bray_t *rays;
     size_t begin, end;
@@ -302,20 +301,7 @@ static void *raw_worker(void *argp)
 {
     raw_job_t *j = argp;
     size_t hits = 0;
-    if (j->bvh) {
-        for (size_t i = j->begin; i < j->end; i++) {
-            const bray_t *b = &j->rays[i];
-            vec3_t o = vec3_make(b->o[0], b->o[1], b->o[2]),
-                   d = vec3_make(b->d[0], b->d[1], b->d[2]);
-            if (j->shadow) {
-                hits += bvh_occluded(j->bvh, o, d, TRACER_SHADOW_TFAR);
-            } else {
-                uint32_t tri;
-                float t, u, v;
-                hits += bvh_intersect(j->bvh, o, d, INFINITY, &tri, &t, &u, &v);
-            }
-        }
-    } else if (j->list) {
+    if (j->list) {
         for (size_t i = j->begin; i < j->end; i++) {
             const bray_t *b = &j->rays[i];
             vec3_t o = vec3_make(b->o[0], b->o[1], b->o[2]),
@@ -392,7 +378,6 @@ static int raw_time(const embree_t *e, const batch_t *b, int shadow, int threads
         for (int k = 0; k < threads; k++) {
             jobs[k].scene = e->scene;
             jobs[k].list = e->list;
-            jobs[k].bvh = e->bvh;
             jobs[k].tracer_bvh = e->tracer_bvh;
             jobs[k].one_by_one = e->one_by_one;
             jobs[k].rays = b->rays;
@@ -1078,37 +1063,44 @@ static int measure_other_ways(const scene_t *s, const embree_t *e, const batch_t
         batch_free(&sext);
         return -1;
     }
-    int rc = raw_time(e, &sext, 0, threads, r->runs, &r->sorted.ext) < 0 ||
-                     raw_time(e, &ssh, 1, threads, r->runs, &r->sorted.sh) < 0
+    embree_t robust = *e; /* Embree's packets, whatever the tracer uses */
+    robust.tracer_bvh = NULL;
+    int rc = raw_time(&robust, &sext, 0, threads, r->runs, &r->sorted.ext) < 0 ||
+                     raw_time(&robust, &ssh, 1, threads, r->runs, &r->sorted.sh) < 0
                  ? -1
                  : 0;
     batch_free(&sext);
     batch_free(&ssh);
     if (rc < 0)
         return -1;
-    embree_t eo = *e;
-    eo.tracer_bvh = NULL;
-    char err[256];
-    double tb = now_seconds();
-    eo.bvh = bvh_new(e->device, s->positions, s->indices, s->triangle_count, err, sizeof err);
-    tb = now_seconds() - tb;
-    if (!eo.bvh) {
-        fprintf(stderr, "bench_core: %s\n", err);
-        return -1;
+    if (!e->tracer_bvh) {
+        /* (where the tracer uses it, dist[0] already is this way) */
+        embree_t eo = *e;
+        char err[256];
+        double tb = now_seconds();
+        eo.tracer_bvh =
+            bvh_new(e->device, s->positions, s->indices, s->triangle_count, err, sizeof err);
+        tb = now_seconds() - tb;
+        if (!eo.tracer_bvh) {
+            fprintf(stderr, "bench_core: %s\n", err);
+            return -1;
+        }
+        if (raw_time(&eo, ext, 0, threads, r->runs, &r->own.ext) < 0 ||
+            raw_time(&eo, sh, 1, threads, r->runs, &r->own.sh) < 0)
+            rc = -1;
+        set_mix(&r->own, f_ext);
+        fprintf(stderr,
+                "  raw path, our watertight traversal of Embree's BVH (%.2f s to build, %.1f MB): "
+                "extension %.3f, shadow %.3f, our mix %.3f M rays/s (%.4f%% hit, Embree "
+                "%.4f%%; %.4f%% occluded, Embree %.4f%%)\n",
+                tb, bvh_bytes(eo.tracer_bvh) / 1e6, r->own.ext.rays_per_second / 1e6,
+                r->own.sh.rays_per_second / 1e6, r->own.mix / 1e6, 100 * r->own.ext.hit_fraction,
+                100 * r->dist[0].ext.hit_fraction, 100 * r->own.sh.hit_fraction,
+                100 * r->dist[0].sh.hit_fraction);
+        bvh_destroy(&eo.tracer_bvh);
+    } else {
+        r->own = r->dist[0];
     }
-    if (raw_time(&eo, ext, 0, threads, r->runs, &r->own.ext) < 0 ||
-        raw_time(&eo, sh, 1, threads, r->runs, &r->own.sh) < 0)
-        rc = -1;
-    set_mix(&r->own, f_ext);
-    fprintf(stderr,
-            "  raw path, our watertight traversal of Embree's BVH (%.2f s to build, %.1f MB): "
-            "extension %.3f, shadow %.3f, our mix %.3f M rays/s (%.4f%% hit, ROBUST %.4f%%; "
-            "%.4f%% occluded, ROBUST %.4f%%)\n",
-            tb, bvh_bytes(eo.bvh) / 1e6, r->own.ext.rays_per_second / 1e6,
-            r->own.sh.rays_per_second / 1e6, r->own.mix / 1e6, 100 * r->own.ext.hit_fraction,
-            100 * r->dist[0].ext.hit_fraction, 100 * r->own.sh.hit_fraction,
-            100 * r->dist[0].sh.hit_fraction);
-    bvh_destroy(&eo.bvh);
     embree_t eu;
     clusters_t c;
     memset(&eu, 0, sizeof eu);

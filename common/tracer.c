@@ -1,5 +1,6 @@
-/* tracer.c - ray casting (a BVH Embree builds, traversed by bvh.h for
- * closest hits and by Embree for shadow rays, or trilist.h for a small scene),
+/* tracer.c - ray casting (trilist.h for a small scene; above, our
+ * traversal of a BVH Embree builds, bvh.h, or Embree's own for a scene
+ * with smooth glass),
  * the two integrators and the per-pixel statistics.
  *
  * `path`: unidirectional path tracing with next-event estimation on the
