@@ -91,6 +91,9 @@ static const char usage_text[] =
     "  --runs R            timed repetitions, best is kept (default 3)\n"
     "  --rays N            rays per raw Embree batch (default 2000000)\n"
     "  --engine E          wavefront (default) or scalar (tracer.h)\n"
+    "  --isa I             our own SIMD kernels (triangle list, BVH traversal) for\n"
+    "                      avx512 or avx2 (default: the widest the host runs); avx2\n"
+    "                      on an AVX-512 host measures what an AVX2-only host runs\n"
     "  --json FILE         write the results as JSON\n"
     "  -h, --help          this text\n";
 
@@ -871,6 +874,7 @@ static const char *base_name(const char *path, char *buf, size_t len)
 
 typedef struct args {
     const char *scene, *json;
+    const char *isa; /* our kernels' ISA (tracer_use_isa), NULL: the widest */
     uint64_t threads, spp, runs, rays;
     tracer_engine_t engine;
 } args_t;
@@ -898,6 +902,10 @@ static int parse_args(int argc, char **argv, args_t *a)
                 a->engine = TRACER_ENGINE_SCALAR;
             else
                 return usage_error("--engine needs wavefront or scalar, got", v ? v : "nothing");
+        } else if (strcmp(o, "--isa") == 0) {
+            if (!v || (strcmp(v, "avx512") != 0 && strcmp(v, "avx2") != 0))
+                return usage_error("--isa needs avx512 or avx2, got", v ? v : "nothing");
+            a->isa = v;
         } else if (strcmp(o, "--json") == 0) {
             if (!v)
                 return usage_error("--json needs a file", NULL);
@@ -1235,6 +1243,9 @@ static int measure_raw(const scene_t *s, const args_t *a, double f_ext, raw_t *r
         if (!e.tracer_bvh) {
             fprintf(stderr, "bench_core: %s\n", err);
             rc = -1;
+        } else if (a->isa && bvh_use_kernel(e.tracer_bvh, a->isa) < 0) {
+            fprintf(stderr, "bench_core: this host cannot run the %s traversal\n", a->isa);
+            rc = -1;
         }
     }
     /* the list only where the tracer uses it: on a big scene it is 100x
@@ -1243,6 +1254,9 @@ static int measure_raw(const scene_t *s, const args_t *a, double f_ext, raw_t *r
         elist.list = trilist_new(s->positions, s->indices, s->triangle_count);
         if (!elist.list) {
             fprintf(stderr, "bench_core: out of memory\n");
+            rc = -1;
+        } else if (a->isa && trilist_use_kernel(elist.list, a->isa) < 0) {
+            fprintf(stderr, "bench_core: this host cannot run the %s list kernel\n", a->isa);
             rc = -1;
         }
     }
@@ -1350,6 +1364,12 @@ static int write_json(const char *path, const args_t *a, const char *name, const
     cJSON_AddNumberToObject(root, "height", s->camera.height);
     cJSON_AddNumberToObject(root, "threads", threads);
     cJSON_AddStringToObject(root, "isa", tracer_isa(tr));
+    /* our own kernels' ISA: as asked, or the widest the host runs */
+    __builtin_cpu_init();
+    cJSON_AddStringToObject(root, "kernels_isa",
+                            a->isa                               ? a->isa
+                            : __builtin_cpu_supports("avx512vl") ? "avx512"
+                                                                 : "avx2");
     cJSON_AddStringToObject(root, "accel",
                             tracer_accel_for(s) == TRACER_ACCEL_TRILIST ? "trilist"
                             : tracer_accel_for(s) == TRACER_ACCEL_BVH   ? "bvh"
@@ -1430,9 +1450,16 @@ int main(int argc, char **argv)
         return 1;
     }
     tracer_use_engine(tr, a.engine);
-    fprintf(stderr, "bench_core: %s: %zu triangles, %zu lights, %dx%d, %d thread(s), %s\n", name,
-            s->triangle_count, s->light_count, s->camera.width, s->camera.height, (int)a.threads,
-            tracer_isa(tr));
+    if (a.isa && tracer_use_isa(tr, a.isa) < 0) {
+        fprintf(stderr, "bench_core: this host cannot run the %s kernels\n", a.isa);
+        tracer_destroy(&tr);
+        tracer_device_destroy(&dev);
+        scene_destroy(&s);
+        return 1;
+    }
+    fprintf(stderr, "bench_core: %s: %zu triangles, %zu lights, %dx%d, %d thread(s), %s%s%s\n",
+            name, s->triangle_count, s->light_count, s->camera.width, s->camera.height,
+            (int)a.threads, tracer_isa(tr), a.isa ? ", our kernels " : "", a.isa ? a.isa : "");
     rc = run(&a, name, s, tr);
     tracer_destroy(&tr);
     tracer_device_destroy(&dev);

@@ -11,9 +11,17 @@
 # The peer is optional: if its setup or run fails, "peer" is null and
 # "peer_error" says why, and the benchmark still finishes.
 #
+# On a host with AVX-512 it then measures both renderers again as an
+# AVX2-only host runs them (issue 23 asks for both ISAs): ours with its own
+# kernels (triangle list, BVH traversal) built for AVX2 (bench_core --isa
+# avx2; Embree is pinned to AVX2 anyway), Mitsuba with Dr.Jit compiling
+# for Haswell at 8 lanes and its Embree capped at AVX2 (mitsuba_peer.py
+# --isa avx2). Same host, same clock: only the instructions differ.
+#
 # Knobs (environment, for quick trials): BENCH_BIN, BENCH_RUNS (3),
 # BENCH_THREADS ("1 2"), BENCH_CORNELL_SPP (128), BENCH_BUDDHA_SPP (128),
-# BENCH_GLASS_SPP (64), BENCH_PEER_TIMEOUT (300 s per peer run).
+# BENCH_GLASS_SPP (64), BENCH_PEER_TIMEOUT (300 s per peer run),
+# BENCH_AVX2 (1: the AVX2 pass where the host has AVX-512; 0: skip it).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -27,6 +35,8 @@ BUDDHA_SPP="${BENCH_BUDDHA_SPP:-128}"
 GLASS_SPP="${BENCH_GLASS_SPP:-64}"
 SCENES="cornell-box:$CORNELL_SPP cornell-buddha:$BUDDHA_SPP cornell-glass:$GLASS_SPP"
 PEER_TIMEOUT="${BENCH_PEER_TIMEOUT:-300}"
+AVX2_PASS=0
+if [ "${BENCH_AVX2:-1}" = 1 ] && grep -qw avx512vl /proc/cpuinfo; then AVX2_PASS=1; fi
 OUT="build/bench/out"
 RESULTS="bench/results"
 mkdir -p "$OUT" "$RESULTS"
@@ -62,18 +72,26 @@ again_if_disturbed() {
 
 # 1. Our renderer and raw Embree, one process per (scene, threads) so each
 #    peak-memory figure is that configuration's alone.
-for spec in $SCENES; do
-    scene="${spec%%:*}"
-    spp="${spec##*:}"
-    for t in $THREADS; do
-        while :; do
-            echo "== bench_core $scene, $t thread(s), $spp spp" >&2
-            "$BIN" --scene "scenes/$scene.json" --threads "$t" --spp "$spp" --runs "$RUNS" \
-                --json "$OUT/core-$scene-$t.json"
-            again_if_disturbed "$OUT/core-$scene-$t.json" || break
+# ours PREFIX [BENCH_CORE_ARGS...]: every scene and thread count into
+# $OUT/PREFIX-core-SCENE-THREADS.json
+ours() {
+    local prefix="$1"
+    shift
+    for spec in $SCENES; do
+        scene="${spec%%:*}"
+        spp="${spec##*:}"
+        for t in $THREADS; do
+            while :; do
+                echo "== bench_core $scene, $t thread(s), $spp spp $*" >&2
+                "$BIN" --scene "scenes/$scene.json" --threads "$t" --spp "$spp" --runs "$RUNS" \
+                    --json "$OUT/$prefix-core-$scene-$t.json" "$@"
+                again_if_disturbed "$OUT/$prefix-core-$scene-$t.json" || break
+            done
         done
     done
-done
+}
+ours native
+if [ "$AVX2_PASS" = 1 ]; then ours avx2 --isa avx2; fi
 
 # 1b. Where the triangle list stops beating Embree (TRILIST_MAX_TRIANGLES).
 echo "== bench_trilist" >&2
@@ -115,35 +133,49 @@ with open(side, "w") as f:
 sys.exit(rc)
 PY
 }
-peer_error=""
-echo "== Mitsuba 3 peer setup" >&2
-if bash bench/peer/setup.sh >"$OUT/peer-setup.log" 2>&1; then
-    # shellcheck disable=SC1091
-    source bench/peer/env.sh
+# peer ISA: Mitsuba on every scene and thread count into
+# $OUT/ISA-peer-SCENE-THREADS.json; sets peer_error (ISA's) on failure.
+peer() {
+    local isa="$1"
     for spec in $SCENES; do
         scene="${spec%%:*}"
         spp="${spec##*:}"
         for t in $THREADS; do
-            base="$OUT/peer-$scene-$t"
+            base="$OUT/$isa-peer-$scene-$t"
             while :; do
-                echo "== Mitsuba 3 peer ($MITSUBA_PEER_VARIANT), $scene, $t thread(s), $spp spp" >&2
+                echo "== Mitsuba 3 peer ($MITSUBA_PEER_VARIANT, $isa), $scene, $t thread(s), $spp spp" >&2
                 if measured "$PEER_TIMEOUT" "$base.out" "$base.log" "$base.load" \
                         "$MITSUBA_PEER_PYTHON" bench/peer/mitsuba_peer.py "scenes/$scene.json" \
-                        --mode speed --spp "$spp" --threads "$t" --runs "$RUNS"; then
+                        --mode speed --spp "$spp" --threads "$t" --runs "$RUNS" --isa "$isa"; then
                     tail -n 1 "$base.out" >"$base.json"
                 else
                     rc=$?
                     if [ "$rc" = 124 ]; then
-                        peer_error="mitsuba_peer.py $scene --threads $t timed out after $PEER_TIMEOUT s"
+                        peer_error="mitsuba_peer.py $scene --threads $t --isa $isa timed out after $PEER_TIMEOUT s"
                     else
-                        peer_error="mitsuba_peer.py $scene --threads $t failed (exit $rc): $(tail -n 3 "$base.log" | tr '\n' ' ')"
+                        peer_error="mitsuba_peer.py $scene --threads $t --isa $isa failed (exit $rc): $(tail -n 3 "$base.log" | tr '\n' ' ')"
                     fi
-                    break 3
+                    return 1
                 fi
                 again_if_disturbed "$base.load" || break
             done
         done
     done
+}
+peer_error=""
+avx2_peer_error=""
+echo "== Mitsuba 3 peer setup" >&2
+if bash bench/peer/setup.sh >"$OUT/peer-setup.log" 2>&1; then
+    # shellcheck disable=SC1091
+    source bench/peer/env.sh
+    peer native || true
+    if [ "$AVX2_PASS" = 1 ]; then
+        native_error="$peer_error"
+        peer_error=""
+        peer avx2 || true
+        avx2_peer_error="$peer_error"
+        peer_error="$native_error"
+    fi
 else
     peer_error="bench/peer/setup.sh failed: $(tail -n 3 "$OUT/peer-setup.log" | tr '\n' ' ')"
 fi
@@ -153,9 +185,10 @@ if [ -n "$peer_error" ]; then echo "run-core.sh: peer skipped: $peer_error" >&2;
 end=$(date +%s.%N)
 commit=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
 python3 - "$OUT" "$RESULTS/core.json" "$start" "$end" "$commit" "$peer_error" "$load_before" \
-    "$CORNELL_SPP" "$BUDDHA_SPP" "$RUNS" "$GLASS_SPP" <<'PY'
+    "$CORNELL_SPP" "$BUDDHA_SPP" "$RUNS" "$GLASS_SPP" "$AVX2_PASS" "$avx2_peer_error" <<'PY'
 import glob, json, os, platform, sys, time
 out, dest, start, end, commit, peer_error, load_before, cspp, bspp, nruns, gspp = sys.argv[1:12]
+avx2_pass, avx2_peer_error = sys.argv[12] == "1", sys.argv[13]
 
 def cpu_model():
     try:
@@ -167,20 +200,26 @@ def cpu_model():
         pass
     return platform.processor() or "unknown"
 
-runs = []
-for path in sorted(glob.glob(os.path.join(out, "core-*.json"))):
-    with open(path) as f:
-        runs.append(json.load(f))
-runs.sort(key=lambda r: (r["scene_name"], r["threads"]))
+def ours_runs(isa):
+    runs = []
+    for path in sorted(glob.glob(os.path.join(out, f"{isa}-core-*.json"))):
+        with open(path) as f:
+            runs.append(json.load(f))
+    runs.sort(key=lambda r: (r["scene_name"], r["threads"]))
+    return runs
 
-peer = None
-if not peer_error:
+
+def peer_runs(isa, error):
+    """(the peer's runs, or None, and the error)"""
+    if error:
+        return None, error
     peer = {"runs": []}
-    for path in sorted(glob.glob(os.path.join(out, "peer-*.json"))):
+    prefix = f"{isa}-peer-"
+    for path in sorted(glob.glob(os.path.join(out, prefix + "*.json"))):
         with open(path) as f:
             run = json.load(f)
-        # peer-SCENE-THREADS.json
-        run["scene_name"] = os.path.basename(path)[len("peer-"):].rsplit("-", 1)[0]
+        # ISA-peer-SCENE-THREADS.json
+        run["scene_name"] = os.path.basename(path)[len(prefix):].rsplit("-", 1)[0]
         try:
             with open(path[:-len(".json")] + ".load") as f:
                 load = json.load(f)
@@ -191,7 +230,12 @@ if not peer_error:
         peer["runs"].append(run)
     peer["runs"].sort(key=lambda r: (r["scene_name"], r["threads"]))
     if not peer["runs"]:
-        peer, peer_error = None, "no peer output"
+        return None, "no peer output"
+    return peer, error
+
+
+runs = ours_runs("native")
+peer, peer_error = peer_runs("native", peer_error)
 
 with open("/proc/loadavg") as f:
     load_after = " ".join(f.read().split()[:3])
@@ -217,6 +261,12 @@ result = {
 }
 if peer is None:
     result["peer_error"] = peer_error
+if avx2_pass:
+    # both renderers as an AVX2-only host runs them (this host, AVX2 code)
+    avx2_peer, avx2_peer_error = peer_runs("avx2", avx2_peer_error or peer_error)
+    result["avx2"] = {"runs": ours_runs("avx2"), "peer": avx2_peer}
+    if avx2_peer is None:
+        result["avx2"]["peer_error"] = avx2_peer_error
 tmp = dest + ".tmp"
 with open(tmp, "w") as f:
     json.dump(result, f, indent=2)

@@ -228,6 +228,21 @@ const char *tracer_isa(const tracer_t *t)
     return t->dev->isa;
 }
 
+int tracer_use_isa(tracer_t *t, const char *isa)
+{
+    if (strcmp(isa, "avx512") != 0 && strcmp(isa, "avx2") != 0)
+        return -1;
+    __builtin_cpu_init();
+    if (strcmp(isa, "avx512") == 0 ? !__builtin_cpu_supports("avx512vl")
+                                   : !__builtin_cpu_supports("avx2"))
+        return -1;
+    /* (both kernels' names are the ISA's) */
+    if ((t->small && trilist_use_kernel(t->small, isa) < 0) ||
+        (t->bvh && bvh_use_kernel(t->bvh, isa) < 0))
+        return -1;
+    return 0;
+}
+
 /* ---- the integrators ---------------------------------------------------- */
 
 /* One path of a sample, as it is traced. */

@@ -77,15 +77,19 @@ static scene_t *load_json(cJSON *root)
     return s;
 }
 
-static film_t *render_accel(const scene_t *s, tracer_accel_t accel, uint64_t seed,
-                            scene_integrator_t integ, rng_sampler_t sampler, uint32_t spp,
-                            int threads, uint32_t granularity, uint64_t *rays)
+/* A render on a tracer whose own kernels run for isa (tracer_use_isa), or
+ * the widest the host runs (NULL). */
+static film_t *render_accel_isa(const scene_t *s, tracer_accel_t accel, const char *isa,
+                                uint64_t seed, scene_integrator_t integ, rng_sampler_t sampler,
+                                uint32_t spp, int threads, uint32_t granularity, uint64_t *rays)
 {
     tracer_t *t = NULL;
     tracer_device_t *dev = NULL;
     char err[512];
     ck_assert_msg(tracer_device_new(&dev, err, sizeof err) == 0, "%s", err);
     ck_assert_msg(tracer_new_accel(dev, s, accel, &t, err, sizeof err) == 0, "%s", err);
+    if (isa)
+        ck_assert_int_eq(tracer_use_isa(t, isa), 0);
     film_t *f = film_new(s->camera.width, s->camera.height);
     ck_assert(f != NULL);
     render_settings_t rs;
@@ -106,6 +110,13 @@ static film_t *render_accel(const scene_t *s, tracer_accel_t accel, uint64_t see
     tracer_destroy(&t);
     tracer_device_destroy(&dev);
     return f;
+}
+
+static film_t *render_accel(const scene_t *s, tracer_accel_t accel, uint64_t seed,
+                            scene_integrator_t integ, rng_sampler_t sampler, uint32_t spp,
+                            int threads, uint32_t granularity, uint64_t *rays)
+{
+    return render_accel_isa(s, accel, NULL, seed, integ, sampler, spp, threads, granularity, rays);
 }
 
 static film_t *render_sampler(const scene_t *s, uint64_t seed, scene_integrator_t integ,
@@ -765,6 +776,43 @@ START_TEST(test_sobol_deterministic_and_agrees)
     film_destroy(&c);
     film_destroy(&ind);
     film_destroy(&n);
+    scene_destroy(&s);
+}
+END_TEST
+
+/* Our own kernels built for AVX-512 and for AVX2 (tracer_use_isa, what
+ * bench_core --isa avx2 measures as an AVX2-only host): the same image,
+ * bit for bit, through the triangle list and through our BVH; a name the
+ * tracer has no kernels for is refused. */
+START_TEST(test_isa_same_bits)
+{
+    cJSON *root = cornell_json(16);
+    scene_t *s = load_json(root);
+    cJSON_Delete(root);
+    __builtin_cpu_init();
+    const int avx512 = __builtin_cpu_supports("avx512vl") != 0, avx2 = bvh_supported();
+    const tracer_accel_t accels[] = {TRACER_ACCEL_TRILIST, TRACER_ACCEL_BVH};
+    for (int a = 0; a < 2 && avx2; a++) {
+        film_t *ref = render_accel_isa(s, accels[a], "avx2", 5, SCENE_INTEGRATOR_PATH,
+                                       RNG_SAMPLER_SOBOL, 32, 2, 16, NULL);
+        film_t *wide = render_accel_isa(s, accels[a], avx512 ? "avx512" : NULL, 5,
+                                        SCENE_INTEGRATOR_PATH, RNG_SAMPLER_SOBOL, 32, 2, 16, NULL);
+        size_t bytes = (size_t)ref->width * (size_t)ref->height * sizeof(film_pixel_t);
+        ck_assert_msg(memcmp(ref->pixels, wide->pixels, bytes) == 0,
+                      "accel %d: the avx2 kernels' image differs", (int)accels[a]);
+        film_destroy(&ref);
+        film_destroy(&wide);
+    }
+    tracer_t *t = NULL;
+    tracer_device_t *dev = NULL;
+    char err[512];
+    ck_assert_msg(tracer_device_new(&dev, err, sizeof err) == 0, "%s", err);
+    ck_assert_msg(tracer_new(dev, s, &t, err, sizeof err) == 0, "%s", err);
+    ck_assert_int_eq(tracer_use_isa(t, "sse2"), -1);
+    ck_assert_int_eq(tracer_use_isa(t, "avx1024"), -1);
+    ck_assert_int_eq(tracer_use_isa(t, "avx512"), avx512 ? 0 : -1);
+    tracer_destroy(&t);
+    tracer_device_destroy(&dev);
     scene_destroy(&s);
 }
 END_TEST
@@ -1660,6 +1708,7 @@ static Suite *tracer_suite(void)
     tcase_add_test(hard, test_million_constant_samples);
     tcase_add_test(hard, test_closed_cube_no_leak);
     tcase_add_test(hard, test_trilist_and_embree_agree_cornell);
+    tcase_add_test(hard, test_isa_same_bits);
     tcase_add_test(hard, test_packets_match_single_rays);
     tcase_add_test(hard, test_denormals_flushed_while_tracing);
     suite_add_tcase(s, hard);

@@ -26,6 +26,10 @@ mean (R, G, B) plus the per-channel variance of that mean estimated from the
 spread of the passes (channels varR, varG, varB), to check that Mitsuba and
 vbrender converge to the same image.
 --sampler picks Mitsuba's sampler; counts it would round are refused.
+--isa avx2 runs Mitsuba as an AVX2-only host would, on a host with AVX-512:
+Dr.Jit's LLVM backend compiles for Haswell at 8 lanes, and its bundled
+Embree is capped at AVX2 (bench/peer/embree_isa.c, preloaded: the script
+runs itself again with it; MITSUBA_PEER_EMBREE_SHIM from env.sh).
 Diagnostics go to stderr.
 """
 import argparse
@@ -60,6 +64,8 @@ def parse_args():
     ap.add_argument("--sampler", default="independent", choices=SAMPLERS,
                     help="Mitsuba sampler (default independent)")
     ap.add_argument("--variant", default=os.environ.get("MITSUBA_PEER_VARIANT", "llvm_ad_rgb"))
+    ap.add_argument("--isa", choices=["native", "avx2"], default="native",
+                    help="native: what the host runs; avx2: as an AVX2-only host (llvm variants)")
     a = ap.parse_args()
     if a.mode in ("render", "agree") and not a.out:
         ap.error("--out is required in render and agree modes")
@@ -73,7 +79,59 @@ def parse_args():
         a.spp = a.spps[0]
     if a.spp < 1 or a.threads < 1 or a.runs < 1 or a.passes < 2:
         ap.error("--spp, --threads and --runs must be >= 1, --passes >= 2")
+    if a.isa != "native" and not a.variant.startswith("llvm"):
+        ap.error("--isa avx2 needs an llvm variant")
     return a
+
+
+# ---- --isa avx2: the peer as an AVX2-only host runs it ------------------
+
+# Dr.Jit's LLVM target for an AVX2 host (drjit-core's jit_llvm_set_target,
+# not in its Python API), and the features it must not use.
+AVX2_CPU = b"haswell"
+AVX2_FEATURES = b"-avx512f,-avx512vl,-avx512dq,-avx512bw,-avx512cd,+avx2,+fma"
+AVX2_LANES = 8
+
+
+def preload_embree_shim(a):
+    """Runs this script again with the shim that caps Mitsuba's Embree at
+    AVX2 preloaded (it must be there before Mitsuba's libraries load)."""
+    if os.environ.get("VB_EMBREE_ISA"):
+        return
+    import importlib.util
+    spec = importlib.util.find_spec("mitsuba")
+    shim = os.environ.get("MITSUBA_PEER_EMBREE_SHIM", "")
+    if spec is None or not shim or not os.path.exists(shim):
+        raise SystemExit("mitsuba_peer.py: --isa avx2 needs mitsuba and the Embree shim "
+                         "(run bench/peer/setup.sh, then source bench/peer/env.sh)")
+    env = dict(os.environ)
+    env["VB_EMBREE_ISA"] = "isa=avx2"
+    env["VB_EMBREE_LIB"] = os.path.join(os.path.dirname(spec.origin), "libembree3.so")
+    env["LD_PRELOAD"] = shim + (":" + env["LD_PRELOAD"] if env.get("LD_PRELOAD") else "")
+    os.execve(sys.executable, [sys.executable] + sys.argv, env)
+
+
+def cap_llvm_target(dr):
+    """Dr.Jit's LLVM backend compiles for an AVX2 host from here on."""
+    import ctypes
+    core = ctypes.CDLL(os.path.join(os.path.dirname(dr.__file__), "libdrjit-core.so"))
+    set_target = core._Z19jit_llvm_set_targetPKcS0_j
+    set_target.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32]
+    set_target(AVX2_CPU, AVX2_FEATURES, AVX2_LANES)
+    cpu = core._Z19jit_llvm_target_cpuv
+    cpu.restype = ctypes.c_char_p
+    if cpu() != AVX2_CPU:
+        raise SystemExit(f"mitsuba_peer.py: Dr.Jit kept its LLVM target {cpu()!r}")
+    return cpu().decode()
+
+
+def embree_config_applied():
+    """The config Mitsuba's Embree device got through the shim, or None."""
+    import ctypes
+    libc = ctypes.CDLL(None)
+    libc.getenv.restype = ctypes.c_char_p
+    v = libc.getenv(b"VB_EMBREE_ISA_APPLIED")
+    return v.decode() if v else None
 
 
 # ---- geometry: the world-space triangles common/scene.c builds ----------
@@ -426,12 +484,15 @@ def load_xml(mi, a):
 
 def main():
     a = parse_args()
+    if a.isa == "avx2":
+        preload_embree_shim(a)
     import drjit as dr
     import mitsuba as mi
     import numpy as np
 
     dr.set_thread_count(a.threads)
     mi.set_variant(a.variant)
+    llvm_target = cap_llvm_target(dr) if a.isa == "avx2" else None
     mi.set_log_level(mi.LogLevel.Warn)
     dr.set_thread_count(a.threads)  # again, in case the backend reset it on init
 
@@ -460,6 +521,15 @@ def main():
             "drjit_thread_count": dr.thread_count()}
     if a.variant.startswith("llvm"):
         info["libllvm"] = os.environ.get("DRJIT_LIBLLVM_PATH", "")
+    info["isa"] = a.isa
+    if a.isa == "avx2":
+        # the scene is loaded, so Mitsuba's Embree device exists
+        applied = embree_config_applied()
+        if not applied or "isa=avx2" not in applied:
+            raise SystemExit("mitsuba_peer.py: Mitsuba's Embree was not capped at AVX2 (the shim "
+                             "did not run)")
+        info["llvm_target"] = llvm_target
+        info["embree_config"] = applied
     if a.mode == "speed":
         mode_speed(a, render, info, w * h)
     elif a.mode == "sweep":
