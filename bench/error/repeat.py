@@ -22,6 +22,14 @@ study's scenes), with the study's settings, references and timing guard
   free of this host's speed swings (up to 35 % between identical runs),
   though blind to what a ray costs where it goes and to the pipeline's idle
   time.
+- the same on normalised time (issue 24, item 3): each run's clock scaled
+  by its own speed over the uniform layers, against the mean of that speed
+  over the scene's runs. Both modes do exactly the same work until then,
+  so a host that ran one render slower is taken out, while what the
+  adaptive phase costs (its rays where they cost more, the layer
+  pipeline's idle time, the master's decisions) stays in.
+- each run's series (seconds, samples, rays, relMSE) is kept in the JSON,
+  so the figures can be recomputed (--from-json rewrites the table only).
 
 Writes bench/results/adaptive-repeat.json, prints a table and writes it to
 bench/RESULTS.md (between its bench:adaptive-repeat markers). Runs last in
@@ -124,6 +132,39 @@ def equal_rays(u, a, ul):
     return final, worst
 
 
+def uniform_phase_rate(r, ul):
+    """Samples a second of run r over its first ul samples (the uniform
+    layers, the same work in every mode): its host's speed on this scene."""
+    idx = np.nonzero(r["n"] >= ul)[0]
+    k = int(idx[0]) if len(idx) else len(r["n"]) - 1
+    return float(r["n"][k]) / float(r["t"][k])
+
+
+def normalised(runs, ul):
+    """The runs with their clocks ("t") scaled by their own uniform-phase
+    speed over the mean of it: a run whose host ran slow is sped up."""
+    rates = [uniform_phase_rate(r, ul) for r in runs]
+    mean = float(np.mean(rates))
+    return [dict(r, t=np.asarray(r["t"], dtype=float) * (q / mean)) for r, q in zip(runs, rates)], rates
+
+
+def mean_ratio(per, m, ul):
+    """The seed-mean curves' relMSE ratio (mode m over uniform) on the time
+    axis of the runs in per, from the latest end of any adaptive run's
+    uniform layers to the earliest end of any run: (final, worst, the curve)."""
+    t0 = max(float(a["t"][np.nonzero(a["n"] >= ul)[0][0]]) for a in per[m])
+    t1 = min(min(float(a["t"][-1]) for a in per[m]), min(float(u["t"][-1]) for u in per["none"]))
+    grid = np.geomspace(t0, t1, 40) if t0 < t1 else np.array([t1])
+    ratio = mean_curve(per[m], grid) / mean_curve(per["none"], grid)
+    k = int(np.nanargmax(ratio))
+    return float(ratio[-1]), float(ratio[k]), float(grid[k]), [[float(t), float(r)] for t, r in
+                                                                zip(grid, ratio)]
+
+
+def series_json(r):
+    return {k: [float(x) for x in r[k]] for k in ("t", "n", "rays", "relmse")}
+
+
 def table(R):
     c = R["config"]
     head = (f"Adaptive relMSE over uniform's, seeds {', '.join(map(str, R['seeds']))} ({c['size']}x{c['size']}, "
@@ -133,14 +174,18 @@ def table(R):
             "worst equal-time ratio after the uniform layers; mean curve: the equal-time ratios of the seed-mean "
             "relMSE curves; samples/s: the adaptive run's over the uniform run's; equal rays: the same ratios "
             "at equal rays traced instead of equal time (deterministic, so the host's speed does not move "
-            "them; they miss what a ray costs where it goes and the layer pipeline's idle time). Commit "
+            "them; they miss what a ray costs where it goes and the layer pipeline's idle time); normalised "
+            "time: each run's clock scaled by its own samples/s over the uniform layers (the same work in "
+            "both modes) against the mean over the scene's runs, which takes out a host that ran one render "
+            "slow and keeps what the adaptive phase costs (issue 24, item 3). Commit "
             f"{R['commit']}, {R['date']}, {R['seconds']:.0f} s (`bench/error/repeat.py`"
             + (f", each run the fastest of {R['best_of']}, their images bit-identical" if R.get("best_of", 1) > 1
                else "") + ").\n")
     rows = ["| scene | mode | per run, equal samples | per run, equal time | per run, worst | "
             "mean curve, equal time | mean curve, worst | samples/s over uniform | per run, equal rays | "
-            "per run, worst at equal rays | mean curve, equal rays (final / worst) | rays per sample over uniform |",
-            "|---|---|---|---|---|--:|--:|--:|---|---|--:|--:|"]
+            "per run, worst at equal rays | mean curve, equal rays (final / worst) | rays per sample over uniform | "
+            "per run, normalised time (final / worst) | mean curve, normalised time (final / worst) |",
+            "|---|---|---|---|---|--:|--:|--:|---|---|--:|--:|---|--:|"]
     for name, sc in R["scenes"].items():
         for m, r in sc["modes"].items():
             def col(key):
@@ -156,6 +201,13 @@ def table(R):
                         f"{rps:.3f} |")
             else:
                 row += " - | - | - | - |"
+            if r.get("mean_curve_final_normalised") is not None:
+                runs = " ".join(f"{x['final_normalised']:.3f} / {x['worst_normalised']:.3f}"
+                                if x.get("worst_normalised") else "-" for x in r["runs"])
+                row += (f" {runs} | {r['mean_curve_final_normalised']:.3f} / "
+                        f"{r['mean_curve_worst_normalised']:.3f} |")
+            else:
+                row += " - | - |"
             rows.append(row)
     return head + "\n" + "\n".join(rows)
 
@@ -187,9 +239,17 @@ def main():
                 per[m].append(run(name, scene, ref, meta, seed, m))
         res = {}
         ul = S.CFG["adaptive_uniform_layers"] * S.CFG["granularity"] * npix
+        # every run of the scene on one normalised clock
+        every = [r for m in per for r in per[m]]
+        scaled, rates = normalised(every, ul)
+        norm, at = {}, 0
+        for m in per:
+            norm[m] = scaled[at:at + len(per[m])]
+            at += len(per[m])
         for m in MODES:
             rows = []
-            for u, a in zip(per["none"], per[m]):
+            for u, a, un, an in zip(per["none"], per[m], norm["none"], norm[m]):
+                cn = S.compare_curves(un, an, npix)
                 c = S.compare_curves(u, a, npix)
                 er_final, er_worst = equal_rays(u, a, ul)
                 rows.append({"final_equal_time": c["relmse_equal_time"]["ratio"],
@@ -202,14 +262,17 @@ def main():
                                  (a["n"][-1] / a["t"][-1]) / (u["n"][-1] / u["t"][-1]),
                              "final_equal_rays": er_final, "worst_equal_rays_after_uniform": er_worst,
                              "rays_per_sample_over_uniform":
-                                 (a["rays"][-1] / a["n"][-1]) / (u["rays"][-1] / u["n"][-1])})
+                                 (a["rays"][-1] / a["n"][-1]) / (u["rays"][-1] / u["n"][-1]),
+                             "final_normalised": cn["relmse_equal_time"]["ratio"],
+                             "worst_normalised": (cn["relmse_worst_equal_time_after_uniform_layers"] or {})
+                             .get("ratio"),
+                             "uniform_phase_rate": uniform_phase_rate(a, ul),
+                             "uniform_phase_rate_of_uniform_run": uniform_phase_rate(u, ul),
+                             "series": series_json(a), "series_uniform": series_json(u)})
             # the seed-mean curves: from the latest time all adaptive runs have
             # finished their uniform layers to the earliest end of any run
-            t0 = max(float(a["t"][np.nonzero(a["n"] >= ul)[0][0]]) for a in per[m])
-            t1 = min(min(float(a["t"][-1]) for a in per[m]), min(float(u["t"][-1]) for u in per["none"]))
-            grid = np.geomspace(t0, t1, 40) if t0 < t1 else np.array([t1])
-            ratio = mean_curve(per[m], grid) / mean_curve(per["none"], grid)
-            k = int(np.nanargmax(ratio))
+            final, worst, worst_t, curve = mean_ratio(per, m, ul)
+            nfinal, nworst, nworst_t, ncurve = mean_ratio(norm, m, ul)
             # and the same along the rays traced
             r0 = max(float(a["rays"][np.nonzero(a["n"] >= ul)[0][0]]) for a in per[m])
             r1 = min(float(np.nanmax(x["rays"])) for x in per[m] + per["none"])
@@ -219,11 +282,16 @@ def main():
                       "mean_curve_final_equal_rays": float(rratio[-1]),
                       "mean_curve_worst_equal_rays": float(np.nanmax(rratio)),
                       "mean_curve_ratio_equal_rays": [[float(x), float(r)] for x, r in zip(rgrid, rratio)],
-                      "mean_curve_final_equal_time": float(ratio[-1]),
-                      "mean_curve_worst_after_uniform": float(ratio[k]),
-                      "mean_curve_worst_seconds": float(grid[k]),
-                      "mean_curve_ratio": [[float(t), float(r)] for t, r in zip(grid, ratio)]}
+                      "mean_curve_final_equal_time": final,
+                      "mean_curve_worst_after_uniform": worst,
+                      "mean_curve_worst_seconds": worst_t,
+                      "mean_curve_ratio": curve,
+                      "mean_curve_final_normalised": nfinal,
+                      "mean_curve_worst_normalised": nworst,
+                      "mean_curve_worst_normalised_seconds": nworst_t,
+                      "mean_curve_ratio_normalised": ncurve}
         R["scenes"][name] = {"modes": res, "uniform_seconds": [float(u["t"][-1]) for u in per["none"]],
+                             "uniform_phase_rates": rates,
                              "reference": S.rel(ref)}
         with open(OUT, "w") as f:  # after every scene, so a long run keeps what it measured
             json.dump(dict(R, seconds=time.time() - t_start), f, indent=1)
