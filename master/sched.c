@@ -239,12 +239,15 @@ static int alloc_tables(sched_t *s)
             failed |= !*slot;
         }
     failed |= alloc_ring(s) < 0;
-    /* ready cells are in the window: at most two layers of ranges */
-    s->q_cap = 2 * (size_t)s->ranges + 1;
-    s->queue = malloc(s->q_cap * sizeof(uint64_t));
+    /* ready cells are in the window: at most a layer of ranges a slot */
+    s->q_cap = (size_t)s->ranges + 1;
+    for (int k = 0; k < 2; k++) {
+        s->ready[k].ids = malloc(s->q_cap * sizeof(uint64_t));
+        failed |= !s->ready[k].ids;
+    }
     s->rq_cap = SCHED_REQUEUE_CAP0;
     s->requeued = malloc(s->rq_cap * sizeof(uint64_t));
-    return failed || !s->film || !s->queue || !s->requeued ? -1 : 0;
+    return failed || !s->film || !s->requeued ? -1 : 0;
 }
 
 sched_t *sched_new(const sched_config_t *cfg, char *err, size_t errlen)
@@ -305,7 +308,8 @@ void sched_destroy(sched_t **sp)
     free(s->flags);
     free(s->t_table);
     free(s->t_target);
-    free(s->queue);
+    for (int k = 0; k < 2; k++)
+        free(s->ready[k].ids);
     free(s->requeued);
     free(s);
     *sp = NULL;
@@ -327,7 +331,7 @@ size_t sched_memory(const sched_t *s, sched_memory_fn fn, void *ctx)
         REPORT(sched_pixel_arrays[i].name, sched_array_bytes(s, &sched_pixel_arrays[i]));
     REPORT("window (membership, cells)",
            2 * (member_bytes(s) + s->ranges * (1 + sizeof(tracer_task_t *) + sizeof(uint32_t))) +
-               s->q_cap * sizeof(uint64_t) + s->rq_cap * sizeof(uint64_t));
+               2 * s->q_cap * sizeof(uint64_t) + s->rq_cap * sizeof(uint64_t));
     REPORT("decision rows",
            s->cfg.width *
                ((size_t)SCHED_RING * (3 * sizeof(double) + sizeof(uint32_t) + sizeof(float)) +
@@ -410,22 +414,40 @@ double sched_threshold(const sched_t *s, uint32_t layer)
 
 static void complete_range(sched_t *s, uint32_t layer, uint32_t range);
 
-/* Appends a ready id; when the ring is full, first drops the ids sched_take
- * handed out already (at most the window's cells are ready at once). */
-static void push_ready(sched_t *s, uint64_t id)
+/* Appends a ready id to its layer's ring; when the ring is full, first
+ * drops the ids sched_take handed out already (at most a layer's ranges
+ * are ready in one slot at once). */
+void sched_push_ready(sched_t *s, uint64_t id)
 {
-    if ((s->q_tail + 1) % s->q_cap == s->q_head) {
+    struct ready_ring *q = &s->ready[((id - 1) / s->ranges) & 1];
+    if ((q->tail + 1) % s->q_cap == q->head) {
         size_t n = 0;
-        for (size_t i = s->q_head; i != s->q_tail; i = (i + 1) % s->q_cap) {
-            uint64_t q = s->queue[i];
-            if (cell_state(s, (uint32_t)((q - 1) / s->ranges), (uint32_t)((q - 1) % s->ranges)) ==
+        for (size_t i = q->head; i != q->tail; i = (i + 1) % s->q_cap) {
+            uint64_t x = q->ids[i];
+            if (cell_state(s, (uint32_t)((x - 1) / s->ranges), (uint32_t)((x - 1) % s->ranges)) ==
                 ST_READY)
-                s->queue[(s->q_head + n++) % s->q_cap] = q;
+                q->ids[(q->head + n++) % s->q_cap] = x;
         }
-        s->q_tail = (s->q_head + n) % s->q_cap;
+        q->tail = (q->head + n) % s->q_cap;
     }
-    s->queue[s->q_tail] = id;
-    s->q_tail = (s->q_tail + 1) % s->q_cap;
+    q->ids[q->tail] = id;
+    q->tail = (q->tail + 1) % s->q_cap;
+}
+
+/* The next queued id, the earliest layer's first: 1 and *slot its ring,
+ * or 0 when both are empty. */
+static int pop_ready(sched_t *s, uint64_t *id, int *slot)
+{
+    for (uint32_t k = 0; k < 2; k++) {
+        struct ready_ring *q = &s->ready[(s->complete + k) & 1];
+        if (q->head == q->tail)
+            continue;
+        *id = q->ids[q->head];
+        q->head = (q->head + 1) % s->q_cap;
+        *slot = (int)((s->complete + k) & 1);
+        return 1;
+    }
+    return 0;
 }
 
 /* (layer, range) can run: queue it, or complete it at once when the layer
@@ -440,7 +462,7 @@ static void make_ready(sched_t *s, uint32_t layer, uint32_t range)
         return;
     }
     set_state(s, layer, range, ST_READY);
-    push_ready(s, task_id(s, layer, range));
+    sched_push_ready(s, task_id(s, layer, range));
 }
 
 /* (sched_priv.h) */
@@ -539,13 +561,11 @@ int sched_next(sched_t *s, sched_task_t *out)
     start(s);
     for (;;) {
         uint64_t id;
+        int slot = 0;
         const int from_requeued = s->rq_len > 0;
         if (from_requeued) {
             id = s->requeued[--s->rq_len];
-        } else if (s->q_head != s->q_tail) {
-            id = s->queue[s->q_head];
-            s->q_head = (s->q_head + 1) % s->q_cap;
-        } else {
+        } else if (!pop_ready(s, &id, &slot)) {
             return s->complete == s->layers ? SCHED_NEXT_ALL_ISSUED : SCHED_NEXT_NONE_READY;
         }
         uint32_t layer, range;
@@ -556,7 +576,7 @@ int sched_next(sched_t *s, sched_task_t *out)
             if (from_requeued)
                 s->rq_len++;
             else
-                s->q_head = (s->q_head + s->q_cap - 1) % s->q_cap;
+                s->ready[slot].head = (s->ready[slot].head + s->q_cap - 1) % s->q_cap;
             return SCHED_NEXT_NONE_READY;
         }
         return SCHED_NEXT_TASK;

@@ -85,8 +85,15 @@ struct sched {
     size_t t_cap;
     uint64_t converged;
     int stopped_on_target;
-    uint64_t *queue; /* ready task ids, FIFO (entries sched_take took are skipped) */
-    size_t q_head, q_tail, q_cap;
+    /* Ready task ids, one FIFO ring per window slot (layer & 1), entries
+     * sched_take took skipped: the earlier layer's are issued first, so the
+     * layer whose completion decides the next one is never left waiting
+     * behind the later one's tasks (sched_next). */
+    struct ready_ring {
+        uint64_t *ids;
+        size_t head, tail;
+    } ready[2];
+    size_t q_cap;       /* each ring's */
     uint64_t *requeued; /* handed back, issued first (LIFO) */
     size_t rq_len, rq_cap;
     uint64_t samples_done, pixel_layers, skipped, nonfinite;
@@ -207,6 +214,8 @@ int sched_weighs_cost(const sched_t *s);
 int sched_applies_skip_rule(const sched_t *s, uint32_t layer);
 /* Before pixel p merges the later layer in flight: keep what it replaces. */
 void sched_keep_prev(sched_t *s, uint32_t p);
+/* (sched.c) Queues ready task id on its layer's ring. */
+void sched_push_ready(sched_t *s, uint64_t id);
 /* Row y of the snapshot a decision reads, computed on first use. */
 snap_row_t *sched_snap_row(sched_t *s, int y);
 /* Chooses the pixels of layer s->decided_n from the snapshot. */

@@ -989,10 +989,11 @@ sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, ch
     /* The ready queue in id order: results merge per pixel in layer order
      * and decisions read snapshots only, so the order tasks are issued in
      * changes nothing. */
-    s->q_head = s->q_tail = 0;
+    for (int k = 0; k < 2; k++)
+        s->ready[k].head = s->ready[k].tail = 0;
     for (uint32_t l = s->complete; l < s->decided_n; l++)
         for (uint32_t rr = 0; rr < s->ranges; rr++)
             if (s->state[l & 1][rr] == ST_READY)
-                s->queue[s->q_tail++] = task_id(s, l, rr);
+                sched_push_ready(s, task_id(s, l, rr));
     return s;
 }

@@ -164,6 +164,48 @@ START_TEST(test_dependencies_and_priors)
 }
 END_TEST
 
+/* The earlier layer's ready tasks go out first (issue 24, item 3): layer
+ * l + 2 is decided only when all of layer l is in, so a layer-l task left
+ * queued behind layer l + 1's (as the one order in which they became
+ * ready had it) idles the workers at the boundary. Four ranges; ranges
+ * 0-2 run two layers while range 3's first is out; when it comes in,
+ * layer 2 is decided and (2, 0..2) are ready before (1, 3) is. */
+START_TEST(test_earlier_layer_first)
+{
+    sched_t *s = make(16, 1, 8, 2, SCHED_ADAPTIVE_NONE, UINT32_MAX, 4);
+    sched_task_t t[4], u;
+    tracer_result_t r[4];
+    char err[256];
+    for (int i = 0; i < 4; i++) {
+        ck_assert_int_eq(sched_next(s, &t[i]), 1);
+        ck_assert_uint_eq(t[i].layer, 0);
+    }
+    uint32_t last = t[3].range;
+    for (int i = 0; i < 3; i++) {
+        fake_results(&t[i], r, NULL);
+        ck_assert_msg(sched_complete(s, t[i].id, r, t[i].count, err, sizeof err) == 0, "%s", err);
+    }
+    for (int i = 0; i < 3; i++) {
+        ck_assert_int_eq(sched_next(s, &u), 1);
+        ck_assert_uint_eq(u.layer, 1);
+        fake_results(&u, r, NULL);
+        ck_assert_msg(sched_complete(s, u.id, r, u.count, err, sizeof err) == 0, "%s", err);
+    }
+    ck_assert_int_eq(sched_next(s, &u), SCHED_NEXT_NONE_READY); /* layer 2 waits on layer 0 */
+    fake_results(&t[3], r, NULL);
+    ck_assert_msg(sched_complete(s, t[3].id, r, t[3].count, err, sizeof err) == 0, "%s", err);
+    ck_assert_int_eq(sched_next(s, &u), 1);
+    ck_assert_uint_eq(u.layer, 1);
+    ck_assert_uint_eq(u.range, last);
+    for (int i = 0; i < 3; i++) {
+        ck_assert_int_eq(sched_next(s, &u), 1);
+        ck_assert_uint_eq(u.layer, 2);
+    }
+    ck_assert_int_eq(sched_next(s, &u), SCHED_NEXT_NONE_READY);
+    sched_destroy(&s);
+}
+END_TEST
+
 /* Runs a whole job handing tasks out to `workers` simulated workers that
  * finish in a pseudo-random order, sometimes losing a task (requeue). */
 static film_t *simulate(sched_adaptive_t a, uint64_t order_seed, int workers, uint64_t *skipped)
@@ -1732,6 +1774,7 @@ int main(void)
     TCase *tc = tcase_create("procedure2");
     tcase_add_test(tc, test_procedure2_by_hand);
     tcase_add_test(tc, test_dependencies_and_priors);
+    tcase_add_test(tc, test_earlier_layer_first);
     tcase_add_test(tc, test_order_does_not_matter);
     tcase_add_test(tc, test_take_replays_a_journal);
     tcase_add_test(tc, test_flag_sequence);
