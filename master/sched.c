@@ -14,7 +14,10 @@
  * statistics. So the master's memory grows with the pixels, not with
  * pixels x layers. A merge into the later layer in flight keeps the
  * statistics it replaces (sched_keep_prev): decisions read the layer just
- * completed (sched_rules.c).
+ * completed (sched_rules.c). Ready tasks go out the earlier layer's first
+ * (a queue per slot): the next decision waits on the last of that layer,
+ * so none of it may sit queued behind the later layer's tasks while the
+ * workers run out of work. The order changes no result.
  */
 #include "sched.h"
 
