@@ -1364,12 +1364,12 @@ static int write_json(const char *path, const args_t *a, const char *name, const
     cJSON_AddNumberToObject(root, "height", s->camera.height);
     cJSON_AddNumberToObject(root, "threads", threads);
     cJSON_AddStringToObject(root, "isa", tracer_isa(tr));
-    /* our own kernels' ISA: as asked, or the widest the host runs */
-    __builtin_cpu_init();
+    /* the kernel our own code casts with (the list's or our traversal's),
+     * none where Embree casts every ray */
     cJSON_AddStringToObject(root, "kernels_isa",
-                            a->isa                               ? a->isa
-                            : __builtin_cpu_supports("avx512vl") ? "avx512"
-                                                                 : "avx2");
+                            tr->small ? trilist_kernel(tr->small)
+                            : tr->bvh ? bvh_kernel(tr->bvh)
+                                      : "none");
     cJSON_AddStringToObject(root, "accel",
                             tracer_accel_for(s) == TRACER_ACCEL_TRILIST ? "trilist"
                             : tracer_accel_for(s) == TRACER_ACCEL_BVH   ? "bvh"

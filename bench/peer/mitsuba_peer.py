@@ -93,7 +93,7 @@ AVX2_FEATURES = b"-avx512f,-avx512vl,-avx512dq,-avx512bw,-avx512cd,+avx2,+fma"
 AVX2_LANES = 8
 
 
-def preload_embree_shim(a):
+def preload_embree_shim():
     """Runs this script again with the shim that caps Mitsuba's Embree at
     AVX2 preloaded (it must be there before Mitsuba's libraries load)."""
     if os.environ.get("VB_EMBREE_ISA"):
@@ -485,7 +485,7 @@ def load_xml(mi, a):
 def main():
     a = parse_args()
     if a.isa == "avx2":
-        preload_embree_shim(a)
+        preload_embree_shim()
     import drjit as dr
     import mitsuba as mi
     import numpy as np
