@@ -86,25 +86,6 @@ def sampler_counts(sampler, top):
 SAMPLERS = ["independent", "stratified", "multijitter", "orthogonal", "ldsampler"]
 
 
-def sized_xml(name):
-    """A copy of scenes/NAME.xml at the study's size ($res) that finds its
-    files where the original does (a <path> to its folder, which both
-    renderers read)."""
-    src = os.path.join(S.ROOT, "scenes", name + ".xml")
-    with open(src) as f:
-        text = f.read()
-    text, n = re.subn(r'(<default\s+name="res"\s+value=")[^"]*"', r'\g<1>%d"' % S.CFG["size"], text)
-    if n != 1:
-        raise SystemExit(f"{src}: no <default name=\"res\"> to set the size by")
-    text = re.sub(r"(<scene\b[^>]*>)", r'\1\n    <path value="%s"/>' % os.path.dirname(src), text, count=1)
-    os.makedirs(os.path.join(S.WORK, "scenes"), exist_ok=True)
-    dst = os.path.join(S.WORK, "scenes", f"{name.replace('/', '-')}-{S.CFG['size']}.xml")
-    if not os.path.exists(dst) or open(dst).read() != text:
-        with open(dst, "w") as f:
-            f.write(text)
-    return dst
-
-
 def mitsuba_sweep(name, scene, sampler, r, ref_meta):
     py = os.environ.get("MITSUBA_PEER_PYTHON", sys.executable)
     script = os.path.join(S.ROOT, "bench", "peer", "mitsuba_peer.py")
@@ -238,7 +219,7 @@ def main():
     R.update({"commit": S.git_commit(), "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
     for name in SCENES:
         flat = name.replace("/", "-")  # a file name of its own for mitsuba/NAME
-        scene = sized_xml(name) if name.startswith("mitsuba/") else S.sized_scene(name)
+        scene = S.sized_scene(name)
         ref, ref_meta = S.make_reference(flat, scene)
         r = S.rgb(S.read_exr(ref))
         ours = S.study_run(flat, scene, ref, ref_meta, "peer-best-default", 2 * MAX_SPP,

@@ -35,6 +35,11 @@ Writes bench/results/adaptive-repeat.json, prints a table and writes it to
 bench/RESULTS.md (between its bench:adaptive-repeat markers). Runs last in
 `make bench-error`, or alone: `bash bench/error/run.sh --repeat` (about 21
 minutes on 2 cores); `--from-json` rewrites the table from the JSON.
+VB_REPEAT_NAME names the JSON and the table's markers (default
+adaptive-repeat): the shipped Mitsuba files (mitsuba/NAME in
+VB_REPEAT_SCENES, sized as peer_best.py sizes them) run as
+adaptive-repeat-mitsuba, at VB_STUDY_SIZE=64 with the peer comparison's
+references (VB_STUDY_REF_SPP=32768).
 """
 import json
 import os
@@ -54,8 +59,11 @@ MODES = os.environ.get("VB_REPEAT_MODES", "relmse,relerr").split(",")
 # host slowed least (identical runs here differ by up to 35 %).
 BEST_OF = max(1, int(os.environ.get("VB_REPEAT_BEST_OF", "1")))
 # a quick run (VB_STUDY_QUICK=1) keeps to its work folder, as the study does
-OUT = os.path.join(S.WORK, "quick", "adaptive-repeat.json") if S.QUICK else \
-    os.path.join(S.ROOT, "bench", "results", "adaptive-repeat.json")
+# The shipped Mitsuba files (mitsuba/NAME) run apart, at their own size, into
+# a file and a table of their own: VB_REPEAT_NAME=adaptive-repeat-mitsuba.
+NAME = os.environ.get("VB_REPEAT_NAME", "adaptive-repeat")
+OUT = os.path.join(S.WORK, "quick", NAME + ".json") if S.QUICK else \
+    os.path.join(S.ROOT, "bench", "results", NAME + ".json")
 RUNS = os.path.join(S.WORK, "quick", "repeat") if S.QUICK else os.path.join(S.WORK, "repeat")
 
 
@@ -77,7 +85,7 @@ def run_once(tag, cmd, out, meta, spp):
 
 def run(name, scene, ref, meta, seed, mode):
     """The fastest of BEST_OF renders, whose images must be bit-identical."""
-    tag = f"{name}-s{seed}-{mode}"
+    tag = f"{name.replace('/', '-')}-s{seed}-{mode}"
     out = os.path.join(RUNS, tag + ".exr")
     os.makedirs(RUNS, exist_ok=True)
     if mode == "none":
@@ -216,7 +224,7 @@ def report(R):
     md = table(R)
     print(md)
     if not S.QUICK:
-        S.update_readme(md, "adaptive-repeat")
+        S.update_readme(md, NAME)
 
 
 def main():
@@ -232,7 +240,7 @@ def main():
         "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "scenes": {}}
     for name in SCENES:
         scene = S.sized_scene(name)
-        ref, meta = S.make_reference(name, scene)
+        ref, meta = S.make_reference(name.replace("/", "-"), scene)
         per = {m: [] for m in ["none"] + MODES}
         for seed in SEEDS:
             for m in per:

@@ -213,6 +213,31 @@ def sha256_file(path):
 
 
 def sized_scene(name):
+    """The scene at the study's size: scenes/NAME.json, or for mitsuba/NAME
+    Mitsuba's file scenes/mitsuba/NAME.xml (sized_xml)."""
+    return sized_xml(name) if name.startswith("mitsuba/") else sized_json(name)
+
+
+def sized_xml(name):
+    """A copy of scenes/NAME.xml at the study's size ($res) that finds its
+    files where the original does (a <path> to its folder, which both
+    renderers read)."""
+    src = os.path.join(ROOT, "scenes", name + ".xml")
+    with open(src) as f:
+        text = f.read()
+    text, n = re.subn(r'(<default\s+name="res"\s+value=")[^"]*"', r'\g<1>%d"' % CFG["size"], text)
+    if n != 1:
+        raise SystemExit(f"{src}: no <default name=\"res\"> to set the size by")
+    text = re.sub(r"(<scene\b[^>]*>)", r'\1\n    <path value="%s"/>' % os.path.dirname(src), text, count=1)
+    os.makedirs(os.path.join(WORK, "scenes"), exist_ok=True)
+    dst = os.path.join(WORK, "scenes", f"{name.replace('/', '-')}-{CFG['size']}.xml")
+    if not os.path.exists(dst) or open(dst).read() != text:
+        with open(dst, "w") as f:
+            f.write(text)
+    return dst
+
+
+def sized_json(name):
     src = os.path.join(ROOT, "scenes", f"{name}.json")
     with open(src) as f:
         d = json.load(f)
