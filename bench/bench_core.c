@@ -223,10 +223,24 @@ typedef struct embree {
     RTCDevice device;
     RTCScene scene;
     char isa[16];
-    trilist_t *list;   /* if set, rays go to the triangle list instead */
-    bvh_t *tracer_bvh; /* if set, rays go to our traversal (bvh.h), as TRACER_ACCEL_BVH */
-    int one_by_one;    /* rtcIntersect1 / rtcOccluded1, not the tracer's packets */
+    trilist_t *list;         /* if set, rays go to the triangle list instead */
+    bvh_t *tracer_bvh;       /* if set, rays go to our traversal (bvh.h), as TRACER_ACCEL_BVH */
+    int one_by_one;          /* rtcIntersect1 / rtcOccluded1, not the tracer's packets */
+    const char *kernels_isa; /* --isa: every list and BVH of ours runs it; NULL: the widest */
 } embree_t;
+
+/* Puts a list or BVH of ours (either may be NULL) on the --isa kernels, as
+ * tracer_use_isa does the tracer's; -1, said, if the host cannot run them. */
+static int use_kernels_isa(const char *isa, trilist_t *l, bvh_t *b)
+{
+    if (!isa)
+        return 0;
+    if ((l && trilist_use_kernel(l, isa) < 0) || (b && bvh_use_kernel(b, isa) < 0)) {
+        fprintf(stderr, "bench_core: this host cannot run the %s kernels\n", isa);
+        return -1;
+    }
+    return 0;
+}
 
 /* e->device configured as tracer_device_new configures it (the ISA pinned). */
 static int embree_device_new(embree_t *e)
@@ -778,7 +792,7 @@ static int clusters_build(const scene_t *s, embree_t *e, clusters_t *c)
         if (m > CLUSTER_TRIANGLES)
             m = CLUSTER_TRIANGLES;
         c->lists[i] = trilist_new(s->positions, idx + 3 * first, m);
-        if (!c->lists[i])
+        if (!c->lists[i] || use_kernels_isa(e->kernels_isa, c->lists[i], NULL) < 0)
             rc = -1;
         float *b = c->bounds + 6 * i;
         bounds_empty(b, b + 3);
@@ -1093,6 +1107,10 @@ static int measure_other_ways(const scene_t *s, const embree_t *e, const batch_t
             fprintf(stderr, "bench_core: %s\n", err);
             return -1;
         }
+        if (use_kernels_isa(e->kernels_isa, NULL, eo.tracer_bvh) < 0) {
+            bvh_destroy(&eo.tracer_bvh);
+            return -1;
+        }
         if (raw_time(&eo, ext, 0, threads, r->runs, &r->own.ext) < 0 ||
             raw_time(&eo, sh, 1, threads, r->runs, &r->own.sh) < 0)
             rc = -1;
@@ -1113,6 +1131,7 @@ static int measure_other_ways(const scene_t *s, const embree_t *e, const batch_t
     clusters_t c;
     memset(&eu, 0, sizeof eu);
     eu.one_by_one = 1; /* the callbacks take one ray */
+    eu.kernels_isa = e->kernels_isa;
     if (clusters_build(s, &eu, &c) < 0) {
         fprintf(stderr, "bench_core: cannot build the clustered scene\n");
         embree_free(&eu);
@@ -1232,6 +1251,7 @@ static int measure_raw(const scene_t *s, const args_t *a, double f_ext, raw_t *r
     memset(&efast, 0, sizeof efast);
     memset(&elist, 0, sizeof elist);
     int rc = 0;
+    e.kernels_isa = a->isa;
     if (embree_build(s, &e, 1) < 0 || embree_build(s, &efast, 0) < 0) {
         fprintf(stderr, "bench_core: cannot build the Embree scene\n");
         rc = -1;
@@ -1243,8 +1263,7 @@ static int measure_raw(const scene_t *s, const args_t *a, double f_ext, raw_t *r
         if (!e.tracer_bvh) {
             fprintf(stderr, "bench_core: %s\n", err);
             rc = -1;
-        } else if (a->isa && bvh_use_kernel(e.tracer_bvh, a->isa) < 0) {
-            fprintf(stderr, "bench_core: this host cannot run the %s traversal\n", a->isa);
+        } else if (use_kernels_isa(a->isa, NULL, e.tracer_bvh) < 0) {
             rc = -1;
         }
     }
@@ -1255,8 +1274,7 @@ static int measure_raw(const scene_t *s, const args_t *a, double f_ext, raw_t *r
         if (!elist.list) {
             fprintf(stderr, "bench_core: out of memory\n");
             rc = -1;
-        } else if (a->isa && trilist_use_kernel(elist.list, a->isa) < 0) {
-            fprintf(stderr, "bench_core: this host cannot run the %s list kernel\n", a->isa);
+        } else if (use_kernels_isa(a->isa, elist.list, NULL) < 0) {
             rc = -1;
         }
     }

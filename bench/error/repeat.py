@@ -83,9 +83,10 @@ def run_once(tag, cmd, out, meta, spp):
     return s
 
 
-def run(name, scene, ref, meta, seed, mode):
-    """The fastest of BEST_OF renders, whose images must be bit-identical."""
-    tag = f"{name.replace('/', '-')}-s{seed}-{mode}"
+def run(flat, scene, ref, meta, seed, mode):
+    """The fastest of BEST_OF renders, whose images must be bit-identical
+    (flat: the scene's name as a file name, mitsuba/NAME as mitsuba-NAME)."""
+    tag = f"{flat}-s{seed}-{mode}"
     out = os.path.join(RUNS, tag + ".exr")
     os.makedirs(RUNS, exist_ok=True)
     if mode == "none":
@@ -239,12 +240,13 @@ def main():
         "workers", "threads")}, "seeds": SEEDS, "modes": MODES, "best_of": BEST_OF, "commit": S.git_commit(),
         "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "scenes": {}}
     for name in SCENES:
+        flat = name.replace("/", "-")
         scene = S.sized_scene(name)
-        ref, meta = S.make_reference(name.replace("/", "-"), scene)
+        ref, meta = S.make_reference(flat, scene)
         per = {m: [] for m in ["none"] + MODES}
         for seed in SEEDS:
             for m in per:
-                per[m].append(run(name, scene, ref, meta, seed, m))
+                per[m].append(run(flat, scene, ref, meta, seed, m))
         res = {}
         ul = S.CFG["adaptive_uniform_layers"] * S.CFG["granularity"] * npix
         # every run of the scene on one normalised clock
