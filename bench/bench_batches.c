@@ -24,6 +24,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "mitsuba.h"
 #include "rng.h"
 #include "scene.h"
 #include "tracer.h"
@@ -202,7 +203,7 @@ int main(int argc, char **argv)
     scene_t *s = NULL;
     tracer_device_t *dev = NULL;
     tracer_t *tr = NULL;
-    if (scene_load(scene_path, &s, err, sizeof err) < 0 ||
+    if (mitsuba_scene_load(scene_path, &s, err, sizeof err) < 0 ||
         tracer_device_new(&dev, err, sizeof err) < 0 ||
         tracer_new(dev, s, &tr, err, sizeof err) < 0) {
         fprintf(stderr, "bench_batches: %s\n", err);

@@ -67,6 +67,7 @@
 #include "film.h"
 #include "lights.h"
 #include "material.h"
+#include "mitsuba.h"
 #include "render.h"
 #include "rng.h"
 #include "scene.h"
@@ -1454,7 +1455,7 @@ int main(int argc, char **argv)
     char err[VB_ERR_LEN], name[256];
     base_name(a.scene, name, sizeof name);
     scene_t *s = NULL;
-    if (scene_load(a.scene, &s, err, sizeof err) < 0) {
+    if (mitsuba_scene_load(a.scene, &s, err, sizeof err) < 0) {
         fprintf(stderr, "bench_core: %s\n", err);
         return 1;
     }

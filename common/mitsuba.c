@@ -2446,3 +2446,26 @@ done:
     free(c);
     return json;
 }
+
+int mitsuba_scene_load(const char *path, scene_t **out, char *err, size_t errlen)
+{
+    *out = NULL;
+    if (!mitsuba_is_scene_path(path))
+        return scene_load(path, out, err, errlen);
+    cJSON *json = mitsuba_scene_json(path, NULL, 0, err, errlen);
+    if (!json)
+        return -1;
+    char *text = cJSON_PrintUnformatted(json);
+    cJSON_Delete(json);
+    if (!text) {
+        snprintf(err, errlen, "%s: out of memory", path);
+        return -1;
+    }
+    char dir[4096] = ".";
+    const char *slash = strrchr(path, '/');
+    if (slash)
+        snprintf(dir, sizeof dir, "%.*s", (int)(slash - path), path);
+    int rc = scene_load_string(text, strlen(text), path, dir, out, err, errlen);
+    cJSON_free(text);
+    return rc;
+}

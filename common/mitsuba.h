@@ -18,6 +18,8 @@
 
 #include <cJSON.h>
 
+#include "scene.h"
+
 /* Reads the Mitsuba scene `path`. defines holds define_count "name=value"
  * strings, Mitsuba's -D: they override the file's <default> values.
  * Returns a new scene JSON object (free with cJSON_Delete), or NULL with
@@ -27,6 +29,12 @@ cJSON *mitsuba_scene_json(const char *path, const char *const *defines, size_t d
 
 /* 1 when path names a Mitsuba scene (ends in ".xml", any case). */
 int mitsuba_is_scene_path(const char *path);
+
+/* Loads path as scene_load does, a Mitsuba scene (mitsuba_is_scene_path)
+ * through the JSON it becomes, its files found beside it: for tools that
+ * trace a scene file of either kind (bench_core, bench_batches). Returns 0
+ * and *out, or -1 with a message in err. */
+int mitsuba_scene_load(const char *path, scene_t **out, char *err, size_t errlen);
 
 /* A wavelength:value spectrum (nm, ascending) as Mitsuba 3's RGB variants
  * turn it into linear sRGB: the piecewise linear spectrum, zero outside

@@ -109,6 +109,35 @@ END_TEST
 
 /* ---- the shipped scene ---------------------------------------------------------- */
 
+/* mitsuba_scene_load: a Mitsuba file as the scene it becomes, its meshes
+ * found beside it from any working folder; a JSON file as scene_load reads
+ * it; a broken file refused with its name and line. */
+START_TEST(scene_load_either_kind)
+{
+    char path[2048], err[VB_ERR_LEN];
+    scene_t *s = NULL;
+    tu_root_path(path, sizeof path, "scenes/mitsuba/cornell-box.xml");
+    ck_assert_msg(mitsuba_scene_load(path, &s, err, sizeof err) == 0, "%s", err);
+    ck_assert_int_eq(s->camera.width, 256);   /* its <default name="res"> */
+    ck_assert_uint_gt(s->triangle_count, 12); /* the OBJ meshes in meshes/ */
+    ck_assert_uint_gt(s->light_count, 0);
+    scene_destroy(&s);
+    tu_root_path(path, sizeof path, "scenes/cornell-box.json");
+    ck_assert_msg(mitsuba_scene_load(path, &s, err, sizeof err) == 0, "%s", err);
+    ck_assert_uint_eq(s->triangle_count, 32);
+    scene_destroy(&s);
+    char dir[1024];
+    scratch_dir(dir, sizeof dir, "mitsuba-load");
+    write_file(dir, "broken.xml",
+               "<scene version=\"3.0.0\">\n  <shape type=\"sphere\">\n</scene>\n");
+    snprintf(path, sizeof path, "%s/broken.xml", dir);
+    s = (scene_t *)1;
+    ck_assert_int_eq(mitsuba_scene_load(path, &s, err, sizeof err), -1);
+    ck_assert(s == NULL);
+    ck_assert_msg(strstr(err, "broken.xml:") != NULL, "%s", err);
+}
+END_TEST
+
 START_TEST(shipped_scene)
 {
     cJSON *j = shipped(NULL, 0);
@@ -1010,6 +1039,7 @@ static Suite *mitsuba_suite(void)
     TCase *tc = tcase_create("convert");
     tcase_add_test(tc, spectrum_as_mitsuba);
     tcase_add_test(tc, shipped_scene);
+    tcase_add_test(tc, scene_load_either_kind);
     tcase_add_test(tc, structure);
     tcase_add_loop_test(tc, refused_with_file_and_line, 0,
                         (int)(sizeof refusals / sizeof refusals[0]));

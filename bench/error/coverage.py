@@ -84,7 +84,7 @@ def judge(est, ref, sigma, E):
 
 
 def master(scene, name, E, C, cap):
-    out = os.path.join(T.WORK, f"cov-{name}-{SIZE}-E{E}-C{C}.exr")
+    out = os.path.join(T.WORK, f"cov-{name.replace('/', '-')}-{SIZE}-E{E}-C{C}.exr")
     cmd = [os.path.join(ROOT, "bin", "vbrender"), "render", scene, "-o", out, "--spp", str(cap),
            "--adaptive", "none", "--seed", str(SEEDS["run"]), "--target-error", str(E),
            "--confidence", str(C), "--workers", "2", "--threads", "1", "--progress", "none"]

@@ -218,19 +218,21 @@ def sized_scene(name):
     return sized_xml(name) if name.startswith("mitsuba/") else sized_json(name)
 
 
-def sized_xml(name):
-    """A copy of scenes/NAME.xml at the study's size ($res) that finds its
-    files where the original does (a <path> to its folder, which both
-    renderers read)."""
+def sized_xml(name, size=None, folder=None):
+    """A copy of scenes/NAME.xml at the study's size, or size ($res), in
+    the study's scene folder, or folder, that finds its files where the
+    original does (a <path> to its folder, which both renderers read)."""
+    size = CFG["size"] if size is None else size
+    folder = os.path.join(WORK, "scenes") if folder is None else folder
     src = os.path.join(ROOT, "scenes", name + ".xml")
     with open(src) as f:
         text = f.read()
-    text, n = re.subn(r'(<default\s+name="res"\s+value=")[^"]*"', r'\g<1>%d"' % CFG["size"], text)
+    text, n = re.subn(r'(<default\s+name="res"\s+value=")[^"]*"', r'\g<1>%d"' % size, text)
     if n != 1:
         raise SystemExit(f"{src}: no <default name=\"res\"> to set the size by")
     text = re.sub(r"(<scene\b[^>]*>)", r'\1\n    <path value="%s"/>' % os.path.dirname(src), text, count=1)
-    os.makedirs(os.path.join(WORK, "scenes"), exist_ok=True)
-    dst = os.path.join(WORK, "scenes", f"{name.replace('/', '-')}-{CFG['size']}.xml")
+    os.makedirs(folder, exist_ok=True)
+    dst = os.path.join(folder, f"{name.replace('/', '-')}-{size}.xml")
     if not os.path.exists(dst) or open(dst).read() != text:
         with open(dst, "w") as f:
             f.write(text)

@@ -135,6 +135,11 @@ def t_table(conf, n):
 
 # ---- data -----------------------------------------------------------------------
 def sized_scene(name, size):
+    """scenes/NAME.json at size x size pixels; mitsuba/NAME: Mitsuba's file
+    scenes/mitsuba/NAME.xml (study.py's sized_xml), both in WORK."""
+    if name.startswith("mitsuba/"):
+        import study  # noqa: E402  (only here: the study's helpers for Mitsuba's files)
+        return study.sized_xml(name, size, WORK)
     src = os.path.join(ROOT, "scenes", f"{name}.json")
     with open(src) as f:
         d = json.load(f)
@@ -161,7 +166,7 @@ def batches(scene, size, tag, layers, seed, counts=None, summary=False, replicat
     npix = size * size
     replicates = REPLICATES if replicates is None else replicates
     rtag = "" if replicates == 1 else f"-rep{replicates}"
-    key = f"{os.path.basename(scene)[:-5]}-{tag}-{layers}-{seed}{rtag}{'-sum' if summary else ''}"
+    key = f"{os.path.splitext(os.path.basename(scene))[0]}-{tag}-{layers}-{seed}{rtag}{'-sum' if summary else ''}"
     out = os.path.join(WORK, key + ".f64")
     cmd = [BATCHES, scene, out, "--layers", str(layers), "--granularity", str(CFG["granularity"]),
            "--seed", str(seed), "--threads", str(CFG["threads"])]
