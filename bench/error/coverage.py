@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Does --target-error E --confidence C hold on every pixel? (issue 24, item 2)
 
-For each shipped scene at SIZE x SIZE pixels, E in VB_COV_E and C in VB_COV_C:
+For each shipped scene (VB_COV_SCENES: scenes/*.json by name and the
+Mitsuba files as mitsuba/NAME) at SIZE x SIZE pixels, E in VB_COV_E and C in VB_COV_C:
 the share of pixels within E of an independent reference, counted as the
 issue counts it:
 
@@ -35,14 +36,14 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import study as S  # noqa: E402  (the shipped scenes)
 import target as T  # noqa: E402  (bench_batches runs, the rule's simulation)
 
 ROOT = T.ROOT
 SIZE = int(os.environ.get("VB_COV_SIZE", "32"))
 ERRORS = [float(x) for x in os.environ.get("VB_COV_E", "0.02,0.05,0.1").split(",")]
 CONFS = [float(x) for x in os.environ.get("VB_COV_C", "0.9,0.95").split(",")]
-SCENES = os.environ.get("VB_COV_SCENES",
-                        "cornell-box,cornell-glass,cornell-buddha,caustic,dark-bright").split(",")
+SCENES = os.environ.get("VB_COV_SCENES", ",".join(S.shipped_scenes())).split(",")
 REF_REPLICATES = 4
 REF_FLOOR = int(os.environ.get("VB_COV_REF_FLOOR", str(2 ** 18 // 32)))  # layers, all replicates
 REF_CAP = int(os.environ.get("VB_COV_REF_CAP", str(2 ** 20 // 32)))

@@ -49,10 +49,7 @@ import study as S  # noqa: E402  (the study's settings, references and helpers)
 
 # every shipped scene: our own format (scenes/*.json, by name) and Mitsuba's
 # (scenes/mitsuba/*.xml, as mitsuba/NAME)
-SCENES = os.environ.get("VB_PEER_SCENES", ",".join(
-    sorted(f[:-5] for f in os.listdir(os.path.join(S.ROOT, "scenes")) if f.endswith(".json")) +
-    sorted("mitsuba/" + f[:-4] for f in os.listdir(os.path.join(S.ROOT, "scenes", "mitsuba"))
-           if f.endswith(".xml")))).split(",")
+SCENES = os.environ.get("VB_PEER_SCENES", ",".join(S.shipped_scenes())).split(",")
 MAX_SPP = int(os.environ.get("VB_PEER_SPP", "1024"))
 SEED = 31
 OUT = os.path.join(S.WORK, "quick", "peer-best.json") if S.QUICK else \

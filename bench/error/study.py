@@ -212,6 +212,14 @@ def sha256_file(path):
     return h.hexdigest()
 
 
+def shipped_scenes():
+    """Every shipped scene: ours (scenes/*.json, by name), then Mitsuba's
+    (scenes/mitsuba/*.xml, as mitsuba/NAME)."""
+    return (sorted(f[:-5] for f in os.listdir(os.path.join(ROOT, "scenes")) if f.endswith(".json")) +
+            sorted("mitsuba/" + f[:-4] for f in os.listdir(os.path.join(ROOT, "scenes", "mitsuba"))
+                   if f.endswith(".xml")))
+
+
 def sized_scene(name):
     """The scene at the study's size: scenes/NAME.json, or for mitsuba/NAME
     Mitsuba's file scenes/mitsuba/NAME.xml (sized_xml)."""
