@@ -73,7 +73,10 @@ static const settings_def_t table[] = {
      .def = JOB_DEFAULT_TARGET_ERROR,
      .def_text = "none",
      .help = "stop a pixel when its confidence half-width\n"
-             "<= E x mean. Light that no path has found yet\n"
+             "<= E x mean, from the error its neighbours'\n"
+             "replicates give (the EXR's variance; with\n"
+             "--replicates 1, their layers' spread, larger).\n"
+             "Light that no path has found yet\n"
              "(a pixel seen only by rare paths) looks converged:\n"
              "no rule can vouch for it. The summary counts the\n"
              "pixels the rule stopped and those that ran to --spp"},

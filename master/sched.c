@@ -174,6 +174,10 @@ static int kept_replicates(const sched_t *s)
 {
     return sched_replicates(s) > 1;
 }
+static int kept_calibrated_target(const sched_t *s)
+{
+    return kept_target(s) && kept_replicates(s);
+}
 static uint32_t replicates_but_one(const sched_t *s)
 {
     return sched_replicates(s) - 1;
@@ -196,6 +200,8 @@ const pixel_array_t sched_pixel_arrays[] = {
     PIXEL_ARRAY("pnb", prev_nb, uint32_t, sched_keeps_counts),
     PIXEL_ARRAY("pcost", prev_cost, float, sched_weighs_cost),
     {"rep", offsetof(sched_t, rep_lum), sizeof(double), kept_replicates, replicates_but_one, 1},
+    /* in streams of version SCHED_SAVE_VERSION_CALIBRATED only */
+    {"crv", offsetof(sched_t, crv), sizeof(double), kept_calibrated_target, NULL, 1},
 };
 const size_t sched_pixel_array_count = sizeof sched_pixel_arrays / sizeof sched_pixel_arrays[0];
 
@@ -744,6 +750,10 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
                     vmath_luminance(results[i].sum[0], results[i].sum[1], results[i].sum[2]) /
                     results[i].samples;
                 sched_welford_add(&s->ubatches[p], &s->umean[p], &s->um2[p], bm);
+                /* a pixel's layers merge in order (rule 1): the film and
+                 * the replicate sums hold exactly its first layers now */
+                if (s->crv && s->ubatches[p] == SCHED_TARGET_MIN_LAYERS)
+                    sched_target_freeze(s, p);
             }
         }
         if (s->urays && judged) {

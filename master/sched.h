@@ -83,8 +83,9 @@ typedef enum {
 /* The target-error rule (sched_config_t.target_error): its epsilon
  * (half-width <= E (mean + eps)); the layers whose means give each pixel's
  * relative variance (its first ones, frozen after them), which is also the
- * fewest a pixel takes; and the radius of the window whose largest relative
- * variance a pixel's half-width uses, the pixel itself left out. The window
+ * fewest a pixel takes; and the radius of the window whose relative
+ * variances (their mean with replicates, else their largest) a pixel's
+ * half-width uses, the pixel itself left out. The window
  * is what makes the target hold: a pixel's own layer means look steady
  * until it meets a rare bright path its neighbours have already met
  * (bench/error/target.py measured the candidates: on the glass scene the
@@ -96,6 +97,10 @@ typedef enum {
 #define SCHED_TARGET_EPS 1e-3
 #define SCHED_TARGET_MIN_LAYERS 8
 #define SCHED_TARGET_POOL_RADIUS 2
+/* With replicates, the rule's alpha (1 - C) is divided by this: the
+ * calibrated error of a pixel's neighbours is not quite its own
+ * (sched_target.c; bench/error/coverage.py measured 1, 2 and 4). */
+#define SCHED_TARGET_ALPHA_DIVISOR 2
 /* The largest mean radiance a result may report per sample. No scene comes
  * near it (the brightest test light is 1e7), and squares and sums of it
  * stay far from overflow in every statistic the master computes: a result
@@ -123,9 +128,11 @@ typedef struct sched_config {
     int dilate;           /* grow each layer's pixels by one (3 x 3) */
     uint64_t seed;        /* for random selection */
     /* Stopping on a confidence bound: a pixel stops once the t half-width
-     * of its layers' means at `confidence` is <= target_error (mean + eps),
-     * its layer means' relative variance taken as the largest among its
-     * neighbours' (SCHED_TARGET_POOL_RADIUS, SCHED_TARGET_MIN_LAYERS). With
+     * of its mean at `confidence` is <= target_error (mean + eps). Its
+     * relative variance per layer is its neighbours' over their first
+     * SCHED_TARGET_MIN_LAYERS layers (SCHED_TARGET_POOL_RADIUS): with
+     * replicates the mean of the calibrated one their replicates give,
+     * without them the largest of their layer means' (sched_target.c). With
      * relerr or relmse, their neighbours' statistics are those same first
      * layers. The job stops when target_share of the pixels have. 0: off. */
     double target_error;
@@ -293,10 +300,15 @@ size_t sched_memory(const sched_t *s, sched_memory_fn fn, void *ctx);
  * in flight in place of version 5's snapshot and per-layer copies;
  * 7: version 6 and the replicates' luminance sums ("rep"), written for a job
  * with replicates (an older master refuses it by its version) and 6 for
- * one without (the same bytes as before). This build reads 5 too
- * (sched_load converts it). */
+ * one without (the same bytes as before);
+ * 8: version 7 and each pixel's calibrated relative variance ("crv"),
+ * written for a job with replicates and a target error, whose stopping
+ * reads it (an older master refuses it by its version). This build reads
+ * 5 too (sched_load converts it), and 7 for such a job: its pixels then
+ * keep the statistic of before (the layer means' spread; sched_target.c). */
 #define SCHED_SAVE_VERSION 6
 #define SCHED_SAVE_VERSION_REPLICATES 7
+#define SCHED_SAVE_VERSION_CALIBRATED 8
 typedef int (*sched_write_fn)(void *ctx, const void *data, size_t len);
 /* Reads exactly len bytes; returns 0, or non-zero on a short read / error. */
 typedef int (*sched_read_fn)(void *ctx, void *data, size_t len);

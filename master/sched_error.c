@@ -26,9 +26,7 @@
 
 #define ERROR_POOL_RADIUS 2 /* the 5 x 5 window */
 
-/* Pixel p's replicate estimate of the variance of its mean luminance, or
- * -1 when fewer than two replicates have samples. */
-static double replicate_variance(const sched_t *s, uint32_t p)
+double sched_replicate_variance(const sched_t *s, uint32_t p)
 {
     const film_pixel_t *fp = &s->film->pixels[p];
     const uint32_t R = sched_replicates(s), G = s->cfg.granularity;
@@ -97,7 +95,7 @@ int sched_variance_of_mean(const sched_t *s, float *out)
         return -1;
     double *rep = buf, *has = buf + n, *rep_sum = buf + 2 * n, *has_sum = buf + 3 * n;
     for (uint32_t p = 0; p < s->npix; p++) {
-        const double v = replicate_variance(s, p);
+        const double v = sched_replicate_variance(s, p);
         has[p] = v >= 0;
         rep[p] = v >= 0 ? v : 0;
     }

@@ -33,7 +33,8 @@ typedef struct snap_row {
     int y;          /* the image row held, -1: none */
     double *metric; /* the skip rule's statistic (sched.h) */
     double *rvar;   /* the target error's relative variance */
-    double *rvmax;  /* rvar's maximum over the row's 5-pixel window, itself in */
+    double *rvmax;  /* rvar's maximum over the row's 5-pixel window, itself in
+                       (with replicates: the sum, sched_target_row_max) */
     uint32_t *nb;   /* layer means */
     float *cost;    /* relmse: rays per sample */
 } snap_row_t;
@@ -77,6 +78,11 @@ struct sched {
     /* with replicates: per pixel, the luminance sums of replicates 1 .. R - 1
      * (replicate 0's is the film's sum less these) */
     double *rep_lum;
+    /* with replicates and a target error: per pixel, the relative variance
+     * of a layer mean its replicates give over its first
+     * SCHED_TARGET_MIN_LAYERS layers (sched_target.c), frozen then; -1
+     * before, or where they give none */
+    double *crv;
     snap_row_t ring[SCHED_RING];
     double *row_metric; /* one row of the skip rule's statistic */
     sel_row_t sel_ring[3];
@@ -228,6 +234,15 @@ void sched_decide_layer(sched_t *s, uint32_t layer);
 double sched_t_factor(sched_t *s, double **table, double confidence, uint32_t k);
 /* Pixel p's relative variance of a layer mean, as the target reads it. */
 double sched_target_rvar(const sched_t *s, uint32_t p);
+/* With replicates, once pixel p has merged its SCHED_TARGET_MIN_LAYERS-th
+ * layer (and nothing after it): freezes s->crv[p]. */
+void sched_target_freeze(sched_t *s, uint32_t p);
+
+/* ---- sched_error.c ---- */
+
+/* Pixel p's replicate estimate of the variance of its mean luminance, from
+ * the film and s->rep_lum; -1 when fewer than two replicates have samples. */
+double sched_replicate_variance(const sched_t *s, uint32_t p);
 /* Row r's rvmax from its rvar (a snapshot row being filled). */
 void sched_target_row_max(const sched_t *s, snap_row_t *r);
 /* Whether pixel (x, y) meets the target error, from the snapshot. */

@@ -1,5 +1,5 @@
 /* sched_save.c - checkpoints: a scheduler saved as a stream (sched_save)
- * and restored from one (sched_load), versions 6 and 7 and the version 5 streams
+ * and restored from one (sched_load), versions 6 to 8 and the version 5 streams
  * of older masters, and the consistency checks a restored state must pass
  * before a job resumes from it (a corrupt or hostile file is refused with
  * the section and value that are wrong, never trusted). */
@@ -231,6 +231,14 @@ static void window_layers(const sched_t *s, uint32_t layer_of[2])
         layer_of[l & 1] = l;
 }
 
+/* The version a checkpoint of this job is written in (sched.h). */
+static uint32_t version_of(const sched_t *s)
+{
+    return s->crv                    ? SCHED_SAVE_VERSION_CALIBRATED
+           : sched_replicates(s) > 1 ? SCHED_SAVE_VERSION_REPLICATES
+                                     : SCHED_SAVE_VERSION;
+}
+
 /* Whether a checkpoint of this job has array a's section. */
 static int saved(const sched_t *s, const pixel_array_t *a)
 {
@@ -243,9 +251,7 @@ int sched_save(const sched_t *s, sched_write_fn write, void *ctx)
      * child, where malloc may be locked by a thread that no longer exists. */
     saver_t w = {write, ctx, {0, 0, {0}, 0}, 0};
     const size_t n = s->npix, mb = member_bytes(s);
-    uint32_t vc[2] = {sched_replicates(s) > 1 ? SCHED_SAVE_VERSION_REPLICATES : SCHED_SAVE_VERSION,
-                      FP_COUNT},
-             layer_of[2];
+    uint32_t vc[2] = {version_of(s), FP_COUNT}, layer_of[2];
     uint64_t fp[FP_COUNT];
     fingerprint(s, fp, sizeof(film_pixel_t));
     window_layers(s, layer_of);
@@ -362,7 +368,7 @@ static int get_section(loader_t *r, const char *tag, void *data, size_t bytes, c
     return get(r, data, bytes, tag, err, errlen);
 }
 
-/* The header: magic, version (into *version: 5, 6 or 7), fingerprint. */
+/* The header: magic, version (into *version: 5 to 8), fingerprint. */
 static int load_header(const sched_t *s, loader_t *r, uint32_t *version, char *err, size_t errlen)
 {
     uint8_t magic[8];
@@ -376,22 +382,27 @@ static int load_header(const sched_t *s, loader_t *r, uint32_t *version, char *e
     }
     if (get(r, vc, sizeof vc, "header", err, errlen))
         return -1;
-    if (vc[0] != SCHED_SAVE_VERSION && vc[0] != SCHED_SAVE_VERSION_V5 &&
-        vc[0] != SCHED_SAVE_VERSION_REPLICATES) {
+    if (vc[0] < SCHED_SAVE_VERSION_V5 || vc[0] > SCHED_SAVE_VERSION_CALIBRATED) {
         snprintf(err, errlen,
                  "checkpoint: format version %u, this build reads versions %u to %u (a newer "
                  "master wrote it?)",
-                 vc[0], SCHED_SAVE_VERSION_V5, SCHED_SAVE_VERSION_REPLICATES);
+                 vc[0], SCHED_SAVE_VERSION_V5, SCHED_SAVE_VERSION_CALIBRATED);
         return -1;
     }
-    /* a job's replicates and its stream's version go together (sched_save) */
-    const int want_version =
-        sched_replicates(s) > 1 ? SCHED_SAVE_VERSION_REPLICATES : SCHED_SAVE_VERSION;
-    if (vc[0] != SCHED_SAVE_VERSION_V5 && (int)vc[0] != want_version) {
+    /* a job's replicates and target and its stream's version go together
+     * (sched_save); a job with both may come from an older master's 7 */
+    const uint32_t want_version = version_of(s);
+    const int older_calibrated =
+        want_version == SCHED_SAVE_VERSION_CALIBRATED && vc[0] == SCHED_SAVE_VERSION_REPLICATES;
+    if (vc[0] != SCHED_SAVE_VERSION_V5 && vc[0] != want_version && !older_calibrated) {
         snprintf(err, errlen,
-                 "checkpoint: format version %u is for a job %s replicates, this config has %u",
-                 vc[0], vc[0] == SCHED_SAVE_VERSION_REPLICATES ? "with" : "without",
-                 sched_replicates(s));
+                 "checkpoint: format version %u is for a job %s, this config has %u replicates "
+                 "and %s target error",
+                 vc[0],
+                 vc[0] == SCHED_SAVE_VERSION_CALIBRATED   ? "with replicates and a target error"
+                 : vc[0] == SCHED_SAVE_VERSION_REPLICATES ? "with replicates and no target error"
+                                                          : "without replicates",
+                 sched_replicates(s), s->cfg.target_error > 0 ? "a" : "no");
         return -1;
     }
     if (vc[0] == SCHED_SAVE_VERSION_V5 && sched_replicates(s) > 1) {
@@ -455,7 +466,7 @@ static int apply_counters(sched_t *s, const uint64_t *ct, char *err, size_t errl
 /* Version 6 (sched_save): reads the stream into s (made by sched_new for
  * the caller's config, so every size comes from the config, none from the
  * stream). */
-static int load_v6(sched_t *s, loader_t *r, char *err, size_t errlen)
+static int load_v6(sched_t *s, loader_t *r, uint32_t version, char *err, size_t errlen)
 {
     const size_t n = s->npix, mb = member_bytes(s);
     uint64_t ct[CT_COUNT];
@@ -485,11 +496,19 @@ static int load_v6(sched_t *s, loader_t *r, char *err, size_t errlen)
         memcpy(&s->range_done[k], slots + 4 * k, 4);
         memcpy(&s->threshold[k], slots + 8 + 8 * k, 8);
     }
-    for (size_t i = 0; i < sched_pixel_array_count; i++)
-        if (saved(s, &sched_pixel_arrays[i]) &&
-            get_section(r, sched_pixel_arrays[i].name, *sched_array_slot(s, &sched_pixel_arrays[i]),
-                        sched_array_bytes(s, &sched_pixel_arrays[i]), err, errlen))
+    for (size_t i = 0; i < sched_pixel_array_count; i++) {
+        const pixel_array_t *a = &sched_pixel_arrays[i];
+        if (s->crv && a->offset == offsetof(sched_t, crv) &&
+            version < SCHED_SAVE_VERSION_CALIBRATED) {
+            /* an older master's: its pixels keep the statistic of before */
+            for (size_t p = 0; p < n; p++)
+                s->crv[p] = -1;
+            continue;
+        }
+        if (saved(s, a) &&
+            get_section(r, a->name, *sched_array_slot(s, a), sched_array_bytes(s, a), err, errlen))
             return -1;
+    }
     return get_head(r, "end", sizeof(uint64_t), err, errlen);
 }
 
@@ -901,6 +920,11 @@ static int check_pixel(const sched_t *s, uint32_t p, char *err, size_t errlen)
         snprintf(err, errlen, "checkpoint: pixel %u: relative variance %g", p, s->prev_rvar[p]);
         return -1;
     }
+    if (s->crv && !(s->crv[p] >= 0 || s->crv[p] == -1)) {
+        snprintf(err, errlen, "checkpoint: pixel %u: calibrated relative variance %g", p,
+                 s->crv[p]);
+        return -1;
+    }
     if (s->batches) {
         /* what results in range can make: a mean of layer luminances in
          * [0, SCHED_MAX_RADIANCE] (2x: rounding), a sum of squares >= 0,
@@ -964,7 +988,7 @@ sched_t *sched_load(const sched_config_t *cfg, sched_read_fn read, void *ctx, ch
     uint64_t sum_read = 0, sum = 0;
     uint32_t version = 0;
     if (load_header(s, &r, &version, err, errlen) ||
-        (version != SCHED_SAVE_VERSION_V5 ? load_v6(s, &r, err, errlen)
+        (version != SCHED_SAVE_VERSION_V5 ? load_v6(s, &r, version, err, errlen)
                                           : load_v5(s, &r, err, errlen))) {
         sched_destroy(&s);
         return NULL;

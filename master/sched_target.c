@@ -1,7 +1,18 @@
 /* sched_target.c - target-error stopping: a pixel stops once the
  * Student-t half-width of its mean, at the job's confidence, is within the
  * target relative error; the job stops once target_share of its pixels
- * have (sched.h). The decision that applies it is sched_decide_layer's. */
+ * have (sched.h). The decision that applies it is sched_decide_layer's.
+ *
+ * With replicates (the default) the variance is the calibrated one, as the
+ * EXR's variance channel (sched_error.c): the spread of a pixel's
+ * replicate means over its first SCHED_TARGET_MIN_LAYERS layers, a
+ * layer's share of it taken as 1/n of the whole (the safe side: a Sobol
+ * sequence's error falls faster than 1/n), and its mean over the pixel's
+ * 24 neighbours, t with their degrees of freedom. Without them, a layer
+ * mean's spread over those layers, the neighbours' largest: under the
+ * sobol sampler the layers of one sequence are not independent, and their
+ * spread overstates the error of the mean (bench/error/coverage.py
+ * measured how much the calibrated rule saves, and what it still holds). */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -36,12 +47,28 @@ double sched_t_factor(sched_t *s, double **table, double confidence, uint32_t k)
     return (*table)[k];
 }
 
-/* The target error's: a layer mean's relative variance, over its first layers. */
+/* The target error's: a layer mean's relative variance, over its first
+ * layers (infinite before them); with replicates the calibrated one where
+ * they gave one (sched_target_freeze), else the layer means' spread. */
 double sched_target_rvar(const sched_t *s, uint32_t p)
 {
     const uint32_t nu = s->ubatches[p];
+    if (nu < SCHED_TARGET_MIN_LAYERS)
+        return INFINITY;
+    if (s->crv && s->crv[p] >= 0)
+        return s->crv[p];
     double scale = fabs(s->umean[p]) + SCHED_TARGET_EPS;
-    return nu >= SCHED_TARGET_MIN_LAYERS ? s->um2[p] / (nu - 1) / (scale * scale) : INFINITY;
+    return s->um2[p] / (nu - 1) / (scale * scale);
+}
+
+void sched_target_freeze(sched_t *s, uint32_t p)
+{
+    const double v = sched_replicate_variance(s, p);
+    const film_pixel_t *fp = &s->film->pixels[p];
+    /* the variance of the mean of n samples, as n / G layers' worth */
+    const double layers = (double)((uint64_t)fp->count + fp->nonfinite) / s->cfg.granularity;
+    const double scale = fabs(s->umean[p]) + SCHED_TARGET_EPS;
+    s->crv[p] = v >= 0 ? v * layers / (scale * scale) : -1;
 }
 
 /* The row's rvar maxima over each pixel's (2 SCHED_TARGET_POOL_RADIUS + 1)
@@ -84,6 +111,42 @@ static double window_max(sched_t *s, int x, int y)
     return m;
 }
 
+/* With replicates: the mean relative variance of (x, y)'s neighbours in
+ * its window, the pixel left out (infinite while any has not taken its
+ * first layers), and the t factor for the R - 1 degrees of freedom each
+ * gives, at confidence 1 - (1 - C) / SCHED_TARGET_ALPHA_DIVISOR. A mean,
+ * not the largest: each neighbour's estimate has R - 1 degrees of
+ * freedom, and the largest of 24 would overstate the error several times
+ * over; their mean is what the EXR's channel calibrates. But it is the
+ * error of a typical neighbour, and a pixel's own differs from it (darker,
+ * or at an edge): at C itself the share of pixels within E fell short of
+ * C (the Cornell box at E = 0.05: 0.946 for C = 0.95, 0.924 for 0.9), at
+ * half the alpha it holds (0.967, 0.946; sched.h). */
+static int meets_calibrated(sched_t *s, int x, int y, uint32_t nb)
+{
+    const int w = (int)s->cfg.width, h = (int)s->cfg.height, r = SCHED_TARGET_POOL_RADIUS;
+    double sum = 0;
+    uint32_t count = 0;
+    for (int yy = y - r; yy <= y + r; yy++) {
+        if (yy < 0 || yy >= h)
+            continue;
+        const double *v = sched_snap_row(s, yy)->rvar;
+        for (int xx = x - r; xx <= x + r; xx++)
+            if (xx >= 0 && xx < w && (yy != y || xx != x)) {
+                sum += v[xx];
+                count++;
+            }
+    }
+    if (count == 0) { /* a 1 x 1 image: the pixel's own */
+        sum = sched_snap_row(s, y)->rvar[x];
+        count = 1;
+    }
+    const double t =
+        sched_t_factor(s, &s->t_target, 1 - (1 - s->cfg.confidence) / SCHED_TARGET_ALPHA_DIVISOR,
+                       count * (sched_replicates(s) - 1));
+    return t * sqrt(sum / count / nb) <= s->cfg.target_error;
+}
+
 /* Whether pixel (x, y) meets the target error, from the snapshot. A pixel's
  * own layer means can look steady long before it meets a rare bright path
  * (a caustic seen through glass) that its neighbours have met: its
@@ -99,8 +162,11 @@ static double window_max(sched_t *s, int x, int y)
 int sched_meets_target(sched_t *s, int x, int y)
 {
     uint32_t nb = sched_snap_row(s, y)->nb[x];
-    return nb >= SCHED_TARGET_MIN_LAYERS &&
-           sched_t_factor(s, &s->t_target, s->cfg.confidence, nb - 1) *
-                   sqrt(window_max(s, x, y) / nb) <=
-               s->cfg.target_error;
+    if (nb < SCHED_TARGET_MIN_LAYERS)
+        return 0;
+    if (s->crv)
+        return meets_calibrated(s, x, y, nb);
+    return sched_t_factor(s, &s->t_target, s->cfg.confidence, nb - 1) *
+               sqrt(window_max(s, x, y) / nb) <=
+           s->cfg.target_error;
 }

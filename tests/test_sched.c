@@ -566,40 +566,78 @@ static double one_noisy(uint32_t p, uint32_t layer)
     return p == 10 ? (layer % 2 ? 0.2 : 0.8) : 0.5;
 }
 
+/* Runs a 16 x 1 job of `layers` layers of G = 4 under a target error on
+ * layer means f, whose pixel 10 is the noisy one: the pixels with it in
+ * their window run to the cap, the others stop after their first
+ * SCHED_TARGET_MIN_LAYERS layers (decided two layers later: within 2
+ * more), pixel 10 too; or every pixel runs to the cap. */
+static void run_noisy_one(lum_fn f, uint32_t layers, uint32_t replicates, int all_to_cap,
+                          const char *what)
+{
+    char err[256];
+    sched_config_t c = {.width = 16,
+                        .height = 1,
+                        .spp = 4 * layers,
+                        .granularity = 4,
+                        .adaptive = SCHED_ADAPTIVE_NONE,
+                        .uniform_layers = UINT32_MAX,
+                        .range_pixels = 4,
+                        .target_error = 0.05,
+                        .confidence = 0.95,
+                        .replicates = replicates};
+    sched_t *s = sched_new(&c, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    run_all(s, f, 4);
+    ck_assert(sched_done(s));
+    const uint64_t cap = c.spp;
+    const film_t *film = sched_film(s);
+    for (uint32_t p = 0; p < 16; p++) {
+        const int near =
+            p != 10 && p + SCHED_TARGET_POOL_RADIUS >= 10 && p <= 10 + SCHED_TARGET_POOL_RADIUS;
+        const uint64_t n = film->pixels[p].count;
+        if (all_to_cap || near)
+            ck_assert_msg(n == cap, "%s: pixel %u took %llu samples, not the cap", what, p,
+                          (unsigned long long)n);
+        else
+            ck_assert_msg(n >= 4u * SCHED_TARGET_MIN_LAYERS &&
+                              n <= 4u * (SCHED_TARGET_MIN_LAYERS + 2),
+                          "%s: pixel %u took %llu samples", what, p, (unsigned long long)n);
+    }
+    sched_destroy(&s);
+}
+
 /* A pixel is judged by its neighbours' first layers, never by its own: the
  * noisy pixel 10 stops as soon as the steady pixels far from it (its own
  * window is steady), while the steady pixels within SCHED_TARGET_POOL_RADIUS
  * of it go on to the end (its variance is in their window). */
 START_TEST(test_target_window_excludes_self)
 {
-    char err[256];
-    sched_config_t c = {.width = 16,
-                        .height = 1,
-                        .spp = 64,
-                        .granularity = 4,
-                        .adaptive = SCHED_ADAPTIVE_NONE,
-                        .uniform_layers = UINT32_MAX,
-                        .range_pixels = 4,
-                        .target_error = 0.05,
-                        .confidence = 0.95};
-    sched_t *s = sched_new(&c, err, sizeof err);
-    ck_assert_msg(s != NULL, "%s", err);
-    run_all(s, one_noisy, 4);
-    ck_assert(sched_done(s));
-    const film_t *f = sched_film(s);
-    for (uint32_t p = 0; p < 16; p++) {
-        int near =
-            p != 10 && p + SCHED_TARGET_POOL_RADIUS >= 10 && p <= 10 + SCHED_TARGET_POOL_RADIUS;
-        uint64_t n = f->pixels[p].count;
-        if (near)
-            ck_assert_msg(n == 64, "pixel %u, near the noisy one, took %llu samples", p,
-                          (unsigned long long)n);
-        else
-            ck_assert_msg(n >= 4u * SCHED_TARGET_MIN_LAYERS &&
-                              n <= 4u * (SCHED_TARGET_MIN_LAYERS + 2),
-                          "pixel %u took %llu samples", p, (unsigned long long)n);
-    }
-    sched_destroy(&s);
+    run_noisy_one(one_noisy, 16, 1, 0, "one sequence");
+}
+END_TEST
+
+/* Pixel 10's replicates disagree (0.4 in replicate 0's layers, 0.6 in
+ * 1's); every other pixel's layers swing between 0.2 and 0.8, but its two
+ * replicates' means agree (0.5 each), as the layers of one stratified
+ * sequence do: a layer is a chunk of it, far noisier than the mean of
+ * them all. */
+static double swinging_chunks(uint32_t p, uint32_t layer)
+{
+    if (p == 10)
+        return layer % 2 ? 0.6 : 0.4;
+    return (layer / 2) % 2 == (layer % 2) ? 0.2 : 0.8;
+}
+
+/* With replicates the target reads the calibrated error (sched_target.c):
+ * the replicates' spread over a pixel's first layers, the mean of its
+ * neighbours'. The pixels whose replicates agree stop after their first
+ * SCHED_TARGET_MIN_LAYERS layers, however their layers swing, but those
+ * with pixel 10 in their window go on to the cap; so does every pixel when
+ * the job has one sequence (the layer means' spread) or no target. */
+START_TEST(test_target_calibrated_by_replicates)
+{
+    run_noisy_one(swinging_chunks, 24, 1, 1, "one sequence");
+    run_noisy_one(swinging_chunks, 24, 2, 0, "2 replicates");
 }
 END_TEST
 
@@ -820,7 +858,9 @@ START_TEST(test_adaptive_unbiased)
         film_summary_t fs = summarise(sched_film(s), 4096);
         double mean = fs.mean, sd = fs.sd;
         uint64_t least = fs.least, most = fs.most;
-        const char *name = sched_adaptive_name(modes[k]);
+        char name[64];
+        snprintf(name, sizeof name, "%s, %u replicates", sched_adaptive_name(modes[k % 2]),
+                 c.replicates);
         /* it adapted: some pixels took twice the layers of others */
         ck_assert_msg(2 * least <= most, "%s: samples %llu..%llu", name, (unsigned long long)least,
                       (unsigned long long)most);
@@ -857,17 +897,19 @@ START_TEST(test_target_unbiased)
 {
     char err[256];
     const sched_adaptive_t modes[] = {SCHED_ADAPTIVE_NONE, SCHED_ADAPTIVE_RELMSE};
-    for (int k = 0; k < 2; k++) {
+    /* one sequence, and two replicates (the calibrated statistics) */
+    for (int k = 0; k < 4; k++) {
         sched_config_t c = {.width = 128,
                             .height = 128,
                             .spp = 4 * 64,
                             .granularity = 4,
-                            .adaptive = modes[k],
+                            .adaptive = modes[k % 2],
                             .uniform_layers = 8,
                             .range_pixels = 64,
                             .target_error = 0.5,
                             .confidence = 0.95,
-                            .target_share = 1.0};
+                            .target_share = 1.0,
+                            .replicates = k < 2 ? 1 : 2};
         sched_t *s = sched_new(&c, err, sizeof err);
         ck_assert_msg(s != NULL, "%s", err);
         run_all(s, rarer_bright, 4);
@@ -875,9 +917,11 @@ START_TEST(test_target_unbiased)
         film_summary_t fs = summarise(sched_film(s), n);
         double mean = fs.mean, sd = fs.sd;
         uint64_t least = fs.least, most = fs.most;
-        const char *name = sched_adaptive_name(modes[k]);
+        char name[64];
+        snprintf(name, sizeof name, "%s, %u replicates", sched_adaptive_name(modes[k % 2]),
+                 c.replicates);
         /* it stopped pixels: some took far fewer samples than others */
-        ck_assert_msg(sched_converged(s) > n / 4 && 4 * least <= most,
+        ck_assert_msg(sched_converged(s) > n / 4 && 3 * least <= most,
                       "%s: %llu converged, samples %llu..%llu", name,
                       (unsigned long long)sched_converged(s), (unsigned long long)least,
                       (unsigned long long)most);
@@ -1418,6 +1462,10 @@ static const ckpt_case_t ckpt_cases[] = {
     /* a checkpoint of version 7: the replicates' sums */
     {"relmse, 3 replicates",
      {CK_BASE, .adaptive = SCHED_ADAPTIVE_RELMSE, .uniform_layers = 3, .replicates = 3}},
+    /* version 8: and the calibrated statistics the target reads */
+    {"relmse, 2 replicates, target error",
+     {CK_BASE, .adaptive = SCHED_ADAPTIVE_RELMSE, .uniform_layers = 6, .target_error = 0.5,
+      .replicates = 2}},
 };
 
 /* THE property of checkpoints: a job saved after any event (tasks out,
@@ -1522,6 +1570,64 @@ START_TEST(test_checkpoint_replicates_versions)
         free(buf.data);
         sched_destroy(&a.s);
     }
+}
+END_TEST
+
+/* A job with replicates and a target error saves version 8, with each
+ * pixel's calibrated statistic ("crv"), which an older master refuses by
+ * its version. This master still resumes such a job from an older
+ * master's version 7 (the stream without "crv"): its pixels past their
+ * first layers keep the layer means' spread, the others are calibrated
+ * when they get there, and the job runs to its end. A version past this
+ * build's is refused, naming it. */
+static void expect_load_refused(const sched_config_t *c, membuf_t *m, const char *what,
+                                const char *want);
+START_TEST(test_checkpoint_calibrated_version)
+{
+    sched_config_t c = {CK_BASE, .adaptive = SCHED_ADAPTIVE_NONE, .uniform_layers = 3,
+                        .target_error = 0.5, .replicates = 2};
+    char err[256] = "";
+    sim_t a = {.workers = 2, .seed = 5};
+    a.s = sched_new(&c, err, sizeof err);
+    ck_assert_msg(a.s != NULL, "%s", err);
+    /* past the first SCHED_TARGET_MIN_LAYERS layers of most pixels */
+    const uint32_t ranges = (11 * 9 + 6) / 7;
+    for (uint32_t i = 0; i < ranges * (SCHED_TARGET_MIN_LAYERS + 1) && sim_step(&a); i++)
+        ;
+    membuf_t buf = save_mem(a.s);
+    uint32_t version;
+    memcpy(&version, buf.data + 8, sizeof version);
+    ck_assert_uint_eq(version, SCHED_SAVE_VERSION_CALIBRATED);
+    size_t len;
+    const uint8_t *crv = find_section(&buf, "crv", &len);
+    ck_assert_uint_eq(len, 11 * 9 * sizeof(double));
+    /* the same stream as an older master wrote it: version 7, no "crv" */
+    membuf_t old = copy_of(&buf);
+    const size_t at = (size_t)(crv - buf.data) - 16, cut = 16 + len;
+    memmove(old.data + at, old.data + at + cut, old.len - at - cut);
+    old.len -= cut;
+    const uint32_t v7 = SCHED_SAVE_VERSION_REPLICATES;
+    memcpy(old.data + 8, &v7, sizeof v7);
+    fuzz_fix_sched_checksum(old.data, old.len);
+    sim_t b = {.workers = 3, .seed = 9};
+    b.s = load_mem(&c, &old, old.len, err, sizeof err);
+    ck_assert_msg(b.s != NULL, "version 7: %s", err);
+    while (sim_step(&b))
+        ;
+    ck_assert(sched_done(b.s));
+    sched_destroy(&b.s);
+    free(old.data);
+    /* a newer master's */
+    membuf_t v9 = copy_of(&buf);
+    const uint32_t nine = SCHED_SAVE_VERSION_CALIBRATED + 1;
+    memcpy(v9.data + 8, &nine, sizeof nine);
+    expect_load_refused(&c, &v9, "version 9", "format version 9");
+    /* nor does a job without a target error take it */
+    c.target_error = 0;
+    membuf_t other = copy_of(&buf);
+    expect_load_refused(&c, &other, "no target", "replicates and a target error");
+    free(buf.data);
+    sched_destroy(&a.s);
 }
 END_TEST
 
@@ -1781,6 +1887,7 @@ int main(void)
     tcase_add_test(tc, test_target_error_stops);
     tcase_add_test(tc, test_replicates);
     tcase_add_test(tc, test_target_window_excludes_self);
+    tcase_add_test(tc, test_target_calibrated_by_replicates);
     tcase_add_test(tc, test_relerr_and_variance_modes);
     tcase_add_test(tc, test_relmse_balances_sqrt_variance);
     tcase_add_test(tc, test_relmse_weighs_cost);
@@ -1799,6 +1906,7 @@ int main(void)
                         (int)(sizeof ckpt_cases / sizeof ckpt_cases[0]));
     tcase_add_test(tc, test_checkpoint_refuses_garbage);
     tcase_add_test(tc, test_checkpoint_replicates_versions);
+    tcase_add_test(tc, test_checkpoint_calibrated_version);
     tcase_add_test(tc, test_checkpoint_refuses_impossible_batches);
     tcase_add_test(tc, test_checkpoint_refuses_impossible_costs);
     suite_add_tcase(s, tc);

@@ -47,6 +47,10 @@ SCENES = os.environ.get("VB_COV_SCENES", ",".join(S.shipped_scenes())).split(","
 REF_REPLICATES = 4
 REF_FLOOR = int(os.environ.get("VB_COV_REF_FLOOR", str(2 ** 18 // 32)))  # layers, all replicates
 REF_CAP = int(os.environ.get("VB_COV_REF_CAP", str(2 ** 20 // 32)))
+# VB_COV_MASTER=0: the simulation alone (no master runs); VB_COV_RULES: the rules of
+# target.py simulated besides the shipped one, each reported with its share and samples
+MASTER = os.environ.get("VB_COV_MASTER", "1") == "1"
+RULES = [r for r in T.RULES if r.name in os.environ.get("VB_COV_RULES", T.SHIPPED.name).split(",")]
 SEEDS = {"pilot": 2000001, "reference": 2000011, "run": 7}
 G = T.CFG["granularity"]
 T0 = time.time()
@@ -112,16 +116,26 @@ def main():
         data["run_counts"] = run_counts
         for E in ERRORS:
             for C in CONFS:
+                rules = {}
+                for rule in RULES:
+                    r_est, r_layers = T.simulate(data, rule, E, C)
+                    rules[rule.name] = dict(judge(r_est, ref, sigma, E), mean_spp=float(r_layers.mean() * G))
+                    log(f"{name} E={E} C={C} simulated {rule.name}: share {rules[rule.name]['share']:.3f}, "
+                        f"mean spp {rules[rule.name]['mean_spp']:.0f}")
                 est, layers = T.simulate(data, T.SHIPPED, E, C)
                 sim = judge(est, ref, sigma, E)
                 capped_sim = int((layers >= T.CFG["run_layers"]).sum())
+                if not MASTER:
+                    rows.append({"scene": name, "E": E, "C": C, "size": SIZE, "simulated": sim,
+                                 "simulated_rules": rules, "mean_spp": float(layers.mean() * G)})
+                    continue
                 m_est, spp, secs, summary = master(scene, name, E, C, T.CFG["run_layers"] * G)
                 got = judge(m_est, ref, sigma, E)
                 traced = layers < run_counts  # the simulation saw the whole story
                 same = float(np.mean(spp[traced] == layers[traced] * G)) if traced.any() else None
                 row = {"scene": name, "E": E, "C": C, "size": SIZE, "master": got, "simulated": sim,
                        "mean_spp": float(spp.mean()), "capped_pixels": int((spp >= T.CFG["run_layers"] * G).sum()),
-                       "capped_simulated": capped_sim, "pixels_with_simulated_samples": same,
+                       "capped_simulated": capped_sim, "simulated_rules": rules, "pixels_with_simulated_samples": same,
                        "seconds": secs, "summary": summary,
                        "reference": {"samples": float(ref_layers.sum() * G),
                                      "sigma_rel_median": float(np.median(sigma / np.maximum(ref, 1e-30)))}}
@@ -136,11 +150,11 @@ def main():
     print(f"{'scene':15s} {'E':>5s} {'C':>5s} {'share':>6s} {'ok':>3s} {'missed':>6s} {'dark':>5s} "
           f"{'unjudg.':>7s} {'counted':>7s} {'mean spp':>9s} {'capped':>6s}")
     for r in rows:
-        g = r["master"]
+        g = r.get("master", r["simulated"])
         ok = "yes" if g["share"] is not None and g["share"] >= r["C"] else "NO"
         print(f"{r['scene']:15s} {r['E']:5.2f} {r['C']:5.2f} {g['share']:6.3f} {ok:>3s} {g['missed']:6d} "
               f"{g['missed_dark']:5d} {g['unjudgeable']:7d} {g['counted']:7d} {r['mean_spp']:9.0f} "
-              f"{r['capped_pixels']:6d}")
+              f"{r.get('capped_pixels', -1):6d}")
     log(f"wrote {os.path.relpath(out, ROOT)}")
 
 

@@ -244,8 +244,13 @@ class Rule:
     """A per-pixel stopping rule: 'fires' from Welford state after a layer."""
 
     def __init__(self, name, min_batches=4, confidence_scale=1.0, confirm=0, pool=0, pool_max=False,
-                 neighbours=0, frozen=0, doc=""):
+                 neighbours=0, frozen=0, replicates=0, dof=None, doc=""):
         self.name, self.min_batches, self.confirm, self.doc = name, min_batches, confirm, doc
+        # replicates > 0 (with frozen): a pixel's relative variance per layer from the
+        # spread of its replicates' means over its first `frozen` layers (layer k is
+        # replicate k mod R's), the window's mean taken (max if pool_max), the pixel
+        # left out; the t factor's degrees of freedom `dof` (None: the layers')
+        self.replicates, self.dof = replicates, dof
         self.pool, self.pool_max = pool, pool_max  # window radius, max instead of mean
         # frozen > 0: every pixel's variance from its first `frozen` layers only, and the
         # window's largest taken over the neighbours, the pixel itself left out
@@ -259,9 +264,18 @@ class Rule:
 
 RULES = [
     Rule("window5-frozen8", pool=2, pool_max=True, frozen=8, min_batches=8,
-         doc="as shipped: the relative variance of a pixel's layer means taken as the largest among its 24 "
+         doc="as shipped with --replicates 1: the relative variance of a pixel's layer means taken as the "
+             "largest among its 24 "
              "neighbours in the 5x5 window, each over its first 8 layers only (unbiased: a pixel's stop "
              "never depends on its own values)"),
+    Rule("calibrated5", pool=2, frozen=8, min_batches=8, replicates=max(REPLICATES, 2), confidence_scale=2,
+         doc="as shipped (replicates, the default): the replicates' spread over each pixel's first 8 layers "
+             "(the calibrated error), its mean over the 24 neighbours of the 5x5 window, the pixel left "
+             "out; t with their degrees of freedom (R - 1 each), at half the alpha (1 - C) / 2"),
+    Rule("calibrated5-alpha", pool=2, frozen=8, min_batches=8, replicates=max(REPLICATES, 2),
+         doc="calibrated5 at the confidence asked for, C itself"),
+    Rule("calibrated5-max", pool=2, pool_max=True, frozen=8, min_batches=8, replicates=max(REPLICATES, 2),
+         doc="calibrated5 with the neighbours' largest instead of their mean"),
     Rule("window5", pool=2, pool_max=True,
          doc="the largest in the 5x5 window, the pixel included, over all layers taken (before the change)"),
     Rule("own", doc="the pixel's own: t half-width <= E (|mean| + 1e-3) after >= 4 layers (before issue 10)"),
@@ -274,7 +288,8 @@ RULES = [
     Rule("nbr3", neighbours=1, doc="own, and a pixel stops only when every pixel of its 3x3 window has fired"),
     Rule("nbr5", neighbours=2, doc="the same over the 5x5 window"),
 ]
-SHIPPED = RULES[0]
+# as master/sched_target.c: the calibrated rule where the job has replicates
+SHIPPED = RULES[1] if REPLICATES > 1 else RULES[0]
 
 
 def window(img, radius, pad_value, reduce):
@@ -298,12 +313,44 @@ def window_without_centre(img, radius, pad_value):
     return blocks.max(axis=0)
 
 
+def window_mean_without_centre(img, radius):
+    """The mean over each pixel's (2 radius + 1)^2 window, the pixel and the outside left out."""
+    w = img.shape[0]
+    pad = np.pad(img, radius, constant_values=np.nan)
+    k = 2 * radius + 1
+    blocks = np.stack([pad[dy:dy + w, dx:dx + w] for dy in range(k) for dx in range(k)
+                       if (dy, dx) != (radius, radius)])
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmean(blocks, axis=0)
+
+
+def calibrated_rv(run, rule):
+    """Each pixel's relative variance per layer from its replicates over its first
+    rule.frozen layers: sum_r (m_r - m)^2 / (R (R - 1)) (the variance of the mean of
+    equal replicates) times the layers, over (|m| + eps)^2."""
+    R, F = rule.replicates, rule.frozen
+    first = run[:F]
+    m_r = np.stack([first[r::R].mean(0) for r in range(R)])
+    m = m_r.mean(0)
+    var_mean = ((m_r - m) ** 2).sum(0) / (R * (R - 1))
+    return var_mean * F / (np.abs(m) + EPS) ** 2
+
+
 def simulate(data, rule, E, C):
     """Runs rule on the run's layer means; returns per-pixel (estimate, layers)."""
     run = data["run"]
     L, npix = run.shape
     w = data["size"]
     ttab = t_table(rule.conf(C), L + 1)
+    if rule.replicates:
+        crv = calibrated_rv(run, rule).reshape(w, w)
+        cv = (window_without_centre(crv, rule.pool, 0.0) if rule.pool_max
+              else window_mean_without_centre(crv, rule.pool)).ravel()
+        # as master/sched_target.c: t for the neighbours' R - 1 degrees of freedom each
+        inside = window(np.ones((w, w)), rule.pool, 0.0, np.sum).ravel() - 1
+        dof = (inside * (rule.replicates - 1)).astype(int) if rule.dof is None else np.full(npix, rule.dof)
+        tpix = np.array([t_two_sided(rule.conf(C), int(d)) for d in dof])
     nb = np.zeros(npix, np.int64)
     mean = np.zeros(npix)
     m2 = np.zeros(npix)
@@ -335,7 +382,9 @@ def simulate(data, rule, E, C):
         with np.errstate(all="ignore"):
             scale = np.abs(mean) + EPS
             rv = np.where(k >= 2, m2 / (k - 1) / (scale * scale), np.where(k == 0, 0.0, np.inf))
-            if rule.frozen:  # exactly as the master: frozen statistics, the neighbours' largest
+            if rule.replicates:
+                v = np.where(fn >= rule.frozen, cv, np.inf)
+            elif rule.frozen:  # exactly as the master: frozen statistics, the neighbours' largest
                 fscale = np.abs(fmean) + EPS
                 frv = np.where(fn >= rule.frozen, fm2 / (fn - 1) / (fscale * fscale), np.inf)
                 v = window_without_centre(frv.reshape(w, w), rule.pool, 0.0).ravel()
@@ -347,7 +396,8 @@ def simulate(data, rule, E, C):
                                                  nan=np.inf))
             else:
                 v = rv
-            fires = (k >= rule.min_batches) & (ttab[k] * np.sqrt(v / np.maximum(k, 1)) <= E)
+            tk = tpix if rule.replicates else ttab[k]
+            fires = (k >= rule.min_batches) & (tk * np.sqrt(v / np.maximum(k, 1)) <= E)
         if rule.confirm:
             newly = fires & (first == 0)
             first[newly] = k[newly]
