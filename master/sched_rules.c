@@ -363,18 +363,29 @@ void sched_decide_layer(sched_t *s, uint32_t layer)
                 metric_row(s, y, row);
             for (int x = 0; x < w; x++) {
                 const size_t p = (size_t)y * (size_t)w + (size_t)x;
-                if (skip_rule) {
+                int c = 0;
+                if (target) {
+                    c = sched_meets_target(s, x, y);
+                    if (conv_of)
+                        conv_of[p] = (uint8_t)c;
+                    conv += (uint64_t)c;
+                }
+                /* a pixel that met the target takes no more layers: its
+                 * metric, frozen with its layers, stays out of the mean.
+                 * In it, the pixels that stopped early (few layers, so a
+                 * large metric: relmse's falls as 1/layers^2) held the
+                 * threshold above the pixels still short of the target,
+                 * which then skipped every layer to the end of the job:
+                 * on the Cornell box at E = 0.05, relmse left 22 % of the
+                 * pixels with under a quarter of the samples the target
+                 * gave them under --adaptive none, a third of those
+                 * outside E. */
+                if (skip_rule && !c) {
                     double m = row[x];
                     if (isfinite(m)) {
                         threshold += m;
                         n++;
                     }
-                }
-                if (target) {
-                    int c = sched_meets_target(s, x, y);
-                    if (conv_of)
-                        conv_of[p] = (uint8_t)c;
-                    conv += (uint64_t)c;
                 }
             }
         }

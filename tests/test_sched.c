@@ -641,6 +641,38 @@ START_TEST(test_target_calibrated_by_replicates)
 }
 END_TEST
 
+/* An adaptive rule under a target error: the pixels that met the target
+ * early (pixel 10, judged by its steady neighbours, and those far from
+ * it) take no more layers, and their metrics, frozen with their few
+ * layers, must not hold the skip rule's threshold above the pixels still
+ * short of it (those with pixel 10 in their window): they once skipped
+ * every layer to the end of the job, there and on the Cornell box. Every
+ * mode ends with every pixel at the target, as without a rule. */
+START_TEST(test_target_with_adaptive_rule_converges_all)
+{
+    char err[256];
+    for (int mode = SCHED_ADAPTIVE_NONE; mode <= SCHED_ADAPTIVE_RELMSE; mode++) {
+        sched_config_t c = {.width = 16,
+                            .height = 1,
+                            .spp = 4 * 400,
+                            .granularity = 4,
+                            .adaptive = (sched_adaptive_t)mode,
+                            .uniform_layers = UINT32_MAX,
+                            .range_pixels = 4,
+                            .target_error = 0.2,
+                            .confidence = 0.95};
+        sched_t *s = sched_new(&c, err, sizeof err);
+        ck_assert_msg(s != NULL, "%s", err);
+        run_all(s, one_noisy, 4);
+        ck_assert(sched_done(s));
+        ck_assert_msg(sched_converged(s) == 16 && sched_stopped_on_target(s),
+                      "%s: %llu of 16 pixels met the target", sched_adaptive_name(c.adaptive),
+                      (unsigned long long)sched_converged(s));
+        sched_destroy(&s);
+    }
+}
+END_TEST
+
 /* relerr and variance keep the noisy pixels and skip the steady ones.
  * relerr and relmse judge a pixel by its neighbours: the two at the border
  * (7 and 8, one steady and one noisy neighbour each) may go either way. */
@@ -1888,6 +1920,7 @@ int main(void)
     tcase_add_test(tc, test_replicates);
     tcase_add_test(tc, test_target_window_excludes_self);
     tcase_add_test(tc, test_target_calibrated_by_replicates);
+    tcase_add_test(tc, test_target_with_adaptive_rule_converges_all);
     tcase_add_test(tc, test_relerr_and_variance_modes);
     tcase_add_test(tc, test_relmse_balances_sqrt_variance);
     tcase_add_test(tc, test_relmse_weighs_cost);
