@@ -738,10 +738,10 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
             s->pvar_cur[p] = results[i].pvar;
         if (!batches)
             continue;
-        /* with a target error, a pixel's first SCHED_TARGET_MIN_LAYERS
+        /* with a target error, a pixel's first sched_target_layers()
          * layers whatever they are (meets_target); else its uniform layers */
         const int judged =
-            s->cfg.target_error > 0 ? s->ubatches[p] < SCHED_TARGET_MIN_LAYERS : !adaptive_layer;
+            s->cfg.target_error > 0 ? s->ubatches[p] < sched_target_layers(s) : !adaptive_layer;
         /* the layer's mean is one batch; Welford over batches */
         if (results[i].samples > 0) {
             s->batches[p]++;
@@ -752,7 +752,7 @@ int sched_complete(sched_t *s, uint64_t task_id, const tracer_result_t *results,
                 sched_welford_add(&s->ubatches[p], &s->umean[p], &s->um2[p], bm);
                 /* a pixel's layers merge in order (rule 1): the film and
                  * the replicate sums hold exactly its first layers now */
-                if (s->crv && s->ubatches[p] == SCHED_TARGET_MIN_LAYERS)
+                if (s->crv && s->ubatches[p] == SCHED_TARGET_CALIBRATED_LAYERS)
                     sched_target_freeze(s, p);
             }
         }

@@ -101,6 +101,13 @@ typedef enum {
  * calibrated error of a pixel's neighbours is not quite its own
  * (sched_target.c; bench/error/coverage.py measured 1, 2 and 4). */
 #define SCHED_TARGET_ALPHA_DIVISOR 2
+/* With replicates, the layers whose replicate means give each pixel's
+ * calibrated statistic (its first ones, frozen after them: more than the
+ * layer means' 8, since a rare bright path must show in two replicates,
+ * not in one of 8 layers), also the fewest a pixel takes; and the standard
+ * errors of the neighbours' mean added to it (sched_target.c). */
+#define SCHED_TARGET_CALIBRATED_LAYERS 16
+#define SCHED_TARGET_UCB 1.0
 /* The largest mean radiance a result may report per sample. No scene comes
  * near it (the brightest test light is 1e7), and squares and sums of it
  * stay far from overflow in every statistic the master computes: a result

@@ -80,7 +80,7 @@ struct sched {
     double *rep_lum;
     /* with replicates and a target error: per pixel, the relative variance
      * of a layer mean its replicates give over its first
-     * SCHED_TARGET_MIN_LAYERS layers (sched_target.c), frozen then; -1
+     * SCHED_TARGET_CALIBRATED_LAYERS layers (sched_target.c), frozen then; -1
      * before, or where they give none */
     double *crv;
     snap_row_t ring[SCHED_RING];
@@ -204,6 +204,13 @@ static inline void sched_welford_add(uint32_t *n, double *mean, double *m2, doub
 /* Layer is decided: the ranges whose previous layer is done can run. */
 void sched_decided(sched_t *s, uint32_t layer);
 
+/* The layers a pixel's target-error statistics are frozen after (and the
+ * fewest it takes): SCHED_TARGET_CALIBRATED_LAYERS with replicates. */
+static inline uint32_t sched_target_layers(const sched_t *s)
+{
+    return s->crv ? SCHED_TARGET_CALIBRATED_LAYERS : SCHED_TARGET_MIN_LAYERS;
+}
+
 /* Replicates of the job (rng_replicate_first_sample): 1 for none. */
 static inline uint32_t sched_replicates(const sched_t *s)
 {
@@ -234,7 +241,7 @@ void sched_decide_layer(sched_t *s, uint32_t layer);
 double sched_t_factor(sched_t *s, double **table, double confidence, uint32_t k);
 /* Pixel p's relative variance of a layer mean, as the target reads it. */
 double sched_target_rvar(const sched_t *s, uint32_t p);
-/* With replicates, once pixel p has merged its SCHED_TARGET_MIN_LAYERS-th
+/* With replicates, once pixel p has merged its sched_target_layers()-th
  * layer (and nothing after it): freezes s->crv[p]. */
 void sched_target_freeze(sched_t *s, uint32_t p);
 

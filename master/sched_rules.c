@@ -141,7 +141,13 @@ int sched_applies_skip_rule(const sched_t *s, uint32_t layer)
      * whose statistics stop growing after SCHED_TARGET_MIN_LAYERS) */
     int refresh =
         sched_pools_neighbours(s) && s->cfg.target_error <= 0 && layer % SCHED_UNIFORM_EVERY == 0;
-    int flag = s->flags ? s->flags[layer] == '1' : layer >= s->uniform && !refresh;
+    /* with a target error, every pixel first takes the layers its
+     * statistics come from: a pixel that skipped one of them would leave
+     * its neighbours' windows unjudged (infinite) for as long */
+    const uint32_t uniform = s->cfg.target_error > 0 && sched_target_layers(s) > s->uniform
+                                 ? sched_target_layers(s)
+                                 : s->uniform;
+    int flag = s->flags ? s->flags[layer] == '1' : layer >= uniform && !refresh;
     return flag && layer >= 2 && s->cfg.adaptive != SCHED_ADAPTIVE_NONE;
 }
 

@@ -5,11 +5,12 @@
  *
  * With replicates (the default) the variance is the calibrated one, as the
  * EXR's variance channel (sched_error.c): the spread of a pixel's
- * replicate means over its first SCHED_TARGET_MIN_LAYERS layers, a
- * layer's share of it taken as 1/n of the whole (the safe side: a Sobol
+ * replicate means over its first SCHED_TARGET_CALIBRATED_LAYERS layers,
+ * a layer's share of it taken as 1/n of the whole (the safe side: a Sobol
  * sequence's error falls faster than 1/n), and its mean over the pixel's
- * 24 neighbours, t with their degrees of freedom. Without them, a layer
- * mean's spread over those layers, the neighbours' largest: under the
+ * 24 neighbours plus a standard error of that mean, t with their degrees
+ * of freedom. Without them, a layer mean's spread over the first
+ * SCHED_TARGET_MIN_LAYERS layers, the neighbours' largest: under the
  * sobol sampler the layers of one sequence are not independent, and their
  * spread overstates the error of the mean (bench/error/coverage.py
  * measured how much the calibrated rule saves, and what it still holds). */
@@ -53,7 +54,7 @@ double sched_t_factor(sched_t *s, double **table, double confidence, uint32_t k)
 double sched_target_rvar(const sched_t *s, uint32_t p)
 {
     const uint32_t nu = s->ubatches[p];
-    if (nu < SCHED_TARGET_MIN_LAYERS)
+    if (nu < sched_target_layers(s))
         return INFINITY;
     if (s->crv && s->crv[p] >= 0)
         return s->crv[p];
@@ -111,21 +112,12 @@ static double window_max(sched_t *s, int x, int y)
     return m;
 }
 
-/* With replicates: the mean relative variance of (x, y)'s neighbours in
- * its window, the pixel left out (infinite while any has not taken its
- * first layers), and the t factor for the R - 1 degrees of freedom each
- * gives, at confidence 1 - (1 - C) / SCHED_TARGET_ALPHA_DIVISOR. A mean,
- * not the largest: each neighbour's estimate has R - 1 degrees of
- * freedom, and the largest of 24 would overstate the error several times
- * over; their mean is what the EXR's channel calibrates. But it is the
- * error of a typical neighbour, and a pixel's own differs from it (darker,
- * or at an edge): at C itself the share of pixels within E fell short of
- * C (the Cornell box at E = 0.05: 0.946 for C = 0.95, 0.924 for 0.9), at
- * half the alpha it holds (0.967, 0.946; sched.h). */
-static int meets_calibrated(sched_t *s, int x, int y, uint32_t nb)
+/* Calls fn(ctx, v) for the relative variance v of each of (x, y)'s
+ * neighbours in its window, the pixel left out; returns how many. */
+static uint32_t each_neighbour(sched_t *s, int x, int y, void (*fn)(double *ctx, double v),
+                               double *ctx)
 {
     const int w = (int)s->cfg.width, h = (int)s->cfg.height, r = SCHED_TARGET_POOL_RADIUS;
-    double sum = 0;
     uint32_t count = 0;
     for (int yy = y - r; yy <= y + r; yy++) {
         if (yy < 0 || yy >= h)
@@ -133,18 +125,58 @@ static int meets_calibrated(sched_t *s, int x, int y, uint32_t nb)
         const double *v = sched_snap_row(s, yy)->rvar;
         for (int xx = x - r; xx <= x + r; xx++)
             if (xx >= 0 && xx < w && (yy != y || xx != x)) {
-                sum += v[xx];
+                fn(ctx, v[xx]);
                 count++;
             }
     }
+    return count;
+}
+static void add_value(double *ctx, double v)
+{
+    ctx[0] += v;
+}
+static void add_square_from_mean(double *ctx, double v)
+{
+    ctx[1] += (v - ctx[0]) * (v - ctx[0]);
+}
+
+/* With replicates: the mean relative variance of (x, y)'s neighbours in
+ * its window, the pixel left out (infinite while any has not taken its
+ * first layers), plus SCHED_TARGET_UCB standard errors of that mean (their
+ * spread over the root of their count), and the t factor for the R - 1
+ * degrees of freedom each gives, at confidence
+ * 1 - (1 - C) / SCHED_TARGET_ALPHA_DIVISOR.
+ *
+ * A mean, not the largest: each neighbour's estimate has R - 1 degrees of
+ * freedom, and the largest of 24 would overstate the error several times
+ * over; their mean is what the EXR's channel calibrates. But a mean over
+ * few samples misses what is rare: light through the glass sphere
+ * reaching the floor shows in one neighbour's replicates, not in the
+ * others', and the mean of 24 dilutes it. Over the first 8 layers, at C
+ * itself, the glass scene ended with 0.83 to 0.87 of its pixels within E
+ * for C = 0.9 and 0.95, the Cornell box at 0.92 to 0.95 (its pixels differ
+ * from a typical neighbour: darker, or at an edge). Frozen after 16
+ * layers, with the standard error added (what one bright neighbour
+ * raises) and half the alpha, both hold on every E (bench/error/
+ * coverage.py; docs/ADAPTIVE.md has the candidates measured). */
+static int meets_calibrated(sched_t *s, int x, int y, uint32_t nb)
+{
+    double acc[2] = {0, 0};
+    uint32_t count = each_neighbour(s, x, y, add_value, acc);
+    double v;
     if (count == 0) { /* a 1 x 1 image: the pixel's own */
-        sum = sched_snap_row(s, y)->rvar[x];
+        v = sched_snap_row(s, y)->rvar[x];
         count = 1;
+    } else {
+        acc[0] /= count;
+        if (count > 1 && isfinite(acc[0]))
+            each_neighbour(s, x, y, add_square_from_mean, acc);
+        v = acc[0] + SCHED_TARGET_UCB * sqrt(acc[1] / (count - (count > 1)) / count);
     }
     const double t =
         sched_t_factor(s, &s->t_target, 1 - (1 - s->cfg.confidence) / SCHED_TARGET_ALPHA_DIVISOR,
                        count * (sched_replicates(s) - 1));
-    return t * sqrt(sum / count / nb) <= s->cfg.target_error;
+    return t * sqrt(v / nb) <= s->cfg.target_error;
 }
 
 /* Whether pixel (x, y) meets the target error, from the snapshot. A pixel's
@@ -162,7 +194,7 @@ static int meets_calibrated(sched_t *s, int x, int y, uint32_t nb)
 int sched_meets_target(sched_t *s, int x, int y)
 {
     uint32_t nb = sched_snap_row(s, y)->nb[x];
-    if (nb < SCHED_TARGET_MIN_LAYERS)
+    if (nb < sched_target_layers(s))
         return 0;
     if (s->crv)
         return meets_calibrated(s, x, y, nb);

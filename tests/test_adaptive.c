@@ -143,9 +143,10 @@ START_TEST(test_target_error_stops_early)
     }
     /* stopped well before 4096 spp everywhere, and not uniformly */
     ck_assert_msg(total < 0.5 * 4096 * 24 * 24, "took %g samples", total);
-    ck_assert_msg(lo >= 16 * SCHED_TARGET_MIN_LAYERS,
+    /* (the default: 2 replicates) */
+    ck_assert_msg(lo >= 16 * SCHED_TARGET_CALIBRATED_LAYERS,
                   "a pixel stopped after %g samples (before %d layers)", lo,
-                  SCHED_TARGET_MIN_LAYERS);
+                  SCHED_TARGET_CALIBRATED_LAYERS);
     ck_assert_msg(hi > lo, "every pixel took %g samples", lo);
     /* the summary says which pixels the rule stopped and which ran to the cap */
     char want[160];

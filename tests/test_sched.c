@@ -569,11 +569,15 @@ static double one_noisy(uint32_t p, uint32_t layer)
 /* Runs a 16 x 1 job of `layers` layers of G = 4 under a target error on
  * layer means f, whose pixel 10 is the noisy one: the pixels with it in
  * their window run to the cap, the others stop after their first
- * SCHED_TARGET_MIN_LAYERS layers (decided two layers later: within 2
- * more), pixel 10 too; or every pixel runs to the cap. */
+ * SCHED_TARGET_MIN_LAYERS layers (SCHED_TARGET_CALIBRATED_LAYERS with
+ * replicates; decided two layers later: within 2 more), pixel 10 too; or
+ * every pixel runs to the cap. */
 static void run_noisy_one(lum_fn f, uint32_t layers, uint32_t replicates, int all_to_cap,
                           const char *what)
 {
+    /* the layers a pixel's statistics come from (sched.h) */
+    const uint32_t first =
+        replicates > 1 ? SCHED_TARGET_CALIBRATED_LAYERS : SCHED_TARGET_MIN_LAYERS;
     char err[256];
     sched_config_t c = {.width = 16,
                         .height = 1,
@@ -599,8 +603,7 @@ static void run_noisy_one(lum_fn f, uint32_t layers, uint32_t replicates, int al
             ck_assert_msg(n == cap, "%s: pixel %u took %llu samples, not the cap", what, p,
                           (unsigned long long)n);
         else
-            ck_assert_msg(n >= 4u * SCHED_TARGET_MIN_LAYERS &&
-                              n <= 4u * (SCHED_TARGET_MIN_LAYERS + 2),
+            ck_assert_msg(n >= 4u * first && n <= 4u * (first + 2),
                           "%s: pixel %u took %llu samples", what, p, (unsigned long long)n);
     }
     sched_destroy(&s);
@@ -631,13 +634,13 @@ static double swinging_chunks(uint32_t p, uint32_t layer)
 /* With replicates the target reads the calibrated error (sched_target.c):
  * the replicates' spread over a pixel's first layers, the mean of its
  * neighbours'. The pixels whose replicates agree stop after their first
- * SCHED_TARGET_MIN_LAYERS layers, however their layers swing, but those
+ * SCHED_TARGET_CALIBRATED_LAYERS layers, however their layers swing, but those
  * with pixel 10 in their window go on to the cap; so does every pixel when
  * the job has one sequence (the layer means' spread) or no target. */
 START_TEST(test_target_calibrated_by_replicates)
 {
-    run_noisy_one(swinging_chunks, 24, 1, 1, "one sequence");
-    run_noisy_one(swinging_chunks, 24, 2, 0, "2 replicates");
+    run_noisy_one(swinging_chunks, 32, 1, 1, "one sequence");
+    run_noisy_one(swinging_chunks, 32, 2, 0, "2 replicates");
 }
 END_TEST
 
@@ -1494,9 +1497,17 @@ static const ckpt_case_t ckpt_cases[] = {
     /* a checkpoint of version 7: the replicates' sums */
     {"relmse, 3 replicates",
      {CK_BASE, .adaptive = SCHED_ADAPTIVE_RELMSE, .uniform_layers = 3, .replicates = 3}},
-    /* version 8: and the calibrated statistics the target reads */
+    /* version 8: and the calibrated statistics the target reads (layers
+     * enough for them: SCHED_TARGET_CALIBRATED_LAYERS) */
     {"relmse, 2 replicates, target error",
-     {CK_BASE, .adaptive = SCHED_ADAPTIVE_RELMSE, .uniform_layers = 6, .target_error = 0.5,
+     {.width = 11,
+      .height = 9,
+      .spp = 4 * 24,
+      .granularity = 4,
+      .range_pixels = 7,
+      .adaptive = SCHED_ADAPTIVE_RELMSE,
+      .uniform_layers = 6,
+      .target_error = 0.5,
       .replicates = 2}},
 };
 
@@ -1616,15 +1627,22 @@ static void expect_load_refused(const sched_config_t *c, membuf_t *m, const char
                                 const char *want);
 START_TEST(test_checkpoint_calibrated_version)
 {
-    sched_config_t c = {CK_BASE, .adaptive = SCHED_ADAPTIVE_NONE, .uniform_layers = 3,
-                        .target_error = 0.5, .replicates = 2};
+    sched_config_t c = {.width = 11,
+                        .height = 9,
+                        .spp = 4 * 24,
+                        .granularity = 4,
+                        .range_pixels = 7,
+                        .adaptive = SCHED_ADAPTIVE_NONE,
+                        .uniform_layers = 3,
+                        .target_error = 0.5,
+                        .replicates = 2};
     char err[256] = "";
     sim_t a = {.workers = 2, .seed = 5};
     a.s = sched_new(&c, err, sizeof err);
     ck_assert_msg(a.s != NULL, "%s", err);
-    /* past the first SCHED_TARGET_MIN_LAYERS layers of most pixels */
+    /* past the first SCHED_TARGET_CALIBRATED_LAYERS layers of most pixels */
     const uint32_t ranges = (11 * 9 + 6) / 7;
-    for (uint32_t i = 0; i < ranges * (SCHED_TARGET_MIN_LAYERS + 1) && sim_step(&a); i++)
+    for (uint32_t i = 0; i < ranges * (SCHED_TARGET_CALIBRATED_LAYERS + 1) && sim_step(&a); i++)
         ;
     membuf_t buf = save_mem(a.s);
     uint32_t version;

@@ -50,6 +50,9 @@ REF_CAP = int(os.environ.get("VB_COV_REF_CAP", str(2 ** 20 // 32)))
 # VB_COV_MASTER=0: the simulation alone (no master runs); VB_COV_RULES: the rules of
 # target.py simulated besides the shipped one, each reported with its share and samples
 MASTER = os.environ.get("VB_COV_MASTER", "1") == "1"
+# the master's --adaptive: none (what the simulation replays, pixel for pixel), or a
+# rule (relmse, the default): then its share alone, its samples not compared
+ADAPTIVE = os.environ.get("VB_COV_ADAPTIVE", "none")
 RULES = [r for r in T.RULES if r.name in os.environ.get("VB_COV_RULES", T.SHIPPED.name).split(",")]
 SEEDS = {"pilot": 2000001, "reference": 2000011, "run": 7}
 G = T.CFG["granularity"]
@@ -89,9 +92,9 @@ def judge(est, ref, sigma, E):
 
 
 def master(scene, name, E, C, cap):
-    out = os.path.join(T.WORK, f"cov-{name.replace('/', '-')}-{SIZE}-E{E}-C{C}.exr")
+    out = os.path.join(T.WORK, f"cov-{name.replace('/', '-')}-{SIZE}-E{E}-C{C}-{ADAPTIVE}.exr")
     cmd = [os.path.join(ROOT, "bin", "vbrender"), "render", scene, "-o", out, "--spp", str(cap),
-           "--adaptive", "none", "--seed", str(SEEDS["run"]), "--target-error", str(E),
+           "--adaptive", ADAPTIVE, "--seed", str(SEEDS["run"]), "--target-error", str(E),
            "--confidence", str(C), "--workers", "2", "--threads", "1", "--progress", "none"]
     t0 = time.time()
     p = subprocess.run(cmd, check=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -132,7 +135,8 @@ def main():
                 m_est, spp, secs, summary = master(scene, name, E, C, T.CFG["run_layers"] * G)
                 got = judge(m_est, ref, sigma, E)
                 traced = layers < run_counts  # the simulation saw the whole story
-                same = float(np.mean(spp[traced] == layers[traced] * G)) if traced.any() else None
+                same = (float(np.mean(spp[traced] == layers[traced] * G)) if traced.any() and ADAPTIVE == "none"
+                        else None)
                 row = {"scene": name, "E": E, "C": C, "size": SIZE, "master": got, "simulated": sim,
                        "mean_spp": float(spp.mean()), "capped_pixels": int((spp >= T.CFG["run_layers"] * G).sum()),
                        "capped_simulated": capped_sim, "simulated_rules": rules, "pixels_with_simulated_samples": same,
@@ -145,7 +149,7 @@ def main():
                     f"mean spp {spp.mean():.0f}, capped {row['capped_pixels']}, same as simulated {same}")
     out = os.environ.get("VB_COV_OUT", os.path.join(ROOT, "bench", "results", "coverage.json"))
     with open(out, "w") as f:
-        json.dump({"size": SIZE, "ref_replicates": REF_REPLICATES, "ref_floor_layers": REF_FLOOR,
+        json.dump({"size": SIZE, "adaptive": ADAPTIVE, "ref_replicates": REF_REPLICATES, "ref_floor_layers": REF_FLOOR,
                    "ref_cap_layers": REF_CAP, "rule": T.SHIPPED.name, "rows": rows}, f, indent=1)
     print(f"{'scene':15s} {'E':>5s} {'C':>5s} {'share':>6s} {'ok':>3s} {'missed':>6s} {'dark':>5s} "
           f"{'unjudg.':>7s} {'counted':>7s} {'mean spp':>9s} {'capped':>6s}")

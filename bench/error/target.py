@@ -244,13 +244,14 @@ class Rule:
     """A per-pixel stopping rule: 'fires' from Welford state after a layer."""
 
     def __init__(self, name, min_batches=4, confidence_scale=1.0, confirm=0, pool=0, pool_max=False,
-                 neighbours=0, frozen=0, replicates=0, dof=None, doc=""):
+                 neighbours=0, frozen=0, replicates=0, dof=None, ucb=0.0, doc=""):
         self.name, self.min_batches, self.confirm, self.doc = name, min_batches, confirm, doc
         # replicates > 0 (with frozen): a pixel's relative variance per layer from the
         # spread of its replicates' means over its first `frozen` layers (layer k is
         # replicate k mod R's), the window's mean taken (max if pool_max), the pixel
         # left out; the t factor's degrees of freedom `dof` (None: the layers')
         self.replicates, self.dof = replicates, dof
+        self.ucb = ucb  # > 0: the window's mean plus ucb standard errors of it
         self.pool, self.pool_max = pool, pool_max  # window radius, max instead of mean
         # frozen > 0: every pixel's variance from its first `frozen` layers only, and the
         # window's largest taken over the neighbours, the pixel itself left out
@@ -268,14 +269,20 @@ RULES = [
              "largest among its 24 "
              "neighbours in the 5x5 window, each over its first 8 layers only (unbiased: a pixel's stop "
              "never depends on its own values)"),
-    Rule("calibrated5", pool=2, frozen=8, min_batches=8, replicates=max(REPLICATES, 2), confidence_scale=2,
-         doc="as shipped (replicates, the default): the replicates' spread over each pixel's first 8 layers "
+    Rule("calibrated5", pool=2, frozen=16, min_batches=16, replicates=max(REPLICATES, 2), confidence_scale=2,
+         ucb=1.0,
+         doc="as shipped (replicates, the default): the replicates' spread over each pixel's first 16 layers "
              "(the calibrated error), its mean over the 24 neighbours of the 5x5 window, the pixel left "
-             "out; t with their degrees of freedom (R - 1 each), at half the alpha (1 - C) / 2"),
-    Rule("calibrated5-alpha", pool=2, frozen=8, min_batches=8, replicates=max(REPLICATES, 2),
-         doc="calibrated5 at the confidence asked for, C itself"),
-    Rule("calibrated5-max", pool=2, pool_max=True, frozen=8, min_batches=8, replicates=max(REPLICATES, 2),
-         doc="calibrated5 with the neighbours' largest instead of their mean"),
+             "out, plus one standard error of that mean; t with their degrees of freedom (R - 1 each), at "
+             "half the alpha (1 - C) / 2"),
+    Rule("calibrated8", pool=2, frozen=8, min_batches=8, replicates=max(REPLICATES, 2), confidence_scale=2,
+         doc="calibrated5 over the first 8 layers, the neighbours' mean alone"),
+    Rule("calibrated8-alpha", pool=2, frozen=8, min_batches=8, replicates=max(REPLICATES, 2),
+         doc="calibrated8 at the confidence asked for, C itself"),
+    Rule("calibrated32", pool=2, frozen=32, min_batches=32, replicates=max(REPLICATES, 2), confidence_scale=2,
+         doc="calibrated8 over the first 32 layers"),
+    Rule("calibrated8-max", pool=2, pool_max=True, frozen=8, min_batches=8, replicates=max(REPLICATES, 2),
+         doc="calibrated8-alpha with the neighbours' largest instead of their mean"),
     Rule("window5", pool=2, pool_max=True,
          doc="the largest in the 5x5 window, the pixel included, over all layers taken (before the change)"),
     Rule("own", doc="the pixel's own: t half-width <= E (|mean| + 1e-3) after >= 4 layers (before issue 10)"),
@@ -313,8 +320,9 @@ def window_without_centre(img, radius, pad_value):
     return blocks.max(axis=0)
 
 
-def window_mean_without_centre(img, radius):
-    """The mean over each pixel's (2 radius + 1)^2 window, the pixel and the outside left out."""
+def window_mean_without_centre(img, radius, ucb=0.0):
+    """The mean over each pixel's (2 radius + 1)^2 window, the pixel and the outside left
+    out; ucb > 0: plus ucb standard errors of that mean (the neighbours' spread / sqrt(n))."""
     w = img.shape[0]
     pad = np.pad(img, radius, constant_values=np.nan)
     k = 2 * radius + 1
@@ -322,7 +330,11 @@ def window_mean_without_centre(img, radius):
                        if (dy, dx) != (radius, radius)])
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmean(blocks, axis=0)
+        m = np.nanmean(blocks, axis=0)
+        if ucb > 0:
+            n = np.sum(~np.isnan(blocks), axis=0)
+            m = m + ucb * np.nanstd(blocks, axis=0, ddof=1) / np.sqrt(n)
+        return m
 
 
 def calibrated_rv(run, rule):
@@ -346,7 +358,7 @@ def simulate(data, rule, E, C):
     if rule.replicates:
         crv = calibrated_rv(run, rule).reshape(w, w)
         cv = (window_without_centre(crv, rule.pool, 0.0) if rule.pool_max
-              else window_mean_without_centre(crv, rule.pool)).ravel()
+              else window_mean_without_centre(crv, rule.pool, rule.ucb)).ravel()
         # as master/sched_target.c: t for the neighbours' R - 1 degrees of freedom each
         inside = window(np.ones((w, w)), rule.pool, 0.0, np.sum).ravel() - 1
         dof = (inside * (rule.replicates - 1)).astype(int) if rule.dof is None else np.full(npix, rule.dof)
