@@ -153,7 +153,7 @@ static void add_square_from_mean(double *ctx, double v)
  * few samples misses what is rare: light through the glass sphere
  * reaching the floor shows in one neighbour's replicates, not in the
  * others', and the mean of 24 dilutes it. Over the first 8 layers, at C
- * itself, the glass scene ended with 0.83 to 0.87 of its pixels within E
+ * itself, the glass scene ended with 0.76 to 0.88 of its pixels within E
  * for C = 0.9 and 0.95, the Cornell box at 0.92 to 0.95 (its pixels differ
  * from a typical neighbour: darker, or at an edge). Frozen after 16
  * layers, with the standard error added (what one bright neighbour
