@@ -137,9 +137,10 @@ typedef struct sched_config {
     /* Stopping on a confidence bound: a pixel stops once the t half-width
      * of its mean at `confidence` is <= target_error (mean + eps). Its
      * relative variance per layer is its neighbours' over their first
-     * SCHED_TARGET_MIN_LAYERS layers (SCHED_TARGET_POOL_RADIUS): with
-     * replicates the mean of the calibrated one their replicates give,
-     * without them the largest of their layer means' (sched_target.c). With
+     * layers (SCHED_TARGET_POOL_RADIUS): with replicates the mean of the
+     * calibrated one their replicates give over SCHED_TARGET_CALIBRATED_LAYERS,
+     * plus SCHED_TARGET_UCB standard errors of it; without them the largest
+     * of their layer means' over SCHED_TARGET_MIN_LAYERS (sched_target.c). With
      * relerr or relmse, their neighbours' statistics are those same first
      * layers. The job stops when target_share of the pixels have. 0: off. */
     double target_error;

@@ -33,8 +33,7 @@ typedef struct snap_row {
     int y;          /* the image row held, -1: none */
     double *metric; /* the skip rule's statistic (sched.h) */
     double *rvar;   /* the target error's relative variance */
-    double *rvmax;  /* rvar's maximum over the row's 5-pixel window, itself in
-                       (with replicates: the sum, sched_target_row_max) */
+    double *rvmax;  /* rvar's maximum over the row's 5-pixel window, itself in */
     uint32_t *nb;   /* layer means */
     float *cost;    /* relmse: rays per sample */
 } snap_row_t;
@@ -244,15 +243,15 @@ double sched_target_rvar(const sched_t *s, uint32_t p);
 /* With replicates, once pixel p has merged its sched_target_layers()-th
  * layer (and nothing after it): freezes s->crv[p]. */
 void sched_target_freeze(sched_t *s, uint32_t p);
+/* Row r's rvmax from its rvar (a snapshot row being filled). */
+void sched_target_row_max(const sched_t *s, snap_row_t *r);
+/* Whether pixel (x, y) meets the target error, from the snapshot. */
+int sched_meets_target(sched_t *s, int x, int y);
 
 /* ---- sched_error.c ---- */
 
 /* Pixel p's replicate estimate of the variance of its mean luminance, from
  * the film and s->rep_lum; -1 when fewer than two replicates have samples. */
 double sched_replicate_variance(const sched_t *s, uint32_t p);
-/* Row r's rvmax from its rvar (a snapshot row being filled). */
-void sched_target_row_max(const sched_t *s, snap_row_t *r);
-/* Whether pixel (x, y) meets the target error, from the snapshot. */
-int sched_meets_target(sched_t *s, int x, int y);
 
 #endif
