@@ -566,6 +566,31 @@ static double one_noisy(uint32_t p, uint32_t layer)
     return p == 10 ? (layer % 2 ? 0.2 : 0.8) : 0.5;
 }
 
+/* A 16 x 1 job of `layers` layers of G = 4, ranges of 4 pixels, under
+ * target error E at confidence 0.95. */
+static sched_config_t row_target(uint32_t layers, sched_adaptive_t mode, double E,
+                                 uint32_t replicates)
+{
+    return (sched_config_t){.width = 16,
+                            .height = 1,
+                            .spp = 4 * layers,
+                            .granularity = 4,
+                            .adaptive = mode,
+                            .uniform_layers = UINT32_MAX,
+                            .range_pixels = 4,
+                            .target_error = E,
+                            .confidence = 0.95,
+                            .replicates = replicates};
+}
+
+static sched_t *new_sched(const sched_config_t *c)
+{
+    char err[256];
+    sched_t *s = sched_new(c, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    return s;
+}
+
 /* Runs a 16 x 1 job of `layers` layers of G = 4 under a target error on
  * layer means f, whose pixel 10 is the noisy one: the pixels with it in
  * their window run to the cap, the others stop after their first
@@ -578,19 +603,8 @@ static void run_noisy_one(lum_fn f, uint32_t layers, uint32_t replicates, int al
     /* the layers a pixel's statistics come from (sched.h) */
     const uint32_t first =
         replicates > 1 ? SCHED_TARGET_CALIBRATED_LAYERS : SCHED_TARGET_MIN_LAYERS;
-    char err[256];
-    sched_config_t c = {.width = 16,
-                        .height = 1,
-                        .spp = 4 * layers,
-                        .granularity = 4,
-                        .adaptive = SCHED_ADAPTIVE_NONE,
-                        .uniform_layers = UINT32_MAX,
-                        .range_pixels = 4,
-                        .target_error = 0.05,
-                        .confidence = 0.95,
-                        .replicates = replicates};
-    sched_t *s = sched_new(&c, err, sizeof err);
-    ck_assert_msg(s != NULL, "%s", err);
+    sched_config_t c = row_target(layers, SCHED_ADAPTIVE_NONE, 0.05, replicates);
+    sched_t *s = new_sched(&c);
     run_all(s, f, 4);
     ck_assert(sched_done(s));
     const uint64_t cap = c.spp;
@@ -653,19 +667,9 @@ END_TEST
  * mode ends with every pixel at the target, as without a rule. */
 START_TEST(test_target_with_adaptive_rule_converges_all)
 {
-    char err[256];
     for (int mode = SCHED_ADAPTIVE_NONE; mode <= SCHED_ADAPTIVE_RELMSE; mode++) {
-        sched_config_t c = {.width = 16,
-                            .height = 1,
-                            .spp = 4 * 400,
-                            .granularity = 4,
-                            .adaptive = (sched_adaptive_t)mode,
-                            .uniform_layers = UINT32_MAX,
-                            .range_pixels = 4,
-                            .target_error = 0.2,
-                            .confidence = 0.95};
-        sched_t *s = sched_new(&c, err, sizeof err);
-        ck_assert_msg(s != NULL, "%s", err);
+        sched_config_t c = row_target(400, (sched_adaptive_t)mode, 0.2, 1);
+        sched_t *s = new_sched(&c);
         run_all(s, one_noisy, 4);
         ck_assert(sched_done(s));
         ck_assert_msg(sched_converged(s) == 16 && sched_stopped_on_target(s),
@@ -1471,6 +1475,11 @@ typedef struct ckpt_case {
 } ckpt_case_t;
 
 #define CK_BASE .width = 11, .height = 9, .spp = 48, .granularity = 4, .range_pixels = 7
+/* CK_BASE with layers enough for the calibrated target's statistics
+ * (SCHED_TARGET_CALIBRATED_LAYERS), 2 replicates and a target error */
+#define CK_CALIBRATED                                                                              \
+    .width = 11, .height = 9, .spp = 4 * 24, .granularity = 4, .range_pixels = 7,                  \
+    .target_error = 0.5, .replicates = 2
 static const ckpt_case_t ckpt_cases[] = {
     {"uniform", {CK_BASE, .adaptive = SCHED_ADAPTIVE_NONE, .uniform_layers = 3}},
     {"thesis", {CK_BASE, .adaptive = SCHED_ADAPTIVE_THESIS, .uniform_layers = 3}},
@@ -1500,15 +1509,7 @@ static const ckpt_case_t ckpt_cases[] = {
     /* version 8: and the calibrated statistics the target reads (layers
      * enough for them: SCHED_TARGET_CALIBRATED_LAYERS) */
     {"relmse, 2 replicates, target error",
-     {.width = 11,
-      .height = 9,
-      .spp = 4 * 24,
-      .granularity = 4,
-      .range_pixels = 7,
-      .adaptive = SCHED_ADAPTIVE_RELMSE,
-      .uniform_layers = 6,
-      .target_error = 0.5,
-      .replicates = 2}},
+     {CK_CALIBRATED, .adaptive = SCHED_ADAPTIVE_RELMSE, .uniform_layers = 6}},
 };
 
 /* THE property of checkpoints: a job saved after any event (tasks out,
@@ -1627,15 +1628,7 @@ static void expect_load_refused(const sched_config_t *c, membuf_t *m, const char
                                 const char *want);
 START_TEST(test_checkpoint_calibrated_version)
 {
-    sched_config_t c = {.width = 11,
-                        .height = 9,
-                        .spp = 4 * 24,
-                        .granularity = 4,
-                        .range_pixels = 7,
-                        .adaptive = SCHED_ADAPTIVE_NONE,
-                        .uniform_layers = 3,
-                        .target_error = 0.5,
-                        .replicates = 2};
+    sched_config_t c = {CK_CALIBRATED, .adaptive = SCHED_ADAPTIVE_NONE, .uniform_layers = 3};
     char err[256] = "";
     sim_t a = {.workers = 2, .seed = 5};
     a.s = sched_new(&c, err, sizeof err);
