@@ -259,6 +259,25 @@ static double neighbour_cost(const float *const rows[3], int x, int w)
     return k && sum > k ? sum / k : 1.0;
 }
 
+/* The sums the skip rule's spread test reads (SCHED_ALIKE_SPREAD): over the
+ * pixels whose own and neighbours' statistics are both known, each
+ * pixel's own per-ray statistic o and its neighbours' mean q. */
+typedef struct spread_sums {
+    double n, o, q, oq;
+} spread_sums_t;
+
+/* Whether the pixels' statistics differ by more than their noise: the
+ * covariance of o and q over pixels (a pixel's noise and its neighbours'
+ * are independent, so only what they share in truth remains), over the
+ * squared mean. */
+static int pixels_differ(const spread_sums_t *t)
+{
+    if (t->n < 2)
+        return 1; /* nothing to tell them apart by: the rule as it is */
+    const double mo = t->o / t->n, mq = t->q / t->n;
+    return t->oq / t->n - mo * mq > SCHED_ALIKE_SPREAD * mo * mq;
+}
+
 /* The skip rule's statistic for the pixels of row y, into out. relerr and relmse: the
  * relative variance of a layer mean, measured over the uniform layers only,
  * is the mean over the pixel's 3x3 neighbours, the pixel itself left out;
@@ -273,8 +292,9 @@ static double neighbour_cost(const float *const rows[3], int x, int w)
  * layers for it: still -2 to -3 % in test_sched). So nothing that decides
  * how many layers a pixel gets depends on its own samples, and its mean
  * stays unbiased (but for its 1/npix share in the threshold). thesis and
- * variance: the pixel's own. */
-static void metric_row(sched_t *s, int y, double *out)
+ * variance: the pixel's own. With spread, each pixel's own statistic and
+ * its neighbours' mean, both per ray, go into its sums (pixels_differ). */
+static void metric_row(sched_t *s, int y, double *out, spread_sums_t *spread)
 {
     const sched_rule_t *rule = rule_of(s);
     const int w = (int)s->cfg.width, h = (int)s->cfg.height;
@@ -301,10 +321,20 @@ static void metric_row(sched_t *s, int y, double *out)
         }
         const double rv = k ? sum / k : self->metric[x]; /* a 1 x 1 image has only itself */
         const uint32_t nb = self->nb[x];
-        if (nb < 2 || !isfinite(rv))
+        const double cost = rule->weighs_cost ? neighbour_cost(c, x, w) : 1.0;
+        if (nb < 2 || !isfinite(rv)) {
             out[x] = INFINITY; /* sampled until it and its neighbours have two */
-        else
-            out[x] = rule->pooled(s, rv, nb, rule->weighs_cost ? neighbour_cost(c, x, w) : 1.0);
+            continue;
+        }
+        out[x] = rule->pooled(s, rv, nb, cost);
+        if (spread && isfinite(self->metric[x])) {
+            const double own_cost = rule->weighs_cost && self->cost[x] > 1 ? self->cost[x] : 1.0,
+                         o = self->metric[x] / own_cost, q = rv / cost;
+            spread->n++;
+            spread->o += o;
+            spread->q += q;
+            spread->oq += o * q;
+        }
     }
 }
 
@@ -321,7 +351,7 @@ static const uint8_t *select_row(sched_t *s, int y, uint32_t layer, int skip_rul
         if (metric_of) {
             m = metric_of + (size_t)y * w;
         } else {
-            metric_row(s, y, s->row_metric);
+            metric_row(s, y, s->row_metric, NULL);
             m = s->row_metric;
         }
     }
@@ -349,7 +379,9 @@ void sched_decide_layer(sched_t *s, uint32_t layer)
     if (layer >= s->layers || layer != s->decided_n)
         return;
     const int w = (int)s->cfg.width, h = (int)s->cfg.height;
-    const int skip_rule = sched_applies_skip_rule(s, layer), target = s->cfg.target_error > 0;
+    int skip_rule = sched_applies_skip_rule(s, layer);
+    const int target = s->cfg.target_error > 0;
+    spread_sums_t spread = {0, 0, 0, 0};
     ring_reset(s);
     /* the mean over pixels (eq. 4.3); pixels without a value yet (inf)
      * are sampled anyway and left out of the mean. One pass for it and the
@@ -366,7 +398,7 @@ void sched_decide_layer(sched_t *s, uint32_t layer)
         for (int y = 0; y < h; y++) {
             double *row = metric_of ? metric_of + (size_t)y * (size_t)w : s->row_metric;
             if (skip_rule)
-                metric_row(s, y, row);
+                metric_row(s, y, row, &spread);
             for (int x = 0; x < w; x++) {
                 const size_t p = (size_t)y * (size_t)w + (size_t)x;
                 int c = 0;
@@ -396,6 +428,9 @@ void sched_decide_layer(sched_t *s, uint32_t layer)
             }
         }
     threshold = n ? threshold / (double)n : 0.0;
+    /* pixels all alike: the layer stays uniform (SCHED_ALIKE_SPREAD) */
+    if (skip_rule && sched_pools_neighbours(s) && !pixels_differ(&spread))
+        skip_rule = 0;
     s->converged = conv;
     int stop_all = target && (double)conv >= s->cfg.target_share * s->npix;
     if (stop_all && !s->stopped_on_target)
