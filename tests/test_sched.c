@@ -791,6 +791,24 @@ START_TEST(test_relmse_weighs_cost)
 }
 END_TEST
 
+/* A job of 64 x height pixels, G = 4, its layers, 8 of them uniform, run to
+ * its end on the layer means f gives. */
+static sched_t *run_64_wide(sched_adaptive_t mode, uint32_t height, uint32_t layers, lum_fn f)
+{
+    char err[256];
+    sched_config_t c = {.width = 64,
+                        .height = height,
+                        .spp = 4 * layers,
+                        .granularity = 4,
+                        .adaptive = mode,
+                        .uniform_layers = 8,
+                        .range_pixels = 64};
+    sched_t *s = sched_new(&c, err, sizeof err);
+    ck_assert_msg(s != NULL, "%s", err);
+    run_all(s, f, 4);
+    return s;
+}
+
 /* every pixel the same: layer means 0.3 to 0.7, hashed from pixel and layer */
 static double alike_noise(uint32_t p, uint32_t layer)
 {
@@ -813,20 +831,10 @@ static double half_noisier(uint32_t p, uint32_t layer)
  * as noisy. */
 START_TEST(test_alike_pixels_stay_uniform)
 {
-    char err[256];
     const sched_adaptive_t modes[] = {SCHED_ADAPTIVE_RELMSE, SCHED_ADAPTIVE_RELERR,
                                       SCHED_ADAPTIVE_THESIS, SCHED_ADAPTIVE_RELMSE};
     for (int k = 0; k < 4; k++) {
-        sched_config_t c = {.width = 64,
-                            .height = 32,
-                            .spp = 4 * 40,
-                            .granularity = 4,
-                            .adaptive = modes[k],
-                            .uniform_layers = 8,
-                            .range_pixels = 64};
-        sched_t *s = sched_new(&c, err, sizeof err);
-        ck_assert_msg(s != NULL, "%s", err);
-        run_all(s, k < 3 ? alike_noise : half_noisier, 4);
+        sched_t *s = run_64_wide(modes[k], 32, 40, k < 3 ? alike_noise : half_noisier);
         const uint64_t skipped = sched_pixel_layers_skipped(s);
         if (k < 2)
             ck_assert_msg(skipped == 0, "%s: %llu pixel-layers skipped",
@@ -932,26 +940,14 @@ static film_summary_t summarise(const film_t *f, uint32_t npix)
  * biased: the test shows the effect is real, not an accident of the data. */
 START_TEST(test_adaptive_unbiased)
 {
-    char err[256];
     const sched_adaptive_t modes[] = {SCHED_ADAPTIVE_RELMSE, SCHED_ADAPTIVE_RELERR,
                                       SCHED_ADAPTIVE_VARIANCE};
     for (int k = 0; k < 3; k++) {
-        sched_config_t c = {.width = 64,
-                            .height = 64,
-                            .spp = 4 * 48,
-                            .granularity = 4,
-                            .adaptive = modes[k],
-                            .uniform_layers = 8,
-                            .range_pixels = 64};
-        sched_t *s = sched_new(&c, err, sizeof err);
-        ck_assert_msg(s != NULL, "%s", err);
-        run_all(s, rare_bright, 4);
+        sched_t *s = run_64_wide(modes[k], 64, 48, rare_bright);
         film_summary_t fs = summarise(sched_film(s), 4096);
         double mean = fs.mean, sd = fs.sd;
         uint64_t least = fs.least, most = fs.most;
-        char name[64];
-        snprintf(name, sizeof name, "%s, %u replicates", sched_adaptive_name(modes[k % 2]),
-                 c.replicates);
+        const char *name = sched_adaptive_name(modes[k]);
         /* it adapted: some pixels took twice the layers of others */
         ck_assert_msg(2 * least <= most, "%s: samples %llu..%llu", name, (unsigned long long)least,
                       (unsigned long long)most);
