@@ -41,6 +41,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/file.h>
 #include <sys/prctl.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
@@ -393,13 +394,37 @@ static void teardown(void)
 
 /* ---- ports and daemons -------------------------------------------------- */
 
-/* Two consecutive ports (workers, control) per slot, from a base that
- * depends on the pid so that suites running side by side do not collide,
- * below Linux's ephemeral range (32768 and up), where the source port of
- * any connection on the machine could take them. */
+/* Two consecutive ports (workers, control) per slot, from a base of 20
+ * ports below Linux's ephemeral range (32768 and up, where the source port
+ * of any connection on the machine could take them). The base is this
+ * process's alone: it holds a lock on a file named for it for as long as it
+ * runs, so that cases running side by side (run-suites.sh -j) never share
+ * one. A base from the pid alone let two cases collide, and a master
+ * restarted on its port answered the other case's clients. */
+#define PORT_BASES 200
+#define PORT_BASE_LOCKS "/tmp/vbrender-test-ports-%d.lock"
+static int port_base(void)
+{
+    static int base = -1;
+    for (int k = 0; base < 0 && k < PORT_BASES; k++) {
+        const int b = (int)((getpid() + k) % PORT_BASES);
+        char path[64];
+        snprintf(path, sizeof path, PORT_BASE_LOCKS, b);
+        int fd = open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0666);
+        if (fd < 0)
+            continue;
+        if (flock(fd, LOCK_EX | LOCK_NB) == 0)
+            base = 20000 + b * 20; /* fd stays open: the lock lasts the process */
+        else
+            close(fd);
+    }
+    ck_assert_msg(base >= 0, "no port base free of other test processes (" PORT_BASE_LOCKS ")", 0);
+    return base;
+}
+
 static int slot_port(int slot)
 {
-    return 20000 + (int)(getpid() % 200) * 20 + 2 * slot;
+    return port_base() + 2 * slot;
 }
 
 /* Runs the client ("BIN ARGS", inside ns unless NULL), bounded by a
