@@ -221,7 +221,7 @@ snap_row_t *sched_snap_row(sched_t *s, int y)
             r->cost[x] = cost ? s->prev_cost[p] : 0;
         }
     }
-    if (target)
+    if (target && !s->crv) /* the calibrated rule reads no maxima */
         sched_target_row_max(s, r);
     return r;
 }

@@ -32,6 +32,7 @@ The real master is checked against this simulation by the study (study.py).
 
 Writes bench/results/target.json and prints a table per E.
 """
+import hashlib
 import json
 import math
 import os
@@ -161,12 +162,47 @@ def sized_scene(name, size):
 REPLICATES = env_int("VB_TARGET_REPLICATES", 2)
 
 
+def shown_path(p):
+    """A path as a cache file's command records it: from the root when under it."""
+    return os.path.relpath(p, ROOT) if p.startswith(ROOT) else p
+
+
+def adopt_legacy(legacy, new, counts):
+    """A cache file of before the counts named it: taken over (renamed) when
+    its counts file holds exactly these counts."""
+    if os.path.exists(new + ".f64") or not os.path.exists(legacy + ".f64"):
+        return
+    try:
+        same = np.array_equal(np.fromfile(legacy + ".counts", dtype="<u4"), counts.astype("<u4"))
+    except OSError:
+        same = False
+    if not same or not os.path.exists(legacy + ".f64.json"):
+        return
+    # its command named its output and counts files by the old name
+    with open(legacy + ".f64.json") as f:
+        meta = json.load(f)
+    renamed = {shown_path(legacy + ext): shown_path(new + ext) for ext in (".f64", ".counts")}
+    meta["want"]["cmd"] = [renamed.get(c, c) for c in meta["want"]["cmd"]]
+    with open(new + ".f64.json", "w") as f:
+        json.dump(meta, f)
+    os.remove(legacy + ".f64.json")
+    os.replace(legacy + ".f64", new + ".f64")
+    os.replace(legacy + ".counts", new + ".counts")
+
+
 def batches(scene, size, tag, layers, seed, counts=None, summary=False, replicates=None):
     """Runs bench_batches once (cached by its arguments) and returns the array."""
     npix = size * size
     replicates = REPLICATES if replicates is None else replicates
     rtag = "" if replicates == 1 else f"-rep{replicates}"
     key = f"{os.path.splitext(os.path.basename(scene))[0]}-{tag}-{layers}-{seed}{rtag}{'-sum' if summary else ''}"
+    if counts is not None:
+        # per-pixel counts name the file too: runs with another smallest E (the
+        # coverage's references) have other counts under the same largest one,
+        # and re-rendered over each other's files
+        legacy = os.path.join(WORK, key)
+        key += "-c" + hashlib.sha256(counts.astype("<u4").tobytes()).hexdigest()[:12]
+        adopt_legacy(legacy, os.path.join(WORK, key), counts)
     out = os.path.join(WORK, key + ".f64")
     cmd = [BATCHES, scene, out, "--layers", str(layers), "--granularity", str(CFG["granularity"]),
            "--seed", str(seed), "--threads", str(CFG["threads"])]
@@ -179,7 +215,7 @@ def batches(scene, size, tag, layers, seed, counts=None, summary=False, replicat
     if summary:
         cmd.append("--summary")
     meta = out + ".json"
-    want = {"cmd": [os.path.relpath(c, ROOT) if c.startswith(ROOT) else c for c in cmd],
+    want = {"cmd": [shown_path(c) for c in cmd],
             "counts_sum": None if counts is None else int(counts.sum())}
     if not (os.path.exists(out) and os.path.exists(meta) and json.load(open(meta)).get("want") == want):
         t0 = time.time()
