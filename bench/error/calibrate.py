@@ -34,7 +34,7 @@ throughout (the `variance` channel is luminance's).
     bench/venv/bin/python bench/error/calibrate.py      (after make all)
 Environment: VB_CAL_SCENES (comma list), VB_CAL_SIZE (32), VB_CAL_SPPS
 (256,1024), VB_CAL_K (16), VB_CAL_REPS (2,4,8), VB_CAL_WINDOWS (5,9),
-VB_CAL_THREADS (all cores). A scene "mitsuba/NAME" is the shipped
+VB_CAL_THREADS (all cores), VB_CAL_OUT (the JSON written). A scene "mitsuba/NAME" is the shipped
 scenes/mitsuba/NAME.xml at -D res=SIZE. Writes bench/results/calibration.json.
 """
 import json
@@ -51,7 +51,7 @@ import target  # noqa: E402  (its resized scenes)
 ROOT = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 VB = os.path.join(ROOT, "bin", "vbrender")
 WORK = os.path.join(ROOT, "bench", "work", "calibrate")
-OUT = os.path.join(ROOT, "bench", "results", "calibration.json")
+OUT = os.environ.get("VB_CAL_OUT", os.path.join(ROOT, "bench", "results", "calibration.json"))
 
 
 def env_list(name, default, conv=int):
