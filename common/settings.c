@@ -78,8 +78,10 @@ static const settings_def_t table[] = {
              "--replicates 1, their layers' spread, larger).\n"
              "Light that no path has found yet\n"
              "(a pixel seen only by rare paths) looks converged:\n"
-             "no rule can vouch for it. The summary counts the\n"
-             "pixels the rule stopped and those that ran to --spp"},
+             "no rule can vouch for it. Every pixel short of E\n"
+             "takes every layer (--adaptive's skip rule is off).\n"
+             "The summary counts the pixels the rule stopped and\n"
+             "those that ran to --spp"},
     {.flag = "--confidence",
      .key = "confidence",
      .metavar = "C",

@@ -156,9 +156,11 @@ typedef struct sched_config {
      * layers (SCHED_TARGET_POOL_RADIUS): with replicates the mean of the
      * calibrated one their replicates give over SCHED_TARGET_CALIBRATED_LAYERS,
      * plus SCHED_TARGET_UCB standard errors of it; without them the largest
-     * of their layer means' over SCHED_TARGET_MIN_LAYERS (sched_target.c). With
-     * relerr or relmse, their neighbours' statistics are those same first
-     * layers. The job stops when target_share of the pixels have. 0: off. */
+     * of their layer means' over SCHED_TARGET_MIN_LAYERS (sched_target.c).
+     * The target alone then decides which pixels take a layer: every pixel
+     * short of it takes every layer, whatever the adaptive mode (its skip
+     * rule left pixels short of the target and of the cap at the job's
+     * end). The job stops when target_share of the pixels have. 0: off. */
     double target_error;
     double confidence;   /* 0: JOB_DEFAULT_CONFIDENCE (0.95) */
     double target_share; /* 0: 1.0 */
