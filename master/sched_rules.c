@@ -321,11 +321,11 @@ static void metric_row(sched_t *s, int y, double *out, spread_sums_t *spread)
         }
         const double rv = k ? sum / k : self->metric[x]; /* a 1 x 1 image has only itself */
         const uint32_t nb = self->nb[x];
-        const double cost = rule->weighs_cost ? neighbour_cost(c, x, w) : 1.0;
         if (nb < 2 || !isfinite(rv)) {
             out[x] = INFINITY; /* sampled until it and its neighbours have two */
             continue;
         }
+        const double cost = rule->weighs_cost ? neighbour_cost(c, x, w) : 1.0;
         out[x] = rule->pooled(s, rv, nb, cost);
         if (spread && isfinite(self->metric[x])) {
             const double own_cost = rule->weighs_cost && self->cost[x] > 1 ? self->cost[x] : 1.0,

@@ -34,8 +34,9 @@ throughout (the `variance` channel is luminance's).
     bench/venv/bin/python bench/error/calibrate.py      (after make all)
 Environment: VB_CAL_SCENES (comma list), VB_CAL_SIZE (32), VB_CAL_SPPS
 (256,1024), VB_CAL_K (16), VB_CAL_REPS (2,4,8), VB_CAL_WINDOWS (5,9),
-VB_CAL_THREADS (all cores), VB_CAL_OUT (the JSON written). A scene "mitsuba/NAME" is the shipped
-scenes/mitsuba/NAME.xml at -D res=SIZE. Writes bench/results/calibration.json.
+VB_CAL_THREADS (all cores). A scene "mitsuba/NAME" is the shipped
+scenes/mitsuba/NAME.xml at -D res=SIZE. Writes bench/results/calibration.json,
+or the file VB_CAL_OUT names.
 """
 import json
 import os
