@@ -106,6 +106,9 @@ def run(flat, scene, ref, meta, seed, mode):
         if best is None or s["t"][-1] < best["t"][-1]:
             best = s
     best["stats"]["seconds_of_each_run"] = seconds
+    # the pixel-layers the adaptive rule skipped (0: the run traced uniform's layers)
+    with open(out[:-4] + ".error.json") as f:
+        best["skipped"] = json.load(f).get("job", {}).get("pixel_layers_skipped")
     return best
 
 
@@ -197,6 +200,13 @@ def table(R):
             "|---|---|---|---|---|--:|--:|--:|---|---|--:|--:|---|--:|"]
     for name, sc in R["scenes"].items():
         for m, r in sc["modes"].items():
+            if all(x.get("pixel_layers_skipped") == 0 for x in r["runs"]):
+                # every layer uniform (the pixels all alike: SCHED_ALIKE_SPREAD): the
+                # same image as uniform's at every layer, so a ratio at equal time
+                # or rays measures where each run's clock or series point fell
+                rows.append(f"| {name} | {m} | uniform's layers in every run (0 pixel-layers skipped): "
+                            "its image is uniform's at every layer |" + " - |" * 12)
+                continue
             def col(key):
                 return " ".join(f"{x[key]:.3f}" if x[key] else "-" for x in r["runs"])
             sps = np.mean([x["samples_per_second_over_uniform"] for x in r["runs"]])
@@ -262,7 +272,8 @@ def main():
                 cn = S.compare_curves(un, an, npix)
                 c = S.compare_curves(u, a, npix)
                 er_final, er_worst = equal_rays(u, a, ul)
-                rows.append({"final_equal_time": c["relmse_equal_time"]["ratio"],
+                rows.append({"pixel_layers_skipped": a.get("skipped"),
+                             "final_equal_time": c["relmse_equal_time"]["ratio"],
                              "final_equal_samples": c["relmse_equal_samples"]["ratio"],
                              "worst_after_uniform": (c["relmse_worst_equal_time_after_uniform_layers"] or {})
                              .get("ratio"),
