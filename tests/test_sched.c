@@ -791,22 +791,30 @@ START_TEST(test_relmse_weighs_cost)
 }
 END_TEST
 
-/* A job of 64 x height pixels, G = 4, its layers, 8 of them uniform, run to
- * its end on the layer means f gives. */
-static sched_t *run_64_wide(sched_adaptive_t mode, uint32_t height, uint32_t layers, lum_fn f)
+/* A job of 64 x height pixels, G = 4, its layers, 8 of them uniform. */
+static sched_config_t wide_config(sched_adaptive_t mode, uint32_t height, uint32_t layers)
 {
-    char err[256];
-    sched_config_t c = {.width = 64,
-                        .height = height,
-                        .spp = 4 * layers,
-                        .granularity = 4,
-                        .adaptive = mode,
-                        .uniform_layers = 8,
-                        .range_pixels = 64};
-    sched_t *s = sched_new(&c, err, sizeof err);
-    ck_assert_msg(s != NULL, "%s", err);
+    return (sched_config_t){.width = 64,
+                            .height = height,
+                            .spp = 4 * layers,
+                            .granularity = 4,
+                            .adaptive = mode,
+                            .uniform_layers = 8,
+                            .range_pixels = 64};
+}
+
+/* A job run to its end on the layer means f gives. */
+static sched_t *run_config(const sched_config_t *c, lum_fn f)
+{
+    sched_t *s = new_sched(c);
     run_all(s, f, 4);
     return s;
+}
+
+static sched_t *run_64_wide(sched_adaptive_t mode, uint32_t height, uint32_t layers, lum_fn f)
+{
+    sched_config_t c = wide_config(mode, height, layers);
+    return run_config(&c, f);
 }
 
 /* every pixel the same: layer means 0.3 to 0.7, hashed from pixel and layer */
@@ -856,19 +864,10 @@ END_TEST
  * pixels within E where none holds 0.96). */
 START_TEST(test_target_decides_alone)
 {
-    char err[256];
-    sched_config_t c = {.width = 64,
-                        .height = 16,
-                        .spp = 4 * 64,
-                        .granularity = 4,
-                        .uniform_layers = 8,
-                        .range_pixels = 64,
-                        .target_error = 0.1,
-                        .replicates = 2};
-    c.adaptive = SCHED_ADAPTIVE_NONE;
-    sched_t *none = sched_new(&c, err, sizeof err);
-    ck_assert_msg(none != NULL, "%s", err);
-    run_all(none, half_noisier, 4);
+    sched_config_t c = wide_config(SCHED_ADAPTIVE_NONE, 16, 64);
+    c.target_error = 0.1;
+    c.replicates = 2;
+    sched_t *none = run_config(&c, half_noisier);
     const film_t *want = sched_film(none);
     uint32_t capped = 0, stopped = 0;
     for (uint32_t p = 0; p < 64 * 16; p++) {
@@ -879,9 +878,7 @@ START_TEST(test_target_decides_alone)
                   capped, stopped);
     for (int mode = SCHED_ADAPTIVE_THESIS; mode <= SCHED_ADAPTIVE_RELMSE; mode++) {
         c.adaptive = (sched_adaptive_t)mode;
-        sched_t *s = sched_new(&c, err, sizeof err);
-        ck_assert_msg(s != NULL, "%s", err);
-        run_all(s, half_noisier, 4);
+        sched_t *s = run_config(&c, half_noisier);
         const film_t *got = sched_film(s);
         for (uint32_t p = 0; p < 64 * 16; p++)
             ck_assert_msg(got->pixels[p].count == want->pixels[p].count,
