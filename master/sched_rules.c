@@ -132,7 +132,9 @@ int sched_weighs_cost(const sched_t *s)
 
 /* ---- the statistics a decision reads ------------------------------------- */
 
-/* Whether layer's pixels are chosen by the skip rule (rule 3). */
+/* Whether layer's pixels are chosen by the skip rule (rule 3). With a
+ * target error no decision applies it (sched_decide_layer): these layers
+ * then only keep a threshold, zero. */
 int sched_applies_skip_rule(const sched_t *s, uint32_t layer)
 {
     /* relerr and relmse learn only from uniform layers (pool_neighbours):
@@ -141,13 +143,7 @@ int sched_applies_skip_rule(const sched_t *s, uint32_t layer)
      * whose statistics stop growing after SCHED_TARGET_MIN_LAYERS) */
     int refresh =
         sched_pools_neighbours(s) && s->cfg.target_error <= 0 && layer % SCHED_UNIFORM_EVERY == 0;
-    /* with a target error, every pixel first takes the layers its
-     * statistics come from: a pixel that skipped one of them would leave
-     * its neighbours' windows unjudged (infinite) for as long */
-    const uint32_t uniform = s->cfg.target_error > 0 && sched_target_layers(s) > s->uniform
-                                 ? sched_target_layers(s)
-                                 : s->uniform;
-    int flag = s->flags ? s->flags[layer] == '1' : layer >= uniform && !refresh;
+    int flag = s->flags ? s->flags[layer] == '1' : layer >= s->uniform && !refresh;
     return flag && layer >= 2 && s->cfg.adaptive != SCHED_ADAPTIVE_NONE;
 }
 
