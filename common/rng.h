@@ -32,6 +32,7 @@
 #ifndef VB_RNG_H
 #define VB_RNG_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 /* The samplers a job may choose (the wire codes of proto/PROTOCOL.md). */
@@ -43,17 +44,23 @@ typedef enum rng_sampler {
 /* Dimensions below this are quasi-random under the sobol sampler: the
  * camera pair and the first RNG_SOBOL_BOUNCES bounces of tracer.c's layout.
  * Two: on the Cornell box, one, two and four bounces gave the same relMSE
- * at 64 spp (within 5 %), and each pair costs about 25 ns a sample. Every
- * bounce (64) took 2-4 % off the Cornell box's relMSE at 256 and 1024 spp
- * and nothing measurable off the glass scene's, for 12 % and 5 % more time
- * a sample (64x64, 2 and 1 replicates, 6 seeds; bench/RESULTS.md,
- * "Sampler"): a loss at equal time. */
+ * at 64 spp (within 5 %). Every bounce (64) took 2-4 % off the Cornell
+ * box's relMSE at 256 and 1024 spp and nothing measurable off the glass
+ * scene's, for 12 % and 5 % more time a sample with pairs computed one at a
+ * time (64x64, 2 and 1 replicates, 6 seeds; bench/RESULTS.md, "Sampler"),
+ * and still 3.9 % on the Cornell box with the wavefront engine's pairs
+ * computed ahead in vectors (rng_sobol_fill; 256x256, 1 thread, AMD EPYC):
+ * no gain at equal time. */
 #define RNG_SOBOL_BOUNCES 2
 #define RNG_SOBOL_DIMS (2 + 6 * RNG_SOBOL_BOUNCES)
 /* Samples of a pixel per Sobol sequence: 2^24, far past any reference's
  * count (four 6-bit table lookups, rng_sobol1_reversed); the next 2^24 take
  * an independent scramble. */
 #define RNG_SOBOL_INDEX_BITS 24
+
+/* The most pairs one rng_sobol_fill computes ahead for a stream: a
+ * bounce's light pair and BSDF pair. */
+#define RNG_BATCH_PAIRS 2
 
 typedef struct rng_stream {
     uint64_t base;
@@ -64,6 +71,10 @@ typedef struct rng_stream {
     uint32_t sobol;          /* 1 under the sobol sampler */
     uint32_t pair_plus1;     /* sobol: the pair whose two numbers pair_bits holds, + 1 */
     uint32_t pair_bits[2];   /* (a cache: a pair's two numbers cost one shuffle) */
+    /* sobol: pairs batch_pair .. batch_pair + batch_pairs - 1, computed
+     * ahead by rng_sobol_fill for many streams at once */
+    uint32_t batch_pair, batch_pairs;
+    uint32_t batch_bits[2 * RNG_BATCH_PAIRS];
 } rng_stream_t;
 
 /* Stafford's Mix13 finaliser (the one SplitMix64 uses): a bijection on 64
@@ -75,16 +86,37 @@ static inline uint64_t rng_mix64(uint64_t z)
     return z ^ (z >> 31);
 }
 
+/* What every stream of one pixel starts from: (seed, pixel) hashed, once
+ * per task where a task's samples start together (the wavefront engine)
+ * instead of once per sample. */
+typedef struct rng_pixel {
+    uint64_t key;       /* rng_stream's */
+    uint64_t sobol_key; /* rng_stream_sobol's sequences' */
+} rng_pixel_t;
+
+static inline rng_pixel_t rng_pixel(uint64_t seed, uint64_t pixel)
+{
+    rng_pixel_t p;
+    p.key = rng_mix64(rng_mix64(seed + 0x9e3779b97f4a7c15ULL) ^ (pixel * 0xd1b54a32d192ed03ULL));
+    p.sobol_key =
+        rng_mix64(rng_mix64(seed ^ 0x50b01a7e5c4a3b1eULL) ^ (pixel * 0xd1b54a32d192ed03ULL));
+    return p;
+}
+
+/* The stream of sample `sample_index` of pixel p (rng_stream). */
+static inline rng_stream_t rng_stream_at(const rng_pixel_t *p, uint64_t sample_index)
+{
+    rng_stream_t s = {.base = rng_mix64(p->key ^ (sample_index * 0xaef17502108ef2d9ULL))};
+    return s;
+}
+
 /* The stream of sample `sample_index` of pixel `pixel` under `seed`. Each
  * coordinate passes through the bijective mixer in turn, so distinct
  * coordinates give unrelated streams. */
 static inline rng_stream_t rng_stream(uint64_t seed, uint64_t pixel, uint64_t sample_index)
 {
-    uint64_t h = rng_mix64(seed + 0x9e3779b97f4a7c15ULL);
-    h = rng_mix64(h ^ (pixel * 0xd1b54a32d192ed03ULL));
-    h = rng_mix64(h ^ (sample_index * 0xaef17502108ef2d9ULL));
-    rng_stream_t s = {h, 0, 0, 0, 0, 0, 0, {0, 0}};
-    return s;
+    rng_pixel_t p = rng_pixel(seed, pixel);
+    return rng_stream_at(&p, sample_index);
 }
 
 static inline uint32_t rng_reverse32(uint32_t x)
@@ -98,18 +130,23 @@ static inline uint32_t rng_reverse32(uint32_t x)
 /* The sobol stream of sample `sample_index` of pixel `pixel`: point
  * sample_index mod 2^RNG_SOBOL_INDEX_BITS of the pixel's scrambled Sobol
  * sequence number sample_index >> RNG_SOBOL_INDEX_BITS. Dimensions past
- * RNG_SOBOL_DIMS draw from the same hash as rng_stream's. */
-static inline rng_stream_t rng_stream_sobol(uint64_t seed, uint64_t pixel, uint64_t sample_index)
+ * RNG_SOBOL_DIMS draw from the same hash as rng_stream's. rng_stream_sobol_at
+ * is the same from the pixel's hashes. */
+static inline rng_stream_t rng_stream_sobol_at(const rng_pixel_t *p, uint64_t sample_index)
 {
-    rng_stream_t s = rng_stream(seed, pixel, sample_index);
-    uint64_t h = rng_mix64(seed ^ 0x50b01a7e5c4a3b1eULL);
-    h = rng_mix64(h ^ (pixel * 0xd1b54a32d192ed03ULL));
+    rng_stream_t s = rng_stream_at(p, sample_index);
     uint64_t sequence = sample_index >> RNG_SOBOL_INDEX_BITS;
-    s.sequence_key = rng_mix64(h ^ (sequence * 0xaef17502108ef2d9ULL));
+    s.sequence_key = rng_mix64(p->sobol_key ^ (sequence * 0xaef17502108ef2d9ULL));
     s.index = (uint32_t)(sample_index & ((1u << RNG_SOBOL_INDEX_BITS) - 1));
     s.index_reversed = rng_reverse32(s.index);
     s.sobol = 1;
     return s;
+}
+
+static inline rng_stream_t rng_stream_sobol(uint64_t seed, uint64_t pixel, uint64_t sample_index)
+{
+    rng_pixel_t p = rng_pixel(seed, pixel);
+    return rng_stream_sobol_at(&p, sample_index);
 }
 
 /* Random replication (issue 24): a pixel's samples as R independent
@@ -224,30 +261,42 @@ static inline uint32_t rng_sobol1_reversed(uint32_t i)
            chunk[3][(i >> 18) & 63u];
 }
 
-/* 32 bits of dimension dim < RNG_SOBOL_DIMS of a sobol stream. The index
- * is shuffled by a nested uniform scramble of its bits from the lowest up
- * (Burley's): an aligned block of 2^m indices (a pixel's first 2^m
- * samples, or one layer of G = 2^m) keeps its high bits together and its
- * low m bits permuted, so it maps onto an aligned block of the Sobol
- * sequence, a (0,m,2)-net. The shuffle differs per pair so that pairs are
- * not correlated. */
+/* The two numbers of pair `pair` (dimensions 2 pair and 2 pair + 1) of the
+ * sobol sequence sequence_key, at the index whose bits reversed are
+ * index_reversed. The index is shuffled by a nested uniform scramble of
+ * its bits from the lowest up (Burley's): an aligned block of 2^m indices
+ * (a pixel's first 2^m samples, or one layer of G = 2^m) keeps its high
+ * bits together and its low m bits permuted, so it maps onto an aligned
+ * block of the Sobol sequence, a (0,m,2)-net. The shuffle differs per pair
+ * so that pairs are not correlated. rng_sobol_fill computes the same bits
+ * for many streams at once. Out of line: draws mostly find their pair
+ * computed ahead or cached, and the draws stay small enough to inline. */
+void rng_sobol_pair(uint64_t sequence_key, uint32_t index_reversed, uint32_t pair, uint32_t out[2]);
+
+/* 32 bits of dimension dim < RNG_SOBOL_DIMS of a sobol stream: from the
+ * pairs rng_sobol_fill computed ahead, or the pair computed now (and kept
+ * for the pair's other number). */
 static inline uint32_t rng_sobol_bits(rng_stream_t *s, uint64_t dim)
 {
-    uint32_t pair_plus1 = (uint32_t)(dim >> 1) + 1;
-    if (s->pair_plus1 != pair_plus1) {
-        uint64_t pair_key = rng_mix64(s->sequence_key ^ pair_plus1 * 0x9e3779b97f4a7c15ULL);
-        /* the index shuffle's and the two scrambles' seeds */
-        uint32_t seed0 = (uint32_t)(pair_key >> 32), seed1 = rng_hash32(seed0);
-        /* owen(x) = reverse(laine_karras(reverse(x))): the index's reversal
-         * is the stream's, and the second dimension comes reversed */
-        uint32_t j = rng_reverse32(rng_laine_karras(s->index_reversed, (uint32_t)pair_key)) &
-                     ((1u << RNG_SOBOL_INDEX_BITS) - 1);
-        s->pair_bits[0] = rng_reverse32(rng_laine_karras(j, seed0));
-        s->pair_bits[1] = rng_reverse32(rng_laine_karras(rng_sobol1_reversed(j), seed1));
-        s->pair_plus1 = pair_plus1;
+    uint32_t pair = (uint32_t)(dim >> 1);
+    uint32_t k = pair - s->batch_pair; /* (wraps past batch_pairs below it) */
+    if (k < s->batch_pairs)
+        return s->batch_bits[2 * k + (dim & 1)];
+    if (s->pair_plus1 != pair + 1) {
+        rng_sobol_pair(s->sequence_key, s->index_reversed, pair, s->pair_bits);
+        s->pair_plus1 = pair + 1;
     }
     return s->pair_bits[dim & 1];
 }
+
+/* Computes ahead, for each sobol stream streams[i] of n, its pairs
+ * first_pair[i] .. first_pair[i] + pairs - 1 (pairs at most
+ * RNG_BATCH_PAIRS, each below RNG_SOBOL_DIMS / 2): eight at a time in
+ * AVX2 vectors where the host has them, the bits rng_sobol_pair gives.
+ * Streams not under sobol are left as they are. Replaces what an earlier
+ * call computed ahead. */
+void rng_sobol_fill(rng_stream_t *const *streams, size_t n, const uint32_t *first_pair,
+                    uint32_t pairs);
 
 /* The 64 random bits of dimension `dim` of a stream (no state change). */
 static inline uint64_t rng_bits_at(const rng_stream_t *s, uint64_t dim)
@@ -267,8 +316,10 @@ static inline uint64_t rng_next_bits(rng_stream_t *s)
 }
 
 /* Next dimension as a float in [0, 1): the top 24 bits, so never 1.0f.
- * (rng_next_bits's, without hashing the low bits a float drops.) */
-static inline float rng_next_float(rng_stream_t *s)
+ * (rng_next_bits's, without hashing the low bits a float drops.) Always
+ * inlined: GCC kept it out of line in the shading kernels' lane loops, a
+ * call per number (3 % of the Cornell box's time). */
+__attribute__((always_inline)) static inline float rng_next_float(rng_stream_t *s)
 {
     if (s->sobol && s->dim < RNG_SOBOL_DIMS)
         return (float)(rng_sobol_bits(s, s->dim++) >> 8) * 0x1.0p-24f;

@@ -22,19 +22,15 @@ typedef struct wave_cursor {
     uint32_t flat; /* its place in the sample list */
 } wave_cursor_t;
 
-/* Starts the camera ray of the cursor's sample in slot s (tracer.c's
- * path_start, field by field). */
+/* Starts the path of the cursor's sample in slot s (tracer.c's
+ * path_start, field by field), all but its camera ray (start_camera_ray,
+ * once the chunk's first pairs are computed). */
 static void start_path(const wave_ctx_t *c, wave_state_t *w, uint16_t s, const tracer_task_t *task,
-                       uint32_t index, uint32_t flat)
+                       const rng_pixel_t *pixel, uint32_t index, uint32_t flat)
 {
-    const tracer_settings_t *st = c->settings;
-    const camera_t *cam = &c->scene->camera;
     uint64_t sample_index = task->first_sample + index;
-    w->rng[s] = st->sampler == RNG_SAMPLER_SOBOL
-                    ? rng_stream_sobol(st->seed, task->pixel, sample_index)
-                    : rng_stream(st->seed, task->pixel, sample_index);
-    uint32_t px = task->pixel % (uint32_t)cam->width, py = task->pixel / (uint32_t)cam->width;
-    tracer_camera_ray(cam, &w->rng[s], px, py, &w->o[s], &w->d[s]);
+    w->rng[s] = c->settings->sampler == RNG_SAMPLER_SOBOL ? rng_stream_sobol_at(pixel, sample_index)
+                                                          : rng_stream_at(pixel, sample_index);
     w->L[s] = vec3_make(0, 0, 0);
     w->beta[s] = vec3_make(1, 1, 1);
     w->eta_scale[s] = 1.0f;
@@ -43,6 +39,36 @@ static void start_path(const wave_ctx_t *c, wave_state_t *w, uint16_t s, const t
     w->depth[s] = 0;
     w->rays[s] = 0;
     w->sample[s] = flat;
+}
+
+/* The camera ray of pixel `pixel`'s path in slot s. */
+static void start_camera_ray(const wave_ctx_t *c, wave_state_t *w, uint16_t s, uint32_t pixel)
+{
+    const camera_t *cam = &c->scene->camera;
+    uint32_t px = pixel % (uint32_t)cam->width, py = pixel / (uint32_t)cam->width;
+    tracer_camera_ray(cam, &w->rng[s], px, py, &w->o[s], &w->d[s]);
+}
+
+/* Under the sobol sampler, the pairs that the n paths in slots[] will
+ * draw first at their bounce are computed ahead, all together
+ * (rng_sobol_fill): the light pair and the BSDF pair, or the BSDF pair
+ * alone without next-event estimation. Paths past the quasi-random
+ * bounces are left out. */
+static void fill_bounce_pairs(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n)
+{
+    rng_stream_t *streams[WAVE_PATHS];
+    uint32_t first[WAVE_PATHS];
+    size_t m = 0;
+    for (size_t i = 0; i < n; i++) {
+        uint16_t s = slots[i];
+        if (w->depth[s] >= RNG_SOBOL_BOUNCES)
+            continue;
+        /* tracer_bounce_dim's layout: [2, 3] the light pair, [4, 5] BSDF */
+        uint64_t dim = tracer_bounce_dim(w->depth[s]) + (c->nee ? 2 : 4);
+        streams[m] = &w->rng[s];
+        first[m++] = (uint32_t)(dim >> 1);
+    }
+    rng_sobol_fill(streams, m, first, c->nee ? 2 : 1);
 }
 
 /* The hit stage for slot s: 1 when the path goes on to its material's
@@ -209,13 +235,24 @@ void wave_trace(const wave_ctx_t *c, wave_state_t *w, const tracer_task_t *tasks
                 break;
             wave_chunk_t *ch = &chunks[nchunks++];
             ch->n = 0;
+            rng_pixel_t pixel = rng_pixel(c->settings->seed, tasks[cur.task].pixel);
             for (size_t i = 0; i < size; i++) {
                 uint16_t s = free_slots[--nfree];
-                start_path(c, w, s, &tasks[cur.task], cur.index, cur.flat);
+                start_path(c, w, s, &tasks[cur.task], &pixel, cur.index, cur.flat);
                 ch->live[ch->n++] = s;
                 cur.flat++;
                 cur.index++;
             }
+            if (c->settings->sampler == RNG_SAMPLER_SOBOL) {
+                /* the film point's pair, for the whole chunk at once */
+                rng_stream_t *streams[WAVE_CHUNK];
+                uint32_t first[WAVE_CHUNK] = {0};
+                for (size_t i = 0; i < ch->n; i++)
+                    streams[i] = &w->rng[ch->live[i]];
+                rng_sobol_fill(streams, ch->n, first, 1);
+            }
+            for (size_t i = 0; i < ch->n; i++)
+                start_camera_ray(c, w, ch->live[i], tasks[cur.task].pixel);
             if (cur.index == tasks[cur.task].sample_count) {
                 cur.index = 0;
                 cur.task++;
@@ -229,9 +266,14 @@ void wave_trace(const wave_ctx_t *c, wave_state_t *w, const tracer_task_t *tasks
         for (size_t k = 0; k < nchunks; k++)
             chunk_hits(c, w, &chunks[k], queue, queued, L, rays, free_slots, &nfree);
         /* shading, one kernel per material type present */
-        for (size_t k = 0; k < WAVE_KERNELS; k++)
-            if (queued[k])
-                wave_kernels[k](c, w, queue[k], queued[k]);
+        for (size_t k = 0; k < WAVE_KERNELS; k++) {
+            if (!queued[k])
+                continue;
+            if (c->settings->sampler == RNG_SAMPLER_SOBOL &&
+                (wave_kernels[k] == wave_kernel_diffuse || wave_kernels[k] == wave_kernel_glossy))
+                fill_bounce_pairs(c, w, queue[k], queued[k]);
+            wave_kernels[k](c, w, queue[k], queued[k]);
+        }
         /* shadow rays, Russian roulette, the next ray; chunks whose paths
          * have all ended leave */
         size_t kept = 0;

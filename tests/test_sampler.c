@@ -55,6 +55,55 @@ START_TEST(test_sobol_pure_function)
 }
 END_TEST
 
+/* rng_sobol_fill (eight streams at a time in vectors where the host has
+ * AVX2) gives the bits each stream computes alone, for every pair, index
+ * and sequence; draws outside what it filled are untouched. */
+START_TEST(test_sobol_fill_same_bits)
+{
+    enum { N = 4099 }; /* not a multiple of the eight lanes */
+    static rng_stream_t filled[N], alone[N];
+    static rng_stream_t *ptr[N];
+    static uint32_t first[N];
+    for (uint32_t pairs = 1; pairs <= RNG_BATCH_PAIRS; pairs++) {
+        for (size_t i = 0; i < N; i++) {
+            uint64_t h = rng_mix64(i * 7919 + pairs);
+            /* indices over all 24 bits, and other sequences (replicates) */
+            uint64_t pixel = h >> 40, sample = (h & 0xffffff) | ((h >> 60) << RNG_REPLICATE_SHIFT);
+            /* and runs of one task's samples (one sequence), as the
+             * engine fills them */
+            if (i % 4 != 0) {
+                pixel = i / 64;
+                sample = i % 64 + ((i / 64 % 3) << RNG_REPLICATE_SHIFT);
+            }
+            filled[i] =
+                i % 97 == 5 ? rng_stream(9, pixel, sample) : rng_stream_sobol(9, pixel, sample);
+            alone[i] = filled[i];
+            ptr[i] = &filled[i];
+            /* some past the quasi-random pairs: left to the hash */
+            first[i] = (uint32_t)(i % 2 ? h >> 32 : i / 256) % (RNG_SOBOL_DIMS / 2 + 1);
+        }
+        rng_sobol_fill(ptr, N, first, pairs);
+        for (size_t i = 0; i < N; i++) {
+            for (uint64_t dim = 0; dim < RNG_SOBOL_DIMS + 4; dim++) {
+                rng_stream_t a = filled[i], b = alone[i];
+                rng_seek(&a, dim);
+                rng_seek(&b, dim);
+                ck_assert_msg(rng_next_bits(&a) == rng_next_bits(&b),
+                              "stream %zu, dim %llu, first pair %u", i, (unsigned long long)dim,
+                              (unsigned)first[i]);
+            }
+            if (filled[i].sobol && first[i] + pairs <= RNG_SOBOL_DIMS / 2)
+                ck_assert_uint_eq(filled[i].batch_pairs, pairs);
+            else
+                ck_assert_uint_eq(filled[i].batch_pairs, 0);
+        }
+        /* a later fill replaces the batch */
+        rng_sobol_fill(ptr, 1, (const uint32_t[]){0}, 1);
+        ck_assert(filled[0].batch_pair == 0 || !filled[0].sobol);
+    }
+}
+END_TEST
+
 START_TEST(test_sobol_range)
 {
     float lo = 1, hi = 0;
@@ -324,6 +373,7 @@ static Suite *sampler_suite(void)
     TCase *tc = tcase_create("sobol");
     tcase_set_timeout(tc, 120);
     tcase_add_test(tc, test_sobol_pure_function);
+    tcase_add_test(tc, test_sobol_fill_same_bits);
     tcase_add_test(tc, test_sobol_range);
     tcase_add_test(tc, test_sobol_layer_is_a_net);
     tcase_add_test(tc, test_sobol_pixel_is_a_sequence);
