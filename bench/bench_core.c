@@ -92,6 +92,8 @@ static const char usage_text[] =
     "  --runs R            timed repetitions, best is kept (default 3)\n"
     "  --rays N            rays per raw Embree batch (default 2000000)\n"
     "  --engine E          wavefront (default) or scalar (tracer.h)\n"
+    "  --sampler S         independent (default: the fastest, as Mitsuba's peer\n"
+    "                      runs) or sobol (what a job takes by default)\n"
     "  --isa I             our own SIMD kernels (triangle list, BVH traversal) for\n"
     "                      avx512 or avx2 (default: the widest the host runs); avx2\n"
     "                      on an AVX-512 host measures what an AVX2-only host runs\n"
@@ -892,6 +894,7 @@ typedef struct args {
     const char *isa; /* our kernels' ISA (tracer_use_isa), NULL: the widest */
     uint64_t threads, spp, runs, rays;
     tracer_engine_t engine;
+    rng_sampler_t sampler;
 } args_t;
 
 static int parse_args(int argc, char **argv, args_t *a)
@@ -917,6 +920,11 @@ static int parse_args(int argc, char **argv, args_t *a)
                 a->engine = TRACER_ENGINE_SCALAR;
             else
                 return usage_error("--engine needs wavefront or scalar, got", v ? v : "nothing");
+        } else if (strcmp(o, "--sampler") == 0) {
+            int smp = v ? tracer_sampler_from_name(v) : -1;
+            if (smp < 0)
+                return usage_error("--sampler needs independent or sobol, got", v ? v : "nothing");
+            a->sampler = (rng_sampler_t)smp;
         } else if (strcmp(o, "--isa") == 0) {
             if (!v || (strcmp(v, "avx512") != 0 && strcmp(v, "avx2") != 0))
                 return usage_error("--isa needs avx512 or avx2, got", v ? v : "nothing");
@@ -953,7 +961,8 @@ static int parse_args(int argc, char **argv, args_t *a)
 /* One render_run on a fresh film; returns seconds or -1, and the CPU
  * utilization in *util. */
 static double render_once(const tracer_t *tr, const scene_t *s, scene_integrator_t integ,
-                          uint32_t spp, int threads, render_summary_t *sum, double *util)
+                          rng_sampler_t sampler, uint32_t spp, int threads, render_summary_t *sum,
+                          double *util)
 {
     film_t *film = film_new(s->camera.width, s->camera.height);
     if (!film)
@@ -962,6 +971,7 @@ static double render_once(const tracer_t *tr, const scene_t *s, scene_integrator
     memset(&rs, 0, sizeof rs);
     rs.tracer.seed = s->seed;
     rs.tracer.integrator = integ;
+    rs.tracer.sampler = sampler;
     rs.tracer.max_depth = s->max_depth;
     rs.spp = spp;
     rs.granularity = RENDER_DEFAULT_GRANULARITY;
@@ -1002,8 +1012,8 @@ static int measure_ours(const tracer_t *tr, const scene_t *s, const args_t *a, o
     render_summary_t sum;
     while (o->nruns < runs || (o->best_util < UNDISTURBED && o->nruns < runs + EXTRA_RUNS)) {
         double util;
-        double t =
-            render_once(tr, s, SCENE_INTEGRATOR_PATH, (uint32_t)a->spp, threads, &sum, &util);
+        double t = render_once(tr, s, SCENE_INTEGRATOR_PATH, a->sampler, (uint32_t)a->spp, threads,
+                               &sum, &util);
         if (t < 0)
             return -1;
         o->times[o->nruns] = t;
@@ -1022,7 +1032,7 @@ static int measure_ours(const tracer_t *tr, const scene_t *s, const args_t *a, o
     }
     render_summary_t nsum;
     double nutil;
-    if (render_once(tr, s, SCENE_INTEGRATOR_NAIVE, 8, threads, &nsum, &nutil) < 0)
+    if (render_once(tr, s, SCENE_INTEGRATOR_NAIVE, a->sampler, 8, threads, &nsum, &nutil) < 0)
         return -1;
     o->rss_render = peak_rss_kb();
     o->sps = (double)o->samples / o->best;
@@ -1395,6 +1405,7 @@ static int write_json(const char *path, const args_t *a, const char *name, const
                                                                         : "embree");
     cJSON_AddStringToObject(root, "engine",
                             a->engine == TRACER_ENGINE_SCALAR ? "scalar" : "wavefront");
+    cJSON_AddStringToObject(root, "sampler", tracer_sampler_name(a->sampler));
     cJSON_AddStringToObject(root, "embree_version", RTC_VERSION_STRING);
     cJSON_AddBoolToObject(root, "disturbed", disturbed);
     cJSON_AddItemToObject(root, "ours", ours_json(o, a, s, threads));
