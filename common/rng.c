@@ -42,15 +42,14 @@ __attribute__((target("avx2"))) static inline __m256i reverse32_x8(__m256i x)
         _mm256_setr_epi8(3, 2, 1, 0, 7, 6, 5, 4, 11, 10, 9, 8, 15, 14, 13, 12, 3, 2, 1, 0, 7, 6, 5,
                          4, 11, 10, 9, 8, 15, 14, 13, 12);
     /* a nibble n reversed, shifted to the high half (low_lut) or not */
-    const __m256i low_lut = _mm256_setr_epi8(
-        0x00, (char)0x80, 0x40, (char)0xc0, 0x20, (char)0xa0, 0x60, (char)0xe0, 0x10, (char)0x90,
-        0x50, (char)0xd0, 0x30, (char)0xb0, 0x70, (char)0xf0, 0x00, (char)0x80, 0x40, (char)0xc0,
-        0x20, (char)0xa0, 0x60, (char)0xe0, 0x10, (char)0x90, 0x50, (char)0xd0, 0x30, (char)0xb0,
-        0x70, (char)0xf0);
-    const __m256i high_lut =
-        _mm256_setr_epi8(0x0, 0x8, 0x4, 0xc, 0x2, 0xa, 0x6, 0xe, 0x1, 0x9, 0x5, 0xd, 0x3, 0xb, 0x7,
-                         0xf, 0x0, 0x8, 0x4, 0xc, 0x2, 0xa, 0x6, 0xe, 0x1, 0x9, 0x5, 0xd, 0x3, 0xb,
-                         0x7, 0xf);
+    const __m256i low_lut =
+        _mm256_setr_epi8(0x00, (char)0x80, 0x40, (char)0xc0, 0x20, (char)0xa0, 0x60, (char)0xe0,
+                         0x10, (char)0x90, 0x50, (char)0xd0, 0x30, (char)0xb0, 0x70, (char)0xf0,
+                         0x00, (char)0x80, 0x40, (char)0xc0, 0x20, (char)0xa0, 0x60, (char)0xe0,
+                         0x10, (char)0x90, 0x50, (char)0xd0, 0x30, (char)0xb0, 0x70, (char)0xf0);
+    const __m256i high_lut = _mm256_setr_epi8(0x0, 0x8, 0x4, 0xc, 0x2, 0xa, 0x6, 0xe, 0x1, 0x9, 0x5,
+                                              0xd, 0x3, 0xb, 0x7, 0xf, 0x0, 0x8, 0x4, 0xc, 0x2, 0xa,
+                                              0x6, 0xe, 0x1, 0x9, 0x5, 0xd, 0x3, 0xb, 0x7, 0xf);
     const __m256i nibble = _mm256_set1_epi8(0x0f);
     x = _mm256_shuffle_epi8(x, byte_order);
     __m256i lo = _mm256_and_si256(x, nibble);
@@ -85,12 +84,16 @@ __attribute__((target("avx2"))) static inline __m256i hash32_x8(__m256i x)
  * supersets, one step per digit of r. */
 __attribute__((target("avx2"))) static inline __m256i sobol1_reversed_x8(__m256i y)
 {
-    y = _mm256_xor_si256(y, _mm256_and_si256(_mm256_srli_epi32(y, 1), _mm256_set1_epi32(0x55555555)));
-    y = _mm256_xor_si256(y, _mm256_and_si256(_mm256_srli_epi32(y, 2), _mm256_set1_epi32(0x33333333)));
-    y = _mm256_xor_si256(y, _mm256_and_si256(_mm256_srli_epi32(y, 4), _mm256_set1_epi32(0x0f0f0f0f)));
-    y = _mm256_xor_si256(y, _mm256_and_si256(_mm256_srli_epi32(y, 8), _mm256_set1_epi32(0x00ff00ff)));
-    return _mm256_xor_si256(y,
-                            _mm256_and_si256(_mm256_srli_epi32(y, 16), _mm256_set1_epi32(0x0000ffff)));
+    y = _mm256_xor_si256(y,
+                         _mm256_and_si256(_mm256_srli_epi32(y, 1), _mm256_set1_epi32(0x55555555)));
+    y = _mm256_xor_si256(y,
+                         _mm256_and_si256(_mm256_srli_epi32(y, 2), _mm256_set1_epi32(0x33333333)));
+    y = _mm256_xor_si256(y,
+                         _mm256_and_si256(_mm256_srli_epi32(y, 4), _mm256_set1_epi32(0x0f0f0f0f)));
+    y = _mm256_xor_si256(y,
+                         _mm256_and_si256(_mm256_srli_epi32(y, 8), _mm256_set1_epi32(0x00ff00ff)));
+    return _mm256_xor_si256(
+        y, _mm256_and_si256(_mm256_srli_epi32(y, 16), _mm256_set1_epi32(0x0000ffff)));
 }
 
 /* Items[0..n), n at most FILL_LANES, in one pass of vectors. */
