@@ -6,9 +6,8 @@
  * dimension, the pair's key), which made the sobol sampler about a tenth
  * of a diffuse sample's time. Eight streams' pairs in AVX2 vectors take
  * a handful of operations each: byte shuffles reverse the bits, and the
- * second dimension is the generator matrix's product written as five
- * shift-and-XOR steps. The pair's 64-bit key stays scalar (AVX2 has no
- * 64-bit multiply). Integer operations: the same bits on every ISA. */
+ * second dimension takes rng.h's five shift-and-XOR steps. The pair's 64-bit key stays scalar (AVX2
+ * has no 64-bit multiply). Integer operations: the same bits on every ISA. */
 #include "rng.h"
 
 #include <immintrin.h>
@@ -78,10 +77,7 @@ __attribute__((target("avx2"))) static inline __m256i hash32_x8(__m256i x)
     return _mm256_xor_si256(x, _mm256_srli_epi32(x, 16));
 }
 
-/* rng_sobol1_reversed of each lane. Bit r of the second dimension
- * (reversed) is the XOR of the index's bits c with C(c, r) odd, that is
- * (Lucas) the bits c whose binary digits include r's: a sum over
- * supersets, one step per digit of r. */
+/* rng_sobol1_reversed of each lane: its five shift-and-XOR steps. */
 __attribute__((target("avx2"))) static inline __m256i sobol1_reversed_x8(__m256i y)
 {
     y = _mm256_xor_si256(y,
@@ -140,9 +136,11 @@ void rng_sobol_fill(rng_stream_t *const *streams, size_t n, const uint32_t *firs
         pairs = RNG_BATCH_PAIRS;
     for (size_t i = 0; i < n; i++) {
         rng_stream_t *s = streams[i];
+        if (!s->sobol)
+            continue; /* (its batch stays empty: rng_stream's) */
         s->batch_pair = first_pair[i];
-        /* past the quasi-random dimensions (hashed), or not under sobol */
-        s->batch_pairs = s->sobol && first_pair[i] + pairs <= RNG_SOBOL_DIMS / 2 ? pairs : 0;
+        /* none past the quasi-random dimensions (hashed) */
+        s->batch_pairs = first_pair[i] + pairs <= RNG_SOBOL_DIMS / 2 ? pairs : 0;
     }
     int vectors = __builtin_cpu_supports("avx2");
     fill_item_t items[FILL_LANES];
@@ -151,7 +149,7 @@ void rng_sobol_fill(rng_stream_t *const *streams, size_t n, const uint32_t *firs
     for (uint32_t k = 0; k < pairs; k++) {
         for (size_t i = 0; i < n; i++) {
             rng_stream_t *s = streams[i];
-            if (s->batch_pairs == 0)
+            if (!s->sobol || s->batch_pairs == 0)
                 continue;
             if (!vectors) {
                 rng_sobol_pair(s->sequence_key, s->index_reversed, first_pair[i] + k,

@@ -49,13 +49,10 @@ static void start_camera_ray(const wave_ctx_t *c, wave_state_t *w, uint16_t s, u
     tracer_camera_ray(cam, &w->rng[s], px, py, &w->o[s], &w->d[s]);
 }
 
-/* Under the sobol sampler, the pairs that the n paths in slots[] will
- * draw first at their bounce are computed ahead, all together
- * (rng_sobol_fill): the light pair and the BSDF pair, or the BSDF pair
- * alone without next-event estimation. Paths past the quasi-random
- * bounces are left out. */
-static void fill_bounce_pairs(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n)
+void wave_sobol_ahead(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n)
 {
+    if (c->settings->sampler != RNG_SAMPLER_SOBOL)
+        return;
     rng_stream_t *streams[WAVE_PATHS];
     uint32_t first[WAVE_PATHS];
     size_t m = 0;
@@ -266,14 +263,9 @@ void wave_trace(const wave_ctx_t *c, wave_state_t *w, const tracer_task_t *tasks
         for (size_t k = 0; k < nchunks; k++)
             chunk_hits(c, w, &chunks[k], queue, queued, L, rays, free_slots, &nfree);
         /* shading, one kernel per material type present */
-        for (size_t k = 0; k < WAVE_KERNELS; k++) {
-            if (!queued[k])
-                continue;
-            if (c->settings->sampler == RNG_SAMPLER_SOBOL &&
-                (wave_kernels[k] == wave_kernel_diffuse || wave_kernels[k] == wave_kernel_glossy))
-                fill_bounce_pairs(c, w, queue[k], queued[k]);
-            wave_kernels[k](c, w, queue[k], queued[k]);
-        }
+        for (size_t k = 0; k < WAVE_KERNELS; k++)
+            if (queued[k])
+                wave_kernels[k](c, w, queue[k], queued[k]);
         /* shadow rays, Russian roulette, the next ray; chunks whose paths
          * have all ended leave */
         size_t kept = 0;

@@ -124,6 +124,14 @@ static inline void wave_follow(wave_state_t *w, uint16_t s, vec3_t p, const mate
 typedef void (*wave_kernel_t)(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots,
                               size_t n);
 
+/* Under the sobol sampler, computes ahead, for all n paths in slots[] at
+ * once (rng_sobol_fill), the pairs a kernel that samples a light and a
+ * BSDF draws at their bounce: the light pair and the BSDF pair, or the
+ * BSDF pair alone without next-event estimation; paths past the
+ * quasi-random bounces are left out. Such a kernel calls it first: a pair
+ * one path at a time costs about a hundred integer operations. */
+void wave_sobol_ahead(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
+
 void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
 void wave_kernel_mirror(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
 void wave_kernel_dielectric(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);

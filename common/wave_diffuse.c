@@ -97,6 +97,7 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
 {
     const scene_t *sc = c->scene;
     const wave_vf zero = {0}, one = zero + 1.0f;
+    wave_sobol_ahead(c, w, slots, n);
     for (size_t j0 = 0; j0 < n; j0 += WAVE_LANES) {
         int lanes = n - j0 < WAVE_LANES ? (int)(n - j0) : WAVE_LANES;
         wave_v3 a = {zero, zero, zero}, b = a, cc = a, ng = a, nsm = a, beta = a, albedo = a, q = a,

@@ -9,6 +9,7 @@
 
 void wave_kernel_glossy(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n)
 {
+    wave_sobol_ahead(c, w, slots, n);
     for (size_t j = 0; j < n; j++) {
         uint16_t s = slots[j];
         vec3_t p;

@@ -55,6 +55,30 @@ START_TEST(test_sobol_pure_function)
 }
 END_TEST
 
+/* The second Sobol dimension (reversed) against its generator matrix,
+ * Pascal's triangle mod 2 built by Pascal's rule: column c of the index's
+ * bit c holds C(c, r) mod 2 in bit r. Every index below 2^20, and the
+ * top of the 24-bit range. */
+START_TEST(test_sobol_second_dimension_matrix)
+{
+    uint32_t column[RNG_SOBOL_INDEX_BITS];
+    uint32_t row = 1; /* C(c, r) mod 2 for r = 0..c, in bit r */
+    for (int c = 0; c < RNG_SOBOL_INDEX_BITS; c++) {
+        column[c] = row;
+        row ^= row << 1; /* C(c + 1, r) = C(c, r) + C(c, r - 1) */
+    }
+    for (uint32_t k = 0; k < (1u << 20) + 4096; k++) {
+        uint32_t i = k < (1u << 20) ? k : (1u << RNG_SOBOL_INDEX_BITS) - 1 - (k - (1u << 20));
+        uint32_t want = 0;
+        for (int c = 0; c < RNG_SOBOL_INDEX_BITS; c++)
+            if (i >> c & 1)
+                want ^= column[c];
+        ck_assert_msg(rng_sobol1_reversed(i) == want, "index %u: %08x, the matrix %08x", i,
+                      rng_sobol1_reversed(i), want);
+    }
+}
+END_TEST
+
 /* rng_sobol_fill (eight streams at a time in vectors where the host has
  * AVX2) gives the bits each stream computes alone, for every pair, index
  * and sequence; draws outside what it filled are untouched. */
@@ -373,6 +397,7 @@ static Suite *sampler_suite(void)
     TCase *tc = tcase_create("sobol");
     tcase_set_timeout(tc, 120);
     tcase_add_test(tc, test_sobol_pure_function);
+    tcase_add_test(tc, test_sobol_second_dimension_matrix);
     tcase_add_test(tc, test_sobol_fill_same_bits);
     tcase_add_test(tc, test_sobol_range);
     tcase_add_test(tc, test_sobol_layer_is_a_net);
