@@ -108,59 +108,92 @@ typedef struct split_user {
     const uint32_t *indices;
 } split_user_t;
 
+/* A point of positions as a vector (x, y, z, 0). */
+static inline __m128 split_point(const float *p)
+{
+    return _mm_set_ps(0.0f, p[2], p[1], p[0]);
+}
+
+/* a where mask is set, else b */
+static inline __m128 split_select(__m128 mask, __m128 a, __m128 b)
+{
+    return _mm_or_ps(_mm_and_ps(mask, a), _mm_andnot_ps(mask, b));
+}
+
 /* A triangle's part of a box cut at `position` along `dim` (Embree's
  * spatial splits): its vertices and where its edges cross the plane, each
- * side's bounds clipped to the reference's own. */
+ * side's bounds clipped to the reference's own. Embree asks this for every
+ * reference at every candidate plane, so it was most of a 100k-triangle
+ * build (0.32 s of the Buddha's, 2 threads): x, y and z go together in one
+ * SSE vector (0.22 s), each lane with the scalar code's operations (a < lo
+ * ? a : lo is minps), so the bounds keep the bits test_bvh's scalar
+ * version gives them. */
+static inline void split_bounds(const float *p0, const float *p1, const float *p2, __m128 plo,
+                                __m128 phi, unsigned int dim, float position,
+                                struct RTCBounds *left, struct RTCBounds *right)
+{
+    const __m128 plane = _mm_set1_ps(position);
+    const __m128 on_dim =
+        _mm_castsi128_ps(_mm_set_epi32(0, dim == 2 ? -1 : 0, dim == 1 ? -1 : 0, dim == 0 ? -1 : 0));
+    /* (named, not indexed by side, so they stay in registers; branch-free
+     * selects measured slower than the branches) */
+    __m128 lo0 = _mm_set1_ps(INFINITY), lo1 = lo0;
+    __m128 hi0 = _mm_set1_ps(-INFINITY), hi1 = hi0;
+    for (int e = 0; e < 3; e++) {
+        const float *pa = e == 0 ? p0 : e == 1 ? p1 : p2, *pb = e == 0 ? p1 : e == 1 ? p2 : p0;
+        __m128 a = split_point(pa), b = split_point(pb);
+        float ca = pa[dim], cb = pb[dim];
+        /* a vertex on the plane bounds both parts (Embree's own splitter
+         * does the same): the part right of the plane starts there too */
+        if (ca <= position) {
+            lo0 = _mm_min_ps(a, lo0);
+            hi0 = _mm_max_ps(a, hi0);
+        }
+        if (ca >= position) {
+            lo1 = _mm_min_ps(a, lo1);
+            hi1 = _mm_max_ps(a, hi1);
+        }
+        if ((ca < position && cb > position) || (ca > position && cb < position)) {
+            float f = (position - ca) / (cb - ca);
+            __m128 x = _mm_add_ps(a, _mm_mul_ps(_mm_set1_ps(f), _mm_sub_ps(b, a)));
+            x = split_select(on_dim, plane, x);
+            lo0 = _mm_min_ps(x, lo0);
+            hi0 = _mm_max_ps(x, hi0);
+            lo1 = _mm_min_ps(x, lo1);
+            hi1 = _mm_max_ps(x, hi1);
+        }
+    }
+    __m128 l0 = _mm_max_ps(lo0, plo), h0 = _mm_min_ps(hi0, phi);
+    __m128 l1 = _mm_max_ps(lo1, plo), h1 = _mm_min_ps(hi1, phi);
+    /* the left side ends at the plane, the right one starts there */
+    h0 = split_select(on_dim, _mm_min_ps(h0, plane), h0);
+    l1 = split_select(on_dim, _mm_max_ps(l1, plane), l1);
+    /* RTCBounds is (lower xyz, pad, upper xyz, pad), 16-byte aligned; the
+     * pads get the lanes' zeros, as before */
+    _mm_store_ps(&left->lower_x, l0);
+    _mm_store_ps(&left->upper_x, h0);
+    _mm_store_ps(&right->lower_x, l1);
+    _mm_store_ps(&right->upper_x, h1);
+}
+
 static void build_split(const struct RTCBuildPrimitive *prim, unsigned int dim, float position,
                         struct RTCBounds *left, struct RTCBounds *right, void *user)
 {
     const split_user_t *su = user;
     const uint32_t *vi = su->indices + 3 * prim->primID;
-    float lo[2][3], hi[2][3];
-    for (int s = 0; s < 2; s++)
-        for (int k = 0; k < 3; k++) {
-            lo[s][k] = INFINITY;
-            hi[s][k] = -INFINITY;
-        }
-    for (int e = 0; e < 3; e++) {
-        const float *a = su->positions + 3 * vi[e], *b = su->positions + 3 * vi[(e + 1) % 3];
-        float pa = a[dim], pb = b[dim];
-        int s = pa <= position ? 0 : 1;
-        for (int k = 0; k < 3; k++) {
-            lo[s][k] = a[k] < lo[s][k] ? a[k] : lo[s][k];
-            hi[s][k] = a[k] > hi[s][k] ? a[k] : hi[s][k];
-        }
-        if ((pa < position && pb > position) || (pa > position && pb < position)) {
-            float f = (position - pa) / (pb - pa);
-            for (int k = 0; k < 3; k++) {
-                float x = (unsigned)k == dim ? position : a[k] + f * (b[k] - a[k]);
-                for (int q = 0; q < 2; q++) {
-                    lo[q][k] = x < lo[q][k] ? x : lo[q][k];
-                    hi[q][k] = x > hi[q][k] ? x : hi[q][k];
-                }
-            }
-        }
-    }
-    const float plo[3] = {prim->lower_x, prim->lower_y, prim->lower_z};
-    const float phi[3] = {prim->upper_x, prim->upper_y, prim->upper_z};
-    struct RTCBounds *out[2] = {left, right};
-    for (int s = 0; s < 2; s++) {
-        float l[3], h[3];
-        for (int k = 0; k < 3; k++) {
-            l[k] = lo[s][k] > plo[k] ? lo[s][k] : plo[k];
-            h[k] = hi[s][k] < phi[k] ? hi[s][k] : phi[k];
-        }
-        if (s == 0)
-            h[dim] = h[dim] < position ? h[dim] : position;
-        else
-            l[dim] = l[dim] > position ? l[dim] : position;
-        *out[s] = (struct RTCBounds){.lower_x = l[0],
-                                     .lower_y = l[1],
-                                     .lower_z = l[2],
-                                     .upper_x = h[0],
-                                     .upper_y = h[1],
-                                     .upper_z = h[2]};
-    }
+    split_bounds(su->positions + 3 * vi[0], su->positions + 3 * vi[1], su->positions + 3 * vi[2],
+                 _mm_set_ps(0.0f, prim->lower_z, prim->lower_y, prim->lower_x),
+                 _mm_set_ps(0.0f, prim->upper_z, prim->upper_y, prim->upper_x), dim, position, left,
+                 right);
+}
+
+void bvh_split_bounds(const float p0[3], const float p1[3], const float p2[3],
+                      const struct RTCBounds *box, unsigned int dim, float position,
+                      struct RTCBounds *left, struct RTCBounds *right)
+{
+    split_bounds(p0, p1, p2, _mm_set_ps(0.0f, box->lower_z, box->lower_y, box->lower_x),
+                 _mm_set_ps(0.0f, box->upper_z, box->upper_y, box->upper_x), dim, position, left,
+                 right);
 }
 
 typedef struct flatten {

@@ -38,6 +38,13 @@ bvh_t *bvh_new(RTCDevice device, const float *positions, const uint32_t *indices
                char *err, size_t errlen);
 void bvh_destroy(bvh_t **b);
 
+/* The build's spatial split of one triangle (Embree's splitPrimitive
+ * callback): the bounds of its parts left (<= position) and right of the
+ * plane at `position` along axis dim (0-2), each within box. For tests. */
+void bvh_split_bounds(const float p0[3], const float p1[3], const float p2[3],
+                      const struct RTCBounds *box, unsigned int dim, float position,
+                      struct RTCBounds *left, struct RTCBounds *right);
+
 /* Switches to the traversal compiled for "avx512" (AVX-512VL: 32
  * registers, the same 8 lanes) or "avx2" (the default is the widest the
  * host runs; both give the same bits); -1 if the host cannot run it or

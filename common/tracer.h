@@ -50,8 +50,10 @@
  * traversal of a BVH Embree builds (bvh.h: trilist's triangle test, not
  * Embree's), on AVX2 hosts, unless it has smooth glass; 10 since such a
  * scene's shadow rays go through it too (Embree builds no scene of its
- * own for it). */
-#define TRACER_VERSION 10
+ * own for it); 11 since that BVH's spatial splits bound a vertex on the
+ * plane on both sides (bvh.c: a part could miss the corner there, so a
+ * hierarchy may differ where one did). */
+#define TRACER_VERSION 11
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so
  * samples/s compare like with like). */
