@@ -29,7 +29,8 @@ references and timing guard:
   bench/results/error/peer-best-<scene>.png.
 
 Writes bench/results/peer-best.json (a run of some scenes replaces theirs
-and keeps the others' while the settings are the same) and the table between the
+and keeps the others' while the settings and the host are the same; a file
+of other settings is moved to peer-best-<its commit>.json) and the table between the
 bench:peer-best markers of bench/RESULTS.md. Alone: `bash bench/error/run.sh
 --peer-best` (VB_STUDY_SIZE, VB_STUDY_REF_SPP as the study; about 3 minutes
 a scene at 64x64 on 2 cores, after its reference); `--from-json` rewrites the
@@ -160,6 +161,7 @@ def table(R):
          f"(below 1: we are ahead), and its time over ours to equal relMSE (above 1: we are faster). "
          f"Our time is the job's clock, from its first task (the workers' scene loading counts); "
          f"Mitsuba's renders are timed warm. "
+         + (f"Host: {c['host']}. " if c.get("host") else "") +
          f"Commit {R['commit']}, {R['date']}, {R['seconds']:.0f} s in all (`bench/error/peer_best.py`); plots "
          f"`bench/results/error/peer-best-<scene>.png`.", "",
          "| scene | Mitsuba's best | its relMSE at equal time, per sampler (independent, stratified, "
@@ -176,6 +178,17 @@ def table(R):
         geo = f"{cmp_['time_geomean']:.2f}" if cmp_["time_geomean"] else "-"
         L.append(f"| {name} | {sc['best']} | {per} | {marks} | {geo} |")
     return "\n".join(L)
+
+
+def host_name():
+    """The processor and its core count, as /proc/cpuinfo names them: a
+    table's times are this host's."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), "?")
+    except OSError:
+        model = "?"
+    return f"{model}, {os.cpu_count()} cores"
 
 
 def write_results_md(text):
@@ -206,13 +219,19 @@ def main():
     os.makedirs(S.PLOTS, exist_ok=True)
     config = {"size": S.CFG["size"], "ref_spp": S.CFG["ref_spp"], "max_spp": MAX_SPP,
               "granularity": S.CFG["granularity"], "workers": 2, "threads": 1,
-              "mitsuba_threads": 2, "seed": SEED}
+              "mitsuba_threads": 2, "seed": SEED, "host": host_name()}
     R = {"benchmark": "peer-best", "config": config, "scenes": {}, "seconds": 0.0}
     if os.path.exists(OUT):
         with open(OUT) as f:
             old = json.load(f)
         if old.get("config") == config:  # the other scenes' figures stay
             R = old
+        else:
+            # another size, count or host: its table is kept beside, not lost
+            # (a run of two scenes used to replace a 15-scene table)
+            kept = f"{OUT[:-5]}-{old.get('commit', 'old')}.json"
+            os.replace(OUT, kept)
+            S.log(f"{S.rel(OUT)} had other settings ({old.get('config')}): kept as {S.rel(kept)}")
     R.update({"commit": S.git_commit(), "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
     for name in SCENES:
         flat = name.replace("/", "-")  # a file name of its own for mitsuba/NAME
