@@ -589,6 +589,7 @@ typedef struct embedded {
     embedded_worker_t *ew;
     uint64_t workers;        /* in ew */
     tracer_device_t *device; /* one Embree device for all the workers */
+    worker_scenes_t *scenes; /* and each scene loaded once for them all */
     control_t *c;
 } embedded_t;
 
@@ -619,6 +620,10 @@ static int embedded_start(embedded_t *e, const args_t *a, int log_level, char *e
     pthread_create(&e->em.thread, NULL, master_thread, &e->em);
     if (tracer_device_new(&e->device, err, errlen) < 0)
         return -1;
+    if (!(e->scenes = worker_scenes_new())) {
+        snprintf(err, errlen, "out of memory");
+        return -1;
+    }
     int per = (int)(a->threads / a->workers), extra = (int)(a->threads % a->workers);
     for (uint64_t i = 0; i < a->workers; i++) {
         char name[32];
@@ -629,7 +634,8 @@ static int embedded_start(embedded_t *e, const args_t *a, int log_level, char *e
                               .log = mc.log,
                               .log_level = log_level,
                               .name = name,
-                              .device = e->device};
+                              .device = e->device,
+                              .scenes = e->scenes};
         if (!(e->ew[i].w = worker_new(&wc, err, errlen)))
             return -1;
         pthread_create(&e->ew[i].thread, NULL, worker_thread, &e->ew[i]);
@@ -651,6 +657,7 @@ static void embedded_stop(embedded_t *e)
         }
     for (uint64_t i = 0; e->ew && i < e->workers; i++)
         worker_destroy(&e->ew[i].w);
+    worker_scenes_destroy(&e->scenes);
     tracer_device_destroy(&e->device);
     if (e->em.m) {
         atomic_store(&e->em.stop, 1);

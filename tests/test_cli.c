@@ -263,6 +263,52 @@ START_TEST(deterministic_exr)
 }
 END_TEST
 
+/* Occurrences of needle in text. */
+static int count_in(const char *text, const char *needle)
+{
+    int n = 0;
+    for (const char *at = strstr(text, needle); at; at = strstr(at + 1, needle))
+        n++;
+    return n;
+}
+
+/* The embedded render's workers load a scene once between them: one
+ * loads it, the others wait and share it (their log lines say which), and
+ * the image is the one worker's, bit for bit. */
+START_TEST(embedded_workers_share_scene)
+{
+    char scene[PATHLEN], exr[2][PATHLEN];
+    static char out[OUTLEN];
+    tiny_scene(scene, sizeof scene, "cli-share.json", 0);
+    const int workers[2] = {1, 3};
+    image_t *img[2];
+    for (int i = 0; i < 2; i++) {
+        char name[64];
+        snprintf(name, sizeof name, "cli-share-%d.exr", i);
+        tu_tmp_path(exr[i], sizeof exr[i], name);
+        int rc = run(out, sizeof out,
+                     "render '%s' -o '%s' --spp 40 --granularity 16 --workers %d --threads %d "
+                     "--seed 9 --progress none --log-level info",
+                     scene, exr[i], workers[i], workers[i]);
+        ck_assert_msg(rc == 0, "exit %d:\n%s", rc, out);
+        ck_assert_msg(count_in(out, "scene loaded in") == 1, "%d workers, not one load:\n%s",
+                      workers[i], out);
+        ck_assert_msg(count_in(out, "scene shared with another worker") == workers[i] - 1,
+                      "%d workers, not %d shared:\n%s", workers[i], workers[i] - 1, out);
+        char err[512];
+        ck_assert_msg(image_read_exr(exr[i], &img[i], err, sizeof err) == 0, "%s", err);
+    }
+    const float *a = image_channel(img[0], "R"), *b = image_channel(img[1], "R");
+    ck_assert_ptr_nonnull(a);
+    ck_assert_ptr_nonnull(b);
+    ck_assert_msg(memcmp(a, b, 16 * 16 * sizeof(float)) == 0, "3 workers' image differs");
+    for (int i = 0; i < 2; i++) {
+        image_destroy(&img[i]);
+        unlink(exr[i]);
+    }
+}
+END_TEST
+
 START_TEST(warning_printed)
 {
     char scene[PATHLEN], exr[PATHLEN], png[PATHLEN], out[OUTLEN];
@@ -1109,6 +1155,7 @@ static Suite *cli_suite(void)
     tcase_add_test(tc, deterministic_exr);
     tcase_add_test(tc, version_everywhere);
     tcase_add_test(tc, log_level_flag);
+    tcase_add_test(tc, embedded_workers_share_scene);
     suite_add_tcase(su, tc);
 
     tc = tcase_create("interrupt");

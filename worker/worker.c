@@ -27,12 +27,58 @@
 #include "vberr.h"
 #include "vblog.h"
 
+/* A scene in a worker_scenes_t: loaded by one worker, read by all. */
+typedef struct shared_scene {
+    uint8_t hash[PROTO_HASH_SIZE];
+    scene_t *scene;
+    tracer_t *tracer;
+    int loading; /* a worker is loading it: the others wait */
+    int users;   /* workers' cache entries holding it */
+    struct shared_scene *next;
+} shared_scene_t;
+
+struct worker_scenes {
+    pthread_mutex_t lock;
+    pthread_cond_t loaded; /* a load ended (or failed) */
+    shared_scene_t *list;
+};
+
+worker_scenes_t *worker_scenes_new(void)
+{
+    worker_scenes_t *s = calloc(1, sizeof *s);
+    if (!s)
+        return NULL;
+    pthread_mutex_init(&s->lock, NULL);
+    pthread_cond_init(&s->loaded, NULL);
+    return s;
+}
+
+void worker_scenes_destroy(worker_scenes_t **sp)
+{
+    if (!sp || !*sp)
+        return;
+    worker_scenes_t *s = *sp;
+    /* every worker has let go of its scenes (worker_destroy) by now */
+    while (s->list) {
+        shared_scene_t *next = s->list->next;
+        tracer_destroy(&s->list->tracer);
+        scene_destroy(&s->list->scene);
+        free(s->list);
+        s->list = next;
+    }
+    pthread_mutex_destroy(&s->lock);
+    pthread_cond_destroy(&s->loaded);
+    free(s);
+    *sp = NULL;
+}
+
 typedef struct scene_entry {
     uint8_t hash[PROTO_HASH_SIZE];
     scene_t *scene;
     tracer_t *tracer;
-    int requested; /* bundle asked for, not yet here */
-    int refs;      /* tasks queued or being traced */
+    shared_scene_t *shared; /* where scene and tracer belong when shared */
+    int requested;          /* bundle asked for, not yet here */
+    int refs;               /* tasks queued or being traced */
     double last_used;
     struct scene_entry *next;
 } scene_entry_t;
@@ -317,6 +363,106 @@ static scene_entry_t *find_scene(worker_t *w, const uint8_t *hash)
     return NULL;
 }
 
+/* Lets go of a cache entry's scene: the last of the process's workers to
+ * hold a shared one frees it. */
+static void drop_scene(worker_t *w, scene_entry_t *e)
+{
+    shared_scene_t *sh = e->shared;
+    if (!sh) {
+        tracer_destroy(&e->tracer);
+        scene_destroy(&e->scene);
+        return;
+    }
+    worker_scenes_t *st = w->cfg.scenes;
+    pthread_mutex_lock(&st->lock);
+    if (--sh->users == 0) {
+        for (shared_scene_t **l = &st->list; *l; l = &(*l)->next)
+            if (*l == sh) {
+                *l = sh->next;
+                break;
+            }
+        tracer_destroy(&sh->tracer);
+        scene_destroy(&sh->scene);
+        free(sh);
+    }
+    pthread_mutex_unlock(&st->lock);
+    e->shared = NULL;
+    e->scene = NULL;
+    e->tracer = NULL;
+}
+
+/* The bundle's scene and its tracer into e: loaded here, or, with a
+ * process's shared store, taken from the worker that loaded it (waiting
+ * while one loads it). 0, or -1 with a message. */
+static int load_scene(worker_t *w, scene_entry_t *e, const proto_bundle_t *b, char *err,
+                      size_t errlen, int *shared)
+{
+    scene_blob_t blobs[PROTO_MAX_MESHES];
+    for (uint32_t i = 0; i < b->mesh_count; i++) {
+        blobs[i].name = b->meshes[i].name;
+        blobs[i].data = b->meshes[i].data;
+        blobs[i].size = b->meshes[i].size;
+    }
+    worker_scenes_t *st = w->cfg.scenes;
+    shared_scene_t *sh = NULL;
+    *shared = 0;
+    if (st) {
+        pthread_mutex_lock(&st->lock);
+        for (;;) {
+            for (sh = st->list; sh && memcmp(sh->hash, b->hash, PROTO_HASH_SIZE) != 0;)
+                sh = sh->next;
+            if (!sh || !sh->loading)
+                break;
+            pthread_cond_wait(&st->loaded, &st->lock);
+        }
+        if (sh) {
+            sh->users++;
+            pthread_mutex_unlock(&st->lock);
+            e->shared = sh;
+            e->scene = sh->scene;
+            e->tracer = sh->tracer;
+            *shared = 1;
+            return 0;
+        }
+        /* this worker loads it; the others wait for it */
+        sh = calloc(1, sizeof *sh);
+        if (sh) {
+            memcpy(sh->hash, b->hash, PROTO_HASH_SIZE);
+            sh->loading = 1;
+            sh->users = 1;
+            sh->next = st->list;
+            st->list = sh;
+        }
+        pthread_mutex_unlock(&st->lock);
+    }
+    int rc = scene_load_bundle(b->json, b->json_size, "scene", blobs, b->mesh_count, &e->scene, err,
+                               errlen);
+    if (rc == 0 && tracer_new(w->device, e->scene, &e->tracer, err, errlen) < 0) {
+        scene_destroy(&e->scene);
+        rc = -1;
+    }
+    if (sh) {
+        pthread_mutex_lock(&st->lock);
+        sh->loading = 0;
+        if (rc == 0) {
+            sh->scene = e->scene;
+            sh->tracer = e->tracer;
+            e->shared = sh;
+        } else {
+            /* gone: a waiting worker loads it itself, and says why it fails */
+            for (shared_scene_t **l = &st->list; *l; l = &(*l)->next)
+                if (*l == sh) {
+                    *l = sh->next;
+                    break;
+                }
+            free(sh);
+        }
+        pthread_cond_broadcast(&st->loaded);
+        pthread_mutex_unlock(&st->lock);
+    }
+    return rc;
+}
+
 static void evict(worker_t *w)
 {
     int limit = w->cfg.cache_scenes > 0 ? w->cfg.cache_scenes : 4;
@@ -337,8 +483,7 @@ static void evict(worker_t *w)
             return;
         logf_(w, "dropping a cached scene (%d loaded, limit %d)", n, limit);
         *oldest_link = oldest->next;
-        tracer_destroy(&oldest->tracer);
-        scene_destroy(&oldest->scene);
+        drop_scene(w, oldest);
         free(oldest);
     }
 }
@@ -368,23 +513,14 @@ static void on_bundle(worker_t *w, const proto_msg_t *msg)
     int ok = memcmp(check, b->hash, PROTO_HASH_SIZE) == 0;
     if (!ok)
         snprintf(err, sizeof err, "scene bundle does not match its hash");
-    scene_blob_t blobs[PROTO_MAX_MESHES];
-    for (uint32_t i = 0; ok && i < b->mesh_count; i++) {
-        blobs[i].name = b->meshes[i].name;
-        blobs[i].data = b->meshes[i].data;
-        blobs[i].size = b->meshes[i].size;
-    }
     double t0 = now_s();
-    if (ok && scene_load_bundle(b->json, b->json_size, "scene", blobs, b->mesh_count, &e->scene,
-                                err, sizeof err) < 0)
+    int shared = 0;
+    if (ok && load_scene(w, e, b, err, sizeof err, &shared) < 0)
         ok = 0;
-    if (ok && tracer_new(w->device, e->scene, &e->tracer, err, sizeof err) < 0) {
-        scene_destroy(&e->scene);
-        ok = 0;
-    }
     e->requested = 0;
     if (ok)
-        logf_(w, "scene loaded in %.2f s: %zu triangles (%s)", now_s() - t0,
+        logf_(w, "scene %s in %.2f s: %zu triangles (%s)",
+              shared ? "shared with another worker" : "loaded", now_s() - t0,
               e->scene->triangle_count, tracer_isa(e->tracer));
     else
         logf_(w, "scene failed to load: %s", err);
@@ -888,8 +1024,7 @@ void worker_destroy(worker_t **wp)
     }
     while (w->cache) {
         scene_entry_t *next = w->cache->next;
-        tracer_destroy(&w->cache->tracer);
-        scene_destroy(&w->cache->scene);
+        drop_scene(w, w->cache);
         free(w->cache);
         w->cache = next;
     }

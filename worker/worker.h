@@ -23,6 +23,15 @@
 
 typedef struct worker worker_t;
 
+/* Scenes loaded once for all the workers of one process that are given
+ * it (the embedded `vbrender render`): the first worker a scene's bundle
+ * reaches loads it and builds its BVH, the others wait for it and share
+ * it (a loaded scene and its tracer are only read). Thread-safe; it must
+ * outlive every worker given it. */
+typedef struct worker_scenes worker_scenes_t;
+worker_scenes_t *worker_scenes_new(void);
+void worker_scenes_destroy(worker_scenes_t **s);
+
 typedef struct worker_config {
     void *zmq_ctx;                /* not owned */
     const char *master_endpoint;  /* e.g. tcp://host:7070 or inproc://workers */
@@ -33,6 +42,8 @@ typedef struct worker_config {
     const char *name;             /* for log lines */
     struct tracer_device *device; /* the process's Embree device, shared; NULL:
                                      the worker makes (and owns) its own */
+    worker_scenes_t *scenes;      /* loaded scenes shared with the process's
+                                     other workers (not owned); NULL: its own */
     /* CURVE (keys.h, Z85): all three, or none for a master without keys */
     const char *public_key; /* this worker's key pair */
     const char *secret_key;
