@@ -162,7 +162,7 @@ def table(R):
          f"Our time is the job's clock, from its first task (the workers' scene loading counts); "
          f"Mitsuba's renders are timed warm. "
          + (f"Host: {c['host']}. " if c.get("host") else "") +
-         f"Commit {R['commit']}, {R['date']}, {R['seconds']:.0f} s in all (`bench/error/peer_best.py`); plots "
+         f"Commit {R['commit']} (a row of an earlier run names its own), {R['date']}, {R['seconds']:.0f} s in all (`bench/error/peer_best.py`); plots "
          f"`bench/results/error/peer-best-<scene>.png`.", "",
          "| scene | Mitsuba's best | its relMSE at equal time, per sampler (independent, stratified, "
          "multijitter, orthogonal, ldsampler; geomean, best = 1) | ours / its best at its time for (spp) "
@@ -176,7 +176,9 @@ def table(R):
         marks = ", ".join(f"{m['ratio']:.2f} ({m['mitsuba_spp']})" if m["ratio"] else f"- ({m['mitsuba_spp']})"
                           for m in cmp_["at_mitsuba_times"])
         geo = f"{cmp_['time_geomean']:.2f}" if cmp_["time_geomean"] else "-"
-        L.append(f"| {name} | {sc['best']} | {per} | {marks} | {geo} |")
+        # a row of an earlier run of the same settings says its commit
+        at = f" ({sc['commit']})" if sc.get("commit") and sc["commit"] != R["commit"] else ""
+        L.append(f"| {name}{at} | {sc['best']} | {per} | {marks} | {geo} |")
     return "\n".join(L)
 
 
