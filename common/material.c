@@ -96,9 +96,7 @@ const char *material_conductor_presets(void)
 
 /* ---- rough plastic's coat ------------------------------------------------- */
 
-/* The n-point Gauss-Legendre rule on [-1, 1] (Newton on the Legendre
- * polynomial from Chebyshev guesses, in double). */
-static void gauss_legendre(int n, double *x, double *w)
+void material_gauss_legendre(int n, double *x, double *w)
 {
     for (int i = 0; i < (n + 1) / 2; i++) {
         double z = cos(M_PI * (i + 0.75) / (n + 0.5)), dp = 1;
@@ -126,19 +124,39 @@ static void gauss_legendre(int n, double *x, double *w)
  * counted once (Mitsuba's eval_transmittance and eval_reflectance: a
  * Gauss-Legendre rule over the visible normals' sample square, 32 points a
  * side above eta 1, 128 below). */
-static double coat_integral(const microfacet_t *d, float mu, float eta, int transmit)
+/* The two rules a coat's rows take (coat_integral), computed once a coat. */
+enum { COAT_RULE_ABOVE = 32, COAT_RULE_BELOW = 128 };
+typedef struct coat_rules {
+    double x32[COAT_RULE_ABOVE], w32[COAT_RULE_ABOVE];
+    double x128[COAT_RULE_BELOW], w128[COAT_RULE_BELOW];
+} coat_rules_t;
+
+static double coat_integral(const coat_rules_t *r, const microfacet_t *d, float mu, float eta,
+                            int transmit)
 {
-    enum { MAXN = 128 };
-    double x[MAXN], w[MAXN];
-    int n = eta > 1 ? 32 : 128;
-    gauss_legendre(n, x, w);
+    enum { MAXN = COAT_RULE_BELOW };
+    int n = eta > 1 ? COAT_RULE_ABOVE : COAT_RULE_BELOW;
+    const double *x = eta > 1 ? r->x32 : r->x128, *w = eta > 1 ? r->w32 : r->w128;
     vec3_t wi = vec3_make(sqrtf(1 - mu * mu), 0, mu);
+    /* Beckmann's slope is one part from u1 and one from u2: each computed
+     * once for the grid's n values, not n^2 times (erf, log and exp were
+     * most of a coat's time), with the same operations as
+     * microfacet_sample_visible, so the same bits */
+    microfacet_stretched_t st = microfacet_stretch(d, wi);
+    float slope_x[MAXN], slope_y[MAXN];
+    int split = d->type == MICROFACET_BECKMANN;
+    for (int k = 0; split && k < n; k++) {
+        float u = (float)(x[k] * 0.5 + 0.5);
+        slope_x[k] = microfacet_beckmann_slope_x(st.cos_i, u);
+        slope_y[k] = microfacet_beckmann_slope_y(u);
+    }
     double sum = 0;
     for (int a = 0; a < n; a++)
         for (int b = 0; b < n; b++) {
             /* meshgrid: the first coordinate runs fastest */
             float u1 = (float)(x[b] * 0.5 + 0.5), u2 = (float)(x[a] * 0.5 + 0.5);
-            vec3_t m = microfacet_sample_visible(d, wi, u1, u2);
+            vec3_t m = split ? microfacet_slope_normal(d, st, slope_x[b], slope_y[a])
+                             : microfacet_sample_visible(d, wi, u1, u2);
             float cos_t, c = vec3_dot(wi, m);
             float f = microfacet_fresnel(c, eta, &cos_t);
             vec3_t wo;
@@ -161,6 +179,7 @@ static double coat_integral(const microfacet_t *d, float mu, float eta, int tran
  * reflectance. */
 enum { COAT_MAX_THREADS = 16 };
 typedef struct coat_rows {
+    const coat_rules_t *rules;
     microfacet_t d;
     float ior;
     float *coat_t;
@@ -173,8 +192,8 @@ static void *coat_rows(void *arg)
     coat_rows_t *j = arg;
     for (int i = j->first; i < MATERIAL_COAT_RES; i += j->step) {
         float mu = fmaxf(1e-6f, (float)i / (MATERIAL_COAT_RES - 1));
-        j->coat_t[i] = (float)coat_integral(&j->d, mu, j->ior, 1);
-        j->internal_row[i] = coat_integral(&j->d, mu, 1.0f / j->ior, 0) * mu;
+        j->coat_t[i] = (float)coat_integral(j->rules, &j->d, mu, j->ior, 1);
+        j->internal_row[i] = coat_integral(j->rules, &j->d, mu, 1.0f / j->ior, 0) * mu;
     }
     return NULL;
 }
@@ -199,7 +218,10 @@ void material_prepare(material_t *m, float albedo_mean, const material_t *prepar
             return;
         }
     }
-    coat_rows_t job = {material_microfacet(m), m->ior, m->coat_t, {0}, 0, 1};
+    coat_rules_t rules;
+    material_gauss_legendre(COAT_RULE_ABOVE, rules.x32, rules.w32);
+    material_gauss_legendre(COAT_RULE_BELOW, rules.x128, rules.w128);
+    coat_rows_t job = {&rules, material_microfacet(m), m->ior, m->coat_t, {0}, 0, 1};
     /* The rows on every core: a coat is a million visible-normal samples
      * (0.15-0.5 s on one core), which small renders of Mitsuba's scenes
      * spent most of their time on. Each row is its own, and the internal

@@ -74,6 +74,12 @@ typedef struct material {
 int material_type_from_name(const char *name);
 const char *material_type_name(material_type_t type);
 
+/* The n-point Gauss-Legendre rule on [-1, 1], nodes x[0..n) and weights
+ * w[0..n) (Newton on the Legendre polynomial from Chebyshev guesses, in
+ * double): the quadrature of rough plastic's coat tables (material.c),
+ * and of the tests that check them. */
+void material_gauss_legendre(int n, double *x, double *w);
+
 /* Derives what a material's sampling needs from its parameters, once at
  * load: rough plastic integrates its coat's transmittance numerically (as
  * Mitsuba does, Gauss-Legendre over its visible normals: about 0.15 s),

@@ -116,27 +116,40 @@ static inline float microfacet_safe_sqrt(float x)
 
 /* A visible slope of the distribution at alpha 1 for a direction of
  * cosine cos_i, from two uniforms. */
+/* Beckmann's visible slope, its two parts: along the direction's azimuth
+ * from u1 (and the direction's cosine) alone, across it from u2 alone, so
+ * a grid of (u1, u2) needs each once (coat_integral). */
+static inline float microfacet_beckmann_slope_x(float cos_i, float u1)
+{
+    float tan_i = microfacet_safe_sqrt(1.0f - cos_i * cos_i) / cos_i, cot_i = 1.0f / tan_i;
+    float maxval = erff(cot_i);
+    u1 = fmaxf(fminf(u1, 1.0f - 1e-6f), 1e-6f);
+    float x = maxval - (maxval + 1.0f) * erff(sqrtf(-logf(u1)));
+    /* tan_i * exp(-cot^2) at normal incidence is 0 * 0, not NaN */
+    float tail = tan_i > 0.0f ? tan_i * expf(-cot_i * cot_i) : 0.0f;
+    u1 *= 1.0f + maxval + VMATH_INV_SQRT_PI * tail;
+    for (int i = 0; i < 3; i++) {
+        float slope = microfacet_erfinv(x);
+        float e = tan_i > 0.0f ? tan_i * expf(-slope * slope) : 0.0f;
+        float value = 1.0f + x + VMATH_INV_SQRT_PI * e - u1;
+        float derivative = 1.0f - slope * tan_i;
+        x -= value / derivative;
+    }
+    return microfacet_erfinv(x);
+}
+
+static inline float microfacet_beckmann_slope_y(float u2)
+{
+    u2 = fmaxf(fminf(u2, 1.0f - 1e-6f), 1e-6f);
+    return microfacet_erfinv(2.0f * u2 - 1.0f);
+}
+
 static inline void microfacet_visible_slope(const microfacet_t *d, float cos_i, float u1, float u2,
                                             float *sx, float *sy)
 {
     if (d->type == MICROFACET_BECKMANN) {
-        float tan_i = microfacet_safe_sqrt(1.0f - cos_i * cos_i) / cos_i, cot_i = 1.0f / tan_i;
-        float maxval = erff(cot_i);
-        u1 = fmaxf(fminf(u1, 1.0f - 1e-6f), 1e-6f);
-        u2 = fmaxf(fminf(u2, 1.0f - 1e-6f), 1e-6f);
-        float x = maxval - (maxval + 1.0f) * erff(sqrtf(-logf(u1)));
-        /* tan_i * exp(-cot^2) at normal incidence is 0 * 0, not NaN */
-        float tail = tan_i > 0.0f ? tan_i * expf(-cot_i * cot_i) : 0.0f;
-        u1 *= 1.0f + maxval + VMATH_INV_SQRT_PI * tail;
-        for (int i = 0; i < 3; i++) {
-            float slope = microfacet_erfinv(x);
-            float e = tan_i > 0.0f ? tan_i * expf(-slope * slope) : 0.0f;
-            float value = 1.0f + x + VMATH_INV_SQRT_PI * e - u1;
-            float derivative = 1.0f - slope * tan_i;
-            x -= value / derivative;
-        }
-        *sx = microfacet_erfinv(x);
-        *sy = microfacet_erfinv(2.0f * u2 - 1.0f);
+        *sx = microfacet_beckmann_slope_x(cos_i, u1);
+        *sy = microfacet_beckmann_slope_y(u2);
         return;
     }
     /* GGX: a point of the concentric disk, squeezed to the visible half */
@@ -161,20 +174,40 @@ static inline void microfacet_visible_slope(const microfacet_t *d, float cos_i, 
 
 /* A normal m of the facets wo sees (wo.z > 0), from two uniforms: density
  * microfacet_pdf_visible. */
-static inline vec3_t microfacet_sample_visible(const microfacet_t *d, vec3_t wo, float u1, float u2)
+/* microfacet_sample_visible in its steps: wo stretched to alpha 1 (its
+ * cosine there and its azimuth's sine and cosine), then a slope there
+ * (microfacet_visible_slope) turned back into a normal. */
+typedef struct microfacet_stretched {
+    float cos_i, sin_phi, cos_phi;
+} microfacet_stretched_t;
+
+static inline microfacet_stretched_t microfacet_stretch(const microfacet_t *d, vec3_t wo)
 {
     vec3_t w = vec3_normalize(vec3_make(d->alpha * wo.x, d->alpha * wo.y, wo.z));
-    float sin2 = 1.0f - w.z * w.z, sin_phi = 0.0f, cos_phi = 1.0f;
+    microfacet_stretched_t st = {w.z, 0.0f, 1.0f};
+    float sin2 = 1.0f - w.z * w.z;
     if (fabsf(sin2) > 4.0f * 0x1p-24f) {
         float inv = 1.0f / sqrtf(sin2);
-        sin_phi = fmaxf(-1.0f, fminf(1.0f, w.y * inv));
-        cos_phi = fmaxf(-1.0f, fminf(1.0f, w.x * inv));
+        st.sin_phi = fmaxf(-1.0f, fminf(1.0f, w.y * inv));
+        st.cos_phi = fmaxf(-1.0f, fminf(1.0f, w.x * inv));
     }
-    float sx, sy;
-    microfacet_visible_slope(d, w.z, u1, u2, &sx, &sy);
-    float tx = (cos_phi * sx - sin_phi * sy) * d->alpha;
-    float ty = (sin_phi * sx + cos_phi * sy) * d->alpha;
+    return st;
+}
+
+static inline vec3_t microfacet_slope_normal(const microfacet_t *d, microfacet_stretched_t st,
+                                             float sx, float sy)
+{
+    float tx = (st.cos_phi * sx - st.sin_phi * sy) * d->alpha;
+    float ty = (st.sin_phi * sx + st.cos_phi * sy) * d->alpha;
     return vec3_normalize(vec3_make(-tx, -ty, 1.0f));
+}
+
+static inline vec3_t microfacet_sample_visible(const microfacet_t *d, vec3_t wo, float u1, float u2)
+{
+    microfacet_stretched_t st = microfacet_stretch(d, wo);
+    float sx, sy;
+    microfacet_visible_slope(d, st.cos_i, u1, u2, &sx, &sy);
+    return microfacet_slope_normal(d, st, sx, sy);
 }
 
 /* The density of the normals microfacet_sample_visible gives for wo. */

@@ -413,18 +413,99 @@ START_TEST(distributions_normalised)
 }
 END_TEST
 
+/* Beckmann's visible normal from its parts (the stretched direction, the
+ * slope's part from u1, the part from u2), as rough plastic's coat tables
+ * compute them once a grid line, is microfacet_sample_visible's, bit for
+ * bit: over directions from normal to grazing and numbers up to both ends
+ * of [0, 1] (clamped alike). */
+START_TEST(beckmann_slope_parts)
+{
+    static const float us[] = {0.0f,  1e-7f,  1e-6f,        0.013f,         0.25f, 0.5f,
+                               0.77f, 0.999f, 1.0f - 1e-6f, 0x1.fffffep-1f, 1.0f};
+    enum { NU = sizeof us / sizeof us[0] };
+    size_t checked = 0;
+    for (int a = 0; a < 3; a++) {
+        microfacet_t d = {MICROFACET_BECKMANN, a == 0 ? 0.005f : a == 1 ? 0.1f : 0.7f};
+        for (int k = 0; k <= 40; k++) {
+            float mu = k == 0 ? 1e-6f : (float)k / 40;
+            vec3_t wo = vec3_normalize(vec3_make(sqrtf(1 - mu * mu), k % 3 == 0 ? 0.3f : 0.0f, mu));
+            microfacet_stretched_t st = microfacet_stretch(&d, wo);
+            for (int i = 0; i < NU; i++)
+                for (int j = 0; j < NU; j++) {
+                    vec3_t want = microfacet_sample_visible(&d, wo, us[i], us[j]);
+                    vec3_t got = microfacet_slope_normal(
+                        &d, st, microfacet_beckmann_slope_x(st.cos_i, us[i]),
+                        microfacet_beckmann_slope_y(us[j]));
+                    ck_assert_msg(memcmp(&want, &got, sizeof want) == 0,
+                                  "alpha %g mu %g u (%a, %a): (%a %a %a), want (%a %a %a)", d.alpha,
+                                  mu, us[i], us[j], got.x, got.y, got.z, want.x, want.y, want.z);
+                    checked++;
+                }
+        }
+    }
+    ck_assert_uint_eq(checked, 3 * 41 * NU * NU);
+}
+END_TEST
+
+/* A coat's transmittance from direction cosine mu, each point of the
+ * 32 x 32 rule drawn by microfacet_sample_visible itself (material.c takes
+ * Beckmann's slopes a grid line at a time): the table must hold these
+ * bits. */
+static float coat_transmittance_direct(const microfacet_t *d, float mu, float eta)
+{
+    enum { N = 32 };
+    double x[N], w[N];
+    material_gauss_legendre(N, x, w);
+    vec3_t wi = vec3_make(sqrtf(1 - mu * mu), 0, mu);
+    double sum = 0;
+    for (int a = 0; a < N; a++)
+        for (int b = 0; b < N; b++) {
+            float u1 = (float)(x[b] * 0.5 + 0.5), u2 = (float)(x[a] * 0.5 + 0.5);
+            vec3_t m = microfacet_sample_visible(d, wi, u1, u2);
+            float cos_t, c = vec3_dot(wi, m);
+            float f = microfacet_fresnel(c, eta, &cos_t);
+            float eta_ti = c >= 0 ? 1 / eta : eta;
+            vec3_t wo = vec3_sub(vec3_scale(m, c * eta_ti + cos_t), vec3_scale(wi, eta_ti));
+            float g = wo.z * wi.z >= 0 ? 0 : microfacet_g1(d, wo, m) * (1 - f);
+            sum += g * w[a] * w[b] * 0.25;
+        }
+    return (float)sum;
+}
+
+START_TEST(beckmann_coat_table_bits)
+{
+    for (int a = 0; a < 2; a++) {
+        material_t p = plastic(a ? 0.3f : 0.05f, MICROFACET_BECKMANN, 0.5f, 1.5f);
+        microfacet_t d = {MICROFACET_BECKMANN, p.alpha};
+        for (int i = 0; i < MATERIAL_COAT_RES; i += 9) {
+            float mu = fmaxf(1e-6f, (float)i / (MATERIAL_COAT_RES - 1));
+            float want = coat_transmittance_direct(&d, mu, 1.5f);
+            ck_assert_msg(memcmp(&p.coat_t[i], &want, sizeof want) == 0,
+                          "alpha %g row %d: %a, sample by sample %a", p.alpha, i, p.coat_t[i],
+                          want);
+        }
+    }
+}
+END_TEST
+
 /* Rough plastic's coat: at tiny roughness its transmittance is one minus
  * Fresnel's reflectance; its internal reflectance approaches the smooth
  * plastic's hemispherical fit. */
 START_TEST(plastic_coat_tables)
 {
     material_t r = plastic(1e-3f, MICROFACET_GGX, 0.5f, 1.5f);
+    /* (Beckmann's tables take its slopes a grid line at a time) */
+    material_t rb = plastic(1e-3f, MICROFACET_BECKMANN, 0.5f, 1.5f);
     for (int i = 8; i < MATERIAL_COAT_RES; i += 8) {
         float mu = (float)i / (MATERIAL_COAT_RES - 1), ct;
         float want = 1 - microfacet_fresnel(mu, 1.5f, &ct);
         ck_assert_msg(fabsf(r.coat_t[i] - want) < 5e-3f, "mu %g: %g, want %g", mu, r.coat_t[i],
                       want);
+        ck_assert_msg(fabsf(rb.coat_t[i] - want) < 5e-3f, "Beckmann, mu %g: %g, want %g", mu,
+                      rb.coat_t[i], want);
     }
+    ck_assert_msg(fabsf(rb.internal - r.internal) < 2e-3f, "internal: Beckmann %g, GGX %g",
+                  rb.internal, r.internal);
     /* a second plastic with the same coat takes the first's tables */
     material_t again = {.type = MATERIAL_PLASTIC,
                         .albedo = vec3_make(0.1f, 0.2f, 0.3f),
@@ -622,6 +703,8 @@ static Suite *glossy_suite(void)
     tcase_add_test(tc, smooth_limit);
     tcase_add_test(tc, fresnel_values);
     tcase_add_test(tc, distributions_normalised);
+    tcase_add_test(tc, beckmann_slope_parts);
+    tcase_add_test(tc, beckmann_coat_table_bits);
     tcase_add_test(tc, plastic_coat_tables);
     tcase_add_test(tc, thin_dielectric);
     tcase_add_test(tc, eval_as_mitsuba);
