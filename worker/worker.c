@@ -862,6 +862,11 @@ worker_t *worker_new(const worker_config_t *cfg, char *err, size_t errlen)
         snprintf(err, errlen, "threads must be 1..%d", PROTO_MAX_THREADS);
         return NULL;
     }
+    if (cfg->scenes && !cfg->device) {
+        /* a shared tracer lives on the device it was built on */
+        snprintf(err, errlen, "a shared scene store needs the process's shared device");
+        return NULL;
+    }
     if (sodium_init() < 0) {
         snprintf(err, errlen, "libsodium failed to initialise");
         return NULL;

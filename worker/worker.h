@@ -43,7 +43,8 @@ typedef struct worker_config {
     struct tracer_device *device; /* the process's Embree device, shared; NULL:
                                      the worker makes (and owns) its own */
     worker_scenes_t *scenes;      /* loaded scenes shared with the process's
-                                     other workers (not owned); NULL: its own */
+                                     other workers (not owned; needs device,
+                                     the same for all of them); NULL: its own */
     /* CURVE (keys.h, Z85): all three, or none for a master without keys */
     const char *public_key; /* this worker's key pair */
     const char *secret_key;
