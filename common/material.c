@@ -119,11 +119,6 @@ void material_gauss_legendre(int n, double *x, double *w)
     }
 }
 
-/* The share of light from direction wi (wi.z = mu) that a rough
- * dielectric interface of index eta lets through (transmit) or reflects,
- * counted once (Mitsuba's eval_transmittance and eval_reflectance: a
- * Gauss-Legendre rule over the visible normals' sample square, 32 points a
- * side above eta 1, 128 below). */
 /* The two rules a coat's rows take (coat_integral), computed once a coat. */
 enum { COAT_RULE_ABOVE = 32, COAT_RULE_BELOW = 128 };
 typedef struct coat_rules {
@@ -131,6 +126,11 @@ typedef struct coat_rules {
     double x128[COAT_RULE_BELOW], w128[COAT_RULE_BELOW];
 } coat_rules_t;
 
+/* The share of light from direction wi (wi.z = mu) that a rough
+ * dielectric interface of index eta lets through (transmit) or reflects,
+ * counted once (Mitsuba's eval_transmittance and eval_reflectance: a
+ * Gauss-Legendre rule over the visible normals' sample square, 32 points a
+ * side above eta 1, 128 below). */
 static double coat_integral(const coat_rules_t *r, const microfacet_t *d, float mu, float eta,
                             int transmit)
 {
@@ -153,10 +153,10 @@ static double coat_integral(const coat_rules_t *r, const microfacet_t *d, float 
     double sum = 0;
     for (int a = 0; a < n; a++)
         for (int b = 0; b < n; b++) {
-            /* meshgrid: the first coordinate runs fastest */
-            float u1 = (float)(x[b] * 0.5 + 0.5), u2 = (float)(x[a] * 0.5 + 0.5);
+            /* meshgrid: the first coordinate (u1, b) runs fastest */
             vec3_t m = split ? microfacet_slope_normal(d, st, slope_x[b], slope_y[a])
-                             : microfacet_sample_visible(d, wi, u1, u2);
+                             : microfacet_sample_visible(d, wi, (float)(x[b] * 0.5 + 0.5),
+                                                         (float)(x[a] * 0.5 + 0.5));
             float cos_t, c = vec3_dot(wi, m);
             float f = microfacet_fresnel(c, eta, &cos_t);
             vec3_t wo;

@@ -114,8 +114,6 @@ static inline float microfacet_safe_sqrt(float x)
     return sqrtf(x > 0.0f ? x : 0.0f);
 }
 
-/* A visible slope of the distribution at alpha 1 for a direction of
- * cosine cos_i, from two uniforms. */
 /* Beckmann's visible slope, its two parts: along the direction's azimuth
  * from u1 (and the direction's cosine) alone, across it from u2 alone, so
  * a grid of (u1, u2) needs each once (coat_integral). */
@@ -144,6 +142,8 @@ static inline float microfacet_beckmann_slope_y(float u2)
     return microfacet_erfinv(2.0f * u2 - 1.0f);
 }
 
+/* A visible slope of the distribution at alpha 1 for a direction of
+ * cosine cos_i, from two uniforms. */
 static inline void microfacet_visible_slope(const microfacet_t *d, float cos_i, float u1, float u2,
                                             float *sx, float *sy)
 {
@@ -172,8 +172,6 @@ static inline void microfacet_visible_slope(const microfacet_t *d, float cos_i, 
     *sy = px * norm;
 }
 
-/* A normal m of the facets wo sees (wo.z > 0), from two uniforms: density
- * microfacet_pdf_visible. */
 /* microfacet_sample_visible in its steps: wo stretched to alpha 1 (its
  * cosine there and its azimuth's sine and cosine), then a slope there
  * (microfacet_visible_slope) turned back into a normal. */
@@ -202,6 +200,8 @@ static inline vec3_t microfacet_slope_normal(const microfacet_t *d, microfacet_s
     return vec3_normalize(vec3_make(-tx, -ty, 1.0f));
 }
 
+/* A normal m of the facets wo sees (wo.z > 0), from two uniforms: density
+ * microfacet_pdf_visible. */
 static inline vec3_t microfacet_sample_visible(const microfacet_t *d, vec3_t wo, float u1, float u2)
 {
     microfacet_stretched_t st = microfacet_stretch(d, wo);

@@ -6,8 +6,9 @@
  * dimension, the pair's key), which made the sobol sampler about a tenth
  * of a diffuse sample's time. Eight streams' pairs in AVX2 vectors take
  * a handful of operations each: byte shuffles reverse the bits, and the
- * second dimension takes rng.h's five shift-and-XOR steps. The pair's 64-bit key stays scalar (AVX2
- * has no 64-bit multiply). Integer operations: the same bits on every ISA. */
+ * second dimension takes rng.h's five shift-and-XOR steps. The pair's
+ * 64-bit key stays scalar (AVX2 has no 64-bit multiply). Integer
+ * operations: the same bits on every ISA. */
 #include "rng.h"
 
 #include <immintrin.h>
