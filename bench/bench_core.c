@@ -32,7 +32,8 @@
  *      RTC_SCENE_FLAG_ROBUST (what that flag costs; JSON only);
  *      and on the triangle list (trilist.h), which the tracer uses instead
  *      of Embree for a scene of up to TRILIST_MAX_TRIANGLES triangles
- *      ("accel" in the JSON says which the renders used);
+ *      ("accel" in the JSON says which the renders used), in the tracer's
+ *      packets as the renders cast them (two rays a call);
  *      and, on a scene traced through Embree, the two other ways it could
  *      be kept watertight (issue 9; JSON "path_sorted" and
  *      "path_watertight_user"): the same rays sorted by direction octant
@@ -321,22 +322,10 @@ static void *raw_worker(void *argp)
 {
     raw_job_t *j = argp;
     size_t hits = 0;
-    if (j->list) {
-        for (size_t i = j->begin; i < j->end; i++) {
-            const bray_t *b = &j->rays[i];
-            vec3_t o = vec3_make(b->o[0], b->o[1], b->o[2]),
-                   d = vec3_make(b->d[0], b->d[1], b->d[2]);
-            if (j->shadow) {
-                hits += trilist_occluded(j->list, o, d, TRACER_SHADOW_TFAR);
-            } else {
-                uint32_t tri;
-                float t, u, v;
-                hits += trilist_intersect(j->list, o, d, INFINITY, &tri, &t, &u, &v);
-            }
-        }
-    } else if (!j->one_by_one) {
+    if (j->list || !j->one_by_one) {
         /* packets of consecutive rays, through the tracer's own calls */
-        const tracer_t tr = {.rtc = j->scene, .bvh = (bvh_t *)j->tracer_bvh};
+        const tracer_t tr = {
+            .rtc = j->scene, .bvh = (bvh_t *)j->tracer_bvh, .small = (trilist_t *)j->list};
         for (size_t i = j->begin; i < j->end; i += TRACER_PACKET) {
             size_t m = j->end - i < TRACER_PACKET ? j->end - i : TRACER_PACKET;
             tracer_packet_t pk;

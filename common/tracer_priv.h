@@ -146,8 +146,20 @@ static inline void tracer_intersect_packet(const tracer_t *tr, const tracer_pack
                                    &h[i].v);
         return;
     }
-    if (tr->small) {
-        for (size_t i = 0; i < n; i++)
+    if (tr->small) { /* two rays a call: faster, the same bits */
+        size_t i = 0;
+        for (; i + 1 < n; i += 2) {
+            uint32_t tri[2];
+            float t[2], u[2], v[2];
+            trilist_intersect_pair(tr->small, p->o + i, p->d + i, hit + i, tri, t, u, v);
+            for (int k = 0; k < 2; k++) {
+                h[i + k].tri = tri[k];
+                h[i + k].t = t[k];
+                h[i + k].u = u[k];
+                h[i + k].v = v[k];
+            }
+        }
+        for (; i < n; i++)
             hit[i] = trilist_intersect(tr->small, p->o[i], p->d[i], INFINITY, &h[i].tri, &h[i].t,
                                        &h[i].u, &h[i].v);
         return;
@@ -180,8 +192,15 @@ static inline void tracer_unoccluded_packet(const tracer_t *tr, const tracer_pac
             clear[i] = !bvh_occluded(tr->bvh, p->o[i], p->d[i], TRACER_SHADOW_TFAR);
         return;
     }
-    if (tr->small) {
-        for (size_t i = 0; i < n; i++)
+    if (tr->small) { /* two rays a call, as above */
+        size_t i = 0;
+        for (; i + 1 < n; i += 2) {
+            int occ[2];
+            trilist_occluded_pair(tr->small, p->o + i, p->d + i, TRACER_SHADOW_TFAR, occ);
+            clear[i] = !occ[0];
+            clear[i + 1] = !occ[1];
+        }
+        for (; i < n; i++)
             clear[i] = !trilist_occluded(tr->small, p->o[i], p->d[i], TRACER_SHADOW_TFAR);
         return;
     }

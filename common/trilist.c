@@ -19,6 +19,8 @@ typedef struct trilist_hit {
 
 typedef int (*trilist_fn)(const trilist_t *l, const float o[3], const float d[3], float tfar,
                           int any, trilist_hit_t *out);
+typedef void (*trilist_pair_fn)(const trilist_t *l, const float o[2][3], const float d[2][3],
+                                float tfar, int any, int hit[2], trilist_hit_t out[2]);
 
 struct trilist {
     size_t blocks;
@@ -26,6 +28,7 @@ struct trilist {
                     * normal (v1 - v0) x (v2 - v0)) of TRILIST_BLOCK floats;
                     * NaN past the last triangle */
     trilist_fn fn;
+    trilist_pair_fn pair;
     const char *kernel;
 };
 
@@ -54,6 +57,7 @@ static inline float trilist_min4(__m128 v)
 #define KVI trilist_vi16
 #define KW 16
 #define KNAME trilist_avx512
+#define KNAME2 trilist_avx512_pair
 #define KFIX trilist_avx512_fix
 #define KEDGES trilist_edges16
 #define KTARGET "avx512f"
@@ -62,6 +66,7 @@ static inline float trilist_min4(__m128 v)
 #include "trilist_kernel.inc"
 #undef KW
 #undef KNAME
+#undef KNAME2
 #undef KFIX
 #undef KEDGES
 #undef KTARGET
@@ -74,6 +79,7 @@ static inline float trilist_min4(__m128 v)
 #define KVI trilist_vi8
 #define KW 8
 #define KNAME trilist_avx2
+#define KNAME2 trilist_avx2_pair
 #define KFIX trilist_avx2_fix
 #define KEDGES trilist_edges8
 #define KTARGET "avx2"
@@ -82,6 +88,7 @@ static inline float trilist_min4(__m128 v)
 #include "trilist_kernel.inc"
 #undef KW
 #undef KNAME
+#undef KNAME2
 #undef KFIX
 #undef KEDGES
 #undef KTARGET
@@ -95,6 +102,7 @@ static inline float trilist_min4(__m128 v)
 #define KVI trilist_vi4
 #define KW 4
 #define KNAME trilist_sse2
+#define KNAME2 trilist_sse2_pair
 #define KFIX trilist_sse2_fix
 #define KEDGES trilist_edges4
 #define KMASK(m) ((unsigned)_mm_movemask_ps((__m128)(m)))
@@ -102,6 +110,7 @@ static inline float trilist_min4(__m128 v)
 #include "trilist_kernel.inc"
 #undef KW
 #undef KNAME
+#undef KNAME2
 #undef KFIX
 #undef KEDGES
 #undef KVF
@@ -154,10 +163,11 @@ int trilist_use_kernel(trilist_t *l, const char *name)
     static const struct {
         const char *name;
         trilist_fn fn;
+        trilist_pair_fn pair;
     } kernels[] = {
-        {"avx512", trilist_avx512},
-        {"avx2", trilist_avx2},
-        {"sse2", trilist_sse2},
+        {"avx512", trilist_avx512, trilist_avx512_pair},
+        {"avx2", trilist_avx2, trilist_avx2_pair},
+        {"sse2", trilist_sse2, trilist_sse2_pair},
     };
     __builtin_cpu_init();
     for (size_t i = 0; i < sizeof kernels / sizeof kernels[0]; i++) {
@@ -170,6 +180,7 @@ int trilist_use_kernel(trilist_t *l, const char *name)
         if (!ok)
             return -1;
         l->fn = kernels[i].fn;
+        l->pair = kernels[i].pair;
         l->kernel = kernels[i].name;
         return 0;
     }
@@ -199,4 +210,28 @@ int trilist_occluded(const trilist_t *l, vec3_t o, vec3_t d, float tfar)
 {
     const float of[3] = {o.x, o.y, o.z}, df[3] = {d.x, d.y, d.z};
     return l->fn(l, of, df, tfar, 1, NULL);
+}
+
+void trilist_intersect_pair(const trilist_t *l, const vec3_t o[2], const vec3_t d[2], int hit[2],
+                            uint32_t tri[2], float t[2], float u[2], float v[2])
+{
+    const float of[2][3] = {{o[0].x, o[0].y, o[0].z}, {o[1].x, o[1].y, o[1].z}};
+    const float df[2][3] = {{d[0].x, d[0].y, d[0].z}, {d[1].x, d[1].y, d[1].z}};
+    trilist_hit_t h[2];
+    l->pair(l, of, df, INFINITY, 0, hit, h);
+    for (int k = 0; k < 2; k++)
+        if (hit[k]) {
+            tri[k] = h[k].tri;
+            t[k] = h[k].t;
+            u[k] = h[k].u;
+            v[k] = h[k].v;
+        }
+}
+
+void trilist_occluded_pair(const trilist_t *l, const vec3_t o[2], const vec3_t d[2], float tfar,
+                           int hit[2])
+{
+    const float of[2][3] = {{o[0].x, o[0].y, o[0].z}, {o[1].x, o[1].y, o[1].z}};
+    const float df[2][3] = {{d[0].x, d[0].y, d[0].z}, {d[1].x, d[1].y, d[1].z}};
+    l->pair(l, of, df, tfar, 1, hit, NULL);
 }

@@ -262,6 +262,31 @@ START_TEST(test_kernels_same_bits)
                     ck_assert_msg(memcmp(&ref[i], &got[i], sizeof ref[i]) == 0,
                                   "%s kernel differs from the widest on ray %zu", kernels[k], i);
             tested++;
+            /* two rays at once give each ray's own result: neighbours in
+             * the list, and each ray with one far from it in the list (a
+             * shadow ray blocked early beside one that is not) */
+            for (size_t i = 0; i + 1 < n; i++) {
+                const size_t j = i % 2 ? (i * 7919) % n : i + 1;
+                const vec3_t o[2] = {rays[i].o, rays[j].o}, d[2] = {rays[i].d, rays[j].d};
+                int hit[2], occ[2];
+                uint32_t tri[2];
+                float t[2], u[2], v[2];
+                trilist_intersect_pair(l, o, d, hit, tri, t, u, v);
+                trilist_occluded_pair(l, o, d, 100.0f, occ);
+                const size_t which_ray[2] = {i, j};
+                for (int q = 0; q < 2; q++) {
+                    const res_t *e = &r[which_ray[q]];
+                    ck_assert_msg(hit[q] == e->hit && occ[q] == e->occ,
+                                  "%s kernel, rays %zu and %zu: ray %d's pair result differs",
+                                  kernels[k], i, j, q);
+                    if (hit[q])
+                        ck_assert_msg(tri[q] == e->tri && memcmp(&t[q], &e->t, sizeof t[q]) == 0 &&
+                                          memcmp(&u[q], &e->u, sizeof u[q]) == 0 &&
+                                          memcmp(&v[q], &e->v, sizeof v[q]) == 0,
+                                      "%s kernel, rays %zu and %zu: ray %d's hit differs",
+                                      kernels[k], i, j, q);
+                }
+            }
         }
         ck_assert_int_ge(tested, 1); /* sse2 runs on every x86-64 host */
         size_t hits = 0;
@@ -318,6 +343,21 @@ START_TEST(test_nearest_and_ties)
         ck_assert(!trilist_intersect(l, vec3_make(0, 0, -1), vec3_make(0, 0, 0), INFINITY, &tri, &t,
                                      &u, &v));
         ck_assert(!trilist_occluded(l, vec3_make(NAN, 0, -1), vec3_make(0, 0, 1), INFINITY));
+        /* the same in pairs: a hit beside a miss, either way round */
+        const vec3_t po[2] = {vec3_make(0.1f, 0.2f, -1), vec3_make(5, 5, -1)};
+        const vec3_t pd[2] = {vec3_make(0, 0, 1), vec3_make(0, 0, 1)};
+        const vec3_t qo[2] = {po[1], po[0]}, qd[2] = {pd[1], pd[0]};
+        int hit[2];
+        uint32_t tris[2];
+        float ts[2], us[2], vs[2];
+        trilist_intersect_pair(l, po, pd, hit, tris, ts, us, vs);
+        ck_assert(hit[0] && !hit[1] && tris[0] == 39 && ts[0] == 2.0f);
+        trilist_intersect_pair(l, qo, qd, hit, tris, ts, us, vs);
+        ck_assert(!hit[0] && hit[1] && tris[1] == 39 && ts[1] == 2.0f);
+        trilist_occluded_pair(l, po, pd, INFINITY, hit);
+        ck_assert(hit[0] && !hit[1]);
+        trilist_occluded_pair(l, qo, qd, INFINITY, hit);
+        ck_assert(!hit[0] && hit[1]);
     }
     ck_assert_int_eq(trilist_use_kernel(l, "avx1024"), -1);
     trilist_destroy(&l);
@@ -328,6 +368,15 @@ START_TEST(test_nearest_and_ties)
     float t, u, v;
     ck_assert(
         !trilist_intersect(l, vec3_make(0, 0, -1), vec3_make(0, 0, 1), INFINITY, &tri, &t, &u, &v));
+    const vec3_t eo[2] = {vec3_make(0, 0, -1), vec3_make(0, 0, -1)};
+    const vec3_t ed[2] = {vec3_make(0, 0, 1), vec3_make(0, 1, 0)};
+    int ehit[2] = {-1, -1};
+    uint32_t etri[2];
+    float et[2], eu[2], ev[2];
+    trilist_intersect_pair(l, eo, ed, ehit, etri, et, eu, ev);
+    ck_assert(!ehit[0] && !ehit[1]);
+    trilist_occluded_pair(l, eo, ed, INFINITY, ehit);
+    ck_assert(!ehit[0] && !ehit[1]);
     trilist_destroy(&l);
 }
 END_TEST
