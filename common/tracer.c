@@ -147,6 +147,8 @@ int tracer_new_accel(tracer_device_t *dev, const scene_t *scene, tracer_accel_t 
     }
     t->dev = dev;
     t->scene = scene;
+    __builtin_cpu_init();
+    t->wide_shading = __builtin_cpu_supports("avx2") != 0;
     if (accel == TRACER_ACCEL_AUTO)
         accel = tracer_accel_for(scene);
     if (accel == TRACER_ACCEL_TRILIST) {
@@ -230,9 +232,16 @@ const char *tracer_isa(const tracer_t *t)
 
 int tracer_use_isa(tracer_t *t, const char *isa)
 {
+    __builtin_cpu_init();
+    if (strcmp(isa, "sse2") == 0) {
+        /* our traversal has no kernel for the baseline */
+        if (t->bvh || (t->small && trilist_use_kernel(t->small, isa) < 0))
+            return -1;
+        t->wide_shading = 0;
+        return 0;
+    }
     if (strcmp(isa, "avx512") != 0 && strcmp(isa, "avx2") != 0)
         return -1;
-    __builtin_cpu_init();
     if (strcmp(isa, "avx512") == 0 ? !__builtin_cpu_supports("avx512vl")
                                    : !__builtin_cpu_supports("avx2"))
         return -1;
@@ -240,6 +249,7 @@ int tracer_use_isa(tracer_t *t, const char *isa)
     if ((t->small && trilist_use_kernel(t->small, isa) < 0) ||
         (t->bvh && bvh_use_kernel(t->bvh, isa) < 0))
         return -1;
+    t->wide_shading = 1;
     return 0;
 }
 
@@ -665,6 +675,7 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_ta
                (s->light_count > 0 || s->has_env || s->delta_count > 0),
         .env = s->has_env,
         .hide_camera = s->hide_emitters,
+        .wide_shading = t->wide_shading,
     };
     uint64_t rays = 0, samples = 0;
     /* runs of whole tasks of at most WAVE_MAX_SAMPLES samples */

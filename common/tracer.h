@@ -149,12 +149,13 @@ void tracer_destroy(tracer_t **t);
 /* The Embree ISA this tracer runs ("avx2" or "sse4.2"). */
 const char *tracer_isa(const tracer_t *t);
 
-/* Runs our own SIMD kernels (the triangle list's and our traversal's,
- * the only code built for more than the baseline ISA besides Embree, which
- * is pinned to AVX2) for "avx512" or "avx2": the same bits either way, at
- * the speed a host with only that ISA would see (bench_core --isa).
- * Returns -1, changing nothing, if the host cannot run it or the name is
- * unknown. */
+/* Runs our own SIMD kernels (the triangle list's, our traversal's and the
+ * wavefront's diffuse shading, the only code built for more than the
+ * baseline ISA besides Embree, which is pinned to AVX2) for "avx512",
+ * "avx2" or "sse2" (the baseline: not with our traversal, which needs
+ * AVX2): the same bits whichever, at the speed a host with only that ISA
+ * would see (bench_core --isa). Returns -1, changing nothing, if the host
+ * cannot run it, the tracer has no such kernels, or the name is unknown. */
 int tracer_use_isa(tracer_t *t, const char *isa);
 
 /* Traces count tasks into results[0..count). Thread-safe; no allocation.

@@ -24,6 +24,7 @@ struct tracer {
     trilist_t *small; /* a scene tested whole, without a BVH */
     const scene_t *scene;
     tracer_engine_t engine;
+    int wide_shading; /* the wavefront's diffuse kernel in AVX2 (wave.h) */
 };
 
 /* ---- ray casting -------------------------------------------------------- */

@@ -2,17 +2,26 @@
  * emitters with an albedo): next-event estimation on the emissive
  * triangles, MIS-weighted against the BSDF, and a cosine-weighted bounce.
  *
- * WAVE_LANES paths at a time. What is a lookup or a branch per path (the
+ * DIFFUSE_LANES paths at a time. What is a lookup or a branch per path (the
  * sample's numbers, the light picked from the CDF and the point on it, a
  * smooth normal) is done lane by lane; the arithmetic between, sin and cos
  * included (vmath_sincos_turn), runs on vectors. Each lane does tracer.c's sample_direct and
  * material_sample_diffuse operation for operation (IEEE operations, the
  * same order, no FMA: -ffp-contract=off), so the bits are the scalar
- * engine's. */
+ * engine's. wave_diffuse_avx2.c builds this file again for AVX2, 8 lanes
+ * (DIFFUSE_AVX2 defined), the same operations in each lane. */
 #include "wave.h"
 
-typedef float wave_vf __attribute__((vector_size(4 * WAVE_LANES)));
-typedef int32_t wave_vi __attribute__((vector_size(4 * WAVE_LANES)));
+#ifdef DIFFUSE_AVX2
+#define DIFFUSE_LANES WAVE_LANES_AVX2
+#define DIFFUSE_KERNEL wave_kernel_diffuse_avx2
+#else
+#define DIFFUSE_LANES WAVE_LANES
+#define DIFFUSE_KERNEL diffuse_baseline
+#endif
+
+typedef float wave_vf __attribute__((vector_size(4 * DIFFUSE_LANES)));
+typedef int32_t wave_vi __attribute__((vector_size(4 * DIFFUSE_LANES)));
 
 typedef struct {
     wave_vf x, y, z;
@@ -28,7 +37,7 @@ static inline wave_vf vsel(wave_vi m, wave_vf a, wave_vf b)
 static inline wave_vf vsqrt(wave_vf x)
 {
     wave_vf r;
-    for (int j = 0; j < WAVE_LANES; j++)
+    for (int j = 0; j < DIFFUSE_LANES; j++)
         r[j] = sqrtf(x[j]);
     return r;
 }
@@ -93,13 +102,17 @@ static inline wave_v3 voffset(wave_v3 p, wave_v3 n)
     } while (0)
 #define LANE3(src, j) vec3_make((src).x[j], (src).y[j], (src).z[j])
 
-void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n)
+#ifndef DIFFUSE_AVX2
+static
+#endif
+    void
+    DIFFUSE_KERNEL(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n)
 {
     const scene_t *sc = c->scene;
     const wave_vf zero = {0}, one = zero + 1.0f;
     wave_sobol_ahead(c, w, slots, n);
-    for (size_t j0 = 0; j0 < n; j0 += WAVE_LANES) {
-        int lanes = n - j0 < WAVE_LANES ? (int)(n - j0) : WAVE_LANES;
+    for (size_t j0 = 0; j0 < n; j0 += DIFFUSE_LANES) {
+        int lanes = n - j0 < DIFFUSE_LANES ? (int)(n - j0) : DIFFUSE_LANES;
         wave_v3 a = {zero, zero, zero}, b = a, cc = a, ng = a, nsm = a, beta = a, albedo = a, q = a,
                 nl = a, rad = a;
         wave_vf u = zero, v = zero, cos_o = zero, area_pdf = one, u1 = zero, u2 = zero;
@@ -108,11 +121,11 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
          * and its numbers; lanes that took a light with no area
          * (lights_pick_delta), which and with what probability */
         unsigned env = 0, delta = 0;
-        double env_u1[WAVE_LANES];
-        float env_u2[WAVE_LANES], delta_pick[WAVE_LANES];
-        size_t delta_k[WAVE_LANES];
+        double env_u1[DIFFUSE_LANES];
+        float env_u2[DIFFUSE_LANES], delta_pick[DIFFUSE_LANES];
+        size_t delta_k[DIFFUSE_LANES];
         /* lane by lane: what each path looks up */
-        for (int j = 0; j < WAVE_LANES; j++) {
+        for (int j = 0; j < DIFFUSE_LANES; j++) {
             uint16_t s = slots[j0 + (j < lanes ? (size_t)j : 0)];
             uint32_t tri = w->tri[s];
             const uint32_t *vi = sc->indices + 3 * tri;
@@ -260,3 +273,13 @@ void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *s
         }
     }
 }
+
+#ifndef DIFFUSE_AVX2
+void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n)
+{
+    if (c->wide_shading)
+        wave_kernel_diffuse_avx2(c, w, slots, n);
+    else
+        diffuse_baseline(c, w, slots, n);
+}
+#endif

@@ -780,10 +780,12 @@ START_TEST(test_sobol_deterministic_and_agrees)
 }
 END_TEST
 
-/* Our own kernels built for AVX-512 and for AVX2 (tracer_use_isa, what
- * bench_core --isa avx2 measures as an AVX2-only host): the same image,
- * bit for bit, through the triangle list and through our BVH; a name the
- * tracer has no kernels for is refused. */
+/* Our own kernels built for AVX-512, for AVX2 and for the baseline
+ * (tracer_use_isa, what bench_core --isa avx2 measures as an AVX2-only
+ * host): the same image, bit for bit, through the triangle list and
+ * through our BVH (which has no baseline kernel), the diffuse shading's
+ * AVX2 build against its baseline one included; a name the tracer has no
+ * kernels for is refused. */
 START_TEST(test_isa_same_bits)
 {
     cJSON *root = cornell_json(16);
@@ -803,15 +805,31 @@ START_TEST(test_isa_same_bits)
         film_destroy(&ref);
         film_destroy(&wide);
     }
+    /* the baseline: every host runs it */
+    film_t *base = render_accel_isa(s, TRACER_ACCEL_TRILIST, "sse2", 5, SCENE_INTEGRATOR_PATH,
+                                    RNG_SAMPLER_SOBOL, 32, 2, 16, NULL);
+    film_t *best = render_accel_isa(s, TRACER_ACCEL_TRILIST, NULL, 5, SCENE_INTEGRATOR_PATH,
+                                    RNG_SAMPLER_SOBOL, 32, 2, 16, NULL);
+    ck_assert_msg(memcmp(base->pixels, best->pixels,
+                         (size_t)base->width * (size_t)base->height * sizeof(film_pixel_t)) == 0,
+                  "the baseline kernels' image differs from the widest's");
+    film_destroy(&base);
+    film_destroy(&best);
     tracer_t *t = NULL;
     tracer_device_t *dev = NULL;
     char err[512];
     ck_assert_msg(tracer_device_new(&dev, err, sizeof err) == 0, "%s", err);
     ck_assert_msg(tracer_new(dev, s, &t, err, sizeof err) == 0, "%s", err);
-    ck_assert_int_eq(tracer_use_isa(t, "sse2"), -1);
+    ck_assert_int_eq(tracer_use_isa(t, "sse2"), 0);
     ck_assert_int_eq(tracer_use_isa(t, "avx1024"), -1);
     ck_assert_int_eq(tracer_use_isa(t, "avx512"), avx512 ? 0 : -1);
     tracer_destroy(&t);
+    if (avx2) {
+        ck_assert_msg(tracer_new_accel(dev, s, TRACER_ACCEL_BVH, &t, err, sizeof err) == 0, "%s",
+                      err);
+        ck_assert_int_eq(tracer_use_isa(t, "sse2"), -1);
+        tracer_destroy(&t);
+    }
     tracer_device_destroy(&dev);
     scene_destroy(&s);
 }
@@ -1411,14 +1429,16 @@ END_TEST
  * every result is the same bits: sums, sample and ray counts, the layer
  * statistics. Tasks of 1 to 61 samples, so runs of tasks split at
  * WAVE_MAX_SAMPLES and paths of several tasks share the wavefront. */
-static void assert_engines_agree(const scene_t *s, tracer_accel_t accel,
-                                 const tracer_settings_t *st, const char *what)
+static void assert_engines_agree_isa(const scene_t *s, tracer_accel_t accel, const char *isa,
+                                     const tracer_settings_t *st, const char *what)
 {
     tracer_device_t *dev = NULL;
     tracer_t *t = NULL;
     char err[VB_ERR_LEN];
     ck_assert_msg(tracer_device_new(&dev, err, sizeof err) == 0, "%s", err);
     ck_assert_msg(tracer_new_accel(dev, s, accel, &t, err, sizeof err) == 0, "%s", err);
+    if (isa)
+        ck_assert_int_eq(tracer_use_isa(t, isa), 0);
     uint32_t npix = (uint32_t)s->camera.width * (uint32_t)s->camera.height;
     tracer_task_t *tasks = calloc(npix, sizeof *tasks);
     tracer_result_t *a = calloc(npix, sizeof *a), *b = calloc(npix, sizeof *b);
@@ -1450,9 +1470,16 @@ static void assert_engines_agree(const scene_t *s, tracer_accel_t accel,
     tracer_device_destroy(&dev);
 }
 
+static void assert_engines_agree(const scene_t *s, tracer_accel_t accel,
+                                 const tracer_settings_t *st, const char *what)
+{
+    assert_engines_agree_isa(s, accel, NULL, st, what);
+}
+
 /* The wavefront engine and the scalar one give the same bits on every
  * shipped scene (24x24), under both samplers and both integrators, with
- * and without a depth limit, through the triangle list and Embree. */
+ * and without a depth limit, through the triangle list and Embree, and
+ * with the baseline build of the shading kernels as with the widest. */
 static void engines_agree_on(scene_t *sc, const char *name)
 {
     static const struct {
@@ -1473,6 +1500,16 @@ static void engines_agree_on(scene_t *sc, const char *name)
         char what[512];
         snprintf(what, sizeof what, "%s, variant %zu", name, v);
         assert_engines_agree(sc, TRACER_ACCEL_AUTO, &st, what);
+    }
+    {
+        /* (our traversal has no baseline kernel: Embree's for the others) */
+        const tracer_accel_t accel = tracer_accel_for(sc) == TRACER_ACCEL_TRILIST
+                                         ? TRACER_ACCEL_TRILIST
+                                         : TRACER_ACCEL_EMBREE;
+        tracer_settings_t st = {.seed = 4, .sampler = RNG_SAMPLER_SOBOL};
+        char what[512];
+        snprintf(what, sizeof what, "%s, baseline kernels", name);
+        assert_engines_agree_isa(sc, accel, "sse2", &st, what);
     }
     if (tracer_accel_for(sc) == TRACER_ACCEL_TRILIST) {
         tracer_settings_t st = {.seed = 3, .sampler = RNG_SAMPLER_SOBOL};
