@@ -45,5 +45,26 @@ lights_status_t lights_build(scene_t *s, const double *power, double total_power
         }
     }
     s->light_cdf[s->light_count - 1] = 1.0;
+    /* the search's guide: one bucket a light (a search then reads about
+     * two entries, where a search of all reads log2 of their count, most of
+     * them cache misses: 410k triangles of veach-mis.xml's emitting
+     * spheres, 19 steps) */
+    if (s->light_count > LIGHTS_GUIDE_MIN) {
+        size_t m = s->light_count;
+        s->light_guide = malloc((m + 1) * sizeof(uint32_t));
+        if (!s->light_guide) {
+            snprintf(err, errlen, "out of memory for lights");
+            return LIGHTS_NO_MEMORY;
+        }
+        size_t i = 0;
+        for (size_t j = 0; j <= m; j++) {
+            /* the first entry above j / m (what the search of all gives) */
+            const double u = (double)j / (double)m;
+            while (i + 1 < s->light_count && !(s->light_cdf[i] > u))
+                i++;
+            s->light_guide[j] = (uint32_t)i;
+        }
+        s->light_guide_buckets = m;
+    }
     return LIGHTS_OK;
 }

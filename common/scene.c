@@ -1884,6 +1884,7 @@ static int finish_spheres(loader_t *L)
         scene_sphere_t *sp = &s->spheres[k];
         sp->cdf_lo = fmin(sp->cdf_lo, i ? s->light_cdf[i - 1] : 0.0);
         sp->cdf_hi = fmax(sp->cdf_hi, s->light_cdf[i]);
+        sp->light_tri = t;
     }
     for (size_t k = 0; k < s->sphere_count; k++)
         s->spheres[k].pick = (float)pick[k];
@@ -2143,6 +2144,7 @@ void scene_destroy(scene_t **sp)
     free(s->tri_light_pdf);
     free(s->light_tris);
     free(s->light_cdf);
+    free(s->light_guide);
     free(s->delta_lights);
     free(s->delta_cdf);
     free(s->spheres);

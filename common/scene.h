@@ -94,6 +94,7 @@ typedef struct scene_sphere {
     float radius;
     float pick;
     double cdf_lo, cdf_hi;
+    uint32_t light_tri; /* one of its light triangles (its material) */
 } scene_sphere_t;
 
 typedef struct scene {
@@ -137,6 +138,11 @@ typedef struct scene {
     uint32_t *light_tris;
     double *light_cdf; /* light_count entries, last is 1 */
     size_t light_count;
+    /* Where the search of light_cdf starts and ends for u in bucket
+     * [j / n, (j + 1) / n): light_guide[j] and [j + 1], n =
+     * light_guide_buckets (lights_pick_index); NULL for a few lights. */
+    uint32_t *light_guide;
+    size_t light_guide_buckets;
     /* Lights with no area (scene_light_t), each one emitter beside the
      * emitting triangles together (as Mitsuba picks its emitters): a light
      * sample that does not take the environment takes one of them with

@@ -73,6 +73,66 @@ START_TEST(distribution_follows_power)
 }
 END_TEST
 
+/* With many lights the search starts from a guide (scene_t.light_guide):
+ * the same index as the search of all for every u tried, powers spanning
+ * six orders of magnitude: each cdf entry, its neighbours one ulp off,
+ * each bucket's edges and their neighbours, and random numbers, as well
+ * as 0, the largest double below 1, and u outside [0, 1). */
+START_TEST(guided_pick_same_index)
+{
+    const size_t n = 5000;
+    scene_t *s = flat_scene(n);
+    double *power = calloc(n, sizeof *power);
+    ck_assert_ptr_nonnull(power);
+    uint64_t x = 12345;
+    double total = 0;
+    for (size_t t = 0; t < n; t++) {
+        x = x * 6364136223846793005ULL + 1442695040888963407ULL;
+        if (t % 7 == 3)
+            continue; /* not a light */
+        s->tri_material[t] = 1;
+        power[t] = pow(10.0, (double)(x >> 11) * 0x1p-53 * 6.0 - 3.0);
+        total += power[t];
+    }
+    char err[ERRLEN];
+    ck_assert_int_eq(lights_build(s, power, total, NULL, err, sizeof err), LIGHTS_OK);
+    ck_assert_ptr_nonnull(s->light_guide);
+    ck_assert_uint_eq(s->light_guide_buckets, s->light_count);
+    const size_t m = s->light_guide_buckets;
+    size_t tried = 0;
+    for (size_t k = 0; k < 4 * m + 4 * s->light_count + 20000; k++) {
+        double u;
+        if (k < 4 * m) { /* around bucket edges */
+            double e = (double)(k / 4) / (double)m;
+            u = k % 4 == 0   ? e
+                : k % 4 == 1 ? nextafter(e, 0.0)
+                : k % 4 == 2 ? nextafter(e, 1.0)
+                             : e;
+        } else if (k < 4 * m + 4 * s->light_count) { /* around cdf entries */
+            size_t i = k - 4 * m;
+            double c = s->light_cdf[i / 4];
+            u = i % 4 == 0   ? c
+                : i % 4 == 1 ? nextafter(c, 0.0)
+                : i % 4 == 2 ? nextafter(c, 1.0)
+                             : c;
+        } else {
+            x = x * 6364136223846793005ULL + 1442695040888963407ULL;
+            u = (double)(x >> 11) * 0x1p-53;
+        }
+        ck_assert_uint_eq(lights_pick_index(s, u),
+                          lights_cdf_search(s->light_cdf, s->light_count, u));
+        tried++;
+    }
+    const double odd[] = {0.0, 0x1.fffffffffffffp-1, 1.0, -0.0, -1e-300, 2.0, NAN};
+    for (size_t k = 0; k < sizeof odd / sizeof odd[0]; k++)
+        ck_assert_uint_eq(lights_pick_index(s, odd[k]),
+                          lights_cdf_search(s->light_cdf, s->light_count, odd[k]));
+    ck_assert_uint_gt(tried, 40000);
+    free(power);
+    scene_destroy(&s);
+}
+END_TEST
+
 /* With group_power, each emitting material is one emitter, picked alike,
  * a triangle by power within it (as Mitsuba picks its emitters): a dim
  * light of two triangles and a bright one of one get half the samples
@@ -204,6 +264,7 @@ static Suite *lights_suite(void)
     TCase *tc = tcase_create("distribution");
     tcase_add_test(tc, distribution_follows_power);
     tcase_add_test(tc, distribution_by_emitter);
+    tcase_add_test(tc, guided_pick_same_index);
     tcase_add_test(tc, points_lie_on_the_light);
     tcase_add_test(tc, reuse_stratifies_over_all_lights);
     tcase_add_test(tc, out_of_float_range);

@@ -1659,6 +1659,78 @@ START_TEST(sphere_light_exact)
 }
 END_TEST
 
+/* With more emitting spheres than lights_sample_from finds by their CDF
+ * ranges (LIGHTS_SPHERE_SCAN) and an emitting quad between them, every
+ * light sample lands on the light the search of all triangles picks: the
+ * same sphere (whose cone then gives the point) or the same triangle and
+ * point, over 20,000 numbers and at each range's edges. */
+START_TEST(sphere_lights_found_as_searched)
+{
+    char json[4096];
+    int at = snprintf(json, sizeof json,
+                      "{\"camera\": {\"position\": [0, 0, 30], \"look_at\": [0, 0, 0], \"fov\": "
+                      "20, \"width\": 4, \"height\": 4}, \"materials\": {\"w\": {\"type\": "
+                      "\"diffuse\", \"albedo\": [0.5, 0.5, 0.5]}, \"q\": {\"type\": "
+                      "\"emitter\", \"radiance\": [2, 2, 2]}");
+    for (int k = 0; k < LIGHTS_SPHERE_SCAN + 3; k++)
+        at += snprintf(json + at, sizeof json - (size_t)at,
+                       ", \"l%d\": {\"type\": \"emitter\", \"radiance\": [%d, 1, 1]}", k, k + 1);
+    at += snprintf(json + at, sizeof json - (size_t)at,
+                   "}, \"shapes\": [{\"type\": \"quad\", \"material\": \"w\", \"vertices\": "
+                   "[[-40, -40, 0], [40, -40, 0], [40, 40, 0], [-40, 40, 0]]}");
+    for (int k = 0; k < LIGHTS_SPHERE_SCAN + 3; k++) {
+        at += snprintf(json + at, sizeof json - (size_t)at,
+                       ", {\"type\": \"sphere\", \"material\": \"l%d\", \"center\": [%d, 3, 4], "
+                       "\"radius\": %g, \"subdivisions\": 2}",
+                       k, 3 * k - 15, 0.2 + 0.1 * k);
+        if (k == 4)
+            at += snprintf(json + at, sizeof json - (size_t)at,
+                           ", {\"type\": \"quad\", \"material\": \"q\", \"vertices\": [[-1, "
+                           "-1, 6], [-1, 1, 6], [1, 1, 6], [1, -1, 6]]}");
+    }
+    snprintf(json + at, sizeof json - (size_t)at, "]}");
+    scene_t *s = load_text(json);
+    ck_assert_uint_eq(s->sphere_count, LIGHTS_SPHERE_SCAN + 3);
+    const vec3_t p = vec3_make(0.5f, -0.25f, 0.0f);
+    uint64_t x = 99;
+    size_t spheres = 0, quads = 0;
+    for (int i = 0; i < 20000 + 4 * (int)s->sphere_count; i++) {
+        double u;
+        if (i < 4 * (int)s->sphere_count) { /* a range's edges */
+            const scene_sphere_t *sp = &s->spheres[i / 4];
+            double e = i % 2 ? sp->cdf_hi : sp->cdf_lo;
+            u = i % 4 < 2 ? e : nextafter(e, 0.0);
+            if (!(u >= 0.0 && u < 1.0))
+                continue;
+        } else {
+            x = x * 6364136223846793005ULL + 1442695040888963407ULL;
+            u = (double)(x >> 11) * 0x1p-53;
+        }
+        const float u2 = (float)(i % 97) / 97.0f;
+        const size_t want = lights_cdf_search(s->light_cdf, s->light_count, u);
+        const uint32_t want_tri = s->light_tris[want];
+        vec3_t q, nl;
+        float pdf;
+        uint32_t lt;
+        int ok = lights_sample_from(s, p, u, u2, &q, &nl, &pdf, &lt);
+        if (s->tri_sphere[want_tri] >= 0) {
+            ck_assert_int_eq(s->tri_sphere[lt], s->tri_sphere[want_tri]);
+            ck_assert_uint_eq(s->tri_material[lt], s->tri_material[want_tri]);
+            spheres++;
+        } else {
+            ck_assert(ok);
+            ck_assert_uint_eq(lt, want_tri);
+            vec3_t wq = lights_point_on(s, want, u, u2);
+            ck_assert(memcmp(&q, &wq, sizeof q) == 0);
+            quads++;
+        }
+    }
+    ck_assert_uint_gt(spheres, 1000);
+    ck_assert_uint_gt(quads, 100);
+    scene_destroy(&s);
+}
+END_TEST
+
 /* hide_emitters (Mitsuba's): camera rays pass through an emitting quad
  * (seen from its black back) to the plane it lights; rays that never meet
  * it draw the same bits either way. */
@@ -1706,6 +1778,7 @@ static Suite *tracer_suite(void)
     tcase_add_test(tc, delta_lights_exact);
     tcase_add_test(tc, spot_falloff);
     tcase_add_test(tc, sphere_light_exact);
+    tcase_add_test(tc, sphere_lights_found_as_searched);
     tcase_add_test(tc, hide_emitters_passes_through);
     tcase_add_test(tc, test_furnace_coloured_albedo);
     tcase_add_test(tc, test_glass_furnace);
