@@ -44,7 +44,7 @@
  * built for the baseline target: 8 floats there were lowered through the
  * stack. The diffuse kernel, the commonest, is built a second time for
  * AVX2 at 8 lanes (wave_diffuse_avx2.c; wave_ctx_t.wide_shading picks it
- * where the host has AVX2): the same bits, 2 % faster on the Cornell box.
+ * where the host has AVX2): the same bits, 1 % faster on the Cornell box.
  * An AVX2 clone of every kernel, calling into code built without AVX,
  * had paid more for the transitions than it gained; the diffuse kernel
  * inlines all it calls on its common path. */

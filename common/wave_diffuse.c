@@ -15,9 +15,11 @@
 #ifdef DIFFUSE_AVX2
 #define DIFFUSE_LANES WAVE_LANES_AVX2
 #define DIFFUSE_KERNEL wave_kernel_diffuse_avx2
+#define DIFFUSE_LINKAGE
 #else
 #define DIFFUSE_LANES WAVE_LANES
 #define DIFFUSE_KERNEL diffuse_baseline
+#define DIFFUSE_LINKAGE static
 #endif
 
 typedef float wave_vf __attribute__((vector_size(4 * DIFFUSE_LANES)));
@@ -102,11 +104,8 @@ static inline wave_v3 voffset(wave_v3 p, wave_v3 n)
     } while (0)
 #define LANE3(src, j) vec3_make((src).x[j], (src).y[j], (src).z[j])
 
-#ifndef DIFFUSE_AVX2
-static
-#endif
-    void
-    DIFFUSE_KERNEL(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n)
+DIFFUSE_LINKAGE void DIFFUSE_KERNEL(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots,
+                                    size_t n)
 {
     const scene_t *sc = c->scene;
     const wave_vf zero = {0}, one = zero + 1.0f;
