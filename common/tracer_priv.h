@@ -153,12 +153,9 @@ static inline void tracer_intersect_packet(const tracer_t *tr, const tracer_pack
             uint32_t tri[2];
             float t[2], u[2], v[2];
             trilist_intersect_pair(tr->small, p->o + i, p->d + i, hit + i, tri, t, u, v);
-            for (int k = 0; k < 2; k++) {
-                h[i + k].tri = tri[k];
-                h[i + k].t = t[k];
-                h[i + k].u = u[k];
-                h[i + k].v = v[k];
-            }
+            for (int k = 0; k < 2; k++)
+                if (hit[i + k]) /* (a miss writes nothing) */
+                    h[i + k] = (tracer_hit_t){tri[k], t[k], u[k], v[k]};
         }
         for (; i < n; i++)
             hit[i] = trilist_intersect(tr->small, p->o[i], p->d[i], INFINITY, &h[i].tri, &h[i].t,
