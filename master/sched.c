@@ -247,6 +247,9 @@ static int alloc_tables(sched_t *s)
             *slot = calloc(1, sched_array_bytes(s, &sched_pixel_arrays[i]));
             failed |= !*slot;
         }
+    if (s->crv) /* none frozen yet */
+        for (size_t p = 0; p < s->npix; p++)
+            s->crv[p] = -1;
     failed |= alloc_ring(s) < 0;
     /* ready cells are in the window: at most a layer of ranges a slot */
     s->q_cap = (size_t)s->ranges + 1;

@@ -289,7 +289,13 @@ static int pixels_differ(const spread_sums_t *t)
  * how many layers a pixel gets depends on its own samples, and its mean
  * stays unbiased (but for its 1/npix share in the threshold). thesis and
  * variance: the pixel's own. With spread, each pixel's own statistic and
- * its neighbours' mean, both per ray, go into its sums (pixels_differ). */
+ * its neighbours' mean, both per ray, go into its sums (pixels_differ).
+ * Not the replicates' calibrated error (sched_error.c), though the layer
+ * means' spread overstates a pixel's error by a factor that varies from
+ * pixel to pixel: frozen after the uniform layers, as it must be here,
+ * it has R - 1 degrees of freedom a pixel and learns nothing more, and
+ * every way of reading it measured lost some of relmse's gain on the
+ * Cornell box and glass (docs/ADAPTIVE.md). */
 static void metric_row(sched_t *s, int y, double *out, spread_sums_t *spread)
 {
     const sched_rule_t *rule = rule_of(s);

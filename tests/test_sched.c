@@ -1729,9 +1729,10 @@ START_TEST(test_checkpoint_calibrated_version)
     sim_t a = {.workers = 2, .seed = 5};
     a.s = sched_new(&c, err, sizeof err);
     ck_assert_msg(a.s != NULL, "%s", err);
-    /* past the first SCHED_TARGET_CALIBRATED_LAYERS layers of most pixels */
+    /* past the first SCHED_TARGET_CALIBRATED_LAYERS layers of most pixels
+     * (a step hands a task back one time in 7) */
     const uint32_t ranges = (11 * 9 + 6) / 7;
-    for (uint32_t i = 0; i < ranges * (SCHED_TARGET_CALIBRATED_LAYERS + 1) && sim_step(&a); i++)
+    for (uint32_t i = 0; i < ranges * (SCHED_TARGET_CALIBRATED_LAYERS + 5) && sim_step(&a); i++)
         ;
     membuf_t buf = save_mem(a.s);
     uint32_t version;
@@ -1740,6 +1741,15 @@ START_TEST(test_checkpoint_calibrated_version)
     size_t len;
     const uint8_t *crv = find_section(&buf, "crv", &len);
     ck_assert_uint_eq(len, 11 * 9 * sizeof(double));
+    /* each pixel's frozen, or -1 before */
+    uint32_t frozen = 0;
+    for (size_t p = 0; p < 11 * 9; p++) {
+        double v;
+        memcpy(&v, crv + p * sizeof v, sizeof v);
+        ck_assert_msg(v >= 0 || v == -1, "pixel %zu's crv %g", p, v);
+        frozen += v >= 0;
+    }
+    ck_assert_msg(frozen > 11 * 9 / 2, "%u of 99 pixels' crv frozen", frozen);
     /* the same stream as an older master wrote it: version 7, no "crv" */
     membuf_t old = copy_of(&buf);
     const size_t at = (size_t)(crv - buf.data) - 16, cut = 16 + len;
