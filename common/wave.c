@@ -41,12 +41,44 @@ static void start_path(const wave_ctx_t *c, wave_state_t *w, uint16_t s, const t
     w->sample[s] = flat;
 }
 
-/* The camera ray of pixel `pixel`'s path in slot s. */
-static void start_camera_ray(const wave_ctx_t *c, wave_state_t *w, uint16_t s, uint32_t pixel)
+/* The camera rays of a chunk's paths, all of pixel `pixel`
+ * (tracer_camera_ray). A pinhole camera's directions are normalised four
+ * at a time after the loop, the same operations in each lane (vec3_normalize:
+ * the square root and the division were a chain of latencies a path). */
+typedef float wave_v4f __attribute__((vector_size(16)));
+static void start_camera_rays(const wave_ctx_t *c, wave_state_t *w, const wave_chunk_t *ch,
+                              uint32_t pixel)
 {
     const camera_t *cam = &c->scene->camera;
     uint32_t px = pixel % (uint32_t)cam->width, py = pixel / (uint32_t)cam->width;
-    tracer_camera_ray(cam, &w->rng[s], px, py, &w->o[s], &w->d[s]);
+    if (cam->ortho || cam->aperture > 0.0f) {
+        for (size_t i = 0; i < ch->n; i++) {
+            uint16_t s = ch->live[i];
+            tracer_camera_ray(cam, &w->rng[s], px, py, &w->o[s], &w->d[s]);
+        }
+        return;
+    }
+    wave_v4f dx[WAVE_CHUNK / 4], dy[WAVE_CHUNK / 4], dz[WAVE_CHUNK / 4];
+    for (size_t i = 0; i < ch->n; i++) {
+        uint16_t s = ch->live[i];
+        float fu = rng_next_float(&w->rng[s]), fv = rng_next_float(&w->rng[s]);
+        vec3_t dir = camera_ray_dir(cam, px, py, fu, fv);
+        dx[i / 4][i % 4] = dir.x;
+        dy[i / 4][i % 4] = dir.y;
+        dz[i / 4][i % 4] = dir.z;
+        w->o[s] = cam->position;
+    }
+    for (size_t i = ch->n; i % 4; i++) /* the last vector's unused lanes */
+        dx[i / 4][i % 4] = dy[i / 4][i % 4] = dz[i / 4][i % 4] = 1.0f;
+    for (size_t k = 0; k < ((size_t)ch->n + 3) / 4; k++) {
+        wave_v4f len2 = dx[k] * dx[k] + dy[k] * dy[k] + dz[k] * dz[k], len;
+        for (int j = 0; j < 4; j++)
+            len[j] = sqrtf(len2[j]);
+        wave_v4f inv = 1.0f / len;
+        for (int j = 0; j < 4 && 4 * k + (size_t)j < ch->n; j++)
+            w->d[ch->live[4 * k + (size_t)j]] =
+                vec3_make(dx[k][j] * inv[j], dy[k][j] * inv[j], dz[k][j] * inv[j]);
+    }
 }
 
 void wave_sobol_ahead(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n)
@@ -248,8 +280,7 @@ void wave_trace(const wave_ctx_t *c, wave_state_t *w, const tracer_task_t *tasks
                     streams[i] = &w->rng[ch->live[i]];
                 rng_sobol_fill(streams, ch->n, first, 1);
             }
-            for (size_t i = 0; i < ch->n; i++)
-                start_camera_ray(c, w, ch->live[i], tasks[cur.task].pixel);
+            start_camera_rays(c, w, ch, tasks[cur.task].pixel);
             if (cur.index == tasks[cur.task].sample_count) {
                 cur.index = 0;
                 cur.task++;
