@@ -64,7 +64,6 @@ lights_status_t lights_build(scene_t *s, const double *power, double total_power
                 i++;
             s->light_guide[j] = (uint32_t)i;
         }
-        s->light_guide_buckets = m;
     }
     return LIGHTS_OK;
 }

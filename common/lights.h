@@ -65,10 +65,10 @@ static inline size_t lights_cdf_search(const double *cdf, size_t n, double u)
  * whose bucket rounding put it a bucket off is searched over all. */
 static inline size_t lights_pick_index(const scene_t *s, double u)
 {
-    const size_t n = s->light_count, m = s->light_guide_buckets;
+    const size_t n = s->light_count; /* the guide's buckets too */
     if (s->light_guide && u >= 0.0 && u < 1.0) {
-        size_t j = (size_t)(u * (double)m);
-        j = j < m ? j : m - 1;
+        size_t j = (size_t)(u * (double)n);
+        j = j < n ? j : n - 1;
         size_t lo = s->light_guide[j], hi = s->light_guide[j + 1];
         while (lo < hi) {
             size_t mid = (lo + hi) / 2;
@@ -83,7 +83,10 @@ static inline size_t lights_pick_index(const scene_t *s, double u)
     return lights_cdf_search(s->light_cdf, n, u);
 }
 
-/* lights_sample's point on light i, the one u picked (below). */
+/* lights_sample's point on light i, the one u picked (below). The diffuse
+ * kernel (wave_diffuse.c) does the same operations in vectors in a scene
+ * without emitting spheres: a change here goes there too (test_tracer's
+ * engines_agree compares the two). */
 static inline vec3_t lights_point_on(const scene_t *s, size_t i, double u, float u2)
 {
     double lo = i ? s->light_cdf[i - 1] : 0.0, hi = s->light_cdf[i];

@@ -139,10 +139,10 @@ typedef struct scene {
     double *light_cdf; /* light_count entries, last is 1 */
     size_t light_count;
     /* Where the search of light_cdf starts and ends for u in bucket
-     * [j / n, (j + 1) / n): light_guide[j] and [j + 1], n =
-     * light_guide_buckets (lights_pick_index); NULL for a few lights. */
+     * [j / n, (j + 1) / n), one bucket a light (n = light_count):
+     * light_guide[j] and [j + 1] (lights_pick_index); NULL for a few
+     * lights. */
     uint32_t *light_guide;
-    size_t light_guide_buckets;
     /* Lights with no area (scene_light_t), each one emitter beside the
      * emitting triangles together (as Mitsuba picks its emitters): a light
      * sample that does not take the environment takes one of them with
