@@ -1034,6 +1034,11 @@ typedef struct conv {
     double cam_pos[3], cam_fwd[3]; /* for the clip planes' check */
     double near_clip, far_clip;
     double near_reach; /* a point of the view nearer than near_clip is this close to the eye */
+    /* the narrowest a pixel is (perspective: the angle a pixel at the
+     * image's corner subtends; orthographic: its width in the scene), to
+     * tessellate spheres by the pixels they span */
+    double pixel_angle, pixel_width;
+    int ortho;
     int have_sensor;
 } conv_t;
 
@@ -1386,6 +1391,12 @@ static int conv_sensor(conv_t *c, mx_node_t *n, cJSON *render)
     /* an orthographic camera starts its rays at near_clip, as Mitsuba's:
      * nothing nearer to check */
     c->near_reach = ortho ? 0 : near * sqrt(1 + tan_v * tan_v * (1 + aspect * aspect));
+    /* a pinhole's pixels are 2 tan_v / h apart on the plane at distance
+     * 1; seen at angle theta off the axis one subtends cos^2 theta of
+     * that, the least at the corners */
+    c->ortho = ortho;
+    c->pixel_angle = 2.0 * tan_v / (double)h / (1 + tan_v * tan_v * (1 + aspect * aspect));
+    c->pixel_width = 2.0 * half_h / (double)h;
     return 0;
 }
 
@@ -1995,10 +2006,34 @@ static int point_prop(conv_t *c, const mx_node_t *n, const char *name, double ou
     return xyz_attrs(c->x, p, 0, out);
 }
 
-/* Mitsuba's analytic sphere as our icosphere: 6 subdivisions (81,920
- * triangles, exact normals), whose surface lies within 1e-4 of the radius
- * of the true one; in its own frame (center, radius), then to_world. */
+/* Mitsuba's analytic sphere as our icosphere, whose faces lie inside the
+ * true sphere (exact normals): subdivided until that gap is at most
+ * MX_SPHERE_GAP_PIXELS of a pixel where the sphere is nearest the eye (a
+ * silhouette pixel's coverage off by at most that share, as the camera or
+ * a plane mirror shows it; a curved mirror or a lens may magnify it) and
+ * at most MX_SPHERE_GAP_RELATIVE of the radius (a sphere smaller than a
+ * pixel, a distant light, shows its area to about 0.4 %). At most
+ * MX_SPHERE_SUBDIVISIONS (81,920 triangles, the gap 7.1e-5 of the
+ * radius), which every sphere took before: at 64x64 the shipped files'
+ * spheres take 4 (5,120 triangles), veach-mis.xml renders 256 spp in
+ * 0.42 of the time and a tenth of the memory (docs/SCENES.md). An
+ * ellipsoid is judged by its longest axis. */
+#define MX_SPHERE_GAP_PIXELS (1.0 / 64.0)
+#define MX_SPHERE_GAP_RELATIVE 2e-3
 #define MX_SPHERE_SUBDIVISIONS 6
+
+static int sphere_subdivisions(const conv_t *c, double world_radius, double distance)
+{
+    /* the sphere's radius in pixels where it is nearest (distance - radius
+     * is at least near_reach > 0: the clip planes' check came first) */
+    double pixels = c->ortho ? world_radius / c->pixel_width
+                             : world_radius / ((distance - world_radius) * c->pixel_angle);
+    int n = 0;
+    while (n < MX_SPHERE_SUBDIVISIONS && (pixels * scene_icosphere_gap(n) > MX_SPHERE_GAP_PIXELS ||
+                                          scene_icosphere_gap(n) > MX_SPHERE_GAP_RELATIVE))
+        n++;
+    return n;
+}
 
 static int shape_sphere(conv_t *c, const mx_node_t *n, const char *mat, const mat4_t *m, int flip)
 {
@@ -2026,7 +2061,7 @@ static int shape_sphere(conv_t *c, const mx_node_t *n, const char *mat, const ma
     cJSON_AddStringToObject(s, "material", mat);
     cJSON_AddItemToObject(s, "center", vec3_json(center));
     cJSON_AddNumberToObject(s, "radius", radius);
-    cJSON_AddNumberToObject(s, "subdivisions", MX_SPHERE_SUBDIVISIONS);
+    cJSON_AddNumberToObject(s, "subdivisions", sphere_subdivisions(c, wr, sqrt(v3_dot(d, d))));
     cJSON *t = cJSON_AddObjectToObject(s, "transform");
     double row_major[16];
     for (int e = 0; e < 16; e++)

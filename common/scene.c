@@ -28,7 +28,6 @@
 
 #define MAX_SCENE_FILE_BYTES (256u << 20)
 #define MAX_VERTICES 0xfffffff0u
-#define MAX_SPHERE_SUBDIVISIONS 7
 #define PATH_LEN 160
 
 typedef struct xform {
@@ -1567,6 +1566,22 @@ static int note_sphere_light(loader_t *L, const xform_t *x, const double c[3], d
     return 0;
 }
 
+double scene_icosphere_gap(int subdivisions)
+{
+    /* 1 - the least distance from the centre to a face's plane, over the
+     * faces shape_sphere makes (the face nearest the centre is the one
+     * whose corners are farthest apart; each face's nearest point to the
+     * centre lies inside it); test_scene measures it on the meshes */
+    static const double gap[SCENE_MAX_SPHERE_SUBDIVISIONS + 1] = {
+        0.2053456,   0.06582765,  0.01775306,  0.004528368,
+        0.001137884, 2.848354e-4, 7.123167e-5, 1.780935e-5};
+    if (subdivisions < 0)
+        return 1.0;
+    if (subdivisions > SCENE_MAX_SPHERE_SUBDIVISIONS)
+        subdivisions = SCENE_MAX_SPHERE_SUBDIVISIONS;
+    return gap[subdivisions];
+}
+
 /* An icosphere: the icosahedron subdivided n times, vertices pushed onto the
  * sphere, with exact normals (p - c) / r for smooth shading. Vertices are not
  * shared between faces; they are computed identically on both sides of an
@@ -1580,7 +1595,7 @@ static int shape_sphere(loader_t *L, const cJSON *sh, const char *path, const xf
     double c[3], r = 0, sub = 4;
     if (get_vec3(L, sh, "center", path, 1, c) < 0 ||
         get_number(L, sh, "radius", path, 1, 1e-30, 1e30, &r) < 0 ||
-        get_integer(L, sh, "subdivisions", path, 0, 0, MAX_SPHERE_SUBDIVISIONS, &sub) < 0)
+        get_integer(L, sh, "subdivisions", path, 0, 0, SCENE_MAX_SPHERE_SUBDIVISIONS, &sub) < 0)
         return -1;
     const double g = (1.0 + sqrt(5.0)) / 2.0;
     static const int faces[20][3] = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},

@@ -215,6 +215,15 @@ static inline vec3_t scene_sample_point(const scene_t *s, uint32_t tri, float u1
     return scene_point(s, tri, su * u2, 1.0f - su);
 }
 
+/* A "sphere" shape is an icosphere of 0 to SCENE_MAX_SPHERE_SUBDIVISIONS
+ * subdivisions (20 * 4^n triangles). Its vertices lie on the sphere and
+ * its faces inside it; scene_icosphere_gap(n) is the widest gap between
+ * the two, relative to the radius (0.21 for the icosahedron, 7.1e-5 at
+ * 6 subdivisions: a quarter for each one more), for those who choose n
+ * by what an error that size costs (mitsuba.c, by the pixels it spans). */
+#define SCENE_MAX_SPHERE_SUBDIVISIONS 7
+double scene_icosphere_gap(int subdivisions);
+
 /* Loads a scene file; mesh paths are relative to its folder. Returns 0 and
  * a new scene in *out (free with scene_destroy), or -1 with *out NULL and a
  * message in err ("FILE: json.path: what is wrong"). */

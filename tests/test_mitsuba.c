@@ -683,6 +683,79 @@ START_TEST(emitters_picked_as_mitsuba)
 }
 END_TEST
 
+/* Mitsuba's spheres are tessellated by the pixels they span: the fewest
+ * subdivisions whose gap to the true sphere is at most 1/64 of a pixel
+ * where the sphere is nearest the eye (a pixel's angle at the image's
+ * corner, or an orthographic pixel's width) and at most 2e-3 of the
+ * radius (a sphere under a pixel still shows its area to 0.4 %), and at
+ * most 6 (81,920 triangles). Veach's five lights at 32 and at 1024
+ * pixels, and the orthographic view's sphere at 32 and 2048. */
+static int subdivisions_wanted(double pixels)
+{
+    int n = 0;
+    while (n < 6 && (pixels * scene_icosphere_gap(n) > 1.0 / 64 || scene_icosphere_gap(n) > 2e-3))
+        n++;
+    return n;
+}
+
+START_TEST(spheres_tessellated_by_pixels)
+{
+    static const struct {
+        const char *scene, *res;
+        int least, most; /* the spheres' fewest and most subdivisions */
+    } cases[] = {{"scenes/mitsuba/veach-mis.xml", "res=32", 4, 4},
+                 {"scenes/mitsuba/veach-mis.xml", "res=1024", 4, 6},
+                 {"scenes/mitsuba/ortho.xml", "res=32", 4, 4},
+                 {"scenes/mitsuba/ortho.xml", "res=2048", 6, 6}};
+    for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++) {
+        char path[1024], err[VB_ERR_LEN];
+        tu_root_path(path, sizeof path, cases[c].scene);
+        const char *defs[] = {cases[c].res};
+        cJSON *j = mitsuba_scene_json(path, defs, 1, err, sizeof err);
+        ck_assert_msg(j != NULL, "%s", err);
+        const cJSON *cam = get(j, "camera");
+        double h = get(cam, "height")->valuedouble, w = get(cam, "width")->valuedouble;
+        const cJSON *ortho = cJSON_GetObjectItemCaseSensitive(cam, "orthographic");
+        double eye[3], tan_v = 0, pixel_width = 0;
+        for (int k = 0; k < 3; k++)
+            eye[k] = num_at(get(cam, "position"), k);
+        if (ortho)
+            pixel_width = 2 * num_at(ortho, 1) / h;
+        else
+            tan_v = tan(get(cam, "fov")->valuedouble * M_PI / 360);
+        double pixel_angle = 2 * tan_v / h / (1 + tan_v * tan_v * (1 + (w / h) * (w / h)));
+        int least = 99, most = -1, spheres = 0;
+        const cJSON *sh;
+        cJSON_ArrayForEach(sh, get(j, "shapes"))
+        {
+            if (strcmp(get(sh, "type")->valuestring, "sphere") != 0)
+                continue;
+            /* (placed by center and radius alone: the matrix is the identity) */
+            const cJSON *m = get(get(sh, "transform"), "matrix");
+            for (int e = 0; e < 16; e++)
+                ck_assert(num_at(m, e) == (e % 5 == 0 ? 1 : 0));
+            double r = get(sh, "radius")->valuedouble, dist = 0;
+            for (int k = 0; k < 3; k++) {
+                double d = num_at(get(sh, "center"), k) - eye[k];
+                dist += d * d;
+            }
+            double pixels = ortho ? r / pixel_width : r / ((sqrt(dist) - r) * pixel_angle);
+            int n = (int)get(sh, "subdivisions")->valuedouble;
+            ck_assert_msg(n == subdivisions_wanted(pixels),
+                          "%s %s: a sphere of radius %g (%g pixels): %d subdivisions, want %d",
+                          cases[c].scene, cases[c].res, r, pixels, n, subdivisions_wanted(pixels));
+            least = n < least ? n : least;
+            most = n > most ? n : most;
+            spheres++;
+        }
+        ck_assert_int_eq(spheres, strstr(cases[c].scene, "veach") ? 5 : 1);
+        ck_assert_int_eq(least, cases[c].least);
+        ck_assert_int_eq(most, cases[c].most);
+        cJSON_Delete(j);
+    }
+}
+END_TEST
+
 /* An environment map as Mitsuba 3.9.1's envmap reads it: a 4x3 map whose
  * red channel is 1 + column + 10 row, looked up from five directions
  * (Mitsuba's own values: bilinear between pixel centres half a pixel
@@ -1048,6 +1121,7 @@ static Suite *mitsuba_suite(void)
     tcase_add_test(tc, gaussian_filter_samples);
     tcase_add_test(tc, checkerboard_as_mitsuba);
     tcase_add_test(tc, environment_map_as_mitsuba);
+    tcase_add_test(tc, spheres_tessellated_by_pixels);
     suite_add_tcase(su, tc);
     tc = tcase_create("image");
     tcase_add_test(tc, constant_environment);

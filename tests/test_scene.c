@@ -1123,6 +1123,56 @@ START_TEST(feature_sphere)
 }
 END_TEST
 
+/* scene_icosphere_gap(n), which mitsuba.c tessellates spheres by, is the
+ * widest gap between each icosphere shape_sphere makes and its true
+ * sphere: 1 - the least distance from the centre to a face's plane,
+ * measured on the meshes (radius 1, so the floats' rounding is ~1e-7), and
+ * every vertex on the sphere. */
+START_TEST(sphere_gap_as_stated)
+{
+    char buf[TEXTLEN], shapes[256];
+    for (int n = 0; n <= SCENE_MAX_SPHERE_SUBDIVISIONS; n++) {
+        snprintf(shapes, sizeof shapes,
+                 "\"shapes\": [" QUAD_LIGHT ", {\"type\": \"sphere\", \"material\": "
+                 "\"white\", \"center\": [0, 0, 0], \"radius\": 1, \"subdivisions\": %d}]",
+                 n);
+        scene_t *s = load_ok(build(buf, sizeof buf, CAM_OK, NULL, MATS_OK, shapes), "gap.json");
+        ck_assert_uint_eq(s->triangle_count, 2 + ((size_t)20 << (2 * n)));
+        double nearest = 2, farthest_vertex = 0;
+        for (size_t t = 2; t < s->triangle_count; t++) {
+            double p[3][3];
+            for (int k = 0; k < 3; k++)
+                for (int d = 0; d < 3; d++)
+                    p[k][d] = vertex(s, t, k)[d];
+            double e1[3], e2[3], nrm[3];
+            for (int d = 0; d < 3; d++) {
+                e1[d] = p[1][d] - p[0][d];
+                e2[d] = p[2][d] - p[0][d];
+            }
+            nrm[0] = e1[1] * e2[2] - e1[2] * e2[1];
+            nrm[1] = e1[2] * e2[0] - e1[0] * e2[2];
+            nrm[2] = e1[0] * e2[1] - e1[1] * e2[0];
+            double len = sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
+            nearest =
+                fmin(nearest, fabs(nrm[0] * p[0][0] + nrm[1] * p[0][1] + nrm[2] * p[0][2]) / len);
+            for (int k = 0; k < 3; k++)
+                farthest_vertex =
+                    fmax(farthest_vertex,
+                         fabs(sqrt(p[k][0] * p[k][0] + p[k][1] * p[k][1] + p[k][2] * p[k][2]) - 1));
+        }
+        double gap = scene_icosphere_gap(n), measured = 1 - nearest;
+        ck_assert_msg(fabs(measured - gap) < 3e-7 + 1e-4 * gap,
+                      "%d subdivisions: gap %.9g, scene_icosphere_gap says %.9g", n, measured, gap);
+        ck_assert_msg(farthest_vertex < 3e-7, "%d subdivisions: a vertex %g off the sphere", n,
+                      farthest_vertex);
+        /* a quarter for each subdivision more */
+        if (n > 0)
+            ck_assert(gap < 0.33 * scene_icosphere_gap(n - 1));
+        scene_destroy(&s);
+    }
+}
+END_TEST
+
 START_TEST(feature_materials)
 {
     char buf[TEXTLEN];
@@ -1374,6 +1424,7 @@ static Suite *scene_suite(void)
     tcase_add_test(tc, feature_transform);
     tcase_add_test(tc, feature_mirror_scale);
     tcase_add_test(tc, feature_sphere);
+    tcase_add_test(tc, sphere_gap_as_stated);
     tcase_add_test(tc, feature_materials);
     tcase_add_test(tc, checked_only);
     suite_add_tcase(su, tc);
