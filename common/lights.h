@@ -190,8 +190,9 @@ static inline int lights_delta_sample(const scene_t *s, size_t k, vec3_t p, vec3
 static inline vec3_t lights_env_direction(double u1, float u2)
 {
     float z = (float)(1.0 - 2.0 * u1);
-    float r = sqrtf(fmaxf(0.0f, 1.0f - z * z)), phi = 2.0f * VMATH_PI * u2;
-    return vec3_make(r * cosf(phi), r * sinf(phi), z);
+    float r = sqrtf(fmaxf(0.0f, 1.0f - z * z)), sp, cp;
+    vmath_sincos_turn(u2, &sp, &cp);
+    return vec3_make(r * cp, r * sp, z);
 }
 
 /* ---- the environment map (scene_t.env_map) ---- */
@@ -223,17 +224,12 @@ static inline void lights_env_xy(const scene_t *s, vec3_t l, float *x, float *y,
  * the solid-angle density with which a light sample gives d: the
  * environment's pick times its own density. One lookup of the map's cell
  * serves both. */
-static inline vec3_t lights_env_eval(const scene_t *s, vec3_t d, float *pdf)
+/* The radiance at the map's coordinates (x, y) in cell (cx, cy)
+ * (lights_env_xy), bilinear between pixel centres, and into *pdf the
+ * density of a light sample there, at sin theta from the poles. */
+static inline vec3_t lights_env_cell(const scene_t *s, float x, float y, int cx, int cy,
+                                     float sin_theta, float *pdf)
 {
-    if (!s->env_map) {
-        *pdf = s->env_pdf;
-        return s->env_radiance;
-    }
-    vec3_t l = lights_env_mul(s->env_to_local, d);
-    float x, y;
-    int cx, cy;
-    lights_env_xy(s, l, &x, &y, &cx, &cy);
-    float sin_theta = sqrtf(fmaxf(l.x * l.x + l.z * l.z, 1e-12f));
     *pdf = s->env_pick * s->env_cell_pdf[(size_t)cy * (size_t)s->env_w + (size_t)cx] /
            (2.0f * VMATH_PI * VMATH_PI * sin_theta);
     float wx = x - (float)cx, wy = y - (float)cy;
@@ -246,6 +242,20 @@ static inline vec3_t lights_env_eval(const scene_t *s, vec3_t d, float *pdf)
         c[k] = (1.0f - wy) * top + wy * bottom;
     }
     return vec3_make(c[0], c[1], c[2]);
+}
+
+static inline vec3_t lights_env_eval(const scene_t *s, vec3_t d, float *pdf)
+{
+    if (!s->env_map) {
+        *pdf = s->env_pdf;
+        return s->env_radiance;
+    }
+    vec3_t l = lights_env_mul(s->env_to_local, d);
+    float x, y;
+    int cx, cy;
+    lights_env_xy(s, l, &x, &y, &cx, &cy);
+    float sin_theta = sqrtf(fmaxf(l.x * l.x + l.z * l.z, 1e-12f));
+    return lights_env_cell(s, x, y, cx, cy, sin_theta, pdf);
 }
 
 /* lights_env_eval's radiance alone, and its density alone. */
@@ -274,9 +284,11 @@ static inline size_t lights_cdf_pick(const double *cdf, size_t n, double u, doub
 }
 
 /* A world direction toward the environment from two numbers, its density
- * and the radiance from it (lights_env_eval): the constant one uniform on the sphere; a map
- * by cell (u1 picks the row, its rest the column, that rest the place
- * across it), u2 the place down the cell. */
+ * and the radiance from it (what lights_env_eval gives for it, up to
+ * rounding): the constant one uniform on the sphere; a map by cell (u1
+ * picks the row, its rest the column, that rest the place across it), u2
+ * the place down the cell. Its sines and cosines are vmath_sincos_turn's
+ * (libm's were calls, and FMA variants on some hosts). */
 static inline vec3_t lights_env_sample(const scene_t *s, double u1, float u2, float *pdf,
                                        vec3_t *radiance)
 {
@@ -291,11 +303,17 @@ static inline vec3_t lights_env_sample(const scene_t *s, double u1, float u2, fl
     size_t i = lights_cdf_pick(s->env_col_cdf + j * w, w, r1, &r2);
     float u = (float)(((double)i + r2) / (double)w) + 0.5f / (float)s->env_w;
     float v = ((float)j + u2) / (float)(s->env_h - 1);
-    float theta = v * VMATH_PI, phi = u * 2.0f * VMATH_PI;
-    float st = sinf(theta), ct = cosf(theta);
-    vec3_t l = vec3_make(sinf(phi) * st, ct, -cosf(phi) * st);
+    float st, ct, sp, cp;
+    vmath_sincos_turn(0.5f * v, &st, &ct);
+    vmath_sincos_turn(u, &sp, &cp);
+    vec3_t l = vec3_make(sp * st, ct, -cp * st);
     vec3_t d = vec3_normalize(lights_env_mul(s->env_to_world, l));
-    *radiance = lights_env_eval(s, d, pdf);
+    /* the cell and the place in it are known: lights_env_eval's lookup
+     * without going back from d through atan2 and acos (a tenth of a
+     * render under a map) */
+    float x = (float)((double)i + r2), y = (float)j + u2;
+    *radiance =
+        lights_env_cell(s, x, y, (int)i, (int)j, sqrtf(fmaxf(l.x * l.x + l.z * l.z, 1e-12f)), pdf);
     return d;
 }
 
@@ -395,12 +413,12 @@ static inline int lights_sample_from(const scene_t *s, vec3_t p, double u, float
     u1 = u1 < 0.0f ? 0.0f : u1 >= 1.0f ? 0x1.fffffep-1f : u1;
     float one_minus_cos_t = u1 * omc, cos_t = 1.0f - one_minus_cos_t;
     float sin2_t = one_minus_cos_t * (2.0f - one_minus_cos_t);
-    float sin_t = sqrtf(sin2_t > 0.0f ? sin2_t : 0.0f), phi = 2.0f * VMATH_PI * u2;
+    float sin_t = sqrtf(sin2_t > 0.0f ? sin2_t : 0.0f), sin_p, cos_p;
+    vmath_sincos_turn(u2, &sin_p, &cos_p);
     vec3_t t, b;
     vec3_onb(axis, &t, &b);
-    vec3_t d =
-        vec3_add(vec3_add(vec3_scale(t, sin_t * cosf(phi)), vec3_scale(b, sin_t * sinf(phi))),
-                 vec3_scale(axis, cos_t));
+    vec3_t d = vec3_add(vec3_add(vec3_scale(t, sin_t * cos_p), vec3_scale(b, sin_t * sin_p)),
+                        vec3_scale(axis, cos_t));
     /* the nearest intersection of p + x d with the sphere */
     float r2 = sp->radius * sp->radius, disc = r2 - dc * dc * sin2_t;
     float x = dc * cos_t - sqrtf(disc > 0.0f ? disc : 0.0f);

@@ -529,8 +529,9 @@ static inline int material_glossy_sample(const material_t *m, const material_hit
         }
     } else {
         /* plastic's base: cosine-weighted */
-        float r = sqrtf(u1), phi = 2.0f * VMATH_PI * u2;
-        li = vec3_make(r * cosf(phi), r * sinf(phi), sqrtf(fmaxf(0.0f, 1.0f - u1)));
+        float r = sqrtf(u1), sp, cp;
+        vmath_sincos_turn(u2, &sp, &cp);
+        li = vec3_make(r * cp, r * sp, sqrtf(fmaxf(0.0f, 1.0f - u1)));
         if (!(li.z > 0.0f))
             return 0;
         if (!(m->alpha > 0.0f)) {

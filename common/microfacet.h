@@ -157,11 +157,13 @@ static inline void microfacet_visible_slope(const microfacet_t *d, float cos_i, 
     if (x != 0.0f || y != 0.0f) {
         int q13 = fabsf(x) < fabsf(y);
         float r = q13 ? y : x, rp = q13 ? x : y;
-        float phi = 0.25f * VMATH_PI * rp / r;
+        /* the angle in turns: (pi / 4) rp / r */
+        float turn = 0.125f * (rp / r), sp, cp;
         if (q13)
-            phi = 0.5f * VMATH_PI - phi;
-        px = r * cosf(phi);
-        py = r * sinf(phi);
+            turn = 0.25f - turn;
+        vmath_sincos_turn(turn, &sp, &cp);
+        px = r * cp;
+        py = r * sp;
     }
     float s = 0.5f * (1.0f + cos_i);
     py = microfacet_safe_sqrt(1.0f - px * px) * (1.0f - s) + py * s;

@@ -52,8 +52,10 @@
  * scene's shadow rays go through it too (Embree builds no scene of its
  * own for it); 11 since that BVH's spatial splits bound a vertex on the
  * plane on both sides (bvh.c: a part could miss the corner there, so a
- * hierarchy may differ where one did). */
-#define TRACER_VERSION 11
+ * hierarchy may differ where one did); 12 since a light sample of an
+ * environment map reads the cell it picked (lights_env_sample) instead of
+ * going back from its direction, and takes vmath_sincos_turn's sines. */
+#define TRACER_VERSION 12
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so
  * samples/s compare like with like). */

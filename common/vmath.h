@@ -82,7 +82,8 @@ static inline int vec3_is_finite(vec3_t a)
     return isfinite(a.x) && isfinite(a.y) && isfinite(a.z);
 }
 
-/* sin and cos of 2 pi u, u in [0, 1): the quarter turn u falls in, and
+/* sin and cos of 2 pi u, u in [-1/8, 1) (past 1 too, a turn being a
+ * turn, while 4u is exact): the quarter turn u falls in, and
  * the rest, g in [-1/2, 1/2) of a quarter turn (both exact: 4u and the
  * subtractions are), into degree-9 and degree-8 polynomials, within
  * 1e-7 of the true values. Only IEEE additions and multiplications in a

@@ -52,15 +52,17 @@ START_TEST(diffuse_is_cosine_weighted)
 }
 END_TEST
 
-/* The cosine bounce's sin and cos of 2 pi u (vmath_sincos_turn, a
+/* The sines and cosines of 2 pi u the samplers take (vmath_sincos_turn, a
  * polynomial, not libm's): within 1.2e-7 of the true values for every
- * 2^-20 step of u, including each quarter turn's ends and u just below 1,
- * and on the unit circle to 3e-7. */
+ * 2^-20 step of u in [-1/8, 1 + 1/64], including each quarter turn's ends
+ * and u just below 1 (the GGX disk's angles start at -1/8, an environment
+ * map's sample reaches half a pixel past 1), and on the unit circle to
+ * 3e-7. */
 START_TEST(sincos_turn_accurate)
 {
     double worst = 0;
-    for (uint32_t i = 0; i <= (1u << 20); i++) {
-        float u = i < (1u << 20) ? (float)i * 0x1p-20f : 0x1.fffffep-1f;
+    for (int32_t i = -(1 << 17); i <= (1 << 20) + (1 << 14); i++) {
+        float u = i == (1 << 20) ? 0x1.fffffep-1f : (float)i * 0x1p-20f;
         float sn, cs;
         vmath_sincos_turn(u, &sn, &cs);
         double a = 2 * M_PI * (double)u;
