@@ -54,7 +54,9 @@
  * plane on both sides (bvh.c: a part could miss the corner there, so a
  * hierarchy may differ where one did); 12 since a light sample of an
  * environment map reads the cell it picked (lights_env_sample) instead of
- * going back from its direction, and takes vmath_sincos_turn's sines. */
+ * going back from its direction, and takes vmath_sincos_turn's sines,
+ * and the direct integrator with one light and one BSDF sample is traced
+ * as the path integrator cut after the bounce (its numbers the path's). */
 #define TRACER_VERSION 12
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so

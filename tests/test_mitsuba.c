@@ -900,14 +900,15 @@ END_TEST
 /* The direct integrator (Mitsuba's `direct`) against the path integrator
  * cut to one bounce (max_depth 2: what the camera sees emitting, and light
  * reflected once), which estimate the same image: with light samples and
- * BSDF samples MIS-weighted (1 and 1, 2 and 3), light samples alone, BSDF
+ * BSDF samples MIS-weighted (2 and 2, 2 and 3), light samples alone, BSDF
  * samples alone, within 5 sigma over the image and each quadrant, on
  * Veach's scene (scenes/mitsuba/veach-mis.xml: plates from alpha 0.005
- * to 0.1, lights from radius 0.033 to 0.9). */
+ * to 0.1, lights from radius 0.033 to 0.9). One and one is traced as that
+ * path (direct_one_and_one_is_the_path). */
 static const struct {
     const char *emitter, *bsdf;
     uint32_t spp; /* light samples alone need the most */
-} direct_defs[] = {{"emitter_samples=1", "bsdf_samples=1", 2048},
+} direct_defs[] = {{"emitter_samples=2", "bsdf_samples=2", 2048},
                    {"emitter_samples=2", "bsdf_samples=3", 2048},
                    {"emitter_samples=1", "bsdf_samples=0", 8192},
                    {"emitter_samples=0", "bsdf_samples=1", 2048}};
@@ -929,6 +930,38 @@ START_TEST(direct_agrees_with_one_bounce)
     /* the image to 7 % (light samples alone on near-mirror plates are
      * Veach's worst case; a quadrant may be wider) */
     films_agree(direct, path, what, 0.35, 0);
+    film_destroy(&direct);
+    film_destroy(&path);
+    scene_destroy(&s1);
+    scene_destroy(&s2);
+}
+END_TEST
+
+/* One light sample and one BSDF sample: the direct integrator is traced
+ * as the path integrator cut to two segments (tracer.c, as_traced: the
+ * same estimator term for term, which the wavefront engine runs), so the
+ * two give the same image bit for bit, under the default sampler. */
+START_TEST(direct_one_and_one_is_the_path)
+{
+    const char *defs[] = {"res=16", "emitter_samples=1", "bsdf_samples=1"};
+    scene_t *s1 = NULL, *s2 = NULL;
+    film_t *direct = render_xml_with("scenes/mitsuba/veach-mis.xml", defs, 3, 64,
+                                     SCENE_INTEGRATOR_DIRECT, RNG_SAMPLER_SOBOL, &s1);
+    max_depth_override = 2;
+    film_t *path = render_xml_with("scenes/mitsuba/veach-mis.xml", defs, 3, 64,
+                                   SCENE_INTEGRATOR_PATH, RNG_SAMPLER_SOBOL, &s2);
+    max_depth_override = 0;
+    double sum = 0;
+    for (uint32_t p = 0; p < 16 * 16; p++) {
+        double a[3], b[3];
+        film_mean(direct, p, a);
+        film_mean(path, p, b);
+        for (int c = 0; c < 3; c++)
+            ck_assert_msg(a[c] == b[c], "pixel %u channel %d: direct %.9g, path %.9g", p, c, a[c],
+                          b[c]);
+        sum += a[0] + a[1] + a[2];
+    }
+    ck_assert(sum > 0);
     film_destroy(&direct);
     film_destroy(&path);
     scene_destroy(&s1);
@@ -1137,6 +1170,7 @@ static Suite *mitsuba_suite(void)
     tcase_add_loop_test(tc, matches_mitsuba, 0, (int)(sizeof compared / sizeof compared[0]));
     tcase_add_test(tc, cylinder_placed);
     tcase_add_test(tc, crop_window);
+    tcase_add_test(tc, direct_one_and_one_is_the_path);
     tcase_add_loop_test(tc, direct_agrees_with_one_bounce, 0,
                         (int)(sizeof direct_defs / sizeof direct_defs[0]));
     suite_add_tcase(su, tc);
