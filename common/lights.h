@@ -220,10 +220,6 @@ static inline void lights_env_xy(const scene_t *s, vec3_t l, float *x, float *y,
     *cy = iy < s->env_h - 2 ? iy : s->env_h - 2;
 }
 
-/* Radiance arriving from world direction d (unit length), and into *pdf
- * the solid-angle density with which a light sample gives d: the
- * environment's pick times its own density. One lookup of the map's cell
- * serves both. */
 /* The radiance at the map's coordinates (x, y) in cell (cx, cy)
  * (lights_env_xy), bilinear between pixel centres, and into *pdf the
  * density of a light sample there, at sin theta from the poles. */
@@ -244,6 +240,10 @@ static inline vec3_t lights_env_cell(const scene_t *s, float x, float y, int cx,
     return vec3_make(c[0], c[1], c[2]);
 }
 
+/* Radiance arriving from world direction d (unit length), and into *pdf
+ * the solid-angle density with which a light sample gives d: the
+ * environment's pick times its own density. One lookup of the map's cell
+ * serves both. */
 static inline vec3_t lights_env_eval(const scene_t *s, vec3_t d, float *pdf)
 {
     if (!s->env_map) {
