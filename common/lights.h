@@ -312,8 +312,7 @@ static inline vec3_t lights_env_sample(const scene_t *s, double u1, float u2, fl
      * without going back from d through atan2 and acos (a tenth of a
      * render under a map) */
     float x = (float)((double)i + r2), y = (float)j + u2;
-    *radiance =
-        lights_env_cell(s, x, y, (int)i, (int)j, sqrtf(fmaxf(l.x * l.x + l.z * l.z, 1e-12f)), pdf);
+    *radiance = lights_env_cell(s, x, y, (int)i, (int)j, fmaxf(st, 1e-6f), pdf);
     return d;
 }
 
