@@ -13,17 +13,56 @@
 
 #include <immintrin.h>
 
+/* Column k of the third and fourth Sobol dimensions' generator matrices
+ * (direction number v_k+1 = m_k+1 / 2^(k+1)), bit-reversed: from m = 1, 3
+ * and 1, 3, 1 by Bratley and Fox's recurrence (test_sampler computes them
+ * again from the polynomials and checks these). */
+static const uint32_t sobol_columns_reversed[2][RNG_SOBOL_INDEX_BITS] = {
+    {0x00000001u, 0x00000003u, 0x00000006u, 0x00000009u, 0x00000017u, 0x0000003au,
+     0x00000071u, 0x000000a3u, 0x00000116u, 0x00000339u, 0x00000677u, 0x000009aau,
+     0x00001601u, 0x00003903u, 0x00007706u, 0x0000aa09u, 0x00010117u, 0x0003033au,
+     0x00060671u, 0x000909a3u, 0x00171616u, 0x003a3939u, 0x00717777u, 0x00a3aaaau},
+    {0x00000001u, 0x00000003u, 0x00000004u, 0x0000000au, 0x0000001fu, 0x0000002eu,
+     0x00000045u, 0x000000c9u, 0x0000011bu, 0x000002a4u, 0x0000079au, 0x00000b67u,
+     0x0000101eu, 0x0000302du, 0x00004041u, 0x0000a0c3u, 0x0001f104u, 0x0002e28au,
+     0x000457dfu, 0x000c9baeu, 0x0011a105u, 0x002a7289u, 0x0079e7dbu, 0x00b6dba4u},
+};
+
+void rng_sobol23_reversed(uint32_t index, uint32_t out[2])
+{
+    uint32_t a = 0, b = 0;
+    for (int k = 0; k < RNG_SOBOL_INDEX_BITS; k++) {
+        uint32_t bit = 0u - ((index >> k) & 1u);
+        a ^= sobol_columns_reversed[0][k] & bit;
+        b ^= sobol_columns_reversed[1][k] & bit;
+    }
+    out[0] = a;
+    out[1] = b;
+}
+
+/* A pair's key: its scrambles' seeds, and (but for the joined pair) its
+ * index shuffle's. */
+static inline uint64_t sobol_pair_key(uint64_t sequence_key, uint32_t pair)
+{
+    return rng_mix64(sequence_key ^ (pair + 1) * 0x9e3779b97f4a7c15ULL);
+}
+
 void rng_sobol_pair(uint64_t sequence_key, uint32_t index_reversed, uint32_t pair, uint32_t out[2])
 {
-    uint64_t pair_key = rng_mix64(sequence_key ^ (pair + 1) * 0x9e3779b97f4a7c15ULL);
-    /* the index shuffle's and the two scrambles' seeds */
+    uint64_t pair_key = sobol_pair_key(sequence_key, pair);
+    int joined = pair == RNG_SOBOL_JOINED_PAIR;
+    uint64_t shuffle_key = joined ? sobol_pair_key(sequence_key, 0) : pair_key;
+    /* the two scrambles' seeds */
     uint32_t seed0 = (uint32_t)(pair_key >> 32), seed1 = rng_hash32(seed0);
     /* owen(x) = reverse(laine_karras(reverse(x))): the index's reversal
-     * is the stream's, and the second dimension comes reversed */
-    uint32_t j = rng_reverse32(rng_laine_karras(index_reversed, (uint32_t)pair_key)) &
+     * is the stream's, and the other dimensions come reversed */
+    uint32_t j = rng_reverse32(rng_laine_karras(index_reversed, (uint32_t)shuffle_key)) &
                  ((1u << RNG_SOBOL_INDEX_BITS) - 1);
-    out[0] = rng_reverse32(rng_laine_karras(j, seed0));
-    out[1] = rng_reverse32(rng_laine_karras(rng_sobol1_reversed(j), seed1));
+    uint32_t x[2] = {j, rng_sobol1_reversed(j)};
+    if (joined)
+        rng_sobol23_reversed(j, x);
+    out[0] = rng_reverse32(rng_laine_karras(x[0], seed0));
+    out[1] = rng_reverse32(rng_laine_karras(x[1], seed1));
 }
 
 /* One pair to compute: its stream, which pair, and where its bits go. */
@@ -93,24 +132,47 @@ __attribute__((target("avx2"))) static inline __m256i sobol1_reversed_x8(__m256i
         y, _mm256_and_si256(_mm256_srli_epi32(y, 16), _mm256_set1_epi32(0x0000ffff)));
 }
 
+/* rng_sobol23_reversed of each lane */
+__attribute__((target("avx2"))) static inline void sobol23_reversed_x8(__m256i j, __m256i *a,
+                                                                       __m256i *b)
+{
+    __m256i x = _mm256_setzero_si256(), y = _mm256_setzero_si256();
+    for (int k = 0; k < RNG_SOBOL_INDEX_BITS; k++) {
+        /* all ones where bit k of the index is set */
+        __m256i bit = _mm256_srai_epi32(_mm256_slli_epi32(j, 31 - k), 31);
+        x = _mm256_xor_si256(
+            x, _mm256_and_si256(bit, _mm256_set1_epi32((int)sobol_columns_reversed[0][k])));
+        y = _mm256_xor_si256(
+            y, _mm256_and_si256(bit, _mm256_set1_epi32((int)sobol_columns_reversed[1][k])));
+    }
+    *a = x;
+    *b = y;
+}
+
 /* Items[0..n), n at most FILL_LANES, in one pass of vectors. */
 __attribute__((target("avx2"))) static void fill_x8(const fill_item_t *items, size_t n)
 {
     uint32_t key[FILL_LANES] = {0}, seed0[FILL_LANES] = {0}, index_reversed[FILL_LANES] = {0};
+    int32_t joined[FILL_LANES] = {0};
+    int any_joined = 0;
     /* the samples of one task share their sequence, so neighbouring items
      * mostly share their pair's key */
-    uint64_t last_sequence = 0, pair_key = 0;
+    uint64_t last_sequence = 0, pair_key = 0, shuffle_key = 0;
     uint32_t last_pair = UINT32_MAX;
     for (size_t i = 0; i < n; i++) {
         const rng_stream_t *s = items[i].stream;
         if (s->sequence_key != last_sequence || items[i].pair != last_pair) {
             last_sequence = s->sequence_key;
             last_pair = items[i].pair;
-            pair_key = rng_mix64(last_sequence ^ (last_pair + 1) * 0x9e3779b97f4a7c15ULL);
+            pair_key = sobol_pair_key(last_sequence, last_pair);
+            shuffle_key =
+                last_pair == RNG_SOBOL_JOINED_PAIR ? sobol_pair_key(last_sequence, 0) : pair_key;
         }
-        key[i] = (uint32_t)pair_key;
+        key[i] = (uint32_t)shuffle_key;
         seed0[i] = (uint32_t)(pair_key >> 32);
         index_reversed[i] = s->index_reversed;
+        joined[i] = -(items[i].pair == RNG_SOBOL_JOINED_PAIR);
+        any_joined |= joined[i];
     }
     __m256i vkey = _mm256_loadu_si256((const __m256i *)key);
     __m256i vseed0 = _mm256_loadu_si256((const __m256i *)seed0);
@@ -118,8 +180,15 @@ __attribute__((target("avx2"))) static void fill_x8(const fill_item_t *items, si
     __m256i j = _mm256_and_si256(
         reverse32_x8(laine_karras_x8(_mm256_loadu_si256((const __m256i *)index_reversed), vkey)),
         _mm256_set1_epi32((int)((1u << RNG_SOBOL_INDEX_BITS) - 1)));
-    __m256i b0 = reverse32_x8(laine_karras_x8(j, vseed0));
-    __m256i b1 = reverse32_x8(laine_karras_x8(sobol1_reversed_x8(j), vseed1));
+    __m256i x0 = j, x1 = sobol1_reversed_x8(j);
+    if (any_joined) {
+        __m256i a, b, m = _mm256_loadu_si256((const __m256i *)joined);
+        sobol23_reversed_x8(j, &a, &b);
+        x0 = _mm256_blendv_epi8(x0, a, m);
+        x1 = _mm256_blendv_epi8(x1, b, m);
+    }
+    __m256i b0 = reverse32_x8(laine_karras_x8(x0, vseed0));
+    __m256i b1 = reverse32_x8(laine_karras_x8(x1, vseed1));
     uint32_t out0[FILL_LANES], out1[FILL_LANES];
     _mm256_storeu_si256((__m256i *)out0, b0);
     _mm256_storeu_si256((__m256i *)out1, b1);

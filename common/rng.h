@@ -14,7 +14,9 @@
  *   "Practical Hash-based Owen Scrambling" (JCGT 2020). Dimensions come in
  *   pairs; pair p of a pixel's sample i is point shuffle_p(i) of the first
  *   two Sobol dimensions, each Owen-scrambled, the shuffle and scrambles
- *   seeded by hash(seed, pixel, i >> RNG_SOBOL_INDEX_BITS, pair). So a
+ *   seeded by hash(seed, pixel, i >> RNG_SOBOL_INDEX_BITS, pair); the
+ *   first light pair takes the camera pair's shuffle and the third and
+ *   fourth dimensions (RNG_SOBOL_JOINED_PAIR). So a
  *   pixel's samples are one scrambled Sobol sequence (a fresh, independent
  *   scramble every 2^RNG_SOBOL_INDEX_BITS samples): its first 2^m samples
  *   form a (0,m,2)-net, and so does every aligned block of 2^m (a layer of
@@ -53,6 +55,22 @@ typedef enum rng_sampler {
  * no gain at equal time. */
 #define RNG_SOBOL_BOUNCES 2
 #define RNG_SOBOL_DIMS (2 + 6 * RNG_SOBOL_BOUNCES)
+/* The pair that shares the camera pair's (pair 0's) shuffled index and
+ * takes the third and fourth Sobol dimensions there (rng_sobol_pair):
+ * dimensions 4 and 5, tracer.c's light sample at the first bounce. Film
+ * point and light point are then one 4D Sobol net, each of its 2D
+ * projections stratified (t <= 2 up to 4096 samples; the light pair's own
+ * t is 1, mostly, where a pair alone has 0), as Mitsuba's orthogonal
+ * arrays stratify every 2D projection. Where what the light gives a pixel
+ * varies with the point in the pixel (a glossy plate's highlight, a
+ * textured floor's edges, a shadow's penumbra seen at a slant) a padded
+ * pair leaves that joint variation random: with it joined, relMSE at 1024
+ * spp fell 4.1x on checker.xml, 2.2x on veach-mis.xml, 11 % on lights.xml,
+ * 1-3 % on the Cornell box and the Buddha, and nothing rose (bench/RESULTS.md,
+ * "Sampler"). Joining the BSDF pair too (6D) had been 7 % worse on the
+ * Cornell box; the BSDF pair with the camera's, or with the light's, took
+ * 4 % and 2 % off veach-mis.xml's, within its noise. */
+#define RNG_SOBOL_JOINED_PAIR 2
 /* Samples of a pixel per Sobol sequence: 2^24, far past any reference's
  * count; the next 2^24 take
  * an independent scramble. */
@@ -232,6 +250,12 @@ static inline uint32_t rng_sobol1_reversed(uint32_t y)
     return y ^ ((y >> 16) & 0x0000ffffu);
 }
 
+/* The third and fourth Sobol dimensions (Joe and Kuo's primitive
+ * polynomials x^2 + x + 1 and x^3 + x + 1, pbrt's tables) of an index
+ * below 2^RNG_SOBOL_INDEX_BITS, bit-reversed as rng_sobol1_reversed's:
+ * the XOR of the reversed generator columns of the index's set bits. */
+void rng_sobol23_reversed(uint32_t index, uint32_t out[2]);
+
 /* The two numbers of pair `pair` (dimensions 2 pair and 2 pair + 1) of the
  * sobol sequence sequence_key, at the index whose bits reversed are
  * index_reversed. The index is shuffled by a nested uniform scramble of
@@ -239,7 +263,9 @@ static inline uint32_t rng_sobol1_reversed(uint32_t y)
  * (a pixel's first 2^m samples, or one layer of G = 2^m) keeps its high
  * bits together and its low m bits permuted, so it maps onto an aligned
  * block of the Sobol sequence, a (0,m,2)-net. The shuffle differs per pair
- * so that pairs are not correlated. rng_sobol_fill computes the same bits
+ * so that pairs are not correlated, but for RNG_SOBOL_JOINED_PAIR, which
+ * takes the camera pair's shuffle and the third and fourth dimensions
+ * there (a (t,m,4)-net with the camera pair). rng_sobol_fill computes the same bits
  * for many streams at once. Out of line: draws mostly find their pair
  * computed ahead or cached, and the draws stay small enough to inline. */
 void rng_sobol_pair(uint64_t sequence_key, uint32_t index_reversed, uint32_t pair, uint32_t out[2]);

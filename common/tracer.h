@@ -56,8 +56,10 @@
  * environment map reads the cell it picked (lights_env_sample) instead of
  * going back from its direction, and takes vmath_sincos_turn's sines,
  * and the direct integrator with one light and one BSDF sample is traced
- * as the path integrator cut after the bounce (its numbers the path's). */
-#define TRACER_VERSION 12
+ * as the path integrator cut after the bounce (its numbers the path's);
+ * 13 since, under the sobol sampler, the first bounce's light pair shares
+ * the camera pair's index (rng.h, RNG_SOBOL_JOINED_PAIR). */
+#define TRACER_VERSION 13
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so
  * samples/s compare like with like). */

@@ -1,9 +1,9 @@
 /* test_sampler.c - the sobol sampler of rng.h: a pure function of its
  * coordinates, in [0, 1), one scrambled Sobol sequence per pixel (a
  * (0, m, 2)-net per pair in its first 2^m samples and in every layer of
- * G = 2^m), unbiased with far less variance than independent numbers on a
- * smooth integrand, and layers whose spread never understates the error of
- * their mean.
+ * G = 2^m; the camera pair and the first light pair one 4D net), unbiased with far less variance
+ * than independent numbers on a smooth integrand, and layers whose spread never understates the
+ * error of their mean.
  *
  * Statistical checks use 5 standard errors: a defect (a shared scramble,
  * a correlated pair) misses by far more, chance almost never does. */
@@ -150,27 +150,63 @@ START_TEST(test_sobol_range)
 }
 END_TEST
 
-/* A layer of G = 2^m samples, pair (2k, 2k + 1): exactly one point in each
- * elementary interval [a 2^-j, (a+1) 2^-j) x [b 2^-(m-j), (b+1) 2^-(m-j)). */
-static void check_net(uint64_t seed, uint64_t pixel, uint32_t m, uint32_t layer, uint64_t pair)
+/* A layer of G = 2^m samples in `dims` dimensions dim[0..dims) is a
+ * (t, m, dims)-net: each elementary box of volume 2^(t-m) (sides 2^-a_k,
+ * a_1 + ... + a_dims = m - t) holds exactly 2^t of its points. */
+static void check_net_dims(uint64_t seed, uint64_t pixel, uint32_t m, uint32_t layer,
+                           const uint64_t *dim, int dims, uint32_t t)
 {
     const uint32_t g = 1u << m;
-    uint32_t x[4096], y[4096];
-    for (uint32_t i = 0; i < g; i++) {
-        x[i] = (uint32_t)(bits_of(seed, pixel, g, layer, i, 2 * pair) >> 32);
-        y[i] = (uint32_t)(bits_of(seed, pixel, g, layer, i, 2 * pair + 1) >> 32);
-    }
-    static uint8_t seen[4096];
-    for (uint32_t j = 0; j <= m; j++) {
-        memset(seen, 0, g);
-        for (uint32_t i = 0; i < g; i++) {
-            uint32_t cx = j ? x[i] >> (32 - j) : 0, cy = j < m ? y[i] >> (32 - (m - j)) : 0;
-            uint32_t cell = (cx << (m - j)) | cy;
-            ck_assert_msg(!seen[cell], "G %u layer %u pair %lu: shape 2^-%u x 2^-%u cell %u twice",
-                          g, layer, (unsigned long)pair, j, m - j, cell);
-            seen[cell] = 1;
+    static uint32_t x[4][4096];
+    for (uint32_t i = 0; i < g; i++)
+        for (int k = 0; k < dims; k++)
+            x[k][i] = (uint32_t)(bits_of(seed, pixel, g, layer, i, dim[k]) >> 32);
+    static uint16_t count[4096];
+    uint32_t a[4] = {0}; /* the box's shape: every composition of m - t */
+    for (;;) {
+        uint32_t used = 0;
+        for (int k = 0; k + 1 < dims; k++)
+            used += a[k];
+        if (used <= m - t) {
+            a[dims - 1] = m - t - used;
+            memset(count, 0, sizeof count);
+            for (uint32_t i = 0; i < g; i++) {
+                uint32_t cell = 0;
+                for (int k = 0; k < dims; k++)
+                    cell = (cell << a[k]) | (a[k] ? x[k][i] >> (32 - a[k]) : 0);
+                count[cell]++;
+            }
+            for (uint32_t c = 0; c < (1u << (m - t)); c++)
+                ck_assert_msg(count[c] == 1u << t,
+                              "G %u layer %u dims %lu,%lu..: box %u,%u,%u,%u cell %u holds %u, "
+                              "not 2^%u",
+                              g, layer, (unsigned long)dim[0], (unsigned long)dim[1], a[0], a[1],
+                              a[2], a[3], c, count[c], t);
         }
+        /* the next shape: a[0..dims-1) counted up to m - t */
+        int k = dims - 2;
+        while (k >= 0 && a[k] == m - t) /* (a carry) */
+            a[k--] = 0;
+        if (k < 0)
+            break;
+        a[k]++;
     }
+}
+
+/* A layer of G = 2^m samples, pair (2k, 2k + 1): exactly one point in each
+ * elementary interval [a 2^-j, (a+1) 2^-j) x [b 2^-(m-j), (b+1) 2^-(m-j)),
+ * but for the pair joined with the camera pair's (rng.h), whose own
+ * projection is the third and fourth Sobol dimensions': t <= 2 up to
+ * 2^12 samples (1 from 2^4 to 2^10, 2 at 2^3, 2^11 and 2^12). */
+static void check_net(uint64_t seed, uint64_t pixel, uint32_t m, uint32_t layer, uint64_t pair)
+{
+    const uint64_t dim[2] = {2 * pair, 2 * pair + 1};
+    uint32_t t = pair != RNG_SOBOL_JOINED_PAIR ? 0
+                 : m <= 1                      ? 0
+                 : m == 3 || m >= 11           ? 2
+                 : m == 4                      ? 0
+                                               : 1;
+    check_net_dims(seed, pixel, m, layer, dim, 2, t);
 }
 
 START_TEST(test_sobol_layer_is_a_net)
@@ -183,6 +219,88 @@ START_TEST(test_sobol_layer_is_a_net)
         }
     check_net(14, 6, 10, 3, 2);
     check_net(15, 7, 12, 1, 0); /* G = 4096, the largest */
+}
+END_TEST
+
+/* The camera pair and the joined pair are one 4D Sobol net: film point and
+ * light point stratified together, in a layer and in a pixel's first 2^m
+ * samples (t from the four dimensions' generator matrices: 2 up to 2^7
+ * samples, 3 at 2^8 and 2^9, 2 at 2^10 and 2^11). A padded pair (the
+ * BSDF pair) is not: its boxes with the camera pair's hold 0 to 3 points. */
+START_TEST(test_sobol_camera_and_light_net)
+{
+    const uint64_t dim[4] = {0, 1, 2 * RNG_SOBOL_JOINED_PAIR, 2 * RNG_SOBOL_JOINED_PAIR + 1};
+    for (uint32_t m = 2; m <= 11; m++) {
+        uint32_t t = m == 8 || m == 9 ? 3 : 2;
+        check_net_dims(31, 90 + m, m, 0, dim, 4, t);
+        check_net_dims(32, 7, m, 5, dim, 4, t); /* a layer deep in the sequence */
+    }
+    /* each of the 2D projections across the two pairs: t <= 2 */
+    for (int a = 0; a < 2; a++)
+        for (int b = 2; b < 4; b++)
+            for (uint32_t m = 4; m <= 12; m++) {
+                const uint64_t d2[2] = {dim[a], dim[b]};
+                check_net_dims(33, 11 * m, m, 1, d2, 2, 2);
+            }
+    /* the BSDF pair (padded) with the camera's: not a net */
+    enum { M = 8, G = 1 << M };
+    static uint16_t count[G];
+    memset(count, 0, sizeof count);
+    for (uint32_t i = 0; i < G; i++) {
+        uint32_t cell = 0;
+        for (uint64_t d = 0; d < 4; d++) {
+            uint64_t dd = d < 2 ? d : 2 * RNG_SOBOL_JOINED_PAIR + 2 + (d - 2);
+            cell = (cell << 2) | (uint32_t)(bits_of(34, 3, G, 0, i, dd) >> 62);
+        }
+        count[cell]++;
+    }
+    int uneven = 0;
+    for (uint32_t c = 0; c < G; c++)
+        uneven += count[c] != 1;
+    ck_assert_msg(uneven > 0, "the padded pair forms a net with the camera pair's");
+}
+END_TEST
+
+/* The third and fourth Sobol dimensions against their generator matrices,
+ * from the polynomials x^2 + x + 1 and x^3 + x + 1 and the initial
+ * direction numbers 1, 3 and 1, 3, 1 (Joe and Kuo's; Bratley and Fox's
+ * recurrence). */
+START_TEST(test_sobol_third_fourth_dimension_matrix)
+{
+    static const uint32_t degree[2] = {2, 3}, coeffs[2] = {1, 1}, init[2][3] = {{1, 3}, {1, 3, 1}};
+    uint32_t column[2][RNG_SOBOL_INDEX_BITS];
+    for (int d = 0; d < 2; d++) {
+        uint32_t mk[RNG_SOBOL_INDEX_BITS + 1];
+        uint32_t s = degree[d];
+        for (uint32_t k = 1; k <= RNG_SOBOL_INDEX_BITS; k++) {
+            if (k <= s) {
+                mk[k] = init[d][k - 1];
+            } else {
+                mk[k] = mk[k - s] ^ (mk[k - s] << s);
+                for (uint32_t i = 1; i < s; i++)
+                    if (coeffs[d] >> (s - 1 - i) & 1)
+                        mk[k] ^= mk[k - i] << i;
+            }
+            /* v_k = m_k / 2^k, reversed: m_k's k bits reversed, at the bottom */
+            uint32_t r = 0;
+            for (uint32_t b = 0; b < k; b++)
+                r |= (mk[k] >> b & 1) << (k - 1 - b);
+            column[d][k - 1] = r;
+        }
+    }
+    for (uint32_t k = 0; k < (1u << 16) + 4096; k++) {
+        uint32_t i = k < (1u << 16) ? k * 97u % (1u << RNG_SOBOL_INDEX_BITS)
+                                    : (1u << RNG_SOBOL_INDEX_BITS) - 1 - (k - (1u << 16));
+        uint32_t want[2] = {0, 0}, got[2];
+        for (int c = 0; c < RNG_SOBOL_INDEX_BITS; c++)
+            if (i >> c & 1) {
+                want[0] ^= column[0][c];
+                want[1] ^= column[1][c];
+            }
+        rng_sobol23_reversed(i, got);
+        ck_assert_msg(got[0] == want[0] && got[1] == want[1], "index %u: %08x %08x, want %08x %08x",
+                      i, got[0], got[1], want[0], want[1]);
+    }
 }
 END_TEST
 
@@ -398,6 +516,8 @@ static Suite *sampler_suite(void)
     tcase_set_timeout(tc, 120);
     tcase_add_test(tc, test_sobol_pure_function);
     tcase_add_test(tc, test_sobol_second_dimension_matrix);
+    tcase_add_test(tc, test_sobol_third_fourth_dimension_matrix);
+    tcase_add_test(tc, test_sobol_camera_and_light_net);
     tcase_add_test(tc, test_sobol_fill_same_bits);
     tcase_add_test(tc, test_sobol_range);
     tcase_add_test(tc, test_sobol_layer_is_a_net);
