@@ -1050,7 +1050,9 @@ static void compare_exr(const char *a, const char *b)
 /* a and b the same image within their noise, where their bits cannot be
  * the same: every pixel's luminance within 6 of the two variance
  * channels' sigma (the calibrated error of each mean), the whole image's
- * within 1 %, and the same number of samples in all. */
+ * within 1 %, and the number of samples in all within 1 % (an adaptive
+ * job's decisions follow its image: TRACER_VERSION 13's sampler moved
+ * the resumed job's by 64 samples in 1.9 million). */
 static void compare_exr_within_noise(const char *a, const char *b)
 {
     image_t *im[2] = {NULL, NULL};
@@ -1086,8 +1088,8 @@ static void compare_exr_within_noise(const char *a, const char *b)
             zmax, mean[0], mean[1]);
     ck_assert_msg(fabs(mean[0] / mean[1] - 1) < 0.01, "image mean %.6g in %s, %.6g in %s", mean[0],
                   a, mean[1], b);
-    ck_assert_msg(samples[0] == samples[1], "%.0f samples in %s, %.0f in %s", samples[0], a,
-                  samples[1], b);
+    ck_assert_msg(fabs(samples[0] / samples[1] - 1) < 0.01, "%.0f samples in %s, %.0f in %s",
+                  samples[0], a, samples[1], b);
     image_destroy(&im[0]);
     image_destroy(&im[1]);
 }
@@ -2483,7 +2485,7 @@ START_TEST(state_v1_migration)
      * our scenes' bits changed (TRACER_VERSION 8: the cosine bounce's
      * polynomial sin and cos), the resumed job was the fresh one bit for
      * bit; since, its first layers are the old tracer's, so the two agree
-     * within their noise and in their samples. */
+     * within their noise and their sample counts within 1 %. */
     if (TRACER_VERSION <= STATE_V1_SAME_BITS_THROUGH)
         compare_exr(ref, got);
     else
