@@ -50,8 +50,9 @@ static inline uint64_t sobol_pair_key(uint64_t sequence_key, uint32_t pair)
 void rng_sobol_pair(uint64_t sequence_key, uint32_t index_reversed, uint32_t pair, uint32_t out[2])
 {
     uint64_t pair_key = sobol_pair_key(sequence_key, pair);
-    int joined = pair == RNG_SOBOL_JOINED_PAIR;
-    uint64_t shuffle_key = joined ? sobol_pair_key(sequence_key, 0) : pair_key;
+    uint32_t partner = rng_sobol_partner(pair);
+    int joined = partner != pair;
+    uint64_t shuffle_key = joined ? sobol_pair_key(sequence_key, partner) : pair_key;
     /* the two scrambles' seeds */
     uint32_t seed0 = (uint32_t)(pair_key >> 32), seed1 = rng_hash32(seed0);
     /* owen(x) = reverse(laine_karras(reverse(x))): the index's reversal
@@ -165,13 +166,13 @@ __attribute__((target("avx2"))) static void fill_x8(const fill_item_t *items, si
             last_sequence = s->sequence_key;
             last_pair = items[i].pair;
             pair_key = sobol_pair_key(last_sequence, last_pair);
-            shuffle_key =
-                last_pair == RNG_SOBOL_JOINED_PAIR ? sobol_pair_key(last_sequence, 0) : pair_key;
+            uint32_t partner = rng_sobol_partner(last_pair);
+            shuffle_key = partner != last_pair ? sobol_pair_key(last_sequence, partner) : pair_key;
         }
         key[i] = (uint32_t)shuffle_key;
         seed0[i] = (uint32_t)(pair_key >> 32);
         index_reversed[i] = s->index_reversed;
-        joined[i] = -(items[i].pair == RNG_SOBOL_JOINED_PAIR);
+        joined[i] = -(rng_sobol_partner(items[i].pair) != items[i].pair);
         any_joined |= joined[i];
     }
     __m256i vkey = _mm256_loadu_si256((const __m256i *)key);

@@ -14,9 +14,9 @@
  *   "Practical Hash-based Owen Scrambling" (JCGT 2020). Dimensions come in
  *   pairs; pair p of a pixel's sample i is point shuffle_p(i) of the first
  *   two Sobol dimensions, each Owen-scrambled, the shuffle and scrambles
- *   seeded by hash(seed, pixel, i >> RNG_SOBOL_INDEX_BITS, pair); the
- *   first light pair takes the camera pair's shuffle and the third and
- *   fourth dimensions (RNG_SOBOL_JOINED_PAIR). So a
+ *   seeded by hash(seed, pixel, i >> RNG_SOBOL_INDEX_BITS, pair); a
+ *   joined pair takes its partner's shuffle and the third and fourth
+ *   dimensions (rng_sobol_partner). So a
  *   pixel's samples are one scrambled Sobol sequence (a fresh, independent
  *   scramble every 2^RNG_SOBOL_INDEX_BITS samples): its first 2^m samples
  *   form a (0,m,2)-net, and so does every aligned block of 2^m (a layer of
@@ -55,22 +55,40 @@ typedef enum rng_sampler {
  * no gain at equal time. */
 #define RNG_SOBOL_BOUNCES 2
 #define RNG_SOBOL_DIMS (2 + 6 * RNG_SOBOL_BOUNCES)
-/* The pair that shares the camera pair's (pair 0's) shuffled index and
- * takes the third and fourth Sobol dimensions there (rng_sobol_pair):
- * dimensions 4 and 5, tracer.c's light sample at the first bounce. Film
- * point and light point are then one 4D Sobol net, each of its 2D
- * projections stratified (t <= 2 up to 4096 samples; the light pair's own
- * t is 1, mostly, where a pair alone has 0), as Mitsuba's orthogonal
- * arrays stratify every 2D projection. Where what the light gives a pixel
- * varies with the point in the pixel (a glossy plate's highlight, a
- * textured floor's edges, a shadow's penumbra seen at a slant) a padded
- * pair leaves that joint variation random: with it joined, relMSE at 1024
- * spp fell 4.1x on checker.xml, 2.2x on veach-mis.xml, 11 % on lights.xml,
- * 1-3 % on the Cornell box and the Buddha, and nothing rose (bench/RESULTS.md,
- * "Sampler"). Joining the BSDF pair too (6D) had been 7 % worse on the
- * Cornell box; the BSDF pair with the camera's, or with the light's, took
- * 4 % and 2 % off veach-mis.xml's, within its noise. */
-#define RNG_SOBOL_JOINED_PAIR 2
+/* Joined pairs: a pair that shares another pair's (its partner's)
+ * shuffled index and takes the third and fourth Sobol dimensions there
+ * (rng_sobol_pair), so the two are one 4D Sobol net, each of its 2D
+ * projections stratified (t <= 2 up to 4096 samples; the joined pair's own
+ * t is 1, mostly, where a padded pair has 0), as Mitsuba's orthogonal
+ * arrays stratify every 2D projection. Padded pairs leave the joint
+ * variation of two pairs random. Two joins, in tracer.c's layout
+ * (tracer_bounce_dim):
+ * - the first bounce's light sample (dimensions 4 and 5) with the film
+ *   point (0 and 1): where what a light gives a pixel varies across the
+ *   pixel (a glossy plate's highlight of a small light, a textured
+ *   floor's edges, a sharp shadow), relMSE at 1024 spp fell 4.1x on
+ *   checker.xml, 2.2x on veach-mis.xml, 11 % on lights.xml, 1-3 % on the
+ *   Cornell box and the Buddha;
+ * - the second bounce's BSDF sample (12 and 13) with the first's (6 and
+ *   7): the two directions of a path's first two bounces stratified
+ *   together, for the light that reaches a pixel by interreflection: a
+ *   further 11 % off the Cornell box at 1024 spp (6 % at 256), 8 % off
+ *   dark-bright, 7 % off the Buddha, 3 % off checker.xml; materials.xml
+ *   3.5 % higher (7 of 10 seeds: its glossy second bounces lose their
+ *   pair's t = 0), glass 1.6 % (within its noise).
+ * Tried and not kept (bench/RESULTS.md, "Sampler"): the first BSDF pair
+ * with the camera's (a 6D net with the light: 7 % worse on the Cornell
+ * box), the second light pair with the first BSDF pair's (4 % off the
+ * Cornell box where the two BSDF pairs took 11 %). */
+#define RNG_SOBOL_LIGHT_PAIR 2
+#define RNG_SOBOL_BSDF2_PAIR 6
+
+/* The pair whose shuffled index pair `pair` takes: its partner, or itself
+ * for a padded pair. */
+static inline uint32_t rng_sobol_partner(uint32_t pair)
+{
+    return pair == RNG_SOBOL_LIGHT_PAIR ? 0 : pair == RNG_SOBOL_BSDF2_PAIR ? 3 : pair;
+}
 /* Samples of a pixel per Sobol sequence: 2^24, far past any reference's
  * count; the next 2^24 take
  * an independent scramble. */
@@ -263,9 +281,9 @@ void rng_sobol23_reversed(uint32_t index, uint32_t out[2]);
  * (a pixel's first 2^m samples, or one layer of G = 2^m) keeps its high
  * bits together and its low m bits permuted, so it maps onto an aligned
  * block of the Sobol sequence, a (0,m,2)-net. The shuffle differs per pair
- * so that pairs are not correlated, but for RNG_SOBOL_JOINED_PAIR, which
- * takes the camera pair's shuffle and the third and fourth dimensions
- * there (a (t,m,4)-net with the camera pair). rng_sobol_fill computes the same bits
+ * so that pairs are not correlated, but for a joined pair, which takes
+ * its partner's shuffle (rng_sobol_partner) and the third and fourth
+ * dimensions there (a (t,m,4)-net with its partner). rng_sobol_fill computes the same bits
  * for many streams at once. Out of line: draws mostly find their pair
  * computed ahead or cached, and the draws stay small enough to inline. */
 void rng_sobol_pair(uint64_t sequence_key, uint32_t index_reversed, uint32_t pair, uint32_t out[2]);

@@ -58,7 +58,8 @@
  * and the direct integrator with one light and one BSDF sample is traced
  * as the path integrator cut after the bounce (its numbers the path's);
  * 13 since, under the sobol sampler, the first bounce's light pair shares
- * the camera pair's index (rng.h, RNG_SOBOL_JOINED_PAIR). */
+ * the camera pair's index and the second bounce's BSDF pair the first's
+ * (rng.h, rng_sobol_partner). */
 #define TRACER_VERSION 13
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so

@@ -1,7 +1,7 @@
 /* test_sampler.c - the sobol sampler of rng.h: a pure function of its
  * coordinates, in [0, 1), one scrambled Sobol sequence per pixel (a
  * (0, m, 2)-net per pair in its first 2^m samples and in every layer of
- * G = 2^m; the camera pair and the first light pair one 4D net), unbiased with far less variance
+ * G = 2^m; a joined pair and its partner one 4D net), unbiased with far less variance
  * than independent numbers on a smooth integrand, and layers whose spread never understates the
  * error of their mean.
  *
@@ -201,11 +201,11 @@ static void check_net_dims(uint64_t seed, uint64_t pixel, uint32_t m, uint32_t l
 static void check_net(uint64_t seed, uint64_t pixel, uint32_t m, uint32_t layer, uint64_t pair)
 {
     const uint64_t dim[2] = {2 * pair, 2 * pair + 1};
-    uint32_t t = pair != RNG_SOBOL_JOINED_PAIR ? 0
-                 : m <= 1                      ? 0
-                 : m == 3 || m >= 11           ? 2
-                 : m == 4                      ? 0
-                                               : 1;
+    uint32_t t = rng_sobol_partner((uint32_t)pair) == pair ? 0
+                 : m <= 1                                  ? 0
+                 : m == 3 || m >= 11                       ? 2
+                 : m == 4                                  ? 0
+                                                           : 1;
     check_net_dims(seed, pixel, m, layer, dim, 2, t);
 }
 
@@ -222,42 +222,61 @@ START_TEST(test_sobol_layer_is_a_net)
 }
 END_TEST
 
-/* The camera pair and the joined pair are one 4D Sobol net: film point and
- * light point stratified together, in a layer and in a pixel's first 2^m
- * samples (t from the four dimensions' generator matrices: 2 up to 2^7
- * samples, 3 at 2^8 and 2^9, 2 at 2^10 and 2^11). A padded pair (the
- * BSDF pair) is not: its boxes with the camera pair's hold 0 to 3 points. */
-START_TEST(test_sobol_camera_and_light_net)
+/* 1 if pairs a and b of a layer of 2^8 samples fill the 32 boxes of
+ * sides 1/4, 1/2, 1/2, 1/2 evenly, 8 points each, as a (3,8,4)-net does;
+ * independent pairs almost never do. */
+static int boxes_even(uint64_t seed, uint64_t pixel, uint64_t a, uint64_t b)
 {
-    const uint64_t dim[4] = {0, 1, 2 * RNG_SOBOL_JOINED_PAIR, 2 * RNG_SOBOL_JOINED_PAIR + 1};
-    for (uint32_t m = 2; m <= 11; m++) {
-        uint32_t t = m == 8 || m == 9 ? 3 : 2;
-        check_net_dims(31, 90 + m, m, 0, dim, 4, t);
-        check_net_dims(32, 7, m, 5, dim, 4, t); /* a layer deep in the sequence */
-    }
-    /* each of the 2D projections across the two pairs: t <= 2 */
-    for (int a = 0; a < 2; a++)
-        for (int b = 2; b < 4; b++)
-            for (uint32_t m = 4; m <= 12; m++) {
-                const uint64_t d2[2] = {dim[a], dim[b]};
-                check_net_dims(33, 11 * m, m, 1, d2, 2, 2);
-            }
-    /* the BSDF pair (padded) with the camera's: not a net */
-    enum { M = 8, G = 1 << M };
-    static uint16_t count[G];
-    memset(count, 0, sizeof count);
+    enum { M = 8, G = 1 << M, BOXES = 32 };
+    uint16_t count[BOXES] = {0};
+    const uint64_t dim[4] = {2 * a, 2 * a + 1, 2 * b, 2 * b + 1};
+    static const int bits[4] = {2, 1, 1, 1};
     for (uint32_t i = 0; i < G; i++) {
         uint32_t cell = 0;
-        for (uint64_t d = 0; d < 4; d++) {
-            uint64_t dd = d < 2 ? d : 2 * RNG_SOBOL_JOINED_PAIR + 2 + (d - 2);
-            cell = (cell << 2) | (uint32_t)(bits_of(34, 3, G, 0, i, dd) >> 62);
-        }
+        for (int d = 0; d < 4; d++)
+            cell = (cell << bits[d]) |
+                   (uint32_t)(bits_of(seed, pixel, G, 0, i, dim[d]) >> (64 - bits[d]));
         count[cell]++;
     }
-    int uneven = 0;
-    for (uint32_t c = 0; c < G; c++)
-        uneven += count[c] != 1;
-    ck_assert_msg(uneven > 0, "the padded pair forms a net with the camera pair's");
+    for (uint32_t c = 0; c < BOXES; c++)
+        if (count[c] != G / BOXES)
+            return 0;
+    return 1;
+}
+
+/* A joined pair and its partner are one 4D Sobol net: the film point and
+ * the first light point, the first and second BSDF directions, each
+ * stratified with the other, in a layer and in a pixel's first 2^m
+ * samples (t from the four dimensions' generator matrices: 2 up to 2^7
+ * samples, 3 at 2^8 and 2^9, 2 at 2^10 and 2^11). Padded pairs are not:
+ * the light pair with the BSDF pair, the camera's with the BSDF's. */
+START_TEST(test_sobol_joined_pairs_are_nets)
+{
+    static const uint64_t joined[2] = {RNG_SOBOL_LIGHT_PAIR, RNG_SOBOL_BSDF2_PAIR};
+    for (int k = 0; k < 2; k++) {
+        uint64_t partner = rng_sobol_partner((uint32_t)joined[k]);
+        ck_assert_uint_ne(partner, joined[k]);
+        ck_assert_uint_eq(rng_sobol_partner((uint32_t)partner), partner); /* no chains */
+        const uint64_t dim[4] = {2 * partner, 2 * partner + 1, 2 * joined[k], 2 * joined[k] + 1};
+        for (uint32_t m = 2; m <= 11; m++) {
+            uint32_t t = m == 8 || m == 9 ? 3 : 2;
+            check_net_dims(31 + (uint64_t)k, 90 + m, m, 0, dim, 4, t);
+            check_net_dims(33 + (uint64_t)k, 7, m, 5, dim, 4, t); /* a layer deep in */
+        }
+        /* each of the 2D projections across the two pairs: t <= 2 */
+        for (int a = 0; a < 2; a++)
+            for (int b = 2; b < 4; b++)
+                for (uint32_t m = 4; m <= 12; m++) {
+                    const uint64_t d2[2] = {dim[a], dim[b]};
+                    check_net_dims(35, 11 * m, m, 1, d2, 2, 2);
+                }
+        ck_assert(boxes_even(36, 3 + (uint64_t)k, partner, joined[k]));
+    }
+    /* padded pairs: the first light pair and BSDF pair, the camera pair
+     * and the first BSDF pair, the second light pair and BSDF pair */
+    ck_assert_msg(!boxes_even(37, 3, RNG_SOBOL_LIGHT_PAIR, 3), "light and BSDF pairs form a net");
+    ck_assert_msg(!boxes_even(38, 3, 0, 3), "camera and BSDF pairs form a net");
+    ck_assert_msg(!boxes_even(39, 3, 5, RNG_SOBOL_BSDF2_PAIR), "second light and BSDF form a net");
 }
 END_TEST
 
@@ -517,7 +536,7 @@ static Suite *sampler_suite(void)
     tcase_add_test(tc, test_sobol_pure_function);
     tcase_add_test(tc, test_sobol_second_dimension_matrix);
     tcase_add_test(tc, test_sobol_third_fourth_dimension_matrix);
-    tcase_add_test(tc, test_sobol_camera_and_light_net);
+    tcase_add_test(tc, test_sobol_joined_pairs_are_nets);
     tcase_add_test(tc, test_sobol_fill_same_bits);
     tcase_add_test(tc, test_sobol_range);
     tcase_add_test(tc, test_sobol_layer_is_a_net);

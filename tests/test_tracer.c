@@ -749,16 +749,21 @@ START_TEST(test_deterministic_across_threads)
 }
 END_TEST
 
-/* The sobol sampler: its camera pair joined with the first light pair,
+/* The sobol sampler: its joined pairs where tracer.c draws them,
  * bit-identical for 1, 2 and 3 threads, and the same
  * image as independent numbers within noise (its variance channel assumes
  * independent samples, so it overstates a sobol mean's variance: the check
  * is looser, never tighter). */
 START_TEST(test_sobol_deterministic_and_agrees)
 {
-    /* the pair rng.h joins with the camera pair's is the first light
-     * sample's (tracer_bounce_dim's layout: [2, 3] of a bounce) */
-    ck_assert_uint_eq(tracer_bounce_dim(0) + 2, 2 * RNG_SOBOL_JOINED_PAIR);
+    /* the pairs rng.h joins are the first light sample's with the film
+     * point's, and the second BSDF sample's with the first's
+     * (tracer_bounce_dim's layout: [2, 3] of a bounce the light, [4, 5]
+     * the BSDF) */
+    ck_assert_uint_eq(tracer_bounce_dim(0) + 2, 2 * RNG_SOBOL_LIGHT_PAIR);
+    ck_assert_uint_eq(rng_sobol_partner(RNG_SOBOL_LIGHT_PAIR), 0);
+    ck_assert_uint_eq(tracer_bounce_dim(1) + 4, 2 * RNG_SOBOL_BSDF2_PAIR);
+    ck_assert_uint_eq(2 * rng_sobol_partner(RNG_SOBOL_BSDF2_PAIR), tracer_bounce_dim(0) + 4);
     cJSON *root = cornell_json(24);
     scene_t *s = load_json(root);
     cJSON_Delete(root);
