@@ -13,28 +13,56 @@
 
 #include <immintrin.h>
 
-/* Column k of the third and fourth Sobol dimensions' generator matrices
- * (direction number v_k+1 = m_k+1 / 2^(k+1)), bit-reversed: from m = 1, 3
- * and 1, 3, 1 by Bratley and Fox's recurrence (test_sampler computes them
- * again from the polynomials and checks these). */
-static const uint32_t sobol_columns_reversed[2][RNG_SOBOL_INDEX_BITS] = {
-    {0x00000001u, 0x00000003u, 0x00000006u, 0x00000009u, 0x00000017u, 0x0000003au,
-     0x00000071u, 0x000000a3u, 0x00000116u, 0x00000339u, 0x00000677u, 0x000009aau,
-     0x00001601u, 0x00003903u, 0x00007706u, 0x0000aa09u, 0x00010117u, 0x0003033au,
-     0x00060671u, 0x000909a3u, 0x00171616u, 0x003a3939u, 0x00717777u, 0x00a3aaaau},
-    {0x00000001u, 0x00000003u, 0x00000004u, 0x0000000au, 0x0000001fu, 0x0000002eu,
-     0x00000045u, 0x000000c9u, 0x0000011bu, 0x000002a4u, 0x0000079au, 0x00000b67u,
-     0x0000101eu, 0x0000302du, 0x00004041u, 0x0000a0c3u, 0x0001f104u, 0x0002e28au,
-     0x000457dfu, 0x000c9baeu, 0x0011a105u, 0x002a7289u, 0x0079e7dbu, 0x00b6dba4u},
+/* The third and fourth Sobol dimensions' generator matrices (columns:
+ * direction numbers v_k = m_k / 2^k from m = 1, 3 and 1, 3, 1 by Bratley
+ * and Fox's recurrence, bit-reversed), three columns at a time: entry
+ * [c][d][e] is the XOR of dimension d's reversed columns 3c .. 3c + 2
+ * picked by the bits of e, so an index's 24 bits take eight lookups
+ * (in vectors, one permute each). test_sampler computes the columns again
+ * from the polynomials and checks the products. */
+_Static_assert(RNG_SOBOL_INDEX_BITS % 3 == 0, "the index in whole chunks of three bits");
+static const uint32_t sobol_chunks[RNG_SOBOL_INDEX_BITS / 3][2][8] __attribute__((aligned(32))) = {
+    {{0x00000000u, 0x00000001u, 0x00000003u, 0x00000002u, 0x00000006u, 0x00000007u, 0x00000005u,
+      0x00000004u},
+     {0x00000000u, 0x00000001u, 0x00000003u, 0x00000002u, 0x00000004u, 0x00000005u, 0x00000007u,
+      0x00000006u}},
+    {{0x00000000u, 0x00000009u, 0x00000017u, 0x0000001eu, 0x0000003au, 0x00000033u, 0x0000002du,
+      0x00000024u},
+     {0x00000000u, 0x0000000au, 0x0000001fu, 0x00000015u, 0x0000002eu, 0x00000024u, 0x00000031u,
+      0x0000003bu}},
+    {{0x00000000u, 0x00000071u, 0x000000a3u, 0x000000d2u, 0x00000116u, 0x00000167u, 0x000001b5u,
+      0x000001c4u},
+     {0x00000000u, 0x00000045u, 0x000000c9u, 0x0000008cu, 0x0000011bu, 0x0000015eu, 0x000001d2u,
+      0x00000197u}},
+    {{0x00000000u, 0x00000339u, 0x00000677u, 0x0000054eu, 0x000009aau, 0x00000a93u, 0x00000fddu,
+      0x00000ce4u},
+     {0x00000000u, 0x000002a4u, 0x0000079au, 0x0000053eu, 0x00000b67u, 0x000009c3u, 0x00000cfdu,
+      0x00000e59u}},
+    {{0x00000000u, 0x00001601u, 0x00003903u, 0x00002f02u, 0x00007706u, 0x00006107u, 0x00004e05u,
+      0x00005804u},
+     {0x00000000u, 0x0000101eu, 0x0000302du, 0x00002033u, 0x00004041u, 0x0000505fu, 0x0000706cu,
+      0x00006072u}},
+    {{0x00000000u, 0x0000aa09u, 0x00010117u, 0x0001ab1eu, 0x0003033au, 0x0003a933u, 0x0002022du,
+      0x0002a824u},
+     {0x00000000u, 0x0000a0c3u, 0x0001f104u, 0x000151c7u, 0x0002e28au, 0x00024249u, 0x0003138eu,
+      0x0003b34du}},
+    {{0x00000000u, 0x00060671u, 0x000909a3u, 0x000f0fd2u, 0x00171616u, 0x00111067u, 0x001e1fb5u,
+      0x001819c4u},
+     {0x00000000u, 0x000457dfu, 0x000c9baeu, 0x0008cc71u, 0x0011a105u, 0x0015f6dau, 0x001d3aabu,
+      0x00196d74u}},
+    {{0x00000000u, 0x003a3939u, 0x00717777u, 0x004b4e4eu, 0x00a3aaaau, 0x00999393u, 0x00d2ddddu,
+      0x00e8e4e4u},
+     {0x00000000u, 0x002a7289u, 0x0079e7dbu, 0x00539552u, 0x00b6dba4u, 0x009ca92du, 0x00cf3c7fu,
+      0x00e54ef6u}},
 };
 
 void rng_sobol23_reversed(uint32_t index, uint32_t out[2])
 {
     uint32_t a = 0, b = 0;
-    for (int k = 0; k < RNG_SOBOL_INDEX_BITS; k++) {
-        uint32_t bit = 0u - ((index >> k) & 1u);
-        a ^= sobol_columns_reversed[0][k] & bit;
-        b ^= sobol_columns_reversed[1][k] & bit;
+    for (int c = 0; c < RNG_SOBOL_INDEX_BITS / 3; c++) {
+        uint32_t e = (index >> (3 * c)) & 7u;
+        a ^= sobol_chunks[c][0][e];
+        b ^= sobol_chunks[c][1][e];
     }
     out[0] = a;
     out[1] = b;
@@ -133,18 +161,18 @@ __attribute__((target("avx2"))) static inline __m256i sobol1_reversed_x8(__m256i
         y, _mm256_and_si256(_mm256_srli_epi32(y, 16), _mm256_set1_epi32(0x0000ffff)));
 }
 
-/* rng_sobol23_reversed of each lane */
+/* rng_sobol23_reversed of each lane: eight permutes per dimension (a
+ * permute reads the low three bits of each lane's index alone). */
 __attribute__((target("avx2"))) static inline void sobol23_reversed_x8(__m256i j, __m256i *a,
                                                                        __m256i *b)
 {
     __m256i x = _mm256_setzero_si256(), y = _mm256_setzero_si256();
-    for (int k = 0; k < RNG_SOBOL_INDEX_BITS; k++) {
-        /* all ones where bit k of the index is set */
-        __m256i bit = _mm256_srai_epi32(_mm256_slli_epi32(j, 31 - k), 31);
-        x = _mm256_xor_si256(
-            x, _mm256_and_si256(bit, _mm256_set1_epi32((int)sobol_columns_reversed[0][k])));
-        y = _mm256_xor_si256(
-            y, _mm256_and_si256(bit, _mm256_set1_epi32((int)sobol_columns_reversed[1][k])));
+    for (int c = 0; c < RNG_SOBOL_INDEX_BITS / 3; c++) {
+        __m256i e = _mm256_srli_epi32(j, 3 * c);
+        x = _mm256_xor_si256(x, _mm256_permutevar8x32_epi32(
+                                    _mm256_load_si256((const __m256i *)sobol_chunks[c][0]), e));
+        y = _mm256_xor_si256(y, _mm256_permutevar8x32_epi32(
+                                    _mm256_load_si256((const __m256i *)sobol_chunks[c][1]), e));
     }
     *a = x;
     *b = y;
