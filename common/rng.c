@@ -68,8 +68,8 @@ void rng_sobol23_reversed(uint32_t index, uint32_t out[2])
     out[1] = b;
 }
 
-/* A pair's key: its scrambles' seeds, and (but for the joined pair) its
- * index shuffle's. */
+/* A pair's key: its scrambles' seeds, and (but for a joined pair, which
+ * takes its partner's) its index shuffle's. */
 static inline uint64_t sobol_pair_key(uint64_t sequence_key, uint32_t pair)
 {
     return rng_mix64(sequence_key ^ (pair + 1) * 0x9e3779b97f4a7c15ULL);
@@ -188,6 +188,7 @@ __attribute__((target("avx2"))) static void fill_x8(const fill_item_t *items, si
      * mostly share their pair's key */
     uint64_t last_sequence = 0, pair_key = 0, shuffle_key = 0;
     uint32_t last_pair = UINT32_MAX;
+    int32_t last_joined = 0;
     for (size_t i = 0; i < n; i++) {
         const rng_stream_t *s = items[i].stream;
         if (s->sequence_key != last_sequence || items[i].pair != last_pair) {
@@ -195,13 +196,14 @@ __attribute__((target("avx2"))) static void fill_x8(const fill_item_t *items, si
             last_pair = items[i].pair;
             pair_key = sobol_pair_key(last_sequence, last_pair);
             uint32_t partner = rng_sobol_partner(last_pair);
-            shuffle_key = partner != last_pair ? sobol_pair_key(last_sequence, partner) : pair_key;
+            last_joined = -(partner != last_pair);
+            shuffle_key = last_joined ? sobol_pair_key(last_sequence, partner) : pair_key;
         }
         key[i] = (uint32_t)shuffle_key;
         seed0[i] = (uint32_t)(pair_key >> 32);
         index_reversed[i] = s->index_reversed;
-        joined[i] = -(rng_sobol_partner(items[i].pair) != items[i].pair);
-        any_joined |= joined[i];
+        joined[i] = last_joined;
+        any_joined |= last_joined;
     }
     __m256i vkey = _mm256_loadu_si256((const __m256i *)key);
     __m256i vseed0 = _mm256_loadu_si256((const __m256i *)seed0);

@@ -77,17 +77,22 @@ typedef enum rng_sampler {
  *   3.5 % higher (7 of 10 seeds: its glossy second bounces lose their
  *   pair's t = 0), glass 1.6 % (within its noise).
  * Tried and not kept (bench/RESULTS.md, "Sampler"): the first BSDF pair
- * with the camera's (a 6D net with the light: 7 % worse on the Cornell
- * box), the second light pair with the first BSDF pair's (4 % off the
- * Cornell box where the two BSDF pairs took 11 %). */
+ * joined with the camera's instead of the light pair (6 % off the Cornell
+ * box, 4 % off veach-mis.xml), the second light pair with the first BSDF
+ * pair's (4 % off the Cornell box where the two BSDF pairs took 11 %), a
+ * 6D net of camera, light and BSDF pairs (7 % worse on the Cornell box). */
+#define RNG_SOBOL_CAMERA_PAIR 0
 #define RNG_SOBOL_LIGHT_PAIR 2
+#define RNG_SOBOL_BSDF1_PAIR 3
 #define RNG_SOBOL_BSDF2_PAIR 6
 
 /* The pair whose shuffled index pair `pair` takes: its partner, or itself
  * for a padded pair. */
 static inline uint32_t rng_sobol_partner(uint32_t pair)
 {
-    return pair == RNG_SOBOL_LIGHT_PAIR ? 0 : pair == RNG_SOBOL_BSDF2_PAIR ? 3 : pair;
+    return pair == RNG_SOBOL_LIGHT_PAIR   ? RNG_SOBOL_CAMERA_PAIR
+           : pair == RNG_SOBOL_BSDF2_PAIR ? RNG_SOBOL_BSDF1_PAIR
+                                          : pair;
 }
 /* Samples of a pixel per Sobol sequence: 2^24, far past any reference's
  * count; the next 2^24 take
