@@ -176,10 +176,12 @@ $(ASSETS_OBJ): $(ASSETS_C)
 # code itself (the other suites drive the binaries).
 SERVE_OBJ = $(BUILD)/client/serve.o $(BUILD)/client/control.o $(ASSETS_OBJ)
 $(BUILD)/tests/test_serve.o: CFLAGS += -Iclient
-# The diffuse kernel's AVX2 build (common/wave_diffuse_avx2.c; the tracer
-# picks it only where the host has AVX2): a flag, which GCC and clang (the
-# fuzz build) both take, where a target pragma is GCC's alone.
+# The diffuse kernel's AVX2 and AVX-512 builds (common/wave_diffuse_avx2.c,
+# wave_diffuse_avx512.c; the tracer picks one only where the host has it):
+# flags, which GCC and clang (the fuzz build) both take, where a target
+# pragma is GCC's alone.
 $(BUILD)/common/wave_diffuse_avx2.o: CFLAGS += -mavx2
+$(BUILD)/common/wave_diffuse_avx512.o: CFLAGS += -mavx512f -mavx512vl
 $(BUILD)/tests/test_serve: $(BUILD)/tests/test_serve.o $(TEST_HELPER_OBJ) $(SERVE_OBJ) $(LIBS_ALL)
 	$(CC) $(LDSAN) -pthread -o $@ $^ $(LDLIBS_CHECK) $(LDLIBS_HTTP) $(LDLIBS_ALL)
 

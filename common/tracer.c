@@ -104,6 +104,21 @@ const char *tracer_device_isa(const tracer_device_t *d)
     return d->isa;
 }
 
+/* The diffuse kernel's build (wave.h): AVX-512 at 16 lanes only beside
+ * the triangle list's AVX-512 kernel, where it gained 6.5 % on the Cornell
+ * box; beside our BVH's traversal or Embree, which keep to 256 bits, it
+ * cost the Buddha and the glass scene 6.5 % (Intel Xeon, bench_core, one
+ * thread), most likely the lower clock these cores take for 512-bit code,
+ * which the list's kernel pays anyway. Else AVX2 at 8 lanes where the
+ * host has it. */
+static int shading_width(const tracer_t *t)
+{
+    if (t->small && strcmp(trilist_kernel(t->small), "avx512") == 0 &&
+        __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl"))
+        return 2;
+    return __builtin_cpu_supports("avx2") != 0;
+}
+
 int tracer_new(tracer_device_t *dev, const scene_t *scene, tracer_t **out, char *err, size_t errlen)
 {
     return tracer_new_accel(dev, scene, TRACER_ACCEL_AUTO, out, err, errlen);
@@ -158,6 +173,7 @@ int tracer_new_accel(tracer_device_t *dev, const scene_t *scene, tracer_accel_t 
             tracer_destroy(&t);
             return -1;
         }
+        t->wide_shading = shading_width(t);
         *out = t;
         return 0;
     }
@@ -230,6 +246,13 @@ const char *tracer_isa(const tracer_t *t)
     return t->dev->isa;
 }
 
+int tracer_shading_lanes(const tracer_t *t)
+{
+    return t->wide_shading == 2 ? WAVE_LANES_AVX512
+           : t->wide_shading    ? WAVE_LANES_AVX2
+                                : WAVE_LANES;
+}
+
 int tracer_use_isa(tracer_t *t, const char *isa)
 {
     __builtin_cpu_init();
@@ -249,7 +272,7 @@ int tracer_use_isa(tracer_t *t, const char *isa)
     if ((t->small && trilist_use_kernel(t->small, isa) < 0) ||
         (t->bvh && bvh_use_kernel(t->bvh, isa) < 0))
         return -1;
-    t->wide_shading = 1;
+    t->wide_shading = shading_width(t);
     return 0;
 }
 

@@ -156,6 +156,11 @@ void tracer_destroy(tracer_t **t);
 /* The Embree ISA this tracer runs ("avx2" or "sse4.2"). */
 const char *tracer_isa(const tracer_t *t);
 
+/* The paths the wavefront's diffuse shading takes at once: 16 (its
+ * AVX-512 build, beside the triangle list's AVX-512 kernel), 8 (AVX2) or
+ * 4 (the baseline); the same bits in all. */
+int tracer_shading_lanes(const tracer_t *t);
+
 /* Runs our own SIMD kernels (the triangle list's, our traversal's and the
  * wavefront's diffuse shading, the only code built for more than the
  * baseline ISA besides Embree, which is pinned to AVX2) for "avx512",

@@ -24,7 +24,7 @@ struct tracer {
     trilist_t *small; /* a scene tested whole, without a BVH */
     const scene_t *scene;
     tracer_engine_t engine;
-    int wide_shading; /* the wavefront's diffuse kernel in AVX2 (wave.h) */
+    int wide_shading; /* the wavefront's diffuse kernel: 0 baseline, 1 AVX2, 2 AVX-512 (wave.h) */
 };
 
 /* ---- ray casting -------------------------------------------------------- */

@@ -44,12 +44,17 @@
  * built for the baseline target: 8 floats there were lowered through the
  * stack. The diffuse kernel, the commonest, is built a second time for
  * AVX2 at 8 lanes (wave_diffuse_avx2.c; wave_ctx_t.wide_shading picks it
- * where the host has AVX2): the same bits, 1 % faster on the Cornell box.
- * An AVX2 clone of every kernel, calling into code built without AVX,
+ * where the host has AVX2): the same bits, 1 % faster on the Cornell box;
+ * and a third time for AVX-512 at 16 lanes (wave_diffuse_avx512.c), picked
+ * only beside the triangle list's AVX-512 kernel (tracer.c,
+ * shading_width): 6.5 % faster on the Cornell box there, 6.5 % slower on
+ * scenes whose casting keeps to 256 bits (most likely the clock Intel's
+ * cores lower for 512-bit code). An AVX2 clone of every kernel, calling into code built without AVX,
  * had paid more for the transitions than it gained; the diffuse kernel
  * inlines all it calls on its common path. */
 #define WAVE_LANES 4
 #define WAVE_LANES_AVX2 8
+#define WAVE_LANES_AVX512 16
 /* The most samples one wave_trace call takes (the caller splits a task
  * list into runs of whole tasks no larger). */
 #define WAVE_MAX_SAMPLES TRACER_MAX_TASK_SAMPLES
@@ -62,7 +67,7 @@ typedef struct wave_ctx {
     int nee;          /* next-event estimation: the path integrator, with lights */
     int env;          /* the scene has an environment (scene_t.has_env) */
     int hide_camera;  /* scene_t.hide_emitters: camera rays pass emitters */
-    int wide_shading; /* the diffuse kernel's AVX2 build (the host has AVX2) */
+    int wide_shading; /* the diffuse kernel's build: 0 baseline, 1 AVX2, 2 AVX-512 */
 } wave_ctx_t;
 
 /* A chunk's paths still going, their slots in sample order. */
@@ -139,9 +144,12 @@ typedef void (*wave_kernel_t)(const wave_ctx_t *c, wave_state_t *w, const uint16
 void wave_sobol_ahead(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
 
 void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
-/* (its AVX2 build, which wave_kernel_diffuse calls where c->wide_shading) */
+/* (its AVX2 and AVX-512 builds, which wave_kernel_diffuse calls as
+ * c->wide_shading says) */
 void wave_kernel_diffuse_avx2(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots,
                               size_t n);
+void wave_kernel_diffuse_avx512(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots,
+                                size_t n);
 void wave_kernel_mirror(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
 void wave_kernel_dielectric(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
 void wave_kernel_glossy(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);

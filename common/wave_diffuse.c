@@ -9,10 +9,15 @@
  * material_sample_diffuse operation for operation (IEEE operations, the
  * same order, no FMA: -ffp-contract=off), so the bits are the scalar
  * engine's. wave_diffuse_avx2.c builds this file again for AVX2, 8 lanes
- * (DIFFUSE_AVX2 defined), the same operations in each lane. */
+ * (DIFFUSE_AVX2 defined), and wave_diffuse_avx512.c for AVX-512, 16 lanes
+ * (DIFFUSE_AVX512), the same operations in each lane. */
 #include "wave.h"
 
-#ifdef DIFFUSE_AVX2
+#if defined DIFFUSE_AVX512
+#define DIFFUSE_LANES WAVE_LANES_AVX512
+#define DIFFUSE_KERNEL wave_kernel_diffuse_avx512
+#define DIFFUSE_LINKAGE
+#elif defined DIFFUSE_AVX2
 #define DIFFUSE_LANES WAVE_LANES_AVX2
 #define DIFFUSE_KERNEL wave_kernel_diffuse_avx2
 #define DIFFUSE_LINKAGE
@@ -314,10 +319,12 @@ DIFFUSE_LINKAGE void DIFFUSE_KERNEL(const wave_ctx_t *c, wave_state_t *w, const 
     }
 }
 
-#ifndef DIFFUSE_AVX2
+#if !defined DIFFUSE_AVX2 && !defined DIFFUSE_AVX512
 void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n)
 {
-    if (c->wide_shading)
+    if (c->wide_shading == 2)
+        wave_kernel_diffuse_avx512(c, w, slots, n);
+    else if (c->wide_shading)
         wave_kernel_diffuse_avx2(c, w, slots, n);
     else
         diffuse_baseline(c, w, slots, n);

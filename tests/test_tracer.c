@@ -793,8 +793,8 @@ END_TEST
  * (tracer_use_isa, what bench_core --isa avx2 measures as an AVX2-only
  * host): the same image, bit for bit, through the triangle list and
  * through our BVH (which has no baseline kernel), the diffuse shading's
- * AVX2 build against its baseline one included; a name the tracer has no
- * kernels for is refused. */
+ * AVX-512 (16 lanes), AVX2 (8) and baseline (4) builds included; a name
+ * the tracer has no kernels for is refused. */
 START_TEST(test_isa_same_bits)
 {
     cJSON *root = cornell_json(16);
@@ -829,14 +829,26 @@ START_TEST(test_isa_same_bits)
     char err[512];
     ck_assert_msg(tracer_device_new(&dev, err, sizeof err) == 0, "%s", err);
     ck_assert_msg(tracer_new(dev, s, &t, err, sizeof err) == 0, "%s", err);
+    /* the diffuse shading's build: 16 lanes beside the list's AVX-512
+     * kernel only, so the images above compared it with 8 and 4 lanes */
+    ck_assert_int_eq(tracer_shading_lanes(t), avx512 ? 16 : avx2 ? 8 : 4);
     ck_assert_int_eq(tracer_use_isa(t, "sse2"), 0);
+    ck_assert_int_eq(tracer_shading_lanes(t), 4);
     ck_assert_int_eq(tracer_use_isa(t, "avx1024"), -1);
     ck_assert_int_eq(tracer_use_isa(t, "avx512"), avx512 ? 0 : -1);
+    if (avx2) {
+        ck_assert_int_eq(tracer_use_isa(t, "avx2"), 0);
+        ck_assert_int_eq(tracer_shading_lanes(t), 8);
+    }
     tracer_destroy(&t);
     if (avx2) {
         ck_assert_msg(tracer_new_accel(dev, s, TRACER_ACCEL_BVH, &t, err, sizeof err) == 0, "%s",
                       err);
         ck_assert_int_eq(tracer_use_isa(t, "sse2"), -1);
+        /* our traversal keeps to 256 bits, and so does the shading beside it */
+        ck_assert_int_eq(tracer_shading_lanes(t), 8);
+        ck_assert_int_eq(tracer_use_isa(t, "avx512"), avx512 ? 0 : -1);
+        ck_assert_int_eq(tracer_shading_lanes(t), 8);
         tracer_destroy(&t);
     }
     tracer_device_destroy(&dev);
