@@ -106,11 +106,11 @@ const char *tracer_device_isa(const tracer_device_t *d)
 
 /* The diffuse kernel's build (wave.h): AVX-512 at 16 lanes only beside
  * the triangle list's AVX-512 kernel, where it gained 6.5 % on the Cornell
- * box; beside our BVH's traversal or Embree, which keep to 256 bits, it
- * cost the Buddha and the glass scene 6.5 % (Intel Xeon, bench_core, one
- * thread), most likely the lower clock these cores take for 512-bit code,
- * which the list's kernel pays anyway. Else AVX2 at 8 lanes where the
- * host has it. */
+ * box. Beside code that keeps to 256 bits it lost: 6.5 % on the Buddha
+ * (our BVH's traversal) and glass (Embree), 9 % on the Cornell box with
+ * the list's AVX2 kernel (Intel Xeon, bench_core, one thread), the lower
+ * clock these cores take for 512-bit code, which the list's AVX-512
+ * kernel pays anyway. Else AVX2 at 8 lanes where the host has it. */
 static int shading_width(const tracer_t *t)
 {
     if (t->small && strcmp(trilist_kernel(t->small), "avx512") == 0 &&

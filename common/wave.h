@@ -47,9 +47,9 @@
  * where the host has AVX2): the same bits, 1 % faster on the Cornell box;
  * and a third time for AVX-512 at 16 lanes (wave_diffuse_avx512.c), picked
  * only beside the triangle list's AVX-512 kernel (tracer.c,
- * shading_width): 6.5 % faster on the Cornell box there, 6.5 % slower on
- * scenes whose casting keeps to 256 bits (most likely the clock Intel's
- * cores lower for 512-bit code). An AVX2 clone of every kernel, calling into code built without AVX,
+ * shading_width): 6.5 % faster on the Cornell box there, 6.5-9 % slower
+ * beside casting that keeps to 256 bits (the clock Intel's cores lower for
+ * 512-bit code). An AVX2 clone of every kernel, calling into code built without AVX,
  * had paid more for the transitions than it gained; the diffuse kernel
  * inlines all it calls on its common path. */
 #define WAVE_LANES 4
