@@ -1388,6 +1388,8 @@ static int write_json(const char *path, const args_t *a, const char *name, const
                             tr->small ? trilist_kernel(tr->small)
                             : tr->bvh ? bvh_kernel(tr->bvh)
                                       : "none");
+    /* the paths the diffuse shading takes at once (its build: 16, 8, 4) */
+    cJSON_AddNumberToObject(root, "shading_lanes", tracer_shading_lanes(tr));
     cJSON_AddStringToObject(root, "accel",
                             tracer_accel_for(s) == TRACER_ACCEL_TRILIST ? "trilist"
                             : tracer_accel_for(s) == TRACER_ACCEL_BVH   ? "bvh"
@@ -1476,9 +1478,12 @@ int main(int argc, char **argv)
         scene_destroy(&s);
         return 1;
     }
-    fprintf(stderr, "bench_core: %s: %zu triangles, %zu lights, %dx%d, %d thread(s), %s%s%s\n",
+    fprintf(stderr,
+            "bench_core: %s: %zu triangles, %zu lights, %dx%d, %d thread(s), %s%s%s, shading %d "
+            "lanes\n",
             name, s->triangle_count, s->light_count, s->camera.width, s->camera.height,
-            (int)a.threads, tracer_isa(tr), a.isa ? ", our kernels " : "", a.isa ? a.isa : "");
+            (int)a.threads, tracer_isa(tr), a.isa ? ", our kernels " : "", a.isa ? a.isa : "",
+            tracer_shading_lanes(tr));
     rc = run(&a, name, s, tr);
     tracer_destroy(&tr);
     tracer_device_destroy(&dev);
