@@ -111,12 +111,12 @@ const char *tracer_device_isa(const tracer_device_t *d)
  * the list's AVX2 kernel (Intel Xeon, bench_core, one thread), the lower
  * clock these cores take for 512-bit code, which the list's AVX-512
  * kernel pays anyway. Else AVX2 at 8 lanes where the host has it. */
-static int shading_width(const tracer_t *t)
+static int shading_lanes_for(const tracer_t *t)
 {
     if (t->small && strcmp(trilist_kernel(t->small), "avx512") == 0 &&
         __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl"))
-        return 2;
-    return __builtin_cpu_supports("avx2") != 0;
+        return WAVE_LANES_AVX512;
+    return __builtin_cpu_supports("avx2") ? WAVE_LANES_AVX2 : WAVE_LANES;
 }
 
 int tracer_new(tracer_device_t *dev, const scene_t *scene, tracer_t **out, char *err, size_t errlen)
@@ -163,7 +163,7 @@ int tracer_new_accel(tracer_device_t *dev, const scene_t *scene, tracer_accel_t 
     t->dev = dev;
     t->scene = scene;
     __builtin_cpu_init();
-    t->wide_shading = __builtin_cpu_supports("avx2") != 0;
+    t->shading_lanes = shading_lanes_for(t);
     if (accel == TRACER_ACCEL_AUTO)
         accel = tracer_accel_for(scene);
     if (accel == TRACER_ACCEL_TRILIST) {
@@ -173,7 +173,7 @@ int tracer_new_accel(tracer_device_t *dev, const scene_t *scene, tracer_accel_t 
             tracer_destroy(&t);
             return -1;
         }
-        t->wide_shading = shading_width(t);
+        t->shading_lanes = shading_lanes_for(t);
         *out = t;
         return 0;
     }
@@ -248,9 +248,7 @@ const char *tracer_isa(const tracer_t *t)
 
 int tracer_shading_lanes(const tracer_t *t)
 {
-    return t->wide_shading == 2 ? WAVE_LANES_AVX512
-           : t->wide_shading    ? WAVE_LANES_AVX2
-                                : WAVE_LANES;
+    return t->shading_lanes;
 }
 
 int tracer_use_isa(tracer_t *t, const char *isa)
@@ -260,7 +258,7 @@ int tracer_use_isa(tracer_t *t, const char *isa)
         /* our traversal has no kernel for the baseline */
         if (t->bvh || (t->small && trilist_use_kernel(t->small, isa) < 0))
             return -1;
-        t->wide_shading = 0;
+        t->shading_lanes = WAVE_LANES;
         return 0;
     }
     if (strcmp(isa, "avx512") != 0 && strcmp(isa, "avx2") != 0)
@@ -272,7 +270,7 @@ int tracer_use_isa(tracer_t *t, const char *isa)
     if ((t->small && trilist_use_kernel(t->small, isa) < 0) ||
         (t->bvh && bvh_use_kernel(t->bvh, isa) < 0))
         return -1;
-    t->wide_shading = shading_width(t);
+    t->shading_lanes = shading_lanes_for(t);
     return 0;
 }
 
@@ -723,7 +721,7 @@ int tracer_trace(const tracer_t *t, const tracer_settings_t *st, const tracer_ta
                (s->light_count > 0 || s->has_env || s->delta_count > 0),
         .env = s->has_env,
         .hide_camera = s->hide_emitters,
-        .wide_shading = t->wide_shading,
+        .shading_lanes = t->shading_lanes,
     };
     uint64_t rays = 0, samples = 0;
     /* runs of whole tasks of at most WAVE_MAX_SAMPLES samples */

@@ -24,7 +24,7 @@ struct tracer {
     trilist_t *small; /* a scene tested whole, without a BVH */
     const scene_t *scene;
     tracer_engine_t engine;
-    int wide_shading; /* the wavefront's diffuse kernel: 0 baseline, 1 AVX2, 2 AVX-512 (wave.h) */
+    int shading_lanes; /* the wavefront's diffuse kernel's build: 4, 8 or 16 lanes (wave.h) */
 };
 
 /* ---- ray casting -------------------------------------------------------- */

@@ -43,11 +43,11 @@
 /* The SIMD kernels' width: 4 floats, one SSE register. The kernels are
  * built for the baseline target: 8 floats there were lowered through the
  * stack. The diffuse kernel, the commonest, is built a second time for
- * AVX2 at 8 lanes (wave_diffuse_avx2.c; wave_ctx_t.wide_shading picks it
+ * AVX2 at 8 lanes (wave_diffuse_avx2.c; wave_ctx_t.shading_lanes picks it
  * where the host has AVX2): the same bits, 1 % faster on the Cornell box;
  * and a third time for AVX-512 at 16 lanes (wave_diffuse_avx512.c), picked
  * only beside the triangle list's AVX-512 kernel (tracer.c,
- * shading_width): 6.5 % faster on the Cornell box there, 6.5-9 % slower
+ * shading_lanes_for): 6.5 % faster on the Cornell box there, 6.5-9 % slower
  * beside casting that keeps to 256 bits (the clock Intel's cores lower for
  * 512-bit code). An AVX2 clone of every kernel, calling into code built without AVX,
  * had paid more for the transitions than it gained; the diffuse kernel
@@ -64,10 +64,10 @@ typedef struct wave_ctx {
     const tracer_t *tracer;
     const scene_t *scene;
     const tracer_settings_t *settings;
-    int nee;          /* next-event estimation: the path integrator, with lights */
-    int env;          /* the scene has an environment (scene_t.has_env) */
-    int hide_camera;  /* scene_t.hide_emitters: camera rays pass emitters */
-    int wide_shading; /* the diffuse kernel's build: 0 baseline, 1 AVX2, 2 AVX-512 */
+    int nee;           /* next-event estimation: the path integrator, with lights */
+    int env;           /* the scene has an environment (scene_t.has_env) */
+    int hide_camera;   /* scene_t.hide_emitters: camera rays pass emitters */
+    int shading_lanes; /* the diffuse kernel's build: WAVE_LANES, _AVX2 or _AVX512 */
 } wave_ctx_t;
 
 /* A chunk's paths still going, their slots in sample order. */
@@ -145,7 +145,7 @@ void wave_sobol_ahead(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slot
 
 void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n);
 /* (its AVX2 and AVX-512 builds, which wave_kernel_diffuse calls as
- * c->wide_shading says) */
+ * c->shading_lanes says) */
 void wave_kernel_diffuse_avx2(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots,
                               size_t n);
 void wave_kernel_diffuse_avx512(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots,

@@ -322,9 +322,9 @@ DIFFUSE_LINKAGE void DIFFUSE_KERNEL(const wave_ctx_t *c, wave_state_t *w, const 
 #if !defined DIFFUSE_AVX2 && !defined DIFFUSE_AVX512
 void wave_kernel_diffuse(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slots, size_t n)
 {
-    if (c->wide_shading == 2)
+    if (c->shading_lanes == WAVE_LANES_AVX512)
         wave_kernel_diffuse_avx512(c, w, slots, n);
-    else if (c->wide_shading)
+    else if (c->shading_lanes == WAVE_LANES_AVX2)
         wave_kernel_diffuse_avx2(c, w, slots, n);
     else
         diffuse_baseline(c, w, slots, n);
