@@ -4,14 +4,16 @@
  * A pair costs about a hundred integer operations one stream at a time
  * (three Laine-Karras scrambles, three bit reversals, the second Sobol
  * dimension, the pair's key), which made the sobol sampler about a tenth
- * of a diffuse sample's time. Eight streams' pairs in AVX2 vectors take
- * a handful of operations each: byte shuffles reverse the bits, and the
+ * of a diffuse sample's time. Eight streams' pairs in AVX2 vectors, or
+ * sixteen in AVX-512's (one source for both widths: rng_fill.inc), take a
+ * handful of operations each: byte shuffles reverse the bits, and the
  * second dimension takes rng.h's five shift-and-XOR steps. The pair's
  * 64-bit key stays scalar (AVX2 has no 64-bit multiply). Integer
  * operations: the same bits on every ISA. */
 #include "rng.h"
 
 #include <immintrin.h>
+#include <string.h>
 
 /* The third and fourth Sobol dimensions' generator matrices (columns:
  * direction numbers v_k = m_k / 2^k from m = 1, 3 and 1, 3, 1 by Bratley
@@ -113,131 +115,31 @@ typedef struct fill_run {
     int any_joined;
 } fill_run_t;
 
-#define FILL_LANES 8
+/* The fill at each width (rng_fill.inc): AVX2's 8 lanes, and AVX-512's 16
+ * (with its byte shuffles, AVX512BW), which the caller asks for only beside
+ * other 512-bit code (wave.c: the diffuse kernel's 16 lanes). */
+#define FREP(...) __VA_ARGS__, __VA_ARGS__
+#define FW 8
+#define FTARGET "avx2"
+#define FNAME(x) fill8_##x
+#define FSHUFB(t, i) _mm256_shuffle_epi8((__m256i)(t), (__m256i)(i))
+#define FPERM8(table, i)                                                                           \
+    _mm256_permutevar8x32_epi32(_mm256_load_si256((const __m256i *)(table)), (__m256i)(i))
+#include "rng_fill.inc"
 
-/* rng_reverse32 of each lane: bytes in reverse order, then each byte's
- * bits reversed from two 4-bit tables. */
-__attribute__((target("avx2"))) static inline __m256i reverse32_x8(__m256i x)
-{
-    const __m256i byte_order =
-        _mm256_setr_epi8(3, 2, 1, 0, 7, 6, 5, 4, 11, 10, 9, 8, 15, 14, 13, 12, 3, 2, 1, 0, 7, 6, 5,
-                         4, 11, 10, 9, 8, 15, 14, 13, 12);
-    /* a nibble n reversed, shifted to the high half (low_lut) or not */
-    const __m256i low_lut =
-        _mm256_setr_epi8(0x00, (char)0x80, 0x40, (char)0xc0, 0x20, (char)0xa0, 0x60, (char)0xe0,
-                         0x10, (char)0x90, 0x50, (char)0xd0, 0x30, (char)0xb0, 0x70, (char)0xf0,
-                         0x00, (char)0x80, 0x40, (char)0xc0, 0x20, (char)0xa0, 0x60, (char)0xe0,
-                         0x10, (char)0x90, 0x50, (char)0xd0, 0x30, (char)0xb0, 0x70, (char)0xf0);
-    const __m256i high_lut = _mm256_setr_epi8(0x0, 0x8, 0x4, 0xc, 0x2, 0xa, 0x6, 0xe, 0x1, 0x9, 0x5,
-                                              0xd, 0x3, 0xb, 0x7, 0xf, 0x0, 0x8, 0x4, 0xc, 0x2, 0xa,
-                                              0x6, 0xe, 0x1, 0x9, 0x5, 0xd, 0x3, 0xb, 0x7, 0xf);
-    const __m256i nibble = _mm256_set1_epi8(0x0f);
-    x = _mm256_shuffle_epi8(x, byte_order);
-    __m256i lo = _mm256_and_si256(x, nibble);
-    __m256i hi = _mm256_and_si256(_mm256_srli_epi16(x, 4), nibble);
-    return _mm256_or_si256(_mm256_shuffle_epi8(low_lut, lo), _mm256_shuffle_epi8(high_lut, hi));
-}
-
-/* rng_laine_karras of each lane */
-__attribute__((target("avx2"))) static inline __m256i laine_karras_x8(__m256i x, __m256i seed)
-{
-    x = _mm256_add_epi32(x, seed);
-    x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32(0x6c50b47c)));
-    x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32((int)0xb82f1e52u)));
-    x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32((int)0xc7afe638u)));
-    x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32((int)0x8d22f6e6u)));
-    return x;
-}
-
-/* rng_hash32 of each lane */
-__attribute__((target("avx2"))) static inline __m256i hash32_x8(__m256i x)
-{
-    x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 16));
-    x = _mm256_mullo_epi32(x, _mm256_set1_epi32(0x7feb352d));
-    x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 15));
-    x = _mm256_mullo_epi32(x, _mm256_set1_epi32((int)0x846ca68bu));
-    return _mm256_xor_si256(x, _mm256_srli_epi32(x, 16));
-}
-
-/* rng_sobol1_reversed of each lane: its five shift-and-XOR steps. */
-__attribute__((target("avx2"))) static inline __m256i sobol1_reversed_x8(__m256i y)
-{
-    y = _mm256_xor_si256(y,
-                         _mm256_and_si256(_mm256_srli_epi32(y, 1), _mm256_set1_epi32(0x55555555)));
-    y = _mm256_xor_si256(y,
-                         _mm256_and_si256(_mm256_srli_epi32(y, 2), _mm256_set1_epi32(0x33333333)));
-    y = _mm256_xor_si256(y,
-                         _mm256_and_si256(_mm256_srli_epi32(y, 4), _mm256_set1_epi32(0x0f0f0f0f)));
-    y = _mm256_xor_si256(y,
-                         _mm256_and_si256(_mm256_srli_epi32(y, 8), _mm256_set1_epi32(0x00ff00ff)));
-    return _mm256_xor_si256(
-        y, _mm256_and_si256(_mm256_srli_epi32(y, 16), _mm256_set1_epi32(0x0000ffff)));
-}
-
-/* rng_sobol23_reversed of each lane: eight permutes per dimension (a
- * permute reads the low three bits of each lane's index alone). */
-__attribute__((target("avx2"))) static inline void sobol23_reversed_x8(__m256i j, __m256i *a,
-                                                                       __m256i *b)
-{
-    __m256i x = _mm256_setzero_si256(), y = _mm256_setzero_si256();
-    for (int c = 0; c < RNG_SOBOL_INDEX_BITS / 3; c++) {
-        __m256i e = _mm256_srli_epi32(j, 3 * c);
-        x = _mm256_xor_si256(x, _mm256_permutevar8x32_epi32(
-                                    _mm256_load_si256((const __m256i *)sobol_chunks[c][0]), e));
-        y = _mm256_xor_si256(y, _mm256_permutevar8x32_epi32(
-                                    _mm256_load_si256((const __m256i *)sobol_chunks[c][1]), e));
-    }
-    *a = x;
-    *b = y;
-}
-
-/* Lanes first .. first + FILL_LANES of a run (those past r->n are zero
- * and computed for nothing), in one pass of vectors. */
-__attribute__((target("avx2"))) static void
-fill_x8(const fill_run_t *r, size_t first, uint32_t out0[FILL_LANES], uint32_t out1[FILL_LANES])
-{
-    __m256i vkey = _mm256_loadu_si256((const __m256i *)(r->key + first));
-    __m256i vseed0 = _mm256_loadu_si256((const __m256i *)(r->seed0 + first));
-    __m256i vseed1 = hash32_x8(vseed0);
-    __m256i j = _mm256_and_si256(
-        reverse32_x8(laine_karras_x8(
-            _mm256_loadu_si256((const __m256i *)(r->index_reversed + first)), vkey)),
-        _mm256_set1_epi32((int)((1u << RNG_SOBOL_INDEX_BITS) - 1)));
-    __m256i x0 = j, x1 = sobol1_reversed_x8(j);
-    if (r->any_joined) {
-        __m256i a, b, m = _mm256_loadu_si256((const __m256i *)(r->joined + first));
-        sobol23_reversed_x8(j, &a, &b);
-        x0 = _mm256_blendv_epi8(x0, a, m);
-        x1 = _mm256_blendv_epi8(x1, b, m);
-    }
-    _mm256_storeu_si256((__m256i *)out0, reverse32_x8(laine_karras_x8(x0, vseed0)));
-    _mm256_storeu_si256((__m256i *)out1, reverse32_x8(laine_karras_x8(x1, vseed1)));
-}
-
-/* The run's pairs, computed, to their streams; the run emptied. */
-__attribute__((target("avx2"))) static void fill_run_flush(fill_run_t *r)
-{
-    /* the lanes past n, up to a whole vector: zero */
-    for (size_t i = r->n; i % FILL_LANES; i++) {
-        r->key[i] = r->seed0[i] = r->index_reversed[i] = 0;
-        r->joined[i] = 0;
-    }
-    for (size_t first = 0; first < r->n; first += FILL_LANES) {
-        uint32_t out0[FILL_LANES], out1[FILL_LANES];
-        fill_x8(r, first, out0, out1);
-        size_t lanes = r->n - first < FILL_LANES ? r->n - first : FILL_LANES;
-        for (size_t i = 0; i < lanes; i++) {
-            rng_stream_t *s = r->stream[first + i];
-            s->batch_bits[2 * r->slot[first + i]] = out0[i];
-            s->batch_bits[2 * r->slot[first + i] + 1] = out1[i];
-        }
-    }
-    r->n = 0;
-    r->any_joined = 0;
-}
+#define FREP(...) __VA_ARGS__, __VA_ARGS__, __VA_ARGS__, __VA_ARGS__
+#define FW 16
+#define FTARGET "avx2,avx512f,avx512bw"
+#define FNAME(x) fill16_##x
+#define FSHUFB(t, i) _mm512_shuffle_epi8((__m512i)(t), (__m512i)(i))
+/* (the table in both halves: the index's fourth bit picks the same entry) */
+#define FPERM8(table, i)                                                                           \
+    _mm512_permutexvar_epi32((__m512i)(i),                                                         \
+                             _mm512_broadcast_i64x4(_mm256_load_si256((const __m256i *)(table))))
+#include "rng_fill.inc"
 
 void rng_sobol_fill(rng_stream_t *const *streams, size_t n, const uint32_t *first_pair,
-                    uint32_t pairs)
+                    uint32_t pairs, int wide)
 {
     if (pairs > RNG_BATCH_PAIRS)
         pairs = RNG_BATCH_PAIRS;
@@ -250,6 +152,10 @@ void rng_sobol_fill(rng_stream_t *const *streams, size_t n, const uint32_t *firs
         s->batch_pairs = first_pair[i] + pairs <= RNG_SOBOL_DIMS / 2 ? pairs : 0;
     }
     int vectors = __builtin_cpu_supports("avx2");
+    void (*flush)(fill_run_t *) =
+        wide && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw")
+            ? fill16_flush
+            : fill8_flush;
     fill_run_t run;
     run.n = 0;
     run.any_joined = 0;
@@ -286,9 +192,9 @@ void rng_sobol_fill(rng_stream_t *const *streams, size_t n, const uint32_t *firs
             run.stream[m] = s;
             run.slot[m] = k;
             if (run.n == FILL_RUN)
-                fill_run_flush(&run);
+                flush(&run);
         }
     }
     if (run.n > 0)
-        fill_run_flush(&run);
+        flush(&run);
 }

@@ -312,11 +312,12 @@ static inline uint32_t rng_sobol_bits(rng_stream_t *s, uint64_t dim)
 /* Computes ahead, for each sobol stream streams[i] of n, its pairs
  * first_pair[i] .. first_pair[i] + pairs - 1 (pairs at most
  * RNG_BATCH_PAIRS, each below RNG_SOBOL_DIMS / 2): eight at a time in
- * AVX2 vectors where the host has them, the bits rng_sobol_pair gives.
- * Streams not under sobol are left as they are. Replaces what an earlier
- * call computed ahead. */
+ * AVX2 vectors where the host has them, or with `wide` sixteen in AVX-512
+ * vectors where it has those, the bits rng_sobol_pair gives. Streams not
+ * under sobol are left as they are. Replaces what an earlier call
+ * computed ahead. */
 void rng_sobol_fill(rng_stream_t *const *streams, size_t n, const uint32_t *first_pair,
-                    uint32_t pairs);
+                    uint32_t pairs, int wide);
 
 /* The 64 random bits of dimension `dim` of a stream (no state change). */
 static inline uint64_t rng_bits_at(const rng_stream_t *s, uint64_t dim)

@@ -97,7 +97,7 @@ void wave_sobol_ahead(const wave_ctx_t *c, wave_state_t *w, const uint16_t *slot
         streams[m] = &w->rng[s];
         first[m++] = (uint32_t)(dim >> 1);
     }
-    rng_sobol_fill(streams, m, first, c->nee ? 2 : 1);
+    rng_sobol_fill(streams, m, first, c->nee ? 2 : 1, c->shading_lanes == WAVE_LANES_AVX512);
 }
 
 /* The hit stage for slot s: 1 when the path goes on to its material's
@@ -287,7 +287,7 @@ void wave_trace(const wave_ctx_t *c, wave_state_t *w, const tracer_task_t *tasks
                 uint32_t first[WAVE_CHUNK] = {0};
                 for (size_t i = 0; i < ch->n; i++)
                     streams[i] = &w->rng[ch->live[i]];
-                rng_sobol_fill(streams, ch->n, first, 1);
+                rng_sobol_fill(streams, ch->n, first, 1, c->shading_lanes == WAVE_LANES_AVX512);
             }
             start_camera_rays(c, w, ch, tasks[cur.task].pixel);
             if (cur.index == tasks[cur.task].sample_count) {

@@ -80,15 +80,18 @@ START_TEST(test_sobol_second_dimension_matrix)
 END_TEST
 
 /* rng_sobol_fill (eight streams at a time in vectors where the host has
- * AVX2) gives the bits each stream computes alone, for every pair, index
- * and sequence; draws outside what it filled are untouched. */
+ * AVX2, sixteen where it has AVX-512 and the call asks for them) gives the
+ * bits each stream computes alone, for every pair, index and sequence;
+ * draws outside what it filled are untouched. */
 START_TEST(test_sobol_fill_same_bits)
 {
-    enum { N = 4099 }; /* not a multiple of the eight lanes */
+    enum { N = 4099 }; /* not a multiple of the eight or sixteen lanes */
     static rng_stream_t filled[N], alone[N];
     static rng_stream_t *ptr[N];
     static uint32_t first[N];
-    for (uint32_t pairs = 1; pairs <= RNG_BATCH_PAIRS; pairs++) {
+    for (uint32_t case_ = 0; case_ < 2 * RNG_BATCH_PAIRS; case_++) {
+        uint32_t pairs = 1 + case_ % RNG_BATCH_PAIRS;
+        int wide = (int)(case_ / RNG_BATCH_PAIRS);
         for (size_t i = 0; i < N; i++) {
             uint64_t h = rng_mix64(i * 7919 + pairs);
             /* indices over all 24 bits, and other sequences (replicates) */
@@ -106,7 +109,7 @@ START_TEST(test_sobol_fill_same_bits)
             /* some past the quasi-random pairs: left to the hash */
             first[i] = (uint32_t)(i % 2 ? h >> 32 : i / 256) % (RNG_SOBOL_DIMS / 2 + 1);
         }
-        rng_sobol_fill(ptr, N, first, pairs);
+        rng_sobol_fill(ptr, N, first, pairs, wide);
         for (size_t i = 0; i < N; i++) {
             for (uint64_t dim = 0; dim < RNG_SOBOL_DIMS + 4; dim++) {
                 rng_stream_t a = filled[i], b = alone[i];
@@ -122,7 +125,7 @@ START_TEST(test_sobol_fill_same_bits)
                 ck_assert_uint_eq(filled[i].batch_pairs, 0);
         }
         /* a later fill replaces the batch */
-        rng_sobol_fill(ptr, 1, (const uint32_t[]){0}, 1);
+        rng_sobol_fill(ptr, 1, (const uint32_t[]){0}, 1, wide);
         ck_assert(filled[0].batch_pair == 0 || !filled[0].sobol);
     }
 }
