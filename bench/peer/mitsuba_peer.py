@@ -499,6 +499,10 @@ def main():
     spps = a.spps if a.mode == "sweep" else [a.spp]
     check_sample_counts(mi, a.sampler, spps)
     scene_dir = os.path.dirname(os.path.abspath(a.scene))
+    # Loading with one thread waits forever on envmap.xml (its environment
+    # map's tasks wait on a pool of that one thread, 0 % CPU): load with two,
+    # render with the count asked for (loading is never timed).
+    dr.set_thread_count(max(2, a.threads))
     if a.scene.endswith(".xml"):
         scene, w, h = load_xml(mi, a)
     else:
@@ -508,6 +512,7 @@ def main():
             sd, w, h = build_scene_dict(mi, scene_json, scene_dir, tmp, a.spp, a.seed, a.width,
                                         a.height, a.sampler)
             scene = mi.load_dict(sd)
+    dr.set_thread_count(a.threads)
 
     def render(seed, spp=None):
         t0 = time.perf_counter()
