@@ -230,13 +230,21 @@ static inline void rng_seek(rng_stream_t *s, uint64_t dim)
 }
 
 /* Wellons' lowbias32: a 32-bit bijection with good avalanche. */
+/* RNG_HASH32, RNG_LAINE_KARRAS, RNG_SOBOL1_REVERSED: the steps of the three
+ * functions below, on x in place: a uint32_t there, or a vector
+ * of them in rng_fill.inc, so that both run the very same operations. */
+#define RNG_HASH32(x)                                                                              \
+    do {                                                                                           \
+        (x) ^= (x) >> 16;                                                                          \
+        (x) *= 0x7feb352du;                                                                        \
+        (x) ^= (x) >> 15;                                                                          \
+        (x) *= 0x846ca68bu;                                                                        \
+        (x) ^= (x) >> 16;                                                                          \
+    } while (0)
 static inline uint32_t rng_hash32(uint32_t x)
 {
-    x ^= x >> 16;
-    x *= 0x7feb352du;
-    x ^= x >> 15;
-    x *= 0x846ca68bu;
-    return x ^ (x >> 16);
+    RNG_HASH32(x);
+    return x;
 }
 
 /* Burley's Laine-Karras-style hash: bit k of the result is bit k of x
@@ -245,13 +253,17 @@ static inline uint32_t rng_hash32(uint32_t x)
  * nested uniform (Owen) scramble: reverse(laine_karras(reverse(x))) flips
  * bit k from the top by a hash of the bits above it, which preserves every
  * elementary interval's point count; a uniform seed makes it uniform. */
+#define RNG_LAINE_KARRAS(x, seed)                                                                  \
+    do {                                                                                           \
+        (x) += (seed);                                                                             \
+        (x) ^= (x)*0x6c50b47cu;                                                                    \
+        (x) ^= (x)*0xb82f1e52u;                                                                    \
+        (x) ^= (x)*0xc7afe638u;                                                                    \
+        (x) ^= (x)*0x8d22f6e6u;                                                                    \
+    } while (0)
 static inline uint32_t rng_laine_karras(uint32_t x, uint32_t seed)
 {
-    x += seed;
-    x ^= x * 0x6c50b47cu;
-    x ^= x * 0xb82f1e52u;
-    x ^= x * 0xc7afe638u;
-    x ^= x * 0x8d22f6e6u;
+    RNG_LAINE_KARRAS(x, seed);
     return x;
 }
 
@@ -264,13 +276,18 @@ static inline uint32_t rng_laine_karras(uint32_t x, uint32_t seed)
  * (rng.c's vectors take the same five steps; test_sampler checks them
  * against the matrix itself). The first dimension reversed is the index
  * itself. */
+#define RNG_SOBOL1_REVERSED(y)                                                                     \
+    do {                                                                                           \
+        (y) ^= ((y) >> 1) & 0x55555555u;                                                           \
+        (y) ^= ((y) >> 2) & 0x33333333u;                                                           \
+        (y) ^= ((y) >> 4) & 0x0f0f0f0fu;                                                           \
+        (y) ^= ((y) >> 8) & 0x00ff00ffu;                                                           \
+        (y) ^= ((y) >> 16) & 0x0000ffffu;                                                          \
+    } while (0)
 static inline uint32_t rng_sobol1_reversed(uint32_t y)
 {
-    y ^= (y >> 1) & 0x55555555u;
-    y ^= (y >> 2) & 0x33333333u;
-    y ^= (y >> 4) & 0x0f0f0f0fu;
-    y ^= (y >> 8) & 0x00ff00ffu;
-    return y ^ ((y >> 16) & 0x0000ffffu);
+    RNG_SOBOL1_REVERSED(y);
+    return y;
 }
 
 /* The third and fourth Sobol dimensions (Joe and Kuo's primitive
