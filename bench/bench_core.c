@@ -95,6 +95,10 @@ static const char usage_text[] =
     "  --engine E          wavefront (default) or scalar (tracer.h)\n"
     "  --sampler S         independent (default: the fastest, as Mitsuba's peer\n"
     "                      runs) or sobol (what a job takes by default)\n"
+    "  --roulette R        mitsuba (default: a path survives with probability its\n"
+    "                      throughput, as Mitsuba's peer runs, so both trace the\n"
+    "                      same paths) or ours (the scene's rr_threshold, what a\n"
+    "                      job takes: longer paths, fewer samples/s)\n"
     "  --isa I             our own SIMD kernels (triangle list, BVH traversal) for\n"
     "                      avx512 or avx2 (default: the widest the host runs); avx2\n"
     "                      on an AVX-512 host measures what an AVX2-only host runs\n"
@@ -524,7 +528,7 @@ static void build_path_batch(const scene_t *s, const embree_t *e, uint64_t seed,
                     o = vec3_offset_ray_origin(p, ngf);
                 }
                 if (depth + 1 >= TRACER_RR_DEPTH) {
-                    float q = tracer_roulette_probability(beta, eta_scale);
+                    float q = tracer_roulette_probability(beta, eta_scale, s->rr_threshold);
                     if (!(rng_next_float(&rng) < q))
                         break;
                     beta = vec3_scale(beta, 1.0f / q);
@@ -884,6 +888,7 @@ typedef struct args {
     uint64_t threads, spp, runs, rays;
     tracer_engine_t engine;
     rng_sampler_t sampler;
+    int our_roulette; /* the scene's rr_threshold, else Mitsuba's 1 */
 } args_t;
 
 static int parse_args(int argc, char **argv, args_t *a)
@@ -914,6 +919,13 @@ static int parse_args(int argc, char **argv, args_t *a)
             if (smp < 0)
                 return usage_error("--sampler needs independent or sobol, got", v ? v : "nothing");
             a->sampler = (rng_sampler_t)smp;
+        } else if (strcmp(o, "--roulette") == 0) {
+            if (v && strcmp(v, "mitsuba") == 0)
+                a->our_roulette = 0;
+            else if (v && strcmp(v, "ours") == 0)
+                a->our_roulette = 1;
+            else
+                return usage_error("--roulette needs mitsuba or ours, got", v ? v : "nothing");
         } else if (strcmp(o, "--isa") == 0) {
             if (!v || (strcmp(v, "avx512") != 0 && strcmp(v, "avx2") != 0))
                 return usage_error("--isa needs avx512 or avx2, got", v ? v : "nothing");
@@ -1397,6 +1409,7 @@ static int write_json(const char *path, const args_t *a, const char *name, const
     cJSON_AddStringToObject(root, "engine",
                             a->engine == TRACER_ENGINE_SCALAR ? "scalar" : "wavefront");
     cJSON_AddStringToObject(root, "sampler", tracer_sampler_name(a->sampler));
+    cJSON_AddNumberToObject(root, "rr_threshold", s->rr_threshold);
     cJSON_AddStringToObject(root, "embree_version", RTC_VERSION_STRING);
     cJSON_AddBoolToObject(root, "disturbed", disturbed);
     cJSON_AddItemToObject(root, "ours", ours_json(o, a, s, threads));
@@ -1461,6 +1474,10 @@ int main(int argc, char **argv)
         fprintf(stderr, "bench_core: %s\n", err);
         return 1;
     }
+    /* the peer's roulette unless asked: samples/s compare like with like
+     * only where both renderers trace the same paths */
+    if (!a.our_roulette)
+        s->rr_threshold = 1.0f;
     tracer_t *tr = NULL;
     tracer_device_t *dev = NULL;
     if (tracer_device_new(&dev, err, sizeof err) < 0 ||
@@ -1480,10 +1497,11 @@ int main(int argc, char **argv)
     }
     fprintf(stderr,
             "bench_core: %s: %zu triangles, %zu lights, %dx%d, %d thread(s), %s%s%s, shading %d "
-            "lanes\n",
+            "lanes, roulette threshold %g (%s)\n",
             name, s->triangle_count, s->light_count, s->camera.width, s->camera.height,
             (int)a.threads, tracer_isa(tr), a.isa ? ", our kernels " : "", a.isa ? a.isa : "",
-            tracer_shading_lanes(tr));
+            tracer_shading_lanes(tr), (double)s->rr_threshold,
+            a.our_roulette ? "ours" : "Mitsuba's");
     rc = run(&a, name, s, tr);
     tracer_destroy(&tr);
     tracer_device_destroy(&dev);

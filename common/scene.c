@@ -255,6 +255,7 @@ static int parse_render(loader_t *L, const cJSON *root)
     s->integrator = SCENE_INTEGRATOR_PATH;
     s->max_depth = 0;
     s->rr_depth = SCENE_RR_DEPTH;
+    s->rr_threshold = SCENE_RR_THRESHOLD;
     s->direct_emitter_samples = s->direct_bsdf_samples = 1;
     const cJSON *r = cJSON_GetObjectItemCaseSensitive(root, "render");
     if (!r)

@@ -59,11 +59,12 @@
  * as the path integrator cut after the bounce (its numbers the path's);
  * 13 since, under the sobol sampler, the first bounce's light pair shares
  * the camera pair's index and the second bounce's BSDF pair the first's
- * (rng.h, rng_sobol_partner). */
-#define TRACER_VERSION 13
+ * (rng.h, rng_sobol_partner); 14 since Russian roulette spares a path
+ * until its throughput falls below the scene's rr_threshold
+ * (SCENE_RR_THRESHOLD, 1/4) where it had played on the throughput itself. */
+#define TRACER_VERSION 14
 /* Russian roulette starts after this many bounces unless the scene says
- * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth, so
- * samples/s compare like with like). */
+ * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth). */
 #define TRACER_RR_DEPTH SCENE_RR_DEPTH
 
 typedef struct tracer tracer_t;
@@ -194,10 +195,12 @@ void tracer_use_engine(tracer_t *t, tracer_engine_t engine);
 
 /* Russian roulette's survival probability for a path of throughput beta
  * that has crossed dielectric interfaces whose eta^2 multiply to eta_scale
- * (1 outside glass). beta carries their 1/eta^2 radiance compression, which
- * says nothing about how much the path will still carry: the decision is
- * made on beta * eta_scale, as pbrt-v4 and Mitsuba 3 do, capped at 0.95. */
-float tracer_roulette_probability(vec3_t beta, float eta_scale);
+ * (1 outside glass), in a scene of roulette threshold `threshold`
+ * (scene_t.rr_threshold). beta carries their 1/eta^2 radiance compression,
+ * which says nothing about how much the path will still carry: the
+ * decision is made on beta * eta_scale, as pbrt-v4 and Mitsuba 3 do, over
+ * the threshold, capped at 0.95. */
+float tracer_roulette_probability(vec3_t beta, float eta_scale, float threshold);
 
 /* Radiance of sample `sample_index` of a pixel (no statistics); for tests
  * and tools. Returns the rays traced. */

@@ -455,24 +455,67 @@ static double slab_furnace(int nslabs, uint32_t spp, double *rel_var)
 
 /* A path inside glass carries 1/eta^2 of compressed radiance in beta; the
  * roulette must judge it as the same path outside (eta_scale = eta^2), and
- * leave paths that never crossed a dielectric as they were. */
+ * leave paths that never crossed a dielectric as they were: survival is
+ * the throughput over the threshold, at most 0.95, so a path is spared
+ * while its throughput stays above 0.95 of the threshold. */
 START_TEST(test_roulette_undoes_radiance_compression)
 {
-    const vec3_t betas[] = {vec3_make(0.8f, 0.5f, 0.2f), vec3_make(0.1f, 0.3f, 0.05f),
+    const vec3_t betas[] = {vec3_make(0.8f, 0.5f, 0.2f), vec3_make(0.1f, 0.03f, 0.05f),
                             vec3_make(2.0f, 1.0f, 0.5f), vec3_make(0.02f, 0.02f, 0.02f)};
     const float etas[] = {1.5f, 1.0f / 1.5f, 2.4f, 1.33f};
+    const float want[] = {0.95f, 0.4f, 0.95f, 0.08f}; /* at the default threshold, 1/4 */
+    ck_assert(SCENE_RR_THRESHOLD == 0.25f);
     for (size_t i = 0; i < sizeof betas / sizeof betas[0]; i++) {
         vec3_t b = betas[i];
-        float outside = tracer_roulette_probability(b, 1.0f);
-        ck_assert(outside == fminf(0.95f, vec3_max_comp(b)));
+        float outside = tracer_roulette_probability(b, 1.0f, SCENE_RR_THRESHOLD);
+        ck_assert_msg(fabsf(outside - want[i]) <= 1e-6f, "beta %g: survives with %g, want %g",
+                      vec3_max_comp(b), outside, want[i]);
+        /* Mitsuba's rule (bench_core's --roulette mitsuba): the throughput */
+        ck_assert(tracer_roulette_probability(b, 1.0f, 1.0f) == fminf(0.95f, vec3_max_comp(b)));
         for (size_t e = 0; e < sizeof etas / sizeof etas[0]; e++) {
             float eta2 = etas[e] * etas[e];
-            float inside = tracer_roulette_probability(vec3_scale(b, 1.0f / eta2), eta2);
+            float inside =
+                tracer_roulette_probability(vec3_scale(b, 1.0f / eta2), eta2, SCENE_RR_THRESHOLD);
             ck_assert_msg(fabsf(inside - outside) <= 1e-6f * outside,
                           "beta %g through eta %g: survives with %g inside, %g outside", b.x,
                           etas[e], inside, outside);
         }
     }
+}
+END_TEST
+
+/* The scene's roulette threshold: in a furnace (every wall emits 1 and
+ * reflects 0.6, radiance 2.5 everywhere) paths at 1/4 go on longer than
+ * at Mitsuba's 1 (more rays), the estimate stays unbiased at both, and its
+ * variance falls: the roulette no longer kills paths that still carry a
+ * third of the light and multiplies their survivors' worth. */
+START_TEST(test_roulette_threshold_spares_paths)
+{
+    char json[4096];
+    furnace_box(json, sizeof json,
+                "{\"type\":\"emitter\",\"radiance\":[1,1,1],\"albedo\":[0.6,0.6,0.6]}", "",
+                inside_camera);
+    scene_t *s = load_text(json);
+    ck_assert(s->rr_threshold == SCENE_RR_THRESHOLD);
+    region_stat_t r[2];
+    uint64_t rays[2];
+    const float thresholds[2] = {1.0f, SCENE_RR_THRESHOLD};
+    for (int k = 0; k < 2; k++) {
+        s->rr_threshold = thresholds[k];
+        film_t *f = render_accel(s, TRACER_ACCEL_AUTO, 7, SCENE_INTEGRATOR_PATH,
+                                 RNG_SAMPLER_INDEPENDENT, 64, 2, 32, &rays[k]);
+        assert_all_finite(f);
+        r[k] = region(f, 0, 0, 16, 16);
+        ck_assert_msg(fabs(r[k].mean - 2.5) <= NSIGMA * sqrt(r[k].var),
+                      "threshold %g: mean %.6f, expected 2.5 (sigma %.3g)", thresholds[k],
+                      r[k].mean, sqrt(r[k].var));
+        film_destroy(&f);
+    }
+    ck_assert_msg(rays[1] > rays[0] + rays[0] / 10, "rays at 1/4: %llu, at 1: %llu",
+                  (unsigned long long)rays[1], (unsigned long long)rays[0]);
+    ck_assert_msg(r[1].var < 0.5 * r[0].var, "variance at 1/4: %.3g, at 1: %.3g", r[1].var,
+                  r[0].var);
+    scene_destroy(&s);
 }
 END_TEST
 
@@ -1806,6 +1849,7 @@ static Suite *tracer_suite(void)
     tcase_add_test(tc, test_mirror_furnace);
     tcase_add_test(tc, test_roulette_undoes_radiance_compression);
     tcase_add_test(tc, test_roulette_variance_inside_glass);
+    tcase_add_test(tc, test_roulette_threshold_spares_paths);
     tcase_add_test(tc, test_glass_slab_furnace);
     tcase_add_test(tc, test_form_factor_formula);
     tcase_add_test(tc, test_direct_light_path);
