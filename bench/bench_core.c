@@ -96,9 +96,10 @@ static const char usage_text[] =
     "  --sampler S         independent (default: the fastest, as Mitsuba's peer\n"
     "                      runs) or sobol (what a job takes by default)\n"
     "  --roulette R        mitsuba (default: a path survives with probability its\n"
-    "                      throughput, as Mitsuba's peer runs, so both trace the\n"
-    "                      same paths) or ours (the scene's rr_threshold, what a\n"
-    "                      job takes: longer paths, fewer samples/s)\n"
+    "                      throughput, at most 0.95, as Mitsuba's peer runs, so\n"
+    "                      both trace the same paths) or ours (the scene's\n"
+    "                      rr_threshold and rr_cap, what a job takes: longer\n"
+    "                      paths, fewer samples/s)\n"
     "  --isa I             our own SIMD kernels (triangle list, BVH traversal) for\n"
     "                      avx512 or avx2 (default: the widest the host runs); avx2\n"
     "                      on an AVX-512 host measures what an AVX2-only host runs\n"
@@ -528,7 +529,7 @@ static void build_path_batch(const scene_t *s, const embree_t *e, uint64_t seed,
                     o = vec3_offset_ray_origin(p, ngf);
                 }
                 if (depth + 1 >= TRACER_RR_DEPTH) {
-                    float q = tracer_roulette_probability(beta, eta_scale, s->rr_threshold);
+                    float q = tracer_roulette_probability(s, beta, eta_scale);
                     if (!(rng_next_float(&rng) < q))
                         break;
                     beta = vec3_scale(beta, 1.0f / q);
@@ -1410,6 +1411,7 @@ static int write_json(const char *path, const args_t *a, const char *name, const
                             a->engine == TRACER_ENGINE_SCALAR ? "scalar" : "wavefront");
     cJSON_AddStringToObject(root, "sampler", tracer_sampler_name(a->sampler));
     cJSON_AddNumberToObject(root, "rr_threshold", s->rr_threshold);
+    cJSON_AddNumberToObject(root, "rr_cap", s->rr_cap);
     cJSON_AddStringToObject(root, "embree_version", RTC_VERSION_STRING);
     cJSON_AddBoolToObject(root, "disturbed", disturbed);
     cJSON_AddItemToObject(root, "ours", ours_json(o, a, s, threads));
@@ -1476,8 +1478,10 @@ int main(int argc, char **argv)
     }
     /* the peer's roulette unless asked: samples/s compare like with like
      * only where both renderers trace the same paths */
-    if (!a.our_roulette)
+    if (!a.our_roulette) {
         s->rr_threshold = 1.0f;
+        s->rr_cap = 0.95f;
+    }
     tracer_t *tr = NULL;
     tracer_device_t *dev = NULL;
     if (tracer_device_new(&dev, err, sizeof err) < 0 ||
@@ -1497,10 +1501,10 @@ int main(int argc, char **argv)
     }
     fprintf(stderr,
             "bench_core: %s: %zu triangles, %zu lights, %dx%d, %d thread(s), %s%s%s, shading %d "
-            "lanes, roulette threshold %g (%s)\n",
+            "lanes, roulette threshold %g cap %g (%s)\n",
             name, s->triangle_count, s->light_count, s->camera.width, s->camera.height,
             (int)a.threads, tracer_isa(tr), a.isa ? ", our kernels " : "", a.isa ? a.isa : "",
-            tracer_shading_lanes(tr), (double)s->rr_threshold,
+            tracer_shading_lanes(tr), (double)s->rr_threshold, (double)s->rr_cap,
             a.our_roulette ? "ours" : "Mitsuba's");
     rc = run(&a, name, s, tr);
     tracer_destroy(&tr);

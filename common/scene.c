@@ -256,6 +256,7 @@ static int parse_render(loader_t *L, const cJSON *root)
     s->max_depth = 0;
     s->rr_depth = SCENE_RR_DEPTH;
     s->rr_threshold = SCENE_RR_THRESHOLD;
+    s->rr_cap = SCENE_RR_CAP;
     s->direct_emitter_samples = s->direct_bsdf_samples = 1;
     const cJSON *r = cJSON_GetObjectItemCaseSensitive(root, "render");
     if (!r)

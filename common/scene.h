@@ -40,16 +40,20 @@ typedef enum {
  * latest (roulette keeps the estimate unbiased, and it ends every path:
  * without it two perfect mirrors could hold one forever). */
 #define SCENE_RR_DEPTH 5
-/* Russian roulette's threshold (scene_t.rr_threshold): a path survives
- * with probability its throughput over this (at most 0.95), so it is
- * spared until its throughput falls below about this. Mitsuba 3's rule
- * is the throughput itself (a threshold of 1), which killed paths that
- * still carried much of a closed room's light and paid for it in
- * variance: 1/4 has 0.82x the relMSE x time of 1 on the Cornell box,
- * 0.58x on glass, 0.87x on dark-bright and materials.xml, and 1.01x on
- * the open scenes checker.xml and lights.xml (bench/RESULTS.md, "Russian
- * roulette"). */
+/* Russian roulette's threshold and cap (scene_t.rr_threshold, rr_cap): a
+ * path survives with probability its throughput over the threshold, at
+ * most the cap, so it is spared until its throughput falls below about
+ * the threshold. Mitsuba 3's rule is the throughput itself (a threshold
+ * of 1) capped at 0.95, which killed paths that still carried much of a
+ * closed room's light and paid for it in variance: a threshold of 1/4 has
+ * 0.82x the relMSE x time of 1 on the Cornell box, 0.58x on glass, 0.87x
+ * on dark-bright and materials.xml, and 1.01x on the open scenes
+ * checker.xml and lights.xml; a cap of 0.99 another 0.92x on glass, whose
+ * paths inside the glass keep their throughput, and the same elsewhere
+ * (bench/RESULTS.md, "Russian roulette"). Below 1, the cap still ends
+ * every path (two perfect mirrors facing each other). */
 #define SCENE_RR_THRESHOLD 0.25f
+#define SCENE_RR_CAP 0.99f
 #define SCENE_MAX_RR_DEPTH 1024
 
 /* A texture (texture.h looks it up). Texture coordinates (u, v) map to
@@ -116,8 +120,10 @@ typedef struct scene {
     scene_integrator_t integrator;
     uint32_t max_depth; /* 0: unlimited (Russian roulette ends paths) */
     uint32_t rr_depth;  /* segments before Russian roulette (SCENE_RR_DEPTH) */
-    float rr_threshold; /* its throughput scale (SCENE_RR_THRESHOLD; bench_core
-                         * sets Mitsuba's 1 to compare samples/s like with like) */
+    float rr_threshold; /* its throughput scale (SCENE_RR_THRESHOLD) and */
+    float rr_cap;       /* survival's cap (SCENE_RR_CAP); bench_core sets
+                         * Mitsuba's 1 and 0.95 to compare samples/s like
+                         * with like */
                         /* the direct integrator: light samples and BSDF samples per hit,
                          * each 0..SCENE_MAX_DIRECT_SAMPLES, not both 0 (default 1 and 1) */
     uint32_t direct_emitter_samples, direct_bsdf_samples;

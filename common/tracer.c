@@ -370,9 +370,9 @@ static void sample_direct(const tracer_t *tr, path_t *path, const material_t *m,
         vec3_add(path->L, vec3_mul(vec3_mul(path->beta, m->albedo), vec3_scale(lm->radiance, k)));
 }
 
-float tracer_roulette_probability(vec3_t beta, float eta_scale, float threshold)
+float tracer_roulette_probability(const scene_t *s, vec3_t beta, float eta_scale)
 {
-    return fminf(0.95f, vec3_max_comp(beta) * eta_scale / threshold);
+    return fminf(s->rr_cap, vec3_max_comp(beta) * eta_scale / s->rr_threshold);
 }
 
 /* Russian roulette (one number): 0 ends the path; a survivor's throughput
@@ -380,9 +380,9 @@ float tracer_roulette_probability(vec3_t beta, float eta_scale, float threshold)
  * if it were outside (tracer_roulette_probability): on beta alone, 1/1.5^2
  * of compression made it 2.25x likelier to die, then 2.25x brighter when it
  * survived and left the glass, which only added variance. */
-static int survives_roulette(path_t *path, float threshold)
+static int survives_roulette(const scene_t *s, path_t *path)
 {
-    float q = tracer_roulette_probability(path->beta, path->eta_scale, threshold);
+    float q = tracer_roulette_probability(s, path->beta, path->eta_scale);
     if (!(rng_next_float(&path->rng) < q))
         return 0;
     path->beta = vec3_scale(path->beta, 1.0f / q);
@@ -459,7 +459,7 @@ static uint32_t trace_sample(const tracer_t *tr, const tracer_settings_t *st, ui
         path.specular = bs.specular;
         path.o = vec3_offset_ray_origin(p, bs.transmits ? vec3_neg(mh.ngf) : mh.ngf);
         rng_seek(&path.rng, tracer_bounce_dim(depth));
-        if (depth + 1 >= s->rr_depth && !survives_roulette(&path, s->rr_threshold))
+        if (depth + 1 >= s->rr_depth && !survives_roulette(s, &path))
             break;
         path.d = vec3_normalize(bs.wi);
     }

@@ -193,14 +193,13 @@ typedef enum tracer_engine {
 /* Chooses the engine; not while another thread traces with t. */
 void tracer_use_engine(tracer_t *t, tracer_engine_t engine);
 
-/* Russian roulette's survival probability for a path of throughput beta
- * that has crossed dielectric interfaces whose eta^2 multiply to eta_scale
- * (1 outside glass), in a scene of roulette threshold `threshold`
- * (scene_t.rr_threshold). beta carries their 1/eta^2 radiance compression,
- * which says nothing about how much the path will still carry: the
- * decision is made on beta * eta_scale, as pbrt-v4 and Mitsuba 3 do, over
- * the threshold, capped at 0.95. */
-float tracer_roulette_probability(vec3_t beta, float eta_scale, float threshold);
+/* Russian roulette's survival probability in scene s for a path of
+ * throughput beta that has crossed dielectric interfaces whose eta^2
+ * multiply to eta_scale (1 outside glass). beta carries their 1/eta^2
+ * radiance compression, which says nothing about how much the path will
+ * still carry: the decision is made on beta * eta_scale, as pbrt-v4 and
+ * Mitsuba 3 do, over the scene's rr_threshold, capped at its rr_cap. */
+float tracer_roulette_probability(const scene_t *s, vec3_t beta, float eta_scale);
 
 /* Radiance of sample `sample_index` of a pixel (no statistics); for tests
  * and tools. Returns the rays traced. */

@@ -234,8 +234,7 @@ static void chunk_continue(const wave_ctx_t *c, wave_state_t *w, wave_chunk_t *c
         if (goes_on) {
             rng_seek(&w->rng[s], tracer_bounce_dim(w->depth[s]));
             if (w->depth[s] + 1 >= c->scene->rr_depth) {
-                float q = tracer_roulette_probability(w->beta[s], w->eta_scale[s],
-                                                      c->scene->rr_threshold);
+                float q = tracer_roulette_probability(c->scene, w->beta[s], w->eta_scale[s]);
                 if (!(rng_next_float(&w->rng[s]) < q))
                     goes_on = 0;
                 else

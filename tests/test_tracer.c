@@ -456,31 +456,39 @@ static double slab_furnace(int nslabs, uint32_t spp, double *rel_var)
 /* A path inside glass carries 1/eta^2 of compressed radiance in beta; the
  * roulette must judge it as the same path outside (eta_scale = eta^2), and
  * leave paths that never crossed a dielectric as they were: survival is
- * the throughput over the threshold, at most 0.95, so a path is spared
- * while its throughput stays above 0.95 of the threshold. */
+ * the throughput over the scene's threshold, at most its cap, so a path is
+ * spared while its throughput stays above the cap times the threshold. */
 START_TEST(test_roulette_undoes_radiance_compression)
 {
     const vec3_t betas[] = {vec3_make(0.8f, 0.5f, 0.2f), vec3_make(0.1f, 0.03f, 0.05f),
                             vec3_make(2.0f, 1.0f, 0.5f), vec3_make(0.02f, 0.02f, 0.02f)};
     const float etas[] = {1.5f, 1.0f / 1.5f, 2.4f, 1.33f};
-    const float want[] = {0.95f, 0.4f, 0.95f, 0.08f}; /* at the default threshold, 1/4 */
-    ck_assert(SCENE_RR_THRESHOLD == 0.25f);
+    /* at the defaults, a threshold of 1/4 and a cap of 0.99 */
+    const float want[] = {0.99f, 0.4f, 0.99f, 0.08f};
+    ck_assert(SCENE_RR_THRESHOLD == 0.25f && SCENE_RR_CAP == 0.99f);
+    char json[4096];
+    furnace_box(json, sizeof json, "{\"type\":\"emitter\",\"radiance\":[1,1,1]}", "",
+                inside_camera);
+    scene_t *s = load_text(json);
+    ck_assert(s->rr_threshold == SCENE_RR_THRESHOLD && s->rr_cap == SCENE_RR_CAP);
+    scene_t mitsuba = *s; /* Mitsuba's rule (bench_core's --roulette mitsuba) */
+    mitsuba.rr_threshold = 1.0f;
+    mitsuba.rr_cap = 0.95f;
     for (size_t i = 0; i < sizeof betas / sizeof betas[0]; i++) {
         vec3_t b = betas[i];
-        float outside = tracer_roulette_probability(b, 1.0f, SCENE_RR_THRESHOLD);
+        float outside = tracer_roulette_probability(s, b, 1.0f);
         ck_assert_msg(fabsf(outside - want[i]) <= 1e-6f, "beta %g: survives with %g, want %g",
                       vec3_max_comp(b), outside, want[i]);
-        /* Mitsuba's rule (bench_core's --roulette mitsuba): the throughput */
-        ck_assert(tracer_roulette_probability(b, 1.0f, 1.0f) == fminf(0.95f, vec3_max_comp(b)));
+        ck_assert(tracer_roulette_probability(&mitsuba, b, 1.0f) == fminf(0.95f, vec3_max_comp(b)));
         for (size_t e = 0; e < sizeof etas / sizeof etas[0]; e++) {
             float eta2 = etas[e] * etas[e];
-            float inside =
-                tracer_roulette_probability(vec3_scale(b, 1.0f / eta2), eta2, SCENE_RR_THRESHOLD);
+            float inside = tracer_roulette_probability(s, vec3_scale(b, 1.0f / eta2), eta2);
             ck_assert_msg(fabsf(inside - outside) <= 1e-6f * outside,
                           "beta %g through eta %g: survives with %g inside, %g outside", b.x,
                           etas[e], inside, outside);
         }
     }
+    scene_destroy(&s);
 }
 END_TEST
 
@@ -522,7 +530,7 @@ END_TEST
 /* Three slabs put the roulette's first decisions inside glass. Deciding on
  * the compressed beta (q = 0.44 there, then 2.25x brighter survivors) gave
  * a per-sample relative variance of about 1.4; on beta * eta_scale the
- * survivors are worth at most 1/0.95^2 more and it is about 0.1. */
+ * survivors are worth at most 1/0.99^2 more and it is about 0.1. */
 START_TEST(test_roulette_variance_inside_glass)
 {
     double rel_var;
