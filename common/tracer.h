@@ -61,7 +61,8 @@
  * the camera pair's index and the second bounce's BSDF pair the first's
  * (rng.h, rng_sobol_partner); 14 since Russian roulette spares a path
  * until its throughput falls below the scene's rr_threshold
- * (SCENE_RR_THRESHOLD, 1/4) where it had played on the throughput itself. */
+ * (SCENE_RR_THRESHOLD, 1/4), where it had played on the throughput itself,
+ * and caps survival at its rr_cap (SCENE_RR_CAP, 0.99, was 0.95). */
 #define TRACER_VERSION 14
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth). */
