@@ -111,7 +111,8 @@ def table(core, max_triangles):
     spp = core.get("settings", {}).get("spp", {})
     spp_text = ", ".join(f"{k} {v} spp" for k, v in spp.items())
     notes = [
-        f"256x256, path integrator, independent numbers in both renderers, {spp_text}, best of {core.get('settings', {}).get('runs')} runs; "
+        f"256x256, path integrator, independent numbers and Mitsuba's Russian roulette in both renderers (the same paths; "
+        f"a job's own roulette traces longer ones, `bench_core --roulette ours`), {spp_text}, best of {core.get('settings', {}).get('runs')} runs; "
         f"{mach.get('cpu')}, {mach.get('cores')} cores, Embree {mach.get('embree')} ({mach.get('isa')}); "
         f"commit {core.get('commit')}, {core.get('date')}; whole benchmark {core.get('bench_seconds', 0):.0f} s.",
         "Raw ray casting: what the tracer casts rays with, alone, over 2M precomputed rays recorded from "
