@@ -889,7 +889,7 @@ typedef struct args {
     uint64_t threads, spp, runs, rays;
     tracer_engine_t engine;
     rng_sampler_t sampler;
-    int our_roulette; /* the scene's rr_threshold, else Mitsuba's 1 */
+    int our_roulette; /* the scene's rr_threshold and rr_cap, else Mitsuba's */
 } args_t;
 
 static int parse_args(int argc, char **argv, args_t *a)

@@ -229,10 +229,11 @@ static inline void rng_seek(rng_stream_t *s, uint64_t dim)
         s->dim = dim;
 }
 
-/* Wellons' lowbias32: a 32-bit bijection with good avalanche. */
 /* RNG_HASH32, RNG_LAINE_KARRAS, RNG_SOBOL1_REVERSED: the steps of the three
  * functions below, on x in place: a uint32_t there, or a vector
  * of them in rng_fill.inc, so that both run the very same operations. */
+
+/* Wellons' lowbias32: a 32-bit bijection with good avalanche. */
 #define RNG_HASH32(x)                                                                              \
     do {                                                                                           \
         (x) ^= (x) >> 16;                                                                          \
@@ -273,7 +274,7 @@ static inline uint32_t rng_laine_karras(uint32_t x, uint32_t seed)
  * Pascal's triangle mod 2: bit r of the result is the XOR of the index's
  * bits c with C(c, r) odd, that is (Lucas) the bits c whose binary digits
  * include r's, a sum over supersets taken one digit of r at a time
- * (rng.c's vectors take the same five steps; test_sampler checks them
+ * (rng_fill.inc's vectors take the same five steps; test_sampler checks them
  * against the matrix itself). The first dimension reversed is the index
  * itself. */
 #define RNG_SOBOL1_REVERSED(y)                                                                     \

@@ -120,10 +120,10 @@ typedef struct scene {
     scene_integrator_t integrator;
     uint32_t max_depth; /* 0: unlimited (Russian roulette ends paths) */
     uint32_t rr_depth;  /* segments before Russian roulette (SCENE_RR_DEPTH) */
-    float rr_threshold; /* its throughput scale (SCENE_RR_THRESHOLD) and */
-    float rr_cap;       /* survival's cap (SCENE_RR_CAP); bench_core sets
-                         * Mitsuba's 1 and 0.95 to compare samples/s like
-                         * with like */
+    float rr_threshold; /* roulette's throughput scale (SCENE_RR_THRESHOLD) */
+    float rr_cap;       /* its survival's cap (SCENE_RR_CAP); bench_core sets
+                         * both to Mitsuba's, 1 and 0.95, to compare
+                         * samples/s like with like */
                         /* the direct integrator: light samples and BSDF samples per hit,
                          * each 0..SCENE_MAX_DIRECT_SAMPLES, not both 0 (default 1 and 1) */
     uint32_t direct_emitter_samples, direct_bsdf_samples;
