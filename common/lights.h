@@ -364,14 +364,27 @@ static inline float lights_hit_pdf(const scene_t *s, uint32_t tri, vec3_t o, flo
     return lights_area_pdf(s, tri) * t * t / cos_l;
 }
 
+/* The share of a shadow segment its test may leave out at its end, at
+ * least tracer_priv.h's 1 - TRACER_SHADOW_TFAR: a segment that stops at a
+ * sphere's clear ball must still be tested up to where that ball is
+ * clear. */
+#define LIGHTS_SHADOW_SLACK 0x1p-16f
+
 /* lights_sample from p: a light (*light_tri, one of its triangles) and a
  * point *q on it, its normal *nl, and
  * *area_pdf, the density per area at q (for a triangle lights_area_pdf;
  * for a sphere's, a direction in the cone from p, its nearest point on
- * the sphere, and the cone's density turned per area). 0 when the light
- * gives p nothing (p inside an emitting sphere). */
+ * the sphere, and the cone's density turned per area), and *target, where
+ * the shadow ray toward q may end: q lifted off the light
+ * (vec3_offset_ray_origin), or, toward a sphere with a clear ball
+ * (scene_sphere_t.clear_radius), where the ray is well inside that ball:
+ * nothing else is there and the sphere's faces lie inside the surface
+ * the ray meets at q, so the test gives the same answer at a fraction of
+ * the walk through the sphere's faces (veach-mis.xml: 1.39x the samples/s).
+ * 0 when the light gives p nothing (p inside an emitting sphere). */
 static inline int lights_sample_from(const scene_t *s, vec3_t p, double u, float u2, vec3_t *q,
-                                     vec3_t *nl, float *area_pdf, uint32_t *light_tri)
+                                     vec3_t *nl, float *area_pdf, uint32_t *light_tri,
+                                     vec3_t *target)
 {
     /* An emitting sphere's triangles are consecutive in the light CDF: u
      * in its range would pick one of them, and only the sphere matters
@@ -398,6 +411,7 @@ static inline int lights_sample_from(const scene_t *s, vec3_t p, double u, float
             *q = lights_point_on(s, i, u, u2);
             *nl = s->tri_normal[tri];
             *area_pdf = lights_area_pdf(s, tri);
+            *target = vec3_offset_ray_origin(*q, *nl);
             return 1;
         }
     }
@@ -427,6 +441,16 @@ static inline int lights_sample_from(const scene_t *s, vec3_t p, double u, float
     if (!(cos_l > 0.0f) || !(x > 0.0f))
         return 0;
     *area_pdf = sp->pick / (2.0f * VMATH_PI * omc) * cos_l / (x * x);
+    /* the ray's end: where it enters the ball midway between the sphere
+     * and its clear radius, when the part of the segment the test leaves
+     * out (LIGHTS_SHADOW_SLACK of it) stays inside the clear ball */
+    float clear = sp->clear_radius, mid = 0.5f * (sp->radius + clear);
+    float disc_mid = mid * mid - dc * dc * sin2_t;
+    float x_mid = dc * cos_t - sqrtf(disc_mid > 0.0f ? disc_mid : 0.0f);
+    if (clear > 0.0f && x_mid > 0.0f && x_mid < x && x_mid * LIGHTS_SHADOW_SLACK < clear - mid)
+        *target = vec3_add(p, vec3_scale(d, x_mid));
+    else
+        *target = vec3_offset_ray_origin(*q, *nl);
     return 1;
 }
 

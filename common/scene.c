@@ -1876,6 +1876,39 @@ static int build_light_cdf(loader_t *L, const light_sum_t *ls)
     return 0;
 }
 
+/* Each emitting sphere's clear ball (scene_sphere_t.clear_radius): the
+ * nearest other triangle's bounding box bounds how near it comes to the
+ * centre, from below; the ball stops short of it by 2^-10 of its radius,
+ * far wider than the shadow ray's rounding and the part of a segment its
+ * test leaves out at the end (lights_sample_from checks that). */
+static void clear_balls(scene_t *s)
+{
+    if (s->sphere_count > SCENE_SPHERE_CLEAR_PAIRS / (s->triangle_count + 1))
+        return;
+    for (size_t k = 0; k < s->sphere_count; k++) {
+        scene_sphere_t *sp = &s->spheres[k];
+        double c[3] = {sp->center.x, sp->center.y, sp->center.z};
+        double reach = SCENE_SPHERE_CLEAR * sp->radius, nearest2 = reach * reach;
+        for (size_t t = 0; t < s->triangle_count; t++) {
+            if (s->tri_sphere[t] == (int32_t)k)
+                continue;
+            const uint32_t *ix = s->indices + 3 * t;
+            double d2 = 0;
+            for (int a = 0; a < 3; a++) {
+                double v0 = s->positions[3 * ix[0] + a], v1 = s->positions[3 * ix[1] + a],
+                       v2 = s->positions[3 * ix[2] + a];
+                double lo = fmin(v0, fmin(v1, v2)), hi = fmax(v0, fmax(v1, v2));
+                double gap = c[a] < lo ? lo - c[a] : c[a] > hi ? c[a] - hi : 0.0;
+                d2 += gap * gap;
+            }
+            if (d2 < nearest2)
+                nearest2 = d2;
+        }
+        double clear = sqrt(nearest2) * (1.0 - 0x1p-10);
+        sp->clear_radius = clear > sp->radius ? (float)clear : 0.0f;
+    }
+}
+
 /* Each emitting sphere's share of the light samples (its triangles'
  * probabilities, with every other light's share taken out) and its range
  * of the light CDF (its triangles are consecutive there). sphere_len:
@@ -1911,6 +1944,7 @@ static int finish_spheres(loader_t *L, const double *sphere_len)
     for (size_t k = 0; k < s->sphere_count; k++)
         s->spheres[k].pick = (float)pick[k];
     free(pick);
+    clear_balls(s);
     return 0;
 }
 

@@ -344,10 +344,10 @@ static void sample_direct(const tracer_t *tr, path_t *path, const material_t *m,
             path->L = vec3_add(path->L, gain);
         return;
     }
-    vec3_t q, nl;
+    vec3_t q, nl, target;
     float area_pdf;
     uint32_t lt;
-    if (!lights_sample_from(s, p, ul, u2, &q, &nl, &area_pdf, &lt))
+    if (!lights_sample_from(s, p, ul, u2, &q, &nl, &area_pdf, &lt, &target))
         return;
     vec3_t to = vec3_sub(q, p);
     float dist2 = vec3_dot(to, to);
@@ -358,7 +358,6 @@ static void sample_direct(const tracer_t *tr, path_t *path, const material_t *m,
     if (!(cos_l > 0.0f) || !material_eval(m, mh, wl, &cos_s, &bsdf_pdf))
         return;
     vec3_t from = vec3_offset_ray_origin(p, mh->ngf);
-    vec3_t target = vec3_offset_ray_origin(q, nl);
     path->rays++;
     if (!tracer_unoccluded(tr, from, vec3_sub(target, from)))
         return;

@@ -422,7 +422,7 @@ static inline int tracer_sample_light(const scene_t *s, vec3_t p, vec3_t ngf, do
         vec3_t q, nl;
         float area_pdf;
         uint32_t lt;
-        if (!lights_sample_from(s, p, ul, u2, &q, &nl, &area_pdf, &lt))
+        if (!lights_sample_from(s, p, ul, u2, &q, &nl, &area_pdf, &lt, &target))
             return 0;
         vec3_t to = vec3_sub(q, p);
         float dist2 = vec3_dot(to, to);
@@ -434,7 +434,6 @@ static inline int tracer_sample_light(const scene_t *s, vec3_t p, vec3_t ngf, do
             return 0;
         *light_pdf = area_pdf * dist2 / cos_l;
         *radiance = s->materials[s->tri_material[lt]].radiance;
-        target = vec3_offset_ray_origin(q, nl);
     }
     /* (rough glass: a light behind the surface is seen through it) */
     *from = vec3_offset_ray_origin(p, vec3_dot(ngf, *wl) > 0.0f ? ngf : vec3_neg(ngf));

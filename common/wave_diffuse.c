@@ -118,7 +118,7 @@ DIFFUSE_LINKAGE void DIFFUSE_KERNEL(const wave_ctx_t *c, wave_state_t *w, const 
     for (size_t j0 = 0; j0 < n; j0 += DIFFUSE_LANES) {
         int lanes = n - j0 < DIFFUSE_LANES ? (int)(n - j0) : DIFFUSE_LANES;
         wave_v3 a = {zero, zero, zero}, b = a, cc = a, ng = a, nsm = a, beta = a, albedo = a, q = a,
-                nl = a, rad = a;
+                nl = a, rad = a, sphere_target = a;
         wave_vf u = zero, v = zero, cos_o = zero, area_pdf = one, u1 = zero, u2 = zero;
         wave_vi smooth = {0};
         /* lanes whose light sample took the environment (lights_pick_env),
@@ -200,14 +200,15 @@ DIFFUSE_LINKAGE void DIFFUSE_KERNEL(const wave_ctx_t *c, wave_state_t *w, const 
                 } else {
                     /* (an emitting sphere's cone needs the point: tracer.c's
                      * sample_direct finds it by scene_point too) */
-                    vec3_t qp, nlp,
+                    vec3_t qp, nlp, tp,
                         pp = sc->spheres ? scene_point(sc, tri, w->u[s], w->v[s])
                                          : vec3_make(0, 0, 0);
                     float apdf;
                     uint32_t lt;
-                    if (lights_sample_from(sc, pp, ul, ul2, &qp, &nlp, &apdf, &lt)) {
+                    if (lights_sample_from(sc, pp, ul, ul2, &qp, &nlp, &apdf, &lt, &tp)) {
                         LOAD3(q, j, qp);
                         LOAD3(nl, j, nlp);
+                        LOAD3(sphere_target, j, tp);
                         LOAD3(rad, j, sc->materials[sc->tri_material[lt]].radiance);
                         area_pdf[j] = apdf;
                     }
@@ -251,7 +252,8 @@ DIFFUSE_LINKAGE void DIFFUSE_KERNEL(const wave_ctx_t *c, wave_state_t *w, const 
             wave_vf cos_s = vdot(ns, wl);
             shadow = (dist2 > zero) & (cos_l > zero) & (cos_s > zero) & (vdot(ngf, wl) > zero);
             wave_vf bsdf_pdf = cos_s * VMATH_INV_PI;
-            target = voffset(q, nl);
+            /* (with spheres, every lane's end from lights_sample_from) */
+            target = sc->sphere_count ? sphere_target : voffset(q, nl);
             wave_vf light_pdf = area_pdf * dist2 / cos_l;
             wave_vf a2 = light_pdf * light_pdf, b2 = bsdf_pdf * bsdf_pdf;
             wave_vf mis = a2 / (a2 + b2);

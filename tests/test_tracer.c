@@ -1702,8 +1702,9 @@ START_TEST(sphere_light_exact)
         vec3_t q, nl;
         float area_pdf;
         uint32_t lt;
+        vec3_t target;
         ck_assert(lights_sample_from(s, p, (i + 0.5) / 64, (float)((i * 37 % 64) + 0.5f) / 64, &q,
-                                     &nl, &area_pdf, &lt));
+                                     &nl, &area_pdf, &lt, &target));
         vec3_t to = vec3_sub(q, p);
         float d2 = vec3_dot(to, to), cos_l = -vec3_dot(nl, vec3_scale(to, 1 / sqrtf(d2)));
         float solid = area_pdf * d2 / cos_l, want = lights_hit_pdf(s, lt, p, sqrtf(d2), cos_l);
@@ -1728,6 +1729,89 @@ START_TEST(sphere_light_exact)
     }
     film_destroy(&f);
     scene_destroy(&s);
+}
+END_TEST
+
+/* A shadow ray toward an emitting sphere stops in the sphere's clear ball
+ * (scene_sphere_t.clear_radius): the ball reaches to the nearest other
+ * triangle (at most two radii, none when that triangle is nearer than
+ * the sphere's surface), the ray's end lies on the segment toward the
+ * point sampled, inside the ball and outside the sphere, and the test
+ * gives the answer the whole segment gives, an occluder inside two radii
+ * (a small quad under the sphere) included. */
+START_TEST(sphere_shadow_stops_in_clear_ball)
+{
+    /* the floor 2 below the sphere's centre, a small quad 0.65 below it
+     * (a ball of two radii would end the rays above it) */
+    const char *fmt =
+        "{\"camera\": {\"position\": [0, 0, 5], \"look_at\": [0, 0, 0], \"fov\": 20, "
+        "\"width\": 6, \"height\": 6}, \"materials\": {\"w\": {\"type\": \"diffuse\", "
+        "\"albedo\": [0.5, 0.5, 0.5]}, \"l\": {\"type\": \"emitter\", \"radiance\": [1, 1, "
+        "1]}}, \"shapes\": [{\"type\": \"quad\", \"material\": \"w\", \"vertices\": [[-4, "
+        "-4, 0], [4, -4, 0], [4, 4, 0], [-4, 4, 0]]}, {\"type\": \"quad\", \"material\": "
+        "\"w\", \"vertices\": [[-0.3, 2.2, %g], [0.3, 2.2, %g], [0.3, 2.8, %g], [-0.3, 2.8, "
+        "%g]]}, {\"type\": \"sphere\", \"material\": \"l\", \"center\": [0, 2.5, 2], "
+        "\"radius\": 0.5, \"subdivisions\": 4}]}";
+    /* the small quad's height: 1.35 (inside two radii), -1 (out of the
+     * way: the floor bounds the ball), 1.7 (inside the sphere's radius:
+     * no ball) */
+    const double height[3] = {1.35, -1.0, 1.7};
+    const float want_clear[3] = {0.65f, 1.0f, 0.0f};
+    tracer_device_t *dev = NULL;
+    char err[256], json[2048];
+    ck_assert(tracer_device_new(&dev, err, sizeof err) == 0);
+    for (int c = 0; c < 3; c++) {
+        snprintf(json, sizeof json, fmt, height[c], height[c], height[c], height[c]);
+        scene_t *s = load_text(json);
+        ck_assert_uint_eq(s->sphere_count, 1);
+        const scene_sphere_t *sp = &s->spheres[0];
+        ck_assert_msg(fabsf(sp->clear_radius - want_clear[c]) <= 2e-3f * (want_clear[c] + 1e-3f),
+                      "case %d: clear radius %g, want about %g", c, sp->clear_radius,
+                      want_clear[c]);
+        ck_assert(sp->clear_radius <= want_clear[c]);
+        tracer_t *t = NULL;
+        ck_assert_msg(tracer_new(dev, s, &t, err, sizeof err) == 0, "%s", err);
+        size_t occluded = 0, shortened = 0, n = 0;
+        for (int i = 0; i < 400; i++) {
+            /* floor points around the sphere's foot */
+            vec3_t p = vec3_make(-1.5f + 3.0f * (float)(i % 20) / 19,
+                                 1.0f + 3.0f * (float)(i / 20) / 19, 0.0f);
+            vec3_t q, nl, target;
+            float pdf;
+            uint32_t lt;
+            if (!lights_sample_from(s, p, (i * 0.618034) - floor(i * 0.618034), (float)(i % 7) / 7,
+                                    &q, &nl, &pdf, &lt, &target))
+                continue;
+            n++;
+            vec3_t lifted = vec3_offset_ray_origin(q, nl);
+            vec3_t from = vec3_offset_ray_origin(p, vec3_make(0, 0, 1));
+            if (memcmp(&target, &lifted, sizeof target) != 0) {
+                shortened++;
+                float rc = vec3_length(vec3_sub(target, sp->center));
+                ck_assert_msg(rc > sp->radius && rc < sp->clear_radius,
+                              "sample %d: end %g from the centre", i, rc);
+                /* on the segment toward q */
+                vec3_t a = vec3_sub(target, p), b = vec3_sub(q, p);
+                ck_assert(vec3_length(vec3_cross(a, b)) <= 1e-5f * vec3_length(a) * vec3_length(b));
+                ck_assert(vec3_dot(a, b) > 0 && vec3_length(a) < vec3_length(b));
+            }
+            int whole = tracer_unoccluded(t, from, vec3_sub(lifted, from));
+            int stopped = tracer_unoccluded(t, from, vec3_sub(target, from));
+            ck_assert_msg(whole == stopped, "case %d sample %d: %d against %d", c, i, stopped,
+                          whole);
+            occluded += !whole;
+        }
+        ck_assert_uint_gt(n, 300);
+        if (c < 2)
+            ck_assert_uint_eq(shortened, n);
+        else
+            ck_assert_uint_eq(shortened, 0);
+        if (c == 0)
+            ck_assert_uint_gt(occluded, 10);
+        tracer_destroy(&t);
+        scene_destroy(&s);
+    }
+    tracer_device_destroy(&dev);
 }
 END_TEST
 
@@ -1781,10 +1865,10 @@ START_TEST(sphere_lights_found_as_searched)
         const float u2 = (float)(i % 97) / 97.0f;
         const size_t want = lights_cdf_search(s->light_cdf, s->light_count, u);
         const uint32_t want_tri = s->light_tris[want];
-        vec3_t q, nl;
+        vec3_t q, nl, target;
         float pdf;
         uint32_t lt;
-        int ok = lights_sample_from(s, p, u, u2, &q, &nl, &pdf, &lt);
+        int ok = lights_sample_from(s, p, u, u2, &q, &nl, &pdf, &lt, &target);
         if (s->tri_sphere[want_tri] >= 0) {
             ck_assert_int_eq(s->tri_sphere[lt], s->tri_sphere[want_tri]);
             ck_assert_uint_eq(s->tri_material[lt], s->tri_material[want_tri]);
@@ -1851,6 +1935,7 @@ static Suite *tracer_suite(void)
     tcase_add_test(tc, spot_falloff);
     tcase_add_test(tc, sphere_light_exact);
     tcase_add_test(tc, sphere_lights_found_as_searched);
+    tcase_add_test(tc, sphere_shadow_stops_in_clear_ball);
     tcase_add_test(tc, hide_emitters_passes_through);
     tcase_add_test(tc, test_furnace_coloured_albedo);
     tcase_add_test(tc, test_glass_furnace);
