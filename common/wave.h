@@ -99,6 +99,10 @@ typedef struct wave_state {
     uint8_t shadow[WAVE_PATHS]; /* a shadow ray to test: */
     vec3_t shadow_o[WAVE_PATHS], shadow_d[WAVE_PATHS]; /* its segment (t in [0, 1)) */
     vec3_t shadow_L[WAVE_PATHS];                       /* added to L when it is free */
+    /* the diffuse kernel's, with emitting spheres: the shadow ray's end
+     * lights_sample_from gave (kept here, not beside the kernel's
+     * vectors: there it cost the Cornell box, which has no spheres, 1-2 %) */
+    vec3_t shadow_to[WAVE_PATHS];
 } wave_state_t;
 
 /* The surface slot s hit, as tracer.c's trace_sample sees it: its

@@ -118,7 +118,7 @@ DIFFUSE_LINKAGE void DIFFUSE_KERNEL(const wave_ctx_t *c, wave_state_t *w, const 
     for (size_t j0 = 0; j0 < n; j0 += DIFFUSE_LANES) {
         int lanes = n - j0 < DIFFUSE_LANES ? (int)(n - j0) : DIFFUSE_LANES;
         wave_v3 a = {zero, zero, zero}, b = a, cc = a, ng = a, nsm = a, beta = a, albedo = a, q = a,
-                nl = a, rad = a, sphere_target = a;
+                nl = a, rad = a;
         wave_vf u = zero, v = zero, cos_o = zero, area_pdf = one, u1 = zero, u2 = zero;
         wave_vi smooth = {0};
         /* lanes whose light sample took the environment (lights_pick_env),
@@ -200,15 +200,15 @@ DIFFUSE_LINKAGE void DIFFUSE_KERNEL(const wave_ctx_t *c, wave_state_t *w, const 
                 } else {
                     /* (an emitting sphere's cone needs the point: tracer.c's
                      * sample_direct finds it by scene_point too) */
-                    vec3_t qp, nlp, tp,
+                    vec3_t qp, nlp,
                         pp = sc->spheres ? scene_point(sc, tri, w->u[s], w->v[s])
                                          : vec3_make(0, 0, 0);
                     float apdf;
                     uint32_t lt;
-                    if (lights_sample_from(sc, pp, ul, ul2, &qp, &nlp, &apdf, &lt, &tp)) {
+                    if (lights_sample_from(sc, pp, ul, ul2, &qp, &nlp, &apdf, &lt,
+                                           &w->shadow_to[s])) {
                         LOAD3(q, j, qp);
                         LOAD3(nl, j, nlp);
-                        LOAD3(sphere_target, j, tp);
                         LOAD3(rad, j, sc->materials[sc->tri_material[lt]].radiance);
                         area_pdf[j] = apdf;
                     }
@@ -252,8 +252,7 @@ DIFFUSE_LINKAGE void DIFFUSE_KERNEL(const wave_ctx_t *c, wave_state_t *w, const 
             wave_vf cos_s = vdot(ns, wl);
             shadow = (dist2 > zero) & (cos_l > zero) & (cos_s > zero) & (vdot(ngf, wl) > zero);
             wave_vf bsdf_pdf = cos_s * VMATH_INV_PI;
-            /* (with spheres, every lane's end from lights_sample_from) */
-            target = sc->sphere_count ? sphere_target : voffset(q, nl);
+            target = voffset(q, nl);
             wave_vf light_pdf = area_pdf * dist2 / cos_l;
             wave_vf a2 = light_pdf * light_pdf, b2 = bsdf_pdf * bsdf_pdf;
             wave_vf mis = a2 / (a2 + b2);
@@ -298,6 +297,13 @@ DIFFUSE_LINKAGE void DIFFUSE_KERNEL(const wave_ctx_t *c, wave_state_t *w, const 
             w->specular[s] = 0;
             w->o[s] = LANE3(from, j);
             w->next_d[s] = LANE3(next_d, j);
+        }
+        /* with emitting spheres, the shadow rays' ends lights_sample_from
+         * gave (the same operation as target - from above) */
+        for (int j = 0; sc->sphere_count && j < lanes; j++) {
+            uint16_t s = slots[j0 + (size_t)j];
+            if (shadow[j])
+                w->shadow_d[s] = vec3_sub(w->shadow_to[s], w->shadow_o[s]);
         }
         for (int j = 0; (env | delta) && j < lanes; j++) {
             if (!((env | delta) >> j & 1))
