@@ -743,8 +743,8 @@ typedef struct pacer {
     const char *ns, *cep; /* a master in a namespace: asked through status_in */
     daemon_t *w[MAX_DAEMONS];
     int n, frozen;
-    double slice_ms, at;     /* the next slice; the job's work done at the last look */
-    double thawed_ms, moved; /* all slices' length, and the work they moved */
+    double slice_ms, at; /* the next slice; the job's work done at the last look */
+    double thawed_ms;    /* all slices' length, in which the job did `at` */
 } pacer_t;
 
 /* The share of the job's work done: its pixel-layers merged or skipped
@@ -871,7 +871,7 @@ static cJSON *pace_step(pacer_t *p)
 {
     double slice = p->slice_ms;
     pace_thaw(p);
-    struct timespec ts = {(time_t)(slice / 1000), (long)(fmod(slice, 1000) * 1e6)};
+    struct timespec ts = {0, (long)(slice * 1e6)}; /* (at most PACE_MAX_SLICE_MS) */
     while (nanosleep(&ts, &ts) < 0 && errno == EINTR)
         ;
     pace_freeze(p);
@@ -886,12 +886,11 @@ static cJSON *pace_step(pacer_t *p)
         p->slice_ms = p->slice_ms * 1.5 < PACE_MAX_SLICE_MS ? p->slice_ms * 1.5 : PACE_MAX_SLICE_MS;
     else if (moved <= 0 && p->slice_ms < PACE_IDLE_SLICE_MS)
         p->slice_ms *= 1.25;
+    p->at = at > p->at ? at : p->at;
     p->thawed_ms += slice;
-    p->moved += moved > 0 ? moved : 0;
-    double mean_step_ms = p->moved > 0 ? PACE_STEP * p->thawed_ms / p->moved : PACE_MAX_SLICE_MS;
+    double mean_step_ms = p->at > 0 ? PACE_STEP * p->thawed_ms / p->at : PACE_MAX_SLICE_MS;
     if (p->slice_ms > mean_step_ms)
         p->slice_ms = mean_step_ms > 0.2 ? mean_step_ms : 0.2;
-    p->at = at > p->at ? at : p->at;
     return st;
 }
 
@@ -2641,10 +2640,10 @@ END_TEST
 /* Churn: four workers over a whole job; each time the job passes 15, 30,
  * 45 and 60 % of its layers (its pixel-layers: job_work), one worker
  * holding a task is killed with SIGKILL and a new one starts. The job is
- * paced (pace_step), so it stands still at each of those points and cannot
- * end before the last kill, however fast the host. In the thesis rule's
- * second half most pixels skip each layer, a decision counts a layer's
- * skips at once and the few pixels left render in well under a
+ * paced (pace_step), so it stands still at each of those points, and the
+ * last of them leaves it far from its end, however fast the host. In the
+ * thesis rule's second half most pixels skip each layer, a decision counts
+ * a layer's skips at once and the few pixels left render in well under a
  * millisecond: a slice, which lasts longer than asked on a loaded host,
  * then passes a layer per round trip to the master. With 50 layers one
  * short slice moved the job by 10-14 % (measured) and once from 76 % to
