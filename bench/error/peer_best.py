@@ -25,6 +25,9 @@ references and timing guard:
 - our relMSE over that sampler's at the times it took for its last two
   counts, and its time over ours to equal relMSE (geometric mean over the
   levels both reach: above 1, we are faster);
+- the same with Mitsuba's loading of the scene (timed once in its process,
+  mitsuba_peer.py's seconds_load) added to each of its times, since our
+  clock counts our workers' loading: what a user waits for from either;
 - a log-log plot of relMSE against seconds, every curve:
   bench/results/error/peer-best-<scene>.png.
 
@@ -109,7 +112,7 @@ def mitsuba_sweep(name, scene, sampler, r, ref_meta):
         raw = S.relmse(S.rgb(S.read_exr(run["out"])), r)
         pts.append({"spp": run["spp"], "seconds": run["seconds"], "relmse_raw": raw,
                     "relmse": max(raw - ref_meta["relmse_est"], 1e-12)})
-    return {"runs": pts, "stats": st, "version": sw.get("version"),
+    return {"runs": pts, "stats": st, "version": sw.get("version"), "load": sw.get("seconds_load"),
             "t": np.array([q["seconds"] for q in pts]), "relmse": np.array([q["relmse"] for q in pts])}
 
 
@@ -136,6 +139,18 @@ def compare(ours, mits):
     return S.curve_against_peer(ours, mits, mits["runs"][-2:])
 
 
+def compare_loaded(ours, mits):
+    """compare() with Mitsuba's loading of the scene added to each of its
+    times, as our clock counts our workers' loading: what a user waits for
+    from either renderer, its kernels compiled (warm) as before. None when
+    the sweep did not time its load (an older mitsuba_peer.py)."""
+    if mits.get("load") is None:
+        return None
+    runs = [dict(q, seconds=q["seconds"] + mits["load"]) for q in mits["runs"]]
+    loaded = dict(mits, runs=runs, t=mits["t"] + mits["load"])
+    return S.curve_against_peer(ours, loaded, runs[-2:])
+
+
 def plot(name, ours, curves, best, path, ref_meta):
     import matplotlib
     matplotlib.use("Agg")
@@ -160,14 +175,17 @@ def table(R):
          f"on the scene. Ratios: our relMSE over its best's at the times it took for its last two counts "
          f"(below 1: we are ahead), and its time over ours to equal relMSE (above 1: we are faster). "
          f"Our time is the job's clock, from its first task (the workers' scene loading counts); "
-         f"Mitsuba's renders are timed warm. "
+         f"Mitsuba's renders are timed warm (its kernels compiled), without its loading of the scene; "
+         f"the last two columns count its loading too (timed in the same process: its parse, meshes and "
+         f"BVH), as ours counts ours. "
          + (f"Host: {c['host']}. " if c.get("host") else "") +
          f"Commit {R['commit']} (a row of an earlier run names its own), {R['date']}, {R['seconds']:.0f} s in all (`bench/error/peer_best.py`); plots "
          f"`bench/results/error/peer-best-<scene>.png`.", "",
          "| scene | Mitsuba's best | its relMSE at equal time, per sampler (independent, stratified, "
          "multijitter, orthogonal, ldsampler; geomean, best = 1) | ours / its best at its time for (spp) "
-         "| its time / ours to equal relMSE |",
-         "|---|---|---|---|--:|"]
+         "| its time / ours to equal relMSE | the same, its loading counted (its load) | "
+         "ours / its best, its loading counted |",
+         "|---|---|---|---|--:|--:|---|"]
     for name, sc in R["scenes"].items():
         sco = sc["score"]
         b = sco.get(sc["best"]) if sco else None
@@ -178,7 +196,14 @@ def table(R):
         geo = f"{cmp_['time_geomean']:.2f}" if cmp_["time_geomean"] else "-"
         # a row of an earlier run of the same settings says its commit
         at = f" ({sc['commit']})" if sc.get("commit") and sc["commit"] != R["commit"] else ""
-        L.append(f"| {name}{at} | {sc['best']} | {per} | {marks} | {geo} |")
+        cl = sc.get("compare_loaded")
+        if cl:
+            geo_l = (f"{cl['time_geomean']:.2f}" if cl["time_geomean"] else "-") + \
+                f" ({sc['mitsuba_load_seconds']:.3f} s)"
+            marks_l = ", ".join(f"{m['ratio']:.2f}" if m["ratio"] else "-" for m in cl["at_mitsuba_times"])
+        else:
+            geo_l = marks_l = "-"
+        L.append(f"| {name}{at} | {sc['best']} | {per} | {marks} | {geo} | {geo_l} | {marks_l} |")
     return "\n".join(L)
 
 
@@ -245,12 +270,15 @@ def main():
         curves = {k: mitsuba_sweep(flat, scene, k, r, ref_meta) for k in SAMPLERS}
         best, score = best_sampler(curves)
         cmp_ = compare(ours, curves[best])
+        cmp_loaded = compare_loaded(ours, curves[best])
         plot(name, ours, curves, best, os.path.join(S.PLOTS, f"peer-best-{flat}.png"), ref_meta)
         R["scenes"][name] = {
-            "best": best, "score": score, "compare": cmp_,
+            "best": best, "score": score, "compare": cmp_, "compare_loaded": cmp_loaded,
+            "mitsuba_load_seconds": curves[best]["load"],
             "ours": {"t": ours["t"].tolist(), "n": ours["n"].tolist(), "relmse": ours["relmse"].tolist(),
                      "command": ours["command"], "summary": ours["summary"], "stats": ours["stats"]},
-            "mitsuba": {k: {"runs": c["runs"], "stats": c["stats"], "version": c["version"]}
+            "mitsuba": {k: {"runs": c["runs"], "stats": c["stats"], "version": c["version"],
+                            "load": c["load"]}
                         for k, c in curves.items()},
             "reference": {"exr": S.rel(ref), "relmse_est": ref_meta["relmse_est"]}}
         S.log(f"{name}: Mitsuba's best {best}; ours/its {[m['ratio'] for m in cmp_['at_mitsuba_times']]}, "
