@@ -147,8 +147,7 @@ def compare_loaded(ours, mits):
     if mits.get("load") is None:
         return None
     runs = [dict(q, seconds=q["seconds"] + mits["load"]) for q in mits["runs"]]
-    loaded = dict(mits, runs=runs, t=mits["t"] + mits["load"])
-    return S.curve_against_peer(ours, loaded, runs[-2:])
+    return compare(ours, dict(mits, runs=runs, t=mits["t"] + mits["load"]))
 
 
 def plot(name, ours, curves, best, path, ref_meta):
@@ -199,7 +198,7 @@ def table(R):
         cl = sc.get("compare_loaded")
         if cl:
             geo_l = (f"{cl['time_geomean']:.2f}" if cl["time_geomean"] else "-") + \
-                f" ({sc['mitsuba_load_seconds']:.3f} s)"
+                f" ({sc['mitsuba'][sc['best']]['load']:.3f} s)"
             marks_l = ", ".join(f"{m['ratio']:.2f}" if m["ratio"] else "-" for m in cl["at_mitsuba_times"])
         else:
             geo_l = marks_l = "-"
@@ -274,7 +273,6 @@ def main():
         plot(name, ours, curves, best, os.path.join(S.PLOTS, f"peer-best-{flat}.png"), ref_meta)
         R["scenes"][name] = {
             "best": best, "score": score, "compare": cmp_, "compare_loaded": cmp_loaded,
-            "mitsuba_load_seconds": curves[best]["load"],
             "ours": {"t": ours["t"].tolist(), "n": ours["n"].tolist(), "relmse": ours["relmse"].tolist(),
                      "command": ours["command"], "summary": ours["summary"], "stats": ours["stats"]},
             "mitsuba": {k: {"runs": c["runs"], "stats": c["stats"], "version": c["version"],

@@ -509,23 +509,22 @@ def main():
     # the conversion to Mitsuba's dictionary (and the PLY files it writes)
     # is ours and not counted, for its XML files the copy with the sampler
     # set (a few milliseconds at most) is
-    if a.scene.endswith(".xml"):
-        t_load = time.perf_counter()
-        scene, w, h = load_xml(mi, a)
+    def timed(load):
+        t0 = time.perf_counter()
+        out = load()
         dr.eval()
         dr.sync_thread()
-        t_load = time.perf_counter() - t_load
+        return out, time.perf_counter() - t0
+
+    if a.scene.endswith(".xml"):
+        (scene, w, h), t_load = timed(lambda: load_xml(mi, a))
     else:
         with open(a.scene) as f:
             scene_json = json.load(f)
         with tempfile.TemporaryDirectory(prefix="mitsuba_peer_") as tmp:
             sd, w, h = build_scene_dict(mi, scene_json, scene_dir, tmp, a.spp, a.seed, a.width,
                                         a.height, a.sampler)
-            t_load = time.perf_counter()
-            scene = mi.load_dict(sd)
-            dr.eval()
-            dr.sync_thread()
-            t_load = time.perf_counter() - t_load
+            scene, t_load = timed(lambda: mi.load_dict(sd))
     dr.set_thread_count(a.threads)
 
     def render(seed, spp=None):
