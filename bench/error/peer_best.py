@@ -28,6 +28,13 @@ references and timing guard:
 - the same with Mitsuba's loading of the scene (timed once in its process,
   mitsuba_peer.py's seconds_load) added to each of its times, since our
   clock counts our workers' loading: what a user waits for from either;
+- VB_PEER_SEEDS (default 3) runs of ours and of Mitsuba's best sampler,
+  each with its own seed (the best chosen on the first seed's sweeps): the
+  figures above are those of the mean curves (each count's relMSE and
+  seconds averaged over the seeds for Mitsuba; ours averaged at the first
+  run's times), so one render's noise does not make the reading (one run
+  a count moved its last points by up to 30 %); each seed's own figures
+  are kept beside them, and the table gives their range;
 - a log-log plot of relMSE against seconds, every curve:
   bench/results/error/peer-best-<scene>.png.
 
@@ -56,6 +63,9 @@ import study as S  # noqa: E402  (the study's settings, references and helpers)
 SCENES = os.environ.get("VB_PEER_SCENES", ",".join(S.shipped_scenes())).split(",")
 MAX_SPP = int(os.environ.get("VB_PEER_SPP", "1024"))
 SEED = 31
+# runs of ours and of Mitsuba's best sampler, seeds SEED + k (Mitsuba) and
+# the study's seed + k (ours), k < SEEDS
+SEEDS = max(1, int(os.environ.get("VB_PEER_SEEDS", "3")))
 OUT = os.path.join(S.WORK, "quick", "peer-best.json") if S.QUICK else \
     os.path.join(S.ROOT, "bench", "results", "peer-best.json")
 RUNS = os.path.join(S.WORK, "quick", "peer-best") if S.QUICK else os.path.join(S.WORK, "peer-best")
@@ -87,18 +97,20 @@ def sampler_counts(sampler, top):
 SAMPLERS = ["independent", "stratified", "multijitter", "orthogonal", "ldsampler"]
 
 
-def mitsuba_sweep(name, scene, sampler, r, ref_meta):
+def mitsuba_sweep(name, scene, sampler, r, ref_meta, k=0):
+    """Mitsuba's sweep of one sampler with seed SEED + k."""
     py = os.environ.get("MITSUBA_PEER_PYTHON", sys.executable)
     script = os.path.join(S.ROOT, "bench", "peer", "mitsuba_peer.py")
     size = str(S.CFG["size"])
-    out_dir = os.path.join(RUNS, f"{name}-{sampler}")
+    out_dir = os.path.join(RUNS, f"{name}-{sampler}" + (f"-seed{k}" if k else ""))
     cmd = [py, script, scene, "--mode", "sweep", "--threads", "2", "--width", size,
            "--height", size,
            "--sampler", sampler, "--spp-list", ",".join(map(str, sampler_counts(sampler, MAX_SPP))),
-           "--seed", str(SEED), "--out-dir", out_dir]
+           "--seed", str(SEED + k), "--out-dir", out_dir]
     best = None
     for attempt in range(2):
-        S.log(f"{name} mitsuba {sampler}: spp {sampler_counts(sampler, MAX_SPP)}")
+        S.log(f"{name} mitsuba {sampler}{f' seed {SEED + k}' if k else ''}: "
+              f"spp {sampler_counts(sampler, MAX_SPP)}")
         p, st = S.run_measured(cmd, timed=True)
         if best is None or st["other_cpu_cores"] < best[1]["other_cpu_cores"]:
             best = (p, st)
@@ -133,6 +145,35 @@ def best_sampler(curves):
     return min(score, key=lambda k: score[k] if math.isfinite(score[k]) else math.inf), score
 
 
+def mean_mitsuba(sweeps):
+    """Sweeps of one sampler with different seeds as one curve: each count's
+    relMSE and seconds averaged."""
+    runs = [{"spp": q[0]["spp"], "seconds": float(np.mean([x["seconds"] for x in q])),
+             "relmse": float(np.mean([x["relmse"] for x in q])),
+             "relmse_seeds": [x["relmse"] for x in q]}
+            for q in zip(*(w["runs"] for w in sweeps))]
+    return dict(sweeps[0], runs=runs, t=np.array([q["seconds"] for q in runs]),
+                relmse=np.array([q["relmse"] for q in runs]))
+
+
+def mean_ours(runs):
+    """Our runs of different seeds as one curve: relMSE averaged at the
+    first run's times that every run covers (log-log interpolation)."""
+    lo = max(float(x["t"][0]) for x in runs)
+    hi = min(float(x["t"][-1]) for x in runs)
+    t = [float(v) for v in runs[0]["t"] if lo <= v <= hi]
+    y = [float(np.mean([S.interp_loglog(x["t"], x["relmse"], v) for x in runs])) for v in t]
+    return {"t": np.array(t), "relmse": np.array(y)}
+
+
+def seed_range(per_seed, key):
+    """min-max over the seeds' own comparisons of one figure, as text."""
+    xs = [v for v in (key(c) for c in per_seed) if v]
+    if len(xs) < 2:
+        return "-"
+    return f"{min(xs):.2f}-{max(xs):.2f}"
+
+
 def compare(ours, mits):
     """Our curve against Mitsuba's best one: our relMSE over its at the times
     it took for its last two counts, and its time over ours to equal relMSE."""
@@ -155,7 +196,8 @@ def plot(name, ours, curves, best, path, ref_meta):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(6, 4.2))
-    ax.loglog(ours["t"], ours["relmse"], "-", color="C2", lw=2, label="vbrender, defaults")
+    ax.loglog(ours["t"], ours["relmse"], "-", color="C2", lw=2,
+              label="vbrender, defaults" + (f" (mean of {SEEDS} seeds)" if SEEDS > 1 else ""))
     for i, (k, c) in enumerate(curves.items()):
         ax.loglog(c["t"], c["relmse"], "o-" if k == best else ".--", color=f"C{3 + i}",
                   lw=2 if k == best else 0.8, ms=4 if k == best else 3,
@@ -175,16 +217,20 @@ def table(R):
          f"(below 1: we are ahead), and its time over ours to equal relMSE (above 1: we are faster). "
          f"Our time is the job's clock, from its first task (the workers' scene loading counts); "
          f"Mitsuba's renders are timed warm (its kernels compiled), without its loading of the scene; "
-         f"the last two columns count its loading too (timed in the same process: its parse, meshes and "
+         f"two columns count its loading too (timed in the same process: its parse, meshes and "
          f"BVH), as ours counts ours. "
+         + (f"Ours and Mitsuba's best sampler each ran {c['seeds']} times with their own seeds: the "
+            f"figures are those of the mean curves (its best chosen on the first seed's sweeps), and the "
+            f"last column gives the range of its time over ours between the seeds' own runs. "
+            if c.get("seeds", 1) > 1 else "")
          + (f"Host: {c['host']}. " if c.get("host") else "") +
          f"Commit {R['commit']} (a row of an earlier run names its own), {R['date']}, {R['seconds']:.0f} s in all (`bench/error/peer_best.py`); plots "
          f"`bench/results/error/peer-best-<scene>.png`.", "",
          "| scene | Mitsuba's best | its relMSE at equal time, per sampler (independent, stratified, "
          "multijitter, orthogonal, ldsampler; geomean, best = 1) | ours / its best at its time for (spp) "
          "| its time / ours to equal relMSE | the same, its loading counted (its load) | "
-         "ours / its best, its loading counted |",
-         "|---|---|---|---|--:|--:|---|"]
+         "ours / its best, its loading counted | its time / ours, each seed's runs |",
+         "|---|---|---|---|--:|--:|---|--:|"]
     for name, sc in R["scenes"].items():
         sco = sc["score"]
         b = sco.get(sc["best"]) if sco else None
@@ -202,7 +248,8 @@ def table(R):
             marks_l = ", ".join(f"{m['ratio']:.2f}" if m["ratio"] else "-" for m in cl["at_mitsuba_times"])
         else:
             geo_l = marks_l = "-"
-        L.append(f"| {name}{at} | {sc['best']} | {per} | {marks} | {geo} | {geo_l} | {marks_l} |")
+        seeds = seed_range(sc.get("compare_seeds", []), lambda x: x["time_geomean"])
+        L.append(f"| {name}{at} | {sc['best']} | {per} | {marks} | {geo} | {geo_l} | {marks_l} | {seeds} |")
     return "\n".join(L)
 
 
@@ -245,7 +292,7 @@ def main():
     os.makedirs(S.PLOTS, exist_ok=True)
     config = {"size": S.CFG["size"], "ref_spp": S.CFG["ref_spp"], "max_spp": MAX_SPP,
               "granularity": S.CFG["granularity"], "workers": 2, "threads": 1,
-              "mitsuba_threads": 2, "seed": SEED, "host": host_name()}
+              "mitsuba_threads": 2, "seed": SEED, "seeds": SEEDS, "host": host_name()}
     R = {"benchmark": "peer-best", "config": config, "scenes": {}, "seconds": 0.0}
     if os.path.exists(OUT):
         with open(OUT) as f:
@@ -264,20 +311,33 @@ def main():
         scene = S.sized_scene(name)
         ref, ref_meta = S.make_reference(flat, scene)
         r = S.rgb(S.read_exr(ref))
-        ours = S.study_run(flat, scene, ref, ref_meta, "peer-best-default", 2 * MAX_SPP,
-                           S.CFG["default_mode"], 2, 1)
+        ours_runs = [S.study_run(flat, scene, ref, ref_meta, "peer-best-default" + (f"-seed{k}" if k else ""),
+                                 2 * MAX_SPP, S.CFG["default_mode"], 2, 1, seed=S.CFG["seed"] + k)
+                     for k in range(SEEDS)]
         curves = {k: mitsuba_sweep(flat, scene, k, r, ref_meta) for k in SAMPLERS}
         best, score = best_sampler(curves)
-        cmp_ = compare(ours, curves[best])
-        cmp_loaded = compare_loaded(ours, curves[best])
-        plot(name, ours, curves, best, os.path.join(S.PLOTS, f"peer-best-{flat}.png"), ref_meta)
+        best_runs = [curves[best]] + [mitsuba_sweep(flat, scene, best, r, ref_meta, k) for k in range(1, SEEDS)]
+        ours = mean_ours(ours_runs) if SEEDS > 1 else ours_runs[0]
+        mits = mean_mitsuba(best_runs) if SEEDS > 1 else curves[best]
+        cmp_ = compare(ours, mits)
+        cmp_loaded = compare_loaded(ours, mits)
+        per_seed = [compare(o, m) for o, m in zip(ours_runs, best_runs)]
+        plot(name, ours, dict(curves, **{best: mits}), best,
+             os.path.join(S.PLOTS, f"peer-best-{flat}.png"), ref_meta)
         R["scenes"][name] = {
             "best": best, "score": score, "compare": cmp_, "compare_loaded": cmp_loaded,
-            "ours": {"t": ours["t"].tolist(), "n": ours["n"].tolist(), "relmse": ours["relmse"].tolist(),
-                     "command": ours["command"], "summary": ours["summary"], "stats": ours["stats"]},
+            "seeds": SEEDS, "compare_seeds": per_seed,
+            "ours": {"t": ours["t"].tolist(), "relmse": ours["relmse"].tolist(),
+                     "runs": [{"seed": S.CFG["seed"] + k, "t": o["t"].tolist(), "n": o["n"].tolist(),
+                               "relmse": o["relmse"].tolist(), "command": o["command"],
+                               "summary": o["summary"], "stats": o["stats"]}
+                              for k, o in enumerate(ours_runs)]},
             "mitsuba": {k: {"runs": c["runs"], "stats": c["stats"], "version": c["version"],
                             "load": c["load"]}
                         for k, c in curves.items()},
+            "mitsuba_best_seeds": [{"seed": SEED + k, "runs": c["runs"], "stats": c["stats"]}
+                                   for k, c in enumerate(best_runs)],
+            "mitsuba_best_mean": mits["runs"],
             "reference": {"exr": S.rel(ref), "relmse_est": ref_meta["relmse_est"]}}
         S.log(f"{name}: Mitsuba's best {best}; ours/its {[m['ratio'] for m in cmp_['at_mitsuba_times']]}, "
               f"its time/ours {cmp_['time_geomean']}")

@@ -368,10 +368,11 @@ def load_series(errjson, ref_meta):
             "job": job}
 
 
-def study_run(name, scene, ref, ref_meta, tag, spp, adaptive, workers, threads, extra=()):
+def study_run(name, scene, ref, ref_meta, tag, spp, adaptive, workers, threads, extra=(), seed=None):
     out = os.path.join(RUNS, f"{name}-{tag}.exr")
     os.makedirs(os.path.dirname(out), exist_ok=True)
-    cmd = vb_cmd(scene, out, spp, adaptive, CFG["seed"], workers, threads, extra, ref)
+    cmd = vb_cmd(scene, out, spp, adaptive, CFG["seed"] if seed is None else seed, workers, threads,
+                 extra, ref)
     best = None
     for attempt in range(2):
         log(f"{name} {tag}: {adaptive}, max {spp} spp {' '.join(extra)}")
