@@ -61,9 +61,29 @@ static inline float trilist_min4(__m128 v)
 #define KFIX trilist_avx512_fix
 #define KEDGES trilist_edges16
 #define KTARGET "avx512f"
-#define KMASK(m) ((unsigned)_mm512_test_epi32_mask((__m512i)(m), (__m512i)(m)))
+#define KMASK(m) ((unsigned)(m))
 #define KLANEMIN(v) trilist_min16((__m512)(v))
+#define KM __mmask16
+#define KGE(a, b) _mm512_cmp_ps_mask((__m512)(a), (__m512)(b), _CMP_GE_OQ)
+#define KLE(a, b) _mm512_cmp_ps_mask((__m512)(a), (__m512)(b), _CMP_LE_OQ)
+#define KGT(a, b) _mm512_cmp_ps_mask((__m512)(a), (__m512)(b), _CMP_GT_OQ)
+#define KLT(a, b) _mm512_cmp_ps_mask((__m512)(a), (__m512)(b), _CMP_LT_OQ)
+#define KEQ(a, b) _mm512_cmp_ps_mask((__m512)(a), (__m512)(b), _CMP_EQ_OQ)
+#define KNE(a, b) _mm512_cmp_ps_mask((__m512)(a), (__m512)(b), _CMP_NEQ_UQ)
+#define KIGE(a, b) _mm512_cmp_epi32_mask((__m512i)(a), (__m512i)(b), _MM_CMPINT_NLT)
+#define KSELF(m, a, b) ((KVF)_mm512_mask_blend_ps((m), (__m512)(b), (__m512)(a)))
+#define KSELI(m, a, b) ((KVI)_mm512_mask_blend_epi32((m), (__m512i)(b), (__m512i)(a)))
 #include "trilist_kernel.inc"
+#undef KM
+#undef KGE
+#undef KLE
+#undef KGT
+#undef KLT
+#undef KEQ
+#undef KNE
+#undef KIGE
+#undef KSELF
+#undef KSELI
 #undef KW
 #undef KNAME
 #undef KNAME2
@@ -85,6 +105,18 @@ static inline float trilist_min4(__m128 v)
 #define KTARGET "avx2"
 #define KMASK(m) ((unsigned)_mm256_movemask_ps((__m256)(m)))
 #define KLANEMIN(v) trilist_min8((__m256)(v))
+/* (comparisons as GCC's vector extensions give them, in this kernel and
+ * the portable one) */
+#define KM KVI
+#define KGE(a, b) ((a) >= (b))
+#define KLE(a, b) ((a) <= (b))
+#define KGT(a, b) ((a) > (b))
+#define KLT(a, b) ((a) < (b))
+#define KEQ(a, b) ((a) == (b))
+#define KNE(a, b) ((a) != (b))
+#define KIGE(a, b) ((a) >= (b))
+#define KSELF(m, a, b) ((KVF)(((KVI)(a) & (m)) | ((KVI)(b) & ~(m))))
+#define KSELI(m, a, b) (((a) & (m)) | ((b) & ~(m)))
 #include "trilist_kernel.inc"
 #undef KW
 #undef KNAME
@@ -108,6 +140,16 @@ static inline float trilist_min4(__m128 v)
 #define KMASK(m) ((unsigned)_mm_movemask_ps((__m128)(m)))
 #define KLANEMIN(v) trilist_min4((__m128)(v))
 #include "trilist_kernel.inc"
+#undef KM
+#undef KGE
+#undef KLE
+#undef KGT
+#undef KLT
+#undef KEQ
+#undef KNE
+#undef KIGE
+#undef KSELF
+#undef KSELI
 #undef KW
 #undef KNAME
 #undef KNAME2
