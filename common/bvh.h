@@ -27,7 +27,7 @@
 
 typedef struct bvh bvh_t;
 
-/* 1 if this host runs the traversal (AVX2); Embree's own is used
+/* 1 if this host runs the traversal (AVX2 and FMA); Embree's own is used
  * otherwise. */
 int bvh_supported(void);
 

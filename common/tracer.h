@@ -62,8 +62,10 @@
  * (rng.h, rng_sobol_partner); 14 since Russian roulette spares a path
  * until its throughput falls below the scene's rr_threshold
  * (SCENE_RR_THRESHOLD, 1/4), where it had played on the throughput itself,
- * and caps survival at its rr_cap (SCENE_RR_CAP, 0.99, was 0.95). */
-#define TRACER_VERSION 14
+ * and caps survival at its rr_cap (SCENE_RR_CAP, 0.99, was 0.95); 15
+ * since the watertight triangle test shears a vertex with one rounding
+ * (a fused multiply-add: trilist_kernel.inc, bvh_kernel.inc). */
+#define TRACER_VERSION 15
 /* Russian roulette starts after this many bounces unless the scene says
  * otherwise (scene_t.rr_depth; as Mitsuba 3's default rr_depth). */
 #define TRACER_RR_DEPTH SCENE_RR_DEPTH

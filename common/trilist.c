@@ -53,6 +53,18 @@ static inline float trilist_min4(__m128 v)
     return _mm_cvtss_f32(m);
 }
 
+/* fmaf lane by lane: the portable kernel's fused multiply-add (a
+ * correctly rounded function, so the same bits as the wider kernels'
+ * instruction, in software where the host has none) */
+typedef float trilist_vf4 __attribute__((vector_size(16)));
+static inline trilist_vf4 trilist_fma4(trilist_vf4 a, trilist_vf4 b, trilist_vf4 c)
+{
+    trilist_vf4 r;
+    for (int j = 0; j < 4; j++)
+        r[j] = fmaf(a[j], b[j], c[j]);
+    return r;
+}
+
 #define KVF trilist_vf16
 #define KVI trilist_vi16
 #define KW 16
@@ -63,6 +75,7 @@ static inline float trilist_min4(__m128 v)
 #define KTARGET "avx512f"
 #define KMASK(m) ((unsigned)(m))
 #define KLANEMIN(v) trilist_min16((__m512)(v))
+#define KFMA(a, b, c) ((KVF)_mm512_fmadd_ps((__m512)(a), (__m512)(b), (__m512)(c)))
 #define KM __mmask16
 #define KGE(a, b) _mm512_cmp_ps_mask((__m512)(a), (__m512)(b), _CMP_GE_OQ)
 #define KLE(a, b) _mm512_cmp_ps_mask((__m512)(a), (__m512)(b), _CMP_LE_OQ)
@@ -74,6 +87,7 @@ static inline float trilist_min4(__m128 v)
 #define KSELF(m, a, b) ((KVF)_mm512_mask_blend_ps((m), (__m512)(b), (__m512)(a)))
 #define KSELI(m, a, b) ((KVI)_mm512_mask_blend_epi32((m), (__m512i)(b), (__m512i)(a)))
 #include "trilist_kernel.inc"
+#undef KFMA
 #undef KM
 #undef KGE
 #undef KLE
@@ -102,9 +116,10 @@ static inline float trilist_min4(__m128 v)
 #define KNAME2 trilist_avx2_pair
 #define KFIX trilist_avx2_fix
 #define KEDGES trilist_edges8
-#define KTARGET "avx2"
+#define KTARGET "avx2,fma"
 #define KMASK(m) ((unsigned)_mm256_movemask_ps((__m256)(m)))
 #define KLANEMIN(v) trilist_min8((__m256)(v))
+#define KFMA(a, b, c) ((KVF)_mm256_fmadd_ps((__m256)(a), (__m256)(b), (__m256)(c)))
 /* (comparisons as GCC's vector extensions give them, in this kernel and
  * the portable one) */
 #define KM KVI
@@ -118,6 +133,7 @@ static inline float trilist_min4(__m128 v)
 #define KSELF(m, a, b) ((KVF)(((KVI)(a) & (m)) | ((KVI)(b) & ~(m))))
 #define KSELI(m, a, b) (((a) & (m)) | ((b) & ~(m)))
 #include "trilist_kernel.inc"
+#undef KFMA
 #undef KW
 #undef KNAME
 #undef KNAME2
@@ -139,7 +155,9 @@ static inline float trilist_min4(__m128 v)
 #define KEDGES trilist_edges4
 #define KMASK(m) ((unsigned)_mm_movemask_ps((__m128)(m)))
 #define KLANEMIN(v) trilist_min4((__m128)(v))
+#define KFMA(a, b, c) trilist_fma4((a), (b), (c))
 #include "trilist_kernel.inc"
+#undef KFMA
 #undef KM
 #undef KGE
 #undef KLE
@@ -217,7 +235,7 @@ int trilist_use_kernel(trilist_t *l, const char *name)
             continue;
         /* __builtin_cpu_supports wants a literal */
         int ok = i == 0   ? __builtin_cpu_supports("avx512f")
-                 : i == 1 ? __builtin_cpu_supports("avx2")
+                 : i == 1 ? __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")
                           : __builtin_cpu_supports("sse2");
         if (!ok)
             return -1;
