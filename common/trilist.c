@@ -87,27 +87,6 @@ static inline trilist_vf4 trilist_fma4(trilist_vf4 a, trilist_vf4 b, trilist_vf4
 #define KSELF(m, a, b) ((KVF)_mm512_mask_blend_ps((m), (__m512)(b), (__m512)(a)))
 #define KSELI(m, a, b) ((KVI)_mm512_mask_blend_epi32((m), (__m512i)(b), (__m512i)(a)))
 #include "trilist_kernel.inc"
-#undef KFMA
-#undef KM
-#undef KGE
-#undef KLE
-#undef KGT
-#undef KLT
-#undef KEQ
-#undef KNE
-#undef KIGE
-#undef KSELF
-#undef KSELI
-#undef KW
-#undef KNAME
-#undef KNAME2
-#undef KFIX
-#undef KEDGES
-#undef KTARGET
-#undef KVF
-#undef KVI
-#undef KMASK
-#undef KLANEMIN
 
 #define KVF trilist_vf8
 #define KVI trilist_vi8
@@ -120,30 +99,7 @@ static inline trilist_vf4 trilist_fma4(trilist_vf4 a, trilist_vf4 b, trilist_vf4
 #define KMASK(m) ((unsigned)_mm256_movemask_ps((__m256)(m)))
 #define KLANEMIN(v) trilist_min8((__m256)(v))
 #define KFMA(a, b, c) ((KVF)_mm256_fmadd_ps((__m256)(a), (__m256)(b), (__m256)(c)))
-/* (comparisons as GCC's vector extensions give them, in this kernel and
- * the portable one) */
-#define KM KVI
-#define KGE(a, b) ((a) >= (b))
-#define KLE(a, b) ((a) <= (b))
-#define KGT(a, b) ((a) > (b))
-#define KLT(a, b) ((a) < (b))
-#define KEQ(a, b) ((a) == (b))
-#define KNE(a, b) ((a) != (b))
-#define KIGE(a, b) ((a) >= (b))
-#define KSELF(m, a, b) ((KVF)(((KVI)(a) & (m)) | ((KVI)(b) & ~(m))))
-#define KSELI(m, a, b) (((a) & (m)) | ((b) & ~(m)))
 #include "trilist_kernel.inc"
-#undef KFMA
-#undef KW
-#undef KNAME
-#undef KNAME2
-#undef KFIX
-#undef KEDGES
-#undef KTARGET
-#undef KVF
-#undef KVI
-#undef KMASK
-#undef KLANEMIN
 
 /* The portable kernel: SSE2, which every x86-64 host has. */
 #define KVF trilist_vf4
@@ -157,26 +113,6 @@ static inline trilist_vf4 trilist_fma4(trilist_vf4 a, trilist_vf4 b, trilist_vf4
 #define KLANEMIN(v) trilist_min4((__m128)(v))
 #define KFMA(a, b, c) trilist_fma4((a), (b), (c))
 #include "trilist_kernel.inc"
-#undef KFMA
-#undef KM
-#undef KGE
-#undef KLE
-#undef KGT
-#undef KLT
-#undef KEQ
-#undef KNE
-#undef KIGE
-#undef KSELF
-#undef KSELI
-#undef KW
-#undef KNAME
-#undef KNAME2
-#undef KFIX
-#undef KEDGES
-#undef KVF
-#undef KVI
-#undef KMASK
-#undef KLANEMIN
 
 trilist_t *trilist_new(const float *positions, const uint32_t *indices, size_t count)
 {
