@@ -56,10 +56,9 @@ static inline float trilist_min4(__m128 v)
 /* fmaf lane by lane: the portable kernel's fused multiply-add (a
  * correctly rounded function, so the same bits as the wider kernels'
  * instruction, in software where the host has none) */
-typedef float trilist_vf4 __attribute__((vector_size(16)));
-static inline trilist_vf4 trilist_fma4(trilist_vf4 a, trilist_vf4 b, trilist_vf4 c)
+static inline __m128 trilist_fma4(__m128 a, __m128 b, __m128 c)
 {
-    trilist_vf4 r;
+    __m128 r;
     for (int j = 0; j < 4; j++)
         r[j] = fmaf(a[j], b[j], c[j]);
     return r;
@@ -111,7 +110,7 @@ static inline trilist_vf4 trilist_fma4(trilist_vf4 a, trilist_vf4 b, trilist_vf4
 #define KEDGES trilist_edges4
 #define KMASK(m) ((unsigned)_mm_movemask_ps((__m128)(m)))
 #define KLANEMIN(v) trilist_min4((__m128)(v))
-#define KFMA(a, b, c) trilist_fma4((a), (b), (c))
+#define KFMA(a, b, c) ((KVF)trilist_fma4((__m128)(a), (__m128)(b), (__m128)(c)))
 #include "trilist_kernel.inc"
 
 trilist_t *trilist_new(const float *positions, const uint32_t *indices, size_t count)

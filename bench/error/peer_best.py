@@ -147,7 +147,7 @@ def best_sampler(curves):
 
 def mean_mitsuba(sweeps):
     """Sweeps of one sampler with different seeds as one curve: each count's
-    relMSE and seconds averaged."""
+    relMSE and seconds averaged (one sweep: itself)."""
     runs = [{"spp": q[0]["spp"], "seconds": float(np.mean([x["seconds"] for x in q])),
              "relmse": float(np.mean([x["relmse"] for x in q])),
              "relmse_seeds": [x["relmse"] for x in q]}
@@ -158,7 +158,8 @@ def mean_mitsuba(sweeps):
 
 def mean_ours(runs):
     """Our runs of different seeds as one curve: relMSE averaged at the
-    first run's times that every run covers (log-log interpolation)."""
+    first run's times that every run covers (log-log interpolation; one
+    run: its own points)."""
     lo = max(float(x["t"][0]) for x in runs)
     hi = min(float(x["t"][-1]) for x in runs)
     t = [float(v) for v in runs[0]["t"] if lo <= v <= hi]
@@ -317,8 +318,7 @@ def main():
         curves = {k: mitsuba_sweep(flat, scene, k, r, ref_meta) for k in SAMPLERS}
         best, score = best_sampler(curves)
         best_runs = [curves[best]] + [mitsuba_sweep(flat, scene, best, r, ref_meta, k) for k in range(1, SEEDS)]
-        ours = mean_ours(ours_runs) if SEEDS > 1 else ours_runs[0]
-        mits = mean_mitsuba(best_runs) if SEEDS > 1 else curves[best]
+        ours, mits = mean_ours(ours_runs), mean_mitsuba(best_runs)
         cmp_ = compare(ours, mits)
         cmp_loaded = compare_loaded(ours, mits)
         per_seed = [compare(o, m) for o, m in zip(ours_runs, best_runs)]
