@@ -71,8 +71,9 @@ static const char usage_head[] =
     "  delete JOB        cancel a job if it runs, then remove it, its image and its\n"
     "                    saved state from the master\n"
     "  jobs              all jobs\n"
-    "  workers           connected workers: host, threads, rays/s, tasks done, backup\n"
-    "                    copies run, state (breaker: no tasks until it answers one)\n"
+    "  workers           connected workers: host, threads, rays/s, tasks done, busy\n"
+    "                    seconds, backup copies run, tasks held (sent, not yet\n"
+    "                    answered), state (breaker: no tasks until it answers one)\n"
     "  serve [--master EP] [--listen ADDR:PORT]   a web dashboard and Prometheus metrics\n"
     "                    (/metrics) at http://127.0.0.1:8080/; --listen another address\n"
     "                    (0.0.0.0:8080) serves other machines too: anybody reaching it\n"
@@ -1004,18 +1005,19 @@ static int run_fetch(control_t *c, const char *cmd, const args_t *a, unsigned lo
 
 static void print_workers(const cJSON *list)
 {
-    printf("%-24s %7s %12s %12s %10s %8s %8s\n", "host", "threads", "rays/s", "tasks done",
-           "busy s", "backups", "state");
+    printf("%-24s %7s %12s %12s %10s %8s %6s %8s\n", "host", "threads", "rays/s", "tasks done",
+           "busy s", "backups", "held", "state");
     const cJSON *w;
     cJSON_ArrayForEach(w, list)
     {
         char r[32];
         /* "breaker": its leases kept running out; no task until it answers */
         const char *state = json_str(w, "state");
-        printf("%-24s %7.0f %12s %12.0f %10.1f %8.0f %8s\n", json_str(w, "host"),
+        /* held: tasks it has been sent and not answered */
+        printf("%-24s %7.0f %12s %12.0f %10.1f %8.0f %6.0f %8s\n", json_str(w, "host"),
                json_num(w, "threads"), render_si(json_num(w, "rays_per_second"), r, sizeof r),
                json_num(w, "tasks_done"), json_num(w, "busy_seconds"), json_num(w, "backups"),
-               *state ? state : "ok");
+               json_num(w, "tasks_outstanding"), *state ? state : "ok");
     }
 }
 
